@@ -1,0 +1,188 @@
+"""Information-form Kalman filtering, batched over nodes.
+
+Every filter in dkfsim -- each node's buffered window filter (DESIGN.md
+section 3, the paper's Algorithms 1 and 2) and the centralized baseline --
+is the same recursion: predict with ``Phi, Q``, then add the information
+``Omega = sum omega_m``, ``Theta = sum theta_m`` of the contributions held::
+
+    Pp = Phi P Phi' + Q                    # paper eq. (predict_delay_P)
+    P  = (Pp^-1 + Omega)^-1                # paper eq. (COV_delay)
+    x  = P (Pp^-1 Phi x + Theta)           # paper eq. (COV_state)
+
+We never form ``Pp^-1``: with ``M = I + Pp Omega`` (eigenvalues >= 1, so well
+conditioned whenever ``Pp`` is), ``G = M^-1 = P Pp^-1`` (the "I - K H" of the
+covariance form), ``P = G Pp`` and ``x = M^-1 (xp + Pp Theta)``: one batched
+linear solve per row for all nodes at once.  ``G`` is also what the fusion
+cross-covariance recursion needs (:mod:`dkfsim.fusion`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+
+def information_step(Phi, Q, x_prev, P_prev, Omega, Theta):
+    """One predict/update for a batch of filters.
+
+    :param x_prev: (b, nx) previous estimates; ``P_prev`` (b, nx, nx).
+    :param Omega: (b, nx, nx) information matrices held for this row.
+    :param Theta: (b, nx) information vectors held for this row.
+    :returns: ``x, P, G`` with ``G = P Pp^-1``.
+    """
+    nx = Phi.shape[0]
+    xp = x_prev @ Phi.T
+    Pp = Phi @ P_prev @ Phi.T + Q
+    M = Pp @ Omega
+    M += np.eye(nx)
+    rhs = np.empty(Pp.shape[:-1] + (nx + 1,))
+    rhs[..., :nx] = np.eye(nx)
+    rhs[..., nx] = xp + np.einsum("bij,bj->bi", Pp, Theta)
+    sol = np.linalg.solve(M, rhs)
+    G = sol[..., :nx]
+    x = sol[..., nx]
+    P = G @ Pp
+    P = 0.5 * (P + np.swapaxes(P, -1, -2))
+    return x, P, G
+
+
+def centralized_filter(Phi, Q, x0, P0, omega_total, theta_total):
+    """The centralized information filter that holds every contribution on time.
+
+    :param omega_total: (nx, nx) sum of all sensors' ``omega``.
+    :param theta_total: (K, nx) sum over sensors of ``theta`` per row.
+    :returns: ``x`` (K, nx) and ``P`` (K, nx, nx).
+    """
+    K, nx = theta_total.shape
+    xs = np.empty((K, nx))
+    Ps = np.empty((K, nx, nx))
+    x = np.asarray(x0, float)[None]
+    P = np.asarray(P0, float)[None]
+    Om = omega_total[None]
+    for r in range(K):
+        x, P, _ = information_step(Phi, Q, x, P, Om, theta_total[r][None])
+        xs[r] = x[0]
+        Ps[r] = P[0]
+    return xs, Ps
+
+
+@dataclass
+class WindowState:
+    """Ring buffers of the last ``L + 1`` rows for all nodes.
+
+    Slot ``r % (L + 1)`` holds row ``r``: its information sums (``Omega``,
+    ``Theta``, accumulated as contributions arrive), which origins each node
+    holds (``held``), and the estimates last computed for it (``x``, ``P``,
+    ``G``).  ``L + 1`` slots because the window of rows ``k-L .. k-1`` starts
+    from the final estimate of row ``k-L-1``.
+    """
+
+    x: np.ndarray       # (S, n, nx)
+    P: np.ndarray       # (S, n, nx, nx)
+    G: np.ndarray       # (S, n, nx, nx)
+    Omega: np.ndarray   # (S, n, nx, nx)
+    Theta: np.ndarray   # (S, n, nx)
+    held: np.ndarray    # (S, n, n) bool: held[slot, i, o]
+
+    @classmethod
+    def empty(cls, L: int, n: int, nx: int) -> "WindowState":
+        S = L + 1
+        return cls(
+            x=np.zeros((S, n, nx)),
+            P=np.zeros((S, n, nx, nx)),
+            G=np.zeros((S, n, nx, nx)),
+            Omega=np.zeros((S, n, nx, nx)),
+            Theta=np.zeros((S, n, nx)),
+            held=np.zeros((S, n, n), dtype=bool),
+        )
+
+    def reset_slot(self, slot: int) -> None:
+        self.Omega[slot] = 0.0
+        self.Theta[slot] = 0.0
+        self.held[slot] = False
+
+
+class WindowFilter:
+    """All nodes' buffered window filters (the anti-delay DKF's Step 1).
+
+    The filter itself holds no network logic: the exchange protocol reports
+    each contribution a node newly holds through :meth:`add`, and the tick
+    driver calls :meth:`update` once per tick after every delivery at that
+    instant.  ``update`` re-runs rows from the earliest row that changed
+    since the last tick (an optimisation DESIGN.md allows because the
+    result is identical), batched over nodes.
+
+    :param A: (n, n) effective origin weights ``a_io`` (ones for unit weights).
+    """
+
+    def __init__(self, Phi, Q, x0, P0, omega, theta, A, L):
+        self.Phi = np.asarray(Phi, float)
+        self.Q = np.asarray(Q, float)
+        self.omega = omega          # (n, nx, nx)
+        self.theta = theta          # (K, n, nx)
+        self.A = np.asarray(A, float)
+        self.L = int(L)
+        self.S = self.L + 1
+        n, nx = omega.shape[0], omega.shape[1]
+        self.n, self.nx = n, nx
+        self.state = WindowState.empty(self.L, n, nx)
+        self.x0 = np.broadcast_to(np.asarray(x0, float), (n, nx)).copy()
+        self.P0 = np.broadcast_to(np.asarray(P0, float), (n, nx, nx)).copy()
+        self._pend_i: list[int] = []
+        self._pend_o: list[int] = []
+        self._pend_r: list[int] = []
+
+    # -- contributions -----------------------------------------------------
+    def add(self, node: int, origin: int, row: int) -> None:
+        """Node ``node`` now holds ``origin``'s contribution for ``row``."""
+        self._pend_i.append(node)
+        self._pend_o.append(origin)
+        self._pend_r.append(row)
+
+    def _apply_pending(self) -> int | None:
+        """Fold pending contributions into the ring; earliest changed row."""
+        if not self._pend_i:
+            return None
+        i = np.array(self._pend_i, dtype=np.intp)
+        o = np.array(self._pend_o, dtype=np.intp)
+        r = np.array(self._pend_r, dtype=np.intp)
+        self._pend_i, self._pend_o, self._pend_r = [], [], []
+        slot = r % self.S
+        a = self.A[i, o]
+        st = self.state
+        st.held[slot, i, o] = True
+        np.add.at(st.Omega, (slot, i), a[:, None, None] * self.omega[o])
+        np.add.at(st.Theta, (slot, i), a[:, None] * self.theta[r, o])
+        return int(r.min())
+
+    # -- the tick ------------------------------------------------------------
+    def begin_row(self, row: int) -> None:
+        """Clear the ring slot that ``row`` (a new row) will use."""
+        self.state.reset_slot(row % self.S)
+
+    def update(self, k: int, on_row=None) -> int:
+        """Run the window at tick ``k`` (1-based) for rows ``k-L .. k-1``.
+
+        :param on_row: optional callback ``on_row(row, slot, prev_slot)`` after
+            each recomputed row (the fusion recursion hooks in here);
+            ``prev_slot`` is None when the row starts from the prior.
+        :returns: the first row recomputed.
+        """
+        changed = self._apply_pending()
+        last = k - 1
+        start = last if changed is None else min(changed, last)
+        start = max(start, k - self.L, 0)
+        st = self.state
+        for row in range(start, last + 1):
+            slot = row % self.S
+            if row == 0:
+                xp, Pp, prev = self.x0, self.P0, None
+            else:
+                prev = (row - 1) % self.S
+                xp, Pp = st.x[prev], st.P[prev]
+            x, P, G = information_step(self.Phi, self.Q, xp, Pp, st.Omega[slot], st.Theta[slot])
+            st.x[slot], st.P[slot], st.G[slot] = x, P, G
+            if on_row is not None:
+                on_row(row, slot, prev)
+        return start

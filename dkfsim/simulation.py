@@ -1,0 +1,207 @@
+"""One run: scenario -> network -> protocol -> filter -> fusion -> results.
+
+:func:`run` wires the pieces together inside one SimPy environment and drives
+the ticks (DESIGN.md section 2): at ``t_k`` every sensor measures and
+offers its contribution to the exchange; deliveries and relays at ``t_k``
+follow; then, as an event of lower priority than all of them, every node's
+window filter updates at once (batched), fusion runs, and the row that
+leaves the window becomes final.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+
+import numpy as np
+import simpy
+from simpy.events import NORMAL
+
+from .errors import ScenarioError
+from .filter import WindowFilter, centralized_filter
+from .fusion import FUSERS, CrossCovariance
+from .network import PRIORITY_UPDATE, Network, Scheduled
+from .protocol import PROTOCOLS
+from .results import RunResult, resolve_save_mode
+from .system import LinearGaussianSystem
+from .topology import exchange_graph, paper_weights
+
+
+def build_system(scenario) -> LinearGaussianSystem:
+    return LinearGaussianSystem(
+        Phi=scenario.model.Phi_matrix(),
+        Q=scenario.model.Q_matrix(),
+        x0_mean=scenario.prior.mean_vector(),
+        P0=scenario.prior.cov_matrix(),
+        H=tuple(s.H_matrix() for s in scenario.sensors),
+        R=tuple(s.R_matrix() for s in scenario.sensors),
+        names=tuple(s.name for s in scenario.sensors),
+        T_ns=scenario.T_ns,
+    )
+
+
+def delay_bound_steps(scenario, arcs) -> int | None:
+    """``d_t``: the largest per-hop delay in steps over all links (None if unbounded).
+
+    ``links.d_t``, when given, is the user's assumption and wins.
+    """
+    if scenario.links.d_t is not None:
+        return int(scenario.links.d_t)
+    T_ns = scenario.T_ns
+    bounds = [scenario.link_spec(u, v).latency.bound_steps(T_ns) for u, v in arcs]
+    if not bounds:
+        return 0
+    if any(b is None for b in bounds):
+        return None
+    return max(bounds)
+
+
+def resolve_buffer_length(scenario, arcs, d_g: int) -> tuple[int, int | None]:
+    """The buffer length ``L`` of DESIGN.md section 3 and the ``d_t`` behind it."""
+    d_t = delay_bound_steps(scenario, arcs)
+    choice = scenario.buffer_length
+    if isinstance(choice, int) and not isinstance(choice, bool):
+        return int(choice), d_t
+    if d_t is None:
+        raise ScenarioError(
+            "buffer_length: %s needs a delay bound, but the latency model is unbounded; "
+            "set links.d_t (the delay bound in steps to design for) or an integer buffer_length" % choice,
+            source=getattr(scenario, "source", None), path="buffer_length")
+    if choice == "paper":
+        return max(d_t, 1), d_t
+    return d_t * d_g + 1, d_t
+
+
+class Simulation:
+    """The runtime state of one run (configuration stays in the scenario)."""
+
+    def __init__(self, scenario, *, save: str = "auto", progress=None):
+        self.scenario = scenario
+        self.K = K = int(scenario.steps)
+        self.seed = int(scenario.seed)
+        self.system = sys_ = build_system(scenario)
+        self.exchange_graph = xg = exchange_graph(scenario)
+        self.L, self.d_t = resolve_buffer_length(scenario, xg.arcs, xg.d_g)
+        n, nx = sys_.n, sys_.nx
+        self.save_mode = resolve_save_mode(save, n, K)
+        self.progress = progress
+
+        # Everything random but the network is drawn up front, from its own streams.
+        self.truth = sys_.simulate_truth(K, self.seed)
+        self.ys = sys_.simulate_measurements(self.truth, self.seed)
+        self.theta = sys_.contributions(self.ys)
+        self.A = paper_weights(xg.graph) if scenario.weights == "paper" else np.ones((n, n))
+
+        self.window = WindowFilter(sys_.Phi, sys_.Q, sys_.x0_mean, sys_.P0,
+                                   sys_.omega, self.theta, self.A, self.L)
+        self.fusion = scenario.fusion
+        self.xcov = (CrossCovariance(self.window, sys_.P0, sys_.omega_factor, sys_.column_sensor)
+                     if self.fusion != "none" else None)
+
+        self.env = simpy.Environment()
+        self.arrival = np.full((n, n, K), np.inf) if self.save_mode == "full" else None
+        self.exchange = PROTOCOLS[scenario.protocol](self.env, n, self.window, arrival=self.arrival)
+        self.network = Network(self.env, xg.arcs, scenario.link_spec, self.seed,
+                               sys_.T_ns, self.exchange.receive)
+        self.exchange.attach(self.network)
+
+        self.x_local = np.empty((K, n, nx))
+        self.P_local = np.empty((K, n, nx, nx))
+        self.x_final = np.empty((K, n, nx))
+        if self.xcov is not None:
+            self.x_fused = np.empty((K, nx))
+            self.P_fused = np.empty((K, nx, nx))
+        self.k = 0
+
+    # -- the tick driver ---------------------------------------------------------
+    def _measure(self, _event) -> None:
+        self.k += 1
+        row = self.k - 1
+        self.exchange.open_row(row)
+        self.window.begin_row(row)
+        self.exchange.measure(row)
+        Scheduled(self.env, self._update, PRIORITY_UPDATE)
+
+    def _update(self, _event) -> None:
+        k, L, w = self.k, self.L, self.window
+        w.update(k, on_row=self.xcov.on_row if self.xcov is not None else None)
+        row = k - 1
+        slot = row % w.S
+        st = w.state
+        self.x_local[row] = st.x[slot]
+        self.P_local[row] = st.P[slot]
+        if self.xcov is not None:
+            self.x_fused[row], self.P_fused[row] = FUSERS[self.fusion](self.xcov.Xi[slot], st.x[slot])
+        done = k - L                      # this row leaves the window: final
+        if done >= 0:
+            self.x_final[done] = st.x[done % w.S]
+            self.exchange.close_row(done)
+        if self.progress is not None and (k % max(1, self.K // 100) == 0 or k == self.K):
+            self.progress(k, self.K)
+        if k < self.K:
+            Scheduled(self.env, self._measure, NORMAL, self.system.T_ns)
+
+    def run(self) -> RunResult:
+        t0 = time.perf_counter()
+        Scheduled(self.env, self._measure, NORMAL, self.system.T_ns)
+        self.env.run(until=self.K * self.system.T_ns + 1)
+        # Rows still in the window at the end were never final: keep their last value.
+        st = self.window.state
+        for row in range(max(self.K - self.L + 1, 0), self.K):
+            self.x_final[row] = st.x[row % self.window.S]
+        wall = time.perf_counter() - t0
+        return self._result(wall)
+
+    def _result(self, wall: float) -> RunResult:
+        sys_, K = self.system, self.K
+        arrays = {
+            "t": sys_.times(K),
+            "truth": self.truth,
+            "Phi": sys_.Phi, "Q": sys_.Q, "x0_mean": sys_.x0_mean, "P0": sys_.P0,
+        }
+        for i in range(sys_.n):
+            arrays[f"H_{i}"] = sys_.H[i]
+            arrays[f"R_{i}"] = sys_.R[i]
+            arrays[f"y_{i}"] = self.ys[i]
+        arrays["buffer_length"] = np.array(self.L)
+        arrays["weights_A"] = self.A
+        if self.arrival is not None:
+            arrays["arrival"] = self.arrival
+        arrays["x_local"] = self.x_local
+        arrays["P_local"] = self.P_local
+        arrays["x_final"] = self.x_final
+        if self.xcov is not None:
+            arrays["x_fused"] = self.x_fused
+            arrays["P_fused"] = self.P_fused
+        if "centralized" in self.scenario.baselines:
+            xc, Pc = centralized_filter(sys_.Phi, sys_.Q, sys_.x0_mean, sys_.P0,
+                                        sys_.omega.sum(axis=0), self.theta.sum(axis=1))
+            arrays["x_centralized"] = xc
+            arrays["P_centralized"] = Pc
+        counts = self.network.counts()
+        counts.update(self.exchange.counts())
+        info = {
+            "buffer_length": self.L,
+            "d_t": self.d_t,
+            "d_g": self.exchange_graph.d_g,
+            "n_links": len(self.network.links),
+            "wall_time_s": wall,
+            "save": self.save_mode,
+        }
+        return RunResult(self.scenario, arrays, counts, info)
+
+
+def run(scenario, *, seed: int | None = None, steps: int | None = None,
+        save: str = "auto", progress=None) -> RunResult:
+    """Simulate one scenario and return its :class:`~dkfsim.results.RunResult`.
+
+    ``seed`` and ``steps`` override the scenario's (the same as ``--set``).
+    """
+    updates = {}
+    if seed is not None:
+        updates["seed"] = int(seed)
+    if steps is not None:
+        updates["steps"] = int(steps)
+    if updates:
+        scenario = scenario.model_copy(update=updates)
+    return Simulation(scenario, save=save, progress=progress).run()
