@@ -1,0 +1,104 @@
+#!/usr/bin/env python
+"""Benchmarks of dkfsim, printed as ratios measured in one process.
+
+1. ``paper_case1`` for 1000 ticks (fusion included): wall time, the number of
+   packet events, the time bare SimPy needs for the same number of
+   ``timeout`` events with a no-op callback, and their ratio.
+2. A scaling table for random trees of 12, 50 and 200 nodes: ticks per
+   second and packets per tick, with per-tick cost normalised by the work
+   (nodes x window rows for filtering, links for packets).
+
+Usage: ``python tools/bench.py [--ticks 1000] [--sizes 12 50 200]``.
+Timing lives here, never in the tests.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from pathlib import Path
+
+import simpy
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+import dkfsim  # noqa: E402
+
+
+def bare_simpy(n_events: int, horizon: int) -> float:
+    """Seconds for SimPy to schedule and fire ``n_events`` timeouts with a callback."""
+    env = simpy.Environment()
+
+    def noop(_ev):
+        pass
+
+    per_step = max(1, n_events // horizon)
+
+    def source(env):
+        made = 0
+        while made < n_events:
+            for j in range(min(per_step, n_events - made)):
+                ev = env.timeout(j % 5)
+                ev.callbacks.append(noop)
+            made += per_step
+            yield env.timeout(1)
+
+    env.process(source(env))
+    t0 = time.perf_counter()
+    env.run()
+    return time.perf_counter() - t0
+
+
+def tree_scenario(n: int, ticks: int, fusion: str) -> dkfsim.Scenario:
+    base = dkfsim.load_scenario(ROOT / "scenarios" / "paper_case1.yaml")
+    d = base.to_dict()
+    d["name"] = f"random_tree_{n}"
+    d["steps"] = ticks
+    d["sensors"] = [{"name": f"s{i}", "H": [[1.0 if c == i % 3 else 0.0 for c in range(3)]], "R": [[1.0]]}
+                    for i in range(n)]
+    d["topology"] = {"directed": False, "generator": "random_tree", "params": {"seed": 7}}
+    d["fusion"] = fusion
+    return dkfsim.load_scenario(d)
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--ticks", type=int, default=1000)
+    ap.add_argument("--sizes", type=int, nargs="+", default=[12, 50, 200])
+    ap.add_argument("--scale-ticks", type=int, default=200, help="ticks per scaling run")
+    args = ap.parse_args(argv)
+
+    sc = dkfsim.load_scenario(ROOT / "scenarios" / "paper_case1.yaml", overrides=[f"steps={args.ticks}"])
+    dkfsim.run(sc, steps=50, save="estimates")          # warm-up (imports, caches)
+    t0 = time.perf_counter()
+    res = dkfsim.run(sc, save="estimates")
+    wall = time.perf_counter() - t0
+    events = res.counts["delivered"]
+    bare = bare_simpy(events, args.ticks)
+    print(f"paper_case1, {args.ticks} ticks, L = {res.info['buffer_length']}, fusion {sc.fusion}")
+    print(f"  wall time of the run          {wall:8.3f} s")
+    print(f"  packet events (deliveries)    {events:8d}  ({events / args.ticks:.1f} per tick)")
+    print(f"  bare SimPy, same # timeouts   {bare:8.3f} s")
+    print(f"  ratio run / bare SimPy        {wall / bare:8.1f} x")
+    print()
+    print("scaling on random trees (uniform_steps d_t = 4, L = d_t * d_g + 1)")
+    hdr = f"{'nodes':>6} {'fusion':>7} {'L':>4} {'ticks/s':>9} {'packets/tick':>13} {'us/(node*row)':>14} {'us/packet':>10}"
+    print(hdr)
+    for n in args.sizes:
+        for fusion in (["matrix", "none"] if n <= 50 else ["none"]):
+            s = tree_scenario(n, args.scale_ticks, fusion)
+            t0 = time.perf_counter()
+            r = dkfsim.run(s, save="summary")
+            w = time.perf_counter() - t0
+            L = r.info["buffer_length"]
+            per_tick = w / args.scale_ticks
+            pkts = r.counts["delivered"] / args.scale_ticks
+            print(f"{n:6d} {fusion:>7} {L:4d} {args.scale_ticks / w:9.1f} {pkts:13.1f} "
+                  f"{per_tick / (n * L) * 1e6:14.2f} {per_tick / max(pkts, 1) * 1e6:10.2f}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
