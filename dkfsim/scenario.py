@@ -1,0 +1,787 @@
+"""Scenario schema, loading, validation and ``--set`` overrides.
+
+A scenario is a YAML mapping (DESIGN.md section 6); :func:`load_scenario`
+reads it, applies ``dotted.key=value`` overrides to the raw mapping, and
+validates it into a frozen :class:`Scenario`.  *All* validation happens
+here, in one pass: field checks in the pydantic models, cross-field checks
+(shapes, graph, protocol, buffer) in ``Scenario._check_consistency``.  Every
+problem raises :class:`dkfsim.errors.ScenarioError` with a one-line message
+``<file or "<dict>">: <dotted.key.path>: <what is wrong>``.
+
+Decisions where DESIGN.md is silent:
+
+* Matrices are lists of lists.  A scalar is a 1x1 matrix and a flat list is
+  a single row (so ``H: [1, 0, 0]`` and ``R: 0.8`` work).  Vectors (the prior
+  mean) are flat lists; a scalar is a 1-vector and an n x 1 column is
+  flattened.  Entries must be finite numbers.
+* R and P0 must be symmetric positive definite, Q symmetric positive
+  semidefinite (tolerance ``1e-12 * max(1, max|eig|)``), symmetry exact up to
+  ``1e-9`` relative.
+* ``name`` defaults to the file's stem (``"unnamed"`` for a dict); sensor
+  names must be unique.  ``kind: constant_acceleration`` must not give
+  ``Phi``; ``kind: linear`` must.
+* ``fusion: null`` means ``none``.  Integers and booleans are strict (``steps:
+  3.0`` or ``directed: 1`` is an error); floats accept integers.
+* ``links.d_t``, when given, is *the* delay bound used for the buffer length,
+  even if the latency models have a smaller or larger one (so an
+  under-estimated bound can be studied).  Otherwise ``d_t`` is the largest
+  ``bound_steps`` over the links the protocol uses.  ``buffer_length: paper``
+  needs a bound too.
+* ``spanning_tree: true`` also applies to ``flood`` (flood then runs on the
+  same BFS spanning tree); it is an error on a directed topology.
+* The source file is remembered (``scenario.source``) but is not part of
+  ``to_dict``, the hash, or equality: two scenarios are equal when their
+  ``to_dict`` are.
+* The YAML loader rejects duplicate keys and reads ``1e-3`` as a float (YAML
+  1.1 would read it as a string).
+"""
+
+from __future__ import annotations
+
+import copy
+import hashlib
+import json
+import os
+import re
+from dataclasses import dataclass
+from decimal import Decimal
+from pathlib import Path
+from typing import Annotated, Any, Literal, Mapping, Sequence
+
+import networkx
+import numpy as np
+import yaml
+from pydantic import (AfterValidator, BeforeValidator, Field, PrivateAttr, ValidationError,
+                      ValidationInfo, field_validator, model_validator)
+
+from dkfsim.errors import ScenarioError
+from dkfsim.latency import (LATENCY_MODELS, Constant, LatencyBase, LatencyModel, StrictModel,
+                            custom_error, suggest)
+from dkfsim import topology as topo
+
+#: Baselines a scenario may ask for; extend this single tuple.
+KNOWN_BASELINES: tuple[str, ...] = ("centralized",)
+
+PROTOCOLS = ("tree", "flood")
+WEIGHTS = ("unit", "paper")
+FUSIONS = ("matrix", "diagonal", "none")
+MODEL_KINDS = ("constant_acceleration", "linear")
+
+_SYM_RTOL = 1e-9
+_EIG_TOL = 1e-12
+
+
+# =========================================================================== matrices
+def _number(x: Any) -> float:
+    if isinstance(x, bool) or not isinstance(x, (int, float, np.integer, np.floating)):
+        raise custom_error(f"entries must be numbers, got {x!r}")
+    value = float(x)
+    if not np.isfinite(value):
+        raise custom_error(f"entries must be finite, got {x!r}")
+    return value
+
+
+def _to_matrix(value: Any) -> tuple[tuple[float, ...], ...]:
+    if isinstance(value, np.ndarray):
+        value = value.tolist()
+    if isinstance(value, (list, tuple)):
+        if len(value) == 0:
+            raise custom_error("must not be empty")
+        if all(isinstance(row, (list, tuple)) for row in value):
+            rows = [tuple(_number(x) for x in row) for row in value]
+            widths = {len(r) for r in rows}
+            if len(widths) != 1:
+                raise custom_error(f"rows have different lengths {[len(r) for r in rows]}")
+            if 0 in widths:
+                raise custom_error("rows must not be empty")
+            return tuple(rows)
+        if any(isinstance(row, (list, tuple)) for row in value):
+            raise custom_error("mixes numbers and lists; write a list of rows")
+        return (tuple(_number(x) for x in value),)
+    if isinstance(value, dict) or value is None:
+        raise custom_error("must be a matrix (a list of rows), a flat list or a number")
+    return ((_number(value),),)
+
+
+def _to_vector(value: Any) -> tuple[float, ...]:
+    if isinstance(value, np.ndarray):
+        value = value.tolist()
+    if isinstance(value, (list, tuple)):
+        if len(value) == 0:
+            raise custom_error("must not be empty")
+        if all(isinstance(x, (list, tuple)) and len(x) == 1 for x in value):
+            value = [x[0] for x in value]
+        if any(isinstance(x, (list, tuple)) for x in value):
+            raise custom_error("must be a flat list of numbers")
+        return tuple(_number(x) for x in value)
+    if isinstance(value, dict) or value is None:
+        raise custom_error("must be a list of numbers")
+    return (_number(value),)
+
+
+Matrix = Annotated[tuple[tuple[float, ...], ...], BeforeValidator(_to_matrix)]
+Vector = Annotated[tuple[float, ...], BeforeValidator(_to_vector)]
+StrictInt = Annotated[int, Field(strict=True)]
+StrictBool = Annotated[bool, Field(strict=True)]
+
+
+def _shape(m: tuple[tuple[float, ...], ...]) -> tuple[int, int]:
+    return len(m), len(m[0])
+
+
+def _check_square(m, what_size: int | None = None, key: str | None = None) -> np.ndarray:
+    rows, cols = _shape(m)
+    if rows != cols:
+        raise custom_error(f"must be square, got {rows} x {cols}", key)
+    if what_size is not None and rows != what_size:
+        raise custom_error(f"must be {what_size} x {what_size}, got {rows} x {cols}", key)
+    return np.array(m, dtype=float)
+
+
+def _check_spd(a: np.ndarray, key: str | None, semi: bool) -> None:
+    what = "symmetric positive semidefinite" if semi else "symmetric positive definite"
+    scale = max(1.0, float(np.max(np.abs(a))))
+    asym = np.abs(a - a.T)
+    if np.max(asym) > _SYM_RTOL * scale:
+        i, j = np.unravel_index(int(np.argmax(asym)), a.shape)
+        raise custom_error(f"not {what} (not symmetric: [{i}][{j}] = {a[i, j]:g} but "
+                           f"[{j}][{i}] = {a[j, i]:g})", key)
+    eig = np.linalg.eigvalsh((a + a.T) / 2)
+    tol = _EIG_TOL * max(1.0, float(np.max(np.abs(eig))))
+    low = float(eig.min())
+    if (semi and low < -tol) or (not semi and low <= tol):
+        raise custom_error(f"not {what} (min eigenvalue {low:.6g})", key)
+
+
+# =========================================================================== sub-models
+class Model(StrictModel):
+    """Target dynamics ``x[k+1] = Phi x[k] + w``, ``w ~ N(0, Q)``, period ``T`` s."""
+
+    kind: Literal["constant_acceleration", "linear"]
+    T: Annotated[float, Field(strict=True, gt=0, allow_inf_nan=False)]
+    Phi: Matrix | None = None
+    Q: Matrix
+
+    @model_validator(mode="after")
+    def _check(self):
+        T_ns_exact = Decimal(repr(float(self.T))) * 10**9
+        if T_ns_exact != T_ns_exact.to_integral_value():
+            raise custom_error(f"must be a whole number of nanoseconds, got {self.T!r} s "
+                               f"({format(T_ns_exact.normalize(), 'f')} ns)", "T")
+        if self.kind == "constant_acceleration":
+            if self.Phi is not None:
+                raise custom_error("not used with kind: constant_acceleration (Phi is built "
+                                   "from T); remove it or use kind: linear", "Phi")
+            n = 3
+        else:
+            if self.Phi is None:
+                raise custom_error("required with kind: linear", "Phi")
+            n = _check_square(self.Phi, key="Phi").shape[0]
+        q = _check_square(self.Q, n, "Q")
+        _check_spd(q, "Q", semi=True)
+        return self
+
+    @property
+    def nx(self) -> int:
+        return 3 if self.kind == "constant_acceleration" else len(self.Phi)
+
+    @property
+    def T_ns(self) -> int:
+        return int(Decimal(repr(float(self.T))) * 10**9)
+
+    def Phi_matrix(self) -> np.ndarray:
+        if self.kind == "constant_acceleration":
+            T = self.T
+            return np.array([[1.0, T, T * T / 2.0], [0.0, 1.0, T], [0.0, 0.0, 1.0]])
+        return np.array(self.Phi, dtype=float)
+
+    def Q_matrix(self) -> np.ndarray:
+        return np.array(self.Q, dtype=float)
+
+
+class Prior(StrictModel):
+    """``x[0] ~ N(mean, cov)``."""
+
+    mean: Vector
+    cov: Matrix
+
+    @model_validator(mode="after")
+    def _check(self):
+        p = _check_square(self.cov, key="cov")
+        _check_spd(p, "cov", semi=False)
+        if len(self.mean) != p.shape[0]:
+            raise custom_error(f"has {len(self.mean)} entries but cov is "
+                               f"{p.shape[0]} x {p.shape[0]}", "mean")
+        return self
+
+    def mean_vector(self) -> np.ndarray:
+        return np.array(self.mean, dtype=float)
+
+    def cov_matrix(self) -> np.ndarray:
+        return np.array(self.cov, dtype=float)
+
+
+class Sensor(StrictModel):
+    """``y = H x + v``, ``v ~ N(0, R)``."""
+
+    name: Annotated[str, Field(strict=True, min_length=1)]
+    H: Matrix
+    R: Matrix
+
+    @model_validator(mode="after")
+    def _check(self):
+        m = len(self.H)
+        r = np.array(self.R, dtype=float)
+        if r.shape != (m, m):
+            raise custom_error(f"must be {m} x {m} (H has {m} row{'s' * (m != 1)}), "
+                               f"got {r.shape[0]} x {r.shape[1]}", "R")
+        _check_spd(r, "R", semi=False)
+        return self
+
+    @property
+    def m(self) -> int:
+        return len(self.H)
+
+    def H_matrix(self) -> np.ndarray:
+        return np.array(self.H, dtype=float)
+
+    def R_matrix(self) -> np.ndarray:
+        return np.array(self.R, dtype=float)
+
+
+class Topology(StrictModel):
+    """How the sensors are linked (see :mod:`dkfsim.topology`)."""
+
+    directed: StrictBool = False
+    generator: Literal["path", "star", "balanced_tree", "random_tree", "ring",
+                       "random_regular", "erdos_renyi", "edges"]
+    params: dict[str, Any] = Field(default_factory=dict)
+    edges: tuple[tuple[StrictInt, StrictInt], ...] | None = None
+
+    @field_validator("params", mode="before")
+    @classmethod
+    def _params_none(cls, v):
+        return {} if v is None else v
+
+
+Probability = Annotated[float, Field(strict=True, ge=0, le=1, allow_inf_nan=False)]
+
+
+class LinkSettings(StrictModel):
+    latency: LatencyModel = Field(default_factory=Constant)
+    loss: Probability = 0.0
+
+
+class LinkOverride(StrictModel):
+    link: tuple[StrictInt, StrictInt]
+    latency: LatencyModel | None = None
+    loss: Probability | None = None
+
+
+class Links(StrictModel):
+    default: LinkSettings = Field(default_factory=LinkSettings)
+    overrides: tuple[LinkOverride, ...] = ()
+    d_t: Annotated[int, Field(strict=True, ge=0)] | None = None
+
+
+@dataclass(frozen=True)
+class LinkSpec:
+    """Settings of one directed link: a latency model and a loss probability."""
+
+    latency: LatencyBase
+    loss: float
+
+
+def _check_baseline(name: str) -> str:
+    if name not in KNOWN_BASELINES:
+        raise custom_error(f"unknown baseline {name!r}{suggest(name, KNOWN_BASELINES)}; "
+                           f"valid baselines: {', '.join(KNOWN_BASELINES)}")
+    return name
+
+
+def _buffer_length(value: Any) -> Any:
+    if isinstance(value, str) and value in ("auto", "paper"):
+        return value
+    if isinstance(value, int) and not isinstance(value, bool) and value >= 1:
+        return value
+    hint = suggest(value, ("auto", "paper")) if isinstance(value, str) else ""
+    raise custom_error(f"must be 'auto', 'paper' or an integer >= 1, got {value!r}{hint}")
+
+
+def _fusion_none(value: Any) -> Any:
+    return "none" if value is None else value
+
+
+# =========================================================================== scenario
+class Scenario(StrictModel):
+    """A validated, immutable scenario (see the module docstring)."""
+
+    name: Annotated[str, Field(strict=True, min_length=1)] = "unnamed"
+    seed: Annotated[int, Field(strict=True, ge=0)] = 0
+    steps: Annotated[int, Field(strict=True, ge=1)] = 1000
+    model: Model
+    prior: Prior
+    sensors: Annotated[tuple[Sensor, ...], Field(min_length=1)]
+    topology: Topology
+    links: Links = Field(default_factory=Links)
+    protocol: Literal["tree", "flood"] = "tree"
+    weights: Literal["unit", "paper"] = "unit"
+    spanning_tree: StrictBool = False
+    buffer_length: Annotated[Literal["auto", "paper"] | int, BeforeValidator(_buffer_length)] = "auto"
+    fusion: Annotated[Literal["matrix", "diagonal", "none"], BeforeValidator(_fusion_none)] = "matrix"
+    baselines: tuple[Annotated[str, AfterValidator(_check_baseline)], ...] = ("centralized",)
+
+    _source: str | None = PrivateAttr(default=None)
+    _graph: Any = PrivateAttr(default=None)
+    _exchange: Any = PrivateAttr(default=None)
+
+    # ------------------------------------------------------------------ validation
+    @field_validator("baselines", mode="after")
+    @classmethod
+    def _unique_baselines(cls, v):
+        for i, name in enumerate(v):
+            if name in v[:i]:
+                raise custom_error(f"{name!r} is listed twice", str(i))
+        return v
+
+    @model_validator(mode="after")
+    def _check_consistency(self):
+        nx_ = self.model.nx
+        if len(self.prior.mean) != nx_:
+            raise custom_error(f"has {len(self.prior.mean)} entries but the state has "
+                               f"{nx_} (model)", "prior.mean")
+        if len(self.prior.cov) != nx_:
+            raise custom_error(f"must be {nx_} x {nx_}, got {len(self.prior.cov)} x "
+                               f"{len(self.prior.cov)}", "prior.cov")
+        names: dict[str, int] = {}
+        for i, s in enumerate(self.sensors):
+            rows, cols = _shape(s.H)
+            if cols != nx_:
+                raise custom_error(f"must have {nx_} columns (the state size), got "
+                                   f"{rows} x {cols}", f"sensors.{i}.H")
+            if s.name in names:
+                raise custom_error(f"{s.name!r} is already the name of sensors.{names[s.name]}",
+                                   f"sensors.{i}.name")
+            names[s.name] = i
+        self._check_network()
+        return self
+
+    def _check_network(self) -> None:
+        top = self.topology
+        if self.weights == "paper" and self.protocol == "flood":
+            raise custom_error("'paper' weights are defined for protocol: tree only (the paper "
+                               "weighs tree messages); use weights: unit with flood", "weights")
+        if self.protocol == "tree" and top.directed:
+            raise custom_error("'tree' needs an undirected topology (topology.directed is "
+                               "true); use protocol: flood on a directed graph", "protocol")
+        if self.spanning_tree and top.directed:
+            raise custom_error("a spanning tree needs an undirected topology "
+                               "(topology.directed is true)", "spanning_tree")
+        n = self.n
+        try:
+            graph = topo.build_graph(top, n, self.seed)
+            topo.check_connected(graph)
+        except topo.GraphSpecError as err:
+            key = "topology." + err.key if err.key else "topology"
+            hint = ""
+            if top.generator in ("random_regular", "erdos_renyi") and "connected" in err.reason:
+                hint = " (try another params.seed or a denser graph)"
+            raise custom_error(err.reason + hint, key) from None
+        if self.protocol == "tree" and not self.spanning_tree and not topo.is_tree(graph):
+            raise custom_error(
+                f"'tree' needs a tree but the topology has cycles ({n} nodes, "
+                f"{graph.number_of_edges()} edges); set spanning_tree: true to run on a BFS "
+                "spanning tree, or use protocol: flood", "protocol")
+        for i, ov in enumerate(self.links.overrides):
+            u, v = ov.link
+            for node in (u, v):
+                if not 0 <= node < n:
+                    raise custom_error(f"node {node} is out of range 0..{n - 1}",
+                                       f"links.overrides.{i}.link")
+            if not graph.has_edge(u, v):
+                what = "an arc" if graph.is_directed() else "an edge"
+                raise custom_error(f"[{u}, {v}] is not {what} of the topology",
+                                   f"links.overrides.{i}.link")
+        self._graph = graph
+        if self.buffer_length in ("auto", "paper") and self.resolved_d_t() is None:
+            unbounded = sorted({self.link_spec(u, v).latency.model
+                                for u, v in self.exchange().arcs
+                                if self.link_spec(u, v).latency.bound_steps(self.T_ns) is None})
+            raise custom_error(
+                f"{self.buffer_length!r} needs a delay bound, but latency model "
+                f"{', '.join(unbounded)} is unbounded; set an explicit links.d_t (delay bound "
+                "in steps) or an integer buffer_length", "buffer_length")
+
+    # ------------------------------------------------------------------ derived values
+    @property
+    def source(self) -> str | None:
+        """The file this scenario was loaded from (None for a dict)."""
+        return self._source
+
+    @property
+    def nx(self) -> int:
+        """State dimension."""
+        return self.model.nx
+
+    @property
+    def n(self) -> int:
+        """Number of sensors (= nodes)."""
+        return len(self.sensors)
+
+    @property
+    def T_ns(self) -> int:
+        """Sampling period in integer nanoseconds."""
+        return self.model.T_ns
+
+    def graph(self) -> networkx.Graph | networkx.DiGraph:
+        """A copy of the topology graph (nodes 0..n-1)."""
+        return self._graph.copy()
+
+    def exchange(self) -> topo.ExchangeGraph:
+        """The graph the protocol runs on (cached :func:`dkfsim.topology.exchange_graph`)."""
+        if self._exchange is None:
+            self._exchange = topo.make_exchange(self._graph, self.protocol, self.spanning_tree)
+        return self._exchange
+
+    def link_spec(self, u: int, v: int) -> LinkSpec:
+        """Settings of the directed link ``u -> v``.
+
+        The default merged with the last matching override; ``link: [u, v]``
+        matches ``u -> v``, and also ``v -> u`` on an undirected topology.
+        An override replaces the whole latency model and/or the loss.
+        """
+        latency, loss = self.links.default.latency, self.links.default.loss
+        for ov in self.links.overrides:
+            a, b = ov.link
+            if (a, b) == (u, v) or (not self.topology.directed and (b, a) == (u, v)):
+                if ov.latency is not None:
+                    latency = ov.latency
+                if ov.loss is not None:
+                    loss = ov.loss
+        return LinkSpec(latency=latency, loss=float(loss))
+
+    def resolved_d_t(self) -> int | None:
+        """Delay bound in steps: ``links.d_t`` if set, else the largest
+        ``bound_steps`` over the links the protocol uses (None if unbounded)."""
+        if self.links.d_t is not None:
+            return self.links.d_t
+        bound = 0
+        for u, v in self.exchange().arcs:
+            b = self.link_spec(u, v).latency.bound_steps(self.T_ns)
+            if b is None:
+                return None
+            bound = max(bound, b)
+        return bound
+
+    def resolved_buffer_length(self) -> int:
+        """The buffer length L (DESIGN.md section 3).
+
+        ``auto``: ``d_t * d_g + 1``; ``paper``: ``max(d_t, 1)``; an integer: itself.
+        """
+        if isinstance(self.buffer_length, int):
+            return self.buffer_length
+        d_t = self.resolved_d_t()
+        if d_t is None:  # excluded by validation
+            raise ScenarioError("no delay bound", source=self.source, path="buffer_length")
+        if self.buffer_length == "paper":
+            return max(d_t, 1)
+        return d_t * self.exchange().d_g + 1
+
+    # ------------------------------------------------------------------ identity
+    def to_dict(self) -> dict:
+        """Plain data (lists, floats, str) that :func:`load_scenario` turns back
+        into an equal scenario; ``source`` is not included."""
+        return self.model_dump(mode="json", exclude_none=True)
+
+    def __eq__(self, other: object) -> bool:
+        if not isinstance(other, Scenario):
+            return NotImplemented
+        return self.to_dict() == other.to_dict()
+
+    def __hash__(self) -> int:
+        return hash(scenario_hash(self))
+
+
+def scenario_hash(scenario: Scenario) -> str:
+    """sha256 hex digest of the canonical JSON of ``scenario.to_dict()``."""
+    text = json.dumps(scenario.to_dict(), sort_keys=True, separators=(",", ":"),
+                      ensure_ascii=True, allow_nan=False)
+    return hashlib.sha256(text.encode("utf-8")).hexdigest()
+
+
+# =========================================================================== YAML
+class _Loader(yaml.SafeLoader):
+    """Safe loader that rejects duplicate keys and reads ``1e-3`` as a float."""
+
+    def construct_mapping(self, node, deep=False):
+        if isinstance(node, yaml.MappingNode):
+            self.flatten_mapping(node)
+            seen: dict[Any, Any] = {}
+            for key_node, _ in node.value:
+                key = self.construct_object(key_node, deep=deep)
+                try:
+                    if key in seen:
+                        raise yaml.constructor.ConstructorError(
+                            "while constructing a mapping", node.start_mark,
+                            f"duplicate key {key!r} (first at line "
+                            f"{seen[key].line + 1})", key_node.start_mark)
+                    seen[key] = key_node.start_mark
+                except TypeError:  # unhashable key: let the base class complain
+                    pass
+        return super().construct_mapping(node, deep=deep)
+
+
+_Loader.add_implicit_resolver(
+    "tag:yaml.org,2002:float",
+    re.compile(r"^[-+]?(?:[0-9][0-9_]*)(?:\.[0-9_]*)?[eE][-+]?[0-9]+$"),
+    list("-+0123456789"))
+
+
+def _yaml_error_text(err: yaml.YAMLError) -> str:
+    mark = getattr(err, "problem_mark", None) or getattr(err, "context_mark", None)
+    problem = getattr(err, "problem", None) or str(err).splitlines()[0]
+    context = getattr(err, "context", None)
+    where = f" at line {mark.line + 1}, column {mark.column + 1}" if mark else ""
+    text = f"YAML syntax error{where}: {problem}"
+    cmark = getattr(err, "context_mark", None)
+    if context and context not in problem:
+        if cmark is not None and mark is not None and cmark.line != mark.line:
+            context += f" started at line {cmark.line + 1}"
+        text += f" ({context})"
+    return " ".join(text.split())
+
+
+def _parse_yaml(text: str, source: str) -> Any:
+    try:
+        return yaml.load(text, Loader=_Loader)
+    except yaml.YAMLError as err:
+        raise ScenarioError(_yaml_error_text(err), source=source) from None
+
+
+# =========================================================================== overrides
+_INDEX = re.compile(r"^-?\d+$")
+
+
+def _apply_override(data: dict, text: str, source: str) -> str:
+    """Apply one ``dotted.key=value`` to ``data`` in place; return the key."""
+    if not isinstance(text, str) or "=" not in text:
+        raise ScenarioError(f"bad override {text!r}: expected dotted.key=value "
+                            "(e.g. links.default.latency.d_t=0)", source=source)
+    key, _, raw = text.partition("=")
+    key = key.strip()
+    parts = key.split(".")
+    if not key or any(p == "" for p in parts):
+        raise ScenarioError(f"bad override {text!r}: empty key component", source=source)
+    try:
+        value = yaml.load(raw, Loader=_Loader) if raw.strip() else None
+    except yaml.YAMLError as err:
+        raise ScenarioError(f"bad override value {raw!r}: {_yaml_error_text(err)}",
+                            source=source, path=key) from None
+    node: Any = data
+    for depth, part in enumerate(parts):
+        here = ".".join(parts[:depth + 1])
+        last = depth == len(parts) - 1
+        if isinstance(node, list):
+            if not _INDEX.match(part):
+                raise ScenarioError(f"override {text!r}: {parts[depth - 1] if depth else key} "
+                                    f"is a list; {part!r} is not an index", source=source,
+                                    path=here)
+            idx = int(part)
+            if not 0 <= idx < len(node):
+                raise ScenarioError(f"override {text!r}: list index {idx} out of range "
+                                    f"(the list has {len(node)} entries)", source=source,
+                                    path=here)
+            if last:
+                node[idx] = value
+            else:
+                if node[idx] is None:
+                    node[idx] = {}
+                node = node[idx]
+        elif isinstance(node, dict):
+            if last:
+                node[part] = value
+            else:
+                if node.get(part) is None:
+                    node[part] = {}
+                node = node[part]
+        else:
+            parent = ".".join(parts[:depth])
+            raise ScenarioError(f"override {text!r}: {parent} is a scalar "
+                                f"({node!r}); cannot set {part!r} inside it",
+                                source=source, path=here)
+    return key
+
+
+def apply_overrides(data: dict, overrides: Sequence[str], source: str = "<dict>") -> dict:
+    """Return a deep copy of ``data`` with the ``dotted.key=value`` overrides applied."""
+    out = copy.deepcopy(data)
+    for text in overrides:
+        _apply_override(out, text, source)
+    return out
+
+
+# =========================================================================== errors
+def _loc_to_path(loc: tuple, data: Any) -> list[str]:
+    """Dotted components of a pydantic ``loc``, dropping union tags."""
+    parts: list[str] = []
+    node = data
+    for i, elem in enumerate(loc):
+        last = i == len(loc) - 1
+        if isinstance(node, dict) and elem in node:
+            parts.append(str(elem))
+            node = node[elem]
+        elif isinstance(node, (list, tuple)) and isinstance(elem, int) and 0 <= elem < len(node):
+            parts.append(str(elem))
+            node = node[elem]
+        elif isinstance(node, dict) and not last:
+            continue  # a union member's tag (e.g. 'uniform_steps'), not a key
+        elif isinstance(elem, str) and (elem.startswith(("function-", "literal[", "int", "str"))
+                                        and not last):
+            continue
+        else:
+            parts.append(str(elem))
+            node = None
+    return parts
+
+
+_LITERAL_FIELDS = {"generator": "generator", "protocol": "protocol", "weights": "weights",
+                   "fusion": "fusion", "kind": "model kind"}
+_LITERAL_VALUES = {"generator": topo.GENERATORS, "protocol": PROTOCOLS, "weights": WEIGHTS,
+                   "fusion": FUSIONS, "kind": MODEL_KINDS}
+
+_BOUND_WORDS = {"greater_than_equal": (">=", "ge"), "greater_than": (">", "gt"),
+                "less_than_equal": ("<=", "le"), "less_than": ("<", "lt")}
+
+
+def _reason(err: dict, path: list[str]) -> tuple[str, list[str]]:
+    """Short message for one pydantic error, and the (maybe extended) path."""
+    etype = err["type"]
+    ctx = err.get("ctx") or {}
+    inp = err.get("input")
+    field = path[-1] if path else ""
+    if etype in ("dkfsim", "unknown_key"):
+        return str(ctx.get("reason", err["msg"])), path
+    if etype == "missing":
+        return "required key is missing", path
+    if etype == "extra_forbidden":
+        return "unknown key", path
+    if etype == "union_tag_invalid":
+        names = list(LATENCY_MODELS)
+        tag = ctx.get("tag")
+        return (f"unknown latency model {tag!r}{suggest(tag, names)}; valid models: "
+                + ", ".join(names)), path + ["model"]
+    if etype == "union_tag_not_found":
+        return "missing key 'model' (one of: " + ", ".join(LATENCY_MODELS) + ")", path
+    if etype == "literal_error" and field in _LITERAL_FIELDS:
+        valid = _LITERAL_VALUES[field]
+        return (f"unknown {_LITERAL_FIELDS[field]} {inp!r}{suggest(inp, valid)}; valid: "
+                + ", ".join(valid)), path
+    if etype in _BOUND_WORDS:
+        word, k = _BOUND_WORDS[etype]
+        return f"must be {word} {ctx.get(k)}, got {inp!r}", path
+    if etype in ("model_type", "model_attributes_type", "dict_type"):
+        return f"must be a mapping, got {type(inp).__name__} {inp!r}", path
+    if etype in ("int_type", "int_from_float", "int_parsing"):
+        return f"must be an integer, got {inp!r}", path
+    if etype in ("float_type", "float_parsing"):
+        return f"must be a number, got {inp!r}", path
+    if etype == "bool_type":
+        return f"must be true or false, got {inp!r}", path
+    if etype in ("tuple_type", "list_type"):
+        return f"must be a list, got {type(inp).__name__} {inp!r}", path
+    if etype in ("string_type",):
+        return f"must be a string, got {inp!r}", path
+    if etype == "finite_number":
+        return f"must be a finite number, got {inp!r}", path
+    if etype in ("too_short", "too_long") and field == "sensors":
+        return "at least one sensor is required", path
+    msg = " ".join(str(err["msg"]).split())
+    if inp is not None and not isinstance(inp, (dict, list, tuple)):
+        msg += f" (got {inp!r})"
+    return msg, path
+
+
+def _convert(exc: ValidationError, data: Any, source: str,
+             override_keys: Mapping[str, str]) -> ScenarioError:
+    items = []
+    for err in exc.errors():
+        loc = tuple(err["loc"])
+        extra = (err.get("ctx") or {}).get("key") if err["type"] in ("dkfsim", "unknown_key") \
+            else None
+        if extra:  # the model pointed at one of its own keys: walk it with the rest
+            loc = loc + tuple(str(extra).split("."))
+        path = _loc_to_path(loc, data)
+        reason, path = _reason(err, path)
+        dotted = ".".join(path)
+        for key, text in override_keys.items():
+            if dotted == key or dotted.startswith(key + "."):
+                reason += f" (set by override {text!r})"
+                break
+        else:
+            for key, text in override_keys.items():
+                if dotted and key.startswith(dotted + "."):
+                    reason += f" (after override {text!r})"
+                    break
+        items.append((dotted, reason))
+    first_path, first_reason = items[0]
+    message = first_reason
+    for dotted, reason in items[1:]:
+        message += f"; {dotted}: {reason}" if dotted else f"; {reason}"
+    return ScenarioError(message, source=source, path=first_path or None)
+
+
+# =========================================================================== loading
+def load_scenario(source: str | os.PathLike | Mapping | Scenario,
+                  overrides: Sequence[str] = ()) -> Scenario:
+    """Load, override and validate a scenario.
+
+    ``source`` is a path to a YAML file, a mapping, or a Scenario (re-validated
+    from its ``to_dict`` so that overrides apply).  ``overrides`` are
+    ``dotted.key=value`` strings, the value parsed as YAML, applied to the raw
+    mapping before validation (``sensors.0.R=[[2.0]]``, ``links.d_t=5``).
+    Raises :class:`ScenarioError` on any problem.
+    """
+    if isinstance(overrides, str):
+        overrides = (overrides,)
+    path: str | None = None
+    if isinstance(source, Scenario):
+        label = source.source or "<dict>"
+        path = source.source
+        data: Any = source.to_dict()
+    elif isinstance(source, (str, os.PathLike)):
+        label = path = os.fspath(source)
+        try:
+            text = Path(path).read_text(encoding="utf-8")
+        except FileNotFoundError:
+            raise ScenarioError("file not found", source=label) from None
+        except IsADirectoryError:
+            raise ScenarioError("is a directory, not a scenario file", source=label) from None
+        except UnicodeDecodeError as err:
+            raise ScenarioError(f"not a UTF-8 text file ({err.reason} at byte {err.start})",
+                                source=label) from None
+        except OSError as err:
+            raise ScenarioError(f"cannot read file: {err.strerror}", source=label) from None
+        data = _parse_yaml(text, label)
+    elif isinstance(source, Mapping):
+        label = "<dict>"
+        data = copy.deepcopy(dict(source))
+    else:
+        raise TypeError(f"load_scenario needs a path, a mapping or a Scenario, "
+                        f"got {type(source).__name__}")
+    if data is None:
+        raise ScenarioError("empty file: expected a mapping of scenario keys", source=label)
+    if not isinstance(data, dict):
+        raise ScenarioError(f"top level must be a mapping of scenario keys, got "
+                            f"{type(data).__name__}", source=label)
+    override_keys: dict[str, str] = {}
+    for text in overrides:
+        key = _apply_override(data, text, label)
+        override_keys[key] = text
+    if "name" not in data and path is not None:
+        data["name"] = Path(path).stem
+    try:
+        scenario = Scenario.model_validate(data)
+    except ValidationError as exc:
+        raise _convert(exc, data, label, override_keys) from None
+    scenario._source = path
+    return scenario
