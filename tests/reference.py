@@ -416,10 +416,14 @@ def fuse(Xi, xs, nx, kind="matrix"):
     ``kind='matrix'``: Gamma (n*nx, nx) solves
     ``[[Xi + delta I, E], [E', 0]] [Gamma; Lambda] = [0; I]``,
     ``delta = 1e-8 tr(Xi) / (n nx)``, E = n stacked identities.
-    ``kind='diagonal'``: the same KKT system with every block ``P_ij`` of Xi
-    replaced by its diagonal (per-component scalar weights; Gamma's blocks are
-    then diagonal).  The regularisation is the same delta (tr is unchanged by
-    keeping the diagonals only).
+    ``kind='diagonal'`` (the paper's per-component variant): every block
+    ``P_ij`` of Xi is replaced by its diagonal, so the problem splits into nx
+    independent scalar fusions, one per state component c, each with the
+    n x n matrix ``Xi_c = [P_ij[c, c]]``.  DESIGN section 4 is silent on the
+    regularisation here; we apply its formula to each scalar problem as it
+    stands, ``delta_c = 1e-8 tr(Xi_c) / n`` (scale-invariant per component:
+    a global delta would over-regularise a component whose variance is
+    small next to the others').  Gamma's blocks are then diagonal.
 
     Returns ``x_f = Gamma' x_stack``, ``P_f = Gamma' Xi Gamma`` (with the full,
     unregularised Xi) and Gamma.
@@ -430,14 +434,16 @@ def fuse(Xi, xs, nx, kind="matrix"):
     xs = np.asarray(xs, float).reshape(N)
     if kind == "matrix":
         W = Xi
+        reg = np.full(N, fusion_delta(Xi, n, nx))
     elif kind == "diagonal":
         W = Xi * np.kron(np.ones((n, n)), np.eye(nx))
+        comp = np.diag(Xi).reshape(n, nx)               # [i, c] = P_ii[c, c]
+        reg = np.tile(1e-8 * comp.sum(axis=0) / n, n)   # delta_c at index i*nx + c
     else:
         raise ValueError(kind)
-    delta = fusion_delta(Xi, n, nx)
     E = np.kron(np.ones((n, 1)), np.eye(nx))
     KKT = np.zeros((N + nx, N + nx))
-    KKT[:N, :N] = W + delta * np.eye(N)
+    KKT[:N, :N] = W + np.diag(reg)
     KKT[:N, N:] = E
     KKT[N:, :N] = E.T
     rhs = np.zeros((N + nx, nx))

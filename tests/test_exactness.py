@@ -180,11 +180,18 @@ def test_ref_fuse_independent_estimates():
     for b in Gd.reshape(3, nx, nx):
         assert np.allclose(b, np.diag(np.diag(b)), atol=1e-14)
     assert np.trace(Pd) >= np.trace(Pf) - 1e-12
-    # with diagonal covariances both variants coincide
+    # with diagonal covariances both variants coincide (up to the different
+    # regularisation: delta vs per-component delta_c)
     Xd = ref._block_diag([np.diag(np.diag(P)) for P in Ps])
     a = ref.fuse(Xd, xs, nx)
     b = ref.fuse(Xd, xs, nx, "diagonal")
-    ref.assert_close(a[0][None], b[0][None], "matrix vs diagonal on diagonal Xi", 1e-12)
+    ref.assert_close(a[0][None], b[0][None], "matrix vs diagonal on diagonal Xi", 1e-6)
+    # ... and the diagonal variant is the closed form w_ic ~ 1/(P_i[c,c] + delta_c)
+    v = np.array([np.diag(P) for P in Ps])           # (n, nx)
+    dc = 1e-8 * v.sum(axis=0) / 3
+    w = 1.0 / (v + dc)
+    w /= w.sum(axis=0)
+    ref.assert_close(b[0][None], (w * xs).sum(axis=0)[None], "diagonal fusion closed form", 1e-12)
 
 
 def test_ref_fuse_identical_estimates():
@@ -376,6 +383,7 @@ def _random_cases():
     e6 = tree_edges(6, 31)
     e7 = tree_edges(7, 32)
     dg = scc_digraph_edges(6, 33, chords=3)
+    assert [1, 5] not in e6 and [5, 1] not in e6
     cases = {
         "tree-uniform_steps-short-buffer-loss": dict(
             n=6, edges=e6, latency={"model": "uniform_steps", "d_t": 3}, loss=0.2,
@@ -385,10 +393,10 @@ def _random_cases():
             overrides=[{"link": e7[0], "latency": {"model": "constant", "value": 0.25}},
                        {"link": e7[1], "latency": {"model": "uniform_steps", "d_t": 4},
                         "loss": 0.0}],
-            buffer_length="auto", steps=70, seed=12),
+            buffer_length="auto", steps=70, seed=12, expect_dt=4),
         "tree-exponential-links-d_t": dict(
             n=6, edges=e6, latency={"model": "exponential", "mean": 0.08, "offset": 0.01},
-            links_d_t=1, loss=0.2, steps=70, seed=13),
+            links_d_t=1, loss=0.2, steps=70, seed=13, expect_dt=1),
         "tree-exponential-int-buffer-3-states": dict(
             n=5, nx=3, edges=tree_edges(5, 34),
             latency={"model": "exponential", "mean": 0.012, "offset": 0.0},
@@ -398,12 +406,15 @@ def _random_cases():
             latency={"model": "uniform_steps", "d_t": 2}, buffer_length=3, loss=0.2,
             steps=70, seed=15),
         "flood-undirected-exponential": dict(
-            n=6, edges=e6 + [[e6[0][0], e6[-1][1]]] if [e6[0][0], e6[-1][1]] not in e6 else e6,
+            n=6, edges=e6 + [[1, 5]],   # the tree plus one chord: a cycle
             protocol="flood", latency={"model": "exponential", "mean": 0.1, "offset": 0.0},
             buffer_length=3, loss=0.2, steps=70, seed=16),
         "tree-paper-weights": dict(
             n=6, edges=e6, weights="paper", latency={"model": "uniform_steps", "d_t": 2},
             loss=0.2, buffer_length=4, steps=70, seed=17),
+        "tree-paper-buffer-length": dict(
+            n=6, edges=e6, latency={"model": "uniform_steps", "d_t": 3}, loss=0.1,
+            buffer_length="paper", steps=60, seed=19, expect_L=3),
         "tree-paper-weights-zero-latency": dict(
             n=7, edges=e7, weights="paper", latency=ZERO, steps=50, seed=18),
     }
@@ -417,7 +428,14 @@ RANDOM_CASES = _random_cases()
 def test_random_latency_estimates_follow_the_window_rule(case):
     kw = dict(RANDOM_CASES[case])
     n = kw.pop("n")
+    expect_dt = kw.pop("expect_dt", None)
+    expect_L = kw.pop("expect_L", None)
     run = run_scenario(scenario(n, **kw))
+    L = int(run["buffer_length"])
+    if expect_dt is not None:   # auto: L = d_t * d_g + 1, d_t = max over links of ceil(sup / T)
+        expect_L = expect_dt * diameter(n, kw["edges"], kw.get("directed", False)) + 1
+    if expect_L is not None:
+        assert L == expect_L, f"buffer_length {L}, expected {expect_L}"
     check_common(run, weights=kw.get("weights", "unit"),
                  edges=kw["edges"] if kw.get("weights") == "paper" else None)
     est = check_against_window_reference(run)
