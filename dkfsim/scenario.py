@@ -332,8 +332,9 @@ class Scenario(StrictModel):
     baselines: tuple[Annotated[str, AfterValidator(_check_baseline)], ...] = ("centralized",)
 
     _source: str | None = PrivateAttr(default=None)
-    _graph: Any = PrivateAttr(default=None)
-    _exchange: Any = PrivateAttr(default=None)
+    # (key, graph, exchange graph or None); the key holds every field the graph
+    # depends on, so a model_copy(update=...) never sees a stale graph.
+    _cache: Any = PrivateAttr(default=None)
 
     # ------------------------------------------------------------------ validation
     @field_validator("baselines", mode="after")
@@ -402,7 +403,7 @@ class Scenario(StrictModel):
                 what = "an arc" if graph.is_directed() else "an edge"
                 raise custom_error(f"[{u}, {v}] is not {what} of the topology",
                                    f"links.overrides.{i}.link")
-        self._graph = graph
+        self._cache = (self._graph_key(), graph, None)
         if self.buffer_length in ("auto", "paper") and self.resolved_d_t() is None:
             unbounded = sorted({self.link_spec(u, v).latency.model
                                 for u, v in self.exchange().arcs
@@ -433,15 +434,28 @@ class Scenario(StrictModel):
         """Sampling period in integer nanoseconds."""
         return self.model.T_ns
 
+    def _graph_key(self) -> tuple:
+        return (self.seed, self.n, self.topology.model_dump_json(), self.protocol,
+                self.spanning_tree)
+
+    def _cached(self) -> tuple:
+        key = self._graph_key()
+        if self._cache is None or self._cache[0] != key:
+            graph = topo.build_graph(self.topology, self.n, self.seed)
+            self._cache = (key, graph, None)
+        return self._cache
+
     def graph(self) -> networkx.Graph | networkx.DiGraph:
         """A copy of the topology graph (nodes 0..n-1)."""
-        return self._graph.copy()
+        return self._cached()[1].copy()
 
     def exchange(self) -> topo.ExchangeGraph:
         """The graph the protocol runs on (cached :func:`dkfsim.topology.exchange_graph`)."""
-        if self._exchange is None:
-            self._exchange = topo.make_exchange(self._graph, self.protocol, self.spanning_tree)
-        return self._exchange
+        key, graph, xg = self._cached()
+        if xg is None:
+            xg = topo.make_exchange(graph, self.protocol, self.spanning_tree)
+            self._cache = (key, graph, xg)
+        return xg
 
     def link_spec(self, u: int, v: int) -> LinkSpec:
         """Settings of the directed link ``u -> v``.

@@ -396,7 +396,7 @@ def make_exchange(graph: nx.Graph | nx.DiGraph, protocol: str,
 
 def exchange_graph(scenario: "Scenario") -> ExchangeGraph:
     """The graph ``scenario.protocol`` runs on (see the module docstring)."""
-    return make_exchange(scenario.graph(), scenario.protocol, scenario.spanning_tree)
+    return scenario.exchange()
 
 
 # --------------------------------------------------------------------------- weights
