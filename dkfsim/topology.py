@@ -169,12 +169,22 @@ def _nx_seed(seed: int) -> int:
 
 
 def random_tree_edges(n: int, rng: np.random.Generator) -> list[tuple[int, int]]:
-    """Edges of a uniform random labelled tree on ``0..n-1`` (Pruefer decoding)."""
+    """Edges of a uniform random labelled tree on ``0..n-1``.
+
+    A Pruefer sequence of ``n - 2`` labels drawn uniformly is a uniform draw
+    among the ``n^(n-2)`` labelled trees (Cayley), since decoding is a bijection.
+    """
     if n <= 1:
         return []
-    if n == 2:
-        return [(0, 1)]
-    seq = [int(x) for x in rng.integers(0, n, size=n - 2)]
+    return pruefer_decode([int(x) for x in rng.integers(0, n, size=max(n - 2, 0))], n)
+
+
+def pruefer_decode(seq, n: int) -> list[tuple[int, int]]:
+    """Edges of the labelled tree on ``0..n-1`` with Pruefer sequence ``seq``."""
+    if n <= 1:
+        return []
+    if len(seq) != n - 2 or any(not 0 <= x < n for x in seq):
+        raise ValueError(f"a Pruefer sequence for {n} nodes has {n - 2} labels in 0..{n - 1}")
     degree = [1] * n
     for x in seq:
         degree[x] += 1
