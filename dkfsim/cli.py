@@ -75,11 +75,9 @@ def _load(args):
 
 
 def cmd_validate(args) -> int:
-    from .simulation import resolve_buffer_length
-    from .topology import exchange_graph
     sc = _load(args)
-    xg = exchange_graph(sc)
-    L, d_t = resolve_buffer_length(sc, xg.arcs, xg.d_g)
+    xg = sc.exchange()
+    L, d_t = sc.resolved_buffer_length(), sc.resolved_d_t()
     print(f"{args.scenario}: ok — {sc.name}: {len(sc.sensors)} sensors, nx = {sc.nx}, "
           f"{sc.steps} ticks of {sc.model.T} s, protocol {sc.protocol} on {len(xg.arcs)} directed links "
           f"(d_g = {xg.d_g}), buffer length L = {L} (d_t = {d_t}), fusion {sc.fusion}")

@@ -10,21 +10,20 @@ leaves the window becomes final.
 
 from __future__ import annotations
 
-import math
 import time
 
 import numpy as np
 import simpy
 from simpy.events import NORMAL
 
-from .errors import ScenarioError
 from .filter import WindowFilter, centralized_filter
 from .fusion import FUSERS, CrossCovariance
 from .network import PRIORITY_UPDATE, Network, Scheduled
 from .protocol import PROTOCOLS
 from .results import RunResult, resolve_save_mode
+from .scenario import load_scenario
 from .system import LinearGaussianSystem
-from .topology import exchange_graph, paper_weights
+from .topology import paper_weights
 
 
 def build_system(scenario) -> LinearGaussianSystem:
@@ -40,38 +39,6 @@ def build_system(scenario) -> LinearGaussianSystem:
     )
 
 
-def delay_bound_steps(scenario, arcs) -> int | None:
-    """``d_t``: the largest per-hop delay in steps over all links (None if unbounded).
-
-    ``links.d_t``, when given, is the user's assumption and wins.
-    """
-    if scenario.links.d_t is not None:
-        return int(scenario.links.d_t)
-    T_ns = scenario.T_ns
-    bounds = [scenario.link_spec(u, v).latency.bound_steps(T_ns) for u, v in arcs]
-    if not bounds:
-        return 0
-    if any(b is None for b in bounds):
-        return None
-    return max(bounds)
-
-
-def resolve_buffer_length(scenario, arcs, d_g: int) -> tuple[int, int | None]:
-    """The buffer length ``L`` of DESIGN.md section 3 and the ``d_t`` behind it."""
-    d_t = delay_bound_steps(scenario, arcs)
-    choice = scenario.buffer_length
-    if isinstance(choice, int) and not isinstance(choice, bool):
-        return int(choice), d_t
-    if d_t is None:
-        raise ScenarioError(
-            "buffer_length: %s needs a delay bound, but the latency model is unbounded; "
-            "set links.d_t (the delay bound in steps to design for) or an integer buffer_length" % choice,
-            source=getattr(scenario, "source", None), path="buffer_length")
-    if choice == "paper":
-        return max(d_t, 1), d_t
-    return d_t * d_g + 1, d_t
-
-
 class Simulation:
     """The runtime state of one run (configuration stays in the scenario)."""
 
@@ -80,8 +47,8 @@ class Simulation:
         self.K = K = int(scenario.steps)
         self.seed = int(scenario.seed)
         self.system = sys_ = build_system(scenario)
-        self.exchange_graph = xg = exchange_graph(scenario)
-        self.L, self.d_t = resolve_buffer_length(scenario, xg.arcs, xg.d_g)
+        self.exchange_graph = xg = scenario.exchange()
+        self.L, self.d_t = scenario.resolved_buffer_length(), scenario.resolved_d_t()
         n, nx = sys_.n, sys_.nx
         self.save_mode = resolve_save_mode(save, n, K)
         self.progress = progress
@@ -197,11 +164,7 @@ def run(scenario, *, seed: int | None = None, steps: int | None = None,
 
     ``seed`` and ``steps`` override the scenario's (the same as ``--set``).
     """
-    updates = {}
-    if seed is not None:
-        updates["seed"] = int(seed)
-    if steps is not None:
-        updates["steps"] = int(steps)
-    if updates:
-        scenario = scenario.model_copy(update=updates)
+    overrides = [f"{key}={int(val)}" for key, val in (("seed", seed), ("steps", steps)) if val is not None]
+    if overrides:                     # re-validated, exactly as --set would be
+        scenario = load_scenario(scenario, overrides=overrides)
     return Simulation(scenario, save=save, progress=progress).run()
