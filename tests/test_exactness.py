@@ -261,6 +261,8 @@ def check_counts(run):
     for key in ("sent", "delivered", "lost"):
         assert sum(e[key] for e in per) == c[key], f"per-link {key} does not add up to the total"
     assert sum(e["sent"] - e["delivered"] - e["lost"] for e in per) == c["in_flight"]
+    if "late_per_node" in c:
+        assert sum(c["late_per_node"]) == c["late"]
 
 
 def expected_late(a):
@@ -325,6 +327,23 @@ def test_zero_latency_flood_strongly_connected_digraph(seed):
     sc = scenario(n, edges=scc_digraph_edges(n, seed), directed=True, protocol="flood",
                   steps=60, seed=seed, latency=ZERO)
     _check_zero_latency(run_scenario(sc))
+
+
+def test_zero_latency_flood_undirected_graph_and_packet_count():
+    """Flood on an undirected graph with cycles.  Each (origin, row) is relayed
+    once along every link, never back to the node it came from, duplicates
+    dropped: a contribution crosses at most sum(deg) - (n - 1) = 2|E| - n + 1
+    links.  A packet may bundle several contributions (bitmask payload), so
+    this bounds the packet count from above only."""
+    n = 6
+    edges = [[i, (i + 1) % n] for i in range(n)] + [[0, 3], [1, 4]]
+    K = 40
+    run = run_scenario(scenario(n, edges=edges, protocol="flood", steps=K, seed=9, latency=ZERO))
+    _check_zero_latency(run)
+    per = 2 * len(edges) - n + 1
+    assert 0 < run.counts["sent"] <= K * n * per, (
+        f"flood sent {run.counts['sent']} packets, more than {K} rows x {n} origins x {per}")
+    assert run.counts["in_flight"] == 0
 
 
 # ---------------------------------------------------------------- (b) bounded latency

@@ -23,8 +23,12 @@ def tree_scenarios(draw):
     n = draw(st.integers(3, 6))
     tseed = draw(st.integers(0, 10_000))
     d_t = draw(st.integers(0, 3))
-    kind = draw(st.sampled_from(["uniform_steps", "uniform", "constant"]))
-    if kind == "uniform_steps":
+    kind = draw(st.sampled_from(["uniform_steps", "uniform", "constant", "exponential"]))
+    links_d_t = None
+    if kind == "exponential":   # unbounded: auto needs links.d_t
+        latency = {"model": "exponential", "mean": round(0.05 * d_t + 0.01, 3), "offset": 0.0}
+        links_d_t = d_t
+    elif kind == "uniform_steps":
         latency = {"model": "uniform_steps", "d_t": d_t}
     elif kind == "uniform":
         latency = {"model": "uniform", "low": 0.0, "high": round(0.1 * d_t + 0.03, 3)}
@@ -35,10 +39,11 @@ def tree_scenarios(draw):
     weights = draw(st.sampled_from(["unit", "unit", "paper"]))
     seed = draw(st.integers(0, 2 ** 31 - 1))
     return scenario(n, edges=tree_edges(n, tseed), latency=latency, loss=loss,
-                    buffer_length=buffer_length, weights=weights, steps=K, seed=seed)
+                    buffer_length=buffer_length, weights=weights, steps=K, seed=seed,
+                    links_d_t=links_d_t)
 
 
-@settings(max_examples=8, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@settings(max_examples=20, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(sc=tree_scenarios())
 def test_random_tree_runs_satisfy_the_contract(sc):
     run = run_scenario(sc)
