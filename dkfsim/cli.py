@@ -21,7 +21,11 @@ examples:
 """
 
 
-def _add_scenario_args(p: argparse.ArgumentParser) -> None:
+#: Modules that add a sub-command (``add_command(subparsers)``), in help order.
+COMMAND_MODULES: tuple[str, ...] = ()
+
+
+def add_scenario_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("scenario", metavar="FILE", help="scenario YAML file (see README: 'Scenario files')")
     p.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
                    help="override a scenario key by its dotted path, value parsed as YAML; "
@@ -42,7 +46,7 @@ def build_parser() -> argparse.ArgumentParser:
                        description="Simulate one scenario: truth, sensors, the SimPy network, every node's "
                                    "anti-delay DKF, fusion and the baselines. Writes DIR/summary.json and "
                                    "DIR/run.npz (arrays of DESIGN.md section 5) and prints an MSE table.")
-    _add_scenario_args(p)
+    add_scenario_args(p)
     p.add_argument("--out", required=True, metavar="DIR", help="output folder (created if missing)")
     p.add_argument("--seed", type=int, help="override the scenario seed (same as --set seed=N)")
     p.add_argument("--steps", type=int, help="override the number of ticks K (same as --set steps=K)")
@@ -59,12 +63,18 @@ def build_parser() -> argparse.ArgumentParser:
                        description="Load and validate a scenario (schema, matrices, topology, "
                                    "protocol and buffer rules); print what would run, or the first "
                                    "problem with its file and key path.")
-    _add_scenario_args(p)
+    add_scenario_args(p)
     p.set_defaults(func=cmd_validate)
+
+    # Commands that live beside the concept they drive: each module defines
+    # ``add_command(subparsers)`` and sets ``func`` on its parser.
+    import importlib
+    for name in COMMAND_MODULES:
+        importlib.import_module(f"dkfsim.{name}").add_command(sub)
     return parser
 
 
-def _load(args):
+def load_from_args(args):
     from .scenario import load_scenario
     overrides = list(args.overrides)
     for key in ("seed", "steps"):
@@ -75,7 +85,7 @@ def _load(args):
 
 
 def cmd_validate(args) -> int:
-    sc = _load(args)
+    sc = load_from_args(args)
     xg = sc.exchange()
     L, d_t = sc.resolved_buffer_length(), sc.resolved_d_t()
     print(f"{args.scenario}: ok — {sc.name}: {len(sc.sensors)} sensors, nx = {sc.nx}, "
@@ -86,7 +96,7 @@ def cmd_validate(args) -> int:
 
 def cmd_run(args) -> int:
     from .simulation import run
-    sc = _load(args)
+    sc = load_from_args(args)
     if args.burn_in is not None and not 0 <= args.burn_in < sc.steps:
         raise DkfsimError(f"--burn-in: must be in [0, steps) = [0, {sc.steps}), got {args.burn_in}")
     progress = None
