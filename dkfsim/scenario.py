@@ -370,8 +370,9 @@ class Scenario(StrictModel):
     def _check_network(self) -> None:
         top = self.topology
         if self.weights == "paper" and self.protocol == "flood":
-            raise custom_error("'paper' weights are defined for protocol: tree only (the paper "
-                               "weighs tree messages); use weights: unit with flood", "weights")
+            raise custom_error("'paper' weights are not defined for protocol: flood (the paper "
+                               "weighs the messages of the tree exchange only); use weights: "
+                               "unit, or protocol: tree", "weights")
         if self.protocol == "tree" and top.directed:
             raise custom_error("'tree' needs an undirected topology (topology.directed is "
                                "true); use protocol: flood on a directed graph", "protocol")
