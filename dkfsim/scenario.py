@@ -52,7 +52,7 @@ import networkx
 import numpy as np
 import yaml
 from pydantic import (AfterValidator, BeforeValidator, Field, PrivateAttr, ValidationError,
-                      ValidationInfo, field_validator, model_validator)
+                      field_validator, model_validator)
 
 from dkfsim.errors import ScenarioError
 from dkfsim.latency import (LATENCY_MODELS, Constant, LatencyBase, LatencyModel, StrictModel,

@@ -212,8 +212,7 @@ def _undirected_edges(generator: str, params: dict, n: int, seed: int) -> list[t
     if generator == "balanced_tree":
         r, h = int(params["r"]), int(params["h"])
         # breadth-first labelling: the children of node v are r*v+1 .. r*v+r
-        return [(v, r * v + c) for v in range(n) for c in range(1, r + 1) if r * v + c < n] \
-            if h > 0 else []
+        return [(v, r * v + c) for v in range(n) for c in range(1, r + 1) if r * v + c < n]
     if generator == "random_tree":
         return random_tree_edges(n, stream(seed, "topology"))
     if generator == "random_regular":
