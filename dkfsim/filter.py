@@ -47,6 +47,25 @@ def information_step(Phi, Q, x_prev, P_prev, Omega, Theta):
     return x, P, G
 
 
+def batched_filter(Phi, Q, x0, P0, Omega, Theta):
+    """``b`` independent information filters with fixed information per row.
+
+    :param Omega: (b, nx, nx) information added at every row.
+    :param Theta: (K, b, nx) information vectors per row.
+    :returns: ``x`` (K, b, nx) and ``P`` (K, b, nx, nx).
+    """
+    K, b, nx = Theta.shape
+    xs = np.empty((K, b, nx))
+    Ps = np.empty((K, b, nx, nx))
+    x = np.broadcast_to(np.asarray(x0, float), (b, nx))
+    P = np.broadcast_to(np.asarray(P0, float), (b, nx, nx))
+    for r in range(K):
+        x, P, _ = information_step(Phi, Q, x, P, Omega, Theta[r])
+        xs[r] = x
+        Ps[r] = P
+    return xs, Ps
+
+
 def centralized_filter(Phi, Q, x0, P0, omega_total, theta_total):
     """The centralized information filter that holds every contribution on time.
 
@@ -54,17 +73,8 @@ def centralized_filter(Phi, Q, x0, P0, omega_total, theta_total):
     :param theta_total: (K, nx) sum over sensors of ``theta`` per row.
     :returns: ``x`` (K, nx) and ``P`` (K, nx, nx).
     """
-    K, nx = theta_total.shape
-    xs = np.empty((K, nx))
-    Ps = np.empty((K, nx, nx))
-    x = np.asarray(x0, float)[None]
-    P = np.asarray(P0, float)[None]
-    Om = omega_total[None]
-    for r in range(K):
-        x, P, _ = information_step(Phi, Q, x, P, Om, theta_total[r][None])
-        xs[r] = x[0]
-        Ps[r] = P[0]
-    return xs, Ps
+    xs, Ps = batched_filter(Phi, Q, x0, P0, omega_total[None], theta_total[:, None, :])
+    return xs[:, 0], Ps[:, 0]
 
 
 @dataclass
@@ -83,18 +93,19 @@ class WindowState:
     G: np.ndarray       # (S, n, nx, nx)
     Omega: np.ndarray   # (S, n, nx, nx)
     Theta: np.ndarray   # (S, n, nx)
-    held: np.ndarray    # (S, n, n) bool: held[slot, i, o]
+    held: np.ndarray    # (S, n, n_origins) bool: held[slot, i, o]
 
     @classmethod
-    def empty(cls, L: int, n: int, nx: int) -> "WindowState":
+    def empty(cls, L: int, n: int, nx: int, n_origins: int | None = None) -> "WindowState":
         S = L + 1
+        n_origins = n if n_origins is None else n_origins
         return cls(
             x=np.zeros((S, n, nx)),
             P=np.zeros((S, n, nx, nx)),
             G=np.zeros((S, n, nx, nx)),
             Omega=np.zeros((S, n, nx, nx)),
             Theta=np.zeros((S, n, nx)),
-            held=np.zeros((S, n, n), dtype=bool),
+            held=np.zeros((S, n, n_origins), dtype=bool),
         )
 
     def reset_slot(self, slot: int) -> None:
@@ -113,7 +124,9 @@ class WindowFilter:
     since the last tick (an optimisation DESIGN.md allows because the
     result is identical), batched over nodes.
 
-    :param A: (n, n) effective origin weights ``a_io`` (ones for unit weights).
+    :param A: (nodes, origins) effective origin weights ``a_io`` (ones for
+        unit weights).  Usually nodes and origins are the same sensors; a
+        fusion centre without sensors of its own is one node with n origins.
     """
 
     def __init__(self, Phi, Q, x0, P0, omega, theta, A, L):
@@ -124,9 +137,9 @@ class WindowFilter:
         self.A = np.asarray(A, float)
         self.L = int(L)
         self.S = self.L + 1
-        n, nx = omega.shape[0], omega.shape[1]
+        n, nx = self.A.shape[0], omega.shape[1]
         self.n, self.nx = n, nx
-        self.state = WindowState.empty(self.L, n, nx)
+        self.state = WindowState.empty(self.L, n, nx, n_origins=omega.shape[0])
         self.x0 = np.broadcast_to(np.asarray(x0, float), (n, nx)).copy()
         self.P0 = np.broadcast_to(np.asarray(P0, float), (n, nx, nx)).copy()
         self._pend_i: list[int] = []

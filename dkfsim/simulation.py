@@ -16,7 +16,8 @@ import numpy as np
 import simpy
 from simpy.events import NORMAL
 
-from .filter import WindowFilter, centralized_filter
+from .baselines import BASELINES
+from .filter import WindowFilter
 from .fusion import FUSERS, CrossCovariance
 from .network import PRIORITY_UPDATE, Network, Scheduled
 from .protocol import PROTOCOLS
@@ -140,13 +141,15 @@ class Simulation:
         if self.xcov is not None:
             arrays["x_fused"] = self.x_fused
             arrays["P_fused"] = self.P_fused
-        if "centralized" in self.scenario.baselines:
-            xc, Pc = centralized_filter(sys_.Phi, sys_.Q, sys_.x0_mean, sys_.P0,
-                                        sys_.omega.sum(axis=0), self.theta.sum(axis=1))
-            arrays["x_centralized"] = xc
-            arrays["P_centralized"] = Pc
         counts = self.network.counts()
         counts.update(self.exchange.counts())
+        for name in self.scenario.baselines:
+            for key, val in BASELINES[name](self).items():
+                # Underscored keys are side facts (counts), not arrays.
+                if key.startswith("_"):
+                    counts[key[1:]] = val
+                else:
+                    arrays[key] = val
         info = {
             "buffer_length": self.L,
             "d_t": self.d_t,
