@@ -60,7 +60,8 @@ from dkfsim.latency import (LATENCY_MODELS, Constant, LatencyBase, LatencyModel,
 from dkfsim import topology as topo
 
 #: Baselines a scenario may ask for; extend this single tuple.
-KNOWN_BASELINES: tuple[str, ...] = ("centralized",)
+KNOWN_BASELINES: tuple[str, ...] = ("centralized", "centralized_delayed", "local", "no_buffer",
+                                     "ci_consensus")
 
 PROTOCOLS = ("tree", "flood")
 WEIGHTS = ("unit", "paper")
@@ -330,6 +331,8 @@ class Scenario(StrictModel):
     buffer_length: Annotated[Literal["auto", "paper"] | int, BeforeValidator(_buffer_length)] = "auto"
     fusion: Annotated[Literal["matrix", "diagonal", "none"], BeforeValidator(_fusion_none)] = "matrix"
     baselines: tuple[Annotated[str, AfterValidator(_check_baseline)], ...] = ("centralized",)
+    #: Consensus rounds per tick of the ``ci_consensus`` baseline (0 = local filters).
+    consensus_rounds: Annotated[int, Field(strict=True, ge=0)] = 1
 
     _source: str | None = PrivateAttr(default=None)
     # (key, graph, exchange graph or None); the key holds every field the graph

@@ -668,10 +668,13 @@ def test_errors_are_scenario_errors_never_pydantic():
 
 def test_known_baselines_is_one_extendable_tuple(monkeypatch):
     assert isinstance(KNOWN_BASELINES, tuple) and "centralized" in KNOWN_BASELINES
-    d = put(base(), "baselines", ["centralized", "local"])
-    assert "unknown baseline 'local'" in load_error(d)
-    monkeypatch.setattr(scenario_mod, "KNOWN_BASELINES", KNOWN_BASELINES + ("local",))
-    assert load_scenario(d).baselines == ("centralized", "local")
+    d = put(base(), "baselines", ["centralized", "kalman_oracle"])
+    assert "unknown baseline 'kalman_oracle'" in load_error(d)
+    monkeypatch.setattr(scenario_mod, "KNOWN_BASELINES", KNOWN_BASELINES + ("kalman_oracle",))
+    assert load_scenario(d).baselines == ("centralized", "kalman_oracle")
+    # Every baseline the engine implements is accepted, and only those.
+    from dkfsim.baselines import BASELINES
+    assert set(scenario_mod.KNOWN_BASELINES) - {"kalman_oracle"} == set(BASELINES)
 
 
 def test_scenario_model_validate_without_loader():
