@@ -34,13 +34,15 @@ from .streams import stream
 
 def centralized(sim) -> dict:
     s = sim.system
-    x, P = centralized_filter(s.Phi, s.Q, s.x0_mean, s.P0, s.omega.sum(axis=0), sim.theta.sum(axis=1))
+    info = sim.info
+    total = info.omega.sum(axis=-3)            # (nx, nx), or (K, nx, nx) per row
+    x, P = centralized_filter(s.Phi, s.Q, s.x0_mean, s.P0, total, info.theta.sum(axis=1))
     return {"x_centralized": x, "P_centralized": P}
 
 
 def local(sim) -> dict:
     s = sim.system
-    x, P = batched_filter(s.Phi, s.Q, s.x0_mean, s.P0, s.omega, sim.theta)
+    x, P = batched_filter(s.Phi, s.Q, s.x0_mean, s.P0, sim.info.omega, sim.theta)
     return {"x_local_only": x, "P_local_only": P}
 
 
@@ -78,7 +80,7 @@ def direct_arrival_ticks(sim) -> np.ndarray:
 
 def centralized_delayed(sim) -> dict:
     s, K, L = sim.system, sim.K, sim.L
-    w = WindowFilter(s.Phi, s.Q, s.x0_mean, s.P0, s.omega, sim.theta, np.ones((1, s.n)), L)
+    w = WindowFilter(s.Phi, s.Q, s.x0_mean, s.P0, sim.info, np.ones((1, s.n)), L)
     ticks = direct_arrival_ticks(sim)
     rows = np.arange(K)
     usable = (ticks > 0) & (ticks <= rows + L) & (ticks <= K)

@@ -48,9 +48,9 @@ def information_step(Phi, Q, x_prev, P_prev, Omega, Theta):
 
 
 def batched_filter(Phi, Q, x0, P0, Omega, Theta):
-    """``b`` independent information filters with fixed information per row.
+    """``b`` independent information filters.
 
-    :param Omega: (b, nx, nx) information added at every row.
+    :param Omega: (b, nx, nx) information added at every row, or (K, b, nx, nx) per row.
     :param Theta: (K, b, nx) information vectors per row.
     :returns: ``x`` (K, b, nx) and ``P`` (K, b, nx, nx).
     """
@@ -59,8 +59,9 @@ def batched_filter(Phi, Q, x0, P0, Omega, Theta):
     Ps = np.empty((K, b, nx, nx))
     x = np.broadcast_to(np.asarray(x0, float), (b, nx))
     P = np.broadcast_to(np.asarray(P0, float), (b, nx, nx))
+    per_row = Omega.ndim == 4
     for r in range(K):
-        x, P, _ = information_step(Phi, Q, x, P, Omega, Theta[r])
+        x, P, _ = information_step(Phi, Q, x, P, Omega[r] if per_row else Omega, Theta[r])
         xs[r] = x
         Ps[r] = P
     return xs, Ps
@@ -69,11 +70,12 @@ def batched_filter(Phi, Q, x0, P0, Omega, Theta):
 def centralized_filter(Phi, Q, x0, P0, omega_total, theta_total):
     """The centralized information filter that holds every contribution on time.
 
-    :param omega_total: (nx, nx) sum of all sensors' ``omega``.
+    :param omega_total: (nx, nx) sum of all sensors' ``omega``, or (K, nx, nx) per row.
     :param theta_total: (K, nx) sum over sensors of ``theta`` per row.
     :returns: ``x`` (K, nx) and ``P`` (K, nx, nx).
     """
-    xs, Ps = batched_filter(Phi, Q, x0, P0, omega_total[None], theta_total[:, None, :])
+    Om = omega_total[:, None] if omega_total.ndim == 3 else omega_total[None]
+    xs, Ps = batched_filter(Phi, Q, x0, P0, Om, theta_total[:, None, :])
     return xs[:, 0], Ps[:, 0]
 
 
@@ -124,22 +126,24 @@ class WindowFilter:
     since the last tick (an optimisation DESIGN.md allows because the
     result is identical), batched over nodes.
 
+    :param info: the :class:`~dkfsim.system.Information` of all sensors.
     :param A: (nodes, origins) effective origin weights ``a_io`` (ones for
         unit weights).  Usually nodes and origins are the same sensors; a
         fusion centre without sensors of its own is one node with n origins.
     """
 
-    def __init__(self, Phi, Q, x0, P0, omega, theta, A, L):
+    def __init__(self, Phi, Q, x0, P0, info, A, L):
         self.Phi = np.asarray(Phi, float)
         self.Q = np.asarray(Q, float)
-        self.omega = omega          # (n, nx, nx)
-        self.theta = theta          # (K, n, nx)
+        self.info = info            # dkfsim.system.Information
+        self.theta = info.theta     # (K, n, nx)
+        omega = info.omega
         self.A = np.asarray(A, float)
         self.L = int(L)
         self.S = self.L + 1
-        n, nx = self.A.shape[0], omega.shape[1]
+        n, nx = self.A.shape[0], omega.shape[-1]
         self.n, self.nx = n, nx
-        self.state = WindowState.empty(self.L, n, nx, n_origins=omega.shape[0])
+        self.state = WindowState.empty(self.L, n, nx, n_origins=self.theta.shape[1])
         self.x0 = np.broadcast_to(np.asarray(x0, float), (n, nx)).copy()
         self.P0 = np.broadcast_to(np.asarray(P0, float), (n, nx, nx)).copy()
         self._pend_i: list[int] = []
@@ -165,7 +169,7 @@ class WindowFilter:
         a = self.A[i, o]
         st = self.state
         st.held[slot, i, o] = True
-        np.add.at(st.Omega, (slot, i), a[:, None, None] * self.omega[o])
+        np.add.at(st.Omega, (slot, i), a[:, None, None] * self.info.omega_of(r, o))
         np.add.at(st.Theta, (slot, i), a[:, None] * self.theta[r, o])
         return int(r.min())
 

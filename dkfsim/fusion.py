@@ -91,15 +91,14 @@ class CrossCovariance:
     exactly the rows the filter recomputed, from the same ring slots.
     """
 
-    def __init__(self, window, P0, omega_factor, column_sensor):
+    def __init__(self, window, P0):
         self.w = window
         n, nx = window.n, window.nx
         self.n, self.nx, self.N = n, nx, n * nx
         self.Xi = np.zeros((window.S, self.N, self.N))
         self.Xi0 = np.kron(np.ones((n, n)), np.asarray(P0, float))
         self.Lq = psd_factor(window.Q)
-        self.U = omega_factor            # (nx, M)
-        self.col = column_sensor         # (M,)
+        self.info = window.info          # factor U per row and the sensor of each column
         self._F = np.zeros((n, nx, n, nx))
         self._diag = np.arange(n)
 
@@ -111,8 +110,8 @@ class CrossCovariance:
         F[self._diag, :, self._diag, :] = G @ self.w.Phi
         Fd = F.reshape(N, N)
         # Weights of each measurement column at each node: a_im if held, else 0.
-        a_held = (self.w.A * st.held[slot])[:, self.col]          # (n, M)
-        Z = P @ (self.U[None, :, :] * a_held[:, None, :])          # (n, nx, M)
+        a_held = (self.w.A * st.held[slot])[:, self.info.column_sensor]   # (n, M)
+        Z = P @ (self.info.factor_row(row)[None, :, :] * a_held[:, None, :])  # (n, nx, M)
         Y = np.concatenate([(G @ self.Lq).reshape(N, nx), Z.reshape(N, -1)], axis=1)
         Xi = Fd @ Xi_prev @ Fd.T
         Xi += Y @ Y.T

@@ -23,8 +23,15 @@ from .network import PRIORITY_UPDATE, Network, Scheduled
 from .protocol import PROTOCOLS
 from .results import RunResult, resolve_save_mode
 from .scenario import load_scenario
-from .system import LinearGaussianSystem
+from .system import LinearGaussianSystem, LinearSensor
 from .topology import paper_weights
+
+
+def sensor_model(spec):
+    """The measurement model of one scenario sensor."""
+    if getattr(spec, "kind", "linear") == "linear":
+        return LinearSensor(spec.H_matrix(), spec.R_matrix())
+    return spec.sensor_model()
 
 
 def build_system(scenario) -> LinearGaussianSystem:
@@ -33,8 +40,7 @@ def build_system(scenario) -> LinearGaussianSystem:
         Q=scenario.model.Q_matrix(),
         x0_mean=scenario.prior.mean_vector(),
         P0=scenario.prior.cov_matrix(),
-        H=tuple(s.H_matrix() for s in scenario.sensors),
-        R=tuple(s.R_matrix() for s in scenario.sensors),
+        sensors=tuple(sensor_model(s) for s in scenario.sensors),
         names=tuple(s.name for s in scenario.sensors),
         T_ns=scenario.T_ns,
     )
@@ -57,14 +63,13 @@ class Simulation:
         # Everything random but the network is drawn up front, from its own streams.
         self.truth = sys_.simulate_truth(K, self.seed)
         self.ys = sys_.simulate_measurements(self.truth, self.seed)
-        self.theta = sys_.contributions(self.ys)
+        self.info = sys_.information(self.ys)
+        self.theta = self.info.theta
         self.A = paper_weights(xg.graph) if scenario.weights == "paper" else np.ones((n, n))
 
-        self.window = WindowFilter(sys_.Phi, sys_.Q, sys_.x0_mean, sys_.P0,
-                                   sys_.omega, self.theta, self.A, self.L)
+        self.window = WindowFilter(sys_.Phi, sys_.Q, sys_.x0_mean, sys_.P0, self.info, self.A, self.L)
         self.fusion = scenario.fusion
-        self.xcov = (CrossCovariance(self.window, sys_.P0, sys_.omega_factor, sys_.column_sensor)
-                     if self.fusion != "none" else None)
+        self.xcov = CrossCovariance(self.window, sys_.P0) if self.fusion != "none" else None
 
         self.env = simpy.Environment()
         self.arrival = np.full((n, n, K), np.inf) if self.save_mode == "full" else None

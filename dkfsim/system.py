@@ -35,45 +35,86 @@ def psd_factor(S: np.ndarray) -> np.ndarray:
         return V * np.sqrt(np.clip(w, 0.0, None))
 
 
+class LinearSensor:
+    """``y = H x + v``, ``v ~ N(0, R)``: its information is the same every row."""
+
+    kind = "linear"
+
+    def __init__(self, H: np.ndarray, R: np.ndarray):
+        self.H = np.asarray(H, float)
+        self.R = np.asarray(R, float)
+        cR = scipy.linalg.cho_factor(self.R, lower=True)
+        # H' R^-1 via a Cholesky solve rather than an explicit inverse.
+        self.gain = scipy.linalg.cho_solve(cR, self.H).T
+        om = self.gain @ self.H
+        self.omega = 0.5 * (om + om.T)
+        # U = H' L^-T with R = L L', so U U' = H' R^-1 H (used by the fusion recursion).
+        self.factor = scipy.linalg.solve_triangular(np.linalg.cholesky(self.R), self.H, lower=True).T
+
+    @property
+    def m(self) -> int:
+        return self.H.shape[0]
+
+    def simulate(self, truth: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+        v = rng.standard_normal((truth.shape[0], self.m)) @ psd_factor(self.R).T
+        return truth @ self.H.T + v
+
+    def information(self, y: np.ndarray):
+        """``theta`` (K, nx), ``omega`` (nx, nx), factor (nx, m): static."""
+        return y @ self.gain.T, self.omega, self.factor
+
+
+@dataclass(frozen=True)
+class Information:
+    """The information-form contributions of all sensors for all rows.
+
+    ``omega`` and ``factor`` (``U`` with ``U U' = sum omega``, columns by
+    sensor) are static arrays when every sensor is linear, and per-row arrays
+    (leading axis K) when some sensor's information changes with its
+    measurement (a converted radar measurement).
+    """
+
+    theta: np.ndarray            # (K, n, nx)
+    omega: np.ndarray            # (n, nx, nx) or (K, n, nx, nx)
+    factor: np.ndarray           # (nx, M) or (K, nx, M)
+    column_sensor: np.ndarray    # (M,)
+
+    @property
+    def varying(self) -> bool:
+        return self.omega.ndim == 4
+
+    def omega_of(self, rows: np.ndarray, origins: np.ndarray) -> np.ndarray:
+        """``omega`` of each (row, origin) pair, shape (len, nx, nx)."""
+        return self.omega[rows, origins] if self.varying else self.omega[origins]
+
+    def omega_row(self, row: int) -> np.ndarray:
+        return self.omega[row] if self.varying else self.omega
+
+    def factor_row(self, row: int) -> np.ndarray:
+        return self.factor[row] if self.varying else self.factor
+
+    def omega_per_row(self) -> np.ndarray:
+        """(K, n, nx, nx), materialised (only for small problems and baselines)."""
+        if self.varying:
+            return self.omega
+        return np.broadcast_to(self.omega, (self.theta.shape[0],) + self.omega.shape)
+
+
 @dataclass(frozen=True)
 class LinearGaussianSystem:
-    """The model as simulated: matrices only, no randomness."""
+    """The model as simulated: the target's matrices and the sensor models."""
 
     Phi: np.ndarray
     Q: np.ndarray
     x0_mean: np.ndarray
     P0: np.ndarray
-    H: tuple[np.ndarray, ...]
-    R: tuple[np.ndarray, ...]
+    sensors: tuple
     names: tuple[str, ...]
     T_ns: int
-    # Derived once: information contributions and a factor of each omega.
-    omega: np.ndarray = field(init=False, repr=False)     # (n, nx, nx)
-    gain: tuple[np.ndarray, ...] = field(init=False, repr=False)  # H_i' R_i^-1, (nx, m_i)
-    omega_factor: np.ndarray = field(init=False, repr=False)  # (nx, M): U U' = sum of omegas, columns by sensor
-    column_sensor: np.ndarray = field(init=False, repr=False)  # (M,) sensor of each column of omega_factor
-
-    def __post_init__(self):
-        gains, omegas, factors, owner = [], [], [], []
-        for i, (H, R) in enumerate(zip(self.H, self.R)):
-            # H' R^-1 via a Cholesky solve rather than an explicit inverse.
-            cR = scipy.linalg.cho_factor(R, lower=True)
-            HtRi = scipy.linalg.cho_solve(cR, H).T
-            gains.append(HtRi)
-            om = HtRi @ H
-            omegas.append(0.5 * (om + om.T))
-            # U_i = H' L^-T with R = L L', so U_i U_i' = H' R^-1 H.
-            Lr = np.linalg.cholesky(R)
-            factors.append(scipy.linalg.solve_triangular(Lr, H, lower=True).T)
-            owner.extend([i] * H.shape[0])
-        object.__setattr__(self, "gain", tuple(gains))
-        object.__setattr__(self, "omega", np.array(omegas))
-        object.__setattr__(self, "omega_factor", np.concatenate(factors, axis=1))
-        object.__setattr__(self, "column_sensor", np.array(owner, dtype=np.intp))
 
     @property
     def n(self) -> int:
-        return len(self.H)
+        return len(self.sensors)
 
     @property
     def nx(self) -> int:
@@ -82,6 +123,14 @@ class LinearGaussianSystem:
     @property
     def T(self) -> float:
         return self.T_ns / 1e9
+
+    @property
+    def H(self) -> tuple[np.ndarray, ...]:
+        return tuple(s.H for s in self.sensors)
+
+    @property
+    def R(self) -> tuple[np.ndarray, ...]:
+        return tuple(s.R for s in self.sensors)
 
     def times(self, K: int) -> np.ndarray:
         """Sample times ``t_k = k T`` of rows ``0..K-1``, exactly ``k*T_ns/1e9``."""
@@ -101,13 +150,19 @@ class LinearGaussianSystem:
 
     def simulate_measurements(self, truth: np.ndarray, seed: int) -> list[np.ndarray]:
         """``y_i`` for every sensor, each (K, m_i), from stream ``("sensor", name)``."""
-        ys = []
-        for name, H, R in zip(self.names, self.H, self.R):
-            rng = stream(seed, "sensor", name)
-            v = rng.standard_normal((truth.shape[0], H.shape[0])) @ psd_factor(R).T
-            ys.append(truth @ H.T + v)
-        return ys
+        return [s.simulate(truth, stream(seed, "sensor", name)) for name, s in zip(self.names, self.sensors)]
 
-    def contributions(self, ys: list[np.ndarray]) -> np.ndarray:
-        """``theta[r, i] = H_i' R_i^-1 y_i[r]``, shape (K, n, nx)."""
-        return np.stack([y @ g.T for y, g in zip(ys, self.gain)], axis=1)
+    def information(self, ys: list[np.ndarray]) -> Information:
+        """Every sensor's contribution for every row."""
+        parts = [s.information(y) for s, y in zip(self.sensors, ys)]
+        theta = np.stack([p[0] for p in parts], axis=1)
+        owner = np.concatenate([[i] * p[2].shape[-1] for i, p in enumerate(parts)]).astype(np.intp)
+        if all(p[1].ndim == 2 for p in parts):
+            omega = np.array([p[1] for p in parts])
+            factor = np.concatenate([p[2] for p in parts], axis=1)
+        else:
+            K = theta.shape[0]
+            omega = np.stack([np.broadcast_to(p[1], (K,) + p[1].shape[-2:]) for p in parts], axis=1)
+            factor = np.concatenate([np.broadcast_to(p[2], (K,) + p[2].shape[-2:]) for p in parts], axis=2)
+        return Information(theta=theta, omega=np.ascontiguousarray(omega),
+                           factor=np.ascontiguousarray(factor), column_sensor=owner)
