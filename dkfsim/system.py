@@ -132,6 +132,14 @@ class LinearGaussianSystem:
     def R(self) -> tuple[np.ndarray, ...]:
         return tuple(s.R for s in self.sensors)
 
+    @property
+    def omega(self) -> np.ndarray:
+        """(n, nx, nx) static information matrices; only when every sensor is linear
+        (otherwise use the per-row :class:`Information` of a run)."""
+        if not all(isinstance(s, LinearSensor) for s in self.sensors):
+            raise TypeError("sensor information varies per row: use Simulation.info")
+        return np.array([s.omega for s in self.sensors])
+
     def times(self, K: int) -> np.ndarray:
         """Sample times ``t_k = k T`` of rows ``0..K-1``, exactly ``k*T_ns/1e9``."""
         return (np.arange(1, K + 1, dtype=np.int64) * self.T_ns) / 1e9
