@@ -86,6 +86,9 @@ class Exchange:
     # -- wiring ----------------------------------------------------------------
     def attach(self, network) -> None:
         self.net = network
+        #: per link: delivered packets that carried a contribution for a row
+        #: already final at the receiver.
+        self.late_packets = [0] * len(network.links)
         self.out_links = [[] for _ in range(self.n)]
         for link in network.links:
             self.out_links[link.src].append(link)
@@ -183,11 +186,12 @@ class TreeExchange(Exchange):
     def receive(self, link, payload) -> None:
         seq, items = payload
         j, e = link.dst, link.id
-        dirty = False
+        dirty = late = False
         for row, mask in items:
             st = self.rows.get(row)
             if st is None:
                 self._late(j, row, mask)
+                late = True
                 continue
             if seq <= st.inseq[e]:
                 self.stale += 1
@@ -199,6 +203,8 @@ class TreeExchange(Exchange):
                 self._gain(j, row, st, new)
                 self._dirty[j].add(row)
                 dirty = True
+        if late:
+            self.late_packets[e] += 1
         if dirty:
             self._schedule_flush(j)
 
@@ -250,10 +256,12 @@ class FloodExchange(Exchange):
     def receive(self, link, payload) -> None:
         _seq, items = payload
         j, src = link.dst, link.src
+        late = False
         for row, mask in items:
             st = self.rows.get(row)
             if st is None:
                 self._late(j, row, mask)
+                late = True
                 continue
             new = mask & ~st.held[j]
             if new != mask:
@@ -261,6 +269,8 @@ class FloodExchange(Exchange):
             if new:
                 self._gain(j, row, st, new)
                 self._queue(j, row, new, src)
+        if late:
+            self.late_packets[link.id] += 1
 
     def flush(self, j: int) -> None:
         for link in self.out_links[j]:

@@ -148,6 +148,8 @@ class Simulation:
             arrays["P_fused"] = self.P_fused
         counts = self.network.counts()
         counts.update(self.exchange.counts())
+        for entry, late in zip(counts["per_link"], self.exchange.late_packets):
+            entry["late_packets"] = late
         for name in self.scenario.baselines:
             for key, val in BASELINES[name](self).items():
                 # Underscored keys are side facts (counts), not arrays.

@@ -66,6 +66,10 @@ def test_one_nanosecond_past_the_tick_misses_it():
     # Row r arrives at t_{r+2} + 1 ns, after it became final at t_{r+2}; rows
     # 0..9 arrive before the run ends at t_12: 10 rows in each direction.
     assert late.counts["late"] == 20
+    # ... and per link: every delivered packet carried only late information.
+    for entry in late.counts["per_link"]:
+        assert entry["late_packets"] == entry["delivered"] == 10
+    assert all(e["late_packets"] == 0 for e in on2.counts["per_link"])
     a = late["arrival"]
     assert a[1, 0, 0] == (10_000_000 * 2 + 1) / 1e9
     # The final estimate of row 0 at node 1 therefore uses only its own measurement.
