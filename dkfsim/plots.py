@@ -386,6 +386,19 @@ def _pyplot():
     return plt
 
 
+def _save_png(fig, path: Path, dpi: int = 100) -> None:
+    """PNG with a 256-colour palette: a third of the size of matplotlib's RGBA, same look."""
+    import io
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=dpi, bbox_inches="tight")
+    try:
+        from PIL import Image
+        img = Image.open(buf).convert("RGB").quantize(colors=256, method=Image.Quantize.MEDIANCUT)
+        img.save(path, format="PNG", optimize=True)
+    except ImportError:   # Pillow ships with matplotlib; keep the plain file if it is missing
+        Path(path).write_bytes(buf.getvalue())
+
+
 def _save(fig, stem: Path, formats) -> list[Path]:
     stem = Path(stem)
     try:
@@ -396,8 +409,10 @@ def _save(fig, stem: Path, formats) -> list[Path]:
     for fmt in formats:
         path = stem.with_name(f"{stem.name}.{fmt}")
         try:
-            fig.savefig(path, dpi=100 if fmt == "png" else None, bbox_inches="tight",
-                        metadata={"Software": "dkfsim"} if fmt == "png" else None)
+            if fmt == "png":
+                _save_png(fig, path)
+            else:
+                fig.savefig(path, bbox_inches="tight")
         except OSError as exc:
             raise DkfsimError(f"{path}: cannot write the figure ({exc.strerror})") from None
         out.append(path)

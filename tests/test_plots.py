@@ -1,0 +1,194 @@
+"""`dkfsim plot`: figures from run folders, Monte Carlo folders and --compare, and its errors."""
+
+from __future__ import annotations
+
+import csv
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+pytest.importorskip("matplotlib")
+import matplotlib.image as mpimg  # noqa: E402
+
+from dkfsim.cli import main  # noqa: E402
+from dkfsim.errors import DkfsimError  # noqa: E402
+from dkfsim import plots  # noqa: E402
+
+ROOT = Path(__file__).resolve().parents[1]
+K_RUN = 60
+T = 0.01
+
+
+@pytest.fixture(scope="module")
+def run_dir(tmp_path_factory):
+    out = tmp_path_factory.mktemp("plots") / "run"
+    rc = main(["run", str(ROOT / "scenarios" / "paper_case1.yaml"), "--out", str(out),
+               "--steps", str(K_RUN), "--quiet"])
+    assert rc == 0
+    return out
+
+
+def write_montecarlo(path: Path, K: int = K_RUN, runs: int = 4, T: float = T,
+                     algorithms=("anti_delay_dkf", "centralized", "ci_consensus")) -> Path:
+    """A Monte Carlo folder with the layout of the montecarlo contract."""
+    path.mkdir(parents=True)
+    rng = np.random.default_rng(0)
+    A, nx = len(algorithms), 3
+    t = T * np.arange(1, K + 1)
+    mse = np.exp(rng.normal(size=(A, K, nx))) * (1 + np.arange(A))[:, None, None]
+    truth = np.cumsum(rng.normal(size=(K, nx)), axis=0)
+    np.savez(path / "curves.npz", t=t, components=np.array(["position", "velocity", "acceleration"]),
+             algorithms=np.array(list(algorithms)), mse=mse, mse_ci_lo=0.8 * mse, mse_ci_hi=1.25 * mse,
+             nees=3 + rng.normal(size=(A, K)), nees_band=np.array([2.2, 3.9]),
+             example_truth=truth, example_x=truth[None] + 0.3 * rng.normal(size=(A, K, nx)),
+             example_node0=truth + rng.normal(size=(K, nx)))
+    with open(path / "runs.csv", "w", newline="") as fh:
+        w = csv.writer(fh)
+        w.writerow(["run", "seed", "algorithm", "component", "mse", "anees", "disagreement",
+                    "messages_per_tick", "bytes_per_tick", "lost", "late"])
+        for r in range(runs):
+            for a in algorithms:
+                for c in ("position", "velocity", "acceleration"):
+                    w.writerow([r, 100 + r, a, c, 0.2, 3.0, 0.0, 20.0, 960.0, 0, 0])
+    summary = {"scenario": "fake_mc", "d_t": 3,
+               "scenario_config": {"name": "fake_mc", "model": {"kind": "constant_acceleration", "T": T}},
+               "algorithms": {a: {"mse": [0.2, 0.2, 0.1], "mse_ci95": [[0.1, 0.3]] * 3, "anees": 3.0,
+                                  "anees_band95": [2.2, 3.9]} for a in algorithms}}
+    (path / "summary.json").write_text(json.dumps(summary))
+    return path
+
+
+def assert_figures(folder: Path, stems, formats=("png", "pdf")):
+    for stem in stems:
+        for fmt in formats:
+            f = folder / f"{stem}.{fmt}"
+            assert f.is_file(), f"missing {f}"
+            assert f.stat().st_size > 1000, f"{f} is (nearly) empty"
+            if fmt == "png":
+                img = mpimg.imread(f)
+                assert img.ndim == 3 and img.shape[0] > 200 and img.shape[1] > 300
+                assert img[..., :3].std() > 0.05, f"{f} looks blank"
+                assert f.stat().st_size < 300_000
+            if fmt == "pdf":
+                assert f.read_bytes()[:5] == b"%PDF-"
+
+
+def test_run_folder_default_png_and_pdf(run_dir, capsys):
+    assert main(["plot", str(run_dir)]) == 0
+    assert_figures(run_dir / "figures", ["tracking", "mse"])
+    out = capsys.readouterr().out
+    assert str(run_dir / "figures" / "mse.png") in out
+
+
+def test_run_folder_curves_are_the_squared_errors(run_dir):
+    f = plots.load_folder(run_dir)
+    d = np.load(run_dir / "run.npz")
+    assert f.kind == "run" and f.K == K_RUN
+    assert f.components == ["position", "velocity", "acceleration"]
+    assert f.units == ["m", "m/s", "m/s$^2$"]
+    np.testing.assert_allclose(f.mse["anti_delay_dkf"], (d["x_fused"] - d["truth"]) ** 2)
+    np.testing.assert_allclose(f.mse["anti_delay_dkf_local"],
+                               np.mean((d["x_local"] - d["truth"][:, None]) ** 2, axis=1))
+    np.testing.assert_allclose(f.mse["centralized"], (d["x_centralized"] - d["truth"]) ** 2)
+    np.testing.assert_allclose(f.node0, d["x_local"][:, 0])
+    assert f.d_t == 4 and f.scenario == "paper_case1"
+
+
+def test_out_and_format(run_dir, tmp_path):
+    figs = tmp_path / "figs"
+    assert main(["plot", str(run_dir), "--out", str(figs), "--format", "png", "--component", "position"]) == 0
+    assert_figures(figs, ["tracking", "mse"], formats=("png",))
+    assert not list(figs.glob("*.pdf"))
+
+
+def test_montecarlo_folder(tmp_path):
+    mc = write_montecarlo(tmp_path / "mc")
+    f = plots.load_folder(mc)
+    assert f.kind == "montecarlo" and f.n_runs == 4 and f.d_t == 3
+    assert set(f.ci) == {"anti_delay_dkf", "centralized", "ci_consensus"}
+    assert f.nees_band == (2.2, 3.9)
+    assert main(["plot", str(mc)]) == 0
+    assert_figures(mc / "figures", ["tracking", "mse", "nees"])
+
+
+def test_montecarlo_folder_without_examples_or_nees(tmp_path):
+    mc = tmp_path / "mc"
+    write_montecarlo(mc)
+    z = dict(np.load(mc / "curves.npz"))
+    for k in ("example_truth", "example_x", "example_node0", "nees", "nees_band", "mse_ci_lo", "mse_ci_hi"):
+        z.pop(k)
+    np.savez(mc / "curves.npz", **z)
+    assert main(["plot", str(mc), "--format", "png"]) == 0
+    assert_figures(mc / "figures", ["mse"], formats=("png",))
+    assert not (mc / "figures" / "tracking.png").exists()
+    assert not (mc / "figures" / "nees.png").exists()
+
+
+def test_compare_two_folders(run_dir, tmp_path):
+    mc = write_montecarlo(tmp_path / "mc")
+    figs = tmp_path / "cmp"
+    rc = main(["plot", str(run_dir), str(mc), "--compare", "--labels", "case 1", "case 2",
+               "--out", str(figs), "--name", "fig5"])
+    assert rc == 0
+    assert_figures(figs, ["fig5"])
+
+
+def test_compare_default_output_and_one_component(run_dir, tmp_path):
+    mc = write_montecarlo(tmp_path / "mc")
+    assert main(["plot", str(mc), str(run_dir), "--compare", "--component", "position", "--format", "png"]) == 0
+    assert_figures(mc / "figures", ["compare_mse"], formats=("png",))
+
+
+def fails(capsys, argv, *words):
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("dkfsim plot: error: ")
+    for w in words:
+        assert w in err, err
+    return err
+
+
+def test_errors(run_dir, tmp_path, capsys):
+    fails(capsys, ["plot", str(tmp_path / "nope")], "no such folder")
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    fails(capsys, ["plot", str(empty)], "neither a run folder", "Monte Carlo")
+    fails(capsys, ["plot", str(run_dir / "run.npz")], "not a folder")
+    short = write_montecarlo(tmp_path / "short", K=K_RUN - 20)
+    fails(capsys, ["plot", str(run_dir), str(short), "--compare"], "40 ticks", "60")
+    slow = write_montecarlo(tmp_path / "slow", T=0.1)
+    fails(capsys, ["plot", str(run_dir), str(slow), "--compare"], "different sample times")
+    fails(capsys, ["plot", str(run_dir), str(run_dir), "--compare", "--labels", "a"], "1 labels for 2 folders")
+    fails(capsys, ["plot", str(run_dir), "--compare"], "at least two folders")
+    fails(capsys, ["plot", str(run_dir), "--labels", "a"], "--labels", "--compare")
+    fails(capsys, ["plot", str(run_dir), "--component", "jerk"], "'jerk'", "position")
+    fails(capsys, ["plot", str(run_dir), "--smooth", "0"], "--smooth")
+
+
+def test_errors_in_the_files(tmp_path, capsys):
+    summ_only = tmp_path / "summ"
+    summ_only.mkdir()
+    (summ_only / "summary.json").write_text("{}")
+    fails(capsys, ["plot", str(summ_only)], "no run.npz", "--save")
+    bad = tmp_path / "bad"
+    bad.mkdir()
+    (bad / "run.npz").write_bytes(b"not a zip file")
+    fails(capsys, ["plot", str(bad)], "run.npz", "not a readable")
+    mc = write_montecarlo(tmp_path / "mc")
+    z = dict(np.load(mc / "curves.npz"))
+    z["mse"] = z["mse"][:, :10]
+    np.savez(mc / "curves.npz", **z)
+    with pytest.raises(DkfsimError, match="'mse' has shape"):
+        plots.load_folder(mc)
+
+
+def test_component_names_and_smoothing():
+    assert plots.component_names(3, "constant_acceleration") == ["position", "velocity", "acceleration"]
+    assert plots.component_names(3, "linear") == ["x[0]", "x[1]", "x[2]"]
+    assert plots.component_names(2, "constant_acceleration") == ["x[0]", "x[1]"]
+    a = np.array([0.0, 3.0, 0.0, 0.0, 6.0])
+    np.testing.assert_allclose(plots.moving_average(a, 3), [1.5, 1.0, 1.0, 2.0, 3.0])
+    np.testing.assert_allclose(plots.moving_average(a, 1), a)
+    np.testing.assert_allclose(plots.moving_average(np.ones((7, 2)), 4), np.ones((7, 2)))
