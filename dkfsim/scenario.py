@@ -367,6 +367,11 @@ class Scenario(StrictModel):
                 raise custom_error(f"{s.name!r} is already the name of sensors.{names[s.name]}",
                                    f"sensors.{i}.name")
             names[s.name] = i
+        if "ci_consensus" in self.baselines and self.consensus_rounds > 0 \
+                and self.model.T_ns % self.consensus_rounds:
+            raise custom_error(f"{self.consensus_rounds} rounds do not divide T = {self.model.T} s into "
+                               f"whole nanoseconds (ci_consensus runs a round every T/rounds)",
+                               "consensus_rounds")
         self._check_network()
         return self
 

@@ -680,3 +680,11 @@ def test_known_baselines_is_one_extendable_tuple(monkeypatch):
 def test_scenario_model_validate_without_loader():
     sc = Scenario.model_validate(base())
     assert sc.n == 4 and sc.source is None
+
+
+def test_consensus_rounds_must_divide_the_period():
+    d = put(put(base(), "baselines", ["ci_consensus"]), "consensus_rounds", 3)
+    d["model"]["T"] = 0.01
+    assert "consensus_rounds" in load_error(d) and "do not divide" in load_error(d)
+    d["consensus_rounds"] = 4
+    assert load_scenario(d).consensus_rounds == 4
