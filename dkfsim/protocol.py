@@ -157,6 +157,20 @@ class Exchange:
         raise NotImplementedError
 
     def receive(self, link, payload) -> None:
+        """Deliver a packet: late rows are counted, live ones go to :meth:`_accept`."""
+        seq, items = payload
+        late = False
+        for row, mask in items:
+            st = self.rows.get(row)
+            if st is None:
+                self._late(link.dst, row, mask)
+                late = True
+            else:
+                self._accept(link, seq, row, st, mask)
+        if late:
+            self.late_packets[link.id] += 1
+
+    def _accept(self, link, seq: int, row: int, st: _Row, mask: int) -> None:
         raise NotImplementedError
 
     def flush(self, node: int) -> None:
@@ -183,29 +197,17 @@ class TreeExchange(Exchange):
             self._dirty[i].add(row)
             self._schedule_flush(i)
 
-    def receive(self, link, payload) -> None:
-        seq, items = payload
+    def _accept(self, link, seq, row, st, mask) -> None:
         j, e = link.dst, link.id
-        dirty = late = False
-        for row, mask in items:
-            st = self.rows.get(row)
-            if st is None:
-                self._late(j, row, mask)
-                late = True
-                continue
-            if seq <= st.inseq[e]:
-                self.stale += 1
-                continue
-            st.inseq[e] = seq
-            st.inbox[e] = mask
-            new = mask & ~st.held[j]
-            if new:
-                self._gain(j, row, st, new)
-                self._dirty[j].add(row)
-                dirty = True
-        if late:
-            self.late_packets[e] += 1
-        if dirty:
+        if seq <= st.inseq[e]:
+            self.stale += 1
+            return
+        st.inseq[e] = seq
+        st.inbox[e] = mask
+        new = mask & ~st.held[j]
+        if new:
+            self._gain(j, row, st, new)
+            self._dirty[j].add(row)
             self._schedule_flush(j)
 
     def flush(self, j: int) -> None:
@@ -253,24 +255,14 @@ class FloodExchange(Exchange):
             self._gain(i, row, st, 1 << i)
             self._queue(i, row, 1 << i, -1)
 
-    def receive(self, link, payload) -> None:
-        _seq, items = payload
-        j, src = link.dst, link.src
-        late = False
-        for row, mask in items:
-            st = self.rows.get(row)
-            if st is None:
-                self._late(j, row, mask)
-                late = True
-                continue
-            new = mask & ~st.held[j]
-            if new != mask:
-                self.duplicates += 1
-            if new:
-                self._gain(j, row, st, new)
-                self._queue(j, row, new, src)
-        if late:
-            self.late_packets[link.id] += 1
+    def _accept(self, link, seq, row, st, mask) -> None:
+        j = link.dst
+        new = mask & ~st.held[j]
+        if new != mask:
+            self.duplicates += 1
+        if new:
+            self._gain(j, row, st, new)
+            self._queue(j, row, new, link.src)
 
     def flush(self, j: int) -> None:
         for link in self.out_links[j]:
