@@ -363,7 +363,7 @@ def _mse_ylabel(folder: Folder, i: int, smooth: int) -> str:
     return f"{comp} MSE{_unit_label(unit, squared=True)}"
 
 
-def _mse_note(folder: Folder, smooth: int) -> str:
+def mse_note(folder: Folder, smooth: int) -> str:
     if folder.kind == "montecarlo":
         note = f"mean over {folder.n_runs} Monte Carlo runs" if folder.n_runs else "mean over Monte Carlo runs"
         if folder.ci:
@@ -443,6 +443,20 @@ def _positive(a):
     """Zeros (exact estimates) cannot be drawn on a log axis; mask them."""
     a = np.asarray(a, dtype=float)
     return np.where(a > 0, a, np.nan)
+
+
+def _band(lo, hi):
+    """A confidence band for a log axis: a lower bound <= 0 (t-interval of few runs) goes to the floor."""
+    lo = np.asarray(lo, dtype=float)
+    return np.where(lo > 0, lo, 1e-300), _positive(hi)
+
+
+def _log_limits(ax, curves) -> None:
+    """Fit the log axis to the mean curves (not to the bands, whose lower ends can be ~0)."""
+    vals = np.concatenate([np.asarray(c, dtype=float).ravel() for c in curves])
+    vals = vals[np.isfinite(vals) & (vals > 0)]
+    if vals.size:
+        ax.set_ylim(np.percentile(vals, 0.5) / 2.0, vals.max() * 2.0)
 
 
 # ----------------------------------------------------------------------------
@@ -526,21 +540,25 @@ def plot_mse(folder: Folder, stem, formats=DEFAULT_FORMATS, components=None, smo
     plt = _pyplot()
     fig, axes = plt.subplots(len(idx), 1, figsize=(7.5, 2.3 * len(idx) + 0.9), sharex=True, squeeze=False)
     for ax, i in zip(axes[:, 0], idx):
+        drawn = []
         for j, a in enumerate(names):
             col = color_of(a, j)
-            style = dict(color=col, lw=1.1, ls="--" if a == "centralized" else "-",
+            style = dict(color=col, lw=1.0, ls="--" if a == "centralized" else "-",
                          zorder={"anti_delay_dkf": 5, "centralized": 6}.get(a, 3))
-            ax.plot(folder.t, _positive(moving_average(folder.mse[a][:, i], w)), label=label_of(a), **style)
+            y = _positive(moving_average(folder.mse[a][:, i], w))
+            drawn.append(y)
+            ax.plot(folder.t, y, label=label_of(a), **style)
             if a in folder.ci:
                 lo, hi = folder.ci[a]
-                ax.fill_between(folder.t, _positive(moving_average(lo[:, i], w)),
-                                _positive(moving_average(hi[:, i], w)), color=col, alpha=0.2, lw=0)
+                ax.fill_between(folder.t, *_band(moving_average(lo[:, i], w), moving_average(hi[:, i], w)),
+                                color=col, alpha=0.2, lw=0)
         ax.set_yscale("log")
+        _log_limits(ax, drawn)
         ax.set_ylabel(_mse_ylabel(folder, i, w))
         ax.grid(True, which="both", alpha=0.25)
         ax.margins(x=0)
     axes[-1, 0].set_xlabel("time [s]")
-    fig.suptitle(title or f"MSE per tick: {folder.describe()}\n({_mse_note(folder, w)})", fontsize=11)
+    fig.suptitle(title or f"MSE per tick: {folder.describe()}\n({mse_note(folder, w)})", fontsize=11)
     _legend_below(fig, axes[0, 0])
     return _save(fig, stem, formats)
 
@@ -612,23 +630,28 @@ def plot_compare(folders: list[Folder], stem, labels=None, formats=DEFAULT_FORMA
     cmap = plt.get_cmap("viridis")
     colors = [f"C{j}" for j in range(n)] if n <= 3 else [cmap(0.9 * j / (n - 1)) for j in range(n)]
     for ax, i in zip(axes[:, 0], idx):
+        drawn = []
         for f, lab, col in zip(folders, labels, colors):
-            ax.plot(f.t, _positive(moving_average(f.mse[algorithm][:, i], w)), color=col, lw=1.2, label=lab)
+            y = _positive(moving_average(f.mse[algorithm][:, i], w))
+            drawn.append(y)
+            ax.plot(f.t, y, color=col, lw=1.1, label=lab)
             if algorithm in f.ci:
                 lo, hi = f.ci[algorithm]
-                ax.fill_between(f.t, _positive(moving_average(lo[:, i], w)),
-                                _positive(moving_average(hi[:, i], w)), color=col, alpha=0.18, lw=0)
+                ax.fill_between(f.t, *_band(moving_average(lo[:, i], w), moving_average(hi[:, i], w)),
+                                color=col, alpha=0.18, lw=0)
         if "centralized" in first.mse:
-            ax.plot(first.t, _positive(moving_average(first.mse["centralized"][:, i], w)), color="k",
-                    lw=1.0, ls="--", label=f"centralized KF ({labels[0]})")
+            y = _positive(moving_average(first.mse["centralized"][:, i], w))
+            drawn.append(y)
+            ax.plot(first.t, y, color="k", lw=1.0, ls="--", label=f"centralized KF ({labels[0]})")
         ax.set_yscale("log")
+        _log_limits(ax, drawn)
         ax.set_ylabel(_mse_ylabel(first, i, w))
         ax.grid(True, which="both", alpha=0.25)
         ax.margins(x=0)
     axes[-1, 0].set_xlabel("time [s]")
     kinds = {f.kind for f in folders}
     ref = folders[0]
-    note = _mse_note(ref if kinds == {ref.kind} else next(f for f in folders if f.kind == "run"), w)
+    note = mse_note(ref if kinds == {ref.kind} else next(f for f in folders if f.kind == "run"), w)
     what = "fused anti-delay DKF" if algorithm == "anti_delay_dkf" else label_of(algorithm)
     fig.suptitle(title or f"MSE of the {what}: " + ", ".join(labels) + f"\n({note})", fontsize=11)
     _legend_below(fig, axes[0, 0], ncol=3 if n + 1 > 4 else 2)
