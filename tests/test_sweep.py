@@ -1,0 +1,322 @@
+"""dkfsim sweep: one row per task and algorithm, crash-safe resume, identical
+results on every executor, and clear errors for bad sweeps."""
+
+from __future__ import annotations
+
+import os
+import signal
+import sqlite3
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+import yaml
+
+from dkfsim.errors import DkfsimError
+
+ROOT = Path(__file__).resolve().parents[1]
+CASE1 = ROOT / "scenarios" / "paper_case1.yaml"
+
+
+def dkfsim(*args, cwd=ROOT, **kw):
+    return subprocess.run([sys.executable, "-m", "dkfsim", *map(str, args)],
+                          capture_output=True, text=True, cwd=cwd, **kw)
+
+
+def write_sweep(folder: Path, *, name="s", scenario=CASE1, grid=None, runs=2, steps=40,
+                extra_set=(), **keys) -> Path:
+    data = {"scenario": str(scenario),
+            "grid": {"links.default.latency.d_t": [0, 2], "protocol": ["tree", "flood"]}
+            if grid is None else grid,
+            "set": [f"steps={steps}", *extra_set],
+            "runs": runs, **keys}
+    path = folder / f"{name}.yaml"
+    path.write_text(yaml.safe_dump(data, sort_keys=False))
+    return path
+
+
+def table(db: Path, sql: str):
+    with sqlite3.connect(db) as conn:
+        return conn.execute(sql).fetchall()
+
+
+# --------------------------------------------------------------------------- one row per task
+def test_small_sweep_writes_one_row_per_parameter_set_seed_and_algorithm(tmp_path):
+    from dkfsim.montecarlo import derive_seed
+    from dkfsim.sweep import load_sweep, read_results, run_sweep
+    path = write_sweep(tmp_path, grid={"links.default.latency.d_t": [0, 1, 3]}, runs=2,
+                       extra_set=["baselines=[centralized, local]"])
+    sweep = load_sweep(path)
+    assert sweep.output == tmp_path / "s.sqlite"          # default: <stem>.sqlite beside it
+    rep = run_sweep(sweep, jobs=1, progress=False)
+    assert (rep.total, rep.skipped, rep.computed) == (6, 0, 6)
+
+    db = sweep.output
+    assert table(db, "PRAGMA journal_mode")[0][0] == "wal"
+    tasks = table(db, "SELECT param_hash, run, seed FROM tasks")
+    assert len(tasks) == 6 == len(set((h, r) for h, r, _ in tasks))
+    base = {p.param_hash: p.base_seed for p in sweep.parameter_sets}
+    for h, r, seed in tasks:
+        assert seed == derive_seed(base[h], r)
+
+    rows = table(db, "SELECT param_hash, run, seed, algorithm FROM results")
+    algorithms = {a for *_, a in rows}
+    assert algorithms == {"anti_delay_dkf", "anti_delay_dkf_local", "centralized", "local"}
+    keys = [(h, r, a) for h, r, _, a in rows]
+    assert len(keys) == len(set(keys)) == 6 * len(algorithms)
+    assert {(h, r) for h, r, *_ in rows} == {(h, r) for h, r, _ in tasks}
+
+    columns, exported = read_results(db)
+    assert columns[:5] == ["links.default.latency.d_t", "param_hash", "run", "seed", "algorithm"]
+    for c in ("mse_position", "mse_velocity", "mse_acceleration", "anees", "disagreement",
+              "messages_per_tick", "bytes_per_tick", "lost", "late"):
+        assert c in columns
+    assert [row[0] for row in exported] == sorted(row[0] for row in exported)
+    mse = columns.index("mse_position")
+    assert all(row[mse] > 0 for row in exported)
+    # d_t = 0 is the zero-latency case: the fused estimate equals the centralized filter.
+    at0 = {(r[2], r[4]): r for r in exported if r[0] == 0}
+    for run in (0, 1):
+        f, c = at0[(run, "anti_delay_dkf")][mse], at0[(run, "centralized")][mse]
+        assert f == pytest.approx(c, rel=1e-9)
+
+
+def test_widen_keeps_per_component_values_of_any_metric():
+    from dkfsim.sweep import widen
+    rows = [{"seed": 5, "algorithm": "a", "component": c, "mse": m, "anees": 3.0, "late": late}
+            for c, m, late in (("x0", 0.1, 1), ("x1", 0.2, 2))]
+    ((alg, seed, cols),) = widen(rows)
+    assert (alg, seed) == ("a", 5)
+    assert cols == {"mse_x0": 0.1, "mse_x1": 0.2, "anees": 3.0, "late_x0": 1, "late_x1": 2}
+
+
+def test_a_task_is_written_entirely_or_not_at_all(tmp_path):
+    from dkfsim.sweep import SweepDB, load_sweep
+    sweep = load_sweep(write_sweep(tmp_path, grid={}, runs=1))
+    good = [{"seed": 7, "algorithm": a, "component": "x0", "mse": 1.0} for a in ("a", "b")]
+    bad = good[:1] + [{"seed": 8, "algorithm": "b", "component": "x0", "mse": 1.0}]
+    h = sweep.parameter_sets[0].param_hash
+    with SweepDB(sweep.output, sweep) as store:
+        with pytest.raises(RuntimeError):
+            store.write_task(h, 0, 7, bad, 0.1)   # fails on its second row
+        assert store.done() == set()
+        store.write_task(h, 0, 7, good, 0.1)
+        assert store.done() == {(h, 0)}
+        with pytest.raises(sqlite3.IntegrityError):
+            store.write_task(h, 0, 7, good, 0.1)  # (param_hash, run) is unique
+    assert table(sweep.output, "SELECT COUNT(*) FROM results") == [(2,)]
+
+
+# --------------------------------------------------------------------------- kill -9 and resume
+def test_killed_sweep_resumes_without_losing_or_repeating_a_task(tmp_path):
+    psutil = pytest.importorskip("psutil")
+    grid = {"links.default.latency.d_t": [0, 1, 2]}
+    killed = write_sweep(tmp_path, name="killed", grid=grid, runs=4)
+    fresh = write_sweep(tmp_path, name="fresh", grid=grid, runs=4)
+    db = tmp_path / "killed.sqlite"
+    total = 12
+
+    proc = subprocess.Popen([sys.executable, "-m", "dkfsim", "sweep", killed, "--jobs", "2",
+                             "--quiet"], cwd=ROOT, stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True)
+    workers = []
+    deadline = time.monotonic() + 60
+    done = 0
+    try:
+        while time.monotonic() < deadline and proc.poll() is None:
+            if not workers:
+                workers = psutil.Process(proc.pid).children()
+            if db.exists():
+                try:
+                    done = table(db, "SELECT COUNT(*) FROM tasks")[0][0]
+                except sqlite3.OperationalError:  # schema not there yet
+                    done = 0
+                if done >= 3:
+                    break
+            time.sleep(0.01)
+        assert proc.poll() is None, f"the sweep ended before it could be killed: {proc.stderr.read()}"
+        os.kill(proc.pid, signal.SIGKILL)
+        proc.wait(timeout=10)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    saved = table(db, "SELECT COUNT(*) FROM tasks")[0][0]
+    assert 3 <= saved < total, saved
+    # Every saved task has all its rows (3 algorithms: fused, local, centralized).
+    assert table(db, "SELECT COUNT(*) FROM results")[0][0] == 3 * saved
+    # The pool's workers notice that their parent is gone and exit.
+    assert workers, "no worker processes seen"
+    gone, alive = psutil.wait_procs(workers, timeout=10)
+    assert not alive, alive
+
+    again = dkfsim("sweep", killed, "--jobs", "2", "--export", tmp_path / "killed.csv")
+    assert again.returncode == 0, again.stderr
+    assert f"done: {saved} already in the database, {total - saved} computed" in again.stdout
+    assert table(db, "SELECT COUNT(*) FROM tasks")[0][0] == total
+    assert table(db, "SELECT COUNT(*) FROM results")[0][0] == 3 * total
+
+    clean = dkfsim("sweep", fresh, "--jobs", "1", "--quiet", "--export", tmp_path / "fresh.csv")
+    assert clean.returncode == 0, clean.stderr
+    a = (tmp_path / "killed.csv").read_text()
+    b = (tmp_path / "fresh.csv").read_text()
+    assert len(a.splitlines()) == 1 + 3 * total
+    assert a == b
+
+
+# --------------------------------------------------------------------------- executors agree
+def test_dask_local_cluster_and_local_pool_give_identical_rows(tmp_path):
+    pytest.importorskip("distributed")
+    from dkfsim.executors import DaskExecutor
+    from dkfsim.sweep import export, load_sweep, run_sweep
+    path = write_sweep(tmp_path, runs=2, grid={"links.default.latency.d_t": [0, 3],
+                                               "protocol": ["tree", "flood"]})
+    with DaskExecutor(n_workers=2, processes=False) as ex:
+        rep = run_sweep(load_sweep(path, output=tmp_path / "dask.sqlite"), executor=ex,
+                        progress=False)
+    assert rep.computed == 8 and "Dask" in rep.executor
+    export(tmp_path / "dask.sqlite", tmp_path / "dask.csv")
+
+    p = dkfsim("sweep", path, "--jobs", "2", "--db", tmp_path / "pool.sqlite", "--quiet",
+               "--export", tmp_path / "pool.csv")
+    assert p.returncode == 0, p.stderr
+    a, b = (tmp_path / "dask.csv").read_text(), (tmp_path / "pool.csv").read_text()
+    assert len(a.splitlines()) == 1 + 8 * 3
+    assert a == b
+
+    pq = pytest.importorskip("pyarrow.parquet")
+    out, n = export(tmp_path / "pool.sqlite", tmp_path / "pool.parquet")
+    t = pq.read_table(out)
+    assert t.num_rows == n == 24
+    assert t.column("algorithm").to_pylist()[:3] == ["anti_delay_dkf", "anti_delay_dkf_local",
+                                                     "centralized"]
+
+
+def test_cli_dask_local_processes(tmp_path):
+    pytest.importorskip("distributed")
+    path = write_sweep(tmp_path, runs=1, steps=20, grid={"protocol": ["tree", "flood"]})
+    p = dkfsim("sweep", path, "--dask-local", "2", "--export", tmp_path / "d.csv")
+    assert p.returncode == 0, p.stderr
+    assert "Dask LocalCluster (2 worker processes)" in p.stdout
+    q = dkfsim("sweep", path, "--jobs", "1", "--db", tmp_path / "i.sqlite", "--quiet",
+               "--export", tmp_path / "i.csv")
+    assert q.returncode == 0, q.stderr
+    assert (tmp_path / "d.csv").read_text() == (tmp_path / "i.csv").read_text()
+
+
+# --------------------------------------------------------------------------- definition checks
+def test_resume_refuses_a_changed_sweep_definition(tmp_path):
+    from dkfsim.sweep import load_sweep, run_sweep
+    scen = tmp_path / "case.yaml"
+    scen.write_text(CASE1.read_text())
+    path = write_sweep(tmp_path, scenario="case.yaml", runs=1, steps=20,
+                       grid={"protocol": ["tree"]}, output="res.sqlite")
+    assert run_sweep(path, jobs=1, progress=False).computed == 1
+
+    # Same definition (comments, a moved output key order): resumes, computes nothing.
+    path.write_text("# a comment\n" + path.read_text())
+    assert run_sweep(path, jobs=1, progress=False).computed == 0
+
+    write_sweep(tmp_path, scenario="case.yaml", runs=2, steps=20, grid={"protocol": ["tree"]},
+                output="res.sqlite")
+    with pytest.raises(DkfsimError, match=r"different sweep definition.*runs: 1 in the file, 2 now"):
+        run_sweep(path, jobs=1, progress=False)
+
+    write_sweep(tmp_path, scenario="case.yaml", runs=1, steps=20,
+                grid={"protocol": ["tree", "flood"]}, output="res.sqlite")
+    with pytest.raises(DkfsimError, match=r"different sweep definition.*grid"):
+        run_sweep(path, jobs=1, progress=False)
+
+    write_sweep(tmp_path, scenario="case.yaml", runs=1, steps=20, grid={"protocol": ["tree"]},
+                output="res.sqlite")
+    scen.write_text(CASE1.read_text().replace("R: [[0.8]]", "R: [[0.9]]"))
+    p = dkfsim("sweep", path)
+    assert p.returncode == 2
+    assert "different sweep definition" in p.stderr and "scenario file changed" in p.stderr
+    assert "Traceback" not in p.stderr and len(p.stderr.strip().splitlines()) == 1
+
+
+def test_a_second_writer_is_refused(tmp_path):
+    from dkfsim.sweep import SweepDB, load_sweep, run_sweep
+    sweep = load_sweep(write_sweep(tmp_path, grid={}, runs=1, steps=20))
+    with SweepDB(sweep.output, sweep):
+        with pytest.raises(DkfsimError, match="another dkfsim sweep is writing"):
+            run_sweep(sweep, jobs=1, progress=False)
+
+
+BAD = [
+    ({"grid": {"links.default.latencyy.d_t": [0, 1]}}, "links.default.latencyy"),
+    ({"grid": {"protocol": []}}, "grid.protocol: empty list"),
+    ({"grid": {"protocol": "tree"}}, "grid.protocol: must be a list"),
+    ({"grid": {"protocol": ["tree", "tree"]}}, "listed twice"),
+    ({"grid": {"protocol": ["tree", "gossip"]}}, "unknown protocol 'gossip'"),
+    ({"runs": 0}, "runs: must be >= 1"),
+    ({"runs": 1.5}, "runs: must be an integer"),
+    ({"scenario": "missing.yaml"}, "scenario: file not found"),
+    ({"burn_in": 1000}, "burn_in: must be less than steps"),
+    ({"rnus": 3}, "rnus: unknown key; did you mean 'runs'?"),
+    ({"set": ["steps"]}, "bad override 'steps'"),
+]
+
+
+@pytest.mark.parametrize("change, message", BAD, ids=[m for _, m in BAD])
+def test_bad_sweep_files_give_one_clear_paragraph(tmp_path, change, message):
+    from dkfsim.sweep import load_sweep
+    data = {"scenario": str(CASE1), "grid": {"protocol": ["tree"]}, "set": ["steps=20"],
+            "runs": 1}
+    data.update(change)
+    path = tmp_path / "bad.yaml"
+    path.write_text(yaml.safe_dump(data))
+    with pytest.raises(DkfsimError, match=None) as info:
+        load_sweep(path)
+    assert message in str(info.value)
+    assert str(path) in str(info.value)
+    assert not (tmp_path / "bad.sqlite").exists()
+
+
+def test_cli_bad_input_exits_2_with_one_paragraph(tmp_path):
+    missing = dkfsim("sweep", tmp_path / "nope.yaml")
+    assert missing.returncode == 2 and "sweep file not found" in missing.stderr
+
+    path = write_sweep(tmp_path, grid={"links.default.latency.dt": [0, 1]}, runs=1)
+    p = dkfsim("sweep", path)
+    assert p.returncode == 2
+    assert "links.default.latency.dt" in p.stderr and "parameter set 0" in p.stderr
+    assert "Traceback" not in p.stderr and len(p.stderr.strip().splitlines()) == 1
+
+    good = write_sweep(tmp_path, name="good", grid={}, runs=1, steps=20)
+    bad_export = dkfsim("sweep", good, "--export", tmp_path / "out.xlsx")
+    assert bad_export.returncode == 2 and "use a .csv or .parquet" in bad_export.stderr
+    assert not (tmp_path / "good.sqlite").exists()      # checked before anything runs
+    both = dkfsim("sweep", good, "--jobs", "2", "--dask-local", "2")
+    assert both.returncode == 2 and "not allowed with" in both.stderr
+
+    not_db = tmp_path / "plain.sqlite"
+    not_db.write_text("hello")
+    assert dkfsim("sweep", good, "--db", not_db).returncode == 2
+    assert dkfsim("sweep", good, "--db", not_db).stderr.count("not an SQLite file") == 1
+
+
+def test_export_only_from_a_database_and_help(tmp_path):
+    path = write_sweep(tmp_path, grid={"protocol": ["tree"]}, runs=1, steps=20)
+    assert dkfsim("sweep", path, "--jobs", "1", "--quiet").returncode == 0
+    db = tmp_path / "s.sqlite"
+    p = dkfsim("sweep", db, "--export", tmp_path / "x.csv")
+    assert p.returncode == 0, p.stderr
+    assert "wrote" in p.stdout and len((tmp_path / "x.csv").read_text().splitlines()) == 1 + 3
+    q = dkfsim("sweep", db)
+    assert q.returncode == 2 and "--export" in q.stderr
+    h = dkfsim("sweep", "--help")
+    for opt in ("--jobs", "--scheduler", "--dask-local", "--db", "--export", "--dry-run",
+                "--quiet", "scenario", "grid", "runs", "burn_in", "output"):
+        assert opt in h.stdout, opt
+    d = dkfsim("sweep", path, "--dry-run")
+    assert d.returncode == 0 and "1/1 done" in d.stdout
+
+
+def test_throughput_reports_runs_per_minute():
+    from dkfsim.sweep import throughput
+    out = throughput(steps=20, jobs=1, runs=2)
+    assert out["runs"] == 2 and out["steps"] == 20
+    assert out["runs_per_minute"] > 0 and out["wall_s"] > 0
