@@ -181,7 +181,7 @@ class DaskExecutor(Executor):
     """
 
     def __init__(self, address: str | None = None, n_workers: int | None = None, *,
-                 processes: bool = True, timeout: float = 20.0):
+                 processes: bool = True, timeout: float = 10.0):
         if (address is None) == (n_workers is None):
             raise ValueError("give exactly one of address and n_workers")
         distributed = _distributed()

@@ -865,7 +865,7 @@ sweep file keys:
   grid       mapping of dotted scenario keys (as --set) to lists of values (default: none)
   set        list of fixed "dotted.key=value" overrides, applied before the grid
   runs       Monte Carlo runs per parameter set (default: 1)
-  burn_in    rows skipped before time averages (default: null = 10%% of the ticks)
+  burn_in    rows skipped before time averages (default: null = 10% of the ticks)
   output     results database (default: <sweep file stem>.sqlite beside the sweep file)
 
 database: tables meta (the sweep definition), params (one row per parameter set, with its
