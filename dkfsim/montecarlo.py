@@ -34,6 +34,10 @@ packets, ``late`` contributions):
 * ``anti_delay_dkf`` and ``anti_delay_dkf_local``: the run's network counts;
 * ``no_buffer`` (and any baseline that reports ``counts_<name>``): its own
   network's counts;
+* ``ci_consensus`` (and any baseline that reports ``<name>_sent``): its own
+  packets; ``late`` is ``<name>_late`` if reported, else ``<name>_stale``
+  (for ``ci_consensus``: neighbour pairs used after being predicted forward
+  from an older tick, i.e. information that arrived late);
 * ``centralized_delayed``: one direct packet per sensor and tick; ``lost``
   counted from the same draws the baseline used;
 * ``local``: no communication (zeros);
@@ -140,6 +144,9 @@ def _traffic(name: str, sim, res) -> dict:
     elif isinstance(counts.get(f"counts_{name}"), dict):
         own = counts[f"counts_{name}"]
         sent, lost, late = own.get("sent", nan), own.get("lost", nan), own.get("late", nan)
+    elif f"{name}_sent" in counts:                  # flat side facts, e.g. ci_consensus_sent
+        sent, lost = counts[f"{name}_sent"], counts.get(f"{name}_lost", nan)
+        late = counts.get(f"{name}_late", counts.get(f"{name}_stale", nan))
     elif name == "centralized_delayed":
         from .baselines import direct_arrival_ticks
         sent = n * K

@@ -30,7 +30,7 @@ from dkfsim.montecarlo import CSV_COLUMNS, derive_seed, montecarlo, run_rows
 
 ROOT = Path(__file__).resolve().parents[1]
 CASE1 = ROOT / "scenarios" / "paper_case1.yaml"
-ALL_BASELINES = "baselines=[centralized,centralized_delayed,no_buffer,local]"
+ALL_BASELINES = "baselines=[centralized,centralized_delayed,no_buffer,local,ci_consensus]"
 
 
 def dkfsim(*args):
@@ -119,7 +119,8 @@ def test_output_contract(tmp_path):
     out = tmp_path / "mc"
     assert cli.main(["montecarlo", str(CASE1), "--runs", "3", "--steps", "40", "--burn-in", "5",
                      "--set", ALL_BASELINES, "--out", str(out), "--quiet"]) == 0
-    algs = ["anti_delay_dkf", "anti_delay_dkf_local", "centralized", "centralized_delayed", "no_buffer", "local"]
+    algs = ["anti_delay_dkf", "anti_delay_dkf_local", "centralized", "centralized_delayed", "no_buffer", "local",
+            "ci_consensus"]
     comps = ["position", "velocity", "acceleration"]
     with open(out / "runs.csv", newline="") as fh:
         rows = list(csv.DictReader(fh))
@@ -163,6 +164,15 @@ def test_output_contract(tmp_path):
     assert dkf["messages_per_tick"] > 11 and dkf["bytes_per_tick"] == pytest.approx(dkf["messages_per_tick"] * 90)
     assert A_["no_buffer"]["late"] > 0 and dkf["late"] == 0
     assert dkf["disagreement"] is None and A_["anti_delay_dkf_local"]["disagreement"] > 0
+    assert A_["ci_consensus"]["messages_per_tick"] == 22          # one round per tick on 22 arcs
+    assert A_["ci_consensus"]["disagreement"] > 0
+
+
+def test_without_fusion_and_with_a_generic_model():
+    res = montecarlo(load_scenario(scenario(3, steps=20, fusion="none")), 2, burn_in=0)
+    assert res.algorithms == ["anti_delay_dkf_local", "centralized"]
+    assert res.components == ["x0", "x1"]
+    assert res.mse.shape == (2, 20, 2) and np.isfinite(res.nees).all()
 
 
 # --------------------------------------------------------------------------- statistics
