@@ -104,6 +104,22 @@ class Folder:
     d_t: int | None = None
     nees: dict[str, np.ndarray] = field(default_factory=dict)       # algorithm -> (K,)
     nees_band: tuple[float, float] | None = None
+    burn_in: int | None = None        # rows skipped in the time averages (default: 10 % of K)
+    mse_ci95: dict[str, list] = field(default_factory=dict)   # algorithm -> per component [lo, hi]
+
+    def time_average(self, algorithm: str, i: int) -> float:
+        """MSE of one component averaged over the ticks after the burn-in."""
+        b = self.burn_in if self.burn_in is not None and 0 <= self.burn_in < self.K else self.K // 10
+        return float(np.mean(self.mse[algorithm][b:, i]))
+
+    def ci95(self, algorithm: str, i: int) -> tuple[float, float] | None:
+        """95 % interval of the time-averaged MSE over runs (Monte Carlo summary.json), if known."""
+        try:
+            v = self.mse_ci95[algorithm]
+            lo, hi = v[self.components[i]] if isinstance(v, dict) else v[i]
+            return (float(lo), float(hi)) if lo is not None and hi is not None else None
+        except (KeyError, IndexError, TypeError, ValueError):
+            return None
 
     @property
     def K(self) -> int:
@@ -185,6 +201,10 @@ def _d_t(summary: dict) -> int | None:
         return None
 
 
+def _int_or_none(v) -> int | None:
+    return v if isinstance(v, int) and not isinstance(v, bool) else None
+
+
 def _need(arrays: dict, key: str, path: Path, shape=None):
     if key not in arrays:
         raise DkfsimError(f"{path}: no array {key!r}")
@@ -250,7 +270,8 @@ def _load_run(p: Path) -> Folder:
         raise DkfsimError(f"{p / 'run.npz'}: no estimates (x_fused or x_local) to plot")
     return Folder(path=p, kind="run", scenario=str(summary.get("scenario", p.name)), t=t,
                   components=comps, units=_units(comps, kind), mse=mse, truth=truth,
-                  examples=examples, node0=node0, n_runs=1, d_t=_d_t(summary))
+                  examples=examples, node0=node0, n_runs=1, d_t=_d_t(summary),
+                  burn_in=_int_or_none((summary.get("metrics") or {}).get("burn_in")))
 
 
 def _count_runs(p: Path) -> int | None:
@@ -306,9 +327,14 @@ def _load_montecarlo(p: Path) -> Folder:
     name = summary.get("scenario", p.name)
     if isinstance(name, dict):
         name = name.get("name", p.name)
+    ci95 = {}
+    if isinstance(summary.get("algorithms"), dict):
+        ci95 = {a: v["mse_ci95"] for a, v in summary["algorithms"].items()
+                if isinstance(v, dict) and "mse_ci95" in v}
     return Folder(path=p, kind="montecarlo", scenario=str(name), t=t, components=comps,
                   units=_units(comps, kind), mse=mse, ci=ci, truth=truth, examples=examples,
-                  node0=node0, n_runs=n_runs or 0, d_t=_d_t(summary), nees=nees, nees_band=band)
+                  node0=node0, n_runs=n_runs or 0, d_t=_d_t(summary), nees=nees, nees_band=band,
+                  burn_in=_int_or_none(summary.get("burn_in")), mse_ci95=ci95)
 
 
 # ----------------------------------------------------------------------------
@@ -419,6 +445,23 @@ def _save(fig, stem: Path, formats) -> list[Path]:
     fig.clf()
     _pyplot().close(fig)
     return out
+
+
+def _averages(ax, entries, folder: Folder) -> None:
+    """A column right of the panel: each curve's time-averaged MSE after the burn-in, in its colour
+    (with the 95 % interval over runs when the Monte Carlo summary has it)."""
+    b = folder.burn_in if folder.burn_in is not None else folder.K // 10
+    ax.text(1.02, 1.0, f"mean over\nt ≥ {folder.t[min(b, folder.K - 1)]:g} s:", transform=ax.transAxes,
+            ha="left", va="top", fontsize=7.5, color="0.3")
+    for j, (text, col) in enumerate(entries):
+        ax.text(1.02, 0.80 - 0.105 * j, text, transform=ax.transAxes, ha="left", va="top",
+                fontsize=7.5, color=col, fontweight="bold")
+
+
+def _avg_text(folder: Folder, algorithm: str, i: int) -> str:
+    m = folder.time_average(algorithm, i)
+    ci = folder.ci95(algorithm, i)
+    return f"{m:.4g}" if ci is None else f"{m:.4g} ± {(ci[1] - ci[0]) / 2:.2g}"
 
 
 def _legend_below(fig, ax, ncol=2):
@@ -540,9 +583,10 @@ def plot_mse(folder: Folder, stem, formats=DEFAULT_FORMATS, components=None, smo
     plt = _pyplot()
     fig, axes = plt.subplots(len(idx), 1, figsize=(7.5, 2.3 * len(idx) + 0.9), sharex=True, squeeze=False)
     for ax, i in zip(axes[:, 0], idx):
-        drawn = []
+        drawn, entries = [], []
         for j, a in enumerate(names):
             col = color_of(a, j)
+            entries.append((_avg_text(folder, a, i), col))
             style = dict(color=col, lw=1.0, ls="--" if a == "centralized" else "-",
                          zorder={"anti_delay_dkf": 5, "centralized": 6}.get(a, 3))
             y = _positive(moving_average(folder.mse[a][:, i], w))
@@ -554,11 +598,12 @@ def plot_mse(folder: Folder, stem, formats=DEFAULT_FORMATS, components=None, smo
                                 color=col, alpha=0.2, lw=0)
         ax.set_yscale("log")
         _log_limits(ax, drawn)
+        _averages(ax, entries, folder)
         ax.set_ylabel(_mse_ylabel(folder, i, w))
         ax.grid(True, which="both", alpha=0.25)
         ax.margins(x=0)
     axes[-1, 0].set_xlabel("time [s]")
-    fig.suptitle(title or f"MSE per tick: {folder.describe()}\n({mse_note(folder, w)})", fontsize=11)
+    fig.suptitle((title or f"MSE per tick: {folder.describe()}") + f"\n({mse_note(folder, w)})", fontsize=11)
     _legend_below(fig, axes[0, 0])
     return _save(fig, stem, formats)
 
@@ -604,7 +649,7 @@ def check_comparable(folders: list[Folder]) -> None:
 
 
 def plot_compare(folders: list[Folder], stem, labels=None, formats=DEFAULT_FORMATS, components=None,
-                 smooth=None, title=None, algorithm="anti_delay_dkf") -> list[Path]:
+                 smooth=None, title=None, algorithm="anti_delay_dkf", bands=None) -> list[Path]:
     """Fused MSE of several folders and the centralized filter of the first (paper Figs. 5, 6)."""
     formats = _check_formats(formats)
     if len(folders) < 2:
@@ -629,22 +674,28 @@ def plot_compare(folders: list[Folder], stem, labels=None, formats=DEFAULT_FORMA
     n = len(folders)
     cmap = plt.get_cmap("viridis")
     colors = [f"C{j}" for j in range(n)] if n <= 3 else [cmap(0.9 * j / (n - 1)) for j in range(n)]
+    if bands is None:      # overlapping per-tick bands of many curves hide the curves
+        bands = n <= 2
     for ax, i in zip(axes[:, 0], idx):
-        drawn = []
+        drawn, entries = [], []
         for f, lab, col in zip(folders, labels, colors):
             y = _positive(moving_average(f.mse[algorithm][:, i], w))
             drawn.append(y)
+            entries.append((_avg_text(f, algorithm, i), col))
             ax.plot(f.t, y, color=col, lw=1.1, label=lab)
-            if algorithm in f.ci:
+            if bands and algorithm in f.ci:
                 lo, hi = f.ci[algorithm]
                 ax.fill_between(f.t, *_band(moving_average(lo[:, i], w), moving_average(hi[:, i], w)),
                                 color=col, alpha=0.18, lw=0)
         if "centralized" in first.mse:
             y = _positive(moving_average(first.mse["centralized"][:, i], w))
             drawn.append(y)
-            ax.plot(first.t, y, color="k", lw=1.0, ls="--", label=f"centralized KF ({labels[0]})")
+            entries.append((_avg_text(first, "centralized", i), "k"))
+            ax.plot(first.t, y, color="k", lw=1.0, ls="--",
+                    label="centralized KF (all data on time)" + (f", from {labels[0]}" if len(labels[0]) < 12 else ""))
         ax.set_yscale("log")
         _log_limits(ax, drawn)
+        _averages(ax, entries, first)
         ax.set_ylabel(_mse_ylabel(first, i, w))
         ax.grid(True, which="both", alpha=0.25)
         ax.margins(x=0)
@@ -652,8 +703,10 @@ def plot_compare(folders: list[Folder], stem, labels=None, formats=DEFAULT_FORMA
     kinds = {f.kind for f in folders}
     ref = folders[0]
     note = mse_note(ref if kinds == {ref.kind} else next(f for f in folders if f.kind == "run"), w)
+    if not bands and any(f.ci for f in folders):
+        note = note.replace(", 95 % CI shaded", "")
     what = "fused anti-delay DKF" if algorithm == "anti_delay_dkf" else label_of(algorithm)
-    fig.suptitle(title or f"MSE of the {what}: " + ", ".join(labels) + f"\n({note})", fontsize=11)
+    fig.suptitle((title or f"MSE of the {what}: " + ", ".join(labels)) + f"\n({note})", fontsize=11)
     _legend_below(fig, axes[0, 0], ncol=3 if n + 1 > 4 else 2)
     return _save(fig, stem, formats)
 
@@ -709,7 +762,8 @@ def add_command(sub) -> None:
                         "(default: 2%% of the ticks for a single run, none for Monte Carlo)")
     p.add_argument("--name", default=None, metavar="STEM",
                    help="file name (without extension) of the --compare figure (default: compare_mse)")
-    p.add_argument("--title", default=None, help="title of the --compare figure (default: generated)")
+    p.add_argument("--title", default=None,
+                   help="title of the --compare figure (default: generated; a line saying what the curves are follows it)")
     p.set_defaults(func=cmd_plot)
 
 

@@ -54,8 +54,11 @@ def write_montecarlo(path: Path, K: int = K_RUN, runs: int = 4, T: float = T,
                     w.writerow([r, 100 + r, a, c, 0.2, 3.0, 0.0, 20.0, 960.0, 0, 0])
     summary = {"scenario": "fake_mc", "d_t": 3,
                "scenario_config": {"name": "fake_mc", "model": {"kind": "constant_acceleration", "T": T}},
-               "algorithms": {a: {"mse": [0.2, 0.2, 0.1], "mse_ci95": [[0.1, 0.3]] * 3, "anees": 3.0,
-                                  "anees_band95": [2.2, 3.9]} for a in algorithms}}
+               "runs": runs, "burn_in": K // 5,
+               "algorithms": {a: {"mse": {"position": 0.2, "velocity": 0.2, "acceleration": 0.1},
+                                  "mse_ci95": {"position": [0.1, 0.3], "velocity": [0.15, 0.25],
+                                               "acceleration": [None, None]},
+                                  "anees": 3.0, "anees_band95": [2.2, 3.9]} for a in algorithms}}
     (path / "summary.json").write_text(json.dumps(summary))
     return path
 
@@ -109,6 +112,9 @@ def test_montecarlo_folder(tmp_path):
     assert f.kind == "montecarlo" and f.n_runs == 4 and f.d_t == 3
     assert set(f.ci) == {"anti_delay_dkf", "centralized", "ci_consensus"}
     assert f.nees_band == (2.2, 3.9)
+    assert f.ci95("centralized", 1) == (0.15, 0.25) and f.ci95("centralized", 2) is None
+    z = np.load(mc / "curves.npz")
+    assert f.time_average("ci_consensus", 2) == pytest.approx(z["mse"][2, K_RUN // 5:, 2].mean())
     assert main(["plot", str(mc)]) == 0
     assert_figures(mc / "figures", ["tracking", "mse", "nees"])
 
