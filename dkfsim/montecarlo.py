@@ -213,16 +213,18 @@ def run_rows(scenario, seed: int, burn_in: int | None = None) -> tuple[list[dict
 _WORKER_SCENARIO = None
 
 
-def _init_worker(scenario_dict) -> None:
-    """Load the scenario once per worker; leave Ctrl-C to the parent (no worker tracebacks)."""
+def _init_worker(scenario) -> None:
+    """Keep the scenario once per worker; leave Ctrl-C to the parent (no worker tracebacks)."""
     global _WORKER_SCENARIO
     signal.signal(signal.SIGINT, signal.SIG_IGN)
-    from .scenario import load_scenario
-    _WORKER_SCENARIO = load_scenario(scenario_dict)
+    _WORKER_SCENARIO = scenario
 
 
 def _one(scenario, r: int, seed: int, burn_in: int) -> tuple[int, list[dict], dict]:
-    rows, curves = run_rows(scenario, seed, burn_in)
+    try:
+        rows, curves = run_rows(scenario, seed, burn_in)
+    except DkfsimError as exc:      # e.g. a random topology that is disconnected for this seed
+        raise DkfsimError(f"run {r} (seed {seed}): {exc}") from None
     if r != 0:       # only run 0 is kept as the example: do not ship the rest
         for key in ("example_truth", "example_x", "example_node0"):
             del curves[key]
@@ -303,30 +305,39 @@ def montecarlo(scenario, runs: int, jobs: int = 1, burn_in: int | None = None,
         pending: dict[int, tuple] = {}
         nxt = 0
         pool = ProcessPoolExecutor(max_workers=min(jobs, runs), initializer=_init_worker,
-                                   initargs=(sc.to_dict(),))
+                                   initargs=(sc,))
         try:
             # Keep at most 2 * jobs runs submitted: results that finish early wait
             # in `pending` until every earlier run is folded.
             todo = iter(enumerate(seeds))
             active = set()
+            index = {}
             done_count = 0
             while True:
                 while len(active) < 2 * jobs:
                     item = next(todo, None)
                     if item is None:
                         break
-                    active.add(pool.submit(_worker_run, item[0], item[1], burn))
+                    fut = pool.submit(_worker_run, item[0], item[1], burn)
+                    index[fut] = item[0]
+                    active.add(fut)
                 if not active:
                     break
                 finished, active = wait(active, return_when=FIRST_COMPLETED)
                 for fut in finished:
-                    r, rr, cc = fut.result()
-                    pending[r] = (rr, cc)
+                    r = index.pop(fut)
+                    try:
+                        pending[r] = fut.result()[1:]
+                    except DkfsimError as exc:   # raised in run order, as with jobs = 1
+                        pending[r] = exc
                     done_count += 1
                     if progress is not None:
                         progress(done_count, runs)
                 while nxt in pending:
-                    take(nxt, *pending.pop(nxt))
+                    got = pending.pop(nxt)
+                    if isinstance(got, BaseException):
+                        raise got
+                    take(nxt, *got)
                     nxt += 1
         except BaseException:
             _kill_pool(pool)
