@@ -522,7 +522,7 @@ def add_command(subparsers) -> None:
         "montecarlo", help="N independent runs of a scenario: MSE with confidence intervals, ANEES, traffic",
         description="Run a scenario N times with derived seeds (run r uses derive_seed(seed, r), "
                     "the same whatever N and --jobs) and pool the results per algorithm and state "
-                    "component: MSE over time with 95%% confidence intervals, ANEES with its 95%% "
+                    "component: MSE over time with 95% confidence intervals, ANEES with its 95% "
                     "chi-square band, disagreement between nodes, messages, bytes, lost packets and "
                     "late contributions. Writes DIR/runs.csv (one row per run x algorithm x "
                     "component), DIR/curves.npz (per-tick curves and one example run) and "
@@ -537,10 +537,12 @@ def add_command(subparsers) -> None:
     p.add_argument("--burn-in", type=int, metavar="ROWS",
                    help="rows skipped before time-averaging MSE, ANEES and disagreement "
                         "(default: 10%% of the ticks)")
-    p.add_argument("--steps", type=int, help="override the number of ticks K (same as --set steps=K)")
-    p.add_argument("--seed", type=int,
+    p.add_argument("--steps", type=int, metavar="K",
+                   help="override the number of ticks K of every run (same as --set steps=K)")
+    p.add_argument("--seed", type=int, metavar="S",
                    help="override the base seed from which every run's seed derives (same as --set seed=S)")
-    p.add_argument("--quiet", action="store_true", help="no progress bar and no table")
+    p.add_argument("--quiet", action="store_true",
+                   help="no progress bar and no table (the bar is shown on stderr only when it is a terminal)")
     p.set_defaults(func=cmd_montecarlo)
 
 
