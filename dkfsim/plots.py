@@ -451,7 +451,7 @@ def _averages(ax, entries, folder: Folder) -> None:
     """A column right of the panel: each curve's time-averaged MSE after the burn-in, in its colour
     (with the 95 % interval over runs when the Monte Carlo summary has it)."""
     b = folder.burn_in if folder.burn_in is not None else folder.K // 10
-    ax.text(1.02, 1.0, f"mean over\nt ≥ {folder.t[min(b, folder.K - 1)]:g} s:", transform=ax.transAxes,
+    ax.text(1.02, 1.0, f"MSE, mean\nover t ≥ {folder.t[min(b, folder.K - 1)]:g} s:", transform=ax.transAxes,
             ha="left", va="top", fontsize=7.5, color="0.3")
     for j, (text, col) in enumerate(entries):
         ax.text(1.02, 0.80 - 0.105 * j, text, transform=ax.transAxes, ha="left", va="top",
@@ -494,8 +494,21 @@ def _band(lo, hi):
     return np.where(lo > 0, lo, 1e-300), _positive(hi)
 
 
+def _plain_log_ticks(ax) -> None:
+    """Tick labels 0.2, 0.05, 1e-05 instead of 2 x 10^-1 (matplotlib decides which ticks get one)."""
+    from matplotlib.ticker import LogFormatter
+
+    class Plain(LogFormatter):
+        def __call__(self, x, pos=None):
+            return f"{x:g}" if super().__call__(x, pos) else ""
+
+    ax.yaxis.set_major_formatter(Plain(labelOnlyBase=False))
+    ax.yaxis.set_minor_formatter(Plain(labelOnlyBase=False))
+
+
 def _log_limits(ax, curves) -> None:
     """Fit the log axis to the mean curves (not to the bands, whose lower ends can be ~0)."""
+    _plain_log_ticks(ax)
     vals = np.concatenate([np.asarray(c, dtype=float).ravel() for c in curves])
     vals = vals[np.isfinite(vals) & (vals > 0)]
     if vals.size:
@@ -649,8 +662,15 @@ def check_comparable(folders: list[Folder]) -> None:
 
 
 def plot_compare(folders: list[Folder], stem, labels=None, formats=DEFAULT_FORMATS, components=None,
-                 smooth=None, title=None, algorithm="anti_delay_dkf", bands=None) -> list[Path]:
-    """Fused MSE of several folders and the centralized filter of the first (paper Figs. 5, 6)."""
+                 smooth=None, title=None, algorithm="anti_delay_dkf", bands=None,
+                 relative=False) -> list[Path]:
+    """Fused MSE of several folders and the centralized filter of the first (paper Figs. 5, 6).
+
+    ``relative`` adds a right-hand column with each folder's MSE divided by the
+    first folder's centralized MSE (both moving-averaged over 5 % of the run):
+    on the same draws the noise common to all curves cancels, so differences
+    of a few per cent, invisible on the log scale, show.
+    """
     formats = _check_formats(formats)
     if len(folders) < 2:
         raise DkfsimError("--compare: give at least two folders")
@@ -664,19 +684,27 @@ def plot_compare(folders: list[Folder], stem, labels=None, formats=DEFAULT_FORMA
         if algorithm not in f.mse:
             raise DkfsimError(f"--compare: {f.path} has no {label_of(algorithm)} estimate")
     first = folders[0]
+    if relative and "centralized" not in first.mse:
+        raise DkfsimError(f"--relative: the first folder ({first.path}) has no centralized baseline "
+                          f"to divide by; run it with baselines including centralized")
     idx = select_components(first, components)
     w = default_smooth(first) if smooth is None else max(1, int(smooth))
     if smooth is None and any(f.kind == "run" for f in folders):
         w = max(default_smooth(f) for f in folders)
+    wr = max(w, first.K // 20)
     plt = _pyplot()
-    fig, axes = plt.subplots(len(idx), 1, figsize=(7.5, 2.3 * len(idx) + 1.0) if len(idx) > 1 else (7.5, 3.8),
-                             sharex=True, squeeze=False)
+    ncols = 2 if relative else 1
+    height = 2.3 * len(idx) + 1.0 if len(idx) > 1 else 3.8
+    fig, axes = plt.subplots(len(idx), ncols, figsize=(12.0 if relative else 7.5, height),
+                             sharex=True, squeeze=False,
+                             gridspec_kw={"width_ratios": [1.25, 1]} if relative else None)
     n = len(folders)
     cmap = plt.get_cmap("viridis")
     colors = [f"C{j}" for j in range(n)] if n <= 3 else [cmap(0.9 * j / (n - 1)) for j in range(n)]
     if bands is None:      # overlapping per-tick bands of many curves hide the curves
         bands = n <= 2
-    for ax, i in zip(axes[:, 0], idx):
+    for row, i in enumerate(idx):
+        ax = axes[row, 0]
         drawn, entries = [], []
         for f, lab, col in zip(folders, labels, colors):
             y = _positive(moving_average(f.mse[algorithm][:, i], w))
@@ -695,11 +723,23 @@ def plot_compare(folders: list[Folder], stem, labels=None, formats=DEFAULT_FORMA
                     label="centralized KF (all data on time)" + (f", from {labels[0]}" if len(labels[0]) < 12 else ""))
         ax.set_yscale("log")
         _log_limits(ax, drawn)
-        _averages(ax, entries, first)
         ax.set_ylabel(_mse_ylabel(first, i, w))
         ax.grid(True, which="both", alpha=0.25)
         ax.margins(x=0)
-    axes[-1, 0].set_xlabel("time [s]")
+        if relative:
+            ar = axes[row, 1]
+            den = moving_average(first.mse["centralized"][:, i], wr)
+            for f, col in zip(folders, colors):
+                ar.plot(f.t, moving_average(f.mse[algorithm][:, i], wr) / den, color=col, lw=1.2)
+            ar.axhline(1.0, color="k", lw=1.0, ls="--")
+            ar.set_ylabel(f"{first.components[i]} MSE / centralized")
+            ar.grid(True, alpha=0.3)
+            ar.margins(x=0)
+            if row == 0:
+                ar.set_title(f"relative to the centralized KF ({wr}-tick moving averages)", fontsize=9)
+        _averages(axes[row, -1], entries, first)
+    for c in range(ncols):
+        axes[-1, c].set_xlabel("time [s]")
     kinds = {f.kind for f in folders}
     ref = folders[0]
     note = mse_note(ref if kinds == {ref.kind} else next(f for f in folders if f.kind == "run"), w)
@@ -754,6 +794,9 @@ def add_command(sub) -> None:
                    metavar="FMT", help=f"file formats: {', '.join(FORMATS)} (default: png pdf)")
     p.add_argument("--compare", action="store_true",
                    help="overlay the fused MSE of all DIRs (same number of ticks) in one figure")
+    p.add_argument("--relative", action="store_true",
+                   help="with --compare: add a column with each MSE divided by the first folder's "
+                        "centralized MSE (shows differences of a few per cent)")
     p.add_argument("--labels", nargs="+", metavar="LABEL", help="legend label per DIR (with --compare)")
     p.add_argument("--component", dest="components", nargs="+", metavar="NAME",
                    help="state components to draw, by name (position) or index (0); default: all")
@@ -776,6 +819,8 @@ def cmd_plot(args) -> int:
     for flag in ("name", "title"):
         if getattr(args, flag) is not None and not args.compare:
             raise DkfsimError(f"--{flag}: only used with --compare")
+    if args.relative and not args.compare:
+        raise DkfsimError("--relative: only used with --compare")
     if args.compare and len(args.dirs) < 2:
         raise DkfsimError("--compare: give at least two folders")
     folders = [load_folder(d) for d in args.dirs]
@@ -784,7 +829,7 @@ def cmd_plot(args) -> int:
         out = Path(args.out) if args.out else folders[0].path / "figures"
         written = plot_compare(folders, out / (args.name or "compare_mse"), labels=args.labels,
                                formats=formats, components=args.components, smooth=args.smooth,
-                               title=args.title)
+                               title=args.title, relative=args.relative)
     else:
         for f in folders:
             if args.out is None:

@@ -139,6 +139,12 @@ def test_compare_two_folders(run_dir, tmp_path):
                "--out", str(figs), "--name", "fig5"])
     assert rc == 0
     assert_figures(figs, ["fig5"])
+    rc = main(["plot", str(run_dir), str(mc), "--compare", "--relative", "--out", str(figs),
+               "--name", "fig5_relative", "--format", "png"])
+    assert rc == 0
+    assert_figures(figs, ["fig5_relative"], formats=("png",))
+    # the ratio column makes the figure wider than the plain one
+    assert mpimg.imread(figs / "fig5_relative.png").shape[1] > mpimg.imread(figs / "fig5.png").shape[1] * 1.3
 
 
 def test_compare_default_output_and_one_component(run_dir, tmp_path):
@@ -171,6 +177,9 @@ def test_errors(run_dir, tmp_path, capsys):
     fails(capsys, ["plot", str(run_dir), "--labels", "a"], "--labels", "--compare")
     fails(capsys, ["plot", str(run_dir), "--component", "jerk"], "'jerk'", "position")
     fails(capsys, ["plot", str(run_dir), "--smooth", "0"], "--smooth")
+    fails(capsys, ["plot", str(run_dir), "--relative"], "--relative", "--compare")
+    no_central = write_montecarlo(tmp_path / "nocentral", algorithms=("anti_delay_dkf", "ci_consensus"))
+    fails(capsys, ["plot", str(no_central), str(run_dir), "--compare", "--relative"], "no centralized")
 
 
 def test_errors_in_the_files(tmp_path, capsys):
