@@ -22,7 +22,7 @@ examples:
 
 
 #: Modules that add a sub-command (``add_command(subparsers)``), in help order.
-COMMAND_MODULES: tuple[str, ...] = ("montecarlo", "plots", "sweep")
+COMMAND_MODULES: tuple[str, ...] = ("montecarlo", "plots", "sweep", "maxdelay")
 
 
 def add_scenario_args(p: argparse.ArgumentParser) -> None:
