@@ -784,7 +784,7 @@ def add_command(sub) -> None:
         description="Draw figures (matplotlib, Agg backend) from folders written by dkfsim run "
                     "(run.npz + summary.json) or dkfsim montecarlo (curves.npz + runs.csv + summary.json): "
                     "tracking (truth, fused, node 0, references), MSE per tick (log scale; Monte Carlo: "
-                    "95%% CI shaded) and, for Monte Carlo folders, NEES. With --compare, overlay the fused "
+                    "95% CI shaded) and, for Monte Carlo folders, NEES. With --compare, overlay the fused "
                     "MSE of several folders and the centralized filter of the first.",
         epilog=EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("dirs", nargs="+", metavar="DIR", help="run or Monte Carlo folder(s)")
