@@ -46,13 +46,13 @@ import re
 from dataclasses import dataclass
 from decimal import Decimal
 from pathlib import Path
-from typing import Annotated, Any, Literal, Mapping, Sequence
+from typing import Annotated, Any, Literal, Mapping, Sequence, Union
 
 import networkx
 import numpy as np
 import yaml
-from pydantic import (AfterValidator, BeforeValidator, Field, PrivateAttr, ValidationError,
-                      field_validator, model_validator)
+from pydantic import (AfterValidator, BaseModel, BeforeValidator, Discriminator, Field, PrivateAttr, Tag,
+                      ValidationError, ValidationInfo, field_validator, model_validator)
 
 from dkfsim.errors import ScenarioError
 from dkfsim.latency import (LATENCY_MODELS, Constant, LatencyBase, LatencyModel, StrictModel,
@@ -66,7 +66,8 @@ KNOWN_BASELINES: tuple[str, ...] = ("centralized", "centralized_delayed", "local
 PROTOCOLS = ("tree", "flood")
 WEIGHTS = ("unit", "paper")
 FUSIONS = ("matrix", "diagonal", "none")
-MODEL_KINDS = ("constant_acceleration", "linear")
+MODEL_KINDS = ("constant_acceleration", "constant_velocity", "linear")
+SENSOR_KINDS = ("linear", "radar")
 
 _SYM_RTOL = 1e-9
 _EIG_TOL = 1e-12
@@ -156,12 +157,20 @@ def _check_spd(a: np.ndarray, key: str | None, semi: bool) -> None:
 
 # =========================================================================== sub-models
 class Model(StrictModel):
-    """Target dynamics ``x[k+1] = Phi x[k] + w``, ``w ~ N(0, Q)``, period ``T`` s."""
+    """Target dynamics ``x[k+1] = Phi x[k] + w``, ``w ~ N(0, Q)``, period ``T`` s.
 
-    kind: Literal["constant_acceleration", "linear"]
+    ``constant_velocity`` (``dims`` axes, default 2, and the spectral density
+    ``q`` of the white-noise acceleration, m^2/s^3) is the discretised
+    white-noise-acceleration model with state ``[x, vx, y, vy, ...]``: per
+    axis ``Phi = [[1, T], [0, 1]]``, ``Q = q [[T^3/3, T^2/2], [T^2/2, T]]``.
+    """
+
+    kind: Literal["constant_acceleration", "constant_velocity", "linear"]
     T: Annotated[float, Field(strict=True, gt=0, allow_inf_nan=False)]
     Phi: Matrix | None = None
-    Q: Matrix
+    Q: Matrix | None = None
+    dims: Annotated[int, Field(strict=True, ge=1, le=3)] | None = None
+    q: Annotated[float, Field(strict=True, ge=0, allow_inf_nan=False)] | None = None
 
     @model_validator(mode="after")
     def _check(self):
@@ -169,6 +178,21 @@ class Model(StrictModel):
         if T_ns_exact != T_ns_exact.to_integral_value():
             raise custom_error(f"must be a whole number of nanoseconds, got {self.T!r} s "
                                f"({format(T_ns_exact.normalize(), 'f')} ns)", "T")
+        if self.kind == "constant_velocity":
+            for key in ("Phi", "Q"):
+                if getattr(self, key) is not None:
+                    raise custom_error("not used with kind: constant_velocity (Phi and Q are "
+                                       "built from T, dims and q); remove it or use kind: "
+                                       "linear", key)
+            if self.q is None:
+                raise custom_error("required with kind: constant_velocity (spectral density "
+                                   "of the white-noise acceleration, m^2/s^3)", "q")
+            return self
+        for key in ("dims", "q"):
+            if getattr(self, key) is not None:
+                raise custom_error("only used with kind: constant_velocity", key)
+        if self.Q is None:
+            raise custom_error("required key is missing", "Q")
         if self.kind == "constant_acceleration":
             if self.Phi is not None:
                 raise custom_error("not used with kind: constant_acceleration (Phi is built "
@@ -184,6 +208,8 @@ class Model(StrictModel):
 
     @property
     def nx(self) -> int:
+        if self.kind == "constant_velocity":
+            return 2 * (self.dims or 2)
         return 3 if self.kind == "constant_acceleration" else len(self.Phi)
 
     @property
@@ -194,9 +220,15 @@ class Model(StrictModel):
         if self.kind == "constant_acceleration":
             T = self.T
             return np.array([[1.0, T, T * T / 2.0], [0.0, 1.0, T], [0.0, 0.0, 1.0]])
+        if self.kind == "constant_velocity":
+            return np.kron(np.eye(self.nx // 2), np.array([[1.0, self.T], [0.0, 1.0]]))
         return np.array(self.Phi, dtype=float)
 
     def Q_matrix(self) -> np.ndarray:
+        if self.kind == "constant_velocity":
+            T = self.T
+            axis = self.q * np.array([[T ** 3 / 3.0, T ** 2 / 2.0], [T ** 2 / 2.0, T]])
+            return np.kron(np.eye(self.nx // 2), axis)
         return np.array(self.Q, dtype=float)
 
 
@@ -222,10 +254,21 @@ class Prior(StrictModel):
         return np.array(self.cov, dtype=float)
 
 
+def _linear_kind(value: Any) -> Any:
+    if value is None or value == "linear":
+        return "linear"
+    raise custom_error(_unknown_kind(value))
+
+
 class Sensor(StrictModel):
-    """``y = H x + v``, ``v ~ N(0, R)``."""
+    """``y = H x + v``, ``v ~ N(0, R)`` (``kind: linear``, the default).
+
+    ``kind`` is left out of ``to_dict`` (absent means linear), so files
+    written before sensor kinds existed keep their hash.
+    """
 
     name: Annotated[str, Field(strict=True, min_length=1)]
+    kind: Annotated[Literal["linear"], BeforeValidator(_linear_kind), Field(exclude=True)] = "linear"
     H: Matrix
     R: Matrix
 
@@ -248,6 +291,120 @@ class Sensor(StrictModel):
 
     def R_matrix(self) -> np.ndarray:
         return np.array(self.R, dtype=float)
+
+
+Sigma = Annotated[float, Field(strict=True, gt=0, allow_inf_nan=False)]
+
+
+class RadarSensorSpec(StrictModel):
+    """A range/azimuth radar, used as a converted measurement (:mod:`dkfsim.sensors`).
+
+    ``position`` [x, y] (m), ``sigma_range`` (m), ``sigma_azimuth`` (rad,
+    below pi/4: a converted measurement means nothing beyond), ``state_index``
+    the state components that are the Cartesian x and y (default [0, 2], the
+    ``[x, vx, y, vy]`` of ``constant_velocity``).
+    """
+
+    name: Annotated[str, Field(strict=True, min_length=1)]
+    kind: Literal["radar"]
+    position: Vector
+    sigma_range: Sigma
+    sigma_azimuth: Sigma
+    state_index: tuple[StrictInt, StrictInt] = (0, 2)
+
+    @model_validator(mode="after")
+    def _check(self):
+        if len(self.position) != 2:
+            raise custom_error(f"must be [x, y], got {len(self.position)} entries", "position")
+        if self.sigma_azimuth >= np.pi / 4:
+            raise custom_error(f"must be in radians and below pi/4, got {self.sigma_azimuth!r} "
+                               "(1 degree = 0.0174533 rad)", "sigma_azimuth")
+        return self
+
+    @property
+    def m(self) -> int:
+        return 2
+
+    def sensor_model(self, nx: int):
+        from dkfsim.sensors import RadarSensor
+        return RadarSensor(self.position, self.sigma_range, self.sigma_azimuth, nx,
+                           self.state_index)
+
+
+class _UnknownSensorKind(BaseModel):
+    """Reports an unknown sensor ``kind`` before any key of the entry is checked."""
+
+    @model_validator(mode="before")
+    @classmethod
+    def _fail(cls, data: Any) -> Any:
+        raise custom_error(_unknown_kind(data.get("kind")), "kind")
+
+
+def _unknown_kind(value: Any) -> str:
+    return (f"unknown sensor kind {value!r}{suggest(value, SENSOR_KINDS)}; valid: "
+            + ", ".join(SENSOR_KINDS))
+
+
+def _sensor_tag(value: Any) -> str:
+    kind = value.get("kind") if isinstance(value, dict) else getattr(value, "kind", None)
+    if kind is None or kind in SENSOR_KINDS:
+        return kind or "linear"
+    return "unknown"
+
+
+#: A scenario sensor: ``kind: linear`` (default) or ``kind: radar``.
+SensorSpec = Annotated[Union[Annotated[Sensor, Tag("linear")],
+                             Annotated[RadarSensorSpec, Tag("radar")],
+                             Annotated[_UnknownSensorKind, Tag("unknown")]],
+                       Discriminator(_sensor_tag)]
+
+
+class Truth(StrictModel):
+    """Truth from a recorded track instead of the model (:mod:`dkfsim.trajectory`).
+
+    ``file`` resolves against the scenario file's folder; the file is read
+    (and cached) when the scenario is validated, so a missing file or column
+    is a validation error.
+    """
+
+    file: Annotated[str, Field(strict=True, min_length=1)]
+    x_column: Annotated[str, Field(strict=True, min_length=1)] = "utmX(m)"
+    y_column: Annotated[str, Field(strict=True, min_length=1)] = "utmY(m)"
+    time_column: Annotated[str, Field(strict=True, min_length=1)] = "pub_time(ms)"
+    time_unit: Literal["s", "ms", "us", "ns"] = "ms"
+    origin: Literal["first", "none"] = "first"
+    start: Annotated[float, Field(strict=True, ge=0, allow_inf_nan=False)] = 0.0
+    resample: Literal["linear"] = "linear"
+    #: Centred moving-average window (s) applied to the recorded positions; 0 = off.
+    smooth: Annotated[float, Field(strict=True, ge=0, allow_inf_nan=False)] = 0.0
+
+    _path: str | None = PrivateAttr(default=None)
+
+    @model_validator(mode="after")
+    def _load(self, info: ValidationInfo):
+        from dkfsim import trajectory
+        base = (info.context or {}).get("base_dir") if info is not None else None
+        path, tried = trajectory.resolve(self.file, base)
+        if path is None:
+            raise custom_error("file not found (tried " + ", ".join(str(t) for t in tried) + ")",
+                               "file")
+        try:
+            self._read(path)
+        except trajectory.TrackError as err:
+            raise custom_error(str(err), err.key) from None
+        except OSError as err:
+            raise custom_error(f"cannot read {path}: {err.strerror}", "file") from None
+        self._path = str(path)
+        return self
+
+    def _read(self, path):
+        from dkfsim import trajectory
+        return trajectory.read_track(path, self.time_column, self.x_column, self.y_column,
+                                     self.time_unit)
+
+    def track(self):
+        """The :class:`dkfsim.trajectory.Track` (read once, then cached)."""
+        return self._read(self._path)
 
 
 class Topology(StrictModel):
@@ -322,7 +479,7 @@ class Scenario(StrictModel):
     steps: Annotated[int, Field(strict=True, ge=1)] = 1000
     model: Model
     prior: Prior
-    sensors: Annotated[tuple[Sensor, ...], Field(min_length=1)]
+    sensors: Annotated[tuple[SensorSpec, ...], Field(min_length=1)]
     topology: Topology
     links: Links = Field(default_factory=Links)
     protocol: Literal["tree", "flood"] = "tree"
@@ -333,6 +490,8 @@ class Scenario(StrictModel):
     baselines: tuple[Annotated[str, AfterValidator(_check_baseline)], ...] = ("centralized",)
     #: Consensus rounds per tick of the ``ci_consensus`` baseline (0 = local filters).
     consensus_rounds: Annotated[int, Field(strict=True, ge=0)] = 1
+    #: Truth from a recorded track instead of the model (:mod:`dkfsim.trajectory`).
+    truth: Truth | None = None
 
     _source: str | None = PrivateAttr(default=None)
     # (key, graph, exchange graph or None); the key holds every field the graph
@@ -340,6 +499,16 @@ class Scenario(StrictModel):
     _cache: Any = PrivateAttr(default=None)
 
     # ------------------------------------------------------------------ validation
+    @field_validator("sensors", mode="before")
+    @classmethod
+    def _sensor_mappings(cls, v):
+        # Checked here so that the message names sensors.<i>, not the kind's union tag.
+        if isinstance(v, (list, tuple)):
+            for i, s in enumerate(v):
+                if not isinstance(s, (dict, BaseModel)):
+                    raise custom_error(f"must be a mapping, got {type(s).__name__} {s!r}", str(i))
+        return v
+
     @field_validator("baselines", mode="after")
     @classmethod
     def _unique_baselines(cls, v):
@@ -359,14 +528,23 @@ class Scenario(StrictModel):
                                f"{len(self.prior.cov)}", "prior.cov")
         names: dict[str, int] = {}
         for i, s in enumerate(self.sensors):
-            rows, cols = _shape(s.H)
-            if cols != nx_:
-                raise custom_error(f"must have {nx_} columns (the state size), got "
-                                   f"{rows} x {cols}", f"sensors.{i}.H")
+            if s.kind == "radar":
+                ix, iy = s.state_index
+                if ix == iy or not (0 <= ix < nx_ and 0 <= iy < nx_):
+                    raise custom_error(f"must be two different state indices in 0..{nx_ - 1} "
+                                       f"(the position's x and y), got [{ix}, {iy}]",
+                                       f"sensors.{i}.state_index")
+            else:
+                rows, cols = _shape(s.H)
+                if cols != nx_:
+                    raise custom_error(f"must have {nx_} columns (the state size), got "
+                                       f"{rows} x {cols}", f"sensors.{i}.H")
             if s.name in names:
                 raise custom_error(f"{s.name!r} is already the name of sensors.{names[s.name]}",
                                    f"sensors.{i}.name")
             names[s.name] = i
+        if self.truth is not None:
+            self._check_truth()
         if "ci_consensus" in self.baselines and self.consensus_rounds > 0 \
                 and self.model.T_ns % self.consensus_rounds:
             raise custom_error(f"{self.consensus_rounds} rounds do not divide T = {self.model.T} s into "
@@ -374,6 +552,19 @@ class Scenario(StrictModel):
                                "consensus_rounds")
         self._check_network()
         return self
+
+    def _check_truth(self) -> None:
+        if self.model.kind != "constant_velocity" or self.model.nx != 4:
+            raise custom_error("a recorded track gives the state [x, vx, y, vy]: needs model "
+                               "kind: constant_velocity with dims: 2", "truth")
+        need = self.truth.start + self.steps * self.model.T
+        have = self.truth.track().duration
+        if need > have + 1e-9:
+            raise custom_error(
+                f"the run needs {need:g} s of track (truth.start {self.truth.start:g} s + "
+                f"{self.steps} steps x {self.model.T:g} s) but truth.file {self.truth.file} "
+                f"covers {have:g} s; use at most {int((have - self.truth.start) / self.model.T + 1e-9)} "
+                "steps", "steps")
 
     def _check_network(self) -> None:
         top = self.topology
@@ -803,7 +994,9 @@ def load_scenario(source: str | os.PathLike | Mapping | Scenario,
     if "name" not in data and path is not None:
         data["name"] = Path(path).stem
     try:
-        scenario = Scenario.model_validate(data)
+        # Relative data files (empirical latency traces) resolve against the file's folder.
+        base_dir = str(Path(path).resolve().parent) if path is not None else None
+        scenario = Scenario.model_validate(data, context={"base_dir": base_dir})
     except ValidationError as exc:
         raise _convert(exc, data, label, override_keys) from None
     scenario._source = path

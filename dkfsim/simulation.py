@@ -24,14 +24,16 @@ from .protocol import PROTOCOLS
 from .results import RunResult, resolve_save_mode
 from .scenario import load_scenario
 from .system import LinearGaussianSystem, LinearSensor
+from .trajectory import track_truth
 from .topology import paper_weights
 
 
-def sensor_model(spec):
-    """The measurement model of one scenario sensor."""
+def sensor_model(spec, nx: int | None = None):
+    """The measurement model of one scenario sensor (``nx``: the state size,
+    which a non-linear sensor needs to build its position selector)."""
     if getattr(spec, "kind", "linear") == "linear":
         return LinearSensor(spec.H_matrix(), spec.R_matrix())
-    return spec.sensor_model()
+    return spec.sensor_model(nx)
 
 
 def build_system(scenario) -> LinearGaussianSystem:
@@ -40,7 +42,7 @@ def build_system(scenario) -> LinearGaussianSystem:
         Q=scenario.model.Q_matrix(),
         x0_mean=scenario.prior.mean_vector(),
         P0=scenario.prior.cov_matrix(),
-        sensors=tuple(sensor_model(s) for s in scenario.sensors),
+        sensors=tuple(sensor_model(s, scenario.nx) for s in scenario.sensors),
         names=tuple(s.name for s in scenario.sensors),
         T_ns=scenario.T_ns,
     )
@@ -61,7 +63,10 @@ class Simulation:
         self.progress = progress
 
         # Everything random but the network is drawn up front, from its own streams.
-        self.truth = sys_.simulate_truth(K, self.seed)
+        if getattr(scenario, "truth", None) is not None:     # a recorded track (dkfsim.trajectory)
+            self.truth = track_truth(scenario)
+        else:
+            self.truth = sys_.simulate_truth(K, self.seed)
         self.ys = sys_.simulate_measurements(self.truth, self.seed)
         self.info = sys_.information(self.ys)
         self.theta = self.info.theta

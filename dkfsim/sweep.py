@@ -674,8 +674,10 @@ def run_sweep(sweep: Sweep | str | os.PathLike, *, executor=None, jobs: int | No
               progress: bool | None = None, db: str | os.PathLike | None = None) -> SweepReport:
     """Run (or resume) a sweep; return a :class:`SweepReport`.
 
-    ``executor`` is a :mod:`dkfsim.executors` executor (default: ``jobs``
-    local processes, every CPU if None).  ``progress``: a tqdm bar on stderr
+    ``executor`` is a :mod:`dkfsim.executors` executor, or a callable that
+    makes one (called only once the database is checked and some task is
+    left to run; the executor it returns is closed here).  Default: ``jobs``
+    local processes, every CPU if None.  ``progress``: a tqdm bar on stderr
     (default: when stderr is a terminal).  ``db`` overrides the output file.
     """
     from . import executors
@@ -689,9 +691,13 @@ def run_sweep(sweep: Sweep | str | os.PathLike, *, executor=None, jobs: int | No
         done = store.done()
         todo = [(p, r) for p, r in sweep.tasks() if (p.param_hash, r) not in done]
         skipped = sweep.n_tasks - len(todo)
-        own = executor is None
-        if own:
+        own = executor is None or not isinstance(executor, executors.Executor)
+        if not todo:
+            executor, own = executors.InlineExecutor(), True   # nothing to start
+        elif executor is None:
             executor = executors.local(jobs)
+        elif own:
+            executor = executor()
         label = executor.label
         t0 = time.perf_counter()
         computed = 0
@@ -938,13 +944,17 @@ def cmd_sweep(args) -> int:
             except ImportError:
                 raise DkfsimError("--export to Parquet needs the 'pyarrow' package: pip install "
                                   "'dkfsim[cluster]', or export to .csv") from None
-    ex = executors.make_executor(jobs=args.jobs, scheduler=args.scheduler,
-                                 dask_local=args.dask_local)
-    with ex:
-        say(f"{sweep.source}: {len(sweep.parameter_sets)} parameter set(s) x {sweep.runs} "
-            f"run(s) = {sweep.n_tasks} tasks -> {sweep.output}, on {ex.label}")
-        rep = run_sweep(sweep, executor=ex, progress=not args.quiet and sys.stderr.isatty())
-    rate = f" ({rep.runs_per_minute:.1f} runs/min)" if rep.computed else ""
+    if args.scheduler is not None or args.dask_local is not None:
+        executors._distributed()          # a missing package is reported before any work
+
+    def make():
+        return executors.make_executor(jobs=args.jobs, scheduler=args.scheduler,
+                                       dask_local=args.dask_local)
+
+    say(f"{sweep.source}: {len(sweep.parameter_sets)} parameter set(s) x {sweep.runs} "
+        f"run(s) = {sweep.n_tasks} tasks -> {sweep.output}")
+    rep = run_sweep(sweep, executor=make, progress=not args.quiet and sys.stderr.isatty())
+    rate = f" on {rep.executor} ({rep.runs_per_minute:.1f} runs/min)" if rep.computed else ""
     say(f"done: {rep.skipped} already in the database, {rep.computed} computed in "
         f"{_duration(rep.wall_s)}{rate}")
     if args.export is not None:

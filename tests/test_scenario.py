@@ -360,7 +360,7 @@ def test_unknown_fusion_and_weights(tmp_path):
 
 def test_unknown_model_kind(tmp_path):
     expect(tmp_path, put(base(), "model.kind", "ca"), "model.kind",
-           "unknown model kind 'ca'", "constant_acceleration, linear")
+           "unknown model kind 'ca'", "constant_acceleration, constant_velocity, linear")
 
 
 def test_unknown_generator_param(tmp_path):

@@ -198,7 +198,7 @@ def test_cli_dask_local_processes(tmp_path):
     path = write_sweep(tmp_path, runs=1, steps=20, grid={"protocol": ["tree", "flood"]})
     p = dkfsim("sweep", path, "--dask-local", "2", "--export", tmp_path / "d.csv")
     assert p.returncode == 0, p.stderr
-    assert "Dask LocalCluster (2 worker processes)" in p.stdout
+    assert "on Dask LocalCluster (2 worker processes)" in p.stdout
     q = dkfsim("sweep", path, "--jobs", "1", "--db", tmp_path / "i.sqlite", "--quiet",
                "--export", tmp_path / "i.csv")
     assert q.returncode == 0, q.stderr
@@ -275,44 +275,57 @@ def test_bad_sweep_files_give_one_clear_paragraph(tmp_path, change, message):
     assert not (tmp_path / "bad.sqlite").exists()
 
 
-def test_cli_bad_input_exits_2_with_one_paragraph(tmp_path):
-    missing = dkfsim("sweep", tmp_path / "nope.yaml")
-    assert missing.returncode == 2 and "sweep file not found" in missing.stderr
+def cli(capsys, *args):
+    """``dkfsim ARGS`` in this process: (exit status, stdout, stderr)."""
+    from dkfsim.cli import main
+    try:
+        rc = main([str(a) for a in args])
+    except SystemExit as exc:          # argparse usage errors
+        rc = exc.code
+    out, err = capsys.readouterr()
+    return rc, out, err
+
+
+def test_cli_bad_input_exits_2_with_one_paragraph(tmp_path, capsys):
+    rc, _, err = cli(capsys, "sweep", tmp_path / "nope.yaml")
+    assert rc == 2 and "sweep file not found" in err
 
     path = write_sweep(tmp_path, grid={"links.default.latency.dt": [0, 1]}, runs=1)
-    p = dkfsim("sweep", path)
+    p = dkfsim("sweep", path)                     # as a user meets it: a real process
     assert p.returncode == 2
     assert "links.default.latency.dt" in p.stderr and "parameter set 0" in p.stderr
     assert "Traceback" not in p.stderr and len(p.stderr.strip().splitlines()) == 1
 
     good = write_sweep(tmp_path, name="good", grid={}, runs=1, steps=20)
-    bad_export = dkfsim("sweep", good, "--export", tmp_path / "out.xlsx")
-    assert bad_export.returncode == 2 and "use a .csv or .parquet" in bad_export.stderr
+    rc, _, err = cli(capsys, "sweep", good, "--export", tmp_path / "out.xlsx")
+    assert rc == 2 and "use a .csv or .parquet" in err
     assert not (tmp_path / "good.sqlite").exists()      # checked before anything runs
-    both = dkfsim("sweep", good, "--jobs", "2", "--dask-local", "2")
-    assert both.returncode == 2 and "not allowed with" in both.stderr
+    rc, _, err = cli(capsys, "sweep", good, "--jobs", "2", "--dask-local", "2")
+    assert rc == 2 and "not allowed with" in err
 
     not_db = tmp_path / "plain.sqlite"
     not_db.write_text("hello")
-    assert dkfsim("sweep", good, "--db", not_db).returncode == 2
-    assert dkfsim("sweep", good, "--db", not_db).stderr.count("not an SQLite file") == 1
+    rc, _, err = cli(capsys, "sweep", good, "--db", not_db)
+    assert rc == 2 and err.count("not an SQLite file") == 1
+    assert not_db.read_text() == "hello"
 
 
-def test_export_only_from_a_database_and_help(tmp_path):
+def test_export_only_from_a_database_and_help(tmp_path, capsys):
     path = write_sweep(tmp_path, grid={"protocol": ["tree"]}, runs=1, steps=20)
-    assert dkfsim("sweep", path, "--jobs", "1", "--quiet").returncode == 0
+    assert cli(capsys, "sweep", path, "--jobs", "1", "--quiet")[0] == 0
     db = tmp_path / "s.sqlite"
-    p = dkfsim("sweep", db, "--export", tmp_path / "x.csv")
-    assert p.returncode == 0, p.stderr
-    assert "wrote" in p.stdout and len((tmp_path / "x.csv").read_text().splitlines()) == 1 + 3
-    q = dkfsim("sweep", db)
-    assert q.returncode == 2 and "--export" in q.stderr
-    h = dkfsim("sweep", "--help")
+    rc, out, err = cli(capsys, "sweep", db, "--export", tmp_path / "x.csv")
+    assert rc == 0, err
+    assert "wrote" in out and len((tmp_path / "x.csv").read_text().splitlines()) == 1 + 3
+    rc, _, err = cli(capsys, "sweep", db)
+    assert rc == 2 and "--export" in err
+    rc, out, _ = cli(capsys, "sweep", "--help")
+    assert rc == 0
     for opt in ("--jobs", "--scheduler", "--dask-local", "--db", "--export", "--dry-run",
                 "--quiet", "scenario", "grid", "runs", "burn_in", "output"):
-        assert opt in h.stdout, opt
-    d = dkfsim("sweep", path, "--dry-run")
-    assert d.returncode == 0 and "1/1 done" in d.stdout
+        assert opt in out, opt
+    rc, out, _ = cli(capsys, "sweep", path, "--dry-run")
+    assert rc == 0 and "1/1 done" in out
 
 
 def test_throughput_reports_runs_per_minute():
