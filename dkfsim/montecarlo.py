@@ -158,6 +158,22 @@ def _traffic(name: str, sim, res) -> dict:
             "lost": lost, "late": late}
 
 
+def pinned_topology(scenario) -> list[str]:
+    """Overrides that keep a random topology fixed across Monte Carlo runs.
+
+    A seeded generator without ``topology.params.seed`` draws its graph from
+    the scenario seed; Monte Carlo runs vary that seed to redraw noise and
+    latencies, not the network, so the graph is pinned to the *base* seed.
+    """
+    from .scenario import load_scenario
+    from .topology import GENERATOR_PARAMS
+    sc = load_scenario(scenario)
+    topo = sc.topology
+    if "seed" in GENERATOR_PARAMS[topo.generator][1] and "seed" not in (topo.params or {}):
+        return [f"topology.params.seed={int(sc.seed)}"]
+    return []
+
+
 def run_rows(scenario, seed: int, burn_in: int | None = None) -> tuple[list[dict], dict]:
     """Simulate ``scenario`` with seed ``seed`` and score every algorithm.
 
@@ -176,7 +192,7 @@ def run_rows(scenario, seed: int, burn_in: int | None = None) -> tuple[list[dict
     """
     from .scenario import load_scenario
     from .simulation import Simulation
-    sc = load_scenario(scenario, overrides=[f"seed={int(seed)}"])
+    sc = load_scenario(scenario, overrides=pinned_topology(scenario) + [f"seed={int(seed)}"])
     K = int(sc.steps)
     burn = _check_burn_in(burn_in, K)
     sim = Simulation(sc, save="estimates")
