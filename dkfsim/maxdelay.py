@@ -531,13 +531,40 @@ def summarise(cands: dict, lo, hi) -> SearchResult:
         status = "none" if cands[0].decision == EXCEEDS else "undecided"
         return SearchResult(status, None, None, 0, non_mono, cands)
     safe = max((j for j in within if j <= lo), default=None)
-    if hi is None:
-        status = "capped" if cands[lo].decision == WITHIN else "undecided"
-    elif cands[lo].decision == WITHIN and cands[hi].decision == EXCEEDS:
+    if hi is None and safe == lo:
+        status = "capped"
+    elif safe is not None and safe + 1 in cands and cands[safe + 1].decision == EXCEEDS:
         status = "decided"
     else:
         status = "undecided"
     return SearchResult(status, safe, lo, hi, non_mono, cands)
+
+
+class _Evaluator:
+    """``evaluate(j)`` of a :class:`MaxDelay` with its runner; ``cands`` its candidates."""
+
+    def __init__(self, md, runner):
+        self.md, self.runner = md, runner
+
+    @property
+    def cands(self) -> dict:
+        return self.md.cands
+
+    def __call__(self, j: int):
+        return self.md.evaluate(j, self.runner)
+
+
+def empirical_search(evaluate, J: int) -> SearchResult:
+    """:func:`gallop_bisect`, then make sure ``answer + 1`` is evaluated: when it
+    turns out *within* (possible when the boundary candidate was undecided),
+    the answer moves up and the next one is evaluated, up to the boundary."""
+    lo, hi = gallop_bisect(evaluate, J)
+    while True:
+        res = summarise(evaluate.cands, lo, hi)
+        nxt = 0 if res.answer is None else res.answer + 1
+        if lo is None or nxt > J or nxt in res.candidates:
+            return res
+        evaluate(nxt)
 
 
 def worst_case_scan(evaluate, J: int) -> SearchResult:
@@ -736,11 +763,7 @@ class MaxDelay:
         st, J = self.st, self.axis.max_index
         with Runner(st.jobs, on_run=lambda k: self.progress(runs=k)) as runner:
             # 1. empirical
-            lo, hi = gallop_bisect(lambda j: self.evaluate(j, runner), J)
-            emp = summarise(self.cands, lo, hi)
-            for j in (emp.answer, None if emp.answer is None else emp.answer + 1):
-                if j is not None and j <= J and j not in self.cands:
-                    self.evaluate(j, runner)
+            emp = empirical_search(_Evaluator(self, runner), J)
             runs_empirical = runner.runs
             # 2. deterministic worst case
             self.progress(label="worst case")
@@ -931,7 +954,9 @@ class MaxDelayResult:
             a = e[key]
             if a:
                 lines.append(f"        {what:12s} {unit} = {a['delay']:g}: mean {a['mean']:.4g} "
-                             f"CI [{a['ci'][0]:.4g}, {a['ci'][1]:.4g}], {a['runs']} runs, {a['decision']}")
+                             f"CI [{a['ci'][0]:.4g}, {a['ci'][1]:.4g}]; excess over tolerance CI "
+                             f"[{a['excess_ci'][0]:+.3g}, {a['excess_ci'][1]:+.3g}]; {a['runs']} runs, "
+                             f"{a['decision']}")
         w = d["worst_case"]
         if w is None:
             lines.append("  (2) worst case:  not computed (unbounded latency without links.d_t)")
@@ -1171,7 +1196,8 @@ class _Progress:
 
 def _done_line(label, c: Candidate) -> str:
     return (f"maxdelay: {label}: {c.runs} run{'s' * (c.runs != 1)}, mean {c.mean:.4g} "
-            f"[{c.ci[0]:.4g}, {c.ci[1]:.4g}] -> {c.decision}")
+            f"[{c.ci[0]:.4g}, {c.ci[1]:.4g}], excess over tolerance {c.excess_mean:+.3g} "
+            f"[{c.excess_ci[0]:+.3g}, {c.excess_ci[1]:+.3g}] -> {c.decision}")
 
 
 def cmd_maxdelay(args) -> int:

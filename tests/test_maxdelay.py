@@ -137,6 +137,44 @@ def test_monte_carlo_metric_spends_runs_near_the_boundary():
     assert sum(runs.values()) < 0.5 * len(runs) * 40
 
 
+class FakeEvaluator:
+    """Decisions given per candidate; counts what the search asks for."""
+
+    def __init__(self, decisions, excess):
+        self.decisions, self.excess, self.cands, self.asked = decisions, excess, {}, []
+
+    def __call__(self, j):
+        from dkfsim.maxdelay import Candidate
+        self.asked.append(j)
+        c = Candidate(index=j, delay=j, deterministic=False, decision=self.decisions(j),
+                      excess_mean=self.excess(j))
+        self.cands[j] = c
+        return c
+
+
+def test_search_logic_gallop_bisect_and_undecided_boundary():
+    from dkfsim.maxdelay import empirical_search, worst_case_scan
+    # monotone, boundary between 11 and 12: gallop 0,1,2,4,8,16 then bisect 12, 10, 11
+    ev = FakeEvaluator(lambda j: WITHIN if j <= 11 else EXCEEDS, lambda j: j - 11.5)
+    res = empirical_search(ev, 32)
+    assert (res.status, res.answer, res.first_exceeding) == ("decided", 11, 12)
+    assert ev.asked == [0, 1, 2, 4, 8, 16, 12, 10, 11]
+    # undecided plateau 9..14 (means on both sides of the tolerance): the answer is the
+    # largest delay decided within (8); 9 is evaluated for the CI at answer + 1
+    ev = FakeEvaluator(lambda j: WITHIN if j <= 8 else (UNDECIDED if j <= 14 else EXCEEDS),
+                       lambda j: j - 13.5)
+    res = empirical_search(ev, 32)
+    assert (res.status, res.answer) == ("undecided", 8) and 9 in ev.cands
+    # nothing exceeds up to the cap; zero delay already exceeds
+    assert empirical_search(FakeEvaluator(lambda j: WITHIN, lambda j: -1), 8).status == "capped"
+    res = empirical_search(FakeEvaluator(lambda j: EXCEEDS, lambda j: 1), 8)
+    assert (res.status, res.answer) == ("none", None)
+    # the worst case scans and stops at the first exceeding delay, even if a later one is within
+    ev = FakeEvaluator(lambda j: EXCEEDS if j == 3 else WITHIN, lambda j: 0)
+    res = worst_case_scan(ev, 8)
+    assert (res.status, res.answer, ev.asked) == ("decided", 2, [0, 1, 2, 3])
+
+
 # =========================================================================== worst case
 def test_worst_case_dominates_random_delays_trace_P():
     md = MaxDelay(dkfsim.load_scenario(rw_scenario(steps_latency(1))),
