@@ -186,3 +186,228 @@ def test_models_are_frozen():
     m = UniformSteps(d_t=2)
     with pytest.raises(ValidationError):
         m.d_t = 3
+
+
+# =========================================================================== issue 4: new models
+import math  # noqa: E402
+from pathlib import Path  # noqa: E402
+
+from scipy import stats  # noqa: E402
+
+from dkfsim.latency import (REPO_ROOT, Empirical, GilbertElliott, Gamma, Lognormal,  # noqa: E402
+                            Pareto, read_column, resolve_data_file)
+from dkfsim.streams import stream  # noqa: E402
+
+CICV = Path("/work/shared/data/cicv5g-5g-vehicle-latency")
+URBAN = CICV / "urban_n8_v30_run01.txt"
+needs_data = pytest.mark.skipif(not URBAN.is_file(), reason="CICV5G data not present")
+N_KS = 20_000
+
+
+def _seconds(model, n=N_KS, seed=2024, offset=0.0):
+    return model.sample_ns(rng(seed), n, T_NS) / 1e9 - offset
+
+
+# KS at a fixed seed: the samples follow the law; the same samples reject a law
+# whose parameter is 10 % off (so the test has power to fail).
+@pytest.mark.parametrize("model, law, wrong", [
+    (Lognormal(median=0.02, sigma=0.5, offset=0.003),
+     stats.lognorm(s=0.5, scale=0.02), stats.lognorm(s=0.5, scale=0.022)),
+    (Gamma(shape=2.0, scale=0.005, offset=0.001),
+     stats.gamma(a=2.0, scale=0.005), stats.gamma(a=2.0, scale=0.0055)),
+    (Pareto(alpha=1.5, scale=0.005, offset=0.002),
+     stats.pareto(b=1.5, scale=0.005), stats.pareto(b=1.65, scale=0.005)),
+    (Exponential(mean=0.01, offset=0.002),
+     stats.expon(scale=0.01), stats.expon(scale=0.011)),
+    (Uniform(low=0.001, high=0.031),
+     stats.uniform(loc=0.001, scale=0.030), stats.uniform(loc=0.001, scale=0.033)),
+], ids=["lognormal", "gamma", "pareto", "exponential", "uniform"])
+def test_continuous_models_follow_their_law(model, law, wrong):
+    x = _seconds(model, offset=getattr(model, "offset", 0.0))
+    assert stats.kstest(x, law.cdf).pvalue > 0.01
+    assert stats.kstest(x, wrong.cdf).pvalue < 1e-4
+
+
+def test_uniform_steps_moments():
+    d_t = 4
+    d = UniformSteps(d_t=d_t).sample_ns(rng(), N, T_NS) // T_NS
+    mean, var = d_t / 2, ((d_t + 1) ** 2 - 1) / 12
+    assert abs(d.mean() - mean) < 5 * math.sqrt(var / N)
+    assert abs(d.var() - var) / var < 0.01
+
+
+def test_lognormal_median_and_sigma_mean_what_they_say():
+    s = Lognormal(median=0.02, sigma=0.4).sample_ns(rng(), N, T_NS) / 1e9
+    assert abs(np.median(s) - 0.02) / 0.02 < 0.01
+    assert abs(np.log(s).std() - 0.4) < 0.01
+
+
+def test_pareto_scale_is_the_minimum():
+    s = Pareto(alpha=2.5, scale=0.004, offset=0.001).sample_ns(rng(), N, T_NS)
+    assert s.min() >= 5_000_000 and s.min() < 5_001_000
+
+
+@pytest.mark.parametrize("spec, bound", [
+    ({"model": "lognormal", "median": 0.01, "sigma": 0.5}, None),
+    ({"model": "lognormal", "median": 0.015, "sigma": 0.0}, 2),
+    ({"model": "gamma", "shape": 2.0, "scale": 0.01}, None),
+    ({"model": "pareto", "alpha": 1.5, "scale": 0.01}, None),
+    ({"model": "gilbert_elliott", "p_good_to_bad": 0.1, "p_bad_to_good": 0.5,
+      "good": {"model": "constant", "value": 0.01}, "bad": {"model": "uniform", "high": 0.031}}, 4),
+    ({"model": "gilbert_elliott", "p_good_to_bad": 0.1, "p_bad_to_good": 0.5,
+      "good": {"model": "constant", "value": 0.01}, "bad": {"model": "pareto", "alpha": 2, "scale": 0.01}},
+     None),
+])
+def test_new_bounds(spec, bound):
+    assert parse_latency(spec).bound_steps(T_NS) == bound
+
+
+@pytest.mark.parametrize("spec", [
+    {"model": "lognormal", "median": 0.0, "sigma": 0.5},
+    {"model": "lognormal", "median": 0.01, "sigma": -0.1},
+    {"model": "lognormal", "mu": 0.01, "sigma": 0.1},
+    {"model": "gamma", "shape": 0.0, "scale": 0.01},
+    {"model": "gamma", "shape": 1.0, "scale": -0.01},
+    {"model": "pareto", "alpha": 0.0, "scale": 0.01},
+    {"model": "pareto", "alpha": 1.0},
+    {"model": "gilbert_elliott", "p_good_to_bad": 1.5, "p_bad_to_good": 0.5,
+     "good": {"model": "constant"}, "bad": {"model": "constant"}},
+    {"model": "gilbert_elliott", "p_good_to_bad": 0.0, "p_bad_to_good": 0.0,
+     "good": {"model": "constant"}, "bad": {"model": "constant"}},
+    {"model": "gilbert_elliott", "p_good_to_bad": 0.1, "p_bad_to_good": 0.5,
+     "good": {"model": "constant"},
+     "bad": {"model": "gilbert_elliott", "p_good_to_bad": 0.1, "p_bad_to_good": 0.5,
+             "good": {"model": "constant"}, "bad": {"model": "constant"}}},
+    {"model": "empirical", "file": "no/such/file.txt"},
+])
+def test_new_invalid_parameters_rejected(spec):
+    with pytest.raises(ValidationError):
+        parse_latency(spec)
+
+
+# --------------------------------------------------------------------------- empirical
+@needs_data
+def test_empirical_reads_the_cicv5g_column_whatever_its_spelling():
+    a = read_column(URBAN, "delay(ms)")
+    assert len(a) == 4432
+    assert np.array_equal(a, read_column(URBAN, "delay_ms"))
+    assert np.array_equal(a, read_column(URBAN, 2))
+    assert (np.median(a), a.max()) == (18.0, 261.0)      # as the data README says
+    with pytest.raises(ValueError, match="no column 'dealy'"):
+        read_column(URBAN, "dealy")
+
+
+@needs_data
+def test_empirical_resample_reproduces_the_trace_distribution():
+    m = parse_latency({"model": "empirical", "file": str(URBAN), "one_way": True})
+    s = m.sample_ns(rng(), N_KS, T_NS)
+    trace_ns = read_column(URBAN, "delay_ms") * 0.5e6           # one way: RTT / 2
+    assert set(np.unique(s)) <= set(trace_ns.astype(np.int64))
+    assert stats.ks_2samp(s, trace_ns).pvalue > 0.01
+    # bounded by the trace's largest value (261 ms / 2)
+    assert m.sup_ns(T_NS) == 130_500_000 and m.bound_steps(T_NS) == 14
+    # and a 10 % scale is detected
+    assert stats.ks_2samp(s, trace_ns * 1.1).pvalue < 1e-4
+
+
+@needs_data
+def test_empirical_replay_plays_the_trace_in_order_and_cycles():
+    raw = read_column(URBAN, "delay_ms")
+    m = parse_latency({"model": "empirical", "file": str(URBAN), "mode": "replay",
+                       "start": 4430, "unit": "ms", "scale": 2.0})
+    s = m.sample_ns(rng(), 10, T_NS)
+    expect = np.concatenate([raw[4430:], raw[:8]]) * 2e6
+    assert np.array_equal(s, expect.astype(np.int64))
+    # a link's sampler: a random start from its latency stream, then consecutive rows
+    free = parse_latency({"model": "empirical", "file": str(URBAN), "mode": "replay"})
+    smp = free.sampler(lambda *name: stream(7, "link", 0, 1, *name), T_NS)
+    a, _ = smp.block(3000)
+    b, _ = smp.block(3000)
+    seq = np.concatenate([a, b])
+    start = int(stream(7, "link", 0, 1, "latency").integers(0, len(raw)))
+    idx = (start + np.arange(6000)) % len(raw)
+    assert np.array_equal(seq, (raw[idx] * 1e6).astype(np.int64))
+
+
+def test_empirical_csv_relative_path_and_errors(tmp_path):
+    sub = tmp_path / "scen"
+    sub.mkdir()
+    (sub / "trace.csv").write_text("# a comment\nt,lat_s\n0,0.010\n1,0.030\n\n2,0.020\n")
+    m = parse_latency({"model": "empirical", "file": "trace.csv", "column": "lat_s",
+                       "unit": "s", "mode": "replay", "start": 0}, base_dir=sub)
+    assert m.sample_ns(rng(), 4, T_NS).tolist() == [10_000_000, 30_000_000, 20_000_000, 10_000_000]
+    assert m.bound_steps(T_NS) == 3
+    path, tried = resolve_data_file("trace.csv", tmp_path)
+    assert path is None and tried[0] == tmp_path / "trace.csv" and tried[1] == REPO_ROOT / "trace.csv"
+    with pytest.raises(ValidationError, match="file not found"):
+        parse_latency({"model": "empirical", "file": "trace.csv"}, base_dir=tmp_path)
+    (sub / "bad.csv").write_text("lat\n0.01\nabc\n")
+    with pytest.raises(ValidationError, match="line 3: 'abc' is not a number"):
+        parse_latency({"model": "empirical", "file": "bad.csv", "column": "lat"}, base_dir=sub)
+    with pytest.raises(ValidationError, match="only used with mode: replay"):
+        parse_latency({"model": "empirical", "file": "trace.csv", "column": 1, "start": 0},
+                      base_dir=sub)
+
+
+# --------------------------------------------------------------------------- Gilbert-Elliott
+def _ge(p_gb, p_bg, **kw):
+    return GilbertElliott(p_good_to_bad=p_gb, p_bad_to_good=p_bg,
+                          good=Constant(value=0.001), bad=Constant(value=0.1), **kw)
+
+
+def test_gilbert_elliott_stationary_fraction_and_burst_length():
+    p_gb, p_bg = 0.05, 0.2
+    m = _ge(p_gb, p_bg, loss_good=0.01, loss_bad=0.4)
+    smp = m.sampler(lambda *name: stream(3, "link", 0, 1, *name), T_NS)
+    lats, losts = zip(*(smp.block(256) for _ in range(800)))      # 204 800 packets
+    lat, lost = np.concatenate(lats), np.concatenate(losts)
+    bad = lat == 100_000_000
+    assert abs(bad.mean() - p_gb / (p_gb + p_bg)) < 0.01            # 0.2
+    # runs of consecutive bad packets: geometric with mean 1 / p_bg = 5
+    edges = np.diff(np.concatenate([[0], bad.astype(int), [0]]))
+    runs = np.flatnonzero(edges == -1) - np.flatnonzero(edges == 1)
+    assert abs(runs.mean() - 1 / p_bg) < 0.15
+    good_runs_mean = (len(bad) - bad.sum()) / len(runs)
+    assert abs(good_runs_mean - 1 / p_gb) < 1.0
+    # losses per state
+    assert abs(lost[bad].mean() - 0.4) < 0.01
+    assert abs(lost[~bad].mean() - 0.01) < 0.002
+    # an i.i.d. channel with the same bad fraction has runs of mean 1/(1-0.2) = 1.25: the
+    # burstiness test can fail
+    assert runs.mean() > 3
+
+
+def test_gilbert_elliott_initial_state_and_no_loss():
+    smp = _ge(0.0, 0.5, initial="good").sampler(lambda *n: stream(1, *n), T_NS)
+    lat, lost = smp.block(100)
+    assert lost is None and np.all(lat == 1_000_000)
+    smp = _ge(0.0, 1.0, initial="bad").sampler(lambda *n: stream(1, *n), T_NS)
+    lat, _ = smp.block(5)
+    assert lat.tolist() == [100_000_000] + [1_000_000] * 4
+    # stateless sample_ns: reproducible from the generator
+    m = _ge(0.1, 0.3)
+    assert np.array_equal(m.sample_ns(rng(5), (4, 5), T_NS), m.sample_ns(rng(5), (4, 5), T_NS))
+
+
+@pytest.mark.parametrize("spec", [
+    {"model": "lognormal", "median": 0.01, "sigma": 0.3, "offset": 0.001},
+    {"model": "gamma", "shape": 2.0, "scale": 0.003},
+    {"model": "pareto", "alpha": 1.2, "scale": 0.002, "offset": 0.0},
+    {"model": "gilbert_elliott", "p_good_to_bad": 0.1, "p_bad_to_good": 0.3,
+     "good": {"model": "uniform_steps", "d_t": 1}, "bad": {"model": "exponential", "mean": 0.05},
+     "loss_bad": 0.2, "initial": "bad"},
+])
+def test_new_models_round_trip(spec):
+    m = parse_latency(spec)
+    assert parse_latency(m.to_dict()) == m
+
+
+def test_iid_sampler_gives_the_sample_ns_draws():
+    """A link draws i.i.d. models through ``sampler``: the same stream, the same blocks."""
+    for m in (UniformSteps(d_t=4), Uniform(high=0.02), Exponential(mean=0.005),
+              Lognormal(median=0.01, sigma=0.3)):
+        smp = m.sampler(lambda *name: stream(9, "link", 2, 3, *name), T_NS)
+        a = np.concatenate([smp.block(256)[0] for _ in range(3)])
+        ref_rng = stream(9, "link", 2, 3, "latency")
+        b = np.concatenate([m.sample_ns(ref_rng, 256, T_NS) for _ in range(3)])
+        assert np.array_equal(a, b)
