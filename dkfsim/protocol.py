@@ -153,6 +153,18 @@ class Exchange:
                 new ^= low
 
     # -- protocol hooks ----------------------------------------------------------
+    #: :class:`dkfsim.faults.CrashSchedule` (set by the simulation) or None.  A
+    #: node that is down does not measure; the network drops what arrives at
+    #: it, so it never has anything to send while down.
+    crashes = None
+
+    def _measuring(self):
+        """The nodes that measure now: all but those in a crash window."""
+        if not self.crashes:
+            return range(self.n)
+        now = self.env.now
+        return [i for i in range(self.n) if not self.crashes.down(i, now)]
+
     def measure(self, row: int) -> None:
         raise NotImplementedError
 
@@ -192,7 +204,7 @@ class TreeExchange(Exchange):
 
     def measure(self, row: int) -> None:
         st = self.rows[row]
-        for i in range(self.n):
+        for i in self._measuring():
             self._gain(i, row, st, 1 << i)
             self._dirty[i].add(row)
             self._schedule_flush(i)
@@ -251,7 +263,7 @@ class FloodExchange(Exchange):
 
     def measure(self, row: int) -> None:
         st = self.rows[row]
-        for i in range(self.n):
+        for i in self._measuring():
             self._gain(i, row, st, 1 << i)
             self._queue(i, row, 1 << i, -1)
 

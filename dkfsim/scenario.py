@@ -55,6 +55,7 @@ from pydantic import (AfterValidator, BaseModel, BeforeValidator, Discriminator,
                       ValidationError, ValidationInfo, field_validator, model_validator)
 
 from dkfsim.errors import ScenarioError
+from dkfsim.faults import Faults, LinkSpec, Schedule, Window
 from dkfsim.latency import (LATENCY_MODELS, Constant, LatencyBase, LatencyModel, StrictModel,
                             custom_error, suggest)
 from dkfsim import topology as topo
@@ -426,28 +427,30 @@ Probability = Annotated[float, Field(strict=True, ge=0, le=1, allow_inf_nan=Fals
 
 
 class LinkSettings(StrictModel):
+    """A link's latency and faults (see :mod:`dkfsim.faults`); ``None`` = no such fault."""
+
     latency: LatencyModel = Field(default_factory=Constant)
     loss: Probability = 0.0
+    duplicate: Probability | None = None
+    jitter: LatencyModel | None = None
+    schedule: Schedule | None = None
+    outages: tuple[Window, ...] | None = None
 
 
 class LinkOverride(StrictModel):
     link: tuple[StrictInt, StrictInt]
     latency: LatencyModel | None = None
     loss: Probability | None = None
+    duplicate: Probability | None = None
+    jitter: LatencyModel | None = None
+    schedule: Schedule | None = None
+    outages: tuple[Window, ...] | None = None
 
 
 class Links(StrictModel):
     default: LinkSettings = Field(default_factory=LinkSettings)
     overrides: tuple[LinkOverride, ...] = ()
     d_t: Annotated[int, Field(strict=True, ge=0)] | None = None
-
-
-@dataclass(frozen=True)
-class LinkSpec:
-    """Settings of one directed link: a latency model and a loss probability."""
-
-    latency: LatencyBase
-    loss: float
 
 
 def _check_baseline(name: str) -> str:
@@ -492,6 +495,8 @@ class Scenario(StrictModel):
     consensus_rounds: Annotated[int, Field(strict=True, ge=0)] = 1
     #: Truth from a recorded track instead of the model (:mod:`dkfsim.trajectory`).
     truth: Truth | None = None
+    #: Sensor faults (crash windows), see :mod:`dkfsim.faults`.
+    faults: Faults | None = None
 
     _source: str | None = PrivateAttr(default=None)
     # (key, graph, exchange graph or None); the key holds every field the graph
@@ -603,11 +608,12 @@ class Scenario(StrictModel):
                 what = "an arc" if graph.is_directed() else "an edge"
                 raise custom_error(f"[{u}, {v}] is not {what} of the topology",
                                    f"links.overrides.{i}.link")
+        if self.faults is not None:
+            self.faults.check(n)
         self._cache = (self._graph_key(), graph, None)
         if self.buffer_length in ("auto", "paper") and self.resolved_d_t() is None:
-            unbounded = sorted({self.link_spec(u, v).latency.model
-                                for u, v in self.exchange().arcs
-                                if self.link_spec(u, v).latency.bound_steps(self.T_ns) is None})
+            unbounded = sorted({name for u, v in self.exchange().arcs
+                                for name in self.link_spec(u, v).unbounded_models(self.T_ns)})
             raise custom_error(
                 f"{self.buffer_length!r} needs a delay bound, but latency model "
                 f"{', '.join(unbounded)} is unbounded; set an explicit links.d_t (delay bound "
@@ -662,17 +668,19 @@ class Scenario(StrictModel):
 
         The default merged with the last matching override; ``link: [u, v]``
         matches ``u -> v``, and also ``v -> u`` on an undirected topology.
-        An override replaces the whole latency model and/or the loss.
+        An override replaces the whole latency model, the loss, and each
+        fault key it gives (duplicate, jitter, schedule, outages).
         """
-        latency, loss = self.links.default.latency, self.links.default.loss
+        keys = ("latency", "loss", "duplicate", "jitter", "schedule", "outages")
+        spec = {k: getattr(self.links.default, k) for k in keys}
         for ov in self.links.overrides:
             a, b = ov.link
             if (a, b) == (u, v) or (not self.topology.directed and (b, a) == (u, v)):
-                if ov.latency is not None:
-                    latency = ov.latency
-                if ov.loss is not None:
-                    loss = ov.loss
-        return LinkSpec(latency=latency, loss=float(loss))
+                spec.update({k: getattr(ov, k) for k in keys if getattr(ov, k) is not None})
+        return LinkSpec(latency=spec["latency"], loss=float(spec["loss"]),
+                        duplicate=float(spec["duplicate"] or 0.0), jitter=spec["jitter"],
+                        schedule=tuple(spec["schedule"] or ()),
+                        outages=tuple(spec["outages"] or ()))
 
     def resolved_d_t(self) -> int | None:
         """Delay bound in steps: ``links.d_t`` if set, else the largest
@@ -681,7 +689,7 @@ class Scenario(StrictModel):
             return self.links.d_t
         bound = 0
         for u, v in self.exchange().arcs:
-            b = self.link_spec(u, v).latency.bound_steps(self.T_ns)
+            b = self.link_spec(u, v).bound_steps(self.T_ns)
             if b is None:
                 return None
             bound = max(bound, b)

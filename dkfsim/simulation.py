@@ -17,6 +17,7 @@ import simpy
 from simpy.events import NORMAL
 
 from .baselines import BASELINES
+from .faults import CrashSchedule
 from .filter import WindowFilter
 from .fusion import FUSERS, CrossCovariance
 from .network import PRIORITY_UPDATE, Network, Scheduled
@@ -79,8 +80,11 @@ class Simulation:
         self.env = simpy.Environment()
         self.arrival = np.full((n, n, K), np.inf) if self.save_mode == "full" else None
         self.exchange = PROTOCOLS[scenario.protocol](self.env, n, self.window, arrival=self.arrival)
+        # Crash windows (dkfsim.faults): a node that is down neither measures nor receives.
+        self.crashes = CrashSchedule(getattr(scenario, "faults", None), n) or None
+        self.exchange.crashes = self.crashes
         self.network = Network(self.env, xg.arcs, scenario.link_spec, self.seed,
-                               sys_.T_ns, self.exchange.receive)
+                               sys_.T_ns, self.exchange.receive, crashes=self.crashes)
         self.exchange.attach(self.network)
 
         self.x_local = np.empty((K, n, nx))
@@ -143,6 +147,8 @@ class Simulation:
             arrays[f"y_{i}"] = self.ys[i]
         arrays["buffer_length"] = np.array(self.L)
         arrays["weights_A"] = self.A
+        if self.crashes is not None:      # (n, K): node i was down at row r's tick
+            arrays["crashed"] = self.crashes.mask(K, sys_.T_ns)
         if self.arrival is not None:
             arrays["arrival"] = self.arrival
         arrays["x_local"] = self.x_local
