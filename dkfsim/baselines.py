@@ -8,7 +8,8 @@ finished :class:`~dkfsim.simulation.Simulation` returning arrays named
 ``(K, n, nx)`` for per-node estimates (metrics then average over nodes).
 
 ``centralized``
-    every measurement on time: the lower bound.
+    every measurement on time: the lower bound.  (Measurements that do not
+    exist -- a sensor inside a crash window -- are missing from every baseline.)
 ``centralized_delayed``
     a fusion centre that receives each sensor's packet over a direct link
     with the scenario's default latency model and loss (streams
@@ -32,17 +33,35 @@ from .filter import WindowFilter, batched_filter, centralized_filter
 from .streams import stream
 
 
+def measured(sim) -> np.ndarray | None:
+    """(K, n) bool: sensor i measured row r (False while it was crashed); None if no crashes."""
+    crashes = getattr(sim, "crashes", None)
+    if not crashes:
+        return None
+    return ~crashes.mask(sim.K, sim.system.T_ns).T
+
+
+def _existing(sim):
+    """``omega`` and ``theta`` of the measurements that exist (crashed sensors measure nothing)."""
+    info, m = sim.info, measured(sim)
+    if m is None:
+        return info.omega, info.theta
+    omega = info.omega_per_row() * m[:, :, None, None]
+    return omega, info.theta * m[:, :, None]
+
+
 def centralized(sim) -> dict:
     s = sim.system
-    info = sim.info
-    total = info.omega.sum(axis=-3)            # (nx, nx), or (K, nx, nx) per row
-    x, P = centralized_filter(s.Phi, s.Q, s.x0_mean, s.P0, total, info.theta.sum(axis=1))
+    omega, theta = _existing(sim)
+    total = omega.sum(axis=-3)                 # (nx, nx), or (K, nx, nx) per row
+    x, P = centralized_filter(s.Phi, s.Q, s.x0_mean, s.P0, total, theta.sum(axis=1))
     return {"x_centralized": x, "P_centralized": P}
 
 
 def local(sim) -> dict:
     s = sim.system
-    x, P = batched_filter(s.Phi, s.Q, s.x0_mean, s.P0, sim.info.omega, sim.theta)
+    omega, theta = _existing(sim)
+    x, P = batched_filter(s.Phi, s.Q, s.x0_mean, s.P0, omega, theta)
     return {"x_local_only": x, "P_local_only": P}
 
 
@@ -75,6 +94,9 @@ def direct_arrival_ticks(sim) -> np.ndarray:
         if spec.loss > 0:
             k[stream(sim.seed, "direct", name, "loss").random(K) < spec.loss] = 0
         ticks[i] = k
+    m = measured(sim)
+    if m is not None:                 # a crashed sensor sends nothing
+        ticks[~m.T] = 0
     return ticks
 
 

@@ -388,3 +388,27 @@ def test_stress_scenarios_validate_and_run(name, L):
     from dkfsim import run
     res = run(sc)
     identity(res.counts)
+
+
+def test_baselines_do_without_the_measurements_a_crash_prevented():
+    """A crashed sensor's rows exist nowhere: not for the centralized filter, not for its local one."""
+    import dkfsim
+    from reference import kalman_filter
+    from conftest import scenario
+    d = scenario(3, steps=30, generator="path")
+    d["faults"] = {"crashes": [{"node": 1, "start": 0.45, "end": 1.05}]}   # T = 0.1: ticks 5..10
+    d["baselines"] = ["centralized", "local"]
+    res = dkfsim.run(dkfsim.load_scenario(d))
+    a = res.arrays
+    n, K = 3, 30
+    down = a["crashed"]
+    assert down[1].sum() == 6 and not down[[0, 2]].any()
+    Hs = [a[f"H_{i}"] for i in range(n)]
+    Rs = [a[f"R_{i}"] for i in range(n)]
+    ys = [a[f"y_{i}"] for i in range(n)]
+    xc, _ = kalman_filter(a["Phi"], a["Q"], a["x0_mean"], a["P0"], Hs, Rs, ys,
+                          lambda r: [(i, 1.0) for i in range(n) if not down[i, r]])
+    np.testing.assert_allclose(a["x_centralized"], xc, rtol=1e-9, atol=1e-9)
+    x1, _ = kalman_filter(a["Phi"], a["Q"], a["x0_mean"], a["P0"], Hs, Rs, ys,
+                          lambda r: [] if down[1, r] else [(1, 1.0)])
+    np.testing.assert_allclose(a["x_local_only"][:, 1], x1, rtol=1e-9, atol=1e-9)
