@@ -837,8 +837,10 @@ class MaxDelayResult:
         st = md.st
         self.reference = None
         if st.relative is not None and md.ref:
-            m, ci = interval(md.ref, st.confidence)
-            self.reference = {"runs": len(md.ref), "mean": m, "ci": list(ci),
+            det = md._candidate_scenario(0)[1]
+            m, ci = interval(md.ref[:1] if det else md.ref, st.confidence)
+            self.reference = {"runs": 1 if det else len(md.ref), "deterministic": det,
+                              "mean": m, "ci": list(ci),
                               "tolerance": st.relative * m,
                               "tolerance_ci": [st.relative * ci[0], st.relative * ci[1]]}
 
@@ -946,8 +948,9 @@ class MaxDelayResult:
                  f"{100 * st.confidence:g}% confidence, {md.sc.steps} ticks, burn-in {md.burn}"]
         if self.reference:
             r = self.reference
+            how = "deterministic" if r["deterministic"] else f"{r['runs']} runs"
             lines.append(f"  zero-delay value {r['mean']:.4g} [{r['ci'][0]:.4g}, {r['ci'][1]:.4g}] "
-                         f"({r['runs']} runs) -> tolerance {r['tolerance']:.4g}")
+                         f"({how}) -> tolerance {r['tolerance']:.4g}")
         e = d["empirical"]
         lines.append(f"  (1) empirical:   {_answer_text(e, unit)}  ({self.runs_empirical} runs)")
         for key, what in (("at_answer", "at answer"), ("at_answer_plus_1", "at answer+1")):
@@ -987,68 +990,87 @@ class MaxDelayResult:
 
     # ------------------------------------------------------------------ plot
     def plot(self, out: Path) -> None:
+        """``maxdelay.png`` / ``.pdf``: the metric against the delay (top) and the
+        excess over the tolerance that the decisions use (bottom)."""
         import matplotlib
         matplotlib.use("Agg")
         import matplotlib.pyplot as plt
+        from matplotlib.ticker import MaxNLocator
         md, st, ax = self.md, self.md.st, self.md.axis
-        fig, axp = plt.subplots(figsize=(7.5, 4.8))
+        fig, (top, bot) = plt.subplots(2, 1, figsize=(10, 7), sharex=True,
+                                       gridspec_kw={"height_ratios": [3, 2]})
         cs = sorted(md.cands.values(), key=lambda c: c.index)
         x = np.array([c.delay for c in cs], float)
-        m = np.array([c.mean for c in cs])
-        lo = np.array([c.ci[0] for c in cs])
-        hi = np.array([c.ci[1] for c in cs])
-        axp.fill_between(x, lo, hi, color="C0", alpha=0.25, lw=0,
-                         label=f"{100 * st.confidence:g}% confidence band")
-        axp.plot(x, m, "-", color="C0", lw=1.2, label=f"{st.metric} (Monte Carlo mean)")
         colours = {WITHIN: "C2", EXCEEDS: "C3", UNDECIDED: "0.5"}
+        # -- top: the metric
+        top.fill_between(x, [c.ci[0] for c in cs], [c.ci[1] for c in cs], color="C0", alpha=0.25, lw=0,
+                         label=f"{100 * st.confidence:g}% confidence band (Monte Carlo)")
+        top.plot(x, [c.mean for c in cs], "-", color="C0", lw=1.2, label=f"{st.metric}, Monte Carlo mean")
         for c in cs:
-            axp.plot([c.delay], [c.mean], "o", color=colours[c.decision], ms=5, zorder=5)
-            axp.annotate(str(c.runs), (c.delay, c.ci[1] if math.isfinite(c.ci[1]) else c.mean),
-                         textcoords="offset points", xytext=(0, 3), ha="center", fontsize=7,
-                         color="0.3")
+            top.plot([c.delay], [c.mean], "o", color=colours[c.decision], ms=5, zorder=5)
+            top.annotate(str(c.runs), (c.delay, c.ci[1] if math.isfinite(c.ci[1]) else c.mean),
+                         textcoords="offset points", xytext=(0, 3), ha="center", fontsize=7, color="0.3")
         for dec, col in colours.items():
-            axp.plot([], [], "o", color=col, ms=5, label=f"decided: {dec}" if dec != UNDECIDED else
-                     "undecided (run cap)")
+            top.plot([], [], "o", color=col, ms=5,
+                     label={WITHIN: "decided within", EXCEEDS: "decided exceeds",
+                            UNDECIDED: "undecided (run cap)"}[dec])
         if st.relative is None:
-            axp.axhline(st.tolerance, color="k", ls="--", lw=1, label=f"tolerance {st.tolerance:g}")
+            top.axhline(st.tolerance, color="k", ls="--", lw=1, label=f"tolerance {st.tolerance:g}")
         elif self.reference:
             r = self.reference
-            axp.axhline(r["tolerance"], color="k", ls="--", lw=1,
-                        label=f"tolerance {st.relative:g} x zero-delay value")
-            axp.axhspan(*r["tolerance_ci"], color="k", alpha=0.08, lw=0)
+            top.axhline(r["tolerance"], color="k", ls="--", lw=1,
+                        label=f"tolerance {st.relative:g} x zero-delay mean")
+            top.axhspan(*r["tolerance_ci"], color="k", alpha=0.08, lw=0,
+                        label=f"{st.relative:g} x its confidence interval")
         if self.emp.answer is not None:
-            axp.axvline(ax.value(self.emp.answer), color="C0", ls=":", lw=1.5,
+            top.axvline(ax.value(self.emp.answer), color="C0", ls=":", lw=2,
                         label=f"empirical answer {ax.value(self.emp.answer):g} ({self.emp.status})")
-        if md.wc:
-            ws = sorted(md.wc.values(), key=lambda c: c.index)
-            axp.plot([c.delay for c in ws], [c.mean for c in ws], "s-", color="C1", ms=4, lw=1,
-                     label="worst case (every link at max latency), covariance")
+        ws = sorted(md.wc.values(), key=lambda c: c.index)
+        if ws:
+            top.plot([c.delay for c in ws], [c.mean for c in ws], "s-", color="C1", ms=3.5, lw=1,
+                     label="worst case: every link at its largest latency (covariance)")
             if st.relative is not None and self.wc_tol is not None:
-                axp.axhline(self.wc_tol, color="C1", ls="--", lw=0.8, label="worst-case tolerance")
+                top.axhline(self.wc_tol, color="C1", ls="--", lw=0.8, label="worst-case tolerance")
             if self.limit is not None:
-                axp.axhline(self.limit, color="C1", ls=(0, (1, 3)), lw=1, label="no-exchange limit")
-            if self.wc and self.wc.answer is not None:
-                axp.axvline(ax.value(self.wc.answer), color="C1", ls=":", lw=1.5,
-                            label=f"worst-case answer {ax.value(self.wc.answer):g}")
+                top.axhline(self.limit, color="C1", ls=(0, (1, 3)), lw=1,
+                            label="worst case with no exchange at all")
+            if self.wc is not None and self.wc.answer is not None:
+                top.axvline(ax.value(self.wc.answer), color="C1", ls=":", lw=2,
+                            label=f"worst-case answer {ax.value(self.wc.answer):g} ({self.wc.status})")
         p = self.paper
         if "error" not in p:
             dax = p.get("d_star_in_axis_units")
             if p["meaningful"] and dax is not None:
-                axp.axvline(dax, color="C4", ls="-.", lw=1.5, label=f"paper bound {dax:.3g}")
-            txt = (f"paper bound (eq. delay_bound): d_t <= {_fmt(p['d_star'])}"
-                   + ("" if p["meaningful"] else " - meaningless") +
-                   f"\nguaranteed lambda_max(P) <= 10^{p['log10_lambda_max_bound']['1']:.3g} at d_t = 1")
-            axp.text(0.02, 0.97, txt, transform=axp.transAxes, va="top", fontsize=8, color="C4",
-                     bbox=dict(boxstyle="round", fc="white", ec="C4", alpha=0.8))
-        axp.set_xlabel(ax.name)
+                top.axvline(dax, color="C4", ls="-.", lw=1.5, label=f"paper bound {dax:.3g}")
+            txt = (f"paper bound, eq. (delay_bound): d_t <= {_fmt(p['d_star'])}"
+                   + ("" if p["meaningful"] else " (meaningless)") +
+                   f"\nit guarantees lambda_max(P) <= 10^{p['log10_lambda_max_bound']['0']:.3g} at d_t = 0, "
+                   f"10^{p['log10_lambda_max_bound']['1']:.3g} at d_t = 1")
+            top.text(0.01, 0.98, txt, transform=top.transAxes, va="top", fontsize=7.5, color="C4",
+                     bbox=dict(boxstyle="round", fc="white", ec="C4", alpha=0.85))
+        top.set_ylabel(st.metric if st.metric == "trace_P" else f"{st.metric} ({md.comp_name})")
+        top.set_title(f"{md.sc.name}: largest {ax.name} within tolerance", fontsize=10)
+        top.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0)
+        top.grid(alpha=0.3)
+        # -- bottom: what the decisions use
+        for c in cs:
+            lo, hi = c.excess_ci
+            top_err = [[c.excess_mean - lo], [hi - c.excess_mean]] if math.isfinite(lo) else None
+            bot.errorbar([c.delay], [c.excess_mean], yerr=top_err, fmt="o", color=colours[c.decision],
+                         ms=4, capsize=3)
+        if ws and self.wc_tol is not None:
+            bot.plot([c.delay for c in ws], [c.mean - self.wc_tol for c in ws], "s-", color="C1", ms=3,
+                     lw=0.8, label="worst case minus its tolerance")
+        bot.axhline(0.0, color="k", lw=1)
+        bot.plot([], [], "o", color="0.3", label="Monte Carlo: mean and CI of " +
+                 ("metric - tolerance" if st.relative is None else
+                  f"metric_d[r] - {st.relative:g} metric_0[r] (paired runs)"))
+        bot.set_ylabel("excess over tolerance")
+        bot.set_xlabel(ax.name)
+        bot.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0)
+        bot.grid(alpha=0.3)
         if ax.mode == "d_t":
-            from matplotlib.ticker import MaxNLocator
-            axp.xaxis.set_major_locator(MaxNLocator(integer=True))
-        ylabel = st.metric if st.metric == "trace_P" else f"{st.metric} ({md.comp_name})"
-        axp.set_ylabel(ylabel)
-        axp.set_title(f"{md.sc.name}: maximum delay within tolerance", fontsize=10)
-        axp.legend(fontsize=7, loc="lower right")
-        axp.grid(alpha=0.3)
+            bot.xaxis.set_major_locator(MaxNLocator(integer=True))
         fig.tight_layout()
         for ext in ("png", "pdf"):
             fig.savefig(out / f"maxdelay.{ext}", dpi=150)
