@@ -99,11 +99,9 @@ def derive_seed(base_seed: int, run: int) -> int:
 
 
 def component_names(scenario) -> list[str]:
-    """``position, velocity, acceleration`` for ``constant_acceleration``, else ``x0, x1, ...``."""
-    nx = scenario.nx
-    if scenario.model.kind == "constant_acceleration" and nx == 3:
-        return ["position", "velocity", "acceleration"]
-    return [f"x{i}" for i in range(nx)]
+    """The scenario's state component names (see :func:`dkfsim.scenario.component_names`)."""
+    from .scenario import component_names as names
+    return names(scenario.model.kind, scenario.nx)
 
 
 def algorithms_of(arrays, baselines) -> list[tuple[str, str, str]]:

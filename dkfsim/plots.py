@@ -137,9 +137,8 @@ class Folder:
 
 
 def component_names(nx: int, model_kind: str | None) -> list[str]:
-    if nx == 3 and model_kind == "constant_acceleration":
-        return list(CA_COMPONENTS)
-    return [f"x[{i}]" for i in range(nx)]
+    from .scenario import component_names as names
+    return names(model_kind, nx)
 
 
 def _units(components, model_kind) -> list[str]:

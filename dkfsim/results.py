@@ -111,7 +111,8 @@ class RunResult(Mapping):
         """A short human-readable table: MSE per state component and packet counts."""
         m = self.metrics(burn_in)
         nx = self.arrays["truth"].shape[1]
-        names = _component_names(self.scenario, nx)
+        from .scenario import component_names
+        names = component_names(self.scenario.model.kind, nx)
         rows = [("estimate", *names)]
         label = {"fused": "fused (%s)" % self.scenario.fusion, "local_mean": "local (mean over nodes)"}
         for key, val in m.items():
@@ -133,12 +134,6 @@ class RunResult(Mapping):
                      f"in flight at end {c['in_flight']}; late contributions {c['late']}")
         lines.append(f"wall time {self.info['wall_time_s']:.2f} s")
         return "\n".join(lines)
-
-
-def _component_names(scenario, nx):
-    if getattr(scenario.model, "kind", None) == "constant_acceleration" and nx == 3:
-        return ["position", "velocity", "acceleration"]
-    return [f"x[{i}]" for i in range(nx)]
 
 
 def _jsonable(obj):

@@ -157,6 +157,22 @@ def _check_spd(a: np.ndarray, key: str | None, semi: bool) -> None:
 
 
 # =========================================================================== sub-models
+def component_names(kind: str | None, nx: int) -> list[str]:
+    """Names of the state components, for tables, CSV columns and plots.
+
+    ``position, velocity, acceleration`` for ``constant_acceleration``;
+    ``x, vx, y, vy, ...`` for ``constant_velocity`` (``position, velocity``
+    with one axis); ``x0, x1, ...`` otherwise.
+    """
+    if kind == "constant_acceleration" and nx == 3:
+        return ["position", "velocity", "acceleration"]
+    if kind == "constant_velocity" and nx in (2, 4, 6):
+        if nx == 2:
+            return ["position", "velocity"]
+        return [name for axis in "xyz"[: nx // 2] for name in (axis, "v" + axis)]
+    return [f"x{i}" for i in range(nx)]
+
+
 class Model(StrictModel):
     """Target dynamics ``x[k+1] = Phi x[k] + w``, ``w ~ N(0, Q)``, period ``T`` s.
 

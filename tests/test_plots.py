@@ -201,8 +201,9 @@ def test_errors_in_the_files(tmp_path, capsys):
 
 def test_component_names_and_smoothing():
     assert plots.component_names(3, "constant_acceleration") == ["position", "velocity", "acceleration"]
-    assert plots.component_names(3, "linear") == ["x[0]", "x[1]", "x[2]"]
-    assert plots.component_names(2, "constant_acceleration") == ["x[0]", "x[1]"]
+    assert plots.component_names(3, "linear") == ["x0", "x1", "x2"]
+    assert plots.component_names(2, "constant_acceleration") == ["x0", "x1"]
+    assert plots.component_names(4, "constant_velocity") == ["x", "vx", "y", "vy"]
     a = np.array([0.0, 3.0, 0.0, 0.0, 6.0])
     np.testing.assert_allclose(plots.moving_average(a, 3), [1.5, 1.0, 1.0, 2.0, 3.0])
     np.testing.assert_allclose(plots.moving_average(a, 1), a)
