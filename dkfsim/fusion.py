@@ -103,7 +103,7 @@ class CrossCovariance:
         self._diag = np.arange(n)
 
     def on_row(self, row: int, slot: int, prev: int | None) -> None:
-        st, n, nx, N = self.w.state, self.n, self.nx, self.N
+        st, nx, N = self.w.state, self.nx, self.N
         Xi_prev = self.Xi0 if prev is None else self.Xi[prev]
         G, P = st.G[slot], st.P[slot]
         F = self._F

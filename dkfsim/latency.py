@@ -118,7 +118,6 @@ from __future__ import annotations
 import difflib
 import math
 import os
-import re
 from decimal import ROUND_HALF_EVEN, Decimal
 from pathlib import Path
 from typing import Annotated, Any, Callable, ClassVar, Literal, Union
@@ -412,36 +411,10 @@ class Pareto(LatencyBase):
 
 
 # ----------------------------------------------------------------------- empirical traces
-#: The repository root (the folder holding the ``dkfsim`` package).
-REPO_ROOT = Path(__file__).resolve().parents[1]
+from .datafiles import REPO_ROOT, norm_name as _norm_name, resolve_data_file  # noqa: E402,F401
 
 _UNIT_S = {"ms": 1e-3, "s": 1.0}
 _COLUMNS: dict[tuple, np.ndarray] = {}
-
-
-def _norm_name(name: str) -> str:
-    return re.sub(r"[^0-9a-z]", "", str(name).lower())
-
-
-def resolve_data_file(file: str, base_dir: str | os.PathLike | None = None) -> tuple[Path | None, list[Path]]:
-    """The file a scenario names, and every place that was tried.
-
-    Absolute paths are used as they are.  A relative path is looked up in
-    ``base_dir`` (the scenario file's folder; the working directory when
-    ``None``), then the repository root, then the repository's
-    ``scenarios/`` folder (so a copy of a repository scenario made with
-    ``to_dict``, e.g. for a Monte Carlo worker, still finds its traces).
-    """
-    path = Path(os.path.expanduser(str(file)))
-    if path.is_absolute():
-        tried = [path]
-    else:
-        base = Path(base_dir) if base_dir is not None else Path.cwd()
-        tried = [base / path, REPO_ROOT / path, REPO_ROOT / "scenarios" / path]
-    for cand in tried:
-        if cand.is_file():
-            return cand.resolve(), tried
-    return None, tried
 
 
 def read_column(path: str | os.PathLike, column: str | int) -> np.ndarray:

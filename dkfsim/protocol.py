@@ -36,7 +36,6 @@ forwarded for a final row: every node finalises a row at the same tick.
 
 from __future__ import annotations
 
-import numpy as np
 
 from .network import PRIORITY_FLUSH, Scheduled
 

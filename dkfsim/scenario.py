@@ -43,7 +43,6 @@ import hashlib
 import json
 import os
 import re
-from dataclasses import dataclass
 from decimal import Decimal
 from pathlib import Path
 from typing import Annotated, Any, Literal, Mapping, Sequence, Union
@@ -56,7 +55,7 @@ from pydantic import (AfterValidator, BaseModel, BeforeValidator, Discriminator,
 
 from dkfsim.errors import ScenarioError
 from dkfsim.faults import Faults, LinkSpec, Schedule, Window
-from dkfsim.latency import (LATENCY_MODELS, Constant, LatencyBase, LatencyModel, StrictModel,
+from dkfsim.latency import (LATENCY_MODELS, Constant, LatencyModel, StrictModel,
                             custom_error, suggest)
 from dkfsim import topology as topo
 

@@ -12,7 +12,7 @@ information-form contributions every filter in the package consumes:
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 import scipy.linalg

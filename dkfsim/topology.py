@@ -210,7 +210,7 @@ def _undirected_edges(generator: str, params: dict, n: int, seed: int) -> list[t
     if generator == "ring":
         return [(i, (i + 1) % n) for i in range(n)]
     if generator == "balanced_tree":
-        r, h = int(params["r"]), int(params["h"])
+        r = int(params["r"])          # h only fixes n, checked with the params
         # breadth-first labelling: the children of node v are r*v+1 .. r*v+r
         return [(v, r * v + c) for v in range(n) for c in range(1, r + 1) if r * v + c < n]
     if generator == "random_tree":

@@ -41,16 +41,16 @@ for a scenario given as a mapping), then the repository root, then its
 from __future__ import annotations
 
 import os
-import re
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
+from .datafiles import norm_name, resolve_data_file
+
 #: Seconds per unit of the time column.
 TIME_UNITS = {"s": 1.0, "ms": 1e-3, "us": 1e-6, "ns": 1e-9}
 
-REPO_ROOT = Path(__file__).resolve().parents[1]
 
 
 class TrackError(ValueError):
@@ -75,30 +75,15 @@ class Track:
         return float(self.t[-1] - self.t[0])
 
 
-def resolve(file: str, base_dir: str | os.PathLike | None = None) -> tuple[Path | None, list[Path]]:
-    """The file a scenario names and the places tried (see the module docstring)."""
-    path = Path(os.path.expanduser(str(file)))
-    if path.is_absolute():
-        tried = [path]
-    else:
-        base = Path(base_dir) if base_dir is not None else Path.cwd()
-        tried = [base / path, REPO_ROOT / path, REPO_ROOT / "scenarios" / path]
-    for cand in tried:
-        if cand.is_file():
-            return cand.resolve(), tried
-    return None, tried
-
-
-def _norm(name: str) -> str:
-    return re.sub(r"[^0-9a-z]", "", name.lower())
+resolve = resolve_data_file
 
 
 def _column(names: list[str], want: str, key: str, path: Path) -> int:
     if want in names:
         return names.index(want)
-    normed = [_norm(n) for n in names]
-    if _norm(want) in normed and _norm(want):
-        return normed.index(_norm(want))
+    normed = [norm_name(n) for n in names]
+    if norm_name(want) in normed and norm_name(want):
+        return normed.index(norm_name(want))
     raise TrackError(f"no column {want!r} in {path.name}; its columns are: {', '.join(names)}", key)
 
 
