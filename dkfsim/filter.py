@@ -149,6 +149,7 @@ class WindowFilter:
         self._pend_i: list[int] = []
         self._pend_o: list[int] = []
         self._pend_r: list[int] = []
+        self._chunks: list[tuple[int, np.ndarray, int]] = []
 
     # -- contributions -----------------------------------------------------
     def add(self, node: int, origin: int, row: int) -> None:
@@ -157,14 +158,23 @@ class WindowFilter:
         self._pend_o.append(origin)
         self._pend_r.append(row)
 
+    def add_many(self, node: int, origins: np.ndarray, row: int) -> None:
+        """Node ``node`` now holds the contributions of all ``origins`` for ``row``."""
+        self._chunks.append((node, origins, row))
+
     def _apply_pending(self) -> int | None:
         """Fold pending contributions into the ring; earliest changed row."""
-        if not self._pend_i:
+        if not self._pend_i and not self._chunks:
             return None
         i = np.array(self._pend_i, dtype=np.intp)
         o = np.array(self._pend_o, dtype=np.intp)
         r = np.array(self._pend_r, dtype=np.intp)
-        self._pend_i, self._pend_o, self._pend_r = [], [], []
+        if self._chunks:
+            sizes = [len(c[1]) for c in self._chunks]
+            i = np.concatenate([i, np.repeat([c[0] for c in self._chunks], sizes)])
+            o = np.concatenate([o] + [c[1] for c in self._chunks]).astype(np.intp)
+            r = np.concatenate([r, np.repeat([c[2] for c in self._chunks], sizes)])
+        self._pend_i, self._pend_o, self._pend_r, self._chunks = [], [], [], []
         slot = r % self.S
         a = self.A[i, o]
         st = self.state

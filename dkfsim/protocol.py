@@ -37,7 +37,19 @@ forwarded for a final row: every node finalises a row at the same tick.
 from __future__ import annotations
 
 
+import numpy as np
+
 from .network import PRIORITY_FLUSH, Scheduled
+
+
+#: Above this many origins in one mask, newly held contributions are unpacked with numpy.
+_MANY_BITS = 12
+
+
+def bit_indices(mask: int) -> np.ndarray:
+    """Positions of the set bits of a non-negative int, ascending."""
+    raw = np.frombuffer(mask.to_bytes((mask.bit_length() + 7) // 8, "little"), dtype=np.uint8)
+    return np.flatnonzero(np.unpackbits(raw, bitorder="little"))
 
 
 class _Row:
@@ -120,6 +132,13 @@ class Exchange:
     # -- holdings --------------------------------------------------------------
     def _gain(self, node: int, row: int, st: _Row, bits: int) -> None:
         st.held[node] |= bits
+        if bits.bit_count() > _MANY_BITS:
+            # Large networks: one numpy pass instead of a Python step per origin.
+            origins = bit_indices(bits)
+            self.window.add_many(node, origins, row)
+            if self.arrival is not None:
+                self.arrival[node, origins, row] = self.env.now / 1e9
+            return
         add = self.window.add
         t = self.env.now / 1e9 if self.arrival is not None else None
         while bits:
