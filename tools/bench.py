@@ -7,8 +7,12 @@
 2. A scaling table for random trees of 12, 50 and 200 nodes: ticks per
    second and packets per tick, with per-tick cost normalised by the work
    (nodes x window rows for filtering, links for packets).
+3. Sweep throughput on 2 local workers: runs per minute of ``paper_case1`` at
+   1000 ticks, through the whole sweep path (SQLite included), against one
+   process in the same run.
+4. The per-tick cost of a 1000-node random tree (no fusion).
 
-Usage: ``python tools/bench.py [--ticks 1000] [--sizes 12 50 200]``.
+Usage: ``python tools/bench.py [--ticks 1000] [--sizes 12 50 200] [--skip-sweep] [--big-ticks 60]``.
 Timing lives here, never in the tests.
 """
 
@@ -68,6 +72,9 @@ def main(argv=None) -> int:
     ap.add_argument("--ticks", type=int, default=1000)
     ap.add_argument("--sizes", type=int, nargs="+", default=[12, 50, 200])
     ap.add_argument("--scale-ticks", type=int, default=200, help="ticks per scaling run")
+    ap.add_argument("--skip-sweep", action="store_true", help="skip the sweep throughput measurement")
+    ap.add_argument("--big-nodes", type=int, default=1000, help="nodes of the large tree (0 skips it)")
+    ap.add_argument("--big-ticks", type=int, default=60, help="ticks of the large-tree run")
     args = ap.parse_args(argv)
 
     sc = dkfsim.load_scenario(ROOT / "scenarios" / "paper_case1.yaml", overrides=[f"steps={args.ticks}"])
@@ -97,6 +104,29 @@ def main(argv=None) -> int:
             pkts = r.counts["delivered"] / args.scale_ticks
             print(f"{n:6d} {fusion:>7} {L:4d} {args.scale_ticks / w:9.1f} {pkts:13.1f} "
                   f"{per_tick / (n * L) * 1e6:14.2f} {per_tick / max(pkts, 1) * 1e6:10.2f}")
+
+    if args.big_nodes:
+        s = tree_scenario(args.big_nodes, args.big_ticks, "none")
+        s = dkfsim.load_scenario(s, overrides=["links.default.latency.d_t=1", "baselines=[]"])
+        t0 = time.perf_counter()
+        r = dkfsim.run(s, save="summary")
+        w = time.perf_counter() - t0
+        L = r.info["buffer_length"]
+        print()
+        print(f"{args.big_nodes}-node random tree (d_g = {r.info['d_g']}, uniform_steps d_t = 1, L = {L}, "
+              f"no fusion), {args.big_ticks} ticks: {w / args.big_ticks * 1e3:.1f} ms per tick, "
+              f"{r.counts['delivered'] / args.big_ticks:.0f} packets per tick, "
+              f"{w / args.big_ticks / (args.big_nodes * min(L, args.big_ticks)) * 1e6:.2f} us per node x row")
+
+    if not args.skip_sweep:
+        from dkfsim.sweep import throughput
+        print()
+        one = throughput(steps=args.ticks, jobs=1, runs=4)
+        two = throughput(steps=args.ticks, jobs=2, runs=12)
+        print(f"sweep throughput, paper_case1 at {args.ticks} ticks (SQLite included):")
+        print(f"  1 process            {one['runs_per_minute']:7.1f} runs/min")
+        print(f"  2 local workers      {two['runs_per_minute']:7.1f} runs/min  "
+              f"(ratio {two['runs_per_minute'] / one['runs_per_minute']:.2f} x)")
     return 0
 
 
