@@ -973,8 +973,9 @@ class MaxDelayResult:
         else:
             ds = p["d_star"]
             lines.append(
-                f"  (3) paper bound: d_t <= {_fmt(ds)} "
-                f"({'meaningful' if p['meaningful'] else 'MEANINGLESS'}); terms: n = {p['n']}, "
+                f"  (3) paper bound: d* = {_fmt(ds)} -> "
+                f"{'d_t <= %d' % p['d_t_bound'] if p['meaningful'] else 'MEANINGLESS (no delay guaranteed)'}; "
+                f"terms: n = {p['n']}, "
                 f"n_bar = {p['n_bar']}, Z = {p['Z']}, alpha_bar = {p['alpha_used']:.4g}, "
                 f"eta = {p['eta']:.6g}, gamma_hat = {p['gamma_hat']:.4g}, omega_min = {p['omega_min']:.4g} "
                 f"(literal {p['omega_min_literal']:.4g}), p_tol = {p['p_tol']:.4g}")
