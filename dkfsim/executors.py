@@ -141,15 +141,22 @@ class LocalExecutor(Executor):
         pool, self._pool = self._pool, None
         if pool is None:
             return
-        procs = list((getattr(pool, "_processes", None) or {}).values())
-        pool.shutdown(wait=False, cancel_futures=True)
-        # Tasks already running are abandoned, not awaited: their results would
-        # be thrown away anyway (the caller has stopped listening).
-        for p in procs:
-            if p.is_alive():
-                p.terminate()
-        for p in procs:
-            p.join(timeout=5)
+        kill_pool(pool)
+
+
+def kill_pool(pool) -> None:
+    """Stop a process pool now: cancel what has not started, terminate the workers.
+
+    Tasks already running are abandoned, not awaited: their results would be
+    thrown away anyway (the caller has stopped listening).
+    """
+    procs = list((getattr(pool, "_processes", None) or {}).values())
+    pool.shutdown(wait=False, cancel_futures=True)
+    for p in procs:
+        if p.is_alive():
+            p.terminate()
+    for p in procs:
+        p.join(timeout=5)
 
 
 def local(jobs: int | None = None) -> Executor:

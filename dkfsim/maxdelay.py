@@ -42,7 +42,6 @@ estimates).  The buffer length follows the candidate delay when it is
 
 from __future__ import annotations
 
-import json
 import math
 import signal
 import sys
@@ -54,6 +53,7 @@ from pathlib import Path
 import numpy as np
 
 from .errors import DkfsimError
+from .output import output_folder, write_json
 
 #: Metric name -> description (help text and JSON).
 METRICS = {
@@ -925,14 +925,8 @@ class MaxDelayResult:
         return out
 
     def save(self, out_dir) -> Path:
-        out = Path(out_dir)
-        try:
-            out.mkdir(parents=True, exist_ok=True)
-        except OSError as exc:
-            raise DkfsimError(f"--out {out_dir}: cannot create the output folder ({exc.strerror})") from None
-        with open(out / "maxdelay.json", "w") as fh:
-            json.dump(_clean(self.to_dict()), fh, indent=2, default=_jsonable, allow_nan=False)
-            fh.write("\n")
+        out = output_folder(out_dir)
+        write_json(out / "maxdelay.json", self.to_dict())
         self.plot(out)
         return out
 
@@ -1099,36 +1093,6 @@ def _answer_text(e: dict, unit: str) -> str:
     return f"{unit} = {a} (undecided: run cap hit near the boundary; by the means {pe})"
 
 
-def _clean(obj):
-    """JSON-safe copy: NaN -> null, +-inf -> "inf" / "-inf", numpy -> Python."""
-    if isinstance(obj, dict):
-        return {str(k): _clean(v) for k, v in obj.items()}
-    if isinstance(obj, (list, tuple)):
-        return [_clean(v) for v in obj]
-    if isinstance(obj, np.ndarray):
-        return _clean(obj.tolist())
-    if isinstance(obj, (np.integer,)):
-        return int(obj)
-    if isinstance(obj, (float, np.floating)):
-        v = float(obj)
-        if math.isnan(v):
-            return None
-        if math.isinf(v):
-            return "inf" if v > 0 else "-inf"
-        return v
-    return obj
-
-
-def _jsonable(obj):
-    if isinstance(obj, (np.integer,)):
-        return int(obj)
-    if isinstance(obj, (np.floating,)):
-        return _num(obj)
-    if isinstance(obj, np.ndarray):
-        return obj.tolist()
-    if isinstance(obj, (tuple, set)):
-        return list(obj)
-    return str(obj)
 
 
 # =========================================================================== CLI

@@ -65,6 +65,8 @@ from pathlib import Path
 import numpy as np
 
 from .errors import DkfsimError
+from .executors import kill_pool
+from .output import output_folder
 from .metrics import (anees_summary, default_burn_in, disagreement, nees_band, nees_per_tick,
                       packet_bytes, squared_error, t_interval, t_interval_from_moments)
 
@@ -249,15 +251,6 @@ def _worker_run(r: int, seed: int, burn_in: int):
     return _one(_WORKER_SCENARIO, r, seed, burn_in)
 
 
-def _kill_pool(pool: ProcessPoolExecutor) -> None:
-    """Stop a pool now: cancel what has not started, terminate the workers."""
-    procs = list((getattr(pool, "_processes", None) or {}).values())
-    pool.shutdown(wait=False, cancel_futures=True)
-    for p in procs:
-        if p.is_alive():
-            p.terminate()
-    for p in procs:
-        p.join(timeout=5)
 
 
 # =========================================================================== pooling
@@ -354,7 +347,7 @@ def montecarlo(scenario, runs: int, jobs: int = 1, burn_in: int | None = None,
                     take(nxt, *got)
                     nxt += 1
         except BaseException:
-            _kill_pool(pool)
+            kill_pool(pool)
             raise
         pool.shutdown(wait=True)
     wall = time.perf_counter() - t0
@@ -479,11 +472,7 @@ class MonteCarloResult:
     # ------------------------------------------------------------------ output
     def save(self, out_dir) -> Path:
         """Write ``runs.csv``, ``curves.npz`` and ``summary.json`` into ``out_dir``."""
-        out = Path(out_dir)
-        try:
-            out.mkdir(parents=True, exist_ok=True)
-        except OSError as exc:
-            raise DkfsimError(f"--out {out_dir}: cannot create the output folder ({exc.strerror})") from None
+        out = output_folder(out_dir)
         with open(out / "runs.csv", "w", newline="") as fh:
             w = csv.writer(fh, lineterminator="\n")
             w.writerow(CSV_COLUMNS)

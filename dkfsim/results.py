@@ -9,7 +9,6 @@ time and versions, which are not.
 
 from __future__ import annotations
 
-import json
 import platform
 from collections.abc import Mapping
 from pathlib import Path
@@ -18,6 +17,7 @@ import numpy as np
 
 from .errors import DkfsimError
 from .metrics import default_burn_in, run_metrics
+from .output import output_folder, write_json
 
 SAVE_MODES = ("auto", "full", "estimates", "summary")
 
@@ -95,16 +95,10 @@ class RunResult(Mapping):
 
     def save(self, out_dir, burn_in: int | None = None) -> Path:
         """Write ``run.npz`` (unless the save mode is ``summary``) and ``summary.json``."""
-        out = Path(out_dir)
-        try:
-            out.mkdir(parents=True, exist_ok=True)
-        except OSError as exc:
-            raise DkfsimError(f"--out {out_dir}: cannot create the output folder ({exc.strerror})") from None
+        out = output_folder(out_dir)
         if self.info.get("save") != "summary":
             np.savez(out / "run.npz", **self.arrays)
-        with open(out / "summary.json", "w") as fh:
-            json.dump(self.summary(burn_in), fh, indent=2, default=_jsonable)
-            fh.write("\n")
+        write_json(out / "summary.json", self.summary(burn_in))
         return out
 
     def table(self, burn_in: int | None = None) -> str:
@@ -134,15 +128,3 @@ class RunResult(Mapping):
                      f"in flight at end {c['in_flight']}; late contributions {c['late']}")
         lines.append(f"wall time {self.info['wall_time_s']:.2f} s")
         return "\n".join(lines)
-
-
-def _jsonable(obj):
-    if isinstance(obj, (np.integer,)):
-        return int(obj)
-    if isinstance(obj, (np.floating,)):
-        return float(obj)
-    if isinstance(obj, np.ndarray):
-        return obj.tolist()
-    if isinstance(obj, (tuple, set)):
-        return list(obj)
-    return str(obj)
