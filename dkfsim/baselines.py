@@ -12,8 +12,8 @@ finished :class:`~dkfsim.simulation.Simulation` returning arrays named
     exist -- a sensor inside a crash window -- are missing from every baseline.)
 ``centralized_delayed``
     a fusion centre that receives each sensor's packet over a direct link
-    with the scenario's default latency model and loss (streams
-    ``("direct", sensor, "latency" | "loss")``), buffered with the same ``L``.
+    with the scenario's default link settings (latency model, loss and link
+    faults; streams ``("direct", sensor, ...)``), buffered with the same ``L``.
 ``local``
     each node filters its own measurements only.
 ``no_buffer``
@@ -30,7 +30,6 @@ from __future__ import annotations
 import numpy as np
 
 from .filter import WindowFilter, batched_filter, centralized_filter
-from .streams import stream
 
 
 def measured(sim) -> np.ndarray | None:
@@ -77,26 +76,26 @@ def no_buffer(sim) -> dict:
 
 
 def direct_arrival_ticks(sim) -> np.ndarray:
-    """Tick (1-based) at which the centre holds sensor i's row r; 0 if lost.
+    """Tick (1-based) at which the centre holds sensor i's row r; 0 if it never does.
 
     ``(n, K)`` int array: the first ``k`` with ``t_k >= t_{r+1} + latency``.
+    Each direct link is a :class:`~dkfsim.network.Link` with the scenario's
+    default link settings (latency model, loss, jitter, schedule, outages,
+    duplication: the earlier copy counts) and streams ``("direct", sensor, ...)``.
     """
-    sc, s, K = sim.scenario, sim.system, sim.K
-    spec = sc.links.default
+    from .network import Link
+    s, K = sim.system, sim.K
     T_ns = s.T_ns
+    spec = sim.scenario.links.default
     ticks = np.zeros((s.n, K), dtype=np.int64)
-    sent = np.arange(1, K + 1, dtype=np.int64) * T_ns
-    for i, name in enumerate(s.names):
-        lat = np.asarray(spec.latency.sample_ns(stream(sim.seed, "direct", name, "latency"), K, T_ns),
-                         dtype=np.int64)
-        arrive = sent + lat
-        k = -(-arrive // T_ns)
-        if spec.loss > 0:
-            k[stream(sim.seed, "direct", name, "loss").random(K) < spec.loss] = 0
-        ticks[i] = k
     m = measured(sim)
-    if m is not None:                 # a crashed sensor sends nothing
-        ticks[~m.T] = 0
+    for i, name in enumerate(s.names):
+        link = Link(i, i, -1, spec, sim.seed, T_ns, key=("direct", name))
+        for r in range(K):
+            sent = (r + 1) * T_ns
+            arrivals = link.transmit(sent)
+            if arrivals and (m is None or m[r, i]):   # a crashed sensor sends nothing
+                ticks[i, r] = -(-(sent + min(arrivals)) // T_ns)
     return ticks
 
 

@@ -124,7 +124,10 @@ class RunResult(Mapping):
             if i == 0:
                 lines.append("  " + "  ".join("-" * w for w in widths))
         c = self.counts
+        extra = "".join(f", {label} {c[key]}" for key, label in
+                        (("copies", "duplicate copies"), ("crash_dropped", "dropped at crashed nodes"))
+                        if c.get(key))
         lines.append(f"packets: sent {c['sent']}, delivered {c['delivered']}, lost {c['lost']}, "
-                     f"in flight at end {c['in_flight']}; late contributions {c['late']}")
+                     f"in flight at end {c['in_flight']}{extra}; late contributions {c['late']}")
         lines.append(f"wall time {self.info['wall_time_s']:.2f} s")
         return "\n".join(lines)
