@@ -32,19 +32,35 @@ def information_step(Phi, Q, x_prev, P_prev, Omega, Theta):
     :returns: ``x, P, G`` with ``G = P Pp^-1``.
     """
     nx = Phi.shape[0]
+    eye = _eye(nx)
     xp = x_prev @ Phi.T
-    Pp = Phi @ P_prev @ Phi.T + Q
+    Pp = Phi @ P_prev @ Phi.T
+    Pp += Q
     M = Pp @ Omega
-    M += np.eye(nx)
+    M += eye
     rhs = np.empty(Pp.shape[:-1] + (nx + 1,))
-    rhs[..., :nx] = np.eye(nx)
-    rhs[..., nx] = xp + np.einsum("bij,bj->bi", Pp, Theta)
+    rhs[..., :nx] = eye
+    rhs[..., nx:] = (Pp @ Theta[..., None])
+    rhs[..., nx] += xp
     sol = np.linalg.solve(M, rhs)
     G = sol[..., :nx]
     x = sol[..., nx]
     P = G @ Pp
-    P = 0.5 * (P + np.swapaxes(P, -1, -2))
+    P += np.swapaxes(P, -1, -2)
+    P *= 0.5
     return x, P, G
+
+
+_EYES: dict[int, np.ndarray] = {}
+
+
+def _eye(nx: int) -> np.ndarray:
+    """A cached identity: ``np.eye`` per row and node batch is measurable overhead."""
+    eye = _EYES.get(nx)
+    if eye is None:
+        eye = _EYES[nx] = np.eye(nx)
+        eye.setflags(write=False)
+    return eye
 
 
 def batched_filter(Phi, Q, x0, P0, Omega, Theta):
