@@ -40,7 +40,7 @@ def measured(sim) -> np.ndarray | None:
     return ~crashes.mask(sim.K, sim.system.T_ns).T
 
 
-def _existing(sim):
+def existing_information(sim):
     """``omega`` and ``theta`` of the measurements that exist (crashed sensors measure nothing)."""
     info, m = sim.info, measured(sim)
     if m is None:
@@ -51,7 +51,7 @@ def _existing(sim):
 
 def centralized(sim) -> dict:
     s = sim.system
-    omega, theta = _existing(sim)
+    omega, theta = existing_information(sim)
     total = omega.sum(axis=-3)                 # (nx, nx), or (K, nx, nx) per row
     x, P = centralized_filter(s.Phi, s.Q, s.x0_mean, s.P0, total, theta.sum(axis=1))
     return {"x_centralized": x, "P_centralized": P}
@@ -59,7 +59,7 @@ def centralized(sim) -> dict:
 
 def local(sim) -> dict:
     s = sim.system
-    omega, theta = _existing(sim)
+    omega, theta = existing_information(sim)
     x, P = batched_filter(s.Phi, s.Q, s.x0_mean, s.P0, omega, theta)
     return {"x_local_only": x, "P_local_only": P}
 

@@ -86,6 +86,10 @@ batched linear solve each with right-hand side ``[I | v]``; matrices are
 symmetrised after each solve.  The averaging is a fixed sparse
 (nodes x arcs) matrix product, so a run is bit-for-bit repeatable.
 
+Crash windows (``faults.crashes``): a crashed node does not measure (no
+correction for those rows), sends nothing, drops what arrives, and keeps its
+own pair through the averaging; it still predicts, as the DKF's nodes do.
+
 Side facts (underscored keys, :func:`ci_consensus`): packets ``sent``,
 ``delivered``, ``lost``, ``in_flight``, the number of rounds, and how many
 neighbour pairs were used (``used``) and how many of them had to be predicted
@@ -158,7 +162,7 @@ class CIConsensus:
     """
 
     def __init__(self, Phi, Q, x0, P0, omega, theta, rounds, *, arcs=(), link_spec=None,
-                 seed=0, T_ns=1):
+                 seed=0, T_ns=1, crashes=None):
         self.Phi = np.asarray(Phi, float)
         self.Q = np.asarray(Q, float)
         self.omega = np.asarray(omega, float)
@@ -182,6 +186,7 @@ class CIConsensus:
         self.arcs = [(int(u), int(v)) for u, v in arcs] if Lc > 0 else []
         self.link_spec = link_spec
         self.seed = int(seed)
+        self.crashes = crashes if crashes else None
         self.used = self.stale = 0
 
         E = len(self.arcs)
@@ -236,7 +241,17 @@ class CIConsensus:
         self_w = 1.0 - self.S @ have.astype(float)
         Om = self_w[:, None, None] * self.Om + (self.S @ Om_nb.reshape(-1, nx * nx)).reshape(n, nx, nx)
         q = self_w[:, None] * self.q + self.S @ q_nb
+        down = self._down()
+        if down.size:                 # a crashed node does not take part: it keeps its pair
+            Om[down], q[down] = self.Om[down], self.q[down]
         self._set_pair(Om, q)
+
+    def _down(self) -> np.ndarray:
+        """Nodes inside a crash window now."""
+        if self.crashes is None or self.env is None:
+            return np.zeros(0, dtype=np.intp)
+        now = self.env.now
+        return np.array([i for i in range(self.n) if self.crashes.down(i, now)], dtype=np.intp)
 
     def _record(self, k: int) -> None:
         self.x_out[k - 1] = self.x
@@ -246,8 +261,10 @@ class CIConsensus:
     def _send(self, stamp: int) -> None:
         state = (stamp, self.Om, self.q, self.x, self.P)
         send, links = self.network.send, self.network.links
+        down = set(self._down().tolist())
         for link in links:
-            send(link, state)
+            if link.src not in down:          # a crashed node sends nothing
+                send(link, state)
 
     def _receive(self, link, payload) -> None:
         stamp, Om, q, x, P = payload
@@ -286,7 +303,7 @@ class CIConsensus:
         else:
             self.env = simpy.Environment()
             self.network = Network(self.env, self.arcs, self.link_spec, self.seed, self.T_ns,
-                                   self._receive)
+                                   self._receive, crashes=self.crashes)
             self._g = 0
             Scheduled(self.env, self._instant, PRIORITY_UPDATE, self.T_ns)
             end = (self.K + 1) * self.T_ns
@@ -308,9 +325,11 @@ def ci_consensus(sim) -> dict:
     Returns ``x_ci_consensus`` (K, n, nx), ``P_ci_consensus`` (K, n, nx, nx)
     and side facts under ``_ci_consensus_*`` keys (see the module docstring).
     """
+    from .baselines import existing_information
     s = sim.system
     rounds = int(getattr(sim.scenario, "consensus_rounds", 1))
-    ci = CIConsensus(s.Phi, s.Q, s.x0_mean, s.P0, sim.info.omega, sim.info.theta, rounds,
+    omega, theta = existing_information(sim)      # crashed sensors measure nothing
+    ci = CIConsensus(s.Phi, s.Q, s.x0_mean, s.P0, omega, theta, rounds,
                      arcs=sim.exchange_graph.arcs, link_spec=sim.scenario.link_spec,
-                     seed=sim.seed, T_ns=s.T_ns)
+                     seed=sim.seed, T_ns=s.T_ns, crashes=getattr(sim, "crashes", None))
     return ci.run()

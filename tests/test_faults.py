@@ -412,3 +412,24 @@ def test_baselines_do_without_the_measurements_a_crash_prevented():
     x1, _ = kalman_filter(a["Phi"], a["Q"], a["x0_mean"], a["P0"], Hs, Rs, ys,
                           lambda r: [] if down[1, r] else [(1, 1.0)])
     np.testing.assert_allclose(a["x_local_only"][:, 1], x1, rtol=1e-9, atol=1e-9)
+
+
+def test_ci_consensus_respects_crash_windows():
+    """A crashed node neither corrects, sends nor averages: with the whole run
+    inside its window, it is a pure prediction and the others never hear from it."""
+    import dkfsim
+    from conftest import scenario
+    d = scenario(3, steps=20, generator="path")
+    d["baselines"] = ["ci_consensus"]
+    d["consensus_rounds"] = 2
+    base = dkfsim.run(dkfsim.load_scenario(d)).arrays
+    d["faults"] = {"crashes": [{"node": 2, "start": 0.0, "end": 100.0}]}
+    a = dkfsim.run(dkfsim.load_scenario(d)).arrays
+    Phi, Q = a["Phi"], a["Q"]
+    x, P = a["x0_mean"], a["P0"]
+    for r in range(20):
+        x, P = Phi @ x, Phi @ P @ Phi.T + Q
+        np.testing.assert_allclose(a["x_ci_consensus"][r, 2], x, rtol=1e-9, atol=1e-12)
+        np.testing.assert_allclose(a["P_ci_consensus"][r, 2], P, rtol=1e-9, atol=1e-12)
+    # Node 1 loses a neighbour: its estimate changes.
+    assert not np.allclose(a["x_ci_consensus"][:, 1], base["x_ci_consensus"][:, 1])
