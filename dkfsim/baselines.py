@@ -72,7 +72,10 @@ def no_buffer(sim) -> dict:
     if "x_fused" in res.arrays:
         return {"x_no_buffer": res["x_fused"], "P_no_buffer": res["P_fused"],
                 "_counts_no_buffer": res.counts}
-    return {"x_no_buffer": res["x_local"], "P_no_buffer": res["P_local"], "_counts_no_buffer": res.counts}
+    out = {"x_no_buffer": res["x_local"], "_counts_no_buffer": res.counts}
+    if "P_local" in res.arrays:
+        out["P_no_buffer"] = res["P_local"]
+    return out
 
 
 def direct_arrival_ticks(sim) -> np.ndarray:

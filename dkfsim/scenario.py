@@ -702,6 +702,11 @@ class Scenario(StrictModel):
         ``bound_steps`` over the links the protocol uses (None if unbounded)."""
         if self.links.d_t is not None:
             return self.links.d_t
+        return self.latency_bound_steps()
+
+    def latency_bound_steps(self) -> int | None:
+        """The largest per-hop delay in steps the links can produce (None if unbounded),
+        whatever ``links.d_t`` assumes."""
         bound = 0
         for u, v in self.exchange().arcs:
             b = self.link_spec(u, v).bound_steps(self.T_ns)

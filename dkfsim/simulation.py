@@ -18,6 +18,7 @@ from simpy.events import NORMAL
 
 from .baselines import BASELINES
 from .faults import CrashSchedule
+from .errors import ScenarioError
 from .filter import WindowFilter
 from .fusion import FUSERS, CrossCovariance
 from .network import PRIORITY_UPDATE, Network, Scheduled
@@ -49,6 +50,27 @@ def build_system(scenario) -> LinearGaussianSystem:
     )
 
 
+#: Largest ring of fusion cross-covariances we allocate (bytes).
+FUSION_MEMORY_LIMIT = 2 << 30
+#: Largest P_local (entries) we keep: 400 MB.
+P_LOCAL_LIMIT = 50_000_000
+
+
+def late_horizon(scenario, n: int, L: int) -> int:
+    """How many final rows keep their holdings so that a late contribution counts once.
+
+    Nothing is sent for a final row, so with a latency bound of ``d`` steps per
+    hop a late packet arrives at most ``d + 1`` rows after its row became
+    final: keep that many.  Unbounded latency: 4096 rows, fewer on large
+    networks so that the holdings (n masks of n bits per row) stay near 64 MB.
+    """
+    bound = scenario.latency_bound_steps()
+    if bound is not None:
+        return bound + 2
+    per_row = n * (n // 8 + 32)
+    return int(max(L + 2, min(4096, (64 << 20) // per_row)))
+
+
 class Simulation:
     """The runtime state of one run (configuration stays in the scenario)."""
 
@@ -75,11 +97,20 @@ class Simulation:
 
         self.window = WindowFilter(sys_.Phi, sys_.Q, sys_.x0_mean, sys_.P0, self.info, self.A, self.L)
         self.fusion = scenario.fusion
+        if self.fusion != "none":
+            need = (self.L + 1) * (n * nx) ** 2 * 8
+            if need > FUSION_MEMORY_LIMIT:
+                raise ScenarioError(
+                    f"fusion: {self.fusion} keeps the cross-covariances of all {n} nodes for the "
+                    f"{self.L + 1} window rows, {need / 2**30:.1f} GiB; use fusion: none for a network "
+                    f"this large (or a shorter buffer_length)",
+                    source=scenario.source, path="fusion")
         self.xcov = CrossCovariance(self.window, sys_.P0) if self.fusion != "none" else None
 
         self.env = simpy.Environment()
         self.arrival = np.full((n, n, K), np.inf) if self.save_mode == "full" else None
-        self.exchange = PROTOCOLS[scenario.protocol](self.env, n, self.window, arrival=self.arrival)
+        self.exchange = PROTOCOLS[scenario.protocol](self.env, n, self.window, arrival=self.arrival,
+                                                     late_horizon=late_horizon(scenario, n, self.L))
         # Crash windows (dkfsim.faults): a node that is down neither measures nor receives.
         self.crashes = CrashSchedule(getattr(scenario, "faults", None), n) or None
         self.exchange.crashes = self.crashes
@@ -88,7 +119,10 @@ class Simulation:
         self.exchange.attach(self.network)
 
         self.x_local = np.empty((K, n, nx))
-        self.P_local = np.empty((K, n, nx, nx))
+        # P_local is the one (K, n, nx, nx) array: skip it when nothing will save it
+        # or when it alone would take more than a few hundred megabytes.
+        keep_P = self.save_mode in ("full", "estimates") and K * n * nx * nx <= P_LOCAL_LIMIT
+        self.P_local = np.empty((K, n, nx, nx)) if keep_P else None
         self.x_final = np.empty((K, n, nx))
         if self.xcov is not None:
             self.x_fused = np.empty((K, nx))
@@ -111,7 +145,8 @@ class Simulation:
         slot = row % w.S
         st = w.state
         self.x_local[row] = st.x[slot]
-        self.P_local[row] = st.P[slot]
+        if self.P_local is not None:
+            self.P_local[row] = st.P[slot]
         if self.xcov is not None:
             self.x_fused[row], self.P_fused[row] = FUSERS[self.fusion](self.xcov.Xi[slot], st.x[slot])
         done = k - L                      # this row leaves the window: final
@@ -152,7 +187,8 @@ class Simulation:
         if self.arrival is not None:
             arrays["arrival"] = self.arrival
         arrays["x_local"] = self.x_local
-        arrays["P_local"] = self.P_local
+        if self.P_local is not None:
+            arrays["P_local"] = self.P_local
         arrays["x_final"] = self.x_final
         if self.xcov is not None:
             arrays["x_fused"] = self.x_fused
