@@ -347,6 +347,9 @@ def paper_bound_for_scenario(scenario, p_tol: float, *, k_minus_s: int = 0) -> P
     from .simulation import sensor_model
     omegas = []
     for i, spec in enumerate(scenario.sensors):
+        if getattr(spec, "kind", "linear") != "linear":
+            raise ValueError(f"sensor {spec.name} is a {spec.kind} sensor, whose information "
+                             "changes with its measurement; the paper's bound assumes linear sensors")
         model = sensor_model(spec)
         om = getattr(model, "omega", None)
         if om is None:

@@ -156,10 +156,12 @@ class WindowFilter:
         omega = info.omega
         self.A = np.asarray(A, float)
         self.L = int(L)
-        self.S = self.L + 1
+        # L + 1 slots, but never more than the run has rows (+1): with L >= K no
+        # row ever wraps, so a huge L (a huge delay bound) costs no memory.
+        self.S = min(self.L, self.theta.shape[0]) + 1
         n, nx = self.A.shape[0], omega.shape[-1]
         self.n, self.nx = n, nx
-        self.state = WindowState.empty(self.L, n, nx, n_origins=self.theta.shape[1])
+        self.state = WindowState.empty(self.S - 1, n, nx, n_origins=self.theta.shape[1])
         self.x0 = np.broadcast_to(np.asarray(x0, float), (n, nx)).copy()
         self.P0 = np.broadcast_to(np.asarray(P0, float), (n, nx, nx)).copy()
         self._pend_i: list[int] = []

@@ -54,7 +54,6 @@ of the nominal traffic (exact for ``no_buffer``, whose window is one row).
 from __future__ import annotations
 
 import csv
-import json
 import math
 import signal
 import sys
@@ -66,7 +65,7 @@ import numpy as np
 
 from .errors import DkfsimError
 from .executors import kill_pool
-from .output import output_folder
+from .output import output_folder, write_json
 from .metrics import (anees_summary, default_burn_in, disagreement, nees_band, nees_per_tick,
                       packet_bytes, squared_error, t_interval, t_interval_from_moments)
 
@@ -483,9 +482,7 @@ class MonteCarloResult:
                  t=self.t, components=np.array(self.components), algorithms=np.array(self.algorithms),
                  mse=self.mse, mse_ci_lo=self.mse_ci_lo, mse_ci_hi=self.mse_ci_hi,
                  nees=self.nees, nees_band=self.nees_band, **self.example)
-        with open(out / "summary.json", "w") as fh:
-            json.dump(self.summary(), fh, indent=2, allow_nan=False)
-            fh.write("\n")
+        write_json(out / "summary.json", self.summary())
         return out
 
     def table(self) -> str:

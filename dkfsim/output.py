@@ -19,6 +19,8 @@ from .errors import DkfsimError
 
 def output_folder(out_dir) -> Path:
     """Create ``out_dir`` (and parents); a clear error if that is impossible."""
+    if not str(out_dir).strip():
+        raise DkfsimError("--out: empty path; give the folder to write into")
     out = Path(out_dir)
     try:
         out.mkdir(parents=True, exist_ok=True)
@@ -52,6 +54,7 @@ def to_json(obj):
 
 
 def write_json(path, obj) -> None:
+    """Write ``obj`` as standard JSON; converted first, so a failure leaves no half file."""
+    text = json.dumps(to_json(obj), indent=2, allow_nan=False) + "\n"
     with open(path, "w") as fh:
-        json.dump(to_json(obj), fh, indent=2, allow_nan=False)
-        fh.write("\n")
+        fh.write(text)

@@ -98,6 +98,9 @@ class RunResult(Mapping):
         out = output_folder(out_dir)
         if self.info.get("save") != "summary":
             np.savez(out / "run.npz", **self.arrays)
+        else:
+            # A run.npz left by an earlier run would be read as this run's.
+            (out / "run.npz").unlink(missing_ok=True)
         write_json(out / "summary.json", self.summary(burn_in))
         return out
 

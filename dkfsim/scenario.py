@@ -863,6 +863,10 @@ def apply_overrides(data: dict, overrides: Sequence[str], source: str = "<dict>"
 
 
 # =========================================================================== errors
+#: Tags pydantic puts in an error location for a member of a tagged union.
+_UNION_TAGS = frozenset(LATENCY_MODELS) | {"linear", "radar", "unknown", "step", "ramp"}
+
+
 def _loc_to_path(loc: tuple, data: Any) -> list[str]:
     """Dotted components of a pydantic ``loc``, dropping union tags."""
     parts: list[str] = []
@@ -875,7 +879,7 @@ def _loc_to_path(loc: tuple, data: Any) -> list[str]:
         elif isinstance(node, (list, tuple)) and isinstance(elem, int) and 0 <= elem < len(node):
             parts.append(str(elem))
             node = node[elem]
-        elif isinstance(node, dict) and not last:
+        elif isinstance(node, dict) and not last and elem in _UNION_TAGS:
             continue  # a union member's tag (e.g. 'uniform_steps'), not a key
         elif isinstance(elem, str) and (elem.startswith(("function-", "literal[", "int", "str"))
                                         and not last):

@@ -98,11 +98,11 @@ class Simulation:
         self.window = WindowFilter(sys_.Phi, sys_.Q, sys_.x0_mean, sys_.P0, self.info, self.A, self.L)
         self.fusion = scenario.fusion
         if self.fusion != "none":
-            need = (self.L + 1) * (n * nx) ** 2 * 8
+            need = self.window.S * (n * nx) ** 2 * 8
             if need > FUSION_MEMORY_LIMIT:
                 raise ScenarioError(
                     f"fusion: {self.fusion} keeps the cross-covariances of all {n} nodes for the "
-                    f"{self.L + 1} window rows, {need / 2**30:.1f} GiB; use fusion: none for a network "
+                    f"{self.window.S} window rows, {need / 2**30:.1f} GiB; use fusion: none for a network "
                     f"this large (or a shorter buffer_length)",
                     source=scenario.source, path="fusion")
         self.xcov = CrossCovariance(self.window, sys_.P0) if self.fusion != "none" else None

@@ -37,3 +37,35 @@ def test_late_bookkeeping_is_bounded_by_the_latency_bound():
     assert simulation.late_horizon(unbounded, 4, 3) == 4096
     # 1000 nodes: the kept holdings stay near 64 MB instead of ~0.7 GB.
     assert simulation.late_horizon(unbounded, 1000, 3) < 500
+
+
+def test_a_delay_bound_longer_than_the_run_costs_no_memory():
+    """L = 10^11 + 1 (a latency of 10^9 s): the window ring is capped at the run's rows."""
+    d = scenario(3, steps=6, latency={"model": "constant", "value": 1e9})
+    sc = dkfsim.load_scenario(d)
+    assert sc.resolved_buffer_length() > 10**10
+    res = dkfsim.run(sc)
+    a = res.arrays
+    # Nothing ever arrives: every node is its own local filter, no row is ever final.
+    assert res.counts["delivered"] == 0 and res.counts["in_flight"] == res.counts["sent"]
+    import numpy as np
+    from reference import node_estimates
+    ref = node_estimates(a)
+    np.testing.assert_allclose(a["x_local"], ref["x_local"], rtol=1e-9, atol=1e-12)
+    np.testing.assert_allclose(a["x_final"], ref["x_final"], rtol=1e-9, atol=1e-12)
+
+
+def test_save_summary_removes_a_stale_run_npz(tmp_path):
+    sc = dkfsim.load_scenario(scenario(3, steps=5))
+    dkfsim.run(sc, seed=5).save(tmp_path)
+    assert (tmp_path / "run.npz").exists()
+    dkfsim.run(sc, save="summary").save(tmp_path)
+    assert not (tmp_path / "run.npz").exists() and (tmp_path / "summary.json").exists()
+
+
+def test_montecarlo_with_one_run_writes_valid_json(tmp_path):
+    import json
+    from dkfsim.montecarlo import montecarlo
+    montecarlo(dkfsim.load_scenario(scenario(3, steps=10)), 1).save(tmp_path)
+    summary = json.loads((tmp_path / "summary.json").read_text())
+    assert summary["runs"] == 1

@@ -688,3 +688,9 @@ def test_consensus_rounds_must_divide_the_period():
     assert "consensus_rounds" in load_error(d) and "do not divide" in load_error(d)
     d["consensus_rounds"] = 4
     assert load_scenario(d).consensus_rounds == 4
+
+
+def test_missing_generator_parameter_names_its_params_key():
+    d = put(base(), "topology", {"generator": "balanced_tree"})
+    msg = load_error(d)
+    assert "topology.params.r" in msg and "required by generator balanced_tree" in msg
