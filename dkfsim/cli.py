@@ -45,7 +45,7 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("run", help="simulate one scenario and write summary.json and run.npz",
                        description="Simulate one scenario: truth, sensors, the SimPy network, every node's "
                                    "anti-delay DKF, fusion and the baselines. Writes DIR/summary.json and "
-                                   "DIR/run.npz (arrays of DESIGN.md section 5) and prints an MSE table.")
+                                   "DIR/run.npz (the arrays of section 5 of the design contract, ../shared/DESIGN.md) and prints an MSE table.")
     add_scenario_args(p)
     p.add_argument("--out", required=True, metavar="DIR", help="output folder (created if missing)")
     p.add_argument("--seed", type=int, help="override the scenario seed (same as --set seed=N)")

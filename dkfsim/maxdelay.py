@@ -1109,7 +1109,7 @@ def add_command(subparsers) -> None:
                     "latency, one run per candidate, covariance metric; (3) the paper's theoretical "
                     "bound (Remark bound_of_delay, eq. delay_bound). The delay is d_t of a "
                     "uniform_steps latency model, or a scale s multiplying the time parameters of "
-                    "continuous models (constant value, uniform low/high, exponential mean/offset). "
+                    "continuous models (constant value, uniform low/high, exponential, lognormal, gamma, pareto time parameters, empirical scale, gilbert_elliott states, jitter). "
                     "Writes DIR/maxdelay.json and DIR/maxdelay.png/.pdf and prints the three answers.")
     add_scenario_args(p)
     p.add_argument("--out", required=True, metavar="DIR", help="output folder (created if missing)")
