@@ -1019,6 +1019,9 @@ def load_scenario(source: str | os.PathLike | Mapping | Scenario,
     if not isinstance(data, dict):
         raise ScenarioError(f"top level must be a mapping of scenario keys, got "
                             f"{type(data).__name__}", source=label)
+    if "scenario" in data and ("grid" in data or "runs" in data) and "sensors" not in data:
+        raise ScenarioError("this is a sweep file (it names a scenario and a grid), not a scenario: "
+                            "run it with 'dkfsim sweep'", source=label)
     override_keys: dict[str, str] = {}
     for text in overrides:
         key = _apply_override(data, text, label)

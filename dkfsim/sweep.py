@@ -246,6 +246,10 @@ def load_sweep(source, *, output: str | os.PathLike | None = None) -> Sweep:
     if not isinstance(data, dict):
         raise _err(label, None, f"top level must be a mapping of sweep keys "
                                 f"({', '.join(SWEEP_KEYS)}), got {type(data).__name__}")
+    if "sensors" in data and "scenario" not in data:
+        raise _err(label, None, "this is a scenario file, not a sweep: write a sweep file that "
+                                "names it (scenario: FILE, grid: ...), or use 'dkfsim run' / "
+                                "'dkfsim montecarlo' on it")
     for key in data:
         if key not in SWEEP_KEYS:
             raise _err(label, str(key), f"unknown key{_suggest(key, SWEEP_KEYS)} "

@@ -97,3 +97,10 @@ def test_missing_file_and_bad_override_are_clear(tmp_path):
     assert p.returncode == 2 and "links.default.latency.d_t" in p.stderr and "Traceback" not in p.stderr
     p = dkfsim("run", CASE1, "--out", tmp_path, "--burn-in", 5000, "--steps", 10)
     assert p.returncode == 2 and "--burn-in" in p.stderr
+
+
+def test_sweep_and_scenario_files_mixed_up_get_a_pointer_to_the_right_command(tmp_path):
+    p = dkfsim("run", ROOT / "scenarios" / "sweep_delay_bound.yaml", "--out", tmp_path)
+    assert p.returncode == 2 and "this is a sweep file" in p.stderr and "dkfsim sweep" in p.stderr
+    p = dkfsim("sweep", CASE1, "--db", tmp_path / "x.sqlite")
+    assert p.returncode == 2 and "this is a scenario file" in p.stderr
