@@ -180,6 +180,12 @@ class Simulation:
             arrays[f"H_{i}"] = sys_.H[i]
             arrays[f"R_{i}"] = sys_.R[i]
             arrays[f"y_{i}"] = self.ys[i]
+            convert = getattr(sys_.sensors[i], "convert", None)
+            if convert is not None:
+                # A non-linear sensor enters the filters as a converted linear
+                # measurement z = H x + noise(Rc[r]): keep both so run.npz alone
+                # can recompute every estimate.
+                arrays[f"z_{i}"], arrays[f"Rc_{i}"] = convert(self.ys[i])
         arrays["buffer_length"] = np.array(self.L)
         arrays["weights_A"] = self.A
         if self.crashes is not None:      # (n, K): node i was down at row r's tick
