@@ -335,17 +335,19 @@ class Uniform(LatencyBase):
         return seconds_to_ns(self.high)
 
 
-@register
-class Exponential(LatencyBase):
-    """``offset + Exp(mean)`` seconds; unbounded."""
+class ShiftedDraw(LatencyBase):
+    """``offset + draw`` seconds for a continuous law: the shared part of the
+    unbounded models (one rounding to ns, one shift, one cap)."""
 
-    model: Literal["exponential"] = "exponential"
-    mean: PosSeconds
     offset: NonNegSeconds = 0.0
     bounded: ClassVar[bool] = False
 
+    def draw_s(self, rng, size) -> np.ndarray:
+        """The law's draws in seconds, before the offset."""
+        raise NotImplementedError
+
     def sample_ns(self, rng, size, T_ns):
-        draw = _round_ns(rng.exponential(self.mean, size=size))
+        draw = _round_ns(self.draw_s(rng, size))
         return np.minimum(draw + np.int64(seconds_to_ns(self.offset)), _MAX_NS)
 
     def sup_ns(self, T_ns):
@@ -353,18 +355,26 @@ class Exponential(LatencyBase):
 
 
 @register
-class Lognormal(LatencyBase):
+class Exponential(ShiftedDraw):
+    """``offset + Exp(mean)`` seconds; unbounded."""
+
+    model: Literal["exponential"] = "exponential"
+    mean: PosSeconds
+
+    def draw_s(self, rng, size):
+        return rng.exponential(self.mean, size=size)
+
+
+@register
+class Lognormal(ShiftedDraw):
     """``offset + median * exp(sigma * Z)`` seconds; unbounded unless ``sigma = 0``."""
 
     model: Literal["lognormal"] = "lognormal"
     median: PosSeconds
     sigma: Annotated[float, Field(strict=True, ge=0, allow_inf_nan=False)]
-    offset: NonNegSeconds = 0.0
-    bounded: ClassVar[bool] = False
 
-    def sample_ns(self, rng, size, T_ns):
-        draw = _round_ns(rng.lognormal(math.log(self.median), self.sigma, size=size))
-        return np.minimum(draw + np.int64(seconds_to_ns(self.offset)), _MAX_NS)
+    def draw_s(self, rng, size):
+        return rng.lognormal(math.log(self.median), self.sigma, size=size)
 
     def sup_ns(self, T_ns):
         if self.sigma == 0:
@@ -373,41 +383,29 @@ class Lognormal(LatencyBase):
 
 
 @register
-class Gamma(LatencyBase):
+class Gamma(ShiftedDraw):
     """``offset + Gamma(shape, scale)`` seconds; unbounded."""
 
     model: Literal["gamma"] = "gamma"
     shape: Annotated[float, Field(strict=True, gt=0, allow_inf_nan=False)]
     scale: PosSeconds
-    offset: NonNegSeconds = 0.0
-    bounded: ClassVar[bool] = False
 
-    def sample_ns(self, rng, size, T_ns):
-        draw = _round_ns(rng.gamma(self.shape, self.scale, size=size))
-        return np.minimum(draw + np.int64(seconds_to_ns(self.offset)), _MAX_NS)
-
-    def sup_ns(self, T_ns):
-        return None
+    def draw_s(self, rng, size):
+        return rng.gamma(self.shape, self.scale, size=size)
 
 
 @register
-class Pareto(LatencyBase):
+class Pareto(ShiftedDraw):
     """``offset + scale * U^(-1/alpha)`` seconds (classical Pareto); unbounded."""
 
     model: Literal["pareto"] = "pareto"
     alpha: Annotated[float, Field(strict=True, gt=0, allow_inf_nan=False)]
     scale: PosSeconds
-    offset: NonNegSeconds = 0.0
-    bounded: ClassVar[bool] = False
 
-    def sample_ns(self, rng, size, T_ns):
+    def draw_s(self, rng, size):
         # numpy's pareto is the Lomax (Pareto II) law; 1 + Lomax is the classical one.
         with np.errstate(over="ignore"):
-            draw = _round_ns(self.scale * (1.0 + rng.pareto(self.alpha, size=size)))
-        return np.minimum(draw + np.int64(seconds_to_ns(self.offset)), _MAX_NS)
-
-    def sup_ns(self, T_ns):
-        return None
+            return self.scale * (1.0 + rng.pareto(self.alpha, size=size))
 
 
 # ----------------------------------------------------------------------- empirical traces
