@@ -92,7 +92,6 @@ class Simulation:
             self.truth = sys_.simulate_truth(K, self.seed)
         self.ys = sys_.simulate_measurements(self.truth, self.seed)
         self.info = sys_.information(self.ys)
-        self.theta = self.info.theta
         self.A = paper_weights(xg.graph) if scenario.weights == "paper" else np.ones((n, n))
 
         self.window = WindowFilter(sys_.Phi, sys_.Q, sys_.x0_mean, sys_.P0, self.info, self.A, self.L)

@@ -178,7 +178,7 @@ def test_zero_rounds_is_each_nodes_local_filter(nx, seed):
     # also the package's own batched information filter
     from dkfsim.filter import batched_filter
     s = sim.system
-    xb, _ = batched_filter(s.Phi, s.Q, s.x0_mean, s.P0, sim.info.omega, sim.theta)
+    xb, _ = batched_filter(s.Phi, s.Q, s.x0_mean, s.P0, sim.info.omega, sim.info.theta)
     ref.assert_close(x, xb, "x vs batched_filter", TOL)
     assert out["_ci_consensus_sent"] == 0
 
