@@ -9,8 +9,19 @@ keeps its traceback.
 from __future__ import annotations
 
 
+#: Longest message an error carries; longer ones (hostile input echoed back) are cut.
+MAX_MESSAGE = 2000
+
+
 class DkfsimError(Exception):
-    """Base class of errors caused by user input."""
+    """Base class of errors caused by user input (one paragraph, at most
+    :data:`MAX_MESSAGE` characters)."""
+
+    def __init__(self, message: str = ""):
+        message = str(message)
+        if len(message) > MAX_MESSAGE:
+            message = message[: MAX_MESSAGE - 40] + " ... (message cut)"
+        super().__init__(message)
 
 
 class ScenarioError(DkfsimError):

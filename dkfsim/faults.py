@@ -78,6 +78,7 @@ from typing import Annotated, Any, Literal, Union
 from pydantic import AfterValidator, BeforeValidator, ConfigDict, Discriminator, Field, Tag, model_validator
 
 from .latency import LatencyBase, StrictModel, custom_error, seconds_to_ns
+from .yamlio import clip
 
 Seconds = Annotated[float, Field(strict=True, ge=0, allow_inf_nan=False)]
 Factor = Annotated[float, Field(strict=True, ge=0, allow_inf_nan=False)]
@@ -191,12 +192,12 @@ def _window(value: Any) -> tuple[float, float]:
     if isinstance(value, dict) and set(value) == {"start", "end"}:
         value = [value["start"], value["end"]]
     if not isinstance(value, (list, tuple)) or len(value) != 2:
-        raise custom_error(f"must be a window [start, end] in seconds, got {value!r}")
+        raise custom_error(f"must be a window [start, end] in seconds, got {clip(value)}")
     out = []
     for x in value:
         if isinstance(x, bool) or not isinstance(x, (int, float)) or not x == x \
                 or x in (float("inf"), float("-inf")):
-            raise custom_error(f"window bounds must be finite numbers, got {value!r}")
+            raise custom_error(f"window bounds must be finite numbers, got {clip(value)}")
         out.append(float(x))
     start, end = out
     if start < 0 or end <= start:

@@ -409,71 +409,31 @@ class Pareto(ShiftedDraw):
 
 
 # ----------------------------------------------------------------------- empirical traces
-from .datafiles import REPO_ROOT, norm_name as _norm_name, resolve_data_file  # noqa: E402,F401
+from .datafiles import DataFileError, locate, read_table  # noqa: E402
 
 _UNIT_S = {"ms": 1e-3, "s": 1.0}
 _COLUMNS: dict[tuple, np.ndarray] = {}
 
 
 def read_column(path: str | os.PathLike, column: str | int) -> np.ndarray:
-    """One numeric column of a CSV or whitespace-separated table (float64).
+    """One numeric column of latencies (float64, finite, >= 0) of a table
+    (:func:`dkfsim.datafiles.read_table`).
 
-    A first line with any non-numeric field is a header; ``column`` is a
-    header name (matched ignoring case and punctuation: ``delay_ms`` finds
-    ``delay(ms)``) or a 0-based index.  Blank lines and lines starting with
-    ``#`` are skipped.  Raises ``ValueError`` naming the line of any problem.
+    ``column`` is a header name (matched ignoring case and punctuation:
+    ``delay_ms`` finds ``delay(ms)``) or a 0-based index.  Raises
+    :class:`~dkfsim.datafiles.DataFileError` naming the line of any problem.
     """
-    path = Path(path)
-    st = path.stat()
-    key = (str(path), st.st_mtime_ns, st.st_size, column)
+    table = read_table(path)
+    key = (str(table.path), id(table), column)
     cached = _COLUMNS.get(key)
     if cached is not None:
         return cached
-    with open(path, encoding="utf-8", errors="replace") as fh:
-        lines = [(no, line.strip()) for no, line in enumerate(fh, 1)]
-    lines = [(no, text) for no, text in lines if text and not text.startswith("#")]
-    if not lines:
-        raise ValueError(f"{path.name} holds no data")
-    split = (lambda t: [f.strip() for f in t.split(",")]) if "," in lines[0][1] else str.split
-
-    def numeric(field: str) -> bool:
-        try:
-            float(field)
-            return True
-        except ValueError:
-            return False
-
-    first = split(lines[0][1])
-    header = not all(numeric(f) for f in first)
-    if isinstance(column, int):
-        idx = column
-        if idx >= len(first):
-            raise ValueError(f"column index {idx} is out of range: {path.name} has "
-                             f"{len(first)} columns")
-    else:
-        if not header:
-            raise ValueError(f"{path.name} has no header line; give column as a 0-based index")
-        names = [_norm_name(f) for f in first]
-        want = _norm_name(column)
-        if want not in names:
-            raise ValueError(f"no column {column!r} in {path.name}; its columns are: "
-                             + ", ".join(first) + suggest(column, first))
-        idx = names.index(want)
     values = []
-    for no, text in lines[1:] if header else lines:
-        fields = split(text)
-        if idx >= len(fields):
-            raise ValueError(f"{path.name} line {no}: has {len(fields)} fields, no column {idx}")
-        try:
-            v = float(fields[idx])
-        except ValueError:
-            raise ValueError(f"{path.name} line {no}: {fields[idx]!r} is not a number") from None
+    for no, v in table.floats(table.column_index(column)):
         if not math.isfinite(v) or v < 0:
-            raise ValueError(f"{path.name} line {no}: latency {fields[idx]!r} must be a finite "
-                             "number >= 0")
+            raise DataFileError(f"{table.path.name} line {no}: latency {v!r} must be a finite "
+                                "number >= 0")
         values.append(v)
-    if not values:
-        raise ValueError(f"{path.name} has a header but no data rows")
     out = np.array(values, dtype=float)
     out.setflags(write=False)
     _COLUMNS[key] = out
@@ -499,7 +459,8 @@ class Empirical(LatencyBase):
     """Latencies from a measured trace, resampled or replayed (see the module docstring)."""
 
     model: Literal["empirical"] = "empirical"
-    file: Annotated[str, Field(strict=True, min_length=1)]
+    file: Annotated[str, Field(strict=True, min_length=1)] | None = None
+    dataset: Annotated[str, Field(strict=True, min_length=1)] | None = None
     column: Annotated[str, Field(strict=True, min_length=1)] | Annotated[int, Field(strict=True, ge=0)] = "delay_ms"
     unit: Literal["ms", "s"] = "ms"
     one_way: Annotated[bool, Field(strict=True)] = False
@@ -515,21 +476,22 @@ class Empirical(LatencyBase):
         if self.start is not None and self.mode != "replay":
             raise custom_error("only used with mode: replay", "start")
         base = (info.context or {}).get("base_dir") if info is not None else None
-        path, tried = resolve_data_file(self.file, base)
-        if path is None:
-            raise custom_error("file not found (tried " + ", ".join(str(t) for t in tried) + ")",
-                               "file")
+        try:
+            path, key = locate(self.file, self.dataset, base)
+        except DataFileError as err:
+            raise custom_error(str(err), "dataset" if self.dataset is not None else "file") from None
         try:
             values = read_column(path, self.column)
-        except ValueError as err:
-            raise custom_error(str(err), "column" if "column" in str(err) else "file") from None
-        except OSError as err:
-            raise custom_error(f"cannot read {path}: {err.strerror}", "file") from None
+        except DataFileError as err:
+            raise custom_error(str(err), "column" if "column" in str(err) else key) from None
         if self.start is not None and self.start >= len(values):
             raise custom_error(f"must be < {len(values)} (the trace's rows), got {self.start}",
                                "start")
         self._path = str(path)
         return self
+
+    def to_dict(self) -> dict:
+        return self.model_dump(mode="json", exclude_none=True)
 
     def trace_s(self) -> np.ndarray:
         """The trace's latencies in seconds, after ``unit``, ``one_way`` and ``scale``."""

@@ -53,7 +53,9 @@ import yaml
 from pydantic import (AfterValidator, BaseModel, BeforeValidator, Discriminator, Field, PrivateAttr, Tag,
                       ValidationError, ValidationInfo, field_validator, model_validator)
 
-from dkfsim.errors import ScenarioError
+from dkfsim.datafiles import DataFileError, locate
+from dkfsim.errors import DkfsimError, ScenarioError
+from dkfsim.yamlio import MAX_YAML_BYTES, clip, parse_yaml, read_text, yaml_error_text
 from dkfsim.faults import Faults, LinkSpec, Schedule, Window
 from dkfsim.latency import (LATENCY_MODELS, Constant, LatencyModel, StrictModel,
                             custom_error, suggest)
@@ -357,7 +359,7 @@ class _UnknownSensorKind(BaseModel):
 
 
 def _unknown_kind(value: Any) -> str:
-    return (f"unknown sensor kind {value!r}{suggest(value, SENSOR_KINDS)}; valid: "
+    return (f"unknown sensor kind {clip(value)}{suggest(value, SENSOR_KINDS)}; valid: "
             + ", ".join(SENSOR_KINDS))
 
 
@@ -378,12 +380,14 @@ SensorSpec = Annotated[Union[Annotated[Sensor, Tag("linear")],
 class Truth(StrictModel):
     """Truth from a recorded track instead of the model (:mod:`dkfsim.trajectory`).
 
-    ``file`` resolves against the scenario file's folder; the file is read
-    (and cached) when the scenario is validated, so a missing file or column
-    is a validation error.
+    ``dataset`` names a shipped track (``cicv5g/arterial_n8_v70_run03``),
+    ``file`` the user's own, resolved against the scenario file's folder
+    (:mod:`dkfsim.datafiles`); it is read (and cached) when the scenario is
+    validated, so a missing file or column is a validation error.
     """
 
-    file: Annotated[str, Field(strict=True, min_length=1)]
+    file: Annotated[str, Field(strict=True, min_length=1)] | None = None
+    dataset: Annotated[str, Field(strict=True, min_length=1)] | None = None
     x_column: Annotated[str, Field(strict=True, min_length=1)] = "utmX(m)"
     y_column: Annotated[str, Field(strict=True, min_length=1)] = "utmY(m)"
     time_column: Annotated[str, Field(strict=True, min_length=1)] = "pub_time(ms)"
@@ -400,16 +404,14 @@ class Truth(StrictModel):
     def _load(self, info: ValidationInfo):
         from dkfsim import trajectory
         base = (info.context or {}).get("base_dir") if info is not None else None
-        path, tried = trajectory.resolve(self.file, base)
-        if path is None:
-            raise custom_error("file not found (tried " + ", ".join(str(t) for t in tried) + ")",
-                               "file")
+        try:
+            path, key = locate(self.file, self.dataset, base)
+        except DataFileError as err:
+            raise custom_error(str(err), "dataset" if self.dataset is not None else "file") from None
         try:
             self._read(path)
         except trajectory.TrackError as err:
-            raise custom_error(str(err), err.key) from None
-        except OSError as err:
-            raise custom_error(f"cannot read {path}: {err.strerror}", "file") from None
+            raise custom_error(str(err), key if err.key == "file" else err.key) from None
         self._path = str(path)
         return self
 
@@ -481,7 +483,7 @@ def _buffer_length(value: Any) -> Any:
     if isinstance(value, int) and not isinstance(value, bool) and value >= 1:
         return value
     hint = suggest(value, ("auto", "paper")) if isinstance(value, str) else ""
-    raise custom_error(f"must be 'auto', 'paper' or an integer >= 1, got {value!r}{hint}")
+    raise custom_error(f"must be 'auto', 'paper' or an integer >= 1, got {clip(value)}{hint}")
 
 
 def _fusion_none(value: Any) -> Any:
@@ -514,6 +516,7 @@ class Scenario(StrictModel):
     faults: Faults | None = None
 
     _source: str | None = PrivateAttr(default=None)
+    _base_dir: str | None = PrivateAttr(default=None)
     # (key, graph, exchange graph or None); the key holds every field the graph
     # depends on, so a model_copy(update=...) never sees a stale graph.
     _cache: Any = PrivateAttr(default=None)
@@ -580,11 +583,12 @@ class Scenario(StrictModel):
         need = self.truth.start + self.steps * self.model.T
         have = self.truth.track().duration
         if need > have + 1e-9:
+            named = (f"truth.dataset {self.truth.dataset}" if self.truth.dataset is not None
+                     else f"truth.file {self.truth.file}")
             raise custom_error(
                 f"the run needs {need:g} s of track (truth.start {self.truth.start:g} s + "
-                f"{self.steps} steps x {self.model.T:g} s) but truth.file {self.truth.file} "
-                f"covers {have:g} s; use at most {int((have - self.truth.start) / self.model.T + 1e-9)} "
-                "steps", "steps")
+                f"{self.steps} steps x {self.model.T:g} s) but {named} covers {have:g} s; use at "
+                f"most {int((have - self.truth.start) / self.model.T + 1e-9)} steps", "steps")
 
     def _check_network(self) -> None:
         top = self.topology
@@ -639,6 +643,11 @@ class Scenario(StrictModel):
     def source(self) -> str | None:
         """The file this scenario was loaded from (None for a dict)."""
         return self._source
+
+    @property
+    def base_dir(self) -> str | None:
+        """The folder relative ``file:`` paths resolved against (None: the working directory)."""
+        return self._base_dir
 
     @property
     def nx(self) -> int:
@@ -752,52 +761,11 @@ def scenario_hash(scenario: Scenario) -> str:
 
 
 # =========================================================================== YAML
-class _Loader(yaml.SafeLoader):
-    """Safe loader that rejects duplicate keys and reads ``1e-3`` as a float."""
-
-    def construct_mapping(self, node, deep=False):
-        if isinstance(node, yaml.MappingNode):
-            self.flatten_mapping(node)
-            seen: dict[Any, Any] = {}
-            for key_node, _ in node.value:
-                key = self.construct_object(key_node, deep=deep)
-                try:
-                    if key in seen:
-                        raise yaml.constructor.ConstructorError(
-                            "while constructing a mapping", node.start_mark,
-                            f"duplicate key {key!r} (first at line "
-                            f"{seen[key].line + 1})", key_node.start_mark)
-                    seen[key] = key_node.start_mark
-                except TypeError:  # unhashable key: let the base class complain
-                    pass
-        return super().construct_mapping(node, deep=deep)
-
-
-_Loader.add_implicit_resolver(
-    "tag:yaml.org,2002:float",
-    re.compile(r"^[-+]?(?:[0-9][0-9_]*)(?:\.[0-9_]*)?[eE][-+]?[0-9]+$"),
-    list("-+0123456789"))
-
-
-def _yaml_error_text(err: yaml.YAMLError) -> str:
-    mark = getattr(err, "problem_mark", None) or getattr(err, "context_mark", None)
-    problem = getattr(err, "problem", None) or str(err).splitlines()[0]
-    context = getattr(err, "context", None)
-    where = f" at line {mark.line + 1}, column {mark.column + 1}" if mark else ""
-    text = f"YAML syntax error{where}: {problem}"
-    cmark = getattr(err, "context_mark", None)
-    if context and context not in problem:
-        if cmark is not None and mark is not None and cmark.line != mark.line:
-            context += f" started at line {cmark.line + 1}"
-        text += f" ({context})"
-    return " ".join(text.split())
-
-
 def _parse_yaml(text: str, source: str) -> Any:
     try:
-        return yaml.load(text, Loader=_Loader)
+        return parse_yaml(text)
     except yaml.YAMLError as err:
-        raise ScenarioError(_yaml_error_text(err), source=source) from None
+        raise ScenarioError(yaml_error_text(err), source=source) from None
 
 
 # =========================================================================== overrides
@@ -807,17 +775,17 @@ _INDEX = re.compile(r"^-?\d+$")
 def _apply_override(data: dict, text: str, source: str) -> str:
     """Apply one ``dotted.key=value`` to ``data`` in place; return the key."""
     if not isinstance(text, str) or "=" not in text:
-        raise ScenarioError(f"bad override {text!r}: expected dotted.key=value "
+        raise ScenarioError(f"bad override {clip(text)}: expected dotted.key=value "
                             "(e.g. links.default.latency.d_t=0)", source=source)
     key, _, raw = text.partition("=")
     key = key.strip()
     parts = key.split(".")
     if not key or any(p == "" for p in parts):
-        raise ScenarioError(f"bad override {text!r}: empty key component", source=source)
+        raise ScenarioError(f"bad override {clip(text)}: empty key component", source=source)
     try:
-        value = yaml.load(raw, Loader=_Loader) if raw.strip() else None
+        value = parse_yaml(raw) if raw.strip() else None
     except yaml.YAMLError as err:
-        raise ScenarioError(f"bad override value {raw!r}: {_yaml_error_text(err)}",
+        raise ScenarioError(f"bad override value {clip(raw)}: {yaml_error_text(err)}",
                             source=source, path=key) from None
     node: Any = data
     for depth, part in enumerate(parts):
@@ -825,12 +793,12 @@ def _apply_override(data: dict, text: str, source: str) -> str:
         last = depth == len(parts) - 1
         if isinstance(node, list):
             if not _INDEX.match(part):
-                raise ScenarioError(f"override {text!r}: {parts[depth - 1] if depth else key} "
+                raise ScenarioError(f"override {clip(text)}: {parts[depth - 1] if depth else key} "
                                     f"is a list; {part!r} is not an index", source=source,
                                     path=here)
             idx = int(part)
             if not 0 <= idx < len(node):
-                raise ScenarioError(f"override {text!r}: list index {idx} out of range "
+                raise ScenarioError(f"override {clip(text)}: list index {idx} out of range "
                                     f"(the list has {len(node)} entries)", source=source,
                                     path=here)
             if last:
@@ -848,8 +816,8 @@ def _apply_override(data: dict, text: str, source: str) -> str:
                 node = node[part]
         else:
             parent = ".".join(parts[:depth])
-            raise ScenarioError(f"override {text!r}: {parent} is a scalar "
-                                f"({node!r}); cannot set {part!r} inside it",
+            raise ScenarioError(f"override {clip(text)}: {parent} is a scalar "
+                                f"({clip(node)}); cannot set {part!r} inside it",
                                 source=source, path=here)
     return key
 
@@ -920,30 +888,30 @@ def _reason(err: dict, path: list[str]) -> tuple[str, list[str]]:
         return "missing key 'model' (one of: " + ", ".join(LATENCY_MODELS) + ")", path
     if etype == "literal_error" and field in _LITERAL_FIELDS:
         valid = _LITERAL_VALUES[field]
-        return (f"unknown {_LITERAL_FIELDS[field]} {inp!r}{suggest(inp, valid)}; valid: "
+        return (f"unknown {_LITERAL_FIELDS[field]} {clip(inp)}{suggest(inp, valid)}; valid: "
                 + ", ".join(valid)), path
     if etype in _BOUND_WORDS:
         word, k = _BOUND_WORDS[etype]
-        return f"must be {word} {ctx.get(k)}, got {inp!r}", path
+        return f"must be {word} {ctx.get(k)}, got {clip(inp)}", path
     if etype in ("model_type", "model_attributes_type", "dict_type"):
-        return f"must be a mapping, got {type(inp).__name__} {inp!r}", path
+        return f"must be a mapping, got {type(inp).__name__} {clip(inp)}", path
     if etype in ("int_type", "int_from_float", "int_parsing"):
-        return f"must be an integer, got {inp!r}", path
+        return f"must be an integer, got {clip(inp)}", path
     if etype in ("float_type", "float_parsing"):
-        return f"must be a number, got {inp!r}", path
+        return f"must be a number, got {clip(inp)}", path
     if etype == "bool_type":
-        return f"must be true or false, got {inp!r}", path
+        return f"must be true or false, got {clip(inp)}", path
     if etype in ("tuple_type", "list_type"):
-        return f"must be a list, got {type(inp).__name__} {inp!r}", path
+        return f"must be a list, got {type(inp).__name__} {clip(inp)}", path
     if etype in ("string_type",):
-        return f"must be a string, got {inp!r}", path
+        return f"must be a string, got {clip(inp)}", path
     if etype == "finite_number":
-        return f"must be a finite number, got {inp!r}", path
+        return f"must be a finite number, got {clip(inp)}", path
     if etype in ("too_short", "too_long") and field == "sensors":
         return "at least one sensor is required", path
     msg = " ".join(str(err["msg"]).split())
     if inp is not None and not isinstance(inp, (dict, list, tuple)):
-        msg += f" (got {inp!r})"
+        msg += f" (got {clip(inp)})"
     return msg, path
 
 
@@ -961,12 +929,12 @@ def _convert(exc: ValidationError, data: Any, source: str,
         dotted = ".".join(path)
         for key, text in override_keys.items():
             if dotted == key or dotted.startswith(key + "."):
-                reason += f" (set by override {text!r})"
+                reason += f" (set by override {clip(text)})"
                 break
         else:
             for key, text in override_keys.items():
                 if dotted and key.startswith(dotted + "."):
-                    reason += f" (after override {text!r})"
+                    reason += f" (after override {clip(text)})"
                     break
         items.append((dotted, reason))
     first_path, first_reason = items[0]
@@ -978,13 +946,16 @@ def _convert(exc: ValidationError, data: Any, source: str,
 
 # =========================================================================== loading
 def load_scenario(source: str | os.PathLike | Mapping | Scenario,
-                  overrides: Sequence[str] = ()) -> Scenario:
+                  overrides: Sequence[str] = (), *, base_dir: str | os.PathLike | None = None) -> Scenario:
     """Load, override and validate a scenario.
 
     ``source`` is a path to a YAML file, a mapping, or a Scenario (re-validated
     from its ``to_dict`` so that overrides apply).  ``overrides`` are
     ``dotted.key=value`` strings, the value parsed as YAML, applied to the raw
     mapping before validation (``sensors.0.R=[[2.0]]``, ``links.d_t=5``).
+    ``base_dir`` is where the relative ``file:`` paths of a mapping resolve
+    (default: the working directory); a file's own folder is used for a
+    path, and a Scenario keeps the folder it was loaded with.
     Raises :class:`ScenarioError` on any problem.
     """
     if isinstance(overrides, str):
@@ -993,20 +964,14 @@ def load_scenario(source: str | os.PathLike | Mapping | Scenario,
     if isinstance(source, Scenario):
         label = source.source or "<dict>"
         path = source.source
+        base_dir = source.base_dir
         data: Any = source.to_dict()
     elif isinstance(source, (str, os.PathLike)):
         label = path = os.fspath(source)
         try:
-            text = Path(path).read_text(encoding="utf-8")
-        except FileNotFoundError:
-            raise ScenarioError("file not found", source=label) from None
-        except IsADirectoryError:
-            raise ScenarioError("is a directory, not a scenario file", source=label) from None
-        except UnicodeDecodeError as err:
-            raise ScenarioError(f"not a UTF-8 text file ({err.reason} at byte {err.start})",
-                                source=label) from None
-        except OSError as err:
-            raise ScenarioError(f"cannot read file: {err.strerror}", source=label) from None
+            text = read_text(path, limit=MAX_YAML_BYTES, what="scenario file")
+        except DkfsimError as err:
+            raise ScenarioError(str(err)) from None
         data = _parse_yaml(text, label)
     elif isinstance(source, Mapping):
         label = "<dict>"
@@ -1028,11 +993,14 @@ def load_scenario(source: str | os.PathLike | Mapping | Scenario,
         override_keys[key] = text
     if "name" not in data and path is not None:
         data["name"] = Path(path).stem
+    if path is not None and base_dir is None:
+        # Relative data files (traces, tracks) resolve against the file's folder.
+        base_dir = Path(path).resolve().parent
+    base_dir = None if base_dir is None else str(base_dir)
     try:
-        # Relative data files (empirical latency traces) resolve against the file's folder.
-        base_dir = str(Path(path).resolve().parent) if path is not None else None
         scenario = Scenario.model_validate(data, context={"base_dir": base_dir})
     except ValidationError as exc:
         raise _convert(exc, data, label, override_keys) from None
     scenario._source = path
+    scenario._base_dir = base_dir
     return scenario

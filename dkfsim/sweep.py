@@ -57,6 +57,7 @@ import math
 import os
 import re
 import sqlite3
+import stat
 import sys
 import tempfile
 import time
@@ -67,6 +68,7 @@ from typing import Any, Iterator, Mapping
 import yaml
 
 from .errors import DkfsimError, ScenarioError
+from .yamlio import MAX_YAML_BYTES, parse_yaml, read_text, yaml_error_text
 
 #: Version of the database layout (``meta.format``).
 DB_FORMAT = 1
@@ -88,28 +90,6 @@ _SQLITE_MAGIC = b"SQLite format 3\x00"
 
 
 # =========================================================================== YAML
-class _Loader(yaml.SafeLoader):
-    """Safe loader that rejects duplicate keys and reads ``1e-3`` as a float
-    (the same reading as scenario files)."""
-
-    def construct_mapping(self, node, deep=False):
-        if isinstance(node, yaml.MappingNode):
-            seen = set()
-            for key_node, _ in node.value:
-                key = self.construct_object(key_node, deep=deep)
-                if isinstance(key, (str, int, float, bool)) and key in seen:
-                    raise yaml.constructor.ConstructorError(
-                        None, None, f"duplicate key {key!r}", key_node.start_mark)
-                seen.add(key)
-        return super().construct_mapping(node, deep=deep)
-
-
-_Loader.add_implicit_resolver(
-    "tag:yaml.org,2002:float",
-    re.compile(r"^[-+]?(?:[0-9][0-9_]*)(?:\.[0-9_]*)?[eE][-+]?[0-9]+$"),
-    list("-+0123456789"))
-
-
 def _yaml_value(value: Any) -> str:
     """``value`` as YAML flow text for a ``key=value`` override."""
     text = yaml.safe_dump(value, default_flow_style=True, width=1 << 30, allow_unicode=True)
@@ -222,24 +202,14 @@ def load_sweep(source, *, output: str | os.PathLike | None = None) -> Sweep:
     else:
         label = os.fspath(source)
         path = Path(label)
+        if is_database(path):
+            raise _err(label, None, "this is a sweep database, not a sweep file: export it "
+                                    "with dkfsim sweep DB --export FILE")
+        text = read_text(path, limit=MAX_YAML_BYTES, what="sweep file", missing="sweep file not found")
         try:
-            text = path.read_text(encoding="utf-8")
-        except FileNotFoundError:
-            raise _err(label, None, "sweep file not found") from None
-        except IsADirectoryError:
-            raise _err(label, None, "is a directory, not a sweep file") from None
-        except UnicodeDecodeError:
-            raise _err(label, None, "not a UTF-8 text file (a sweep database? export it "
-                                    "with dkfsim sweep DB --export FILE)") from None
-        except OSError as exc:
-            raise _err(label, None, f"cannot read file: {exc.strerror}") from None
-        try:
-            data = yaml.load(text, Loader=_Loader)
+            data = parse_yaml(text)
         except yaml.YAMLError as exc:
-            mark = getattr(exc, "problem_mark", None)
-            where = f" at line {mark.line + 1}, column {mark.column + 1}" if mark else ""
-            problem = getattr(exc, "problem", None) or str(exc).splitlines()[0]
-            raise _err(label, None, f"YAML syntax error{where}: {problem}") from None
+            raise _err(label, None, yaml_error_text(exc)) from None
         base = path.parent
         if data is None:
             raise _err(label, None, "empty file: expected a mapping with at least 'scenario'")
@@ -376,15 +346,17 @@ def _parameter_sets(label, scenario_path, grid, sets, burn_in) -> list[Parameter
 
 
 # =========================================================================== one task (workers)
-def run_task(scenario: dict, seed: int, burn_in: int | None) -> tuple[list[dict], float]:
+def run_task(scenario: dict, seed: int, burn_in: int | None,
+             base_dir: str | None = None) -> tuple[list[dict], float]:
     """Simulate and score one task where it runs; send back only the rows.
 
     Returns ``(rows, wall seconds)``; rows as :func:`dkfsim.montecarlo.run_rows`
     gives them, with plain Python numbers.
     """
     from .montecarlo import run_rows
+    from .scenario import load_scenario
     t0 = time.perf_counter()
-    rows, _curves = run_rows(scenario, int(seed), burn_in=burn_in)
+    rows, _curves = run_rows(load_scenario(scenario, base_dir=base_dir), int(seed), burn_in=burn_in)
     return [{k: _plain(v) for k, v in row.items()} for row in rows], time.perf_counter() - t0
 
 
@@ -479,8 +451,10 @@ CREATE TABLE IF NOT EXISTS results (
 
 
 def is_database(path) -> bool:
-    """True when ``path`` is an SQLite file (by its header)."""
+    """True when ``path`` is a regular SQLite file (by its header; a FIFO is never opened)."""
     try:
+        if not stat.S_ISREG(os.stat(path).st_mode):
+            return False
         with open(path, "rb") as fh:
             return fh.read(16) == _SQLITE_MAGIC
     except OSError:
@@ -713,7 +687,7 @@ def run_sweep(sweep: Sweep | str | os.PathLike, *, executor=None, jobs: int | No
         try:
             if todo:
                 tasks = (((p.param_hash, r, seed),
-                          (p.scenario.to_dict(), seed, sweep.burn_in))
+                          (p.scenario.to_dict(), seed, sweep.burn_in, p.scenario.base_dir))
                          for p, r in todo for seed in (derive_seed(p.base_seed, r),))
                 for (h, r, seed), (rows, wall) in executor.imap_unordered(run_task, tasks):
                     store.write_task(h, r, seed, rows, wall)

@@ -63,6 +63,7 @@ import networkx as nx
 import numpy as np
 
 from dkfsim.streams import stream
+from dkfsim.yamlio import clip
 
 if TYPE_CHECKING:  # pragma: no cover
     from dkfsim.scenario import Scenario
@@ -108,7 +109,7 @@ def _is_number(x: Any) -> bool:
 def _int_param(params: dict, name: str, minimum: int) -> int:
     value = params[name]
     if not _is_int(value) or value < minimum:
-        raise GraphSpecError(f"must be an integer >= {minimum}, got {value!r}", f"params.{name}")
+        raise GraphSpecError(f"must be an integer >= {minimum}, got {clip(value)}", f"params.{name}")
     return int(value)
 
 

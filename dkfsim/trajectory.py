@@ -4,7 +4,7 @@ A scenario's optional top-level ``truth`` key names a table of time-stamped
 positions (e.g. the UTM track of the car in the CICV5G data, CC BY 4.0,
 Zenodo DOI 10.5281/zenodo.17475688)::
 
-    truth: {file: ../../shared/data/cicv5g-5g-vehicle-latency/arterial_n8_v70_run03.txt,
+    truth: {dataset: cicv5g/arterial_n8_v70_run03,
             x_column: "utmX(m)", y_column: "utmY(m)", time_column: "pub_time(ms)",
             time_unit: ms, origin: first, start: 0, resample: linear}
 
@@ -32,10 +32,10 @@ used), and it does not follow the filters' model: a mismatch the user chose.
 Files: CSV (a comma in the header line) or whitespace separated, with a
 header line naming the columns (matched exactly first, then ignoring case
 and punctuation, so ``utm_x_m`` finds ``utmX(m)``); lines starting with
-``#`` are skipped; only the three named columns must be numbers.  Relative
-paths resolve against the scenario file's folder (the working directory
-for a scenario given as a mapping), then the repository root, then its
-``scenarios/`` folder.
+``#`` are skipped; only the three named columns must be numbers.  A shipped
+dataset is named by ``dataset:``, the user's own table by ``file:``, a
+relative path resolving against the scenario file's folder
+(:mod:`dkfsim.datafiles`).
 """
 
 from __future__ import annotations
@@ -46,7 +46,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .datafiles import norm_name, resolve_data_file
+from .datafiles import DataFileError, read_table
 
 #: Seconds per unit of the time column.
 TIME_UNITS = {"s": 1.0, "ms": 1e-3, "us": 1e-6, "ns": 1e-9}
@@ -75,53 +75,31 @@ class Track:
         return float(self.t[-1] - self.t[0])
 
 
-resolve = resolve_data_file
-
-
-def _column(names: list[str], want: str, key: str, path: Path) -> int:
-    if want in names:
-        return names.index(want)
-    normed = [norm_name(n) for n in names]
-    if norm_name(want) in normed and norm_name(want):
-        return normed.index(norm_name(want))
-    raise TrackError(f"no column {want!r} in {path.name}; its columns are: {', '.join(names)}", key)
-
-
 _CACHE: dict[tuple, Track] = {}
 
 
 def read_track(path: str | os.PathLike, time_column: str, x_column: str, y_column: str,
                time_unit: str = "ms") -> Track:
-    """Read, sort and check a track (cached on path, mtime, size and columns)."""
-    path = Path(path)
-    st = path.stat()
-    key = (str(path), st.st_mtime_ns, st.st_size, time_column, x_column, y_column, time_unit)
-    if key in _CACHE:
-        return _CACHE[key]
-    with open(path, encoding="utf-8", errors="replace") as fh:
-        lines = [(no, line.strip()) for no, line in enumerate(fh, 1)]
-    lines = [(no, text) for no, text in lines if text and not text.startswith("#")]
-    if len(lines) < 3:
-        raise TrackError(f"{path.name} needs a header line and at least two rows")
-    comma = "," in lines[0][1]
-    split = (lambda s: [f.strip() for f in s.split(",")]) if comma else str.split
-    names = split(lines[0][1])
-    cols = [_column(names, c, k, path) for c, k in
-            ((time_column, "time_column"), (x_column, "x_column"), (y_column, "y_column"))]
-    rows = np.empty((len(lines) - 1, 3))
-    for j, (no, text) in enumerate(lines[1:]):
-        fields = split(text)
-        for c, col in enumerate(cols):
-            if col >= len(fields):
-                raise TrackError(f"{path.name} line {no}: has {len(fields)} fields, "
-                                 f"no column {names[col]!r}")
+    """Read, sort and check a track (cached on the table and the columns)."""
+    try:
+        table = read_table(path)
+        if table.header is None or len(table.lines) < 2:
+            raise TrackError(f"{table.path.name} needs a header line and at least two rows")
+        key = (str(table.path), id(table), time_column, x_column, y_column, time_unit)
+        if key in _CACHE:
+            return _CACHE[key]
+        cols = []
+        for c, k in ((time_column, "time_column"), (x_column, "x_column"), (y_column, "y_column")):
             try:
-                rows[j, c] = float(fields[col])
-            except ValueError:
-                raise TrackError(f"{path.name} line {no}: {names[col]} {fields[col]!r} is not "
-                                 "a number") from None
+                cols.append(table.column_index(c))
+            except DataFileError as err:
+                raise TrackError(str(err), k) from None
+        rows = np.array([[v for _, v in table.floats(col, table.header[col])] for col in cols]).T
+    except DataFileError as err:
+        raise TrackError(str(err)) from None
+    path = table.path
     if not np.isfinite(rows).all():
-        no = lines[1 + int(np.nonzero(~np.isfinite(rows).all(axis=1))[0][0])][0]
+        no = table.lines[int(np.nonzero(~np.isfinite(rows).all(axis=1))[0][0])][0]
         raise TrackError(f"{path.name} line {no}: values must be finite")
     order = np.argsort(rows[:, 0], kind="stable")
     rows = rows[order]
@@ -188,11 +166,6 @@ def cv_states(track: Track, T: float, K: int, start: float = 0.0, origin: str = 
     out = np.empty((K, 4))
     out[:, 0], out[:, 1], out[:, 2], out[:, 3] = p[1:, 0], v[:, 0], p[1:, 1], v[:, 1]
     return out
-
-
-def needed_duration(T: float, K: int, start: float) -> float:
-    """Seconds of track a run of ``K`` ticks needs (its last tick's time)."""
-    return start + K * T
 
 
 def track_truth(scenario) -> np.ndarray:

@@ -381,8 +381,6 @@ def test_empirical_file_resolves_against_the_scenario_folder(tmp_path):
                                      ("stress_outage", 25), ("stress_ramp", 25)])
 def test_stress_scenarios_validate_and_run(name, L):
     path = REPO / "scenarios" / f"{name}.yaml"
-    if name == "stress_5g_empirical" and not (REPO.parent / "shared" / "data").is_dir():
-        pytest.skip("shared/data is not beside the repository")
     sc = load_scenario(path, overrides=["steps=40"])
     assert sc.resolved_buffer_length() == L
     from dkfsim import run

@@ -194,13 +194,13 @@ from pathlib import Path  # noqa: E402
 
 from scipy import stats  # noqa: E402
 
-from dkfsim.latency import (REPO_ROOT, Empirical, GilbertElliott, Gamma, Lognormal,  # noqa: E402
-                            Pareto, read_column, resolve_data_file)
+from dkfsim.datafiles import DATA_DIR, resolve_data_file  # noqa: E402
+from dkfsim.latency import (Empirical, GilbertElliott, Gamma, Lognormal,  # noqa: E402
+                            Pareto, read_column)
 from dkfsim.streams import stream  # noqa: E402
 
-CICV = Path("/work/shared/data/cicv5g-5g-vehicle-latency")
+CICV = DATA_DIR / "cicv5g"                  # shipped inside the package
 URBAN = CICV / "urban_n8_v30_run01.txt"
-needs_data = pytest.mark.skipif(not URBAN.is_file(), reason="CICV5G data not present")
 N_KS = 20_000
 
 
@@ -286,7 +286,6 @@ def test_new_invalid_parameters_rejected(spec):
 
 
 # --------------------------------------------------------------------------- empirical
-@needs_data
 def test_empirical_reads_the_cicv5g_column_whatever_its_spelling():
     a = read_column(URBAN, "delay(ms)")
     assert len(a) == 4432
@@ -297,7 +296,6 @@ def test_empirical_reads_the_cicv5g_column_whatever_its_spelling():
         read_column(URBAN, "dealy")
 
 
-@needs_data
 def test_empirical_resample_reproduces_the_trace_distribution():
     m = parse_latency({"model": "empirical", "file": str(URBAN), "one_way": True})
     s = m.sample_ns(rng(), N_KS, T_NS)
@@ -310,7 +308,6 @@ def test_empirical_resample_reproduces_the_trace_distribution():
     assert stats.ks_2samp(s, trace_ns * 1.1).pvalue < 1e-4
 
 
-@needs_data
 def test_empirical_replay_plays_the_trace_in_order_and_cycles():
     raw = read_column(URBAN, "delay_ms")
     m = parse_latency({"model": "empirical", "file": str(URBAN), "mode": "replay",
@@ -338,7 +335,7 @@ def test_empirical_csv_relative_path_and_errors(tmp_path):
     assert m.sample_ns(rng(), 4, T_NS).tolist() == [10_000_000, 30_000_000, 20_000_000, 10_000_000]
     assert m.bound_steps(T_NS) == 3
     path, tried = resolve_data_file("trace.csv", tmp_path)
-    assert path is None and tried[0] == tmp_path / "trace.csv" and tried[1] == REPO_ROOT / "trace.csv"
+    assert path is None and tried == [tmp_path / "trace.csv"]     # the scenario's folder only
     with pytest.raises(ValidationError, match="file not found"):
         parse_latency({"model": "empirical", "file": "trace.csv"}, base_dir=tmp_path)
     (sub / "bad.csv").write_text("lat\n0.01\nabc\n")

@@ -15,10 +15,11 @@ import numpy as np
 import pytest
 import yaml
 
+from dkfsim.datafiles import DATA_DIR
+
 ROOT = Path(__file__).resolve().parents[1]
 CICV = ROOT / "scenarios" / "cicv5g_track.yaml"
-DATA = ROOT.parent / "shared" / "data" / "cicv5g-5g-vehicle-latency" / "arterial_n8_v70_run03.txt"
-needs_data = pytest.mark.skipif(not DATA.is_file(), reason="shared/data not beside the repository")
+DATA = DATA_DIR / "cicv5g" / "arterial_n8_v70_run03.txt"     # shipped inside the package
 
 # t (ms), x, y: rows out of order, a repeated stamp, a 200 ms gap.
 CSV = """# a hand-made track
@@ -193,7 +194,6 @@ def test_bad_rows_are_named(tmp_path):
         dkfsim.load_scenario(d)
 
 
-@needs_data
 def test_cicv5g_scenario_runs():
     import dkfsim
     sc = dkfsim.load_scenario(CICV, ["steps=300"])
@@ -211,11 +211,10 @@ def test_cicv5g_scenario_runs():
     assert full.steps * full.model.T <= have
     from dkfsim.errors import ScenarioError
     too_many = int(have / full.model.T) + 1
-    with pytest.raises(ScenarioError, match="arterial_n8_v70_run03.txt covers 55.21 s"):
+    with pytest.raises(ScenarioError, match="truth.dataset cicv5g/arterial_n8_v70_run03 covers 55.21 s"):
         dkfsim.load_scenario(CICV, [f"steps={too_many}"])
 
 
-@needs_data
 def test_cicv5g_scenario_is_found_from_another_folder(tmp_path, monkeypatch):
     import dkfsim
     monkeypatch.chdir(tmp_path)
