@@ -12,6 +12,7 @@ import sys
 
 from . import __version__
 from .errors import DkfsimError
+from .output import check_target
 
 EPILOG = """\
 examples:
@@ -99,6 +100,7 @@ def cmd_run(args) -> int:
     sc = load_from_args(args)
     if args.burn_in is not None and not 0 <= args.burn_in < sc.steps:
         raise DkfsimError(f"--burn-in: must be in [0, steps) = [0, {sc.steps}), got {args.burn_in}")
+    check_target(args.out)                 # before the run: a bad --out costs nothing
     progress = None
     bar = None
     if not args.quiet and sys.stderr.isatty():

@@ -53,7 +53,7 @@ from pathlib import Path
 import numpy as np
 
 from .errors import DkfsimError
-from .output import output_folder, write_json
+from .output import check_target, staged, write_json
 
 #: Metric name -> description (help text and JSON).
 METRICS = {
@@ -446,10 +446,8 @@ class Candidate:
 
 
 def _num(v):
-    if v is None:
-        return None
-    v = float(v)
-    return None if math.isnan(v) else (v if math.isfinite(v) else (1e308 if v > 0 else -1e308))
+    """A float for JSON (non-finite values are encoded by :func:`dkfsim.output.to_json`)."""
+    return None if v is None else float(v)
 
 
 def interval(samples, level: float):
@@ -925,10 +923,12 @@ class MaxDelayResult:
         return out
 
     def save(self, out_dir) -> Path:
-        out = output_folder(out_dir)
-        write_json(out / "maxdelay.json", self.to_dict())
-        self.plot(out)
-        return out
+        """Write ``maxdelay.json`` and the figure; the folder is replaced atomically."""
+        data = self.to_dict()
+        with staged(out_dir, "maxdelay") as tmp:
+            write_json(tmp / "maxdelay.json", data)
+            self.plot(tmp)
+        return Path(out_dir)
 
     # ------------------------------------------------------------------ text
     def table(self) -> str:
@@ -1194,6 +1194,7 @@ def cmd_maxdelay(args) -> int:
                   confidence=args.confidence, batch=args.batch, max_runs=args.max_runs,
                   burn_in=args.burn_in, jobs=args.jobs, max_delay=args.max_delay,
                   scale_step=args.scale_step, max_scale=args.max_scale, component=args.component)
+    check_target(args.out)                 # before any run: a bad --out costs nothing
     prog = _Progress(args.quiet)
     try:
         res = MaxDelay(sc, st, progress=prog).run()

@@ -65,7 +65,7 @@ import numpy as np
 
 from .errors import DkfsimError
 from .executors import kill_pool
-from .output import output_folder, write_json
+from .output import check_target, csv_cell, staged, write_json
 from .metrics import (anees_summary, default_burn_in, disagreement, nees_band, nees_per_tick,
                       packet_bytes, squared_error, t_interval, t_interval_from_moments)
 
@@ -354,21 +354,6 @@ def montecarlo(scenario, runs: int, jobs: int = 1, burn_in: int | None = None,
 
 
 # =========================================================================== the result
-def _none_if_nan(v):
-    if isinstance(v, float) and math.isnan(v):
-        return None
-    return v
-
-
-def _num(v):
-    """Plain Python number for JSON (NaN -> null)."""
-    if isinstance(v, (np.integer,)):
-        return int(v)
-    if isinstance(v, (np.floating, float)):
-        return _none_if_nan(float(v))
-    return v
-
-
 class MonteCarloResult:
     """Pooled result of :func:`montecarlo`.
 
@@ -415,17 +400,18 @@ class MonteCarloResult:
         out = {"mse": {}, "mse_ci95": {}}
         for comp in self.components:
             mean, lo, hi = t_interval(self.column(algorithm, "mse", comp))
-            out["mse"][comp] = _num(mean)
-            out["mse_ci95"][comp] = [_num(lo), _num(hi)]
+            out["mse"][comp] = float(mean)
+            out["mse_ci95"][comp] = [float(lo), float(hi)]
         an = anees_summary(self.nees[a], self.runs, nx, self.burn_in)
         per_run = self.column(algorithm, "anees")
         _, lo, hi = t_interval(per_run) if not np.isnan(per_run).any() else (0, np.nan, np.nan)
-        out["anees"] = _num(an["anees"])
-        out["anees_band95"] = [_num(v) for v in an["band"]]
-        out["anees_fraction_in_band"] = _num(an["fraction_in_band"])
-        out["anees_ci95"] = [_num(lo), _num(hi)]
+        out["anees"] = float(an["anees"])
+        out["anees_band95"] = [float(v) for v in an["band"]]
+        out["anees_fraction_in_band"] = float(an["fraction_in_band"])
+        out["anees_ci95"] = [float(lo), float(hi)]
         for key in ("disagreement", "messages_per_tick", "bytes_per_tick", "lost", "late"):
-            out[key] = _num(float(np.mean(self.column(algorithm, key))))
+            mean = float(np.mean(self.column(algorithm, key)))
+            out[key] = None if math.isnan(mean) else mean      # NaN rows: not modelled for it
         return out
 
     def summary(self) -> dict:
@@ -471,19 +457,19 @@ class MonteCarloResult:
     # ------------------------------------------------------------------ output
     def save(self, out_dir) -> Path:
         """Write ``runs.csv``, ``curves.npz`` and ``summary.json`` into ``out_dir``."""
-        out = output_folder(out_dir)
-        with open(out / "runs.csv", "w", newline="") as fh:
-            w = csv.writer(fh, lineterminator="\n")
-            w.writerow(CSV_COLUMNS)
-            for row in self.rows:
-                w.writerow([repr(float(row[c])) if isinstance(row[c], float) else row[c]
-                            for c in CSV_COLUMNS])
-        np.savez(out / "curves.npz",
-                 t=self.t, components=np.array(self.components), algorithms=np.array(self.algorithms),
-                 mse=self.mse, mse_ci_lo=self.mse_ci_lo, mse_ci_hi=self.mse_ci_hi,
-                 nees=self.nees, nees_band=self.nees_band, **self.example)
-        write_json(out / "summary.json", self.summary())
-        return out
+        summary = self.summary()
+        with staged(out_dir, "montecarlo") as tmp:
+            with open(tmp / "runs.csv", "w", newline="") as fh:
+                w = csv.writer(fh, lineterminator="\n")
+                w.writerow(CSV_COLUMNS)
+                for row in self.rows:
+                    w.writerow([csv_cell(row[c]) for c in CSV_COLUMNS])
+            np.savez(tmp / "curves.npz",
+                     t=self.t, components=np.array(self.components), algorithms=np.array(self.algorithms),
+                     mse=self.mse, mse_ci_lo=self.mse_ci_lo, mse_ci_hi=self.mse_ci_hi,
+                     nees=self.nees, nees_band=self.nees_band, **self.example)
+            write_json(tmp / "summary.json", summary)
+        return Path(out_dir)
 
     def table(self) -> str:
         """Algorithm x component: MSE with its 95 % CI; ANEES with its per-tick band."""
@@ -493,8 +479,8 @@ class MonteCarloResult:
             s = self.algorithm_summary(name)
             for c, comp in enumerate(self.components):
                 lo, hi = s["mse_ci95"][comp]
-                ci = "-" if lo is None else f"[{lo:.4g}, {hi:.4g}]"
-                if c == 0 and s["anees"] is not None:
+                ci = "-" if math.isnan(lo) else f"[{lo:.4g}, {hi:.4g}]"
+                if c == 0 and not math.isnan(s["anees"]):
                     b = s["anees_band95"]
                     extra = (f"{s['anees']:.3f}", f"[{b[0]:.3f}, {b[1]:.3f}]",
                              f"{100 * s['anees_fraction_in_band']:.0f}%")
@@ -554,6 +540,7 @@ def cmd_montecarlo(args) -> int:
         raise DkfsimError(f"--jobs: must be >= 1, got {args.jobs}")
     sc = load_from_args(args)
     _check_burn_in(args.burn_in, int(sc.steps))
+    check_target(args.out)                 # before any run: a bad --out costs nothing
     bar = progress = None
     if not args.quiet and sys.stderr.isatty():
         from tqdm import tqdm

@@ -28,6 +28,7 @@ from __future__ import annotations
 
 import csv
 import json
+import os
 import zipfile
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -35,6 +36,8 @@ from pathlib import Path
 import numpy as np
 
 from .errors import DkfsimError
+from .output import from_json
+from .yamlio import MAX_YAML_BYTES, clip, read_text
 
 FORMATS = ("png", "pdf", "svg")
 DEFAULT_FORMATS = ("png", "pdf")
@@ -149,9 +152,8 @@ def _units(components, model_kind) -> list[str]:
 
 def _read_json(path: Path) -> dict:
     try:
-        with open(path) as fh:
-            data = json.load(fh)
-    except (OSError, ValueError) as exc:
+        data = from_json(json.loads(read_text(path, limit=MAX_YAML_BYTES, what="JSON file")))
+    except ValueError as exc:
         raise DkfsimError(f"{path}: cannot read ({exc})") from None
     if not isinstance(data, dict):
         raise DkfsimError(f"{path}: expected a JSON object")
@@ -433,13 +435,17 @@ def _save(fig, stem: Path, formats) -> list[Path]:
     out = []
     for fmt in formats:
         path = stem.with_name(f"{stem.name}.{fmt}")
-        try:
+        tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
+        try:                       # written beside, then renamed: never half a figure
             if fmt == "png":
-                _save_png(fig, path)
+                _save_png(fig, tmp)
             else:
-                fig.savefig(path, bbox_inches="tight")
+                fig.savefig(tmp, bbox_inches="tight", format=fmt)
+            os.replace(tmp, path)
         except OSError as exc:
             raise DkfsimError(f"{path}: cannot write the figure ({exc.strerror})") from None
+        finally:
+            tmp.unlink(missing_ok=True)
         out.append(path)
     fig.clf()
     _pyplot().close(fig)
@@ -822,6 +828,10 @@ def cmd_plot(args) -> int:
         raise DkfsimError("--relative: only used with --compare")
     if args.compare and len(args.dirs) < 2:
         raise DkfsimError("--compare: give at least two folders")
+    if args.name is not None and (not args.name.strip() or args.name != Path(args.name).name
+                                  or args.name in (".", "..")):
+        raise DkfsimError(f"--name {clip(args.name)}: a file name without folders (use --out for "
+                          "the folder)")
     folders = [load_folder(d) for d in args.dirs]
     written = []
     if args.compare:

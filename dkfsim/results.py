@@ -17,7 +17,7 @@ import numpy as np
 
 from .errors import DkfsimError
 from .metrics import default_burn_in, run_metrics
-from .output import output_folder, write_json
+from .output import staged, write_json
 
 SAVE_MODES = ("auto", "full", "estimates", "summary")
 
@@ -94,15 +94,17 @@ class RunResult(Mapping):
         }
 
     def save(self, out_dir, burn_in: int | None = None) -> Path:
-        """Write ``run.npz`` (unless the save mode is ``summary``) and ``summary.json``."""
-        out = output_folder(out_dir)
-        if self.info.get("save") != "summary":
-            np.savez(out / "run.npz", **self.arrays)
-        else:
-            # A run.npz left by an earlier run would be read as this run's.
-            (out / "run.npz").unlink(missing_ok=True)
-        write_json(out / "summary.json", self.summary(burn_in))
-        return out
+        """Write ``run.npz`` (unless the save mode is ``summary``) and ``summary.json``.
+
+        The folder is replaced as a whole and atomically (:func:`dkfsim.output.staged`):
+        no file of an earlier run survives beside the new ones.
+        """
+        summary = self.summary(burn_in)
+        with staged(out_dir, "run") as tmp:
+            if self.info.get("save") != "summary":
+                np.savez(tmp / "run.npz", **self.arrays)
+            write_json(tmp / "summary.json", summary)
+        return Path(out_dir)
 
     def table(self, burn_in: int | None = None) -> str:
         """A short human-readable table: MSE per state component and packet counts."""
