@@ -8,11 +8,13 @@ stderr and exit status 2, never a traceback.
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 
 from . import __version__
 from .errors import DkfsimError
 from .output import check_target
+from .threads import pin_process
 
 EPILOG = """\
 examples:
@@ -46,7 +48,8 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("run", help="simulate one scenario and write summary.json and run.npz",
                        description="Simulate one scenario: truth, sensors, the SimPy network, every node's "
                                    "anti-delay DKF, fusion and the baselines. Writes DIR/summary.json and "
-                                   "DIR/run.npz (the arrays of section 5 of the design contract, ../shared/DESIGN.md) and prints an MSE table.")
+                                   "DIR/run.npz (the arrays listed in docs/design.md, section 8) and prints an MSE table. "
+                                   "DIR is replaced as a whole, atomically, when the run is done.")
     add_scenario_args(p)
     p.add_argument("--out", required=True, metavar="DIR", help="output folder (created if missing)")
     p.add_argument("--seed", type=int, help="override the scenario seed (same as --set seed=N)")
@@ -122,19 +125,27 @@ def cmd_run(args) -> int:
 
 
 def main(argv=None) -> int:
+    pin_process()                     # one BLAS thread here and in every worker we start
     parser = build_parser()
     args = parser.parse_args(argv)
     if not getattr(args, "command", None):
         parser.print_help()
         return 2
     try:
-        return args.func(args)
+        status = args.func(args)
+        sys.stdout.flush()            # a closed pipe shows here, inside the try
+        return status
     except DkfsimError as exc:
         print(f"dkfsim {args.command}: error: {exc}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         print("dkfsim: interrupted", file=sys.stderr)
         return 130
+    except BrokenPipeError:
+        # The reader went away (``dkfsim ... | head``): end quietly, as Unix tools do,
+        # with stdout pointed at /dev/null so the interpreter's final flush cannot fail.
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return 141
 
 
 if __name__ == "__main__":

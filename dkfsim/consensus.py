@@ -103,6 +103,7 @@ import scipy.sparse
 import simpy
 
 from .errors import ScenarioError
+from .linalg import solve
 from .network import PRIORITY_UPDATE, Network, Scheduled
 
 
@@ -123,7 +124,7 @@ def _solve_pair(A: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     rhs = np.empty(A.shape[:-1] + (nx + 1,))
     rhs[..., :nx] = np.eye(nx)
     rhs[..., nx] = v
-    sol = np.linalg.solve(A, rhs)
+    sol = solve(A, rhs)
     M = sol[..., :nx]
     return 0.5 * (M + np.swapaxes(M, -1, -2)), sol[..., nx]
 

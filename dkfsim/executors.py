@@ -30,6 +30,7 @@ from concurrent.futures.process import BrokenProcessPool
 from typing import Any
 
 from .errors import DkfsimError
+from .threads import call_single_threaded, pin_process
 
 Task = tuple[Any, tuple]
 
@@ -91,6 +92,7 @@ def _watch_parent(parent_pid: int) -> None:
 
 
 def _init_local_worker(parent_pid: int) -> None:
+    pin_process()                     # one BLAS thread: the parallelism is the processes
     # Ctrl-C reaches the whole process group; only the parent handles it.
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     threading.Thread(target=_watch_parent, args=(parent_pid,), daemon=True).start()
@@ -229,7 +231,7 @@ class DaskExecutor(Executor):
             if item is None:
                 return None
             key, args = item
-            fut = client.submit(fn, *args, pure=False)
+            fut = client.submit(call_single_threaded, fn, *args, pure=False)
             keys[fut] = key
             return fut
 

@@ -77,11 +77,11 @@ from typing import Annotated, Any, Literal, Union
 
 from pydantic import AfterValidator, BeforeValidator, ConfigDict, Discriminator, Field, Tag, model_validator
 
-from .latency import LatencyBase, StrictModel, custom_error, seconds_to_ns
+from .latency import MAX_MAGNITUDE, MAX_SECONDS, LatencyBase, StrictModel, custom_error, seconds_to_ns
 from .yamlio import clip
 
-Seconds = Annotated[float, Field(strict=True, ge=0, allow_inf_nan=False)]
-Factor = Annotated[float, Field(strict=True, ge=0, allow_inf_nan=False)]
+Seconds = Annotated[float, Field(strict=True, ge=0, le=MAX_SECONDS, allow_inf_nan=False)]
+Factor = Annotated[float, Field(strict=True, ge=0, le=MAX_MAGNITUDE, allow_inf_nan=False)]
 
 
 # --------------------------------------------------------------------------- schedules

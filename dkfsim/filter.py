@@ -22,6 +22,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .linalg import solve
+
 
 def information_step(Phi, Q, x_prev, P_prev, Omega, Theta):
     """One predict/update for a batch of filters.
@@ -42,7 +44,7 @@ def information_step(Phi, Q, x_prev, P_prev, Omega, Theta):
     rhs[..., :nx] = eye
     rhs[..., nx:] = (Pp @ Theta[..., None])
     rhs[..., nx] += xp
-    sol = np.linalg.solve(M, rhs)
+    sol = solve(M, rhs)
     G = sol[..., :nx]
     x = sol[..., nx]
     P = G @ Pp

@@ -22,8 +22,7 @@ Two pieces:
 from __future__ import annotations
 
 import numpy as np
-import scipy.linalg
-
+from .linalg import solve_symmetric
 from .system import psd_factor
 
 
@@ -45,7 +44,7 @@ def kkt_weights(Xi: np.ndarray, n: int, nx: int) -> np.ndarray:
     K[N:, :N] = E.T
     rhs = np.zeros((N + nx, nx))
     rhs[N:] = np.eye(nx)
-    sol = scipy.linalg.solve(K, rhs, assume_a="sym", check_finite=False)
+    sol = solve_symmetric(K, rhs)
     return sol[:N]
 
 

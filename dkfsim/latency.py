@@ -130,9 +130,15 @@ from pydantic_core import PydanticCustomError
 from .streams import stream
 
 NS_PER_S = 1_000_000_000
-# Latencies are capped here so that adding them to an int64 clock cannot overflow
-# (about 146 years of simulated time).
-_MAX_NS = 2**62
+#: Every time and delay a run can reach is at most this many nanoseconds (about 146
+#: years), so that sums of two of them stay within int64 (the clock's type).
+MAX_NS = 2**62
+_MAX_NS = MAX_NS
+#: The same limit in seconds: the largest value a time or latency key may take.
+MAX_SECONDS = MAX_NS / NS_PER_S
+#: Largest magnitude of a matrix entry, vector entry or factor: a product of
+#: three such numbers stays within float64 (1.8e308).
+MAX_MAGNITUDE = 1e100
 
 
 # --------------------------------------------------------------------------- base model
@@ -199,8 +205,10 @@ def _round_ns(seconds: np.ndarray) -> np.ndarray:
     return np.clip(ns, 0, _MAX_NS).astype(np.int64)
 
 
-NonNegSeconds = Annotated[float, Field(strict=True, ge=0, allow_inf_nan=False)]
-PosSeconds = Annotated[float, Field(strict=True, gt=0, allow_inf_nan=False)]
+NonNegSeconds = Annotated[float, Field(strict=True, ge=0, le=MAX_SECONDS, allow_inf_nan=False)]
+PosSeconds = Annotated[float, Field(strict=True, gt=0, le=MAX_SECONDS, allow_inf_nan=False)]
+#: A positive dimensionless parameter (a shape, a tail index, a scale factor).
+PosReal = Annotated[float, Field(strict=True, gt=0, le=MAX_MAGNITUDE, allow_inf_nan=False)]
 
 
 class LatencyBase(StrictModel):
@@ -371,7 +379,7 @@ class Lognormal(ShiftedDraw):
 
     model: Literal["lognormal"] = "lognormal"
     median: PosSeconds
-    sigma: Annotated[float, Field(strict=True, ge=0, allow_inf_nan=False)]
+    sigma: Annotated[float, Field(strict=True, ge=0, le=MAX_MAGNITUDE, allow_inf_nan=False)]
 
     def draw_s(self, rng, size):
         return rng.lognormal(math.log(self.median), self.sigma, size=size)
@@ -387,7 +395,7 @@ class Gamma(ShiftedDraw):
     """``offset + Gamma(shape, scale)`` seconds; unbounded."""
 
     model: Literal["gamma"] = "gamma"
-    shape: Annotated[float, Field(strict=True, gt=0, allow_inf_nan=False)]
+    shape: PosReal
     scale: PosSeconds
 
     def draw_s(self, rng, size):
@@ -399,7 +407,7 @@ class Pareto(ShiftedDraw):
     """``offset + scale * U^(-1/alpha)`` seconds (classical Pareto); unbounded."""
 
     model: Literal["pareto"] = "pareto"
-    alpha: Annotated[float, Field(strict=True, gt=0, allow_inf_nan=False)]
+    alpha: PosReal
     scale: PosSeconds
 
     def draw_s(self, rng, size):
@@ -464,7 +472,7 @@ class Empirical(LatencyBase):
     column: Annotated[str, Field(strict=True, min_length=1)] | Annotated[int, Field(strict=True, ge=0)] = "delay_ms"
     unit: Literal["ms", "s"] = "ms"
     one_way: Annotated[bool, Field(strict=True)] = False
-    scale: Annotated[float, Field(strict=True, gt=0, allow_inf_nan=False)] = 1.0
+    scale: PosReal = 1.0
     mode: Literal["resample", "replay"] = "resample"
     start: Annotated[int, Field(strict=True, ge=0)] | None = None
 

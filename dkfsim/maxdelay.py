@@ -54,6 +54,7 @@ import numpy as np
 
 from .errors import DkfsimError
 from .output import check_target, staged, write_json
+from .threads import pin_process, single_thread
 
 #: Metric name -> description (help text and JSON).
 METRICS = {
@@ -354,6 +355,7 @@ def _simulate(base, overrides: list, seed: int | None, metric: str, comp, burn: 
 
 
 def _init_worker() -> None:
+    pin_process()                     # one BLAS thread: the parallelism is the processes
     signal.signal(signal.SIGINT, signal.SIG_IGN)
 
 
@@ -756,6 +758,7 @@ class MaxDelay:
         return c
 
     # ------------------------------------------------------------------ everything
+    @single_thread
     def run(self) -> "MaxDelayResult":
         t0 = time.perf_counter()
         st, J = self.st, self.axis.max_index
@@ -827,6 +830,21 @@ class MaxDelay:
 
 
 # =========================================================================== result
+def maxdelay(scenario, progress=None, **settings) -> "MaxDelayResult":
+    """The maximum allowable delay of ``scenario`` (a Scenario, a path or a mapping).
+
+    ``settings`` are the fields of :class:`Settings` (the ``dkfsim maxdelay``
+    flags: ``relative=1.5`` or ``tolerance=...``, ``metric``, ``jobs``, ...).
+    """
+    from .scenario import Scenario, load_scenario
+    sc = scenario if isinstance(scenario, Scenario) else load_scenario(scenario)
+    unknown = sorted(set(settings) - set(Settings.__dataclass_fields__))
+    if unknown:
+        raise DkfsimError(f"maxdelay: unknown setting {unknown[0]!r}; known: "
+                          + ", ".join(Settings.__dataclass_fields__))
+    return MaxDelay(sc, Settings(**settings), progress=progress).run()
+
+
 class MaxDelayResult:
     def __init__(self, md: MaxDelay, emp: SearchResult, wc: SearchResult | None, wc_tol, limit,
                  paper: dict, runs_empirical: int, runs_total: int, wall: float):

@@ -12,6 +12,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from .linalg import solve
+
 
 def default_burn_in(K: int) -> int:
     """Rows dropped before averaging: the first 10 % of the run."""
@@ -31,7 +33,7 @@ def mse_per_component(x: np.ndarray, truth: np.ndarray, burn_in: int) -> np.ndar
 def nees(x: np.ndarray, P: np.ndarray, truth: np.ndarray) -> np.ndarray:
     """Normalised estimation error squared per row (uses a solve, not an inverse)."""
     e = truth - x
-    return np.einsum("...i,...i->...", e, np.linalg.solve(P, e[..., None])[..., 0])
+    return np.einsum("...i,...i->...", e, solve(P, e[..., None])[..., 0])
 
 
 def run_metrics(arrays: dict, burn_in: int) -> dict:

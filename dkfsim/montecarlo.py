@@ -66,6 +66,7 @@ import numpy as np
 from .errors import DkfsimError
 from .executors import kill_pool
 from .output import check_target, csv_cell, staged, write_json
+from .threads import pin_process, single_thread
 from .metrics import (anees_summary, default_burn_in, disagreement, nees_band, nees_per_tick,
                       packet_bytes, squared_error, t_interval, t_interval_from_moments)
 
@@ -192,10 +193,16 @@ def run_rows(scenario, seed: int, burn_in: int | None = None) -> tuple[list[dict
     from .scenario import load_scenario
     from .simulation import Simulation
     sc = load_scenario(scenario, overrides=pinned_topology(scenario) + [f"seed={int(seed)}"])
+    burn = _check_burn_in(burn_in, int(sc.steps))
+    with np.errstate(all="ignore"):          # a diverging run gives inf / nan rows, no warnings
+        sim = Simulation(sc, save="estimates")
+        res = sim.run()
+        return _score(sc, sim, res, seed, burn)
+
+
+def _score(sc, sim, res, seed: int, burn: int) -> tuple[list[dict], dict]:
+    """Rows and curves of one finished run (see :func:`run_rows`)."""
     K = int(sc.steps)
-    burn = _check_burn_in(burn_in, K)
-    sim = Simulation(sc, save="estimates")
-    res = sim.run()
     arrays = res.arrays
     truth = arrays["truth"]
     algs = algorithms_of(arrays, sc.baselines)
@@ -231,6 +238,7 @@ _WORKER_SCENARIO = None
 def _init_worker(scenario) -> None:
     """Keep the scenario once per worker; leave Ctrl-C to the parent (no worker tracebacks)."""
     global _WORKER_SCENARIO
+    pin_process()                     # one BLAS thread: the parallelism is the processes
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     _WORKER_SCENARIO = scenario
 
@@ -278,12 +286,13 @@ class _Fold:
         self.nees_sum += nees
 
 
+@single_thread
 def montecarlo(scenario, runs: int, jobs: int = 1, burn_in: int | None = None,
                progress=None) -> "MonteCarloResult":
     """``runs`` independent runs of ``scenario`` on ``jobs`` local processes.
 
-    Run ``r`` uses seed ``derive_seed(scenario.seed, r)``.  ``jobs = 1`` runs
-    in this process.  ``progress(done, total)`` is called after each run.
+    ``scenario``: a Scenario, a path or a mapping.  Run ``r`` uses seed
+    ``derive_seed(scenario.seed, r)``.  ``jobs = 1`` runs in this process.  ``progress(done, total)`` is called after each run.
     The result does not depend on ``jobs``.
     """
     from .scenario import Scenario, load_scenario

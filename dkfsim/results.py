@@ -70,7 +70,14 @@ class RunResult(Mapping):
 
     def metrics(self, burn_in: int | None = None) -> dict:
         K = self.arrays["truth"].shape[0]
-        return run_metrics(self.arrays, default_burn_in(K) if burn_in is None else burn_in)
+        with np.errstate(all="ignore"):       # diverged estimates give inf / nan, reported
+            return run_metrics(self.arrays, default_burn_in(K) if burn_in is None else burn_in)
+
+    @property
+    def diverged(self) -> list[str]:
+        """Estimates (``x_*`` arrays) holding non-finite values: the filter diverged."""
+        return [key for key, val in self.arrays.items()
+                if key.startswith("x_") and key != "x0_mean" and not np.isfinite(val).all()]
 
     def summary(self, burn_in: int | None = None) -> dict:
         from .scenario import scenario_hash
@@ -88,6 +95,7 @@ class RunResult(Mapping):
             **{k: v for k, v in self.info.items()},
             "versions": versions(),
             "metrics": self.metrics(burn_in),
+            "diverged": self.diverged,
             "packets": counts,
             "per_link": [{**d, "link": list(d["link"])} for d in self.counts.get("per_link", [])],
             "scenario_config": sc.to_dict(),
@@ -134,5 +142,51 @@ class RunResult(Mapping):
                         if c.get(key))
         lines.append(f"packets: sent {c['sent']}, delivered {c['delivered']}, lost {c['lost']}, "
                      f"in flight at end {c['in_flight']}{extra}; late contributions {c['late']}")
+        if self.diverged:
+            lines.append("DIVERGED: " + ", ".join(self.diverged) + " hold non-finite values (the "
+                         "model or the numbers overflow float64); their MSE is inf or nan")
         lines.append(f"wall time {self.info['wall_time_s']:.2f} s")
         return "\n".join(lines)
+
+
+#: Keys of summary.json that are facts of the run (``RunResult.info``).
+INFO_KEYS = ("buffer_length", "d_t", "d_g", "n_links", "wall_time_s", "save")
+
+
+def load_run(folder) -> RunResult:
+    """Read a folder written by ``dkfsim run`` (or :meth:`RunResult.save`) back into a RunResult.
+
+    The scenario is re-validated from the copy in ``summary.json`` (relative
+    data files resolve against the original scenario file's folder); the
+    arrays are those of ``run.npz`` (none when the run was saved with
+    ``--save summary``).
+    """
+    import json
+
+    from .output import from_json
+    from .scenario import load_scenario
+    from .yamlio import MAX_YAML_BYTES, check_regular_file, read_text
+    folder = Path(folder)
+    path = folder / "summary.json"
+    try:
+        summary = from_json(json.loads(read_text(path, limit=MAX_YAML_BYTES, what="summary.json")))
+    except ValueError as exc:
+        raise DkfsimError(f"{path}: not a summary written by dkfsim run ({exc})") from None
+    if not isinstance(summary, dict) or "scenario_config" not in summary or "packets" not in summary:
+        raise DkfsimError(f"{path}: not a summary written by dkfsim run (a Monte Carlo or maxdelay "
+                          "folder? those are read by dkfsim plot)")
+    source = summary.get("source")
+    base = str(Path(source).resolve().parent) if source else None
+    scenario = load_scenario(summary["scenario_config"], base_dir=base)
+    scenario._source = source
+    arrays: dict = {}
+    npz = folder / "run.npz"
+    if npz.exists():
+        check_regular_file(npz, limit=1 << 40, what="run.npz")
+        with np.load(npz, allow_pickle=False) as z:
+            arrays = {key: z[key] for key in z.files}
+    counts = dict(summary["packets"])
+    counts["per_link"] = [{**d, "link": tuple(d["link"])} for d in summary.get("per_link", [])]
+    info = {key: summary[key] for key in INFO_KEYS if key in summary}
+    return RunResult(scenario, arrays, counts, info)
+

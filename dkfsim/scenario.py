@@ -57,8 +57,8 @@ from dkfsim.datafiles import DataFileError, locate
 from dkfsim.errors import DkfsimError, ScenarioError
 from dkfsim.yamlio import MAX_YAML_BYTES, clip, parse_yaml, read_text, yaml_error_text
 from dkfsim.faults import Faults, LinkSpec, Schedule, Window
-from dkfsim.latency import (LATENCY_MODELS, Constant, LatencyModel, StrictModel,
-                            custom_error, suggest)
+from dkfsim.latency import (LATENCY_MODELS, MAX_MAGNITUDE, MAX_NS, MAX_SECONDS, Constant,
+                            LatencyModel, StrictModel, custom_error, suggest)
 from dkfsim import topology as topo
 
 #: Baselines a scenario may ask for; extend this single tuple.
@@ -82,6 +82,9 @@ def _number(x: Any) -> float:
     value = float(x)
     if not np.isfinite(value):
         raise custom_error(f"entries must be finite, got {x!r}")
+    if abs(value) > MAX_MAGNITUDE:
+        raise custom_error(f"entries must be at most {MAX_MAGNITUDE:g} in magnitude, got {x!r} "
+                           "(a product of three such numbers must stay within float64)")
     return value
 
 
@@ -151,10 +154,12 @@ def _check_spd(a: np.ndarray, key: str | None, semi: bool) -> None:
         raise custom_error(f"not {what} (not symmetric: [{i}][{j}] = {a[i, j]:g} but "
                            f"[{j}][{i}] = {a[j, i]:g})", key)
     eig = np.linalg.eigvalsh((a + a.T) / 2)
-    tol = _EIG_TOL * max(1.0, float(np.max(np.abs(eig))))
+    top = float(np.max(np.abs(eig)))
+    tol = _EIG_TOL * max(1.0, top)
     low = float(eig.min())
     if (semi and low < -tol) or (not semi and low <= tol):
-        raise custom_error(f"not {what} (min eigenvalue {low:.6g})", key)
+        scale = f", not above {_EIG_TOL:g} x the largest eigenvalue {top:.6g}" if tol > _EIG_TOL else ""
+        raise custom_error(f"not {what} (min eigenvalue {low:.6g}{scale})", key)
 
 
 # =========================================================================== sub-models
@@ -184,11 +189,11 @@ class Model(StrictModel):
     """
 
     kind: Literal["constant_acceleration", "constant_velocity", "linear"]
-    T: Annotated[float, Field(strict=True, gt=0, allow_inf_nan=False)]
+    T: Annotated[float, Field(strict=True, gt=0, le=MAX_SECONDS, allow_inf_nan=False)]
     Phi: Matrix | None = None
     Q: Matrix | None = None
     dims: Annotated[int, Field(strict=True, ge=1, le=3)] | None = None
-    q: Annotated[float, Field(strict=True, ge=0, allow_inf_nan=False)] | None = None
+    q: Annotated[float, Field(strict=True, ge=0, le=MAX_MAGNITUDE, allow_inf_nan=False)] | None = None
 
     @model_validator(mode="after")
     def _check(self):
@@ -311,7 +316,7 @@ class Sensor(StrictModel):
         return np.array(self.R, dtype=float)
 
 
-Sigma = Annotated[float, Field(strict=True, gt=0, allow_inf_nan=False)]
+Sigma = Annotated[float, Field(strict=True, gt=0, le=MAX_MAGNITUDE, allow_inf_nan=False)]
 
 
 class RadarSensorSpec(StrictModel):
@@ -393,10 +398,10 @@ class Truth(StrictModel):
     time_column: Annotated[str, Field(strict=True, min_length=1)] = "pub_time(ms)"
     time_unit: Literal["s", "ms", "us", "ns"] = "ms"
     origin: Literal["first", "none"] = "first"
-    start: Annotated[float, Field(strict=True, ge=0, allow_inf_nan=False)] = 0.0
+    start: Annotated[float, Field(strict=True, ge=0, le=MAX_SECONDS, allow_inf_nan=False)] = 0.0
     resample: Literal["linear"] = "linear"
     #: Centred moving-average window (s) applied to the recorded positions; 0 = off.
-    smooth: Annotated[float, Field(strict=True, ge=0, allow_inf_nan=False)] = 0.0
+    smooth: Annotated[float, Field(strict=True, ge=0, le=MAX_SECONDS, allow_inf_nan=False)] = 0.0
 
     _path: str | None = PrivateAttr(default=None)
 
@@ -574,6 +579,7 @@ class Scenario(StrictModel):
                                f"whole nanoseconds (ci_consensus runs a round every T/rounds)",
                                "consensus_rounds")
         self._check_network()
+        self._check_time_range()
         return self
 
     def _check_truth(self) -> None:
@@ -637,6 +643,32 @@ class Scenario(StrictModel):
                 f"{self.buffer_length!r} needs a delay bound, but latency model "
                 f"{', '.join(unbounded)} is unbounded; set an explicit links.d_t (delay bound "
                 "in steps) or an integer buffer_length", "buffer_length")
+
+    def _check_time_range(self) -> None:
+        """Every time the run can reach fits the int64 nanosecond clock (:data:`MAX_NS`)."""
+        T_ns = self.T_ns
+        limit = f"the {MAX_SECONDS:.4g} s (2^62 ns, about 146 years) an int64 nanosecond clock can hold"
+        if (self.steps + 1) * T_ns > MAX_NS:
+            most = MAX_NS // T_ns - 1
+            fix = f"use at most {most} steps" if most >= 1 else "T itself is too long"
+            raise custom_error(f"{self.steps} steps of T = {self.model.T:g} s reach "
+                               f"{(self.steps + 1) * self.model.T:.4g} s of simulated time, beyond {limit}; "
+                               f"{fix}", "steps")
+        places = [("links.default", None)] + [(f"links.overrides.{i}", tuple(ov.link))
+                                              for i, ov in enumerate(self.links.overrides)]
+        for key, link in places:
+            spec = self.link_spec(*link) if link is not None else self.link_spec(-1, -1)
+            sup = spec.sup_ns(T_ns)
+            if sup is not None and sup > MAX_NS:
+                raise custom_error(f"the largest latency it can produce, {sup / 1e9:.4g} s (after "
+                                   f"schedule factors and jitter), is beyond {limit}", key)
+        d_t = self.resolved_d_t()
+        if d_t is not None and d_t * T_ns > MAX_NS:
+            raise custom_error(f"a delay bound of {d_t} steps of {self.model.T:g} s is beyond {limit}",
+                               "links.d_t" if self.links.d_t is not None else "links")
+        if self.resolved_buffer_length() * T_ns > MAX_NS:
+            raise custom_error(f"L = {self.resolved_buffer_length()} rows of {self.model.T:g} s span more "
+                               f"than {limit}; use a smaller delay bound or buffer_length", "buffer_length")
 
     # ------------------------------------------------------------------ derived values
     @property
@@ -892,7 +924,12 @@ def _reason(err: dict, path: list[str]) -> tuple[str, list[str]]:
                 + ", ".join(valid)), path
     if etype in _BOUND_WORDS:
         word, k = _BOUND_WORDS[etype]
-        return f"must be {word} {ctx.get(k)}, got {clip(inp)}", path
+        bound = ctx.get(k)
+        why = {MAX_SECONDS: f"{MAX_SECONDS:.10g} s = 2^62 ns, the span of the int64 nanosecond clock",
+               MAX_MAGNITUDE: f"{MAX_MAGNITUDE:g}, so that products stay within float64"}
+        if bound in why:
+            return f"must be {word} {why[bound]}; got {clip(inp)}", path
+        return f"must be {word} {bound}, got {clip(inp)}", path
     if etype in ("model_type", "model_attributes_type", "dict_type"):
         return f"must be a mapping, got {type(inp).__name__} {clip(inp)}", path
     if etype in ("int_type", "int_from_float", "int_parsing"):

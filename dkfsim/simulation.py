@@ -24,8 +24,9 @@ from .fusion import FUSERS, CrossCovariance
 from .network import PRIORITY_UPDATE, Network, Scheduled
 from .protocol import PROTOCOLS
 from .results import RunResult, resolve_save_mode
-from .scenario import load_scenario
+from .scenario import Scenario, load_scenario
 from .system import LinearGaussianSystem, LinearSensor
+from .threads import single_thread
 from .trajectory import track_truth
 from .topology import paper_weights
 
@@ -159,14 +160,16 @@ class Simulation:
 
     def run(self) -> RunResult:
         t0 = time.perf_counter()
-        Scheduled(self.env, self._measure, NORMAL, self.system.T_ns)
-        self.env.run(until=self.K * self.system.T_ns + 1)
-        # Rows still in the window at the end were never final: keep their last value.
-        st = self.window.state
-        for row in range(max(self.K - self.L + 1, 0), self.K):
-            self.x_final[row] = st.x[row % self.window.S]
-        wall = time.perf_counter() - t0
-        return self._result(wall)
+        # A diverging filter overflows; it is reported (RunResult.diverged), not warned about.
+        with np.errstate(all="ignore"):
+            Scheduled(self.env, self._measure, NORMAL, self.system.T_ns)
+            self.env.run(until=self.K * self.system.T_ns + 1)
+            # Rows still in the window at the end were never final: keep their last value.
+            st = self.window.state
+            for row in range(max(self.K - self.L + 1, 0), self.K):
+                self.x_final[row] = st.x[row % self.window.S]
+            wall = time.perf_counter() - t0
+            return self._result(wall)
 
     def _result(self, wall: float) -> RunResult:
         sys_, K = self.system, self.K
@@ -220,13 +223,19 @@ class Simulation:
         return RunResult(self.scenario, arrays, counts, info)
 
 
+@single_thread
 def run(scenario, *, seed: int | None = None, steps: int | None = None,
         save: str = "auto", progress=None) -> RunResult:
     """Simulate one scenario and return its :class:`~dkfsim.results.RunResult`.
 
-    ``seed`` and ``steps`` override the scenario's (the same as ``--set``).
+    ``scenario`` is a :class:`~dkfsim.scenario.Scenario`, a path to a
+    scenario file or a mapping.  ``seed`` and ``steps`` override the
+    scenario's (the same as ``--set``).  BLAS runs on one thread during
+    the call (:mod:`dkfsim.threads`).
     """
     overrides = [f"{key}={int(val)}" for key, val in (("seed", seed), ("steps", steps)) if val is not None]
-    if overrides:                     # re-validated, exactly as --set would be
+    if overrides or not isinstance(scenario, Scenario):   # validated exactly as --set would be
         scenario = load_scenario(scenario, overrides=overrides)
-    return Simulation(scenario, save=save, progress=progress).run()
+    with np.errstate(all="ignore"):      # an exploding truth is reported, not warned about
+        sim = Simulation(scenario, save=save, progress=progress)
+    return sim.run()

@@ -68,6 +68,7 @@ from typing import Any, Iterator, Mapping
 import yaml
 
 from .errors import DkfsimError, ScenarioError
+from .threads import single_thread
 from .yamlio import MAX_YAML_BYTES, parse_yaml, read_text, yaml_error_text
 
 #: Version of the database layout (``meta.format``).
@@ -648,6 +649,7 @@ class SweepReport:
         return 60.0 * self.computed / self.wall_s if self.wall_s > 0 else float("nan")
 
 
+@single_thread
 def run_sweep(sweep: Sweep | str | os.PathLike, *, executor=None, jobs: int | None = None,
               progress: bool | None = None, db: str | os.PathLike | None = None) -> SweepReport:
     """Run (or resume) a sweep; return a :class:`SweepReport`.
