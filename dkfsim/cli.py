@@ -14,6 +14,7 @@ import sys
 from . import __version__
 from .errors import DkfsimError
 from .output import check_target
+from .resources import check_run, estimate_run, human_bytes, human_seconds
 from .threads import pin_process
 
 EPILOG = """\
@@ -33,6 +34,13 @@ def add_scenario_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
                    help="override a scenario key by its dotted path, value parsed as YAML; "
                         "repeatable (e.g. --set links.default.latency.d_t=2 --set protocol=flood)")
+
+
+def add_yes_arg(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--yes", action="store_true",
+                   help="run even when the estimated time is above 10 minutes (the estimate is "
+                        "printed and the command stops without it); work that cannot fit in memory "
+                        "is refused either way")
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -61,6 +69,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--burn-in", type=int, metavar="ROWS",
                    help="rows skipped before averaging the MSE (default: 10%% of the ticks)")
     p.add_argument("--quiet", action="store_true", help="no progress bar and no table")
+    add_yes_arg(p)
     p.set_defaults(func=cmd_run)
 
     p = sub.add_parser("validate", help="check a scenario file without running it",
@@ -90,11 +99,19 @@ def load_from_args(args):
 
 def cmd_validate(args) -> int:
     sc = load_from_args(args)
-    xg = sc.exchange()
-    L, d_t = sc.resolved_buffer_length(), sc.resolved_d_t()
+    est = estimate_run(sc)
+    if est.seconds > 60:               # a large graph: do not spend minutes on its exact diameter
+        from .resources import exchange_shape
+        L, arcs, _ = exchange_shape(sc)
+        shape = f"{arcs} directed links, buffer length L ~ {L}"
+    else:
+        xg = sc.exchange()
+        shape = (f"{len(xg.arcs)} directed links (d_g = {xg.d_g}), buffer length "
+                 f"L = {sc.resolved_buffer_length()}")
     print(f"{args.scenario}: ok — {sc.name}: {len(sc.sensors)} sensors, nx = {sc.nx}, "
-          f"{sc.steps} ticks of {sc.model.T} s, protocol {sc.protocol} on {len(xg.arcs)} directed links "
-          f"(d_g = {xg.d_g}), buffer length L = {L} (d_t = {d_t}), fusion {sc.fusion}")
+          f"{sc.steps} ticks of {sc.model.T} s, protocol {sc.protocol} on {shape} "
+          f"(d_t = {sc.resolved_d_t()}), fusion {sc.fusion}; a run needs about "
+          f"{human_bytes(est.bytes)} and {human_seconds(est.seconds)} (rough estimate)")
     return 0
 
 
@@ -104,6 +121,7 @@ def cmd_run(args) -> int:
     if args.burn_in is not None and not 0 <= args.burn_in < sc.steps:
         raise DkfsimError(f"--burn-in: must be in [0, steps) = [0, {sc.steps}), got {args.burn_in}")
     check_target(args.out)                 # before the run: a bad --out costs nothing
+    check_run(sc, save=args.save, yes=args.yes)
     progress = None
     bar = None
     if not args.quiet and sys.stderr.isatty():
@@ -113,7 +131,7 @@ def cmd_run(args) -> int:
         def progress(k, K):
             bar.update(k - bar.n)
     try:
-        res = run(sc, save=args.save, progress=progress)
+        res = run(sc, save=args.save, progress=progress, yes=True)   # checked above
     finally:
         if bar is not None:
             bar.close()

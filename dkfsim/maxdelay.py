@@ -54,6 +54,7 @@ import numpy as np
 
 from .errors import DkfsimError
 from .output import check_target, staged, write_json
+from .resources import Estimate, check, estimate_run, repeat
 from .threads import pin_process, single_thread
 
 #: Metric name -> description (help text and JSON).
@@ -308,9 +309,10 @@ def make_axis(scenario, *, max_delay: int, scale_step: float, max_scale: float) 
         J, step = int(max_delay), 1.0
     else:
         if not scale_step > 0 or not math.isfinite(scale_step):
-            raise DkfsimError(f"--scale-step: must be > 0, got {scale_step}")
-        if not max_scale >= scale_step:
-            raise DkfsimError(f"--max-scale: must be >= --scale-step ({scale_step}), got {max_scale}")
+            raise DkfsimError(f"--scale-step: must be a finite number > 0, got {scale_step}")
+        if not (max_scale >= scale_step and math.isfinite(max_scale)):
+            raise DkfsimError(f"--max-scale: must be a finite number >= --scale-step ({scale_step}), "
+                              f"got {max_scale}")
         J, step = int(math.floor(max_scale / scale_step + 1e-9)), float(scale_step)
     return DelayAxis(mode=mode, step=step, max_index=J, base=base, specs=specs, jitters=jitters,
                      T=float(scenario.model.T), T_ns=int(scenario.T_ns), steps=int(scenario.steps),
@@ -624,6 +626,9 @@ def check_settings(st: Settings) -> None:
         raise DkfsimError(f"--max-runs: must be >= --batch ({st.batch}), got {st.max_runs}")
     if st.jobs < 1:
         raise DkfsimError(f"--jobs: must be >= 1, got {st.jobs}")
+    for flag, value in (("--batch", st.batch), ("--max-runs", st.max_runs), ("--max-delay", st.max_delay)):
+        if value > 10**9:
+            raise DkfsimError(f"{flag}: at most 10^9, got {value}")
 
 
 def resolve_component(scenario, metric: str, text) -> tuple[int | None, str]:
@@ -648,7 +653,7 @@ def resolve_component(scenario, metric: str, text) -> tuple[int | None, str]:
 class MaxDelay:
     """Runs the three answers for one scenario (see the module docstring)."""
 
-    def __init__(self, scenario, settings: Settings, progress=None):
+    def __init__(self, scenario, settings: Settings, progress=None, yes: bool = False):
         from .montecarlo import derive_seed
         from .metrics import default_burn_in
         check_settings(settings)
@@ -664,6 +669,8 @@ class MaxDelay:
         self.comp, self.comp_name = resolve_component(scenario, settings.metric, settings.component)
         self.axis = make_axis(scenario, max_delay=settings.max_delay, scale_step=settings.scale_step,
                               max_scale=settings.max_scale)
+        check(self.estimate(), yes=yes, hint="a larger --scale-step, a smaller --max-scale or "
+                                             "--max-delay, fewer --max-runs or --steps")
         self.seeds = [derive_seed(int(scenario.seed), r) for r in range(settings.max_runs)]
         self.progress = progress or (lambda *a, **k: None)
         self.notes: list[str] = []
@@ -675,6 +682,16 @@ class MaxDelay:
         self.wc: dict[int, Candidate] = {}
         self._order = 0
         self._scen_cache: dict[int, tuple] = {}
+
+    def estimate(self) -> Estimate:
+        """Memory and time of the search at its worst: every look at every candidate the
+        galloping and bisection can visit, and the worst-case scan over the whole axis."""
+        J, st = self.axis.max_index, self.st
+        looks = 2 * math.ceil(math.log2(J + 2)) + 3
+        runs = looks * st.max_runs + (J + 3)
+        one = estimate_run(self.axis.base, "estimates")
+        return repeat(one, f"{self.sc.name}: maxdelay over {J + 1} candidates ({self.axis.name})",
+                      runs, st.jobs, extra_bytes=(J + 1) * 2048)
 
     # ------------------------------------------------------------------ helpers
     def _candidate_scenario(self, j: int):
@@ -830,11 +847,12 @@ class MaxDelay:
 
 
 # =========================================================================== result
-def maxdelay(scenario, progress=None, **settings) -> "MaxDelayResult":
+def maxdelay(scenario, progress=None, yes: bool = False, **settings) -> "MaxDelayResult":
     """The maximum allowable delay of ``scenario`` (a Scenario, a path or a mapping).
 
     ``settings`` are the fields of :class:`Settings` (the ``dkfsim maxdelay``
     flags: ``relative=1.5`` or ``tolerance=...``, ``metric``, ``jobs``, ...).
+    A search estimated above 10 minutes needs ``yes`` (:mod:`dkfsim.resources`).
     """
     from .scenario import Scenario, load_scenario
     sc = scenario if isinstance(scenario, Scenario) else load_scenario(scenario)
@@ -842,7 +860,7 @@ def maxdelay(scenario, progress=None, **settings) -> "MaxDelayResult":
     if unknown:
         raise DkfsimError(f"maxdelay: unknown setting {unknown[0]!r}; known: "
                           + ", ".join(Settings.__dataclass_fields__))
-    return MaxDelay(sc, Settings(**settings), progress=progress).run()
+    return MaxDelay(sc, Settings(**settings), progress=progress, yes=yes).run()
 
 
 class MaxDelayResult:
@@ -1115,7 +1133,7 @@ def _answer_text(e: dict, unit: str) -> str:
 
 # =========================================================================== CLI
 def add_command(subparsers) -> None:
-    from .cli import add_scenario_args
+    from .cli import add_scenario_args, add_yes_arg
     p = subparsers.add_parser(
         "maxdelay", help="largest delay bound for which a metric stays within a tolerance "
                          "(Monte Carlo, worst case, paper bound)",
@@ -1168,6 +1186,7 @@ def add_command(subparsers) -> None:
     p.add_argument("--jobs", type=int, default=1, metavar="J",
                    help="worker processes (results do not depend on it) (default: 1)")
     p.add_argument("--quiet", action="store_true", help="no progress and no table")
+    add_yes_arg(p)
     p.set_defaults(func=cmd_maxdelay)
 
 
@@ -1215,7 +1234,7 @@ def cmd_maxdelay(args) -> int:
     check_target(args.out)                 # before any run: a bad --out costs nothing
     prog = _Progress(args.quiet)
     try:
-        res = MaxDelay(sc, st, progress=prog).run()
+        res = MaxDelay(sc, st, progress=prog, yes=args.yes).run()
     finally:
         prog.close()
     out = res.save(args.out)

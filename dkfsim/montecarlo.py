@@ -66,6 +66,7 @@ import numpy as np
 from .errors import DkfsimError
 from .executors import kill_pool
 from .output import check_target, csv_cell, staged, write_json
+from .resources import Estimate, check, estimate_run, repeat
 from .threads import pin_process, single_thread
 from .metrics import (anees_summary, default_burn_in, disagreement, nees_band, nees_per_tick,
                       packet_bytes, squared_error, t_interval, t_interval_from_moments)
@@ -288,12 +289,14 @@ class _Fold:
 
 @single_thread
 def montecarlo(scenario, runs: int, jobs: int = 1, burn_in: int | None = None,
-               progress=None) -> "MonteCarloResult":
+               progress=None, yes: bool = False) -> "MonteCarloResult":
     """``runs`` independent runs of ``scenario`` on ``jobs`` local processes.
 
     ``scenario``: a Scenario, a path or a mapping.  Run ``r`` uses seed
-    ``derive_seed(scenario.seed, r)``.  ``jobs = 1`` runs in this process.  ``progress(done, total)`` is called after each run.
-    The result does not depend on ``jobs``.
+    ``derive_seed(scenario.seed, r)``.  ``jobs = 1`` runs in this process.
+    ``progress(done, total)`` is called after each run.  The result does not
+    depend on ``jobs``.  Work that cannot fit in memory is refused, and work
+    estimated above 10 minutes needs ``yes`` (:mod:`dkfsim.resources`).
     """
     from .scenario import Scenario, load_scenario
     if isinstance(runs, bool) or not isinstance(runs, int) or runs < 1:
@@ -302,6 +305,7 @@ def montecarlo(scenario, runs: int, jobs: int = 1, burn_in: int | None = None,
         raise DkfsimError(f"--jobs: must be an integer >= 1, got {jobs!r}")
     sc = scenario if isinstance(scenario, Scenario) else load_scenario(scenario)
     burn = _check_burn_in(burn_in, int(sc.steps))
+    check_montecarlo(sc, runs, jobs, yes=yes)
     seeds = [derive_seed(sc.seed, r) for r in range(runs)]
     rows: list[dict] = []
     fold = _Fold()
@@ -360,6 +364,22 @@ def montecarlo(scenario, runs: int, jobs: int = 1, burn_in: int | None = None,
         pool.shutdown(wait=True)
     wall = time.perf_counter() - t0
     return MonteCarloResult(sc, runs, jobs, burn, seeds, rows, fold, wall)
+
+
+def estimate_montecarlo(sc, runs: int, jobs: int) -> Estimate:
+    """Memory and time of ``runs`` runs on ``jobs`` processes, rows and curves included."""
+    one = estimate_run(sc, "estimates")
+    algorithms = 2 + len(sc.baselines)
+    K, nx = int(sc.steps), sc.nx
+    kept = runs * algorithms * nx * 600 + 6 * algorithms * K * nx * 8     # rows; pooled curves
+    return repeat(one, f"{sc.name}: a Monte Carlo of {runs} runs x {K} ticks", runs,
+                  min(jobs, runs), extra_bytes=kept)
+
+
+def check_montecarlo(sc, runs: int, jobs: int, *, yes: bool = False) -> Estimate:
+    est = estimate_montecarlo(sc, runs, jobs)
+    check(est, yes=yes, hint="fewer runs or steps, or more --jobs")
+    return est
 
 
 # =========================================================================== the result
@@ -512,7 +532,7 @@ class MonteCarloResult:
 
 # =========================================================================== CLI
 def add_command(subparsers) -> None:
-    from .cli import add_scenario_args
+    from .cli import add_scenario_args, add_yes_arg
     p = subparsers.add_parser(
         "montecarlo", help="N independent runs of a scenario: MSE with confidence intervals, ANEES, traffic",
         description="Run a scenario N times with derived seeds (run r uses derive_seed(seed, r), "
@@ -538,6 +558,7 @@ def add_command(subparsers) -> None:
                    help="override the base seed from which every run's seed derives (same as --set seed=S)")
     p.add_argument("--quiet", action="store_true",
                    help="no progress bar and no table (the bar is shown on stderr only when it is a terminal)")
+    add_yes_arg(p)
     p.set_defaults(func=cmd_montecarlo)
 
 
@@ -550,6 +571,7 @@ def cmd_montecarlo(args) -> int:
     sc = load_from_args(args)
     _check_burn_in(args.burn_in, int(sc.steps))
     check_target(args.out)                 # before any run: a bad --out costs nothing
+    check_montecarlo(sc, args.runs, args.jobs, yes=args.yes)
     bar = progress = None
     if not args.quiet and sys.stderr.isatty():
         from tqdm import tqdm
@@ -558,7 +580,8 @@ def cmd_montecarlo(args) -> int:
         def progress(done, total):
             bar.update(done - bar.n)
     try:
-        res = montecarlo(sc, args.runs, jobs=args.jobs, burn_in=args.burn_in, progress=progress)
+        res = montecarlo(sc, args.runs, jobs=args.jobs, burn_in=args.burn_in, progress=progress,
+                         yes=True)                              # checked above
     finally:
         if bar is not None:
             bar.close()

@@ -55,7 +55,7 @@ from pydantic import (AfterValidator, BaseModel, BeforeValidator, Discriminator,
 
 from dkfsim.datafiles import DataFileError, locate
 from dkfsim.errors import DkfsimError, ScenarioError
-from dkfsim.yamlio import MAX_YAML_BYTES, clip, parse_yaml, read_text, yaml_error_text
+from dkfsim.yamlio import MAX_YAML_BYTES, check_plain_data, clip, parse_yaml, read_text, yaml_error_text
 from dkfsim.faults import Faults, LinkSpec, Schedule, Window
 from dkfsim.latency import (LATENCY_MODELS, MAX_MAGNITUDE, MAX_NS, MAX_SECONDS, Constant,
                             LatencyModel, StrictModel, custom_error, suggest)
@@ -666,9 +666,12 @@ class Scenario(StrictModel):
         if d_t is not None and d_t * T_ns > MAX_NS:
             raise custom_error(f"a delay bound of {d_t} steps of {self.model.T:g} s is beyond {limit}",
                                "links.d_t" if self.links.d_t is not None else "links")
-        if self.resolved_buffer_length() * T_ns > MAX_NS:
-            raise custom_error(f"L = {self.resolved_buffer_length()} rows of {self.model.T:g} s span more "
-                               f"than {limit}; use a smaller delay bound or buffer_length", "buffer_length")
+        # L <= d_t (n - 1) + 1 (the diameter is below n): the exact L only when that bound is too large.
+        if isinstance(self.buffer_length, int) or (d_t or 0) * (self.n - 1) * T_ns > MAX_NS:
+            if self.resolved_buffer_length() * T_ns > MAX_NS:
+                raise custom_error(f"L = {self.resolved_buffer_length()} rows of {self.model.T:g} s span "
+                                   f"more than {limit}; use a smaller delay bound or buffer_length",
+                                   "buffer_length")
 
     # ------------------------------------------------------------------ derived values
     @property
@@ -747,7 +750,11 @@ class Scenario(StrictModel):
 
     def latency_bound_steps(self) -> int | None:
         """The largest per-hop delay in steps the links can produce (None if unbounded),
-        whatever ``links.d_t`` assumes."""
+        whatever ``links.d_t`` assumes.  Without overrides every link has the
+        default settings, so the exchange graph (which may need a costly
+        spanning tree) is not built."""
+        if not self.links.overrides:
+            return self.link_spec(-1, -1).bound_steps(self.T_ns)
         bound = 0
         for u, v in self.exchange().arcs:
             b = self.link_spec(u, v).bound_steps(self.T_ns)
@@ -1012,6 +1019,10 @@ def load_scenario(source: str | os.PathLike | Mapping | Scenario,
         data = _parse_yaml(text, label)
     elif isinstance(source, Mapping):
         label = "<dict>"
+        try:
+            check_plain_data(source)
+        except DkfsimError as err:
+            raise ScenarioError(str(err), source=label) from None
         data = copy.deepcopy(dict(source))
     else:
         raise TypeError(f"load_scenario needs a path, a mapping or a Scenario, "

@@ -23,6 +23,7 @@ from .filter import WindowFilter
 from .fusion import FUSERS, CrossCovariance
 from .network import PRIORITY_UPDATE, Network, Scheduled
 from .protocol import PROTOCOLS
+from .resources import check_run
 from .results import RunResult, resolve_save_mode
 from .scenario import Scenario, load_scenario
 from .system import LinearGaussianSystem, LinearSensor
@@ -225,17 +226,20 @@ class Simulation:
 
 @single_thread
 def run(scenario, *, seed: int | None = None, steps: int | None = None,
-        save: str = "auto", progress=None) -> RunResult:
+        save: str = "auto", progress=None, yes: bool = False) -> RunResult:
     """Simulate one scenario and return its :class:`~dkfsim.results.RunResult`.
 
     ``scenario`` is a :class:`~dkfsim.scenario.Scenario`, a path to a
     scenario file or a mapping.  ``seed`` and ``steps`` override the
-    scenario's (the same as ``--set``).  BLAS runs on one thread during
-    the call (:mod:`dkfsim.threads`).
+    scenario's (the same as ``--set``).  A run that cannot fit in memory
+    raises :class:`~dkfsim.resources.ResourceError`; one estimated to take
+    more than 10 minutes does too unless ``yes`` (:mod:`dkfsim.resources`).
+    BLAS runs on one thread during the call (:mod:`dkfsim.threads`).
     """
     overrides = [f"{key}={int(val)}" for key, val in (("seed", seed), ("steps", steps)) if val is not None]
     if overrides or not isinstance(scenario, Scenario):   # validated exactly as --set would be
         scenario = load_scenario(scenario, overrides=overrides)
+    check_run(scenario, save=save, yes=yes)
     with np.errstate(all="ignore"):      # an exploding truth is reported, not warned about
         sim = Simulation(scenario, save=save, progress=progress)
     return sim.run()

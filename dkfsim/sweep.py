@@ -67,9 +67,11 @@ from typing import Any, Iterator, Mapping
 
 import yaml
 
+from . import executors
 from .errors import DkfsimError, ScenarioError
+from .resources import C_VALIDATE, Estimate, check, estimate_run
 from .threads import single_thread
-from .yamlio import MAX_YAML_BYTES, parse_yaml, read_text, yaml_error_text
+from .yamlio import MAX_YAML_BYTES, check_plain_data, parse_yaml, read_text, yaml_error_text
 
 #: Version of the database layout (``meta.format``).
 DB_FORMAT = 1
@@ -193,13 +195,16 @@ def _suggest(word: str, names) -> str:
     return f"; did you mean {close[0]!r}?" if close else ""
 
 
-def load_sweep(source, *, output: str | os.PathLike | None = None) -> Sweep:
+def load_sweep(source, *, output: str | os.PathLike | None = None, yes: bool = False) -> Sweep:
     """Read and validate a sweep file (or a mapping: paths relative to the
     current folder).  Every parameter set is loaded as a scenario here, so a
     bad grid key or value fails before anything runs.  ``output`` overrides
-    the file's ``output``.  Raises :class:`DkfsimError`."""
+    the file's ``output``.  A grid too large to validate in memory is
+    refused, one that takes over 10 minutes to validate needs ``yes``.
+    Raises :class:`DkfsimError`."""
     if isinstance(source, Mapping):
         data, label, base = dict(source), "<dict>", Path.cwd()
+        check_plain_data(data)
     else:
         label = os.fspath(source)
         path = Path(label)
@@ -307,6 +312,10 @@ def load_sweep(source, *, output: str | os.PathLike | None = None) -> Sweep:
         else:
             out = Path(out_raw) if Path(out_raw).is_absolute() else base / out_raw
 
+    n_sets = math.prod(len(values) for _, values in grid)
+    check(Estimate(f"{label}: validating {n_sets:,} parameter sets",
+                   memory={"validated scenarios": n_sets * 50_000.0}, seconds=n_sets * C_VALIDATE),
+          yes=yes, hint="a smaller grid")
     psets = _parameter_sets(label, scenario_path, grid, list(sets), burn_in)
     return Sweep(source=label, scenario_path=scenario_path, grid=tuple(grid),
                  overrides=tuple(sets), runs=runs, burn_in=burn_in, output=out,
@@ -651,7 +660,8 @@ class SweepReport:
 
 @single_thread
 def run_sweep(sweep: Sweep | str | os.PathLike, *, executor=None, jobs: int | None = None,
-              progress: bool | None = None, db: str | os.PathLike | None = None) -> SweepReport:
+              progress: bool | None = None, db: str | os.PathLike | None = None,
+              yes: bool = False, workers: int | None = None) -> SweepReport:
     """Run (or resume) a sweep; return a :class:`SweepReport`.
 
     ``executor`` is a :mod:`dkfsim.executors` executor, or a callable that
@@ -659,16 +669,23 @@ def run_sweep(sweep: Sweep | str | os.PathLike, *, executor=None, jobs: int | No
     left to run; the executor it returns is closed here).  Default: ``jobs``
     local processes, every CPU if None.  ``progress``: a tqdm bar on stderr
     (default: when stderr is a terminal).  ``db`` overrides the output file.
+    The remaining tasks are estimated first (``workers``: how many run at
+    once, when ``executor`` is a callable): refused if they cannot fit in
+    memory, and needing ``yes`` above 10 minutes.
     """
-    from . import executors
     from .montecarlo import derive_seed
     if not isinstance(sweep, Sweep):
-        sweep = load_sweep(sweep, output=db)
+        sweep = load_sweep(sweep, output=db, yes=yes)
     path = Path(db) if db is not None else sweep.output
     if progress is None:
         progress = sys.stderr.isatty()
+    if workers is None:
+        workers = executor.workers if isinstance(executor, executors.Executor) else \
+            (jobs or executors.available_cpus())
     with SweepDB(path, sweep) as store:
         done = store.done()
+        check(estimate_tasks(sweep, done, workers), yes=yes,
+              hint="fewer runs, a smaller grid, or more workers")
         todo = [(p, r) for p, r in sweep.tasks() if (p.param_hash, r) not in done]
         skipped = sweep.n_tasks - len(todo)
         own = executor is None or not isinstance(executor, executors.Executor)
@@ -711,6 +728,21 @@ def run_sweep(sweep: Sweep | str | os.PathLike, *, executor=None, jobs: int | No
         wall = time.perf_counter() - t0
     return SweepReport(db=path, total=sweep.n_tasks, skipped=skipped, computed=computed,
                        wall_s=wall, executor=label)
+
+
+def estimate_tasks(sweep: Sweep, done: set, workers: int) -> Estimate:
+    """Memory and time of the tasks of ``sweep`` not yet in ``done``."""
+    est = Estimate(f"{sweep.source}: {sweep.n_tasks - len(done):,} tasks left of {sweep.n_tasks:,}",
+                   workers=max(1, workers))
+    biggest = 0.0
+    for p in sweep.parameter_sets:
+        one = estimate_run(p.scenario, "estimates")
+        left = sweep.runs - sum((p.param_hash, r) in done for r in range(min(sweep.runs, 10**6)))
+        est.seconds += one.seconds * left
+        biggest = max(biggest, one.bytes)
+    est.memory["one run per worker"] = biggest * est.workers
+    est.memory["task list"] = (sweep.n_tasks - len(done)) * 200.0
+    return est
 
 
 # =========================================================================== reading, export
@@ -894,11 +926,12 @@ def add_command(subparsers) -> None:
                    help="validate, list the parameter sets and how many of their runs are done; "
                         "compute nothing")
     p.add_argument("--quiet", action="store_true", help="no progress bar and no summary lines")
+    from .cli import add_yes_arg
+    add_yes_arg(p)
     p.set_defaults(func=cmd_sweep)
 
 
 def cmd_sweep(args) -> int:
-    from . import executors
     say = (lambda *a: None) if args.quiet else print
     if is_database(args.file):
         if args.export is None:
@@ -910,7 +943,7 @@ def cmd_sweep(args) -> int:
         out, n = export(args.file, args.export)
         say(f"wrote {out} ({n} rows)")
         return 0
-    sweep = load_sweep(args.file, output=args.db)
+    sweep = load_sweep(args.file, output=args.db, yes=args.yes)
     if args.dry_run:
         return _dry_run(sweep, say)
     if args.export is not None:
@@ -933,7 +966,9 @@ def cmd_sweep(args) -> int:
 
     say(f"{sweep.source}: {len(sweep.parameter_sets)} parameter set(s) x {sweep.runs} "
         f"run(s) = {sweep.n_tasks} tasks -> {sweep.output}")
-    rep = run_sweep(sweep, executor=make, progress=not args.quiet and sys.stderr.isatty())
+    workers = args.jobs or args.dask_local or (1 if args.scheduler else executors.available_cpus())
+    rep = run_sweep(sweep, executor=make, progress=not args.quiet and sys.stderr.isatty(),
+                    yes=args.yes, workers=workers)
     rate = f" on {rep.executor} ({rep.runs_per_minute:.1f} runs/min)" if rep.computed else ""
     say(f"done: {rep.skipped} already in the database, {rep.computed} computed in "
         f"{_duration(rep.wall_s)}{rate}")

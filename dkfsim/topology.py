@@ -55,6 +55,7 @@ Exchange graph (:func:`exchange_graph`), the graph a protocol actually uses:
 
 from __future__ import annotations
 
+import functools
 import heapq
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
@@ -158,6 +159,9 @@ def check_params(generator: str, params: dict, n: int) -> None:
             raise GraphSpecError(f"degree must be < number of nodes ({n}), got {d}", "params.d")
         if (n * d) % 2:
             raise GraphSpecError(f"n*d must be even (n={n}, d={d})", "params.d")
+        if n * d // 2 > MAX_EDGES:
+            raise GraphSpecError(f"{n} nodes of degree {d} make {n * d // 2:,} edges, more than the "
+                                 f"{MAX_EDGES:,} a topology may have", "params.d")
     elif generator == "erdos_renyi":
         p = params["p"]
         if not _is_number(p) or not 0.0 <= float(p) <= 1.0:
@@ -348,11 +352,55 @@ def bfs_spanning_tree(graph: nx.Graph) -> nx.Graph:
     return tree
 
 
+#: Largest number of edges a random generator may produce (expected count, checked before).
+MAX_EDGES = 5_000_000
+
+
+def all_pairs_work(graph: nx.Graph | nx.DiGraph) -> int:
+    """Nodes and edges visited by one breadth-first search from every node: the cost
+    of an exact diameter or centre of a graph that is not a tree."""
+    n = graph.number_of_nodes()
+    return n * (n + graph.number_of_edges())
+
+
+def _farthest(graph, source) -> tuple[int, int]:
+    """(a farthest node from ``source``, its distance) by breadth-first search."""
+    dist = nx.single_source_shortest_path_length(graph, source)
+    far = max(dist.items(), key=lambda kv: (kv[1], -kv[0]))
+    return far[0], far[1]
+
+
 def diameter(graph: nx.Graph | nx.DiGraph) -> int:
-    """(Directed) diameter; 0 for a single node."""
+    """(Directed) diameter; 0 for a single node.
+
+    A tree takes two breadth-first searches (the farthest node from any node
+    is an end of a longest path); any other graph one from every node.
+    """
     if graph.number_of_nodes() <= 1:
         return 0
+    if is_tree(graph):
+        end, _ = _farthest(graph, min(graph.nodes))
+        return _farthest(graph, end)[1]
     return int(nx.diameter(graph))
+
+
+def diameter_bounds(graph: nx.Graph | nx.DiGraph) -> tuple[int, int]:
+    """Cheap ``(lower, upper)`` bounds of :func:`diameter` (exact for a tree).
+
+    Lower: the eccentricity reached by two sweeps of breadth-first search;
+    upper: ``ecc_out(v) + ecc_in(v)`` of a node (``2 ecc(v)`` undirected).
+    """
+    n = graph.number_of_nodes()
+    if n <= 1:
+        return 0, 0
+    if is_tree(graph):
+        d = diameter(graph)
+        return d, d
+    v0 = min(graph.nodes)
+    far, e_out = _farthest(graph, v0)
+    lower = max(e_out, _farthest(graph, far)[1])
+    e_in = _farthest(graph.reverse(copy=False), v0)[1] if graph.is_directed() else e_out
+    return lower, min(n - 1, e_out + e_in)
 
 
 # --------------------------------------------------------------------------- exchange
@@ -360,19 +408,31 @@ def diameter(graph: nx.Graph | nx.DiGraph) -> int:
 class ExchangeGraph:
     """The graph a protocol runs on.
 
-    ``graph``: undirected tree (``tree``) or DiGraph (``flood``);
-    ``d_g``: its (directed) diameter; ``arcs``: every directed link ``(u, v)``
-    in sorted order; ``neighbors[i]``: sorted out-neighbours of node ``i``.
+    ``graph``: undirected tree (``tree``) or DiGraph (``flood``); ``arcs``:
+    every directed link ``(u, v)`` in sorted order; ``neighbors[i]``: sorted
+    out-neighbours of node ``i``; ``d_g``: its (directed) diameter, computed
+    when first asked for (on a large graph that is not a tree it costs one
+    search per node, see :func:`all_pairs_work`).
     """
 
     graph: nx.Graph | nx.DiGraph
-    d_g: int
     arcs: list[tuple[int, int]] = field(default_factory=list)
     neighbors: list[list[int]] = field(default_factory=list)
 
     @property
     def n(self) -> int:
         return self.graph.number_of_nodes()
+
+    @functools.cached_property
+    def d_g(self) -> int:
+        return diameter(self.graph)
+
+    @functools.cached_property
+    def d_g_bounds(self) -> tuple[int, int]:
+        """Cheap (lower, upper) bounds of ``d_g``."""
+        if "d_g" in self.__dict__:
+            return self.d_g, self.d_g
+        return diameter_bounds(self.graph)
 
 
 def make_exchange(graph: nx.Graph | nx.DiGraph, protocol: str,
@@ -401,7 +461,7 @@ def make_exchange(graph: nx.Graph | nx.DiGraph, protocol: str,
         arcs = sorted([(int(u), int(v)) for u, v in used.edges()]
                       + [(int(v), int(u)) for u, v in used.edges()])
         neighbors = [sorted(int(v) for v in used.neighbors(i)) for i in range(n)]
-    return ExchangeGraph(graph=used, d_g=diameter(used), arcs=arcs, neighbors=neighbors)
+    return ExchangeGraph(graph=used, arcs=arcs, neighbors=neighbors)
 
 
 def exchange_graph(scenario: "Scenario") -> ExchangeGraph:

@@ -9,7 +9,8 @@ Scenario files, sweep files and ``--set`` values all go through
 * hostile input ends in a clear error, quickly: nesting deeper than
   :data:`MAX_DEPTH` levels, an alias that refers to itself, and alias
   expansion beyond :data:`MAX_NODES` nodes ("billion laughs") are refused
-  while the document is composed, before anything is built from it.
+  in one pass over the parser's events, before anything is built from them
+  (libyaml parses when it is installed, as it is with PyYAML's wheels).
 
 :func:`read_text` refuses what is not a regular file (a directory, a FIFO,
 a device such as ``/dev/zero`` behind a symlink) and files larger than a
@@ -50,7 +51,7 @@ def clip(value: Any, limit: int = 80) -> str:
 
 
 class _TooBig(yaml.YAMLError):
-    """Raised while composing: the document is too deep or expands too far."""
+    """The document is too deep, refers to itself or expands too far."""
 
     def __init__(self, problem: str, mark):
         super().__init__(problem)
@@ -58,43 +59,51 @@ class _TooBig(yaml.YAMLError):
         self.problem_mark = mark
 
 
-class SafeLoader(yaml.SafeLoader):
-    """PyYAML's safe loader with the limits and readings of the module docstring."""
+def _check_events(text: str, base) -> None:
+    """Walk the YAML events once, refusing deep nesting and large alias expansion.
 
-    def __init__(self, stream):
-        super().__init__(stream)
-        self._depth = 0
-        self._expanded = 0
-        self._sizes: dict[int, int] = {}
-
-    def _count(self, nodes: int, mark) -> None:
-        self._expanded += nodes
-        if self._expanded > MAX_NODES:
+    Sizes are counted per node: a scalar or alias target counts in full, so
+    an alias to a big anchored list costs what it expands to.  An alias to a
+    node that is still open refers to itself (a recursive structure).
+    """
+    stack: list[list] = [[0, None]]              # [nodes so far, anchor] per open collection
+    sizes: dict[str, int] = {}
+    total = 0
+    for ev in yaml.parse(text, Loader=base):
+        if isinstance(ev, (yaml.SequenceStartEvent, yaml.MappingStartEvent)):
+            if len(stack) > MAX_DEPTH:
+                raise _TooBig(f"nested deeper than {MAX_DEPTH} levels", ev.start_mark)
+            stack.append([0, ev.anchor])
+            continue
+        if isinstance(ev, (yaml.SequenceEndEvent, yaml.MappingEndEvent)):
+            size, anchor = stack.pop()
+            size += 1
+        elif isinstance(ev, yaml.ScalarEvent):
+            size, anchor = 1, ev.anchor
+        elif isinstance(ev, yaml.AliasEvent):
+            if ev.anchor not in sizes:
+                if any(a == ev.anchor for _, a in stack):
+                    raise _TooBig(f"alias *{ev.anchor} refers to a node that contains it "
+                                  "(a recursive structure)", ev.start_mark)
+                continue                         # undefined: the loader reports it
+            size, anchor = sizes[ev.anchor], None
+        else:
+            continue
+        if anchor is not None:
+            sizes[anchor] = size
+        stack[-1][0] += size
+        total += size if isinstance(ev, yaml.AliasEvent) else 1
+        if total > MAX_NODES or stack[-1][0] > MAX_NODES:
             raise _TooBig(f"the document expands to more than {MAX_NODES:,} nodes (aliases "
-                          "counted in full); refusing an alias bomb", mark)
+                          "counted in full); refusing an alias bomb", ev.start_mark)
 
-    def compose_node(self, parent, index):
-        if self.check_event(yaml.AliasEvent):
-            event = self.peek_event()
-            node = self.anchors.get(event.anchor)
-            if node is not None:
-                size = self._sizes.get(id(node))
-                if size is None:
-                    raise _TooBig(f"alias *{event.anchor} refers to a node that contains it "
-                                  "(a recursive structure)", event.start_mark)
-                self._count(size, event.start_mark)
-            return super().compose_node(parent, index)
-        self._depth += 1
-        try:
-            if self._depth > MAX_DEPTH:
-                raise _TooBig(f"nested deeper than {MAX_DEPTH} levels", self.peek_event().start_mark)
-            start = self._expanded
-            node = super().compose_node(parent, index)
-        finally:
-            self._depth -= 1
-        self._count(1, node.start_mark)
-        self._sizes[id(node)] = self._expanded - start
-        return node
+
+_Base = yaml.CSafeLoader if getattr(yaml, "__with_libyaml__", False) else yaml.SafeLoader
+
+
+class SafeLoader(_Base):
+    """PyYAML's safe loader (libyaml's when installed) with the readings of the module
+    docstring; :func:`parse_yaml` checks the limits before it composes anything."""
 
     def construct_mapping(self, node, deep=False):
         if isinstance(node, yaml.MappingNode):
@@ -139,10 +148,36 @@ def yaml_error_text(err: yaml.YAMLError) -> str:
 
 def parse_yaml(text: str) -> Any:
     """The data of a YAML text; raises ``yaml.YAMLError`` (see :func:`yaml_error_text`)."""
+    _check_events(text, _Base)
     try:
         return yaml.load(text, Loader=SafeLoader)
     except RecursionError:               # pragma: no cover - MAX_DEPTH keeps us far from it
         raise _TooBig(f"nested deeper than {MAX_DEPTH} levels", None) from None
+
+
+def check_plain_data(data: Any) -> None:
+    """Refuse a mapping handed to the Python API that YAML could not have produced
+    safely: nesting deeper than :data:`MAX_DEPTH`, more than :data:`MAX_NODES`
+    nodes, or a container inside itself.  Raises :class:`DkfsimError`."""
+    count = 0
+    stack = [(data, 0, ())]
+    while stack:
+        node, depth, path = stack.pop()
+        count += 1
+        if count > MAX_NODES:
+            raise DkfsimError(f"the scenario data holds more than {MAX_NODES:,} values")
+        if isinstance(node, dict):
+            children = node.values()
+        elif isinstance(node, (list, tuple)):
+            children = node
+        else:
+            continue
+        if depth >= MAX_DEPTH:
+            raise DkfsimError(f"the scenario data is nested deeper than {MAX_DEPTH} levels")
+        if id(node) in path:
+            raise DkfsimError("the scenario data contains itself (a recursive structure)")
+        inner = path + (id(node),)
+        stack.extend((child, depth + 1, inner) for child in children)
 
 
 def read_text(path: str | os.PathLike, *, limit: int, what: str, missing: str = "file not found") -> str:

@@ -1,0 +1,89 @@
+"""Every mutant of a shipped scenario fails with a clean error or runs.
+
+Hypothesis draws a shipped scenario, a key path in it and a mutation from
+the vocabulary of tools/fuzz_scenarios.py (the one place it is defined; the
+tool is loaded by path) and asserts the contract stated there: validation
+raises a DkfsimError with a one-paragraph message, or a short run
+(tools/fuzz_scenarios.RUN_STEPS steps) ends normally or with such an error,
+within the time limit.  Each mutant runs in a worker process with a time
+limit and a memory cap, so a hang or a huge allocation fails one example
+instead of stalling or exhausting the test run.
+
+A failure reports the mutant and the traceback; ``python
+tools/fuzz_scenarios.py`` lists every finding of the whole vocabulary at once.
+
+Settings: deterministic (``derandomize``, no example database); no shrink
+phase, as a mutant drawn from finite lists has nothing smaller worth the
+time (a timed-out example costs the whole time limit per shrink step).
+"""
+
+from __future__ import annotations
+
+import importlib.util
+import sys
+from datetime import timedelta
+from pathlib import Path
+
+import pytest
+from hypothesis import HealthCheck, Phase, given, settings
+from hypothesis import strategies as st
+
+import dkfsim
+
+
+def _load_fuzzer():
+    """tools/fuzz_scenarios.py, imported by path (tools/ is not a package)."""
+    path = Path(__file__).resolve().parents[1] / "tools" / "fuzz_scenarios.py"
+    spec = importlib.util.spec_from_file_location("fuzz_scenarios", path)
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[spec.name] = module    # dataclasses and unpickling look the module up by name
+    spec.loader.exec_module(module)
+    return module
+
+
+fuzz = _load_fuzzer()
+
+COMMON = dict(deadline=timedelta(seconds=20), derandomize=True, database=None,
+              phases=(Phase.explicit, Phase.generate), suppress_health_check=[HealthCheck.too_slow])
+
+
+@st.composite
+def mutants(draw):
+    """A shipped scenario, a key path in its base, and a mutation that applies there."""
+    name = draw(st.sampled_from(fuzz.shipped_scenarios()))
+    path = draw(st.sampled_from(fuzz.mutation_paths(name)))
+    mutation = draw(st.sampled_from(fuzz.mutations_at(name, path)))
+    return fuzz.MutantSpec(name, path, mutation.name)
+
+
+@pytest.fixture(scope="module")
+def checker():
+    with fuzz.MutantChecker(jobs=1, timeout=fuzz.DEFAULT_TIMEOUT) as checker:
+        yield checker
+
+
+def assert_contract(checker, spec) -> None:
+    outcome = checker.check(spec)
+    if not outcome.acceptable:
+        pytest.fail(outcome.report(), pytrace=False)
+
+
+@pytest.mark.parametrize("name", fuzz.shipped_scenarios())
+def test_every_base_scenario_runs(name):
+    """The bases the mutants start from are valid and run (else every mutant would be an error)."""
+    base = fuzz.base(name)
+    assert base["steps"] == fuzz.RUN_STEPS
+    dkfsim.run(dkfsim.load_scenario(base), save="summary")
+
+
+@settings(max_examples=60, **COMMON)
+@given(spec=mutants())
+def test_a_mutant_fails_cleanly_or_runs(checker, spec):
+    assert_contract(checker, spec)
+
+
+@pytest.mark.slow
+@settings(max_examples=400, **COMMON)
+@given(spec=mutants())
+def test_many_mutants_fail_cleanly_or_run(checker, spec):
+    assert_contract(checker, spec)
