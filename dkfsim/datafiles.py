@@ -67,7 +67,8 @@ def resolve_data_file(file: str, base_dir: str | os.PathLike | None = None) -> t
     """
     path = Path(os.path.expanduser(str(file)))
     cand = path if path.is_absolute() else (Path(base_dir) if base_dir is not None else Path.cwd()) / path
-    return (cand.resolve() if cand.is_file() else None), [cand]
+    # Anything that exists is returned: reading it says if it is not a regular file.
+    return (cand.resolve() if cand.exists() else None), [cand]
 
 
 def locate(file: str | None, dataset: str | None, base_dir) -> tuple[Path, str]:

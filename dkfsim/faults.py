@@ -53,7 +53,7 @@ at any other node, not in the arrival log), does not send, and every packet
 that arrives at it is dropped (counted as ``crash_dropped``).  Its filter
 keeps running the window rule on what it holds -- it predicts, with whatever
 information for the window rows it received before the crash -- so its
-estimates are exactly those the arrival log implies (DESIGN.md section 3).
+estimates are exactly those the arrival log implies (docs/design.md §6).
 After the window it resumes with what it holds: nothing is retransmitted,
 so what its neighbours sent it during the crash is lost for it, as it is
 under packet loss.

@@ -1,7 +1,7 @@
 """Information-form Kalman filtering, batched over nodes.
 
-Every filter in dkfsim -- each node's buffered window filter (DESIGN.md
-section 3, the paper's Algorithms 1 and 2) and the centralized baseline --
+Every filter in dkfsim -- each node's buffered window filter (docs/design.md
+§4, the paper's Algorithms 1 and 2) and the centralized baseline --
 is the same recursion: predict with ``Phi, Q``, then add the information
 ``Omega = sum omega_m``, ``Theta = sum theta_m`` of the contributions held::
 
@@ -141,7 +141,7 @@ class WindowFilter:
     each contribution a node newly holds through :meth:`add`, and the tick
     driver calls :meth:`update` once per tick after every delivery at that
     instant.  ``update`` re-runs rows from the earliest row that changed
-    since the last tick (an optimisation DESIGN.md allows because the
+    since the last tick (an optimisation docs/design.md §4 allows because the
     result is identical), batched over nodes.
 
     :param info: the :class:`~dkfsim.system.Information` of all sensors.

@@ -4,7 +4,7 @@ Two pieces:
 
 * :class:`CrossCovariance` keeps the true error cross-covariances
   ``Xi = [C_ij]`` of all nodes' estimates with the exact recursion of
-  DESIGN.md section 4, written for all pairs at once::
+  docs/design.md §7, written for all pairs at once::
 
       C_ij = G_i (Phi C_ij Phi' + Q) G_j' + P_i (sum_m a_im a_jm omega_m) P_j
 
@@ -32,7 +32,7 @@ def kkt_weights(Xi: np.ndarray, n: int, nx: int) -> np.ndarray:
     ``Xi`` is singular whenever two nodes hold the same information (always
     at zero latency), so we solve the KKT system with the reproducible
     regularisation ``Xi + delta I``, ``delta = 1e-8 tr(Xi) / (n nx)``
-    (DESIGN.md section 4).
+    (docs/design.md §7).
     """
     N = n * nx
     delta = 1e-8 * np.trace(Xi) / N

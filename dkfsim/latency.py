@@ -2,7 +2,7 @@
 
 A latency model says how long a packet handed to a directed link ``u -> v``
 takes to arrive.  It is drawn per packet from the link's own random streams.
-Simulated time is kept in integer nanoseconds (DESIGN.md section 2), so every
+Simulated time is kept in integer nanoseconds (docs/design.md §2), so every
 model samples *integer nanoseconds*; continuous draws are rounded to the
 nearest nanosecond.  docs/latency_models.md explains every model and its
 parameters with examples; this docstring is the reference next to the code.
@@ -88,7 +88,7 @@ Every model offers
 Random streams and samplers
 ---------------------------
 A link draws from ``model.sampler(rng_for, T_ns)``: ``rng_for(*name)`` gives
-the link's stream named ``("link", u, v, *name)`` (DESIGN.md section 1).
+the link's stream named ``("link", u, v, *name)`` (docs/design.md §1).
 :meth:`Sampler.block` returns the next ``size`` packets' latencies and, for a
 model that also loses packets (``gilbert_elliott``), their "lost" flags.
 Streams used, per link:

@@ -1,7 +1,7 @@
 """Accuracy and cost metrics of one run, and pooling over independent runs.
 
 Kept free of any simulation logic: everything here is a function of the
-arrays a run writes (DESIGN.md section 5), so the same code scores a fresh
+arrays a run writes (docs/design.md §8), so the same code scores a fresh
 run and a ``run.npz`` read back from disk.  The second half serves
 :mod:`dkfsim.montecarlo`: per-tick squared errors, NEES and node
 disagreement of one run; Student-t intervals over runs; the chi-square band

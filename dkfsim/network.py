@@ -1,6 +1,6 @@
 """The SimPy network: directed links with per-packet latency, loss and faults.
 
-Time is kept in integer nanoseconds (DESIGN.md section 2), so "arrived by
+Time is kept in integer nanoseconds (docs/design.md §2), so "arrived by
 tick k" is an exact integer comparison, never one of accumulated floats.
 
 A packet is handed to a :class:`Link` with :meth:`Network.send`; the link

@@ -1,6 +1,6 @@
 """Exchange protocols: how contributions travel from node to node.
 
-Both protocols forward on receipt, not at ticks (DESIGN.md section 2), and
+Both protocols forward on receipt, not at ticks (docs/design.md §2), and
 coalesce: everything a node learns at one instant leaves in one packet per
 out-link, sent by a flush event that runs after every delivery at that
 instant (zero-latency chains included) and before the tick update.
@@ -71,7 +71,7 @@ class Exchange:
     :param window: the :class:`~dkfsim.filter.WindowFilter` told of every newly
         held contribution.
     :param arrival: optional (n, n, K) array filled with ``inf``: the arrival
-        log of DESIGN.md section 5 (late arrivals are logged too).
+        log of docs/design.md §8 (late arrivals are logged too).
     :param late_horizon: how many final rows keep their holdings so that a
         late contribution is counted once; older late bits are counted per
         packet.

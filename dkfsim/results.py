@@ -1,4 +1,4 @@
-"""What a run returns and writes (DESIGN.md section 5).
+"""What a run returns and writes (docs/design.md §8).
 
 :class:`RunResult` holds the arrays of a run (a mapping: ``res["x_local"]``),
 its packet counts and a few facts about it, and writes ``run.npz`` and

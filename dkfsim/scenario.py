@@ -1,6 +1,6 @@
 """Scenario schema, loading, validation and ``--set`` overrides.
 
-A scenario is a YAML mapping (DESIGN.md section 6); :func:`load_scenario`
+A scenario is a YAML mapping (the README's "Scenario files"); :func:`load_scenario`
 reads it, applies ``dotted.key=value`` overrides to the raw mapping, and
 validates it into a frozen :class:`Scenario`.  *All* validation happens
 here, in one pass: field checks in the pydantic models, cross-field checks
@@ -8,7 +8,7 @@ here, in one pass: field checks in the pydantic models, cross-field checks
 problem raises :class:`dkfsim.errors.ScenarioError` with a one-line message
 ``<file or "<dict>">: <dotted.key.path>: <what is wrong>``.
 
-Decisions where DESIGN.md is silent:
+Decisions where docs/design.md leaves a choice:
 
 * Matrices are lists of lists.  A scalar is a 1x1 matrix and a flat list is
   a single row (so ``H: [1, 0, 0]`` and ``R: 0.8`` work).  Vectors (the prior
@@ -764,7 +764,7 @@ class Scenario(StrictModel):
         return bound
 
     def resolved_buffer_length(self) -> int:
-        """The buffer length L (DESIGN.md section 3).
+        """The buffer length L (docs/design.md §4).
 
         ``auto``: ``d_t * d_g + 1``; ``paper``: ``max(d_t, 1)``; an integer: itself.
         """
@@ -886,7 +886,7 @@ def _loc_to_path(loc: tuple, data: Any) -> list[str]:
         elif isinstance(node, (list, tuple)) and isinstance(elem, int) and 0 <= elem < len(node):
             parts.append(str(elem))
             node = node[elem]
-        elif isinstance(node, dict) and not last and elem in _UNION_TAGS:
+        elif (node is None or isinstance(node, dict)) and not last and elem in _UNION_TAGS:
             continue  # a union member's tag (e.g. 'uniform_steps'), not a key
         elif isinstance(elem, str) and (elem.startswith(("function-", "literal[", "int", "str"))
                                         and not last):

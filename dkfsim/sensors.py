@@ -9,7 +9,7 @@ position::
 says which state components are the Cartesian position).
 
 The filters of this package exchange *additive* information contributions
-(DESIGN.md section 3).  An extended (linearised) information update would
+(docs/design.md §6).  An extended (linearised) information update would
 linearise at each node's own estimate, so the same measurement would give a
 different contribution at every node and the exact exchange (and its test
 oracle) would no longer hold.  Instead the radar's measurement is *converted*

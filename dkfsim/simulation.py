@@ -1,7 +1,7 @@
 """One run: scenario -> network -> protocol -> filter -> fusion -> results.
 
 :func:`run` wires the pieces together inside one SimPy environment and drives
-the ticks (DESIGN.md section 2): at ``t_k`` every sensor measures and
+the ticks (docs/design.md §2): at ``t_k`` every sensor measures and
 offers its contribution to the exchange; deliveries and relays at ``t_k``
 follow; then, as an event of lower priority than all of them, every node's
 window filter updates at once (batched), fusion runs, and the row that

@@ -1,4 +1,4 @@
-"""The target and its sensors: the linear-Gaussian model of DESIGN.md section 1.
+"""The target and its sensors: the linear-Gaussian model of docs/design.md §1.
 
 ``x[k+1] = Phi x[k] + w[k]`` with ``w ~ N(0, Q)``, prior ``x[0] ~ N(x0_mean, P0)``
 at time 0, and sensor ``i`` measuring ``y_i[k] = H_i x[k] + v_i[k]``,

@@ -378,10 +378,18 @@ def diameter(graph: nx.Graph | nx.DiGraph) -> int:
     """
     if graph.number_of_nodes() <= 1:
         return 0
+    graph = _undirected_if_symmetric(graph)
     if is_tree(graph):
         end, _ = _farthest(graph, min(graph.nodes))
         return _farthest(graph, end)[1]
     return int(nx.diameter(graph))
+
+
+def _undirected_if_symmetric(graph):
+    """A digraph whose every arc has its reverse has the distances of its undirected view."""
+    if graph.is_directed() and all(graph.has_edge(v, u) for u, v in graph.edges):
+        return graph.to_undirected(as_view=True)
+    return graph
 
 
 def diameter_bounds(graph: nx.Graph | nx.DiGraph) -> tuple[int, int]:
@@ -393,6 +401,7 @@ def diameter_bounds(graph: nx.Graph | nx.DiGraph) -> tuple[int, int]:
     n = graph.number_of_nodes()
     if n <= 1:
         return 0, 0
+    graph = _undirected_if_symmetric(graph)
     if is_tree(graph):
         d = diameter(graph)
         return d, d

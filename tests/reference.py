@@ -4,7 +4,7 @@ Nothing here imports :mod:`dkfsim`.  Everything is written the slow, obvious
 way (plain loops, covariance form, explicit linear maps) so that a bug in the
 engine's fast paths cannot be reproduced here by accident.
 
-Conventions (DESIGN.md sections 1, 3, 4, 5):
+Conventions (docs/design.md §§1, 4-8):
 
 * ``K`` ticks; row ``r = 0..K-1`` of every per-tick array holds tick ``k = r+1``
   at time ``t[r] = (r+1) T``.  The prior ``x0_mean, P0`` is at time 0, so row 0
@@ -84,7 +84,7 @@ def assert_close(a, b, what: str, tol: float = 1e-9):
 
 
 # ----------------------------------------------------------------------------
-# the model as stored in a run (DESIGN section 5)
+# the model as stored in a run (docs/design.md §8)
 # ----------------------------------------------------------------------------
 
 @dataclass
@@ -301,7 +301,7 @@ def centralized(arrays):
 
 
 # ----------------------------------------------------------------------------
-# 2. the DESIGN section-3 window rule, from `arrival` alone
+# 2. the window rule of docs/design.md §4, from `arrival` alone
 # ----------------------------------------------------------------------------
 
 def held(m: Model, i: int, r: int, k: int):
@@ -402,7 +402,7 @@ def cross_covariances(arrays):
 
 
 # ----------------------------------------------------------------------------
-# 4. fusion (DESIGN section 4)
+# 4. fusion (docs/design.md §7)
 # ----------------------------------------------------------------------------
 
 def fusion_delta(Xi, n, nx):
@@ -419,7 +419,7 @@ def fuse(Xi, xs, nx, kind="matrix"):
     ``kind='diagonal'`` (the paper's per-component variant): every block
     ``P_ij`` of Xi is replaced by its diagonal, so the problem splits into nx
     independent scalar fusions, one per state component c, each with the
-    n x n matrix ``Xi_c = [P_ij[c, c]]``.  DESIGN section 4 is silent on the
+    n x n matrix ``Xi_c = [P_ij[c, c]]``.  docs/design.md §7 is silent on the
     regularisation here; we apply its formula to each scalar problem as it
     stands, ``delta_c = 1e-8 tr(Xi_c) / n`` (scale-invariant per component:
     a global delta would over-regularise a component whose variance is

@@ -14,7 +14,7 @@ ROOT = Path(__file__).resolve().parents[1]
 CASE1 = ROOT / "scenarios" / "paper_case1.yaml"
 CASE2 = ROOT / "scenarios" / "paper_case2.yaml"
 
-DESIGN_KEYS = ["t", "truth", "Phi", "Q", "x0_mean", "P0", "buffer_length", "arrival",
+CONTRACT_KEYS = ["t", "truth", "Phi", "Q", "x0_mean", "P0", "buffer_length", "arrival",
                "x_local", "P_local", "x_final", "x_fused", "P_fused", "x_centralized"]
 
 
@@ -44,7 +44,7 @@ def test_run_writes_summary_and_every_design_array(tmp_path):
     pk = summary["packets"]
     assert pk["sent"] == pk["delivered"] + pk["lost"] + pk["in_flight"]
     with np.load(out / "run.npz") as z:
-        for key in DESIGN_KEYS:
+        for key in CONTRACT_KEYS:
             assert key in z.files, key
         n = 12
         for i in range(n):

@@ -1,8 +1,8 @@
-"""Exactness of the anti-delay DKF (DESIGN.md section 3).
+"""Exactness of the anti-delay DKF (docs/design.md §6).
 
 The first group checks the reference implementations themselves (no engine
 needed); the second runs dkfsim and compares every node's estimates with the
-reference: the centralized Kalman filter where DESIGN promises equality
+reference: the centralized Kalman filter where docs/design.md §6 promises equality
 (zero latency; final rows under bounded latency with L = d_t d_g + 1), and
 otherwise the window rule computed from the run's own ``arrival`` log.
 """
@@ -76,7 +76,7 @@ def test_ref_node_estimates_own_only_is_local_kf():
 
 def _brute_force(arrays, i, k):
     """Node i's estimates of rows 0..k-1 at tick k, from the prior, with the
-    DESIGN rule written out directly (no chain of finals): O(K^2)."""
+    window rule (docs/design.md §4) written out directly (no chain of finals): O(K^2)."""
     m = ref.model_from_arrays(arrays)
 
     def use(r):

@@ -1,4 +1,4 @@
-"""Fusion (DESIGN.md section 4) against the independent reference.
+"""Fusion (docs/design.md §7) against the independent reference.
 
 The reference cross-covariances are computed from explicit linear maps of the
 stacked noise (tests/reference.py), not by the covariance recursion the

@@ -3,7 +3,7 @@
 For every generated run: every P_local is symmetric positive definite,
 P_fused is symmetric PSD and no larger than any node's true error covariance
 C_ii (Loewner order, with the KKT regularisation slack), and the local
-estimates follow the window rule of DESIGN section 3 (tests/reference.py).
+estimates follow the window rule of docs/design.md §4 (tests/reference.py).
 """
 
 from __future__ import annotations

@@ -5,7 +5,7 @@
 * the constant-velocity model's Phi and Q by hand;
 * schema: radar keys, their errors, linear sensors unchanged;
 * the radar scenario end to end;
-* DESIGN section 3's oracle with per-row information: at zero latency every
+* docs/design.md §6's oracle with per-row information: at zero latency every
   node equals a centralized filter computed here (covariance form) from the
   converted measurements; with latency <= d_t per hop every final estimate
   does;

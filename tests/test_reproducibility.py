@@ -1,4 +1,4 @@
-"""Reproducibility and stream independence (DESIGN.md section 1).
+"""Reproducibility and stream independence (docs/design.md §1).
 
 * one seed -> a bit-identical run (saved run.npz compared key by key, values
   and bytes), also across processes with different hash seeds;

@@ -1,4 +1,4 @@
-"""Exact timing semantics of DESIGN.md section 2, hand-worked on tiny paths.
+"""Exact timing semantics of docs/design.md §2, hand-worked on tiny paths.
 
 A latency of d*T on one hop is "a delay of d steps": a packet sent at t_k
 with latency exactly T counts for tick k+1, one nanosecond more and it
