@@ -374,3 +374,34 @@ def test_cli_workers_run_one_blas_thread():
             "print(all(i['num_threads'] == 1 for i in threadpool_info()), os.environ['OPENBLAS_NUM_THREADS'])")
     p = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)
     assert p.stdout.split() == ["True", "1"], p.stderr
+
+
+@pytest.mark.slow
+def test_a_regular_install_runs_copies_of_the_data_scenarios_anywhere(tmp_path):
+    """`pip install .` (a wheel, not editable): the CICV5G traces ship inside the package, so
+    copies of the two data scenarios run from an unrelated folder."""
+    import shutil
+    src = tmp_path / "src"                       # a copy: building leaves build/ in the source
+    shutil.copytree(ROOT / "dkfsim", src / "dkfsim", ignore=shutil.ignore_patterns("__pycache__"))
+    for name in ("pyproject.toml", "README.md"):
+        shutil.copy(ROOT / name, src / name)
+    wheel = tmp_path / "wheel"
+    p = subprocess.run([sys.executable, "-m", "pip", "wheel", "-q", "--no-deps", "-w", str(wheel),
+                        str(src)], capture_output=True, text=True, timeout=300, cwd=tmp_path)
+    assert p.returncode == 0, p.stderr
+    site = tmp_path / "site"
+    p = subprocess.run([sys.executable, "-m", "pip", "install", "-q", "--no-deps", "--target", str(site),
+                        *map(str, wheel.glob("*.whl"))], capture_output=True, text=True, timeout=300)
+    assert p.returncode == 0, p.stderr
+    elsewhere = tmp_path / "elsewhere"
+    elsewhere.mkdir()
+    env = {**os.environ, "PYTHONPATH": str(site)}
+    for name in ("stress_5g_empirical", "cicv5g_track"):
+        (elsewhere / f"{name}.yaml").write_text((ROOT / "scenarios" / f"{name}.yaml").read_text())
+        code = ("import dkfsim, sys; assert dkfsim.__file__.startswith(sys.argv[1]), dkfsim.__file__; "
+                "r = dkfsim.run(sys.argv[2], steps=30); print(r.counts['delivered'])")
+        p = subprocess.run([sys.executable, "-c", code, str(site), f"{name}.yaml"], cwd=elsewhere, env=env,
+                           capture_output=True, text=True, timeout=300)
+        assert p.returncode == 0 and int(p.stdout) > 0, p.stderr
+    meta = next(site.glob("dkfsim-*.dist-info")) / "METADATA"
+    assert "License-Expression: MIT AND CC-BY-4.0" in meta.read_text()

@@ -11,14 +11,20 @@
    1000 ticks, through the whole sweep path (SQLite included), against one
    process in the same run.
 4. The per-tick cost of a 1000-node random tree (no fusion).
+5. BLAS threads under load: a 50-node matrix-fusion run with the BLAS
+   library's default threads and with one thread (what dkfsim uses), each
+   while a CPU hog process spins beside it.
 
-Usage: ``python tools/bench.py [--ticks 1000] [--sizes 12 50 200] [--skip-sweep] [--big-ticks 60]``.
+Usage: ``python tools/bench.py [--ticks 1000] [--sizes 12 50 200] [--skip-sweep] [--big-ticks 60]
+[--skip-threads]``.
 Timing lives here, never in the tests.
 """
 
 from __future__ import annotations
 
 import argparse
+import multiprocessing
+import os
 import sys
 import time
 from pathlib import Path
@@ -67,6 +73,37 @@ def tree_scenario(n: int, ticks: int, fusion: str) -> dkfsim.Scenario:
     return dkfsim.load_scenario(d)
 
 
+def _spin(stop) -> None:
+    """A CPU hog: a busy loop until told to stop."""
+    x = 0
+    while not stop.is_set():
+        x += 1
+
+
+def threads_under_load(ticks: int) -> tuple[float, float, int]:
+    """Seconds of a 50-node matrix-fusion run with the default BLAS threads and with one,
+    each with a busy process beside it; and the default thread count."""
+    from threadpoolctl import threadpool_info, threadpool_limits
+
+    from dkfsim.simulation import Simulation        # the engine, below the API's thread pin
+    sc = tree_scenario(50, ticks, "matrix")
+    default = max((i["num_threads"] for i in threadpool_info()), default=1)
+    times = []
+    for limit in (default, 1):
+        stop = multiprocessing.Event()
+        hog = multiprocessing.Process(target=_spin, args=(stop,), daemon=True)
+        hog.start()
+        try:
+            with threadpool_limits(limit):
+                t0 = time.perf_counter()
+                Simulation(sc, save="summary").run()
+                times.append(time.perf_counter() - t0)
+        finally:
+            stop.set()
+            hog.join()
+    return times[0], times[1], default
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--ticks", type=int, default=1000)
@@ -75,6 +112,8 @@ def main(argv=None) -> int:
     ap.add_argument("--skip-sweep", action="store_true", help="skip the sweep throughput measurement")
     ap.add_argument("--big-nodes", type=int, default=1000, help="nodes of the large tree (0 skips it)")
     ap.add_argument("--big-ticks", type=int, default=60, help="ticks of the large-tree run")
+    ap.add_argument("--skip-threads", action="store_true", help="skip the BLAS-threads measurement")
+    ap.add_argument("--thread-ticks", type=int, default=100, help="ticks of the BLAS-threads runs")
     args = ap.parse_args(argv)
 
     sc = dkfsim.load_scenario(ROOT / "scenarios" / "paper_case1.yaml", overrides=[f"steps={args.ticks}"])
@@ -117,6 +156,14 @@ def main(argv=None) -> int:
               f"no fusion), {args.big_ticks} ticks: {w / args.big_ticks * 1e3:.1f} ms per tick, "
               f"{r.counts['delivered'] / args.big_ticks:.0f} packets per tick, "
               f"{w / args.big_ticks / (args.big_nodes * min(L, args.big_ticks)) * 1e6:.2f} us per node x row")
+
+    if not args.skip_threads:
+        many, one, default = threads_under_load(args.thread_ticks)
+        print()
+        print(f"BLAS threads under load (50-node tree, matrix fusion, {args.thread_ticks} ticks, a CPU hog "
+              f"beside it on this {os.cpu_count()}-CPU machine):")
+        print(f"  default BLAS threads ({default})   {many:8.2f} s")
+        print(f"  one BLAS thread (dkfsim)  {one:8.2f} s   (ratio default / one {many / one:.2f} x)")
 
     if not args.skip_sweep:
         from dkfsim.sweep import throughput
