@@ -419,6 +419,16 @@ class Pareto(ShiftedDraw):
 # ----------------------------------------------------------------------- empirical traces
 from .datafiles import DataFileError, locate, read_table  # noqa: E402
 
+
+def located(file: str | None, dataset: str | None, info: ValidationInfo | None) -> tuple[Path, str]:
+    """:func:`dkfsim.datafiles.locate` inside a validator: the path and the key it came
+    from; a validation error on the ``file`` / ``dataset`` key if there is none."""
+    base = (info.context or {}).get("base_dir") if info is not None else None
+    try:
+        return locate(file, dataset, base)
+    except DataFileError as err:
+        raise custom_error(str(err), "dataset" if dataset is not None else "file") from None
+
 _UNIT_S = {"ms": 1e-3, "s": 1.0}
 _COLUMNS: dict[tuple, np.ndarray] = {}
 
@@ -483,11 +493,7 @@ class Empirical(LatencyBase):
     def _load(self, info: ValidationInfo):
         if self.start is not None and self.mode != "replay":
             raise custom_error("only used with mode: replay", "start")
-        base = (info.context or {}).get("base_dir") if info is not None else None
-        try:
-            path, key = locate(self.file, self.dataset, base)
-        except DataFileError as err:
-            raise custom_error(str(err), "dataset" if self.dataset is not None else "file") from None
+        path, key = located(self.file, self.dataset, info)
         try:
             values = read_column(path, self.column)
         except DataFileError as err:

@@ -53,12 +53,11 @@ import yaml
 from pydantic import (AfterValidator, BaseModel, BeforeValidator, Discriminator, Field, PrivateAttr, Tag,
                       ValidationError, ValidationInfo, field_validator, model_validator)
 
-from dkfsim.datafiles import DataFileError, locate
 from dkfsim.errors import DkfsimError, ScenarioError
 from dkfsim.yamlio import MAX_YAML_BYTES, check_plain_data, clip, parse_yaml, read_text, yaml_error_text
 from dkfsim.faults import Faults, LinkSpec, Schedule, Window
 from dkfsim.latency import (LATENCY_MODELS, MAX_MAGNITUDE, MAX_NS, MAX_SECONDS, Constant,
-                            LatencyModel, StrictModel, custom_error, suggest)
+                            LatencyModel, StrictModel, custom_error, located, suggest)
 from dkfsim import topology as topo
 
 #: Baselines a scenario may ask for; extend this single tuple.
@@ -408,11 +407,7 @@ class Truth(StrictModel):
     @model_validator(mode="after")
     def _load(self, info: ValidationInfo):
         from dkfsim import trajectory
-        base = (info.context or {}).get("base_dir") if info is not None else None
-        try:
-            path, key = locate(self.file, self.dataset, base)
-        except DataFileError as err:
-            raise custom_error(str(err), "dataset" if self.dataset is not None else "file") from None
+        path, key = located(self.file, self.dataset, info)
         try:
             self._read(path)
         except trajectory.TrackError as err:
