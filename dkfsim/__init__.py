@@ -15,13 +15,13 @@ Python API (mirrors the CLI; each call runs BLAS on one thread)::
 
 __version__ = "0.1.0"
 
-from .errors import DkfsimError, ScenarioError  # noqa: E402
-from .maxdelay import maxdelay  # noqa: E402
-from .montecarlo import montecarlo  # noqa: E402
-from .results import RunResult, load_run  # noqa: E402
-from .scenario import Scenario, load_scenario  # noqa: E402
-from .simulation import run  # noqa: E402
-from .sweep import run_sweep as sweep  # noqa: E402
+from dkfsim.core.errors import DkfsimError, ScenarioError  # noqa: E402
+from dkfsim.experiments.maxdelay import maxdelay  # noqa: E402
+from dkfsim.experiments.montecarlo import montecarlo  # noqa: E402
+from dkfsim.engine.results import RunResult, load_run  # noqa: E402
+from dkfsim.config.schema import Scenario, load_scenario  # noqa: E402
+from dkfsim.engine.driver import run  # noqa: E402
+from dkfsim.experiments.sweep import run_sweep as sweep  # noqa: E402
 
 __all__ = ["DkfsimError", "RunResult", "Scenario", "ScenarioError", "load_run", "load_scenario",
            "maxdelay", "montecarlo", "run", "sweep", "__version__"]

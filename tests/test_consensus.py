@@ -42,8 +42,8 @@ def ci_scenario(n=6, *, rounds=1, steps=60, latency=None, loss=0.0, edges=None, 
 def simulate(sc):
     """A finished Simulation (the DKF run) and the baseline on its draws."""
     import dkfsim
-    from dkfsim.consensus import ci_consensus
-    from dkfsim.simulation import Simulation
+    from dkfsim.estimators.ci_consensus import ci_consensus
+    from dkfsim.engine.driver import Simulation
     sim = Simulation(dkfsim.load_scenario(copy.deepcopy(sc)))
     sim.run()
     return sim, ci_consensus(sim)
@@ -70,7 +70,7 @@ def local_filters(sim):
 def link_draws(sim, u, v, count):
     """Latency (ns) and lost flag of packets 0..count-1 on link u -> v, drawn in
     blocks of 256 from the link's two streams (as every link of dkfsim does)."""
-    from dkfsim.streams import stream
+    from dkfsim.core.streams import stream
     spec = sim.scenario.link_spec(u, v)
     lat_rng = stream(sim.seed, "link", u, v, "latency")
     loss_rng = stream(sim.seed, "link", u, v, "loss")
@@ -176,7 +176,7 @@ def test_zero_rounds_is_each_nodes_local_filter(nx, seed):
         ref.assert_close(x[:, i], xl[:, i], f"node {i} x vs its local KF", TOL)
         ref.assert_close(P[:, i], Pl[:, i], f"node {i} P vs its local KF", TOL)
     # also the package's own batched information filter
-    from dkfsim.filter import batched_filter
+    from dkfsim.estimators.window import batched_filter
     s = sim.system
     xb, _ = batched_filter(s.Phi, s.Q, s.x0_mean, s.P0, sim.info.omega, sim.info.theta)
     ref.assert_close(x, xb, "x vs batched_filter", TOL)
@@ -245,7 +245,7 @@ def test_against_the_slow_reference(case):
 def test_reference_detects_a_missing_prediction():
     """The reference test can fail: using a stale pair without predicting it
     forward gives a different answer (so predict-forward is exercised)."""
-    from dkfsim import consensus
+    from dkfsim.estimators import ci_consensus as consensus
     sc = ci_scenario(6, steps=30, seed=3, rounds=1, latency={"model": "constant", "value": 1.5 * T2})
     sim, out = simulate(sc)
     assert out["_ci_consensus_stale"] > 0
@@ -312,7 +312,7 @@ def test_ci_is_conservative(kw):
 
 
 def test_rounds_must_divide_the_period():
-    from dkfsim.errors import ScenarioError
+    from dkfsim.core.errors import ScenarioError
     with pytest.raises(ScenarioError, match="consensus_rounds"):
         simulate(ci_scenario(4, rounds=3, steps=5))
 

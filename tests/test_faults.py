@@ -18,11 +18,11 @@ import pytest
 import reference as ref
 from conftest import run_scenario, scc_digraph_edges, scenario, tree_edges
 
-from dkfsim.errors import ScenarioError
-from dkfsim.faults import CrashSchedule, Faults, LinkSpec, ScaleSchedule, Windows
-from dkfsim.latency import parse_latency
-from dkfsim.network import Link
-from dkfsim.scenario import load_scenario, scenario_hash
+from dkfsim.core.errors import ScenarioError
+from dkfsim.components.faults import CrashSchedule, Faults, LinkSpec, ScaleSchedule, Windows
+from dkfsim.components.latency import parse_latency
+from dkfsim.network.links import Link
+from dkfsim.config.schema import load_scenario, scenario_hash
 
 TOL = 1e-9
 T_NS = 100_000_000           # T = 0.1 s (conftest's 2-state model)
@@ -61,7 +61,7 @@ def check_oracle(run) -> None:
 
 # =========================================================================== schedules
 def test_scale_schedule_steps_and_ramps():
-    from dkfsim.faults import ScheduleRamp, ScheduleStep
+    from dkfsim.components.faults import ScheduleRamp, ScheduleStep
     s = ScaleSchedule([ScheduleRamp(**{"from": 1.0, "to": 3.0, "start_factor": 1.0,
                                        "end_factor": 3.0}),
                        ScheduleStep(at=5.0, factor=0.5)])

@@ -15,7 +15,7 @@ import scipy.linalg
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from dkfsim.filter import centralized_filter, information_step
+from dkfsim.estimators.window import centralized_filter, information_step
 
 
 def ca_model(T=0.01):

@@ -24,8 +24,8 @@ import yaml
 
 import dkfsim
 from conftest import scenario
-from dkfsim.errors import DkfsimError, ScenarioError
-from dkfsim.resources import ResourceError
+from dkfsim.core.errors import DkfsimError, ScenarioError
+from dkfsim.core.resources import ResourceError
 
 ROOT = Path(__file__).resolve().parents[1]
 CASE1 = ROOT / "scenarios" / "paper_case1.yaml"
@@ -355,7 +355,7 @@ def test_a_closed_pipe_ends_quietly():
 def test_blas_runs_on_one_thread_inside_api_calls_only(monkeypatch):
     from threadpoolctl import threadpool_info
     seen = []
-    import dkfsim.simulation as simulation
+    import dkfsim.engine.driver as simulation
     real = simulation.Simulation.run
 
     def spy(self):
@@ -369,7 +369,7 @@ def test_blas_runs_on_one_thread_inside_api_calls_only(monkeypatch):
 
 
 def test_cli_workers_run_one_blas_thread():
-    code = ("import sys; from dkfsim.threads import pin_process; pin_process(); "
+    code = ("import sys; from dkfsim.core.threads import pin_process; pin_process(); "
             "from threadpoolctl import threadpool_info; import os; "
             "print(all(i['num_threads'] == 1 for i in threadpool_info()), os.environ['OPENBLAS_NUM_THREADS'])")
     p = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from pydantic import ValidationError
 
-from dkfsim.latency import (LATENCY_MODELS, Constant, Exponential, LatencyBase, Uniform,
+from dkfsim.components.latency import (LATENCY_MODELS, Constant, Exponential, LatencyBase, Uniform,
                             UniformSteps, parse_latency, register, seconds_to_ns)
 
 T_NS = 10_000_000  # T = 0.01 s
@@ -194,10 +194,10 @@ from pathlib import Path  # noqa: E402
 
 from scipy import stats  # noqa: E402
 
-from dkfsim.datafiles import DATA_DIR, resolve_data_file  # noqa: E402
-from dkfsim.latency import (Empirical, GilbertElliott, Gamma, Lognormal,  # noqa: E402
+from dkfsim.core.datafiles import DATA_DIR, resolve_data_file  # noqa: E402
+from dkfsim.components.latency import (Empirical, GilbertElliott, Gamma, Lognormal,  # noqa: E402
                             Pareto, read_column)
-from dkfsim.streams import stream  # noqa: E402
+from dkfsim.core.streams import stream  # noqa: E402
 
 CICV = DATA_DIR / "cicv5g"                  # shipped inside the package
 URBAN = CICV / "urban_n8_v30_run01.txt"

@@ -5,9 +5,9 @@ from __future__ import annotations
 import pytest
 
 import dkfsim
-import dkfsim.simulation as simulation
+import dkfsim.engine.driver as simulation
 from conftest import scenario
-from dkfsim.errors import ScenarioError
+from dkfsim.core.errors import ScenarioError
 
 
 def test_matrix_fusion_too_large_is_a_clear_error(monkeypatch):
@@ -65,7 +65,7 @@ def test_save_summary_removes_a_stale_run_npz(tmp_path):
 
 def test_montecarlo_with_one_run_writes_valid_json(tmp_path):
     import json
-    from dkfsim.montecarlo import montecarlo
+    from dkfsim.experiments.montecarlo import montecarlo
     montecarlo(dkfsim.load_scenario(scenario(3, steps=10)), 1).save(tmp_path)
     summary = json.loads((tmp_path / "summary.json").read_text())
     assert summary["runs"] == 1

@@ -15,12 +15,12 @@ import pytest
 import yaml
 
 import dkfsim
-from dkfsim.bounds import (delay_bound_formula, omega_min_of, paper_bound, paper_bound_for_scenario,
+from dkfsim.analysis.bounds import (delay_bound_formula, omega_min_of, paper_bound, paper_bound_for_scenario,
                            paper_weight_matrix)
-from dkfsim.errors import DkfsimError
-from dkfsim.maxdelay import (EXCEEDS, UNDECIDED, WITHIN, MaxDelay, Settings, make_axis,
+from dkfsim.core.errors import DkfsimError
+from dkfsim.experiments.maxdelay import (EXCEEDS, UNDECIDED, WITHIN, MaxDelay, Settings, make_axis,
                              metric_value)
-from dkfsim.montecarlo import derive_seed
+from dkfsim.experiments.montecarlo import derive_seed
 
 ROOT = Path(__file__).resolve().parents[1]
 SEED = 3
@@ -144,7 +144,7 @@ class FakeEvaluator:
         self.decisions, self.excess, self.cands, self.asked = decisions, excess, {}, []
 
     def __call__(self, j):
-        from dkfsim.maxdelay import Candidate
+        from dkfsim.experiments.maxdelay import Candidate
         self.asked.append(j)
         c = Candidate(index=j, delay=j, deterministic=False, decision=self.decisions(j),
                       excess_mean=self.excess(j))
@@ -153,7 +153,7 @@ class FakeEvaluator:
 
 
 def test_search_logic_gallop_bisect_and_undecided_boundary():
-    from dkfsim.maxdelay import empirical_search, worst_case_scan
+    from dkfsim.experiments.maxdelay import empirical_search, worst_case_scan
     # monotone, boundary between 11 and 12: gallop 0,1,2,4,8,16 then bisect 12, 10, 11
     ev = FakeEvaluator(lambda j: WITHIN if j <= 11 else EXCEEDS, lambda j: j - 11.5)
     res = empirical_search(ev, 32)

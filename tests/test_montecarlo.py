@@ -24,10 +24,12 @@ from scipy.stats import chi2
 
 from conftest import scenario
 
-from dkfsim import cli, load_scenario
-from dkfsim.errors import DkfsimError
-from dkfsim.metrics import nees_band, paired_lower_bound
-from dkfsim.montecarlo import CSV_COLUMNS, derive_seed, montecarlo, run_rows
+from dkfsim import load_scenario
+
+from dkfsim.cli import main as cli
+from dkfsim.core.errors import DkfsimError
+from dkfsim.analysis.metrics import nees_band, paired_lower_bound
+from dkfsim.experiments.montecarlo import CSV_COLUMNS, derive_seed, montecarlo, run_rows
 
 ROOT = Path(__file__).resolve().parents[1]
 CASE1 = ROOT / "scenarios" / "paper_case1.yaml"
@@ -98,17 +100,17 @@ def test_api_rejects_bad_runs_and_jobs():
 def test_a_failing_run_is_reported_by_run_and_seed_whatever_the_jobs(tmp_path, capsys, monkeypatch):
     # Runs 2 and 4 fail (a seed-dependent failure; the worker processes are
     # forked, so they inherit the patch): the lowest failing run is reported.
-    import dkfsim.simulation
-    from dkfsim.errors import ScenarioError
+    import dkfsim.engine.driver
+    from dkfsim.core.errors import ScenarioError
     bad = {derive_seed(0, 2), derive_seed(0, 4)}
-    original = dkfsim.simulation.Simulation.run
+    original = dkfsim.engine.driver.Simulation.run
 
     def flaky(self):
         if self.seed in bad:
             raise ScenarioError("simulated failure", source=self.scenario.source)
         return original(self)
 
-    monkeypatch.setattr(dkfsim.simulation.Simulation, "run", flaky)
+    monkeypatch.setattr(dkfsim.engine.driver.Simulation, "run", flaky)
     spec = tmp_path / "s.yaml"
     spec.write_text(yaml.safe_dump(scenario(4, steps=10, seed=0)))
     errs = []
@@ -263,7 +265,7 @@ def test_with_delays_centralized_beats_dkf_beats_no_buffer_and_local():
 
 def test_random_topology_is_the_same_graph_in_every_run():
     """Runs redraw noise and latency, not the network (seed pinned to the base seed)."""
-    from dkfsim.montecarlo import pinned_topology
+    from dkfsim.experiments.montecarlo import pinned_topology
     import dkfsim
     d = dkfsim.load_scenario(ROOT / "scenarios" / "paper_case1.yaml").to_dict()
     d["topology"] = {"directed": False, "generator": "random_tree"}

@@ -12,9 +12,9 @@ import pytest
 pytest.importorskip("matplotlib")
 import matplotlib.image as mpimg  # noqa: E402
 
-from dkfsim.cli import main  # noqa: E402
-from dkfsim.errors import DkfsimError  # noqa: E402
-from dkfsim import plots  # noqa: E402
+from dkfsim.cli.main import main  # noqa: E402
+from dkfsim.core.errors import DkfsimError  # noqa: E402
+from dkfsim.report import plots  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 K_RUN = 60

@@ -40,7 +40,7 @@ def load(d, overrides=()):
 
 # ----------------------------------------------------------------------------- conversion
 def test_converted_measurement_by_hand():
-    from dkfsim.sensors import RadarSensor
+    from dkfsim.model.sensors import RadarSensor
     # Radar at (1, 2); the target seen at range 5 along the 3-4-5 direction.
     s = RadarSensor([1.0, 2.0], sigma_range=0.1, sigma_azimuth=0.04, nx=4)
     y = np.array([[5.0, np.arctan2(4.0, 3.0)]])
@@ -64,7 +64,7 @@ def test_converted_measurement_by_hand():
 
 
 def test_state_index_places_the_position():
-    from dkfsim.sensors import RadarSensor
+    from dkfsim.model.sensors import RadarSensor
     s = RadarSensor([0.0, 0.0], 0.1, 0.01, nx=6, state_index=(3, 1))
     y = np.array([[2.0, 0.3], [3.0, -1.0]])
     theta, omega, factor = s.information(y)
@@ -81,7 +81,7 @@ def test_state_index_places_the_position():
 def test_converted_covariance_matches_the_spread():
     """R_c is the linearised covariance: for 1 degree and 0.1 m at 6 m it must
     match the covariance of converted noisy measurements to a few per cent."""
-    from dkfsim.sensors import RadarSensor
+    from dkfsim.model.sensors import RadarSensor
     s = RadarSensor([0.0, 0.0], 0.1, np.deg2rad(1.0), nx=4)
     truth = np.tile([[2.0, 0.0, 5.8, 0.0]], (200_000, 1))
     y = s.simulate(truth, np.random.default_rng(5))
@@ -94,7 +94,7 @@ def test_converted_covariance_matches_the_spread():
 
 
 def test_measurement_noise_has_the_stated_spread():
-    from dkfsim.sensors import RadarSensor
+    from dkfsim.model.sensors import RadarSensor
     s = RadarSensor([1.0, -1.0], 0.2, 0.03, nx=4)
     truth = np.column_stack([np.linspace(3, 9, 50_000), np.ones(50_000), np.full(50_000, 4.0),
                              np.zeros(50_000)])
@@ -149,7 +149,7 @@ def test_radar_schema_round_trip_and_linear_unchanged():
     ("model.kind=constant_velosity", "model.kind", ["did you mean 'constant_velocity'"]),
 ])
 def test_radar_errors(override, key, words):
-    from dkfsim.errors import ScenarioError
+    from dkfsim.core.errors import ScenarioError
     with pytest.raises(ScenarioError) as info:
         load(radar_dict(), [override])
     msg = str(info.value)
@@ -160,7 +160,7 @@ def test_radar_errors(override, key, words):
 
 
 def test_missing_radar_key():
-    from dkfsim.errors import ScenarioError
+    from dkfsim.core.errors import ScenarioError
     d = radar_dict()
     del d["sensors"][1]["sigma_range"]
     with pytest.raises(ScenarioError, match=r"sensors\.1\.sigma_range: required key is missing"):
@@ -198,7 +198,7 @@ def test_radar_scenario_runs_end_to_end(tmp_path):
 # ----------------------------------------------------------------------------- the oracle
 def _centralized_by_hand(res, sc):
     """Covariance-form KF on all radars' converted measurements, per row, written
-    independently of dkfsim.sensors (conversion formulas re-derived here)."""
+    independently of dkfsim.model.sensors (conversion formulas re-derived here)."""
     Phi, Q = res["Phi"], res["Q"]
     x, P = res["x0_mean"].copy(), res["P0"].copy()
     K = len(res["t"])
@@ -285,7 +285,7 @@ def test_run_npz_keeps_the_converted_measurements():
     """H_i, z_i and Rc_i reproduce the information the filters used, row by row."""
     import numpy as np
     import dkfsim
-    from dkfsim.simulation import Simulation
+    from dkfsim.engine.driver import Simulation
     sc = dkfsim.load_scenario(RADAR, overrides=["steps=8"])
     a = dkfsim.run(sc).arrays
     info = Simulation(sc).info

@@ -9,10 +9,10 @@ import numpy as np
 import pytest
 import yaml
 
-import dkfsim.scenario as scenario_mod
-from dkfsim.errors import ScenarioError
-from dkfsim.latency import Constant, Exponential, Uniform, UniformSteps
-from dkfsim.scenario import KNOWN_BASELINES, Scenario, load_scenario, scenario_hash
+import dkfsim.config.schema as scenario_mod
+from dkfsim.core.errors import ScenarioError
+from dkfsim.components.latency import Constant, Exponential, Uniform, UniformSteps
+from dkfsim.config.schema import KNOWN_BASELINES, Scenario, load_scenario, scenario_hash
 
 SCENARIOS = Path(__file__).resolve().parents[1] / "scenarios"
 
@@ -673,7 +673,7 @@ def test_known_baselines_is_one_extendable_tuple(monkeypatch):
     monkeypatch.setattr(scenario_mod, "KNOWN_BASELINES", KNOWN_BASELINES + ("kalman_oracle",))
     assert load_scenario(d).baselines == ("centralized", "kalman_oracle")
     # Every baseline the engine implements is accepted, and only those.
-    from dkfsim.baselines import BASELINES
+    from dkfsim.estimators.baselines import BASELINES
     assert set(scenario_mod.KNOWN_BASELINES) - {"kalman_oracle"} == set(BASELINES)
 
 

@@ -14,7 +14,7 @@ from pathlib import Path
 import pytest
 import yaml
 
-from dkfsim.errors import DkfsimError
+from dkfsim.core.errors import DkfsimError
 
 ROOT = Path(__file__).resolve().parents[1]
 CASE1 = ROOT / "scenarios" / "paper_case1.yaml"
@@ -44,8 +44,8 @@ def table(db: Path, sql: str):
 
 # --------------------------------------------------------------------------- one row per task
 def test_small_sweep_writes_one_row_per_parameter_set_seed_and_algorithm(tmp_path):
-    from dkfsim.montecarlo import derive_seed
-    from dkfsim.sweep import load_sweep, read_results, run_sweep
+    from dkfsim.experiments.montecarlo import derive_seed
+    from dkfsim.experiments.sweep import load_sweep, read_results, run_sweep
     path = write_sweep(tmp_path, grid={"links.default.latency.d_t": [0, 1, 3]}, runs=2,
                        extra_set=["baselines=[centralized, local]"])
     sweep = load_sweep(path)
@@ -84,7 +84,7 @@ def test_small_sweep_writes_one_row_per_parameter_set_seed_and_algorithm(tmp_pat
 
 
 def test_widen_keeps_per_component_values_of_any_metric():
-    from dkfsim.sweep import widen
+    from dkfsim.experiments.sweep import widen
     rows = [{"seed": 5, "algorithm": "a", "component": c, "mse": m, "anees": 3.0, "late": late}
             for c, m, late in (("x0", 0.1, 1), ("x1", 0.2, 2))]
     ((alg, seed, cols),) = widen(rows)
@@ -93,7 +93,7 @@ def test_widen_keeps_per_component_values_of_any_metric():
 
 
 def test_a_task_is_written_entirely_or_not_at_all(tmp_path):
-    from dkfsim.sweep import SweepDB, load_sweep
+    from dkfsim.experiments.sweep import SweepDB, load_sweep
     sweep = load_sweep(write_sweep(tmp_path, grid={}, runs=1))
     good = [{"seed": 7, "algorithm": a, "component": "x0", "mse": 1.0} for a in ("a", "b")]
     bad = good[:1] + [{"seed": 8, "algorithm": "b", "component": "x0", "mse": 1.0}]
@@ -168,8 +168,8 @@ def test_killed_sweep_resumes_without_losing_or_repeating_a_task(tmp_path):
 # --------------------------------------------------------------------------- executors agree
 def test_dask_local_cluster_and_local_pool_give_identical_rows(tmp_path):
     pytest.importorskip("distributed")
-    from dkfsim.executors import DaskExecutor
-    from dkfsim.sweep import export, load_sweep, run_sweep
+    from dkfsim.experiments.executors import DaskExecutor
+    from dkfsim.experiments.sweep import export, load_sweep, run_sweep
     path = write_sweep(tmp_path, runs=2, grid={"links.default.latency.d_t": [0, 3],
                                                "protocol": ["tree", "flood"]})
     with DaskExecutor(n_workers=2, processes=False) as ex:
@@ -207,7 +207,7 @@ def test_cli_dask_local_processes(tmp_path):
 
 # --------------------------------------------------------------------------- definition checks
 def test_resume_refuses_a_changed_sweep_definition(tmp_path):
-    from dkfsim.sweep import load_sweep, run_sweep
+    from dkfsim.experiments.sweep import load_sweep, run_sweep
     scen = tmp_path / "case.yaml"
     scen.write_text(CASE1.read_text())
     path = write_sweep(tmp_path, scenario="case.yaml", runs=1, steps=20,
@@ -238,7 +238,7 @@ def test_resume_refuses_a_changed_sweep_definition(tmp_path):
 
 
 def test_a_second_writer_is_refused(tmp_path):
-    from dkfsim.sweep import SweepDB, load_sweep, run_sweep
+    from dkfsim.experiments.sweep import SweepDB, load_sweep, run_sweep
     sweep = load_sweep(write_sweep(tmp_path, grid={}, runs=1, steps=20))
     with SweepDB(sweep.output, sweep):
         with pytest.raises(DkfsimError, match="another dkfsim sweep is writing"):
@@ -262,7 +262,7 @@ BAD = [
 
 @pytest.mark.parametrize("change, message", BAD, ids=[m for _, m in BAD])
 def test_bad_sweep_files_give_one_clear_paragraph(tmp_path, change, message):
-    from dkfsim.sweep import load_sweep
+    from dkfsim.experiments.sweep import load_sweep
     data = {"scenario": str(CASE1), "grid": {"protocol": ["tree"]}, "set": ["steps=20"],
             "runs": 1}
     data.update(change)
@@ -277,7 +277,7 @@ def test_bad_sweep_files_give_one_clear_paragraph(tmp_path, change, message):
 
 def cli(capsys, *args):
     """``dkfsim ARGS`` in this process: (exit status, stdout, stderr)."""
-    from dkfsim.cli import main
+    from dkfsim.cli.main import main
     try:
         rc = main([str(a) for a in args])
     except SystemExit as exc:          # argparse usage errors
@@ -329,7 +329,7 @@ def test_export_only_from_a_database_and_help(tmp_path, capsys):
 
 
 def test_throughput_reports_runs_per_minute():
-    from dkfsim.sweep import throughput
+    from dkfsim.experiments.sweep import throughput
     out = throughput(steps=20, jobs=1, runs=2)
     assert out["runs"] == 2 and out["steps"] == 20
     assert out["runs_per_minute"] > 0 and out["wall_s"] > 0

@@ -11,8 +11,8 @@ import networkx as nx
 import numpy as np
 import pytest
 
-from dkfsim.scenario import load_scenario
-from dkfsim.topology import (GraphSpecError, bfs_spanning_tree, build_graph, check_connected,
+from dkfsim.config.schema import load_scenario
+from dkfsim.components.topology import (GraphSpecError, bfs_spanning_tree, build_graph, check_connected,
                              exchange_graph, is_tree, make_exchange, paper_weights,
                              pruefer_decode, random_tree_edges, unit_weights)
 

@@ -1,4 +1,4 @@
-"""Truth from a recorded track (dkfsim.trajectory, the scenario's ``truth`` key).
+"""Truth from a recorded track (dkfsim.model.trajectory, the scenario's ``truth`` key).
 
 Interpolation and finite differences on small hand-made tables, the file
 formats, path resolution, the CICV5G scenario (data: CICV5G, CC BY 4.0,
@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 import yaml
 
-from dkfsim.datafiles import DATA_DIR
+from dkfsim.core.datafiles import DATA_DIR
 
 ROOT = Path(__file__).resolve().parents[1]
 CICV = ROOT / "scenarios" / "cicv5g_track.yaml"
@@ -57,7 +57,7 @@ def scenario_dict(file, steps=8, T=0.05, **truth):
 
 
 def test_read_sorts_and_drops_repeated_stamps(tmp_path):
-    from dkfsim.trajectory import read_track
+    from dkfsim.model.trajectory import read_track
     tr = read_track(write(tmp_path), "time_ms", "east_m", "north_m", "ms")
     np.testing.assert_array_equal(tr.t, [0.0, 0.1, 0.2, 0.4, 0.5])
     np.testing.assert_array_equal(tr.x, [10, 11, 13, 13, 12])
@@ -66,7 +66,7 @@ def test_read_sorts_and_drops_repeated_stamps(tmp_path):
 
 
 def test_interpolation_and_finite_differences_by_hand(tmp_path):
-    from dkfsim.trajectory import cv_states, read_track
+    from dkfsim.model.trajectory import cv_states, read_track
     tr = read_track(write(tmp_path), "time_ms", "east_m", "north_m", "ms")
     X = cv_states(tr, T=0.1, K=5, origin="none")
     # Positions at t = 0.1 .. 0.5 (0.3 lies half way across the gap 0.2 -> 0.4).
@@ -88,7 +88,7 @@ def test_interpolation_and_finite_differences_by_hand(tmp_path):
 
 
 def test_whitespace_table_and_loose_column_names(tmp_path):
-    from dkfsim.trajectory import read_track
+    from dkfsim.model.trajectory import read_track
     text = "t(s) utmX(m) utmY(m) cell\n0 1.0 2.0 5C4\n1.5 4.0 2.0 5C4\n"
     tr = read_track(write(tmp_path, text, "ws.txt"), "t_s", "utm_x_m", "utmY(m)", "s")
     np.testing.assert_array_equal(tr.t, [0.0, 1.5])
@@ -96,7 +96,7 @@ def test_whitespace_table_and_loose_column_names(tmp_path):
 
 
 def test_smoothing_is_a_centred_moving_average(tmp_path):
-    from dkfsim.trajectory import read_track, smoothed
+    from dkfsim.model.trajectory import read_track, smoothed
     tr = read_track(write(tmp_path), "time_ms", "east_m", "north_m", "ms")
     s = smoothed(tr, 0.2)             # +-0.1 s: neighbours within 100 ms
     np.testing.assert_allclose(s.x, [10.5, 34 / 3, 12.0, 12.5, 12.5])
@@ -106,7 +106,7 @@ def test_smoothing_is_a_centred_moving_average(tmp_path):
 
 def test_scenario_runs_on_a_hand_made_track(tmp_path):
     import dkfsim
-    from dkfsim.trajectory import cv_states, read_track
+    from dkfsim.model.trajectory import cv_states, read_track
     p = write(tmp_path)
     sc = dkfsim.load_scenario(scenario_dict(p, steps=10))
     res = dkfsim.run(sc)
@@ -138,7 +138,7 @@ def test_relative_path_resolves_against_the_scenario_folder(tmp_path, monkeypatc
 
 def test_run_longer_than_the_track_is_a_clear_error(tmp_path):
     import dkfsim
-    from dkfsim.errors import ScenarioError
+    from dkfsim.core.errors import ScenarioError
     p = write(tmp_path)
     dkfsim.load_scenario(scenario_dict(p, steps=10))            # 0.5 s: exactly the track
     with pytest.raises(ScenarioError) as info:
@@ -162,7 +162,7 @@ def test_run_longer_than_the_track_is_a_clear_error(tmp_path):
 ])
 def test_truth_key_errors(tmp_path, change, key, words):
     import dkfsim
-    from dkfsim.errors import ScenarioError
+    from dkfsim.core.errors import ScenarioError
     d = scenario_dict(write(tmp_path))
     d["truth"].update(change)
     with pytest.raises(ScenarioError) as info:
@@ -175,7 +175,7 @@ def test_truth_key_errors(tmp_path, change, key, words):
 
 def test_truth_needs_the_planar_constant_velocity_state(tmp_path):
     import dkfsim
-    from dkfsim.errors import ScenarioError
+    from dkfsim.core.errors import ScenarioError
     d = scenario_dict(write(tmp_path))
     d["model"] = {"kind": "linear", "T": 0.05, "Phi": np.eye(4).tolist(), "Q": np.eye(4).tolist()}
     with pytest.raises(ScenarioError, match=r"<dict>: truth: .*constant_velocity with dims: 2"):
@@ -184,7 +184,7 @@ def test_truth_needs_the_planar_constant_velocity_state(tmp_path):
 
 def test_bad_rows_are_named(tmp_path):
     import dkfsim
-    from dkfsim.errors import ScenarioError
+    from dkfsim.core.errors import ScenarioError
     d = scenario_dict(write(tmp_path, CSV.replace("400,13.0", "400,abc"), "bad.csv"))
     with pytest.raises(ScenarioError, match=r"truth.file: bad.csv line 7: east_m 'abc' is not a number"):
         dkfsim.load_scenario(d)
@@ -209,7 +209,7 @@ def test_cicv5g_scenario_runs():
     full = dkfsim.load_scenario(CICV)
     have = full.truth.track().duration
     assert full.steps * full.model.T <= have
-    from dkfsim.errors import ScenarioError
+    from dkfsim.core.errors import ScenarioError
     too_many = int(have / full.model.T) + 1
     with pytest.raises(ScenarioError, match="truth.dataset cicv5g/arterial_n8_v70_run03 covers 55.21 s"):
         dkfsim.load_scenario(CICV, [f"steps={too_many}"])

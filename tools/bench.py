@@ -85,7 +85,7 @@ def threads_under_load(ticks: int) -> tuple[float, float, int]:
     each with a busy process beside it; and the default thread count."""
     from threadpoolctl import threadpool_info, threadpool_limits
 
-    from dkfsim.simulation import Simulation        # the engine, below the API's thread pin
+    from dkfsim.engine.driver import Simulation        # the engine, below the API's thread pin
     sc = tree_scenario(50, ticks, "matrix")
     default = max((i["num_threads"] for i in threadpool_info()), default=1)
     times = []
@@ -166,7 +166,7 @@ def main(argv=None) -> int:
         print(f"  one BLAS thread (dkfsim)  {one:8.2f} s   (ratio default / one {many / one:.2f} x)")
 
     if not args.skip_sweep:
-        from dkfsim.sweep import throughput
+        from dkfsim.experiments.sweep import throughput
         print()
         one = throughput(steps=args.ticks, jobs=1, runs=4)
         two = throughput(steps=args.ticks, jobs=2, runs=12)

@@ -79,7 +79,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 import dkfsim  # noqa: E402
-from dkfsim.errors import DkfsimError  # noqa: E402
+from dkfsim.core.errors import DkfsimError  # noqa: E402
 
 SCENARIO_DIR = ROOT / "scenarios"
 #: Shipped YAML files that are not scenarios.

@@ -4,7 +4,7 @@
 Runs ``scenarios/radar_experiment.yaml`` (three range/azimuth radars, a car
 starting at (0, 6.123) m, T = 0.01 s, 21 ticks, a 3-node tree with delays of
 0-2 ticks per hop) over many independent seeds -- run ``r`` uses
-``dkfsim.montecarlo.derive_seed(seed, r)``, the same run ``r`` as
+``dkfsim.experiments.montecarlo.derive_seed(seed, r)``, the same run ``r`` as
 ``dkfsim montecarlo`` -- and writes
 
 * ``docs/figures/radar_track.png``: one run in the x-y plane: the radars, the
@@ -34,8 +34,8 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 import dkfsim  # noqa: E402
-from dkfsim.metrics import t_interval  # noqa: E402
-from dkfsim.montecarlo import derive_seed  # noqa: E402
+from dkfsim.analysis.metrics import t_interval  # noqa: E402
+from dkfsim.experiments.montecarlo import derive_seed  # noqa: E402
 
 #: (label, array, per node?) of every estimate scored; radars alone are added per sensor.
 ESTIMATES = (

@@ -3,7 +3,7 @@
 
 Runs ``scenarios/paper_case1.yaml`` (undirected tree, protocol ``tree``) and
 ``scenarios/paper_case2.yaml`` (directed graph, protocol ``flood``) through the
-``dkfsim`` command line, then draws with :mod:`dkfsim.plots`:
+``dkfsim`` command line, then draws with :mod:`dkfsim.report.plots`:
 
 ========================  ==================================================================
 file                      what (paper figure)
@@ -49,8 +49,8 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from dkfsim import plots  # noqa: E402
-from dkfsim.errors import DkfsimError  # noqa: E402
+from dkfsim.report import plots  # noqa: E402
+from dkfsim.core.errors import DkfsimError  # noqa: E402
 
 CASE1 = ROOT / "scenarios" / "paper_case1.yaml"
 CASE2 = ROOT / "scenarios" / "paper_case2.yaml"

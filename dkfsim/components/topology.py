@@ -1,0 +1,515 @@
+"""Communication graphs: generators, checks, and the graph each protocol runs on.
+
+Nodes are always ``0..n-1``, node ``i`` being the ``i``-th sensor of the
+scenario.
+
+Generators (``topology.generator``) and their ``topology.params``:
+
+=================  ==================  ===============================================
+generator          params              graph
+=================  ==================  ===============================================
+``path``           --                  0 - 1 - ... - n-1
+``star``           --                  node 0 is the hub, joined to every other node
+``balanced_tree``  ``r``, ``h``        every internal node has ``r`` children, height
+                                       ``h``; it has ``(r^(h+1) - 1)/(r - 1)`` nodes
+                                       (``h + 1`` for ``r = 1``), which must equal n
+``random_tree``    ``seed``?           uniform random labelled tree: a random Pruefer
+                                       sequence of length n-2 decoded here
+``ring``           --                  the cycle 0 - 1 - ... - n-1 - 0 (n >= 3)
+``random_regular`` ``d``, ``seed``?    random d-regular graph (``n*d`` even, d < n)
+``erdos_renyi``    ``p``, ``seed``?    G(n, p)
+``edges``          --                  ``topology.edges`` as listed
+=================  ==================  ===============================================
+
+The node count is always the number of sensors, so no generator takes ``n``.
+
+Seeds.  A seeded generator uses ``params.seed`` if given, else the scenario
+seed, and draws from ``dkfsim.core.streams.stream(seed, "topology")``.  The
+networkx generators get an integer seed drawn from that stream (integer seeds
+of networkx are stable across versions as long as the algorithm is).
+
+Directed topologies (``topology.directed: true``):
+
+* ``edges``: the arcs ``u -> v`` exactly as listed;
+* ``ring``: the one-way cycle ``0 -> 1 -> ... -> n-1 -> 0`` (the sparsest
+  strongly connected digraph, the usual directed test case);
+* ``erdos_renyi``: the directed G(n, p), each ordered pair an arc with
+  probability p (``networkx.gnp_random_graph(directed=True)``);
+* every other generator: both arcs of each undirected edge (a symmetric
+  digraph -- a directed tree or path would never be strongly connected).
+
+Exchange graph (:func:`exchange_graph`), the graph a protocol actually uses:
+
+* ``tree``: the undirected topology when it is a tree.  With
+  ``spanning_tree: true`` on a graph with cycles, a breadth-first spanning
+  tree rooted at the graph centre of lowest index, neighbours visited in
+  increasing order (deterministic).  Rooting at a centre keeps the tree's
+  depth equal to the graph radius, so its diameter ``d_g <= 2 * radius <=
+  2 * diameter`` -- ``d_g`` sets the buffer length ``d_t * d_g + 1`` and the
+  number of hops information needs.
+* ``flood``: a DiGraph; an undirected topology becomes the symmetric digraph.
+  ``spanning_tree: true`` (undirected topologies only) makes flood run on
+  the same BFS spanning tree, so both protocols can be compared on the same
+  links.
+"""
+
+from __future__ import annotations
+
+import functools
+import heapq
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Any
+
+import networkx as nx
+import numpy as np
+
+from dkfsim.core.streams import stream
+from dkfsim.core.files import clip
+
+if TYPE_CHECKING:  # pragma: no cover
+    from dkfsim.config.schema import Scenario
+
+GENERATORS = ("path", "star", "balanced_tree", "random_tree", "ring",
+              "random_regular", "erdos_renyi", "edges")
+
+# generator -> (required params, optional params)
+GENERATOR_PARAMS: dict[str, tuple[tuple[str, ...], tuple[str, ...]]] = {
+    "path": ((), ()),
+    "star": ((), ()),
+    "balanced_tree": (("r", "h"), ()),
+    "random_tree": ((), ("seed",)),
+    "ring": ((), ()),
+    "random_regular": (("d",), ("seed",)),
+    "erdos_renyi": (("p",), ("seed",)),
+    "edges": ((), ()),
+}
+
+
+#: Largest number of edges a random generator may produce (expected count, checked before).
+MAX_EDGES = 5_000_000
+
+
+class GraphSpecError(ValueError):
+    """A topology cannot be built or does not suit the protocol.
+
+    ``key`` is the offending key path relative to the scenario's
+    ``topology`` mapping (e.g. ``params.r``, ``edges.3``), or ``""``.
+    """
+
+    def __init__(self, message: str, key: str = ""):
+        super().__init__(message)
+        self.key = key
+        self.reason = message
+
+
+# --------------------------------------------------------------------------- params
+def _is_int(x: Any) -> bool:
+    return isinstance(x, (int, np.integer)) and not isinstance(x, bool)
+
+
+def _is_number(x: Any) -> bool:
+    return isinstance(x, (int, float, np.integer, np.floating)) and not isinstance(x, bool)
+
+
+def _int_param(params: dict, name: str, minimum: int) -> int:
+    value = params[name]
+    if not _is_int(value) or value < minimum:
+        raise GraphSpecError(f"must be an integer >= {minimum}, got {clip(value)}", f"params.{name}")
+    return int(value)
+
+
+def balanced_tree_size(r: int, h: int) -> int:
+    """Number of nodes of the balanced tree with branching ``r`` and height ``h``."""
+    return h + 1 if r == 1 else (r ** (h + 1) - 1) // (r - 1)
+
+
+def check_params(generator: str, params: dict, n: int) -> None:
+    """Check ``params`` for ``generator`` on ``n`` nodes; raise :class:`GraphSpecError`."""
+    import difflib
+
+    if generator not in GENERATOR_PARAMS:
+        raise GraphSpecError(f"unknown generator {generator!r}; valid generators: "
+                             + ", ".join(GENERATORS), "generator")
+    required, optional = GENERATOR_PARAMS[generator]
+    allowed = required + optional
+    for key in params:
+        if key not in allowed:
+            match = difflib.get_close_matches(str(key), allowed, n=1)
+            hint = f" (did you mean '{match[0]}'?)" if match else ""
+            if key == "n":
+                hint += "; the node count is the number of sensors"
+            what = ", ".join(allowed) if allowed else "none"
+            raise GraphSpecError(f"unknown parameter for {generator}{hint}; allowed: {what}",
+                                 f"params.{key}")
+    for key in required:
+        if key not in params:
+            raise GraphSpecError(f"required by generator {generator}", f"params.{key}")
+    if "seed" in params:
+        _int_param(params, "seed", 0)
+    if generator == "balanced_tree":
+        r = _int_param(params, "r", 1)
+        h = _int_param(params, "h", 0)
+        size = balanced_tree_size(r, h)
+        if size != n:
+            raise GraphSpecError(
+                f"balanced_tree with r={r}, h={h} has {size} nodes but there are {n} sensors "
+                "(the node count must equal the number of sensors)", "params")
+    elif generator == "ring":
+        if n < 3:
+            raise GraphSpecError(f"ring needs at least 3 nodes, there are {n} sensors", "generator")
+    elif generator == "random_regular":
+        d = _int_param(params, "d", 0)
+        if d >= n:
+            raise GraphSpecError(f"degree must be < number of nodes ({n}), got {d}", "params.d")
+        if (n * d) % 2:
+            raise GraphSpecError(f"n*d must be even (n={n}, d={d})", "params.d")
+        if n * d // 2 > MAX_EDGES:
+            raise GraphSpecError(f"{n} nodes of degree {d} make {n * d // 2:,} edges, more than the "
+                                 f"{MAX_EDGES:,} a topology may have", "params.d")
+    elif generator == "erdos_renyi":
+        p = params["p"]
+        if not _is_number(p) or not 0.0 <= float(p) <= 1.0:
+            raise GraphSpecError(f"must be a probability in [0, 1], got {clip(p)}", "params.p")
+        edges = float(p) * n * (n - 1) / 2          # expected edges (half the arcs of a digraph)
+        if edges > MAX_EDGES:
+            raise GraphSpecError(f"G({n}, {float(p):g}) has about {edges:.3g} edges, more than the "
+                                 f"{MAX_EDGES:,} a topology may have; use a smaller p", "params.p")
+
+
+# --------------------------------------------------------------------------- generators
+def _nx_seed(seed: int) -> int:
+    return int(stream(seed, "topology").integers(0, 2**31 - 1))
+
+
+def random_tree_edges(n: int, rng: np.random.Generator) -> list[tuple[int, int]]:
+    """Edges of a uniform random labelled tree on ``0..n-1``.
+
+    A Pruefer sequence of ``n - 2`` labels drawn uniformly is a uniform draw
+    among the ``n^(n-2)`` labelled trees (Cayley), since decoding is a bijection.
+    """
+    if n <= 1:
+        return []
+    return pruefer_decode([int(x) for x in rng.integers(0, n, size=max(n - 2, 0))], n)
+
+
+def pruefer_decode(seq, n: int) -> list[tuple[int, int]]:
+    """Edges of the labelled tree on ``0..n-1`` with Pruefer sequence ``seq``."""
+    if n <= 1:
+        return []
+    if len(seq) != n - 2 or any(not 0 <= x < n for x in seq):
+        raise ValueError(f"a Pruefer sequence for {n} nodes has {n - 2} labels in 0..{n - 1}")
+    degree = [1] * n
+    for x in seq:
+        degree[x] += 1
+    leaves = [v for v in range(n) if degree[v] == 1]
+    heapq.heapify(leaves)
+    edges = []
+    for x in seq:
+        leaf = heapq.heappop(leaves)
+        edges.append((leaf, x))
+        degree[x] -= 1
+        if degree[x] == 1:
+            heapq.heappush(leaves, x)
+    u, v = heapq.heappop(leaves), heapq.heappop(leaves)
+    edges.append((u, v))
+    return edges
+
+
+def _undirected_edges(generator: str, params: dict, n: int, seed: int) -> list[tuple[int, int]]:
+    if generator == "path":
+        return [(i, i + 1) for i in range(n - 1)]
+    if generator == "star":
+        return [(0, i) for i in range(1, n)]
+    if generator == "ring":
+        return [(i, (i + 1) % n) for i in range(n)]
+    if generator == "balanced_tree":
+        r = int(params["r"])          # h only fixes n, checked with the params
+        # breadth-first labelling: the children of node v are r*v+1 .. r*v+r
+        return [(v, r * v + c) for v in range(n) for c in range(1, r + 1) if r * v + c < n]
+    if generator == "random_tree":
+        return random_tree_edges(n, stream(seed, "topology"))
+    if generator == "random_regular":
+        g = nx.random_regular_graph(int(params["d"]), n, seed=_nx_seed(seed))
+        return list(g.edges())
+    if generator == "erdos_renyi":
+        g = nx.gnp_random_graph(n, float(params["p"]), seed=_nx_seed(seed))
+        return list(g.edges())
+    raise GraphSpecError(f"unknown generator {generator!r}", "generator")  # pragma: no cover
+
+
+def _explicit_edges(edges, n: int, directed: bool) -> list[tuple[int, int]]:
+    if edges is None:
+        raise GraphSpecError("required with generator: edges (a list of [u, v] pairs)", "edges")
+    seen = set()
+    out = []
+    for idx, pair in enumerate(edges):
+        u, v = (int(x) for x in pair)
+        for node in (u, v):
+            if not 0 <= node < n:
+                raise GraphSpecError(
+                    f"node {node} is out of range 0..{n - 1} (there are {n} sensors)",
+                    f"edges.{idx}")
+        if u == v:
+            raise GraphSpecError(f"self-loop [{u}, {v}]", f"edges.{idx}")
+        key = (u, v) if directed else (min(u, v), max(u, v))
+        if key in seen:
+            raise GraphSpecError(f"[{u}, {v}] is listed twice", f"edges.{idx}")
+        seen.add(key)
+        out.append((u, v))
+    return out
+
+
+def build_graph(topology, n: int, seed: int) -> nx.Graph | nx.DiGraph:
+    """Build the topology graph on nodes ``0..n-1``.
+
+    ``topology`` is a scenario ``Topology`` (or anything with ``directed``,
+    ``generator``, ``params`` and ``edges`` attributes); ``seed`` is the
+    scenario seed, used when ``params`` has no ``seed``.  Raises
+    :class:`GraphSpecError` for bad parameters; connectivity is checked by
+    :func:`check_connected`.
+    """
+    generator = topology.generator
+    params = dict(topology.params or {})
+    directed = bool(topology.directed)
+    check_params(generator, params, n)
+    if generator != "edges" and topology.edges is not None:
+        raise GraphSpecError(f"only used with generator: edges (generator is {generator!r})",
+                             "edges")
+    seed = int(params.get("seed", seed))
+    graph = nx.DiGraph() if directed else nx.Graph()
+    graph.add_nodes_from(range(n))
+    if generator == "edges":
+        graph.add_edges_from(_explicit_edges(topology.edges, n, directed))
+    elif directed and generator == "ring":
+        graph.add_edges_from((i, (i + 1) % n) for i in range(n))
+    elif directed and generator == "erdos_renyi":
+        g = nx.gnp_random_graph(n, float(params["p"]), seed=_nx_seed(seed), directed=True)
+        graph.add_edges_from(g.edges())
+    else:
+        for u, v in _undirected_edges(generator, params, n, seed):
+            graph.add_edge(u, v)
+            if directed:
+                graph.add_edge(v, u)
+    return graph
+
+
+# --------------------------------------------------------------------------- checks
+def _fmt_nodes(nodes, limit: int = 8) -> str:
+    nodes = sorted(nodes)
+    text = ", ".join(str(v) for v in nodes[:limit])
+    return "{" + text + (", ..." if len(nodes) > limit else "") + "}"
+
+
+def check_connected(graph: nx.Graph | nx.DiGraph) -> None:
+    """Undirected: connected; directed: strongly connected.  Else GraphSpecError."""
+    if graph.number_of_nodes() <= 1:
+        return
+    if graph.is_directed():
+        comps = sorted((sorted(c) for c in nx.strongly_connected_components(graph)),
+                       key=lambda c: c[0])
+        if len(comps) > 1:
+            # find a concrete pair that has no directed path
+            src = comps[0][0]
+            reach = nx.descendants(graph, src) | {src}
+            missing = [v for v in graph.nodes if v not in reach]
+            if missing:
+                pair = f"node {src} cannot reach node {min(missing)}"
+            else:
+                back = nx.ancestors(graph, src) | {src}
+                pair = f"node {min(v for v in graph.nodes if v not in back)} cannot reach node {src}"
+            shown = "; ".join(_fmt_nodes(c) for c in comps[:4])
+            more = "; ..." if len(comps) > 4 else ""
+            raise GraphSpecError(
+                f"directed graph is not strongly connected ({pair}; {len(comps)} strongly "
+                f"connected components: {shown}{more})")
+    else:
+        comps = sorted((sorted(c) for c in nx.connected_components(graph)), key=lambda c: c[0])
+        if len(comps) > 1:
+            shown = "; ".join(_fmt_nodes(c) for c in comps[:4])
+            more = "; ..." if len(comps) > 4 else ""
+            raise GraphSpecError(
+                f"graph is disconnected ({len(comps)} components: {shown}{more})")
+
+
+def is_tree(graph: nx.Graph) -> bool:
+    """Connected undirected graph without cycles."""
+    return (not graph.is_directed() and graph.number_of_nodes() >= 1
+            and graph.number_of_edges() == graph.number_of_nodes() - 1
+            and nx.is_connected(graph))
+
+
+def bfs_spanning_tree(graph: nx.Graph) -> nx.Graph:
+    """BFS spanning tree rooted at the lowest-index centre (see module docstring)."""
+    n = graph.number_of_nodes()
+    tree = nx.Graph()
+    tree.add_nodes_from(sorted(graph.nodes))
+    if n <= 1:
+        return tree
+    root = min(nx.center(graph))
+    seen = {root}
+    frontier = [root]
+    while frontier:
+        nxt = []
+        for u in frontier:
+            for v in sorted(graph.neighbors(u)):
+                if v not in seen:
+                    seen.add(v)
+                    tree.add_edge(u, v)
+                    nxt.append(v)
+        frontier = nxt
+    return tree
+
+
+def all_pairs_work(graph: nx.Graph | nx.DiGraph) -> int:
+    """Nodes and edges visited by one breadth-first search from every node: the cost
+    of an exact diameter or centre of a graph that is not a tree."""
+    n = graph.number_of_nodes()
+    return n * (n + graph.number_of_edges())
+
+
+def _farthest(graph, source) -> tuple[int, int]:
+    """(a farthest node from ``source``, its distance) by breadth-first search."""
+    dist = nx.single_source_shortest_path_length(graph, source)
+    far = max(dist.items(), key=lambda kv: (kv[1], -kv[0]))
+    return far[0], far[1]
+
+
+def diameter(graph: nx.Graph | nx.DiGraph) -> int:
+    """(Directed) diameter; 0 for a single node.
+
+    A tree takes two breadth-first searches (the farthest node from any node
+    is an end of a longest path); any other graph one from every node.
+    """
+    if graph.number_of_nodes() <= 1:
+        return 0
+    graph = _undirected_if_symmetric(graph)
+    if is_tree(graph):
+        end, _ = _farthest(graph, min(graph.nodes))
+        return _farthest(graph, end)[1]
+    return int(nx.diameter(graph))
+
+
+def _undirected_if_symmetric(graph):
+    """A digraph whose every arc has its reverse has the distances of its undirected view."""
+    if graph.is_directed() and all(graph.has_edge(v, u) for u, v in graph.edges):
+        return graph.to_undirected(as_view=True)
+    return graph
+
+
+def diameter_bounds(graph: nx.Graph | nx.DiGraph) -> tuple[int, int]:
+    """Cheap ``(lower, upper)`` bounds of :func:`diameter` (exact for a tree).
+
+    Lower: the eccentricity reached by two sweeps of breadth-first search;
+    upper: ``ecc_out(v) + ecc_in(v)`` of a node (``2 ecc(v)`` undirected).
+    """
+    n = graph.number_of_nodes()
+    if n <= 1:
+        return 0, 0
+    graph = _undirected_if_symmetric(graph)
+    if is_tree(graph):
+        d = diameter(graph)
+        return d, d
+    v0 = min(graph.nodes)
+    far, e_out = _farthest(graph, v0)
+    lower = max(e_out, _farthest(graph, far)[1])
+    e_in = _farthest(graph.reverse(copy=False), v0)[1] if graph.is_directed() else e_out
+    return lower, min(n - 1, e_out + e_in)
+
+
+# --------------------------------------------------------------------------- exchange
+@dataclass(frozen=True)
+class ExchangeGraph:
+    """The graph a protocol runs on.
+
+    ``graph``: undirected tree (``tree``) or DiGraph (``flood``); ``arcs``:
+    every directed link ``(u, v)`` in sorted order; ``neighbors[i]``: sorted
+    out-neighbours of node ``i``; ``d_g``: its (directed) diameter, computed
+    when first asked for (on a large graph that is not a tree it costs one
+    search per node, see :func:`all_pairs_work`).
+    """
+
+    graph: nx.Graph | nx.DiGraph
+    arcs: list[tuple[int, int]] = field(default_factory=list)
+    neighbors: list[list[int]] = field(default_factory=list)
+
+    @property
+    def n(self) -> int:
+        return self.graph.number_of_nodes()
+
+    @functools.cached_property
+    def d_g(self) -> int:
+        return diameter(self.graph)
+
+    @functools.cached_property
+    def d_g_bounds(self) -> tuple[int, int]:
+        """Cheap (lower, upper) bounds of ``d_g``."""
+        if "d_g" in self.__dict__:
+            return self.d_g, self.d_g
+        return diameter_bounds(self.graph)
+
+
+def make_exchange(graph: nx.Graph | nx.DiGraph, protocol: str,
+                  spanning_tree: bool = False) -> ExchangeGraph:
+    """Exchange graph of a validated topology ``graph`` for ``protocol``."""
+    if protocol == "tree":
+        if graph.is_directed():
+            raise GraphSpecError("protocol tree needs an undirected topology; use flood")
+        used = bfs_spanning_tree(graph) if spanning_tree else graph
+        if not is_tree(used):
+            raise GraphSpecError("protocol tree needs a tree; set spanning_tree: true")
+        used = nx.Graph(used)
+    elif protocol == "flood":
+        if spanning_tree:
+            if graph.is_directed():
+                raise GraphSpecError("spanning_tree needs an undirected topology")
+            graph = bfs_spanning_tree(graph)
+        used = nx.DiGraph(graph) if graph.is_directed() else graph.to_directed()
+    else:
+        raise GraphSpecError(f"unknown protocol {protocol!r}")
+    n = used.number_of_nodes()
+    if used.is_directed():
+        arcs = sorted((int(u), int(v)) for u, v in used.edges())
+        neighbors = [sorted(int(v) for v in used.successors(i)) for i in range(n)]
+    else:
+        arcs = sorted([(int(u), int(v)) for u, v in used.edges()]
+                      + [(int(v), int(u)) for u, v in used.edges()])
+        neighbors = [sorted(int(v) for v in used.neighbors(i)) for i in range(n)]
+    return ExchangeGraph(graph=used, arcs=arcs, neighbors=neighbors)
+
+
+def exchange_graph(scenario: "Scenario") -> ExchangeGraph:
+    """The graph ``scenario.protocol`` runs on (see the module docstring)."""
+    return scenario.exchange()
+
+
+# --------------------------------------------------------------------------- weights
+def unit_weights(n: int) -> np.ndarray:
+    """Effective origin weights for ``weights: unit``: all ones."""
+    return np.ones((n, n))
+
+
+def paper_weights(tree: nx.Graph) -> np.ndarray:
+    """Effective origin weights for ``weights: paper`` on a tree.
+
+    ``A[i, o]`` is the product, over the nodes ``v`` on the tree path from
+    ``o`` to ``i`` other than ``o``, of ``1 / |N_v|`` (``|N_v|`` the degree of
+    ``v``): each receiver ``v`` scales what it got from a neighbour by
+    ``w_vl = 1/|N_v|``.  ``A[i, i] = 1``.
+    """
+    if not is_tree(tree):
+        raise ValueError("paper_weights needs an undirected tree")
+    n = tree.number_of_nodes()
+    A = np.zeros((n, n))
+    inv_deg = {v: 1.0 / tree.degree(v) if tree.degree(v) else 1.0 for v in tree.nodes}
+    for o in range(n):
+        A[o, o] = 1.0
+        frontier = [o]
+        while frontier:
+            nxt = []
+            for u in frontier:
+                for v in tree.neighbors(u):
+                    if v != o and A[v, o] == 0.0:
+                        A[v, o] = A[u, o] * inv_deg[v]
+                        nxt.append(v)
+            frontier = nxt
+    return A

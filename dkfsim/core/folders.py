@@ -1,0 +1,211 @@
+"""Writing result folders: checked up front, swapped in atomically, one number encoding.
+
+Every command that writes a folder (``run``, ``montecarlo``, ``maxdelay``)
+goes through :func:`check_target` *before* it computes anything and
+:func:`staged` when it writes:
+
+* the target must be a new folder, an empty one, or one that dkfsim wrote
+  (it holds the marker file :data:`MARKER`, or only the names dkfsim
+  writes); a file, a folder of someone else's files or an unwritable
+  parent is refused with a clear error before any work is done;
+* the whole output is written into a fresh folder beside the target and
+  then exchanged with it in one step (``renameat2(RENAME_EXCHANGE)`` on
+  Linux; elsewhere two renames, the previous folder kept as
+  ``.<name>.old-*`` if the process dies between them).  A reader sees the
+  complete previous output or the complete new one, never a truncated file
+  or files of two runs side by side.  The previous output is deleted once
+  the new one is in place.
+
+Numbers: JSON and CSV write non-finite floats one way, as the strings
+``"nan"``, ``"inf"`` and ``"-inf"`` (the spelling of Python's ``repr``, which
+``float()``, numpy and pandas read back); :func:`from_json` turns them back
+into floats.  numpy scalars become Python numbers.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import ctypes
+import ctypes.util
+import json
+import math
+import os
+import shutil
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+from dkfsim.core.errors import DkfsimError
+
+#: The file that marks a folder as written by dkfsim (safe to replace).
+MARKER = ".dkfsim-output"
+#: Names dkfsim writes into a result folder (a folder holding only these is ours).
+KNOWN_OUTPUTS = frozenset({MARKER, "summary.json", "run.npz", "runs.csv", "curves.npz",
+                           "maxdelay.json", "maxdelay.png", "maxdelay.pdf", "figures"})
+NONFINITE = {"nan": math.nan, "inf": math.inf, "-inf": -math.inf}
+
+
+# =========================================================================== numbers
+def number_text(v: float) -> str | float:
+    """A float for JSON: itself when finite, else ``"nan"``, ``"inf"`` or ``"-inf"``."""
+    return v if math.isfinite(v) else repr(float(v))
+
+
+def to_json(obj):
+    """A copy of ``obj`` that standard JSON can hold (see the module docstring)."""
+    if isinstance(obj, dict):
+        return {str(k): to_json(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple, set)):
+        return [to_json(v) for v in obj]
+    if isinstance(obj, np.ndarray):
+        return to_json(obj.tolist())
+    if isinstance(obj, (bool, np.bool_)):
+        return bool(obj)
+    if isinstance(obj, np.integer):
+        return int(obj)
+    if isinstance(obj, (float, np.floating)):
+        return number_text(float(obj))
+    if obj is None or isinstance(obj, (str, int)):
+        return obj
+    return str(obj)
+
+
+def from_json(obj):
+    """``obj`` with the strings ``"nan"``, ``"inf"``, ``"-inf"`` read back as floats."""
+    if isinstance(obj, dict):
+        return {k: from_json(v) for k, v in obj.items()}
+    if isinstance(obj, list):
+        return [from_json(v) for v in obj]
+    if isinstance(obj, str) and obj in NONFINITE:
+        return NONFINITE[obj]
+    return obj
+
+
+def csv_cell(v):
+    """A CSV cell: floats by ``repr`` (``nan``, ``inf`` included), ``None`` empty."""
+    if v is None:
+        return ""
+    if isinstance(v, (float, np.floating)):
+        return repr(float(v))
+    if isinstance(v, np.integer):
+        return int(v)
+    if isinstance(v, (list, dict)):
+        return json.dumps(to_json(v), sort_keys=True, separators=(",", ":"))
+    return v
+
+
+def json_text(obj) -> str:
+    """``obj`` as indented standard JSON text (converted first, so a failure writes nothing)."""
+    return json.dumps(to_json(obj), indent=2, allow_nan=False) + "\n"
+
+
+def write_json(path, obj) -> None:
+    """Write ``obj`` as JSON, atomically (a temporary file renamed over ``path``)."""
+    write_text(path, json_text(obj))
+
+
+def write_text(path, text: str) -> None:
+    """Write a text file atomically."""
+    path = Path(path)
+    tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
+    try:
+        tmp.write_text(text, encoding="utf-8")
+        os.replace(tmp, path)
+    finally:
+        tmp.unlink(missing_ok=True)
+
+
+# =========================================================================== folders
+def _owned(folder: Path, entries: list[str]) -> bool:
+    return MARKER in entries or all(e in KNOWN_OUTPUTS for e in entries)
+
+
+def check_target(out_dir, flag: str = "--out") -> Path:
+    """Check that ``out_dir`` can receive a result folder; return it as a Path.
+
+    Called before any work.  Creates missing parent folders and probes that a
+    folder can be made beside the target (which is where :func:`staged`
+    writes).  Raises :class:`DkfsimError` naming ``flag``.
+    """
+    text = os.fspath(out_dir) if out_dir is not None else ""
+    if not str(text).strip():
+        raise DkfsimError(f"{flag}: empty path; give the folder to write into")
+    out = Path(text)
+    if out.exists() or out.is_symlink():
+        if not out.is_dir():
+            raise DkfsimError(f"{flag} {text}: exists and is not a folder; give a folder name")
+        try:
+            entries = sorted(os.listdir(out))
+        except OSError as exc:
+            raise DkfsimError(f"{flag} {text}: cannot read the folder ({exc.strerror})") from None
+        if entries and not _owned(out, entries):
+            shown = ", ".join(entries[:5]) + (", ..." if len(entries) > 5 else "")
+            raise DkfsimError(f"{flag} {text}: the folder holds files dkfsim did not write ({shown}); "
+                              "it would be replaced as a whole: choose a new or empty folder")
+        for name in ("run.npz", "summary.json", "runs.csv", "curves.npz", "maxdelay.json"):
+            if (out / name).is_dir():
+                raise DkfsimError(f"{flag} {text}: {name} inside it is a folder; remove it or "
+                                  "choose another folder")
+    parent = out.absolute().parent
+    try:
+        parent.mkdir(parents=True, exist_ok=True)
+        probe = tempfile.mkdtemp(prefix=f".{out.name}.probe-", dir=parent)
+        os.rmdir(probe)
+    except OSError as exc:
+        raise DkfsimError(f"{flag} {text}: cannot write in {parent} ({exc.strerror})") from None
+    return out
+
+
+def _exchange(a: Path, b: Path) -> bool:
+    """Swap two paths atomically (Linux ``renameat2``); False when not supported."""
+    try:
+        libc = ctypes.CDLL(ctypes.util.find_library("c") or None, use_errno=True)
+        fn = libc.renameat2
+    except (OSError, AttributeError):
+        return False
+    fn.argtypes = [ctypes.c_int, ctypes.c_char_p, ctypes.c_int, ctypes.c_char_p, ctypes.c_uint]
+    AT_FDCWD, RENAME_EXCHANGE = -100, 2
+    if fn(AT_FDCWD, os.fsencode(a), AT_FDCWD, os.fsencode(b), RENAME_EXCHANGE) == 0:
+        return True
+    return False
+
+
+def _swap_in(stage: Path, target: Path) -> None:
+    if not target.exists() and not target.is_symlink():
+        os.rename(stage, target)
+        return
+    if _exchange(stage, target):
+        shutil.rmtree(stage, ignore_errors=True)          # now holds the previous output
+        return
+    old = Path(tempfile.mkdtemp(prefix=f".{target.name}.old-", dir=target.parent))
+    os.rmdir(old)
+    os.rename(target, old)
+    os.rename(stage, target)
+    shutil.rmtree(old, ignore_errors=True)
+
+
+@contextlib.contextmanager
+def staged(out_dir, what: str, flag: str = "--out"):
+    """Write a result folder atomically: ``with staged(DIR, "run") as tmp: write into tmp``.
+
+    On success the folder replaces ``DIR`` as a whole; on any error (or a
+    kill) ``DIR`` is untouched and the staging folder is removed.
+    """
+    target = check_target(out_dir, flag)
+    stage = Path(tempfile.mkdtemp(prefix=f".{target.name}.new-", dir=target.absolute().parent))
+    try:
+        yield stage
+        (stage / MARKER).write_text(f"written by dkfsim {what}; the folder is replaced as a whole "
+                                    "by the next command that writes here\n")
+        os.chmod(stage, 0o777 & ~_umask())
+        _swap_in(stage, target)
+    except BaseException:
+        shutil.rmtree(stage, ignore_errors=True)
+        raise
+
+
+def _umask() -> int:
+    mask = os.umask(0)
+    os.umask(mask)
+    return mask

@@ -1,0 +1,235 @@
+"""Information-form Kalman filtering, batched over nodes.
+
+Every filter in dkfsim -- each node's buffered window filter (docs/design.md
+§4, the paper's Algorithms 1 and 2) and the centralized baseline --
+is the same recursion: predict with ``Phi, Q``, then add the information
+``Omega = sum omega_m``, ``Theta = sum theta_m`` of the contributions held::
+
+    Pp = Phi P Phi' + Q                    # paper eq. (predict_delay_P)
+    P  = (Pp^-1 + Omega)^-1                # paper eq. (COV_delay)
+    x  = P (Pp^-1 Phi x + Theta)           # paper eq. (COV_state)
+
+We never form ``Pp^-1``: with ``M = I + Pp Omega`` (eigenvalues >= 1, so well
+conditioned whenever ``Pp`` is), ``G = M^-1 = P Pp^-1`` (the "I - K H" of the
+covariance form), ``P = G Pp`` and ``x = M^-1 (xp + Pp Theta)``: one batched
+linear solve per row for all nodes at once.  ``G`` is also what the fusion
+cross-covariance recursion needs (:mod:`dkfsim.estimators.fusion`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from dkfsim.core.linalg import solve
+
+
+def information_step(Phi, Q, x_prev, P_prev, Omega, Theta):
+    """One predict/update for a batch of filters.
+
+    :param x_prev: (b, nx) previous estimates; ``P_prev`` (b, nx, nx).
+    :param Omega: (b, nx, nx) information matrices held for this row.
+    :param Theta: (b, nx) information vectors held for this row.
+    :returns: ``x, P, G`` with ``G = P Pp^-1``.
+    """
+    nx = Phi.shape[0]
+    eye = _eye(nx)
+    xp = x_prev @ Phi.T
+    Pp = Phi @ P_prev @ Phi.T
+    Pp += Q
+    M = Pp @ Omega
+    M += eye
+    rhs = np.empty(Pp.shape[:-1] + (nx + 1,))
+    rhs[..., :nx] = eye
+    rhs[..., nx:] = (Pp @ Theta[..., None])
+    rhs[..., nx] += xp
+    sol = solve(M, rhs)
+    G = sol[..., :nx]
+    x = sol[..., nx]
+    P = G @ Pp
+    P += np.swapaxes(P, -1, -2)
+    P *= 0.5
+    return x, P, G
+
+
+_EYES: dict[int, np.ndarray] = {}
+
+
+def _eye(nx: int) -> np.ndarray:
+    """A cached identity: ``np.eye`` per row and node batch is measurable overhead."""
+    eye = _EYES.get(nx)
+    if eye is None:
+        eye = _EYES[nx] = np.eye(nx)
+        eye.setflags(write=False)
+    return eye
+
+
+def batched_filter(Phi, Q, x0, P0, Omega, Theta):
+    """``b`` independent information filters.
+
+    :param Omega: (b, nx, nx) information added at every row, or (K, b, nx, nx) per row.
+    :param Theta: (K, b, nx) information vectors per row.
+    :returns: ``x`` (K, b, nx) and ``P`` (K, b, nx, nx).
+    """
+    K, b, nx = Theta.shape
+    xs = np.empty((K, b, nx))
+    Ps = np.empty((K, b, nx, nx))
+    x = np.broadcast_to(np.asarray(x0, float), (b, nx))
+    P = np.broadcast_to(np.asarray(P0, float), (b, nx, nx))
+    per_row = Omega.ndim == 4
+    for r in range(K):
+        x, P, _ = information_step(Phi, Q, x, P, Omega[r] if per_row else Omega, Theta[r])
+        xs[r] = x
+        Ps[r] = P
+    return xs, Ps
+
+
+def centralized_filter(Phi, Q, x0, P0, omega_total, theta_total):
+    """The centralized information filter that holds every contribution on time.
+
+    :param omega_total: (nx, nx) sum of all sensors' ``omega``, or (K, nx, nx) per row.
+    :param theta_total: (K, nx) sum over sensors of ``theta`` per row.
+    :returns: ``x`` (K, nx) and ``P`` (K, nx, nx).
+    """
+    Om = omega_total[:, None] if omega_total.ndim == 3 else omega_total[None]
+    xs, Ps = batched_filter(Phi, Q, x0, P0, Om, theta_total[:, None, :])
+    return xs[:, 0], Ps[:, 0]
+
+
+@dataclass
+class WindowState:
+    """Ring buffers of the last ``L + 1`` rows for all nodes.
+
+    Slot ``r % (L + 1)`` holds row ``r``: its information sums (``Omega``,
+    ``Theta``, accumulated as contributions arrive), which origins each node
+    holds (``held``), and the estimates last computed for it (``x``, ``P``,
+    ``G``).  ``L + 1`` slots because the window of rows ``k-L .. k-1`` starts
+    from the final estimate of row ``k-L-1``.
+    """
+
+    x: np.ndarray       # (S, n, nx)
+    P: np.ndarray       # (S, n, nx, nx)
+    G: np.ndarray       # (S, n, nx, nx)
+    Omega: np.ndarray   # (S, n, nx, nx)
+    Theta: np.ndarray   # (S, n, nx)
+    held: np.ndarray    # (S, n, n_origins) bool: held[slot, i, o]
+
+    @classmethod
+    def empty(cls, L: int, n: int, nx: int, n_origins: int | None = None) -> "WindowState":
+        S = L + 1
+        n_origins = n if n_origins is None else n_origins
+        return cls(
+            x=np.zeros((S, n, nx)),
+            P=np.zeros((S, n, nx, nx)),
+            G=np.zeros((S, n, nx, nx)),
+            Omega=np.zeros((S, n, nx, nx)),
+            Theta=np.zeros((S, n, nx)),
+            held=np.zeros((S, n, n_origins), dtype=bool),
+        )
+
+    def reset_slot(self, slot: int) -> None:
+        self.Omega[slot] = 0.0
+        self.Theta[slot] = 0.0
+        self.held[slot] = False
+
+
+class WindowFilter:
+    """All nodes' buffered window filters (the anti-delay DKF's Step 1).
+
+    The filter itself holds no network logic: the exchange protocol reports
+    each contribution a node newly holds through :meth:`add`, and the tick
+    driver calls :meth:`update` once per tick after every delivery at that
+    instant.  ``update`` re-runs rows from the earliest row that changed
+    since the last tick (an optimisation docs/design.md §4 allows because the
+    result is identical), batched over nodes.
+
+    :param info: the :class:`~dkfsim.model.system.Information` of all sensors.
+    :param A: (nodes, origins) effective origin weights ``a_io`` (ones for
+        unit weights).  Usually nodes and origins are the same sensors; a
+        fusion centre without sensors of its own is one node with n origins.
+    """
+
+    def __init__(self, Phi, Q, x0, P0, info, A, L):
+        self.Phi = np.asarray(Phi, float)
+        self.Q = np.asarray(Q, float)
+        self.info = info            # dkfsim.model.system.Information
+        self.theta = info.theta     # (K, n, nx)
+        omega = info.omega
+        self.A = np.asarray(A, float)
+        self.L = int(L)
+        # L + 1 slots, but never more than the run has rows (+1): with L >= K no
+        # row ever wraps, so a huge L (a huge delay bound) costs no memory.
+        self.S = min(self.L, self.theta.shape[0]) + 1
+        n, nx = self.A.shape[0], omega.shape[-1]
+        self.n, self.nx = n, nx
+        self.state = WindowState.empty(self.S - 1, n, nx, n_origins=self.theta.shape[1])
+        self.x0 = np.broadcast_to(np.asarray(x0, float), (n, nx)).copy()
+        self.P0 = np.broadcast_to(np.asarray(P0, float), (n, nx, nx)).copy()
+        self._pend_i: list[int] = []
+        self._pend_o: list[int] = []
+        self._pend_r: list[int] = []
+        self._chunks: list[tuple[int, np.ndarray, int]] = []
+
+    # -- contributions -----------------------------------------------------
+    def add(self, node: int, origin: int, row: int) -> None:
+        """Node ``node`` now holds ``origin``'s contribution for ``row``."""
+        self._pend_i.append(node)
+        self._pend_o.append(origin)
+        self._pend_r.append(row)
+
+    def add_many(self, node: int, origins: np.ndarray, row: int) -> None:
+        """Node ``node`` now holds the contributions of all ``origins`` for ``row``."""
+        self._chunks.append((node, origins, row))
+
+    def _apply_pending(self) -> int | None:
+        """Fold pending contributions into the ring; earliest changed row."""
+        if not self._pend_i and not self._chunks:
+            return None
+        i = np.array(self._pend_i, dtype=np.intp)
+        o = np.array(self._pend_o, dtype=np.intp)
+        r = np.array(self._pend_r, dtype=np.intp)
+        if self._chunks:
+            sizes = [len(c[1]) for c in self._chunks]
+            i = np.concatenate([i, np.repeat([c[0] for c in self._chunks], sizes)])
+            o = np.concatenate([o] + [c[1] for c in self._chunks]).astype(np.intp)
+            r = np.concatenate([r, np.repeat([c[2] for c in self._chunks], sizes)])
+        self._pend_i, self._pend_o, self._pend_r, self._chunks = [], [], [], []
+        slot = r % self.S
+        a = self.A[i, o]
+        st = self.state
+        st.held[slot, i, o] = True
+        np.add.at(st.Omega, (slot, i), a[:, None, None] * self.info.omega_of(r, o))
+        np.add.at(st.Theta, (slot, i), a[:, None] * self.theta[r, o])
+        return int(r.min())
+
+    # -- the tick ------------------------------------------------------------
+    def begin_row(self, row: int) -> None:
+        """Clear the ring slot that ``row`` (a new row) will use."""
+        self.state.reset_slot(row % self.S)
+
+    def update(self, k: int, on_row=None) -> int:
+        """Run the window at tick ``k`` (1-based) for rows ``k-L .. k-1``.
+
+        :param on_row: optional callback ``on_row(row, slot, prev_slot)`` after
+            each recomputed row (the fusion recursion hooks in here);
+            ``prev_slot`` is None when the row starts from the prior.
+        :returns: the first row recomputed.
+        """
+        changed = self._apply_pending()
+        last = k - 1
+        start = last if changed is None else min(changed, last)
+        start = max(start, k - self.L, 0)
+        st = self.state
+        for row in range(start, last + 1):
+            slot = row % self.S
+            if row == 0:
+                xp, Pp, prev = self.x0, self.P0, None
+            else:
+                prev = (row - 1) % self.S
+                xp, Pp = st.x[prev], st.P[prev]
+            x, P, G = information_step(self.Phi, self.Q, xp, Pp, st.Omega[slot], st.Theta[slot])
+            st.x[slot], st.P[slot], st.G[slot] = x, P, G
+            if on_row is not None:
+                on_row(row, slot, prev)
+        return start
