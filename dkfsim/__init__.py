@@ -11,17 +11,21 @@ Python API (mirrors the CLI; each call runs BLAS on one thread)::
     old = dkfsim.load_run("out/case1")
     dkfsim.sweep("scenarios/sweep_delay_bound.yaml", jobs=2)
     dkfsim.maxdelay("scenarios/paper_case1.yaml", relative=1.5, steps=300)
+
+The package's folders are its stages, in the order data flows (README, "How
+it works"); importing it registers every built-in component.
 """
 
-__version__ = "0.1.0"
-
-from dkfsim.core.errors import DkfsimError, ScenarioError  # noqa: E402
-from dkfsim.experiments.maxdelay import maxdelay  # noqa: E402
-from dkfsim.experiments.montecarlo import montecarlo  # noqa: E402
-from dkfsim.engine.results import RunResult, load_run  # noqa: E402
-from dkfsim.config.schema import Scenario, load_scenario  # noqa: E402
-from dkfsim.engine.driver import run  # noqa: E402
-from dkfsim.experiments.sweep import run_sweep as sweep  # noqa: E402
+from dkfsim.core.version import __version__
+from dkfsim.core.errors import DkfsimError, ScenarioError
+from dkfsim import components, model, protocols, estimators  # noqa: F401  (registration)
+from dkfsim.config.load import load_scenario
+from dkfsim.config.schema import Scenario
+from dkfsim.engine.driver import run
+from dkfsim.engine.results import RunResult, load_run
+from dkfsim.experiments.maxdelay import maxdelay
+from dkfsim.experiments.montecarlo import montecarlo
+from dkfsim.experiments.sweep import run_sweep as sweep
 
 __all__ = ["DkfsimError", "RunResult", "Scenario", "ScenarioError", "load_run", "load_scenario",
            "maxdelay", "montecarlo", "run", "sweep", "__version__"]

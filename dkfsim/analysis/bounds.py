@@ -73,6 +73,8 @@ from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
+from dkfsim.model.system import LinearSensor
+
 #: Relative eigenvalue threshold under which a Gramian counts as singular.
 GRAMIAN_RTOL = 1e-10
 
@@ -344,18 +346,12 @@ def paper_bound(Phi, Q, omegas, P0, graph, p_tol: float, *, horizon: int = 1000,
 def paper_bound_for_scenario(scenario, p_tol: float, *, k_minus_s: int = 0) -> PaperBound:
     """:func:`paper_bound` for a scenario: its model, its sensors' information
     and the graph its protocol runs on."""
-    from dkfsim.engine.driver import sensor_model
     omegas = []
-    for i, spec in enumerate(scenario.sensors):
-        if getattr(spec, "kind", "linear") != "linear":
+    for spec in scenario.sensors:
+        if spec.kind != "linear":
             raise ValueError(f"sensor {spec.name} is a {spec.kind} sensor, whose information "
                              "changes with its measurement; the paper's bound assumes linear sensors")
-        model = sensor_model(spec)
-        om = getattr(model, "omega", None)
-        if om is None:
-            raise ValueError(f"sensor {spec.name} ({getattr(model, 'kind', '?')}) has no constant "
-                             "information matrix; the paper's bound assumes linear sensors")
-        omegas.append(om)
+        omegas.append(LinearSensor(spec.H_matrix(), spec.R_matrix()).omega)
     return paper_bound(scenario.model.Phi_matrix(), scenario.model.Q_matrix(), omegas,
                        scenario.prior.cov_matrix(), scenario.exchange().graph, p_tol,
                        horizon=int(scenario.steps), k_minus_s=k_minus_s)

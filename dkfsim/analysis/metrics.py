@@ -1,18 +1,33 @@
-"""Accuracy and cost metrics of one run, and pooling over independent runs.
+"""Metrics: how good and how costly each estimate of a run is, and pooling over runs.
 
 Kept free of any simulation logic: everything here is a function of the
-arrays a run writes (docs/design.md §8), so the same code scores a fresh
-run and a ``run.npz`` read back from disk.  The second half serves
-:mod:`dkfsim.experiments.montecarlo`: per-tick squared errors, NEES and node
-disagreement of one run; Student-t intervals over runs; the chi-square band
-of the mean NEES; the nominal packet size.
+arrays a run writes (docs/design.md §8) and of the traffic it counted, so
+the same code scores a fresh run and a ``run.npz`` read back from disk.
+
+The named metrics (:data:`~dkfsim.core.registry.METRICS`) give the tidy rows
+every output shares (:func:`score`): one row per estimate and state
+component with ``mse`` (per component; per-node estimates averaged over the
+nodes), ``anees``, ``disagreement`` (per-node estimates only),
+``messages_per_tick``, ``bytes_per_tick``, ``lost`` and ``late`` (``NaN``
+where they do not apply: no covariance, a single estimate, no network
+model).  ``run``, ``montecarlo`` and ``sweep`` write these rows with the
+same columns (:data:`ROW_COLUMNS`).  Registering a metric adds a column
+everywhere (docs/extending.md).  The rest: per-tick curves, Student-t
+intervals over runs, the chi-square band of the mean NEES.
 """
 
 from __future__ import annotations
 
+import math
+from dataclasses import dataclass
+from typing import Callable
+
 import numpy as np
+from scipy.stats import chi2
+from scipy.stats import t as student_t
 
 from dkfsim.core.linalg import solve
+from dkfsim.core.registry import METRICS
 
 
 def default_burn_in(K: int) -> int:
@@ -34,27 +49,6 @@ def nees(x: np.ndarray, P: np.ndarray, truth: np.ndarray) -> np.ndarray:
     """Normalised estimation error squared per row (uses a solve, not an inverse)."""
     e = truth - x
     return np.einsum("...i,...i->...", e, solve(P, e[..., None])[..., 0])
-
-
-def run_metrics(arrays: dict, burn_in: int) -> dict:
-    """MSE per component for the fused estimate, the mean of the local ones and baselines."""
-    truth = arrays["truth"]
-    out = {"burn_in": int(burn_in)}
-    if "x_fused" in arrays:
-        out["fused"] = mse_per_component(arrays["x_fused"], truth, burn_in).tolist()
-    out["local_mean"] = mse_per_component(arrays["x_local"], truth, burn_in).tolist()
-    for key in sorted(arrays):
-        if key.startswith("x_") and key not in ("x_local", "x_final", "x_fused", "x0_mean"):
-            out[key[2:]] = mse_per_component(arrays[key], truth, burn_in).tolist()
-    return out
-
-
-# =========================================================================== Monte Carlo
-# Everything below scores one run (per-tick curves, per-run scalars) or pools
-# independent runs (confidence intervals, the chi-square band of the mean NEES).
-
-#: Bytes of a packet header in the nominal packet size (sequence number, link, row, time).
-HEADER_BYTES = 16
 
 
 def squared_error(x: np.ndarray, truth: np.ndarray) -> np.ndarray:
@@ -94,17 +88,92 @@ def disagreement(x: np.ndarray, burn_in: int) -> float:
     return float(np.mean(disagreement_per_tick(x[burn_in:])))
 
 
-def packet_bytes(nx: int, n: int, rows: int = 1) -> int:
-    """Nominal size in bytes of one packet carrying ``rows`` window rows.
+# =========================================================================== named metrics
+@dataclass(frozen=True)
+class Scored:
+    """What a metric sees of one estimate of one run."""
 
-    ``HEADER_BYTES`` plus, per row, the information vector and the upper
-    triangle of the information matrix as float64
-    (``8 * (nx + nx (nx + 1) / 2)``) and the origin bitmask (``ceil(n / 8)``).
+    x: np.ndarray                 # (K, nx) or per node (K, n, nx)
+    P: np.ndarray | None
+    truth: np.ndarray             # (K, nx)
+    traffic: dict | None          # the estimator's counts (None: no network model)
+    burn_in: int
+
+    @property
+    def K(self) -> int:
+        return self.truth.shape[0]
+
+
+@dataclass(frozen=True)
+class Metric:
+    """A named metric: ``value(s)`` is one number, or one per state component when
+    ``per_component``."""
+
+    value: Callable[[Scored], float | np.ndarray]
+    per_component: bool = False
+    unit: str = ""
+
+
+def _traffic(key: str, scale: bool):
+    def value(s: Scored) -> float:
+        if s.traffic is None or key not in s.traffic:
+            return math.nan
+        v = float(s.traffic[key])
+        return v / s.K if scale else v
+    return value
+
+
+def _anees(s: Scored) -> float:
+    if s.P is None:
+        return math.nan
+    return float(np.mean(nees_per_tick(s.x, s.P, s.truth)[s.burn_in:]))
+
+
+for _name, _metric, _doc in (
+        ("mse", Metric(lambda s: mse_per_component(s.x, s.truth, s.burn_in), True, "state unit^2"),
+         "time-averaged squared error after the burn-in, per state component (per node: mean over nodes)"),
+        ("anees", Metric(_anees),
+         "time average after the burn-in of the NEES (per node: mean over nodes); nx when consistent"),
+        ("disagreement", Metric(lambda s: disagreement(s.x, s.burn_in) if s.x.ndim == 3 else math.nan),
+         "per-node estimates: time average of the mean squared distance to the nodes' mean"),
+        ("messages_per_tick", Metric(_traffic("sent", True), unit="1/tick"),
+         "packets the estimator sent, per tick"),
+        ("bytes_per_tick", Metric(_traffic("bytes", True), unit="B/tick"),
+         "nominal bytes of those packets (8-byte floats, headers, origin masks), per tick"),
+        ("lost", Metric(_traffic("lost", False)), "packets the links lost"),
+        ("late", Metric(_traffic("late", False)),
+         "information that arrived too late to be used (the DKF: late contributions)")):
+    METRICS.add(_name, implementation=_metric, description=_doc)
+
+#: The columns of a tidy row, in order (metrics by their registration order).
+KEY_COLUMNS = ("run", "seed", "estimate", "component")
+
+
+def row_columns() -> tuple[str, ...]:
+    """Every column of a tidy row: the keys, then every registered metric."""
+    return KEY_COLUMNS + tuple(METRICS.names())
+
+
+def score(name: str, x, P, truth, traffic, burn_in: int, components) -> list[dict]:
+    """The tidy rows of one estimate of one run: one per state component, every metric.
+
+    ``run`` and ``seed`` are left to the caller.  Non-applicable metrics are NaN.
     """
-    per_row = 8 * (nx + nx * (nx + 1) // 2) + -(-n // 8)
-    return HEADER_BYTES + rows * per_row
+    s = Scored(np.asarray(x), None if P is None else np.asarray(P), truth, traffic, int(burn_in))
+    values = {}
+    with np.errstate(all="ignore"):          # diverged estimates: inf / nan, reported as such
+        for entry in METRICS.entries():
+            values[entry.name] = (entry.implementation.per_component, entry.implementation.value(s))
+    rows = []
+    for c, comp in enumerate(components):
+        row = {"estimate": name, "component": comp}
+        for key, (per_comp, v) in values.items():
+            row[key] = float(v[c]) if per_comp else float(v)
+        rows.append(row)
+    return rows
 
 
+# =========================================================================== over runs
 def t_interval(samples, level: float = 0.95, axis: int = 0):
     """Mean and two-sided Student-t confidence interval over independent samples.
 
@@ -112,7 +181,6 @@ def t_interval(samples, level: float = 0.95, axis: int = 0):
     ``mean -+ t_{(1+level)/2, N-1} * s / sqrt(N)`` with ``s`` the sample
     standard deviation (``ddof=1``).  With one sample the bounds are NaN.
     """
-    from scipy.stats import t as student_t
     a = np.asarray(samples, dtype=float)
     N = a.shape[axis]
     mean = a.mean(axis=axis)
@@ -126,7 +194,6 @@ def t_interval(samples, level: float = 0.95, axis: int = 0):
 def t_interval_from_moments(mean, m2, N: int, level: float = 0.95):
     """:func:`t_interval` from a running mean and sum of squared deviations
     ``m2`` (Welford) of ``N`` samples: ``(lo, hi)``."""
-    from scipy.stats import t as student_t
     mean = np.asarray(mean, dtype=float)
     if N < 2:
         nan = np.full_like(mean, np.nan)
@@ -141,7 +208,6 @@ def paired_lower_bound(a, b, level: float = 0.95, axis: int = 0):
 
     A positive bound supports ``E[a] < E[b]`` at that level.
     """
-    from scipy.stats import t as student_t
     d = np.asarray(b, dtype=float) - np.asarray(a, dtype=float)
     N = d.shape[axis]
     if N < 2:
@@ -160,7 +226,6 @@ def nees_band(runs: int, nx: int, level: float = 0.95) -> np.ndarray:
     Over time the NEES of one run is autocorrelated, so this per-tick band is
     not the band of the time-averaged ANEES; see :func:`anees_summary`.
     """
-    from scipy.stats import chi2
     dof = runs * nx
     return chi2.ppf([0.5 - level / 2, 0.5 + level / 2], dof) / runs
 

@@ -1,0 +1,1 @@
+"""The ``dkfsim`` command line (:func:`dkfsim.cli.main.main`)."""

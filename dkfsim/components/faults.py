@@ -75,10 +75,12 @@ import bisect
 from dataclasses import dataclass
 from typing import Annotated, Any, Literal, Union
 
+import numpy as np
 from pydantic import AfterValidator, BeforeValidator, ConfigDict, Discriminator, Field, Tag, model_validator
 
-from dkfsim.components.latency import MAX_MAGNITUDE, MAX_SECONDS, LatencyBase, StrictModel, custom_error, seconds_to_ns
+from dkfsim.components.latency import LatencyParams
 from dkfsim.core.files import clip
+from dkfsim.core.params import MAX_MAGNITUDE, MAX_SECONDS, StrictModel, custom_error, seconds_to_ns
 
 Seconds = Annotated[float, Field(strict=True, ge=0, le=MAX_SECONDS, allow_inf_nan=False)]
 Factor = Annotated[float, Field(strict=True, ge=0, le=MAX_MAGNITUDE, allow_inf_nan=False)]
@@ -236,10 +238,10 @@ class Windows:
 class LinkSpec:
     """Settings of one directed link: latency model, loss and the link faults."""
 
-    latency: LatencyBase
+    latency: LatencyParams
     loss: float = 0.0
     duplicate: float = 0.0
-    jitter: LatencyBase | None = None
+    jitter: LatencyParams | None = None
     schedule: tuple = ()
     outages: tuple = ()
 
@@ -325,7 +327,6 @@ class CrashSchedule:
 
     def mask(self, K: int, T_ns: int):
         """(n, K) bool: node i was down at tick k = r + 1 (its row r does not exist)."""
-        import numpy as np
         out = np.zeros((len(self.windows), K), dtype=bool)
         for i, w in enumerate(self.windows):
             if w is not None:

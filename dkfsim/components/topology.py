@@ -38,7 +38,7 @@ Directed topologies (``topology.directed: true``):
 * every other generator: both arcs of each undirected edge (a symmetric
   digraph -- a directed tree or path would never be strongly connected).
 
-Exchange graph (:func:`exchange_graph`), the graph a protocol actually uses:
+Exchange graph (:func:`make_exchange`, ``Scenario.exchange()``), the graph a protocol actually uses:
 
 * ``tree``: the undirected topology when it is a tree.  With
   ``spanning_tree: true`` on a graph with cycles, a breadth-first spanning
@@ -58,31 +58,39 @@ from __future__ import annotations
 import functools
 import heapq
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import networkx as nx
 import numpy as np
 
-from dkfsim.core.streams import stream
 from dkfsim.core.files import clip
+from dkfsim.core.params import suggest
+from dkfsim.core.registry import GENERATORS, PROTOCOLS
+from dkfsim.core.streams import stream
 
-if TYPE_CHECKING:  # pragma: no cover
-    from dkfsim.config.schema import Scenario
 
-GENERATORS = ("path", "star", "balanced_tree", "random_tree", "ring",
-              "random_regular", "erdos_renyi", "edges")
+@dataclass(frozen=True)
+class Generator:
+    """A graph generator's parameters (``topology.params``): required and optional names."""
 
-# generator -> (required params, optional params)
-GENERATOR_PARAMS: dict[str, tuple[tuple[str, ...], tuple[str, ...]]] = {
-    "path": ((), ()),
-    "star": ((), ()),
-    "balanced_tree": (("r", "h"), ()),
-    "random_tree": ((), ("seed",)),
-    "ring": ((), ()),
-    "random_regular": (("d",), ("seed",)),
-    "erdos_renyi": (("p",), ("seed",)),
-    "edges": ((), ()),
-}
+    required: tuple[str, ...] = ()
+    optional: tuple[str, ...] = ()
+
+
+for _name, _gen, _doc in (
+        ("path", Generator(), "the path 0 - 1 - ... - n-1"),
+        ("star", Generator(), "node 0 joined to every other node"),
+        ("balanced_tree", Generator(("r", "h")), "r children per internal node, height h (r^(h+1)-1)/(r-1) nodes"),
+        ("random_tree", Generator((), ("seed",)), "a uniform random labelled tree (random Pruefer sequence)"),
+        ("ring", Generator(), "the cycle 0 - 1 - ... - n-1 - 0 (directed: one way)"),
+        ("random_regular", Generator(("d",), ("seed",)), "a random d-regular graph"),
+        ("erdos_renyi", Generator(("p",), ("seed",)), "G(n, p): each pair an edge with probability p"),
+        ("edges", Generator(), "topology.edges exactly as listed")):
+    GENERATORS.add(_name, implementation=_gen, description=_doc)
+
+#: generator -> (required params, optional params), from the registry.
+GENERATOR_PARAMS = {e.name: (e.implementation.required, e.implementation.optional)
+                    for e in GENERATORS.entries()}
 
 
 #: Largest number of edges a random generator may produce (expected count, checked before).
@@ -125,17 +133,13 @@ def balanced_tree_size(r: int, h: int) -> int:
 
 def check_params(generator: str, params: dict, n: int) -> None:
     """Check ``params`` for ``generator`` on ``n`` nodes; raise :class:`GraphSpecError`."""
-    import difflib
-
     if generator not in GENERATOR_PARAMS:
-        raise GraphSpecError(f"unknown generator {generator!r}; valid generators: "
-                             + ", ".join(GENERATORS), "generator")
+        raise GraphSpecError(GENERATORS.unknown(generator), "generator")
     required, optional = GENERATOR_PARAMS[generator]
     allowed = required + optional
     for key in params:
         if key not in allowed:
-            match = difflib.get_close_matches(str(key), allowed, n=1)
-            hint = f" (did you mean '{match[0]}'?)" if match else ""
+            hint = suggest(key, allowed)
             if key == "n":
                 hint += "; the node count is the number of sensors"
             what = ", ".join(allowed) if allowed else "none"
@@ -416,6 +420,14 @@ def diameter_bounds(graph: nx.Graph | nx.DiGraph) -> tuple[int, int]:
     return lower, min(n - 1, e_out + e_in)
 
 
+def topology_arcs(graph: nx.Graph | nx.DiGraph) -> list[tuple[int, int]]:
+    """Every directed link of a topology, sorted: the arcs of a digraph, both directions
+    of every edge of an undirected graph.  The run's network has one link per arc."""
+    if graph.is_directed():
+        return sorted((int(u), int(v)) for u, v in graph.edges())
+    return sorted([(int(u), int(v)) for u, v in graph.edges()] + [(int(v), int(u)) for u, v in graph.edges()])
+
+
 # --------------------------------------------------------------------------- exchange
 @dataclass(frozen=True)
 class ExchangeGraph:
@@ -448,17 +460,23 @@ class ExchangeGraph:
         return diameter_bounds(self.graph)
 
 
+def protocol_graph(protocol: str) -> str:
+    """``"tree"`` or ``"digraph"``: the kind of graph a registered protocol runs on."""
+    return getattr(PROTOCOLS.get(protocol).implementation, "graph", "digraph")
+
+
 def make_exchange(graph: nx.Graph | nx.DiGraph, protocol: str,
                   spanning_tree: bool = False) -> ExchangeGraph:
     """Exchange graph of a validated topology ``graph`` for ``protocol``."""
-    if protocol == "tree":
+    kind = protocol_graph(protocol)
+    if kind == "tree":
         if graph.is_directed():
             raise GraphSpecError("protocol tree needs an undirected topology; use flood")
         used = bfs_spanning_tree(graph) if spanning_tree else graph
         if not is_tree(used):
             raise GraphSpecError("protocol tree needs a tree; set spanning_tree: true")
         used = nx.Graph(used)
-    elif protocol == "flood":
+    elif kind == "digraph":
         if spanning_tree:
             if graph.is_directed():
                 raise GraphSpecError("spanning_tree needs an undirected topology")
@@ -477,17 +495,7 @@ def make_exchange(graph: nx.Graph | nx.DiGraph, protocol: str,
     return ExchangeGraph(graph=used, arcs=arcs, neighbors=neighbors)
 
 
-def exchange_graph(scenario: "Scenario") -> ExchangeGraph:
-    """The graph ``scenario.protocol`` runs on (see the module docstring)."""
-    return scenario.exchange()
-
-
 # --------------------------------------------------------------------------- weights
-def unit_weights(n: int) -> np.ndarray:
-    """Effective origin weights for ``weights: unit``: all ones."""
-    return np.ones((n, n))
-
-
 def paper_weights(tree: nx.Graph) -> np.ndarray:
     """Effective origin weights for ``weights: paper`` on a tree.
 

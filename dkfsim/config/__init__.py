@@ -1,0 +1,1 @@
+"""Configuration: the scenario schema, its YAML reading, ``--set`` overrides and messages."""

@@ -1,25 +1,27 @@
-"""Scenario schema, loading, validation and ``--set`` overrides.
+"""The scenario schema: every key of a scenario file, validated in one place.
 
-A scenario is a YAML mapping (the README's "Scenario files"); :func:`load_scenario`
-reads it, applies ``dotted.key=value`` overrides to the raw mapping, and
-validates it into a frozen :class:`Scenario`.  *All* validation happens
-here, in one pass: field checks in the pydantic models, cross-field checks
-(shapes, graph, protocol, buffer) in ``Scenario._check_consistency``.  Every
-problem raises :class:`dkfsim.core.errors.ScenarioError` with a one-line message
-``<file or "<dict>">: <dotted.key.path>: <what is wrong>``.
+A scenario is a YAML mapping (the README's "Scenario files");
+:func:`dkfsim.config.load.load_scenario` reads it and validates it into a
+frozen :class:`Scenario`.  Field checks live in the parameter models,
+cross-field checks (shapes, graph, protocol, buffer, time range, each
+estimator against the scenario) in ``Scenario._check_consistency``.  The
+component keys -- a latency ``model``, a sensor or estimator ``kind``, a
+topology ``generator``, the ``protocol`` -- are validated with the parameter
+model the name has in its registry (:mod:`dkfsim.core.registry`), so this
+module never imports the stages that implement them.
 
 Decisions where docs/design.md leaves a choice:
 
 * Matrices are lists of lists.  A scalar is a 1x1 matrix and a flat list is
   a single row (so ``H: [1, 0, 0]`` and ``R: 0.8`` work).  Vectors (the prior
   mean) are flat lists; a scalar is a 1-vector and an n x 1 column is
-  flattened.  Entries must be finite numbers.
+  flattened.  Entries must be finite and at most 1e100 in magnitude.
 * R and P0 must be symmetric positive definite, Q symmetric positive
   semidefinite (tolerance ``1e-12 * max(1, max|eig|)``), symmetry exact up to
   ``1e-9`` relative.
 * ``name`` defaults to the file's stem (``"unnamed"`` for a dict); sensor
-  names must be unique.  ``kind: constant_acceleration`` must not give
-  ``Phi``; ``kind: linear`` must.
+  names and estimator names must be unique.  ``kind: constant_acceleration``
+  must not give ``Phi``; ``kind: linear`` must.
 * ``fusion: null`` means ``none``.  Integers and booleans are strict (``steps:
   3.0`` or ``directed: 1`` is an error); floats accept integers.
 * ``links.d_t``, when given, is *the* delay bound used for the buffer length,
@@ -29,135 +31,56 @@ Decisions where docs/design.md leaves a choice:
   needs a bound too.
 * ``spanning_tree: true`` also applies to ``flood`` (flood then runs on the
   same BFS spanning tree); it is an error on a directed topology.
+* ``estimators: [{kind: ..., name: ..., <parameters>}]`` lists the
+  algorithms run beside the anti-delay DKF (default: ``centralized``); the
+  old ``baselines: [kinds]`` (with ``consensus_rounds``) is still read and
+  converted, ``local`` being the old name of ``local_only``.
 * The source file is remembered (``scenario.source``) but is not part of
   ``to_dict``, the hash, or equality: two scenarios are equal when their
   ``to_dict`` are.
-* The YAML loader rejects duplicate keys and reads ``1e-3`` as a float (YAML
-  1.1 would read it as a string).
 """
 
 from __future__ import annotations
 
-import copy
 import hashlib
 import json
-import os
-import re
 from decimal import Decimal
-from pathlib import Path
-from typing import Annotated, Any, Literal, Mapping, Sequence, Union
+from typing import Annotated, Any, Literal
 
 import networkx
 import numpy as np
-import yaml
-from pydantic import (AfterValidator, BaseModel, BeforeValidator, Discriminator, Field, PrivateAttr, Tag,
-                      ValidationError, ValidationInfo, field_validator, model_validator)
+from pydantic import AfterValidator, BaseModel, BeforeValidator, Field, PrivateAttr, field_validator, model_validator
+from pydantic_core import PydanticCustomError
 
-from dkfsim.core.errors import DkfsimError, ScenarioError
-from dkfsim.core.files import MAX_YAML_BYTES, check_plain_data, clip, parse_yaml, read_text, yaml_error_text
-from dkfsim.components.faults import Faults, LinkSpec, Schedule, Window
-from dkfsim.components.latency import (LATENCY_MODELS, MAX_MAGNITUDE, MAX_NS, MAX_SECONDS, Constant,
-                            LatencyModel, StrictModel, custom_error, located, suggest)
 from dkfsim.components import topology as topo
-#: Baselines a scenario may ask for; extend this single tuple.
-KNOWN_BASELINES: tuple[str, ...] = ("centralized", "centralized_delayed", "local", "no_buffer",
-                                     "ci_consensus")
+from dkfsim.components.estimators import CentralizedParams, EstimatorParams
+from dkfsim.components.faults import Faults, LinkSpec, Schedule, Window
+from dkfsim.components.latency import Constant, LatencyModel
+from dkfsim.components.sensors import SensorParams
+from dkfsim.components.truth import TruthParams
+from dkfsim.core.errors import ScenarioError
+from dkfsim.core.files import clip
+from dkfsim.core.params import (MAX_MAGNITUDE, MAX_NS, MAX_SECONDS, Matrix, Name, Probability, StrictBool,
+                                StrictInt, StrictModel, Vector, check_spd, check_square, custom_error,
+                                registered, suggest)
+from dkfsim.core.registry import ESTIMATORS, GENERATORS, PROTOCOLS, SENSOR_KINDS
 
-PROTOCOLS = ("tree", "flood")
-WEIGHTS = ("unit", "paper")
-FUSIONS = ("matrix", "diagonal", "none")
-MODEL_KINDS = ("constant_acceleration", "constant_velocity", "linear")
-SENSOR_KINDS = ("linear", "radar")
-
-_SYM_RTOL = 1e-9
-_EIG_TOL = 1e-12
-
-
-# =========================================================================== matrices
-def _number(x: Any) -> float:
-    if isinstance(x, bool) or not isinstance(x, (int, float, np.integer, np.floating)):
-        raise custom_error(f"entries must be numbers, got {x!r}")
-    value = float(x)
-    if not np.isfinite(value):
-        raise custom_error(f"entries must be finite, got {x!r}")
-    if abs(value) > MAX_MAGNITUDE:
-        raise custom_error(f"entries must be at most {MAX_MAGNITUDE:g} in magnitude, got {x!r} "
-                           "(a product of three such numbers must stay within float64)")
-    return value
+#: Largest ring of fusion cross-covariances a scenario may ask for (bytes).
+FUSION_MEMORY_LIMIT = 2 << 30
 
 
-def _to_matrix(value: Any) -> tuple[tuple[float, ...], ...]:
-    if isinstance(value, np.ndarray):
-        value = value.tolist()
-    if isinstance(value, (list, tuple)):
-        if len(value) == 0:
-            raise custom_error("must not be empty")
-        if all(isinstance(row, (list, tuple)) for row in value):
-            rows = [tuple(_number(x) for x in row) for row in value]
-            widths = {len(r) for r in rows}
-            if len(widths) != 1:
-                raise custom_error(f"rows have different lengths {[len(r) for r in rows]}")
-            if 0 in widths:
-                raise custom_error("rows must not be empty")
-            return tuple(rows)
-        if any(isinstance(row, (list, tuple)) for row in value):
-            raise custom_error("mixes numbers and lists; write a list of rows")
-        return (tuple(_number(x) for x in value),)
-    if isinstance(value, dict) or value is None:
-        raise custom_error("must be a matrix (a list of rows), a flat list or a number")
-    return ((_number(value),),)
+#: A sensor (any registered kind; ``linear`` when ``kind`` is absent) and an estimator entry.
+SensorField = registered(SensorParams, SENSOR_KINDS, "linear")
+EstimatorField = registered(EstimatorParams, ESTIMATORS)
 
 
-def _to_vector(value: Any) -> tuple[float, ...]:
-    if isinstance(value, np.ndarray):
-        value = value.tolist()
-    if isinstance(value, (list, tuple)):
-        if len(value) == 0:
-            raise custom_error("must not be empty")
-        if all(isinstance(x, (list, tuple)) and len(x) == 1 for x in value):
-            value = [x[0] for x in value]
-        if any(isinstance(x, (list, tuple)) for x in value):
-            raise custom_error("must be a flat list of numbers")
-        return tuple(_number(x) for x in value)
-    if isinstance(value, dict) or value is None:
-        raise custom_error("must be a list of numbers")
-    return (_number(value),)
-
-
-Matrix = Annotated[tuple[tuple[float, ...], ...], BeforeValidator(_to_matrix)]
-Vector = Annotated[tuple[float, ...], BeforeValidator(_to_vector)]
-StrictInt = Annotated[int, Field(strict=True)]
-StrictBool = Annotated[bool, Field(strict=True)]
-
-
-def _shape(m: tuple[tuple[float, ...], ...]) -> tuple[int, int]:
-    return len(m), len(m[0])
-
-
-def _check_square(m, what_size: int | None = None, key: str | None = None) -> np.ndarray:
-    rows, cols = _shape(m)
-    if rows != cols:
-        raise custom_error(f"must be square, got {rows} x {cols}", key)
-    if what_size is not None and rows != what_size:
-        raise custom_error(f"must be {what_size} x {what_size}, got {rows} x {cols}", key)
-    return np.array(m, dtype=float)
-
-
-def _check_spd(a: np.ndarray, key: str | None, semi: bool) -> None:
-    what = "symmetric positive semidefinite" if semi else "symmetric positive definite"
-    scale = max(1.0, float(np.max(np.abs(a))))
-    asym = np.abs(a - a.T)
-    if np.max(asym) > _SYM_RTOL * scale:
-        i, j = np.unravel_index(int(np.argmax(asym)), a.shape)
-        raise custom_error(f"not {what} (not symmetric: [{i}][{j}] = {a[i, j]:g} but "
-                           f"[{j}][{i}] = {a[j, i]:g})", key)
-    eig = np.linalg.eigvalsh((a + a.T) / 2)
-    top = float(np.max(np.abs(eig)))
-    tol = _EIG_TOL * max(1.0, top)
-    low = float(eig.min())
-    if (semi and low < -tol) or (not semi and low <= tol):
-        scale = f", not above {_EIG_TOL:g} x the largest eigenvalue {top:.6g}" if tol > _EIG_TOL else ""
-        raise custom_error(f"not {what} (min eigenvalue {low:.6g}{scale})", key)
+def _registered(registry):
+    """An ``AfterValidator``: the value must name a member of ``registry``."""
+    def check(value: str) -> str:
+        if value not in registry:
+            raise custom_error(registry.unknown(value))
+        return registry.canonical(value)
+    return check
 
 
 # =========================================================================== sub-models
@@ -222,9 +145,9 @@ class Model(StrictModel):
         else:
             if self.Phi is None:
                 raise custom_error("required with kind: linear", "Phi")
-            n = _check_square(self.Phi, key="Phi").shape[0]
-        q = _check_square(self.Q, n, "Q")
-        _check_spd(q, "Q", semi=True)
+            n = check_square(self.Phi, key="Phi").shape[0]
+        q = check_square(self.Q, n, "Q")
+        check_spd(q, "Q", semi=True)
         return self
 
     @property
@@ -261,8 +184,8 @@ class Prior(StrictModel):
 
     @model_validator(mode="after")
     def _check(self):
-        p = _check_square(self.cov, key="cov")
-        _check_spd(p, "cov", semi=False)
+        p = check_square(self.cov, key="cov")
+        check_spd(p, "cov", semi=False)
         if len(self.mean) != p.shape[0]:
             raise custom_error(f"has {len(self.mean)} entries but cov is "
                                f"{p.shape[0]} x {p.shape[0]}", "mean")
@@ -275,161 +198,11 @@ class Prior(StrictModel):
         return np.array(self.cov, dtype=float)
 
 
-def _linear_kind(value: Any) -> Any:
-    if value is None or value == "linear":
-        return "linear"
-    raise custom_error(_unknown_kind(value))
-
-
-class Sensor(StrictModel):
-    """``y = H x + v``, ``v ~ N(0, R)`` (``kind: linear``, the default).
-
-    ``kind`` is left out of ``to_dict`` (absent means linear), so files
-    written before sensor kinds existed keep their hash.
-    """
-
-    name: Annotated[str, Field(strict=True, min_length=1)]
-    kind: Annotated[Literal["linear"], BeforeValidator(_linear_kind), Field(exclude=True)] = "linear"
-    H: Matrix
-    R: Matrix
-
-    @model_validator(mode="after")
-    def _check(self):
-        m = len(self.H)
-        r = np.array(self.R, dtype=float)
-        if r.shape != (m, m):
-            raise custom_error(f"must be {m} x {m} (H has {m} row{'s' * (m != 1)}), "
-                               f"got {r.shape[0]} x {r.shape[1]}", "R")
-        _check_spd(r, "R", semi=False)
-        return self
-
-    @property
-    def m(self) -> int:
-        return len(self.H)
-
-    def H_matrix(self) -> np.ndarray:
-        return np.array(self.H, dtype=float)
-
-    def R_matrix(self) -> np.ndarray:
-        return np.array(self.R, dtype=float)
-
-
-Sigma = Annotated[float, Field(strict=True, gt=0, le=MAX_MAGNITUDE, allow_inf_nan=False)]
-
-
-class RadarSensorSpec(StrictModel):
-    """A range/azimuth radar, used as a converted measurement (:mod:`dkfsim.model.sensors`).
-
-    ``position`` [x, y] (m), ``sigma_range`` (m), ``sigma_azimuth`` (rad,
-    below pi/4: a converted measurement means nothing beyond), ``state_index``
-    the state components that are the Cartesian x and y (default [0, 2], the
-    ``[x, vx, y, vy]`` of ``constant_velocity``).
-    """
-
-    name: Annotated[str, Field(strict=True, min_length=1)]
-    kind: Literal["radar"]
-    position: Vector
-    sigma_range: Sigma
-    sigma_azimuth: Sigma
-    state_index: tuple[StrictInt, StrictInt] = (0, 2)
-
-    @model_validator(mode="after")
-    def _check(self):
-        if len(self.position) != 2:
-            raise custom_error(f"must be [x, y], got {len(self.position)} entries", "position")
-        if self.sigma_azimuth >= np.pi / 4:
-            raise custom_error(f"must be in radians and below pi/4, got {self.sigma_azimuth!r} "
-                               "(1 degree = 0.0174533 rad)", "sigma_azimuth")
-        return self
-
-    @property
-    def m(self) -> int:
-        return 2
-
-    def sensor_model(self, nx: int):
-        from dkfsim.model.sensors import RadarSensor
-        return RadarSensor(self.position, self.sigma_range, self.sigma_azimuth, nx,
-                           self.state_index)
-
-
-class _UnknownSensorKind(BaseModel):
-    """Reports an unknown sensor ``kind`` before any key of the entry is checked."""
-
-    @model_validator(mode="before")
-    @classmethod
-    def _fail(cls, data: Any) -> Any:
-        raise custom_error(_unknown_kind(data.get("kind")), "kind")
-
-
-def _unknown_kind(value: Any) -> str:
-    return (f"unknown sensor kind {clip(value)}{suggest(value, SENSOR_KINDS)}; valid: "
-            + ", ".join(SENSOR_KINDS))
-
-
-def _sensor_tag(value: Any) -> str:
-    kind = value.get("kind") if isinstance(value, dict) else getattr(value, "kind", None)
-    if kind is None or kind in SENSOR_KINDS:
-        return kind or "linear"
-    return "unknown"
-
-
-#: A scenario sensor: ``kind: linear`` (default) or ``kind: radar``.
-SensorSpec = Annotated[Union[Annotated[Sensor, Tag("linear")],
-                             Annotated[RadarSensorSpec, Tag("radar")],
-                             Annotated[_UnknownSensorKind, Tag("unknown")]],
-                       Discriminator(_sensor_tag)]
-
-
-class Truth(StrictModel):
-    """Truth from a recorded track instead of the model (:mod:`dkfsim.model.trajectory`).
-
-    ``dataset`` names a shipped track (``cicv5g/arterial_n8_v70_run03``),
-    ``file`` the user's own, resolved against the scenario file's folder
-    (:mod:`dkfsim.core.datafiles`); it is read (and cached) when the scenario is
-    validated, so a missing file or column is a validation error.
-    """
-
-    file: Annotated[str, Field(strict=True, min_length=1)] | None = None
-    dataset: Annotated[str, Field(strict=True, min_length=1)] | None = None
-    x_column: Annotated[str, Field(strict=True, min_length=1)] = "utmX(m)"
-    y_column: Annotated[str, Field(strict=True, min_length=1)] = "utmY(m)"
-    time_column: Annotated[str, Field(strict=True, min_length=1)] = "pub_time(ms)"
-    time_unit: Literal["s", "ms", "us", "ns"] = "ms"
-    origin: Literal["first", "none"] = "first"
-    start: Annotated[float, Field(strict=True, ge=0, le=MAX_SECONDS, allow_inf_nan=False)] = 0.0
-    resample: Literal["linear"] = "linear"
-    #: Centred moving-average window (s) applied to the recorded positions; 0 = off.
-    smooth: Annotated[float, Field(strict=True, ge=0, le=MAX_SECONDS, allow_inf_nan=False)] = 0.0
-
-    _path: str | None = PrivateAttr(default=None)
-
-    @model_validator(mode="after")
-    def _load(self, info: ValidationInfo):
-        from dkfsim.model import trajectory
-        path, key = located(self.file, self.dataset, info)
-        try:
-            self._read(path)
-        except trajectory.TrackError as err:
-            raise custom_error(str(err), key if err.key == "file" else err.key) from None
-        self._path = str(path)
-        return self
-
-    def _read(self, path):
-        from dkfsim.model import trajectory
-        return trajectory.read_track(path, self.time_column, self.x_column, self.y_column,
-                                     self.time_unit)
-
-    def track(self):
-        """The :class:`dkfsim.model.trajectory.Track` (read once, then cached)."""
-        return self._read(self._path)
-
-
 class Topology(StrictModel):
     """How the sensors are linked (see :mod:`dkfsim.components.topology`)."""
 
     directed: StrictBool = False
-    generator: Literal["path", "star", "balanced_tree", "random_tree", "ring",
-                       "random_regular", "erdos_renyi", "edges"]
+    generator: Annotated[str, AfterValidator(_registered(GENERATORS))]
     params: dict[str, Any] = Field(default_factory=dict)
     edges: tuple[tuple[StrictInt, StrictInt], ...] | None = None
 
@@ -439,13 +212,10 @@ class Topology(StrictModel):
         return {} if v is None else v
 
 
-Probability = Annotated[float, Field(strict=True, ge=0, le=1, allow_inf_nan=False)]
-
-
 class LinkSettings(StrictModel):
     """A link's latency and faults (see :mod:`dkfsim.components.faults`); ``None`` = no such fault."""
 
-    latency: LatencyModel = Field(default_factory=Constant)
+    latency: LatencyModel = Field(default_factory=lambda: Constant())
     loss: Probability = 0.0
     duplicate: Probability | None = None
     jitter: LatencyModel | None = None
@@ -467,13 +237,6 @@ class Links(StrictModel):
     default: LinkSettings = Field(default_factory=LinkSettings)
     overrides: tuple[LinkOverride, ...] = ()
     d_t: Annotated[int, Field(strict=True, ge=0)] | None = None
-
-
-def _check_baseline(name: str) -> str:
-    if name not in KNOWN_BASELINES:
-        raise custom_error(f"unknown baseline {name!r}{suggest(name, KNOWN_BASELINES)}; "
-                           f"valid baselines: {', '.join(KNOWN_BASELINES)}")
-    return name
 
 
 def _buffer_length(value: Any) -> Any:
@@ -498,19 +261,20 @@ class Scenario(StrictModel):
     steps: Annotated[int, Field(strict=True, ge=1)] = 1000
     model: Model
     prior: Prior
-    sensors: Annotated[tuple[SensorSpec, ...], Field(min_length=1)]
+    sensors: Annotated[tuple[SensorField, ...], Field(min_length=1)]
     topology: Topology
     links: Links = Field(default_factory=Links)
-    protocol: Literal["tree", "flood"] = "tree"
+    protocol: Annotated[str, AfterValidator(_registered(PROTOCOLS))] = "tree"
     weights: Literal["unit", "paper"] = "unit"
     spanning_tree: StrictBool = False
     buffer_length: Annotated[Literal["auto", "paper"] | int, BeforeValidator(_buffer_length)] = "auto"
     fusion: Annotated[Literal["matrix", "diagonal", "none"], BeforeValidator(_fusion_none)] = "matrix"
-    baselines: tuple[Annotated[str, AfterValidator(_check_baseline)], ...] = ("centralized",)
-    #: Consensus rounds per tick of the ``ci_consensus`` baseline (0 = local filters).
-    consensus_rounds: Annotated[int, Field(strict=True, ge=0)] = 1
+    #: The algorithms run beside the anti-delay DKF, on the same draws and network.
+    estimators: tuple[EstimatorField, ...] = (CentralizedParams(),)
+    #: Modules or .py files that register components (imported before validation).
+    plugins: tuple[Name, ...] = ()
     #: Truth from a recorded track instead of the model (:mod:`dkfsim.model.trajectory`).
-    truth: Truth | None = None
+    truth: TruthParams | None = None
     #: Sensor faults (crash windows), see :mod:`dkfsim.components.faults`.
     faults: Faults | None = None
 
@@ -531,13 +295,34 @@ class Scenario(StrictModel):
                     raise custom_error(f"must be a mapping, got {type(s).__name__} {s!r}", str(i))
         return v
 
-    @field_validator("baselines", mode="after")
+    @model_validator(mode="before")
     @classmethod
-    def _unique_baselines(cls, v):
-        for i, name in enumerate(v):
-            if name in v[:i]:
-                raise custom_error(f"{name!r} is listed twice", str(i))
-        return v
+    def _old_spellings(cls, data: Any) -> Any:
+        """``baselines: [names]`` (and ``consensus_rounds``) are the old spelling of
+        ``estimators``: converted here, before ``estimators`` is validated."""
+        if not isinstance(data, dict) or ("baselines" not in data and "consensus_rounds" not in data):
+            return data
+        data = dict(data)
+        names = data.pop("baselines", None)
+        rounds = data.pop("consensus_rounds", None)
+        if names is None:
+            names = [] if "estimators" in data else ["centralized"]
+        if not isinstance(names, (list, tuple)):
+            raise custom_error(f"must be a list of estimator kinds, got {clip(names)}", "baselines")
+        entries = []
+        for i, name in enumerate(names):
+            if not isinstance(name, str):
+                raise custom_error(f"must be an estimator kind, got {clip(name)}", f"baselines.{i}")
+            if name not in ESTIMATORS:
+                raise custom_error(ESTIMATORS.unknown(name), f"baselines.{i}")
+            if name in names[:i]:
+                raise custom_error(f"{name!r} is listed twice", f"baselines.{i}")
+            entry = {"kind": ESTIMATORS.canonical(name)}
+            if entry["kind"] == "ci_consensus" and rounds is not None:
+                entry["rounds"] = rounds
+            entries.append(entry)
+        data["estimators"] = entries + list(data.get("estimators") or [])
+        return data
 
     @model_validator(mode="after")
     def _check_consistency(self):
@@ -550,31 +335,42 @@ class Scenario(StrictModel):
                                f"{len(self.prior.cov)}", "prior.cov")
         names: dict[str, int] = {}
         for i, s in enumerate(self.sensors):
-            if s.kind == "radar":
-                ix, iy = s.state_index
-                if ix == iy or not (0 <= ix < nx_ and 0 <= iy < nx_):
-                    raise custom_error(f"must be two different state indices in 0..{nx_ - 1} "
-                                       f"(the position's x and y), got [{ix}, {iy}]",
-                                       f"sensors.{i}.state_index")
-            else:
-                rows, cols = _shape(s.H)
-                if cols != nx_:
-                    raise custom_error(f"must have {nx_} columns (the state size), got "
-                                       f"{rows} x {cols}", f"sensors.{i}.H")
+            s.check(nx_, f"sensors.{i}")
             if s.name in names:
                 raise custom_error(f"{s.name!r} is already the name of sensors.{names[s.name]}",
                                    f"sensors.{i}.name")
             names[s.name] = i
         if self.truth is not None:
             self._check_truth()
-        if "ci_consensus" in self.baselines and self.consensus_rounds > 0 \
-                and self.model.T_ns % self.consensus_rounds:
-            raise custom_error(f"{self.consensus_rounds} rounds do not divide T = {self.model.T} s into "
-                               f"whole nanoseconds (ci_consensus runs a round every T/rounds)",
-                               "consensus_rounds")
         self._check_network()
         self._check_time_range()
+        self._check_estimators()
         return self
+
+    def _check_estimators(self) -> None:
+        taken = {"fused": "the anti-delay DKF's fused estimate", "local": "the DKF nodes' own estimates",
+                 "final": "the DKF nodes' final estimates"}
+        for i, p in enumerate(self.estimators):
+            if p.label in taken:
+                raise custom_error(f"the name {p.label!r} is taken ({taken[p.label]}); give it "
+                                   "another name", f"estimators.{i}.name" if p.name else f"estimators.{i}")
+            taken[p.label] = f"estimators.{i}"
+            check = getattr(p, "check", None)
+            if check is not None:
+                try:
+                    check(self)
+                except PydanticCustomError as err:
+                    ctx = err.context or {}
+                    key = f"estimators.{i}" + (f".{ctx['key']}" if ctx.get("key") else "")
+                    raise custom_error(str(ctx.get("reason", err)), key) from None
+        if self.fusion != "none":
+            S = min(self.resolved_buffer_length(), self.steps) + 1
+            need = S * (self.n * self.nx) ** 2 * 8
+            if need > FUSION_MEMORY_LIMIT:
+                raise custom_error(
+                    f"fusion: {self.fusion} keeps the cross-covariances of all {self.n} nodes for the "
+                    f"{S} window rows, {need / 2**30:.1f} GiB; use fusion: none for a network "
+                    f"this large (or a shorter buffer_length)", "fusion")
 
     def _check_truth(self) -> None:
         if self.model.kind != "constant_velocity" or self.model.nx != 4:
@@ -592,12 +388,13 @@ class Scenario(StrictModel):
 
     def _check_network(self) -> None:
         top = self.topology
-        if self.weights == "paper" and self.protocol == "flood":
-            raise custom_error("'paper' weights are not defined for protocol: flood (the paper "
-                               "weighs the messages of the tree exchange only); use weights: "
+        tree = topo.protocol_graph(self.protocol) == "tree"
+        if self.weights == "paper" and not tree:
+            raise custom_error(f"'paper' weights are not defined for protocol: {self.protocol} (the "
+                               "paper weighs the messages of the tree exchange only); use weights: "
                                "unit, or protocol: tree", "weights")
-        if self.protocol == "tree" and top.directed:
-            raise custom_error("'tree' needs an undirected topology (topology.directed is "
+        if tree and top.directed:
+            raise custom_error(f"'{self.protocol}' needs an undirected topology (topology.directed is "
                                "true); use protocol: flood on a directed graph", "protocol")
         if self.spanning_tree and top.directed:
             raise custom_error("a spanning tree needs an undirected topology "
@@ -612,9 +409,9 @@ class Scenario(StrictModel):
             if top.generator in ("random_regular", "erdos_renyi") and "connected" in err.reason:
                 hint = " (try another params.seed or a denser graph)"
             raise custom_error(err.reason + hint, key) from None
-        if self.protocol == "tree" and not self.spanning_tree and not topo.is_tree(graph):
+        if tree and not self.spanning_tree and not topo.is_tree(graph):
             raise custom_error(
-                f"'tree' needs a tree but the topology has cycles ({n} nodes, "
+                f"'{self.protocol}' needs a tree but the topology has cycles ({n} nodes, "
                 f"{graph.number_of_edges()} edges); set spanning_tree: true to run on a BFS "
                 "spanning tree, or use protocol: flood", "protocol")
         for i, ov in enumerate(self.links.overrides):
@@ -677,6 +474,11 @@ class Scenario(StrictModel):
     def base_dir(self) -> str | None:
         """The folder relative ``file:`` paths resolved against (None: the working directory)."""
         return self._base_dir
+
+    @property
+    def protocol_graph(self) -> str:
+        """``"tree"`` or ``"digraph"``: what the protocol runs on."""
+        return topo.protocol_graph(self.protocol)
 
     @property
     def nx(self) -> int:
@@ -793,256 +595,3 @@ def scenario_hash(scenario: Scenario) -> str:
     return hashlib.sha256(text.encode("utf-8")).hexdigest()
 
 
-# =========================================================================== YAML
-def _parse_yaml(text: str, source: str) -> Any:
-    try:
-        return parse_yaml(text)
-    except yaml.YAMLError as err:
-        raise ScenarioError(yaml_error_text(err), source=source) from None
-
-
-# =========================================================================== overrides
-_INDEX = re.compile(r"^-?\d+$")
-
-
-def _apply_override(data: dict, text: str, source: str) -> str:
-    """Apply one ``dotted.key=value`` to ``data`` in place; return the key."""
-    if not isinstance(text, str) or "=" not in text:
-        raise ScenarioError(f"bad override {clip(text)}: expected dotted.key=value "
-                            "(e.g. links.default.latency.d_t=0)", source=source)
-    key, _, raw = text.partition("=")
-    key = key.strip()
-    parts = key.split(".")
-    if not key or any(p == "" for p in parts):
-        raise ScenarioError(f"bad override {clip(text)}: empty key component", source=source)
-    try:
-        value = parse_yaml(raw) if raw.strip() else None
-    except yaml.YAMLError as err:
-        raise ScenarioError(f"bad override value {clip(raw)}: {yaml_error_text(err)}",
-                            source=source, path=key) from None
-    node: Any = data
-    for depth, part in enumerate(parts):
-        here = ".".join(parts[:depth + 1])
-        last = depth == len(parts) - 1
-        if isinstance(node, list):
-            if not _INDEX.match(part):
-                raise ScenarioError(f"override {clip(text)}: {parts[depth - 1] if depth else key} "
-                                    f"is a list; {part!r} is not an index", source=source,
-                                    path=here)
-            idx = int(part)
-            if not 0 <= idx < len(node):
-                raise ScenarioError(f"override {clip(text)}: list index {idx} out of range "
-                                    f"(the list has {len(node)} entries)", source=source,
-                                    path=here)
-            if last:
-                node[idx] = value
-            else:
-                if node[idx] is None:
-                    node[idx] = {}
-                node = node[idx]
-        elif isinstance(node, dict):
-            if last:
-                node[part] = value
-            else:
-                if node.get(part) is None:
-                    node[part] = {}
-                node = node[part]
-        else:
-            parent = ".".join(parts[:depth])
-            raise ScenarioError(f"override {clip(text)}: {parent} is a scalar "
-                                f"({clip(node)}); cannot set {part!r} inside it",
-                                source=source, path=here)
-    return key
-
-
-def apply_overrides(data: dict, overrides: Sequence[str], source: str = "<dict>") -> dict:
-    """Return a deep copy of ``data`` with the ``dotted.key=value`` overrides applied."""
-    out = copy.deepcopy(data)
-    for text in overrides:
-        _apply_override(out, text, source)
-    return out
-
-
-# =========================================================================== errors
-#: Tags pydantic puts in an error location for a member of a tagged union.
-_UNION_TAGS = frozenset(LATENCY_MODELS) | {"linear", "radar", "unknown", "step", "ramp"}
-
-
-def _loc_to_path(loc: tuple, data: Any) -> list[str]:
-    """Dotted components of a pydantic ``loc``, dropping union tags."""
-    parts: list[str] = []
-    node = data
-    for i, elem in enumerate(loc):
-        last = i == len(loc) - 1
-        if isinstance(node, dict) and elem in node:
-            parts.append(str(elem))
-            node = node[elem]
-        elif isinstance(node, (list, tuple)) and isinstance(elem, int) and 0 <= elem < len(node):
-            parts.append(str(elem))
-            node = node[elem]
-        elif (node is None or isinstance(node, dict)) and not last and elem in _UNION_TAGS:
-            continue  # a union member's tag (e.g. 'uniform_steps'), not a key
-        elif isinstance(elem, str) and (elem.startswith(("function-", "literal[", "int", "str"))
-                                        and not last):
-            continue
-        else:
-            parts.append(str(elem))
-            node = None
-    return parts
-
-
-_LITERAL_FIELDS = {"generator": "generator", "protocol": "protocol", "weights": "weights",
-                   "fusion": "fusion", "kind": "model kind"}
-_LITERAL_VALUES = {"generator": topo.GENERATORS, "protocol": PROTOCOLS, "weights": WEIGHTS,
-                   "fusion": FUSIONS, "kind": MODEL_KINDS}
-
-_BOUND_WORDS = {"greater_than_equal": (">=", "ge"), "greater_than": (">", "gt"),
-                "less_than_equal": ("<=", "le"), "less_than": ("<", "lt")}
-
-
-def _reason(err: dict, path: list[str]) -> tuple[str, list[str]]:
-    """Short message for one pydantic error, and the (maybe extended) path."""
-    etype = err["type"]
-    ctx = err.get("ctx") or {}
-    inp = err.get("input")
-    field = path[-1] if path else ""
-    if etype in ("dkfsim", "unknown_key"):
-        return str(ctx.get("reason", err["msg"])), path
-    if etype == "missing":
-        return "required key is missing", path
-    if etype == "extra_forbidden":
-        return "unknown key", path
-    if etype == "union_tag_invalid":
-        names = list(LATENCY_MODELS)
-        tag = ctx.get("tag")
-        return (f"unknown latency model {tag!r}{suggest(tag, names)}; valid models: "
-                + ", ".join(names)), path + ["model"]
-    if etype == "union_tag_not_found":
-        return "missing key 'model' (one of: " + ", ".join(LATENCY_MODELS) + ")", path
-    if etype == "literal_error" and field in _LITERAL_FIELDS:
-        valid = _LITERAL_VALUES[field]
-        return (f"unknown {_LITERAL_FIELDS[field]} {clip(inp)}{suggest(inp, valid)}; valid: "
-                + ", ".join(valid)), path
-    if etype in _BOUND_WORDS:
-        word, k = _BOUND_WORDS[etype]
-        bound = ctx.get(k)
-        why = {MAX_SECONDS: f"{MAX_SECONDS:.10g} s = 2^62 ns, the span of the int64 nanosecond clock",
-               MAX_MAGNITUDE: f"{MAX_MAGNITUDE:g}, so that products stay within float64"}
-        if bound in why:
-            return f"must be {word} {why[bound]}; got {clip(inp)}", path
-        return f"must be {word} {bound}, got {clip(inp)}", path
-    if etype in ("model_type", "model_attributes_type", "dict_type"):
-        return f"must be a mapping, got {type(inp).__name__} {clip(inp)}", path
-    if etype in ("int_type", "int_from_float", "int_parsing"):
-        return f"must be an integer, got {clip(inp)}", path
-    if etype in ("float_type", "float_parsing"):
-        return f"must be a number, got {clip(inp)}", path
-    if etype == "bool_type":
-        return f"must be true or false, got {clip(inp)}", path
-    if etype in ("tuple_type", "list_type"):
-        return f"must be a list, got {type(inp).__name__} {clip(inp)}", path
-    if etype in ("string_type",):
-        return f"must be a string, got {clip(inp)}", path
-    if etype == "finite_number":
-        return f"must be a finite number, got {clip(inp)}", path
-    if etype in ("too_short", "too_long") and field == "sensors":
-        return "at least one sensor is required", path
-    msg = " ".join(str(err["msg"]).split())
-    if inp is not None and not isinstance(inp, (dict, list, tuple)):
-        msg += f" (got {clip(inp)})"
-    return msg, path
-
-
-def _convert(exc: ValidationError, data: Any, source: str,
-             override_keys: Mapping[str, str]) -> ScenarioError:
-    items = []
-    for err in exc.errors():
-        loc = tuple(err["loc"])
-        extra = (err.get("ctx") or {}).get("key") if err["type"] in ("dkfsim", "unknown_key") \
-            else None
-        if extra:  # the model pointed at one of its own keys: walk it with the rest
-            loc = loc + tuple(str(extra).split("."))
-        path = _loc_to_path(loc, data)
-        reason, path = _reason(err, path)
-        dotted = ".".join(path)
-        for key, text in override_keys.items():
-            if dotted == key or dotted.startswith(key + "."):
-                reason += f" (set by override {clip(text)})"
-                break
-        else:
-            for key, text in override_keys.items():
-                if dotted and key.startswith(dotted + "."):
-                    reason += f" (after override {clip(text)})"
-                    break
-        items.append((dotted, reason))
-    first_path, first_reason = items[0]
-    message = first_reason
-    for dotted, reason in items[1:]:
-        message += f"; {dotted}: {reason}" if dotted else f"; {reason}"
-    return ScenarioError(message, source=source, path=first_path or None)
-
-
-# =========================================================================== loading
-def load_scenario(source: str | os.PathLike | Mapping | Scenario,
-                  overrides: Sequence[str] = (), *, base_dir: str | os.PathLike | None = None) -> Scenario:
-    """Load, override and validate a scenario.
-
-    ``source`` is a path to a YAML file, a mapping, or a Scenario (re-validated
-    from its ``to_dict`` so that overrides apply).  ``overrides`` are
-    ``dotted.key=value`` strings, the value parsed as YAML, applied to the raw
-    mapping before validation (``sensors.0.R=[[2.0]]``, ``links.d_t=5``).
-    ``base_dir`` is where the relative ``file:`` paths of a mapping resolve
-    (default: the working directory); a file's own folder is used for a
-    path, and a Scenario keeps the folder it was loaded with.
-    Raises :class:`ScenarioError` on any problem.
-    """
-    if isinstance(overrides, str):
-        overrides = (overrides,)
-    path: str | None = None
-    if isinstance(source, Scenario):
-        label = source.source or "<dict>"
-        path = source.source
-        base_dir = source.base_dir
-        data: Any = source.to_dict()
-    elif isinstance(source, (str, os.PathLike)):
-        label = path = os.fspath(source)
-        try:
-            text = read_text(path, limit=MAX_YAML_BYTES, what="scenario file")
-        except DkfsimError as err:
-            raise ScenarioError(str(err)) from None
-        data = _parse_yaml(text, label)
-    elif isinstance(source, Mapping):
-        label = "<dict>"
-        try:
-            check_plain_data(source)
-        except DkfsimError as err:
-            raise ScenarioError(str(err), source=label) from None
-        data = copy.deepcopy(dict(source))
-    else:
-        raise TypeError(f"load_scenario needs a path, a mapping or a Scenario, "
-                        f"got {type(source).__name__}")
-    if data is None:
-        raise ScenarioError("empty file: expected a mapping of scenario keys", source=label)
-    if not isinstance(data, dict):
-        raise ScenarioError(f"top level must be a mapping of scenario keys, got "
-                            f"{type(data).__name__}", source=label)
-    if "scenario" in data and ("grid" in data or "runs" in data) and "sensors" not in data:
-        raise ScenarioError("this is a sweep file (it names a scenario and a grid), not a scenario: "
-                            "run it with 'dkfsim sweep'", source=label)
-    override_keys: dict[str, str] = {}
-    for text in overrides:
-        key = _apply_override(data, text, label)
-        override_keys[key] = text
-    if "name" not in data and path is not None:
-        data["name"] = Path(path).stem
-    if path is not None and base_dir is None:
-        # Relative data files (traces, tracks) resolve against the file's folder.
-        base_dir = Path(path).resolve().parent
-    base_dir = None if base_dir is None else str(base_dir)
-    try:
-        scenario = Scenario.model_validate(data, context={"base_dir": base_dir})
-    except ValidationError as exc:
-        raise _convert(exc, data, label, override_keys) from None
-    scenario._source = path
-    scenario._base_dir = base_dir
-    return scenario

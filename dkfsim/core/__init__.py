@@ -1,0 +1,1 @@
+"""The bottom layer: errors, registries, parameter-model bases, streams, limits, files, threads."""

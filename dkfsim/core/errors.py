@@ -41,3 +41,8 @@ class ScenarioError(DkfsimError):
         if path:
             prefix += f"{path}: "
         super().__init__(prefix + message)
+
+
+class ResourceError(DkfsimError):
+    """Work that would not fit in memory, or would take long without ``--yes``."""
+

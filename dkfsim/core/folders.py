@@ -16,26 +16,22 @@ goes through :func:`check_target` *before* it computes anything and
   or files of two runs side by side.  The previous output is deleted once
   the new one is in place.
 
-Numbers: JSON and CSV write non-finite floats one way, as the strings
-``"nan"``, ``"inf"`` and ``"-inf"`` (the spelling of Python's ``repr``, which
-``float()``, numpy and pandas read back); :func:`from_json` turns them back
-into floats.  numpy scalars become Python numbers.
+JSON goes through :mod:`dkfsim.core.encoding`, the one number encoding.
 """
 
 from __future__ import annotations
 
 import contextlib
+import csv
 import ctypes
 import ctypes.util
 import json
-import math
 import os
 import shutil
 import tempfile
 from pathlib import Path
 
-import numpy as np
-
+from dkfsim.core.encoding import csv_cell, to_json
 from dkfsim.core.errors import DkfsimError
 
 #: The file that marks a folder as written by dkfsim (safe to replace).
@@ -43,56 +39,6 @@ MARKER = ".dkfsim-output"
 #: Names dkfsim writes into a result folder (a folder holding only these is ours).
 KNOWN_OUTPUTS = frozenset({MARKER, "summary.json", "run.npz", "runs.csv", "curves.npz",
                            "maxdelay.json", "maxdelay.png", "maxdelay.pdf", "figures"})
-NONFINITE = {"nan": math.nan, "inf": math.inf, "-inf": -math.inf}
-
-
-# =========================================================================== numbers
-def number_text(v: float) -> str | float:
-    """A float for JSON: itself when finite, else ``"nan"``, ``"inf"`` or ``"-inf"``."""
-    return v if math.isfinite(v) else repr(float(v))
-
-
-def to_json(obj):
-    """A copy of ``obj`` that standard JSON can hold (see the module docstring)."""
-    if isinstance(obj, dict):
-        return {str(k): to_json(v) for k, v in obj.items()}
-    if isinstance(obj, (list, tuple, set)):
-        return [to_json(v) for v in obj]
-    if isinstance(obj, np.ndarray):
-        return to_json(obj.tolist())
-    if isinstance(obj, (bool, np.bool_)):
-        return bool(obj)
-    if isinstance(obj, np.integer):
-        return int(obj)
-    if isinstance(obj, (float, np.floating)):
-        return number_text(float(obj))
-    if obj is None or isinstance(obj, (str, int)):
-        return obj
-    return str(obj)
-
-
-def from_json(obj):
-    """``obj`` with the strings ``"nan"``, ``"inf"``, ``"-inf"`` read back as floats."""
-    if isinstance(obj, dict):
-        return {k: from_json(v) for k, v in obj.items()}
-    if isinstance(obj, list):
-        return [from_json(v) for v in obj]
-    if isinstance(obj, str) and obj in NONFINITE:
-        return NONFINITE[obj]
-    return obj
-
-
-def csv_cell(v):
-    """A CSV cell: floats by ``repr`` (``nan``, ``inf`` included), ``None`` empty."""
-    if v is None:
-        return ""
-    if isinstance(v, (float, np.floating)):
-        return repr(float(v))
-    if isinstance(v, np.integer):
-        return int(v)
-    if isinstance(v, (list, dict)):
-        return json.dumps(to_json(v), sort_keys=True, separators=(",", ":"))
-    return v
 
 
 def json_text(obj) -> str:
@@ -103,6 +49,22 @@ def json_text(obj) -> str:
 def write_json(path, obj) -> None:
     """Write ``obj`` as JSON, atomically (a temporary file renamed over ``path``)."""
     write_text(path, json_text(obj))
+
+
+def write_csv(path, columns, rows) -> None:
+    """Write a CSV table atomically: a header, then ``rows`` (sequences of cells, encoded by
+    :func:`dkfsim.core.encoding.csv_cell`)."""
+    path = Path(path)
+    tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
+    try:
+        with open(tmp, "w", newline="", encoding="utf-8") as fh:
+            w = csv.writer(fh, lineterminator="\n")
+            w.writerow(columns)
+            for row in rows:
+                w.writerow([csv_cell(v) for v in row])
+        os.replace(tmp, path)
+    finally:
+        tmp.unlink(missing_ok=True)
 
 
 def write_text(path, text: str) -> None:

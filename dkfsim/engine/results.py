@@ -1,29 +1,43 @@
 """What a run returns and writes (docs/design.md §8).
 
 :class:`RunResult` holds the arrays of a run (a mapping: ``res["x_local"]``),
-its packet counts and a few facts about it, and writes ``run.npz`` and
-``summary.json``.  The npz is a pure function of the scenario and its seed:
-bit-identical across runs and worker counts.  ``summary.json`` adds the wall
-time and versions, which are not.
+the names of its estimates, its packet counts and each estimator's traffic,
+and writes a result folder: ``run.npz`` (the arrays; a pure function of the
+scenario and its seed, bit-identical across runs and worker counts),
+``rows.csv`` (the tidy rows every output shares, one per estimate and state
+component: :func:`dkfsim.analysis.metrics.score`) and ``summary.json`` (the
+same numbers, the counts, the scenario, versions and the wall time).
 """
 
 from __future__ import annotations
 
+import json
 import platform
 from collections.abc import Mapping
 from pathlib import Path
 
+import networkx
 import numpy as np
+import scipy
+import simpy
 
+from dkfsim.core.version import __version__
+from dkfsim.analysis.metrics import default_burn_in, mse_per_component, row_columns, score
+from dkfsim.config.load import load_scenario, scenario_hash
+from dkfsim.config.schema import component_names
+from dkfsim.core.encoding import from_json
 from dkfsim.core.errors import DkfsimError
-from dkfsim.analysis.metrics import default_burn_in, run_metrics
-from dkfsim.core.folders import staged, write_json
+from dkfsim.core.files import MAX_YAML_BYTES, check_regular_file, read_text
+from dkfsim.core.folders import staged, write_csv, write_json
 
 SAVE_MODES = ("auto", "full", "estimates", "summary")
 
 #: ``save: auto`` keeps the (n, n, K) arrival log only while it stays below this
 #: many entries (160 MB); beyond, it saves the estimates only.
 FULL_LOG_LIMIT = 20_000_000
+
+#: ``run.npz`` keys that start with ``x_`` but are not estimates.
+NOT_ESTIMATES = ("x_final", "x0_mean")
 
 
 def resolve_save_mode(save: str, n: int, K: int) -> str:
@@ -35,23 +49,35 @@ def resolve_save_mode(save: str, n: int, K: int) -> str:
 
 
 def versions() -> dict:
-    import networkx
-    import scipy
-    import simpy
-
-    from dkfsim import __version__
     return {"dkfsim": __version__, "python": platform.python_version(), "numpy": np.__version__,
             "scipy": scipy.__version__, "simpy": simpy.__version__, "networkx": networkx.__version__}
 
 
-class RunResult(Mapping):
-    """Arrays, counts and facts of one run; a read-only mapping of the arrays."""
+def estimate_names(arrays: Mapping) -> list[str]:
+    """The estimates a run's arrays hold (``x_<name>``), the DKF's first."""
+    names = [k[2:] for k in arrays if k.startswith("x_") and k not in NOT_ESTIMATES]
+    first = [n for n in ("fused", "local") if n in names]
+    return first + [n for n in names if n not in first]
 
-    def __init__(self, scenario, arrays: dict, counts: dict, info: dict):
+
+class RunResult(Mapping):
+    """Arrays, estimates, counts and facts of one run; a read-only mapping of the arrays.
+
+    ``estimates``: names in output order; ``traffic``: each estimate's
+    estimator counts (``None``: no network model); ``counts``: the scenario's
+    DKF packet counts (``sent``, ``delivered``, ``lost``, ``late``,
+    ``per_link``, ...); ``facts``: side facts of the other estimators.
+    """
+
+    def __init__(self, scenario, arrays: dict, counts: dict, info: dict, *, estimates=None,
+                 traffic: dict | None = None, facts: dict | None = None):
         self.scenario = scenario
         self.arrays = arrays
         self.counts = counts
         self.info = info
+        self.estimates = list(estimates) if estimates is not None else estimate_names(arrays)
+        self.traffic = traffic or {}
+        self.facts = facts or {}
 
     def __getitem__(self, key):
         return self.arrays[key]
@@ -68,21 +94,48 @@ class RunResult(Mapping):
             return arrays[key]
         raise AttributeError(key)
 
-    def metrics(self, burn_in: int | None = None) -> dict:
+    def __repr__(self) -> str:
+        sc = self.scenario
+        return (f"<RunResult {sc.name}: {sc.steps} ticks, {sc.n} nodes, estimates "
+                f"{', '.join(self.estimates)}; {len(self.arrays)} arrays>")
+
+    @property
+    def components(self) -> list[str]:
+        return component_names(self.scenario.model.kind, self.scenario.nx)
+
+    def _burn(self, burn_in: int | None) -> int:
         K = self.arrays["truth"].shape[0]
+        return default_burn_in(K) if burn_in is None else int(burn_in)
+
+    def metrics(self, burn_in: int | None = None) -> dict:
+        """MSE per state component after the burn-in, by estimate name."""
+        burn = self._burn(burn_in)
+        out: dict = {"burn_in": burn}
         with np.errstate(all="ignore"):       # diverged estimates give inf / nan, reported
-            return run_metrics(self.arrays, default_burn_in(K) if burn_in is None else burn_in)
+            for name in self.estimates:
+                out[name] = mse_per_component(self.arrays[f"x_{name}"], self.arrays["truth"], burn).tolist()
+        return out
+
+    def rows(self, burn_in: int | None = None) -> list[dict]:
+        """The tidy rows of this run (``run`` 0): one per estimate and state component."""
+        burn = self._burn(burn_in)
+        out = []
+        for name in self.estimates:
+            for row in score(name, self.arrays[f"x_{name}"], self.arrays.get(f"P_{name}"),
+                             self.arrays["truth"], self.traffic.get(name), burn, self.components):
+                out.append({"run": 0, "seed": int(self.scenario.seed), **row})
+        return out
 
     @property
     def diverged(self) -> list[str]:
         """Estimates (``x_*`` arrays) holding non-finite values: the filter diverged."""
-        return [key for key, val in self.arrays.items()
-                if key.startswith("x_") and key != "x0_mean" and not np.isfinite(val).all()]
+        return [f"x_{n}" for n in self.estimates if not np.isfinite(self.arrays[f"x_{n}"]).all()]
 
     def summary(self, burn_in: int | None = None) -> dict:
-        from dkfsim.config.schema import scenario_hash
         sc = self.scenario
         counts = {k: v for k, v in self.counts.items() if k != "per_link"}
+        traffic = {name: (None if t is None else {k: v for k, v in t.items() if k != "per_link"})
+                   for name, t in self.traffic.items()}
         return {
             "scenario": sc.name,
             "scenario_hash": scenario_hash(sc),
@@ -94,59 +147,34 @@ class RunResult(Mapping):
             "fusion": sc.fusion,
             **{k: v for k, v in self.info.items()},
             "versions": versions(),
+            "estimates": self.estimates,
             "metrics": self.metrics(burn_in),
+            "rows": self.rows(burn_in),
             "diverged": self.diverged,
             "packets": counts,
             "per_link": [{**d, "link": list(d["link"])} for d in self.counts.get("per_link", [])],
+            "traffic": traffic,
+            "facts": self.facts,
             "scenario_config": sc.to_dict(),
         }
 
     def save(self, out_dir, burn_in: int | None = None) -> Path:
-        """Write ``run.npz`` (unless the save mode is ``summary``) and ``summary.json``.
-
-        The folder is replaced as a whole and atomically (:func:`dkfsim.core.folders.staged`):
-        no file of an earlier run survives beside the new ones.
-        """
+        """Write ``run.npz`` (unless the save mode is ``summary``), ``rows.csv`` and
+        ``summary.json``.  The folder is replaced as a whole and atomically
+        (:func:`dkfsim.core.folders.staged`): no file of an earlier run survives."""
         summary = self.summary(burn_in)
         with staged(out_dir, "run") as tmp:
             if self.info.get("save") != "summary":
                 np.savez(tmp / "run.npz", **self.arrays)
+            write_rows(tmp / "rows.csv", summary["rows"])
             write_json(tmp / "summary.json", summary)
         return Path(out_dir)
 
-    def table(self, burn_in: int | None = None) -> str:
-        """A short human-readable table: MSE per state component and packet counts."""
-        m = self.metrics(burn_in)
-        nx = self.arrays["truth"].shape[1]
-        from dkfsim.config.schema import component_names
-        names = component_names(self.scenario.model.kind, nx)
-        rows = [("estimate", *names)]
-        label = {"fused": "fused (%s)" % self.scenario.fusion, "local_mean": "local (mean over nodes)"}
-        for key, val in m.items():
-            if key == "burn_in":
-                continue
-            rows.append((label.get(key, key), *("%.4g" % v for v in val)))
-        widths = [max(len(r[c]) for r in rows) for c in range(len(rows[0]))]
-        lines = [f"{self.scenario.name}: {self.scenario.steps} ticks, {len(self.scenario.sensors)} nodes, "
-                 f"protocol {self.scenario.protocol}, L = {self.info['buffer_length']} "
-                 f"(d_t = {self.info['d_t']}, d_g = {self.info['d_g']}), "
-                 f"MSE after {m['burn_in']} burn-in rows"]
-        for i, r in enumerate(rows):
-            lines.append("  " + "  ".join(c.ljust(w) if j == 0 else c.rjust(w)
-                                          for j, (c, w) in enumerate(zip(r, widths))))
-            if i == 0:
-                lines.append("  " + "  ".join("-" * w for w in widths))
-        c = self.counts
-        extra = "".join(f", {label} {c[key]}" for key, label in
-                        (("copies", "duplicate copies"), ("crash_dropped", "dropped at crashed nodes"))
-                        if c.get(key))
-        lines.append(f"packets: sent {c['sent']}, delivered {c['delivered']}, lost {c['lost']}, "
-                     f"in flight at end {c['in_flight']}{extra}; late contributions {c['late']}")
-        if self.diverged:
-            lines.append("DIVERGED: " + ", ".join(self.diverged) + " hold non-finite values (the "
-                         "model or the numbers overflow float64); their MSE is inf or nan")
-        lines.append(f"wall time {self.info['wall_time_s']:.2f} s")
-        return "\n".join(lines)
+
+def write_rows(path, rows: list[dict]) -> None:
+    """Tidy rows as CSV with the shared columns (:func:`dkfsim.analysis.metrics.row_columns`)."""
+    columns = row_columns()
+    write_csv(path, columns, ([row.get(c) for c in columns] for row in rows))
 
 
 #: Keys of summary.json that are facts of the run (``RunResult.info``).
@@ -161,11 +189,6 @@ def load_run(folder) -> RunResult:
     arrays are those of ``run.npz`` (none when the run was saved with
     ``--save summary``).
     """
-    import json
-
-    from dkfsim.core.folders import from_json
-    from dkfsim.config.schema import load_scenario
-    from dkfsim.core.files import MAX_YAML_BYTES, check_regular_file, read_text
     folder = Path(folder)
     path = folder / "summary.json"
     try:
@@ -188,5 +211,5 @@ def load_run(folder) -> RunResult:
     counts = dict(summary["packets"])
     counts["per_link"] = [{**d, "link": tuple(d["link"])} for d in summary.get("per_link", [])]
     info = {key: summary[key] for key in INFO_KEYS if key in summary}
-    return RunResult(scenario, arrays, counts, info)
-
+    return RunResult(scenario, arrays, counts, info, estimates=summary.get("estimates"),
+                     traffic=summary.get("traffic"), facts=summary.get("facts"))

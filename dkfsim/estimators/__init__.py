@@ -1,0 +1,8 @@
+"""Every algorithm of a run: the anti-delay DKF and the field's other estimators.
+
+Each is an :class:`~dkfsim.estimators.base.Estimator` in a module of its
+own; importing this package registers the built-in ones.
+"""
+
+from dkfsim.estimators import (anti_delay, centralized, centralized_delayed, ci_consensus,  # noqa: F401
+                               local_only)

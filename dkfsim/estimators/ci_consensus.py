@@ -100,11 +100,13 @@ from __future__ import annotations
 
 import numpy as np
 import scipy.sparse
-import simpy
 
-from dkfsim.core.errors import ScenarioError
 from dkfsim.core.linalg import solve
-from dkfsim.network.links import PRIORITY_UPDATE, Network, Scheduled
+from dkfsim.core.registry import ESTIMATORS
+from dkfsim.core.resources import B_FLOAT, C_NODE_ROW, C_PACKET, C_ROW, C_TICK, Cost
+from dkfsim.components.estimators import CIParams
+from dkfsim.estimators.base import Estimate, Estimator, EstimatorResult
+from dkfsim.network.links import PRIORITY_UPDATE, Scheduled
 
 
 # --------------------------------------------------------------------------- helpers
@@ -150,50 +152,49 @@ class _Powers:
         return self._F[m], self._Q[m]
 
 
-# --------------------------------------------------------------------------- the filter
-class CIConsensus:
-    """All nodes' CI filters and their exchange in one SimPy environment.
+class CIConsensus(Estimator):
+    """Every node's CI filter and its exchange, on the run's network.
 
-    :param omega: (n, nx, nx) each node's own information matrix, or (K, n, nx, nx)
-        per row (sensors whose information varies with the measurement).
-    :param theta: (K, n, nx) each node's own information vectors.
-    :param rounds: consensus rounds per tick ``L_c >= 0``.
-    :param arcs: directed ``(u, v)`` links (u sends to v).
-    :param link_spec: ``link_spec(u, v)`` -> ``.latency``, ``.loss``.
+    The filter steps are batched over nodes; rounds are events at
+    ``t_k + l T / rounds`` on the run's clock; packets go through the
+    estimator's own port over the exchange graph's links.
     """
 
-    def __init__(self, Phi, Q, x0, P0, omega, theta, rounds, *, arcs=(), link_spec=None,
-                 seed=0, T_ns=1, crashes=None):
-        self.Phi = np.asarray(Phi, float)
-        self.Q = np.asarray(Q, float)
-        self.omega = np.asarray(omega, float)
-        self.theta = np.asarray(theta, float)
+    Params = CIParams
+
+    @classmethod
+    def cost(cls, params, scenario, *, L: int, arcs: int, save: str = "estimates") -> Cost:
+        K, n, nx = int(scenario.steps), scenario.n, scenario.nx
+        return Cost(params.label,
+                    memory={"ci_consensus": K * n * (nx + nx * nx) * B_FLOAT + arcs * (nx + nx * nx) * 2 * B_FLOAT},
+                    seconds=K * (C_ROW + n * C_NODE_ROW) + K * params.rounds * (
+                        C_TICK + 3 * C_ROW + arcs * C_PACKET + n * 2 * C_NODE_ROW))
+
+    def start(self) -> None:
+        ctx = self.ctx
+        s = ctx.system
+        self.Phi, self.Q = np.asarray(s.Phi, float), np.asarray(s.Q, float)
+        omega, theta = ctx.existing_information()          # crashed sensors measure nothing
+        self.omega, self.theta = np.asarray(omega, float), np.asarray(theta, float)
         self.K, self.n, self.nx = self.theta.shape
         self._omega_per_row = self.omega.ndim == 4
-        self.rounds = Lc = int(rounds)
-        if Lc < 0:
-            raise ScenarioError(f"must be >= 0, got {Lc}", path="consensus_rounds")
-        self.T_ns = int(T_ns)
-        if Lc > 0 and self.T_ns % Lc:
-            raise ScenarioError(
-                f"{Lc} rounds per tick need T / consensus_rounds to be a whole number of "
-                f"nanoseconds; T = {self.T_ns} ns is not divisible by {Lc}",
-                path="consensus_rounds")
+        self.rounds = Lc = int(self.params.rounds)
+        self.T_ns = ctx.T_ns
         self.dt = self.T_ns // Lc if Lc > 0 else self.T_ns
         n, nx = self.n, self.nx
-        self.x = np.broadcast_to(np.asarray(x0, float), (n, nx)).copy()
-        self.P = np.broadcast_to(np.asarray(P0, float), (n, nx, nx)).copy()
+        self.x = np.broadcast_to(np.asarray(s.x0_mean, float), (n, nx)).copy()
+        self.P = np.broadcast_to(np.asarray(s.P0, float), (n, nx, nx)).copy()
         self.Om = self.q = None
-        self.arcs = [(int(u), int(v)) for u, v in arcs] if Lc > 0 else []
-        self.link_spec = link_spec
-        self.seed = int(seed)
-        self.crashes = crashes if crashes else None
+        self.crashes = ctx.crashes
+        self.env = ctx.env
         self.used = self.stale = 0
-
-        E = len(self.arcs)
-        self.src = np.array([u for u, _ in self.arcs], dtype=np.intp)
-        self.dst = np.array([v for _, v in self.arcs], dtype=np.intp)
-        pi = metropolis_weights(n, self.arcs) if E else np.zeros(0)
+        arcs = ctx.scenario.exchange().arcs if Lc > 0 else []
+        self.links = [ctx.network.link(u, v) for u, v in arcs]
+        self.lid = {link.id: a for a, link in enumerate(self.links)}
+        E = len(self.links)
+        self.src = np.array([u for u, _ in arcs], dtype=np.intp)
+        self.dst = np.array([v for _, v in arcs], dtype=np.intp)
+        pi = metropolis_weights(n, arcs) if E else np.zeros(0)
         # S[v, a] = pi_a for arc a = (u -> v): the neighbour part of the averaging.
         self.S = scipy.sparse.csr_matrix((pi, (self.dst, np.arange(E))), shape=(n, E))
         # Newest pair received on each arc: stamp = global round index (-1: none).
@@ -203,10 +204,18 @@ class CIConsensus:
         self.arc_x = np.zeros((E, nx))
         self.arc_P = np.zeros((E, nx, nx))
         self.powers = _Powers(self.Phi, self.Q)
-
         self.x_out = np.empty((self.K, n, nx))
         self.P_out = np.empty((self.K, n, nx, nx))
-        self.env = self.network = None
+        # The last averaging of tick K happens at t_{K+1}: deliveries count until then.
+        self.port = ctx.network.port(self.name, self._receive, self.links, until=(self.K + 1) * self.T_ns)
+        self.nbytes = 16 + 8 * (nx + nx * (nx + 1) // 2)
+        if Lc == 0:
+            for k in range(1, self.K + 1):
+                self._predict_correct(k)
+                self._record(k)
+        else:
+            self._g = 0
+            Scheduled(self.env, self._instant, PRIORITY_UPDATE, self.T_ns)
 
     # -- the filter steps (batched over nodes) -----------------------------
     def _predict_correct(self, k: int) -> None:
@@ -249,7 +258,7 @@ class CIConsensus:
 
     def _down(self) -> np.ndarray:
         """Nodes inside a crash window now."""
-        if self.crashes is None or self.env is None:
+        if not self.crashes or self.rounds == 0:
             return np.zeros(0, dtype=np.intp)
         now = self.env.now
         return np.array([i for i in range(self.n) if self.crashes.down(i, now)], dtype=np.intp)
@@ -261,15 +270,15 @@ class CIConsensus:
     # -- the network ---------------------------------------------------------
     def _send(self, stamp: int) -> None:
         state = (stamp, self.Om, self.q, self.x, self.P)
-        send, links = self.network.send, self.network.links
+        send = self.port.send
         down = set(self._down().tolist())
-        for link in links:
+        for link in self.links:
             if link.src not in down:          # a crashed node sends nothing
-                send(link, state)
+                send(link, state, self.nbytes)
 
     def _receive(self, link, payload) -> None:
         stamp, Om, q, x, P = payload
-        a, u = link.id, link.src
+        a, u = self.lid[link.id], link.src
         if stamp > self.arc_stamp[a]:
             self.arc_stamp[a] = stamp
             self.arc_Om[a] = Om[u]
@@ -294,43 +303,13 @@ class CIConsensus:
         self._send(g)
         Scheduled(self.env, self._instant, PRIORITY_UPDATE, self.dt)
 
-    # -- running ---------------------------------------------------------------
-    def run(self) -> dict:
-        if self.rounds == 0:
-            for k in range(1, self.K + 1):
-                self._predict_correct(k)
-                self._record(k)
-            counts = dict(sent=0, delivered=0, lost=0, in_flight=0)
-        else:
-            self.env = simpy.Environment()
-            self.network = Network(self.env, self.arcs, self.link_spec, self.seed, self.T_ns,
-                                   self._receive, crashes=self.crashes)
-            self._g = 0
-            Scheduled(self.env, self._instant, PRIORITY_UPDATE, self.T_ns)
-            end = (self.K + 1) * self.T_ns
-            self.env.run(until=end + 1)
-            c = self.network.counts()
-            counts = {key: int(c[key]) for key in ("sent", "delivered", "lost", "in_flight")}
-        out = {"x_ci_consensus": self.x_out, "P_ci_consensus": self.P_out}
-        for key, val in counts.items():
-            out[f"_ci_consensus_{key}"] = val
-        out["_ci_consensus_rounds"] = self.rounds
-        out["_ci_consensus_used"] = self.used
-        out["_ci_consensus_stale"] = self.stale
-        return out
+    # -- the result -------------------------------------------------------------
+    def finish(self) -> EstimatorResult:
+        traffic = self.port.counts()
+        traffic["late"] = self.stale        # neighbour pairs used after arriving a tick late
+        facts = {"rounds": self.rounds, "used": self.used, "stale": self.stale}
+        return EstimatorResult({self.name: Estimate(self.x_out, self.P_out)}, traffic=traffic,
+                               facts=facts)
 
 
-def ci_consensus(sim) -> dict:
-    """The baseline on a finished :class:`~dkfsim.engine.driver.Simulation`'s draws.
-
-    Returns ``x_ci_consensus`` (K, n, nx), ``P_ci_consensus`` (K, n, nx, nx)
-    and side facts under ``_ci_consensus_*`` keys (see the module docstring).
-    """
-    from dkfsim.estimators.baselines import existing_information
-    s = sim.system
-    rounds = int(getattr(sim.scenario, "consensus_rounds", 1))
-    omega, theta = existing_information(sim)      # crashed sensors measure nothing
-    ci = CIConsensus(s.Phi, s.Q, s.x0_mean, s.P0, omega, theta, rounds,
-                     arcs=sim.exchange_graph.arcs, link_spec=sim.scenario.link_spec,
-                     seed=sim.seed, T_ns=s.T_ns, crashes=getattr(sim, "crashes", None))
-    return ci.run()
+ESTIMATORS.add("ci_consensus", implementation=CIConsensus)

@@ -1,0 +1,1 @@
+"""Experiments over many runs: Monte Carlo, parameter sweeps, the maximum allowable delay."""

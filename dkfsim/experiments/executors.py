@@ -20,6 +20,7 @@ Ctrl-C) cancels what has not started and stops the local workers.
 
 from __future__ import annotations
 
+import logging
 import os
 import signal
 import threading
@@ -30,6 +31,7 @@ from concurrent.futures.process import BrokenProcessPool
 from typing import Any
 
 from dkfsim.core.errors import DkfsimError
+from dkfsim.core.extras import optional
 from dkfsim.core.threads import call_single_threaded, pin_process
 
 Task = tuple[Any, tuple]
@@ -171,13 +173,7 @@ def local(jobs: int | None = None) -> Executor:
 
 # =========================================================================== Dask
 def _distributed():
-    try:
-        import distributed
-    except ImportError:
-        raise DkfsimError("running on Dask (--scheduler, --dask-local) needs the 'distributed' "
-                          "package, which is not installed: pip install 'dkfsim[cluster]' "
-                          "(or pip install distributed)") from None
-    return distributed
+    return optional("distributed")
 
 
 class DaskExecutor(Executor):
@@ -211,7 +207,6 @@ class DaskExecutor(Executor):
         else:
             if isinstance(n_workers, bool) or not isinstance(n_workers, int) or n_workers < 1:
                 raise DkfsimError(f"--dask-local: must be an integer >= 1, got {n_workers!r}")
-            import logging
             self._cluster = distributed.LocalCluster(
                 n_workers=n_workers, threads_per_worker=1, processes=processes,
                 dashboard_address=None, silence_logs=logging.ERROR)

@@ -7,7 +7,7 @@ gets worse than a tolerance?", side by side:
    ``uniform_steps`` latency model (integers ``0, 1, 2, ...``) or, for
    continuous latency models, a scale ``s`` on a grid ``0, ds, 2 ds, ...``
    that multiplies every time parameter of every latency model (see
-   :data:`SCALE_KEYS`).  A candidate delay is evaluated with Monte Carlo runs
+   :meth:`~dkfsim.components.latency.LatencyParams.scaled_keys`).  A candidate delay is evaluated with Monte Carlo runs
    in batches (run ``r`` uses seed ``derive_seed(seed, r)`` of
    :mod:`dkfsim.experiments.montecarlo`, the same ``r`` at every candidate: common
    random numbers) and stops as soon as the Student-t confidence interval of
@@ -42,9 +42,9 @@ estimates).  The buffer length follows the candidate delay when it is
 
 from __future__ import annotations
 
+import json
 import math
 import signal
-import sys
 import time
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass, field
@@ -52,13 +52,26 @@ from pathlib import Path
 
 import numpy as np
 
+from dkfsim.analysis.bounds import paper_bound_for_scenario
+from dkfsim.analysis.metrics import default_burn_in, mse_per_component, t_interval
+from dkfsim.components.latency import parse_latency
+from dkfsim.config.load import load_scenario, scenario_hash
+from dkfsim.config.schema import Scenario
 from dkfsim.core.errors import DkfsimError
-from dkfsim.core.folders import check_target, staged, write_json
-from dkfsim.core.resources import Estimate, check, estimate_run, repeat
+from dkfsim.core.extras import optional, pyplot
+from dkfsim.core.folders import staged, write_json
+from dkfsim.core.registry import LATENCY_MODELS
+from dkfsim.core.resources import Cost, check, repeat
 from dkfsim.core.threads import pin_process, single_thread
+from dkfsim.engine.driver import Run
+from dkfsim.engine.estimate import estimate_run
+from dkfsim.engine.results import versions
+from dkfsim.experiments.montecarlo import components_of, derive_seed
 
 #: Metric name -> description (help text and JSON).
 METRICS = {
+    "mse": "squared error of the estimate --estimate (default fused), component --component (sum "
+           "over components with 'all'; per-node estimates: mean over nodes), time average after burn-in",
     "fused_mse": "squared error of the fused estimate, component --component (sum over "
                  "components with 'all'), time average after burn-in",
     "trace_P": "trace of P_fused, time average after burn-in (--component is ignored); "
@@ -72,28 +85,21 @@ COVARIANCE_METRICS = ("trace_P", "fused_var")
 #: Metrics that need the fusion step.
 FUSED_METRICS = ("fused_mse", "trace_P", "fused_var")
 
-#: Latency model -> its time parameters that the scale multiplies (seconds; ``empirical``'s
-#: ``scale`` is a factor on the trace, which has the same effect).
-SCALE_KEYS = {"constant": ("value",), "uniform": ("low", "high"), "exponential": ("mean", "offset"),
-              "lognormal": ("median", "offset"), "gamma": ("scale", "offset"),
-              "pareto": ("scale", "offset"), "empirical": ("scale",)}
-#: Latency models made of other latency models: the scale applies to each.
-NESTED_KEYS = {"gilbert_elliott": ("good", "bad")}
-
 #: Random topology generators; maxdelay pins their seed so the graph is the same in every run.
 RANDOM_GENERATORS = ("random_tree", "random_regular", "erdos_renyi")
 
 
+#: Old metric names: the ``mse`` of one estimate.
+MSE_OF = {"fused_mse": "fused", "local_mse": "local"}
+
+
 # =========================================================================== metrics
-def metric_value(arrays, metric: str, comp: int | None, burn: int) -> float:
+def metric_value(arrays, metric: str, comp: int | None, burn: int, estimate: str = "fused") -> float:
     """The per-run value of ``metric`` (``comp`` None = all components)."""
-    truth = np.asarray(arrays["truth"])[burn:]
-    if metric == "fused_mse":
-        e2 = (np.asarray(arrays["x_fused"])[burn:] - truth) ** 2
-        return float(e2.mean(axis=0).sum() if comp is None else e2[:, comp].mean())
-    if metric == "local_mse":
-        e2 = (np.asarray(arrays["x_local"])[burn:] - truth[:, None, :]) ** 2
-        return float(e2.mean(axis=(0, 1)).sum() if comp is None else e2[:, :, comp].mean())
+    if metric in MSE_OF or metric == "mse":
+        mse = mse_per_component(np.asarray(arrays[f"x_{MSE_OF.get(metric, estimate)}"]),
+                                np.asarray(arrays["truth"]), burn)
+        return float(mse.sum() if comp is None else mse[comp])
     if metric == "trace_P":
         return covariance_value(arrays, "trace_P", None, burn)
     if metric == "fused_var":
@@ -125,29 +131,37 @@ def _const(seconds: float) -> str:
     return f"{{model: constant, value: {_seconds(seconds)}}}"
 
 
+def _value_at(lat: dict, dotted: str):
+    node = lat
+    for part in dotted.split("."):
+        node = node[part]
+    return node
+
+
+def _scaled_keys(path: str, lat: dict) -> list[str] | None:
+    """The dotted keys (under ``path``) a latency scale multiplies, as the model declares
+    them (:meth:`~dkfsim.components.latency.LatencyParams.scaled_keys`); None if it cannot
+    be scaled."""
+    keys = parse_latency(lat).scaled_keys()
+    return None if keys is None else [f"{path}.{k}" for k in keys]
+
+
 def _scale_overrides(path: str, lat: dict, s: float) -> list[str]:
     """Overrides multiplying every time parameter of the latency model at ``path`` by ``s``."""
-    m = lat["model"]
-    if m in SCALE_KEYS:
-        return [f"{path}.{k}={repr(float(lat[k]) * s)}" for k in SCALE_KEYS[m]
-                if lat.get(k) is not None]
-    if m in NESTED_KEYS:
-        return [o for k in NESTED_KEYS[m] for o in _scale_overrides(f"{path}.{k}", lat[k], s)]
-    raise DkfsimError(f"{path}: latency model {m!r} cannot be scaled")  # excluded by make_axis
-
-
-def _scaled_keys(path: str, lat: dict) -> list[str]:
-    m = lat["model"]
-    if m in SCALE_KEYS:
-        return [f"{path}.{k}" for k in SCALE_KEYS[m] if lat.get(k) is not None]
-    return [key for k in NESTED_KEYS.get(m, ()) for key in _scaled_keys(f"{path}.{k}", lat[k])]
+    keys = parse_latency(lat).scaled_keys()
+    if keys is None:
+        raise DkfsimError(f"{path}: latency model {lat['model']!r} cannot be scaled")  # excluded by make_axis
+    return [f"{path}.{k}={repr(float(_value_at(lat, k)) * s)}" for k in keys]
 
 
 def _scalable(lat: dict) -> bool:
-    m = lat["model"]
-    if m in SCALE_KEYS:
-        return True
-    return m in NESTED_KEYS and all(_scalable(lat[k]) for k in NESTED_KEYS[m])
+    return parse_latency(lat).scaled_keys() is not None
+
+
+def scalable_models() -> list[str]:
+    """Latency models a scale can multiply (those declaring ``scale_keys``, or nesting models)."""
+    return [e.name for e in LATENCY_MODELS.entries()
+            if e.params.scale_keys is not None or e.params.nests_models]
 
 
 @dataclass
@@ -156,8 +170,8 @@ class DelayAxis:
 
     ``mode = "d_t"``: ``d_t = j`` on every ``uniform_steps`` latency model
     (and ``links.d_t = j`` when the scenario sets it).  ``mode = "scale"``:
-    ``s = j * step``; every time parameter (:data:`SCALE_KEYS`, nested
-    models of :data:`NESTED_KEYS` recursively) of every latency *and jitter*
+    ``s = j * step``; every time parameter (as each model declares,
+    nested models recursively) of every latency *and jitter*
     model is multiplied by ``s``; ``s = 0`` makes them ``constant 0``;
     ``links.d_t``, when set, becomes ``ceil(s * links.d_t)``.  Schedules (a
     factor on the latency over time) are left as they are.
@@ -211,13 +225,7 @@ class DelayAxis:
 
     def _sup(self, lat: dict, s: float) -> float | None:
         """Largest latency (s) of a model scaled by ``s``; ``None`` when unbounded."""
-        from dkfsim.components.latency import parse_latency
-        src = getattr(self.base, "source", None)
-        base_dir = str(Path(src).resolve().parent) if src else None
-        try:
-            sup = parse_latency(lat, base_dir).sup_ns(self.T_ns)
-        except TypeError:                        # an older parse_latency without base_dir
-            sup = parse_latency(lat).sup_ns(self.T_ns)
+        sup = parse_latency(lat, self.base.base_dir).sup_ns(self.T_ns)
         return None if sup is None else s * sup / 1e9
 
     def worst_overrides(self, j: int) -> list[str] | None:
@@ -249,8 +257,7 @@ class DelayAxis:
             [f"{path}={_const(0.0)}" for path, _ in self.jitters] + ["buffer_length=1"]
 
     def scenario(self, j: int, overrides: list[str] | None = None):
-        from dkfsim.config.schema import load_scenario
-        return load_scenario(self.base, overrides=self.overrides(j) if overrides is None else overrides)
+            return load_scenario(self.base, overrides=self.overrides(j) if overrides is None else overrides)
 
     def describe(self) -> dict:
         if self.mode == "d_t":
@@ -266,11 +273,13 @@ class DelayAxis:
                               else "")}
 
 
-def make_axis(scenario, *, max_delay: int, scale_step: float, max_scale: float) -> DelayAxis:
-    """The delay axis of ``scenario`` (raises DkfsimError when it has none)."""
-    from dkfsim.config.schema import load_scenario
+def make_axis(scenario, *, max_delay: int, scale_step: float, max_scale: float,
+              keep: str | None = None) -> DelayAxis:
+    """The delay axis of ``scenario`` (raises DkfsimError when it has none).  The base
+    scenario keeps only the estimator named ``keep`` (the searched one, if listed)."""
     data = scenario.to_dict()
-    pin = ["baselines=[]"]
+    kept = [e for e in data.get("estimators", []) if (e.get("name") or e["kind"]) == keep]
+    pin = ["estimators=" + json.dumps(kept)]
     top = data.get("topology", {})
     if top.get("generator") in RANDOM_GENERATORS and "seed" not in (top.get("params") or {}):
         pin.append(f"topology.params.seed={int(scenario.seed)}")
@@ -290,7 +299,7 @@ def make_axis(scenario, *, max_delay: int, scale_step: float, max_scale: float) 
         if lat["model"] != "uniform_steps" and not _scalable(lat):
             raise DkfsimError(
                 f"{path}: latency model {lat['model']!r} is neither uniform_steps (whose d_t maxdelay "
-                f"searches) nor scalable ({', '.join(list(SCALE_KEYS) + list(NESTED_KEYS))}: maxdelay "
+                f"searches) nor scalable ({', '.join(scalable_models())}: maxdelay "
                 "multiplies their time parameters by a scale s); use one of those models")
     if "uniform_steps" in models and len(models) > 1:
         raise DkfsimError(
@@ -302,7 +311,7 @@ def make_axis(scenario, *, max_delay: int, scale_step: float, max_scale: float) 
         for path, lat in jitters:
             if not _scalable(lat):
                 raise DkfsimError(f"{path}: jitter model {lat['model']!r} cannot be scaled; use one of "
-                                  f"{', '.join(list(SCALE_KEYS) + list(NESTED_KEYS))}")
+                                  f"{', '.join(scalable_models())}")
     if mode == "d_t":
         if max_delay < 1:
             raise DkfsimError(f"--max-delay: must be >= 1, got {max_delay}")
@@ -319,41 +328,32 @@ def make_axis(scenario, *, max_delay: int, scale_step: float, max_scale: float) 
                      links_d_t=links.get("d_t"))
 
 
-def _deterministic_latency(lat) -> bool:
-    m = lat.model
-    return (m == "constant" or (m == "uniform_steps" and lat.d_t == 0)
-            or (m == "uniform" and lat.low == lat.high)
-            or (m == "lognormal" and getattr(lat, "sigma", None) == 0))
-
-
 def latencies_deterministic(sc) -> bool:
     """True when no random draw can change any covariance of a run of ``sc``:
     every used link has a constant latency (and jitter), no loss and no
     duplicates, and every sensor is linear (its information does not depend
     on its measurement)."""
-    if any(getattr(s, "kind", "linear") != "linear" for s in sc.sensors):
+    if any(s.kind != "linear" for s in sc.sensors):
         return False
     for u, v in sc.exchange().arcs:
         spec = sc.link_spec(u, v)
         if spec.loss > 0 or (getattr(spec, "duplicate", 0.0) or 0.0) > 0:
             return False
         for lat in (spec.latency, getattr(spec, "jitter", None)):
-            if lat is not None and not _deterministic_latency(lat):
+            if lat is not None and not lat.deterministic:
                 return False
     return True
 
 
 # =========================================================================== runs
 def _simulate(base, overrides: list, seed: int | None, metric: str, comp, burn: int,
-              covariance: bool = False) -> float:
-    from dkfsim.config.schema import load_scenario
-    from dkfsim.engine.driver import Simulation
+              covariance: bool = False, estimate: str = "fused") -> float:
     ov = list(overrides) + ([] if seed is None else [f"seed={int(seed)}"])
     sc = load_scenario(base, overrides=ov)
-    res = Simulation(sc, save="estimates").run()
+    res = Run(sc, save="estimates").run()
     if covariance:
         return covariance_value(res.arrays, metric, comp, burn)
-    return metric_value(res.arrays, metric, comp, burn)
+    return metric_value(res.arrays, metric, comp, burn, estimate)
 
 
 def _init_worker() -> None:
@@ -456,7 +456,6 @@ def _num(v):
 
 def interval(samples, level: float):
     """Mean and Student-t interval (a zero-width interval for one deterministic value)."""
-    from dkfsim.analysis.metrics import t_interval
     a = np.asarray(samples, float)
     if a.size == 1:
         return float(a[0]), (float(a[0]), float(a[0]))
@@ -594,6 +593,7 @@ def _decreases(cands: dict) -> bool:
 @dataclass
 class Settings:
     metric: str = "fused_mse"
+    estimate: str = "fused"            # the estimate whose mse the Monte Carlo search tracks (metric mse)
     component: str | int | None = None  # a name, an index, "all"; None = the first component
     tolerance: float | None = None     # absolute
     relative: float | None = None      # relative to zero delay
@@ -633,8 +633,7 @@ def check_settings(st: Settings) -> None:
 
 def resolve_component(scenario, metric: str, text) -> tuple[int | None, str]:
     """``--component`` (a name, an index or ``all``) -> (index or None, name)."""
-    from dkfsim.experiments.montecarlo import component_names
-    names = component_names(scenario)
+    names = components_of(scenario)
     if metric == "trace_P":
         return None, "all"
     if text is None:
@@ -654,12 +653,16 @@ class MaxDelay:
     """Runs the three answers for one scenario (see the module docstring)."""
 
     def __init__(self, scenario, settings: Settings, progress=None, yes: bool = False):
-        from dkfsim.experiments.montecarlo import derive_seed
-        from dkfsim.analysis.metrics import default_burn_in
         check_settings(settings)
         self.sc = scenario
         self.st = settings
-        if settings.metric in FUSED_METRICS and scenario.fusion == "none":
+        if settings.metric == "mse" and settings.estimate not in ("fused", "local") \
+                and settings.estimate not in {p.label for p in scenario.estimators}:
+            raise DkfsimError(f"--estimate {settings.estimate!r}: not an estimate of this scenario; "
+                              "choose fused, local or one of its estimators: "
+                              + ", ".join(p.label for p in scenario.estimators))
+        if (settings.metric in FUSED_METRICS or (settings.metric == "mse" and settings.estimate == "fused")) \
+                and scenario.fusion == "none":
             raise DkfsimError(f"--metric {settings.metric}: the scenario has fusion: none, so there is "
                               "no fused estimate; set fusion: matrix (or diagonal) or use --metric local_mse")
         K = int(scenario.steps)
@@ -668,7 +671,8 @@ class MaxDelay:
             raise DkfsimError(f"--burn-in: must be in [0, steps) = [0, {K}), got {settings.burn_in}")
         self.comp, self.comp_name = resolve_component(scenario, settings.metric, settings.component)
         self.axis = make_axis(scenario, max_delay=settings.max_delay, scale_step=settings.scale_step,
-                              max_scale=settings.max_scale)
+                              max_scale=settings.max_scale,
+                              keep=settings.estimate if settings.metric == "mse" else None)
         check(self.estimate(), yes=yes, hint="a larger --scale-step, a smaller --max-scale or "
                                              "--max-delay, fewer --max-runs or --steps")
         self.seeds = [derive_seed(int(scenario.seed), r) for r in range(settings.max_runs)]
@@ -683,7 +687,7 @@ class MaxDelay:
         self._order = 0
         self._scen_cache: dict[int, tuple] = {}
 
-    def estimate(self) -> Estimate:
+    def estimate(self) -> Cost:
         """Memory and time of the search at its worst: every look at every candidate the
         galloping and bisection can visit, and the worst-case scan over the whole axis."""
         J, st = self.axis.max_index, self.st
@@ -708,8 +712,8 @@ class MaxDelay:
         return self._scen_cache[j]
 
     def _tasks(self, ov, runs, covariance=False):
-        return [(self.axis.base, ov, self.seeds[r], self.st.metric, self.comp, self.burn, covariance)
-                for r in runs]
+        return [(self.axis.base, ov, self.seeds[r], self.st.metric, self.comp, self.burn, covariance,
+                 self.st.estimate) for r in runs]
 
     def _reference(self, upto: int, runner: Runner) -> list[float]:
         """Zero-delay values of runs ``0 .. upto-1`` (cached; the pairs of relative mode)."""
@@ -805,7 +809,6 @@ class MaxDelay:
         return MaxDelayResult(self, emp, wc, wc_tol, limit, paper, runs_empirical, runs_total, wall)
 
     def _paper_bound(self, cov_tol):
-        from dkfsim.analysis.bounds import paper_bound_for_scenario
         if cov_tol is None:
             return {"error": "no covariance tolerance (relative tolerance without a worst case)"}
         nx = self.sc.nx
@@ -854,7 +857,6 @@ def maxdelay(scenario, progress=None, yes: bool = False, **settings) -> "MaxDela
     flags: ``relative=1.5`` or ``tolerance=...``, ``metric``, ``jobs``, ...).
     A search estimated above 10 minutes needs ``yes`` (:mod:`dkfsim.core.resources`).
     """
-    from dkfsim.config.schema import Scenario, load_scenario
     sc = scenario if isinstance(scenario, Scenario) else load_scenario(scenario)
     unknown = sorted(set(settings) - set(Settings.__dataclass_fields__))
     if unknown:
@@ -906,8 +908,6 @@ class MaxDelayResult:
         }
 
     def to_dict(self) -> dict:
-        from dkfsim.engine.results import versions
-        from dkfsim.config.schema import scenario_hash
         md, st, sc = self.md, self.md.st, self.md.sc
         paper = {k: v for k, v in self.paper.items() if k != "_object"}
         return {
@@ -1023,10 +1023,8 @@ class MaxDelayResult:
     def plot(self, out: Path) -> None:
         """``maxdelay.png`` / ``.pdf``: the metric against the delay (top) and the
         excess over the tolerance that the decisions use (bottom)."""
-        import matplotlib
-        matplotlib.use("Agg")
-        import matplotlib.pyplot as plt
-        from matplotlib.ticker import MaxNLocator
+        plt = pyplot()
+        MaxNLocator = optional("matplotlib.ticker").MaxNLocator
         md, st, ax = self.md, self.md.st, self.md.axis
         fig, (top, bot) = plt.subplots(2, 1, figsize=(10, 7), sharex=True,
                                        gridspec_kw={"height_ratios": [3, 2]})
@@ -1127,118 +1125,3 @@ def _answer_text(e: dict, unit: str) -> str:
     a = "none" if e["answer"] is None else f"{e['answer']:g}"
     pe = "n/a" if e["point_estimate"] is None else f"{e['point_estimate']:g}"
     return f"{unit} = {a} (undecided: run cap hit near the boundary; by the means {pe})"
-
-
-
-
-# =========================================================================== CLI
-def add_command(subparsers) -> None:
-    from dkfsim.cli.main import add_scenario_args, add_yes_arg
-    p = subparsers.add_parser(
-        "maxdelay", help="largest delay bound for which a metric stays within a tolerance "
-                         "(Monte Carlo, worst case, paper bound)",
-        description="Find the largest delay for which the anti-delay DKF's metric stays within a "
-                    "tolerance, three ways: (1) empirically, with a sequential Monte Carlo search "
-                    "(galloping then bisection over the delay; at each candidate, runs in batches "
-                    "until the confidence interval of the metric minus the tolerance is entirely "
-                    "below or above 0); (2) the deterministic worst case: every link at its largest "
-                    "latency, one run per candidate, covariance metric; (3) the paper's theoretical "
-                    "bound (Remark bound_of_delay, eq. delay_bound). The delay is d_t of a "
-                    "uniform_steps latency model, or a scale s multiplying the time parameters of "
-                    "continuous models (constant value, uniform low/high, exponential, lognormal, gamma, pareto time parameters, empirical scale, gilbert_elliott states, jitter). "
-                    "Writes DIR/maxdelay.json and DIR/maxdelay.png/.pdf and prints the three answers.")
-    add_scenario_args(p)
-    p.add_argument("--out", required=True, metavar="DIR", help="output folder (created if missing)")
-    p.add_argument("--metric", default="fused_mse", choices=list(METRICS),
-                   help="what must stay within tolerance: " +
-                        "; ".join(f"{k}: {v}" for k, v in METRICS.items()) + " (default: fused_mse)")
-    p.add_argument("--component", metavar="NAME",
-                   help="state component of the metric: a name (position, velocity, acceleration for "
-                        "constant_acceleration; x0, x1, ... otherwise), an index, or all (the sum "
-                        "over components) (default: the first component)")
-    g = p.add_mutually_exclusive_group(required=True)
-    g.add_argument("--tolerance", type=float, metavar="X",
-                   help="absolute tolerance: the metric must stay <= X (> 0)")
-    g.add_argument("--relative", type=float, metavar="R",
-                   help="relative tolerance: the metric must stay <= R x its zero-delay value (R > 1); "
-                        "decided on paired runs (same seeds) so the zero-delay value's own "
-                        "uncertainty is accounted for")
-    p.add_argument("--confidence", type=float, default=0.95, metavar="C",
-                   help="confidence level of the intervals (default: 0.95)")
-    p.add_argument("--batch", type=int, default=5, metavar="B",
-                   help="Monte Carlo runs added per look at a candidate; the first look is after B "
-                        "runs (>= 2) (default: 5)")
-    p.add_argument("--max-runs", type=int, default=40, metavar="N",
-                   help="cap of runs per candidate; a candidate still undecided then is reported "
-                        "'undecided' (default: 40)")
-    p.add_argument("--max-delay", type=int, default=32, metavar="D",
-                   help="largest d_t tried for a uniform_steps model (default: 32)")
-    p.add_argument("--scale-step", type=float, default=0.25, metavar="DS",
-                   help="grid step of the latency scale s for continuous models (default: 0.25)")
-    p.add_argument("--max-scale", type=float, default=16.0, metavar="S",
-                   help="largest latency scale tried for continuous models (default: 16)")
-    p.add_argument("--burn-in", type=int, metavar="ROWS",
-                   help="rows skipped before time-averaging the metric (default: 10%% of the ticks)")
-    p.add_argument("--steps", type=int, help="override the number of ticks K (same as --set steps=K); "
-                                             "fewer ticks make every run cheaper")
-    p.add_argument("--seed", type=int, help="override the base seed from which run r's seed derives "
-                                            "(same as --set seed=S)")
-    p.add_argument("--jobs", type=int, default=1, metavar="J",
-                   help="worker processes (results do not depend on it) (default: 1)")
-    p.add_argument("--quiet", action="store_true", help="no progress and no table")
-    add_yes_arg(p)
-    p.set_defaults(func=cmd_maxdelay)
-
-
-class _Progress:
-    """tqdm on a terminal; otherwise one line per decided candidate on stderr."""
-
-    def __init__(self, quiet: bool):
-        self.quiet = quiet
-        self.bar = None
-        if not quiet and sys.stderr.isatty():
-            from tqdm import tqdm
-            self.bar = tqdm(unit="run", desc="maxdelay", leave=False, file=sys.stderr)
-
-    def __call__(self, runs: int = 0, label: str | None = None, done: Candidate | None = None):
-        if self.quiet:
-            return
-        if self.bar is not None:
-            if label:
-                self.bar.set_description(label)
-            if runs:
-                self.bar.update(runs)
-            if done is not None:
-                self.bar.write(_done_line(label, done), file=sys.stderr)
-        elif done is not None:
-            print(_done_line(label, done), file=sys.stderr, flush=True)
-
-    def close(self):
-        if self.bar is not None:
-            self.bar.close()
-
-
-def _done_line(label, c: Candidate) -> str:
-    return (f"maxdelay: {label}: {c.runs} run{'s' * (c.runs != 1)}, mean {c.mean:.4g} "
-            f"[{c.ci[0]:.4g}, {c.ci[1]:.4g}], excess over tolerance {c.excess_mean:+.3g} "
-            f"[{c.excess_ci[0]:+.3g}, {c.excess_ci[1]:+.3g}] -> {c.decision}")
-
-
-def cmd_maxdelay(args) -> int:
-    from dkfsim.cli.main import load_from_args
-    sc = load_from_args(args)
-    st = Settings(metric=args.metric, tolerance=args.tolerance, relative=args.relative,
-                  confidence=args.confidence, batch=args.batch, max_runs=args.max_runs,
-                  burn_in=args.burn_in, jobs=args.jobs, max_delay=args.max_delay,
-                  scale_step=args.scale_step, max_scale=args.max_scale, component=args.component)
-    check_target(args.out)                 # before any run: a bad --out costs nothing
-    prog = _Progress(args.quiet)
-    try:
-        res = MaxDelay(sc, st, progress=prog, yes=args.yes).run()
-    finally:
-        prog.close()
-    out = res.save(args.out)
-    if not args.quiet:
-        print(res.table())
-        print(f"wrote {out / 'maxdelay.json'}, {out / 'maxdelay.png'} and {out / 'maxdelay.pdf'}")
-    return 0

@@ -8,83 +8,51 @@ random stream of a run derives from that seed (truth, sensors, links, and a
 all runs).
 
 Each run is scored where it ran (:func:`run_rows`) and sends back only small
-data: per algorithm the squared error per tick and component ``(K, nx)``
-(averaged over nodes for per-node algorithms), the NEES per tick ``(K,)``
+data: per estimate the squared error per tick and component ``(K, nx)``
+(averaged over nodes for per-node estimates), the NEES per tick ``(K,)``
 and per-run scalars.  The parent folds the runs in run order, whatever order
 they finish in, so every output is identical for any ``J``.
 
-Algorithms of a run (names in every output):
-
-========================  ===========================  =========================
-algorithm                 arrays                       note
-========================  ===========================  =========================
-``anti_delay_dkf``        ``x_fused``, ``P_fused``     absent with ``fusion: none``
-``anti_delay_dkf_local``  ``x_local``, ``P_local``     per node
-``<baseline>``            ``x_<baseline>``, ...        in the scenario's order;
-                                                       ``local`` is ``x_local_only``
-========================  ===========================  =========================
-
-Per-node algorithms are scored by the mean over nodes (squared error, NEES)
-and have a ``disagreement`` (:func:`dkfsim.analysis.metrics.disagreement`); the
-others have ``disagreement = NaN``.
-
-Traffic per run (``messages_per_tick`` = packets sent / K, ``lost``
-packets, ``late`` contributions):
-
-* ``anti_delay_dkf`` and ``anti_delay_dkf_local``: the run's network counts;
-* ``no_buffer`` (and any baseline that reports ``counts_<name>``): its own
-  network's counts;
-* ``ci_consensus`` (and any baseline that reports ``<name>_sent``): its own
-  packets; ``late`` is ``<name>_late`` if reported, else ``<name>_stale``
-  (for ``ci_consensus``: neighbour pairs used after being predicted forward
-  from an older tick, i.e. information that arrived late);
-* ``centralized_delayed``: one direct packet per sensor and tick; ``lost``
-  counted from the same draws the baseline used;
-* ``local``: no communication (zeros);
-* ``centralized`` (idealised, no network model) and anything else that
-  reports no counts: NaN.
-
-``bytes_per_tick`` is ``messages_per_tick`` times the nominal size of a
-packet carrying ONE window row (:func:`dkfsim.analysis.metrics.packet_bytes`).  The
-engine does not count rows per packet; an anti-delay packet carries every
-changed row of its window, so for ``anti_delay_dkf`` this is a lower bound
-of the nominal traffic (exact for ``no_buffer``, whose window is one row).
+Estimates of a run (the one vocabulary: docs/design.md and the README's name table):
+``fused`` (the anti-delay DKF's fused estimate, absent with ``fusion: none``),
+``local`` (each DKF node's own real-time estimate, per node), then every
+estimator the scenario lists under its name (``centralized``,
+``local_only``, ``no_buffer``, ``ci_consensus``, ...).  Per-node estimates
+are scored by the mean over nodes (squared error, NEES) and have a
+``disagreement`` (:func:`dkfsim.analysis.metrics.disagreement`); the others
+have ``disagreement = NaN``.  Every per-run number is a tidy row
+(:func:`dkfsim.analysis.metrics.score`): ``runs.csv`` has the columns of a
+run's ``rows.csv`` and a sweep's export.  Traffic comes from each
+estimator's own port on the run's network (messages, nominal bytes, lost
+packets, late information); the idealised ``centralized`` filter has none
+(NaN).
 """
 
 from __future__ import annotations
 
-import csv
 import math
 import signal
-import sys
 import time
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from pathlib import Path
 
 import numpy as np
 
+from dkfsim.analysis.metrics import (anees_summary, default_burn_in, nees_band, nees_per_tick,
+                                     squared_error, t_interval, t_interval_from_moments)
+from dkfsim.components.topology import GENERATOR_PARAMS
+from dkfsim.config.load import load_scenario, scenario_hash
+from dkfsim.config.schema import Scenario, component_names
 from dkfsim.core.errors import DkfsimError
-from dkfsim.experiments.executors import kill_pool
-from dkfsim.core.folders import check_target, csv_cell, staged, write_json
-from dkfsim.core.resources import Estimate, check, estimate_run, repeat
+from dkfsim.core.folders import staged, write_json
+from dkfsim.core.resources import Cost, check, repeat
 from dkfsim.core.threads import pin_process, single_thread
-from dkfsim.analysis.metrics import (anees_summary, default_burn_in, disagreement, nees_band, nees_per_tick,
-                      packet_bytes, squared_error, t_interval, t_interval_from_moments)
+from dkfsim.engine.driver import Run
+from dkfsim.engine.estimate import estimate_run
+from dkfsim.engine.results import versions, write_rows
+from dkfsim.experiments.executors import kill_pool
 
 #: Columns of ``runs.csv``, in order.
-CSV_COLUMNS = ("run", "seed", "algorithm", "component", "mse", "anees", "disagreement",
-               "messages_per_tick", "bytes_per_tick", "lost", "late")
-
-#: Algorithm names of the anti-delay DKF's own estimates, by array.
-OWN_ALGORITHMS = (("anti_delay_dkf", "x_fused", "P_fused"),
-                  ("anti_delay_dkf_local", "x_local", "P_local"))
-
-#: Baselines whose arrays are not named after them.
-BASELINE_ARRAYS = {"local": "local_only"}
-
-_NOT_ALGORITHMS = {"x_local", "x_final", "x_fused", "x0_mean"}
-
-
 # =========================================================================== seeds, names
 def derive_seed(base_seed: int, run: int) -> int:
     """The seed of Monte Carlo run ``run`` under scenario seed ``base_seed``.
@@ -101,26 +69,9 @@ def derive_seed(base_seed: int, run: int) -> int:
     return int(words[0]) | (int(words[1]) & 0x7FFF_FFFF) << 32
 
 
-def component_names(scenario) -> list[str]:
+def components_of(scenario) -> list[str]:
     """The scenario's state component names (see :func:`dkfsim.config.schema.component_names`)."""
-    from dkfsim.config.schema import component_names as names
-    return names(scenario.model.kind, scenario.nx)
-
-
-def algorithms_of(arrays, baselines) -> list[tuple[str, str, str]]:
-    """``(algorithm, x key, P key)`` of every estimate in a run's arrays, in output order."""
-    out = [(name, xk, pk) for name, xk, pk in OWN_ALGORITHMS if xk in arrays]
-    seen = {xk for _, xk, _ in out}
-    for b in baselines:
-        xk = "x_" + BASELINE_ARRAYS.get(b, b)
-        if xk in arrays and xk not in seen:
-            out.append((b, xk, "P_" + xk[2:]))
-            seen.add(xk)
-    # Estimates a baseline returned under another name: keep them, after the rest.
-    for xk in sorted(arrays):
-        if xk.startswith("x_") and xk not in _NOT_ALGORITHMS and xk not in seen:
-            out.append((xk[2:], xk, "P_" + xk[2:]))
-    return out
+    return component_names(scenario.model.kind, scenario.nx)
 
 
 def _check_burn_in(burn_in: int | None, K: int) -> int:
@@ -132,33 +83,6 @@ def _check_burn_in(burn_in: int | None, K: int) -> int:
 
 
 # =========================================================================== one run
-def _traffic(name: str, sim, res) -> dict:
-    """Per-run packet counts of one algorithm (see the module docstring)."""
-    n, nx, K = sim.system.n, sim.system.nx, sim.K
-    nan = float("nan")
-    counts = res.counts
-    sent = lost = late = nan
-    if name in ("anti_delay_dkf", "anti_delay_dkf_local"):
-        sent, lost, late = counts["sent"], counts["lost"], counts["late"]
-    elif name == "local":
-        sent = lost = late = 0
-    elif isinstance(counts.get(f"counts_{name}"), dict):
-        own = counts[f"counts_{name}"]
-        sent, lost, late = own.get("sent", nan), own.get("lost", nan), own.get("late", nan)
-    elif f"{name}_sent" in counts:                  # flat side facts, e.g. ci_consensus_sent
-        sent, lost = counts[f"{name}_sent"], counts.get(f"{name}_lost", nan)
-        late = counts.get(f"{name}_late", counts.get(f"{name}_stale", nan))
-    elif name == "centralized_delayed":
-        from dkfsim.estimators.baselines import direct_arrival_ticks
-        sent = n * K
-        lost = int((direct_arrival_ticks(sim) == 0).sum())
-    if f"late_{name}" in counts:
-        late = counts[f"late_{name}"]
-    mpt = sent / K
-    return {"messages_per_tick": float(mpt), "bytes_per_tick": float(mpt * packet_bytes(nx, n, 1)),
-            "lost": lost, "late": late}
-
-
 def pinned_topology(scenario) -> list[str]:
     """Overrides that keep a random topology fixed across Monte Carlo runs.
 
@@ -166,8 +90,6 @@ def pinned_topology(scenario) -> list[str]:
     the scenario seed; Monte Carlo runs vary that seed to redraw noise and
     latencies, not the network, so the graph is pinned to the *base* seed.
     """
-    from dkfsim.config.schema import load_scenario
-    from dkfsim.components.topology import GENERATOR_PARAMS
     sc = load_scenario(scenario)
     topo = sc.topology
     if "seed" in GENERATOR_PARAMS[topo.generator][1] and "seed" not in (topo.params or {}):
@@ -176,60 +98,44 @@ def pinned_topology(scenario) -> list[str]:
 
 
 def run_rows(scenario, seed: int, burn_in: int | None = None) -> tuple[list[dict], dict]:
-    """Simulate ``scenario`` with seed ``seed`` and score every algorithm.
+    """Simulate ``scenario`` with seed ``seed`` and score every estimate.
 
-    Returns ``(rows, curves)``.  ``rows``: one dict per algorithm x component
-    with keys ``seed, algorithm, component, mse`` (time average of the
-    squared error after ``burn_in`` rows), ``anees`` (time-averaged NEES
-    after burn-in; NaN without covariance), ``disagreement`` (NaN for single
-    estimates), ``messages_per_tick, bytes_per_tick, lost, late``.
-    ``curves``: ``t`` (K,), ``components``, ``algorithms``, ``se``
-    (A, K, nx) squared error per tick, ``nees`` (A, K), ``example_truth``
-    (K, nx), ``example_x`` (A, K, nx) (node 0 for per-node algorithms),
+    Returns ``(rows, curves)``.  ``rows``: the run's tidy rows
+    (:meth:`~dkfsim.engine.results.RunResult.rows`, with ``seed``).
+    ``curves``: ``t`` (K,), ``components``, ``estimates``, ``se`` (A, K, nx)
+    squared error per tick, ``nees`` (A, K), ``example_truth`` (K, nx),
+    ``example_x`` (A, K, nx) (node 0 for per-node estimates),
     ``example_node0`` (K, nx) (``x_local`` of node 0).
 
     ``scenario`` is a :class:`~dkfsim.config.schema.Scenario`, a dict or a file;
     ``burn_in`` defaults to 10 % of the ticks.
     """
-    from dkfsim.config.schema import load_scenario
-    from dkfsim.engine.driver import Simulation
     sc = load_scenario(scenario, overrides=pinned_topology(scenario) + [f"seed={int(seed)}"])
     burn = _check_burn_in(burn_in, int(sc.steps))
     with np.errstate(all="ignore"):          # a diverging run gives inf / nan rows, no warnings
-        sim = Simulation(sc, save="estimates")
-        res = sim.run()
-        return _score(sc, sim, res, seed, burn)
+        res = Run(sc, save="estimates").run()
+        rows = [{**row, "seed": int(seed)} for row in res.rows(burn)]
+        return rows, _curves(res)
 
 
-def _score(sc, sim, res, seed: int, burn: int) -> tuple[list[dict], dict]:
-    """Rows and curves of one finished run (see :func:`run_rows`)."""
-    K = int(sc.steps)
+def _curves(res) -> dict:
+    """Per-tick curves of one finished run (see :func:`run_rows`)."""
     arrays = res.arrays
     truth = arrays["truth"]
-    algs = algorithms_of(arrays, sc.baselines)
-    comps = component_names(sc)
-    A, nx = len(algs), truth.shape[1]
-    se = np.empty((A, K, nx))
-    nees = np.full((A, K), np.nan)
-    ex = np.empty((A, K, nx))
-    rows = []
-    for a, (name, xk, pk) in enumerate(algs):
-        x = np.asarray(arrays[xk])
+    names = res.estimates
+    K, nx = truth.shape
+    se = np.empty((len(names), K, nx))
+    nees = np.full((len(names), K), np.nan)
+    ex = np.empty((len(names), K, nx))
+    for a, name in enumerate(names):
+        x = np.asarray(arrays[f"x_{name}"])
         se[a] = squared_error(x, truth)
-        if pk in arrays:
-            nees[a] = nees_per_tick(x, np.asarray(arrays[pk]), truth)
+        if f"P_{name}" in arrays:
+            nees[a] = nees_per_tick(x, np.asarray(arrays[f"P_{name}"]), truth)
         ex[a] = x if x.ndim == 2 else x[:, 0]
-        mse = se[a, burn:].mean(axis=0)
-        anees = float(nees[a, burn:].mean())
-        dis = disagreement(x, burn) if x.ndim == 3 else float("nan")
-        traffic = _traffic(name, sim, res)
-        for c, comp in enumerate(comps):
-            rows.append({"seed": int(seed), "algorithm": name, "component": comp,
-                         "mse": float(mse[c]), "anees": anees, "disagreement": dis, **traffic})
-    curves = {"t": np.asarray(arrays["t"]), "components": comps, "algorithms": [a[0] for a in algs],
-              "se": se, "nees": nees, "example_truth": truth, "example_x": ex,
-              "example_node0": np.asarray(arrays["x_local"])[:, 0]}
-    return rows, curves
+    return {"t": np.asarray(arrays["t"]), "components": res.components, "estimates": names,
+            "se": se, "nees": nees, "example_truth": truth, "example_x": ex,
+            "example_node0": np.asarray(arrays["x_local"])[:, 0]}
 
 
 # =========================================================================== workers
@@ -277,9 +183,9 @@ class _Fold:
             self.mean = np.zeros_like(se)
             self.m2 = np.zeros_like(se)
             self.nees_sum = np.zeros_like(nees)
-        elif curves["algorithms"] != self.first["algorithms"]:
-            raise DkfsimError("runs report different algorithms "
-                              f"({self.first['algorithms']} vs {curves['algorithms']})")
+        elif curves["estimates"] != self.first["estimates"]:
+            raise DkfsimError("runs report different estimates "
+                              f"({self.first['estimates']} vs {curves['estimates']})")
         self.n += 1
         d = se - self.mean
         self.mean += d / self.n
@@ -298,7 +204,6 @@ def montecarlo(scenario, runs: int, jobs: int = 1, burn_in: int | None = None,
     depend on ``jobs``.  Work that cannot fit in memory is refused, and work
     estimated above 10 minutes needs ``yes`` (:mod:`dkfsim.core.resources`).
     """
-    from dkfsim.config.schema import Scenario, load_scenario
     if isinstance(runs, bool) or not isinstance(runs, int) or runs < 1:
         raise DkfsimError(f"--runs: must be an integer >= 1, got {runs!r}")
     if isinstance(jobs, bool) or not isinstance(jobs, int) or jobs < 1:
@@ -366,17 +271,17 @@ def montecarlo(scenario, runs: int, jobs: int = 1, burn_in: int | None = None,
     return MonteCarloResult(sc, runs, jobs, burn, seeds, rows, fold, wall)
 
 
-def estimate_montecarlo(sc, runs: int, jobs: int) -> Estimate:
+def estimate_montecarlo(sc, runs: int, jobs: int) -> Cost:
     """Memory and time of ``runs`` runs on ``jobs`` processes, rows and curves included."""
     one = estimate_run(sc, "estimates")
-    algorithms = 2 + len(sc.baselines)
+    estimates = 2 + len(sc.estimators)
     K, nx = int(sc.steps), sc.nx
-    kept = runs * algorithms * nx * 600 + 6 * algorithms * K * nx * 8     # rows; pooled curves
+    kept = runs * estimates * nx * 600 + 6 * estimates * K * nx * 8     # rows; pooled curves
     return repeat(one, f"{sc.name}: a Monte Carlo of {runs} runs x {K} ticks", runs,
                   min(jobs, runs), extra_bytes=kept)
 
 
-def check_montecarlo(sc, runs: int, jobs: int, *, yes: bool = False) -> Estimate:
+def check_montecarlo(sc, runs: int, jobs: int, *, yes: bool = False) -> Cost:
     est = estimate_montecarlo(sc, runs, jobs)
     check(est, yes=yes, hint="fewer runs or steps, or more --jobs")
     return est
@@ -387,7 +292,7 @@ class MonteCarloResult:
     """Pooled result of :func:`montecarlo`.
 
     ``rows``: the tidy per-run table (``runs.csv``), in run order.
-    ``t, components, algorithms, mse, mse_ci_lo, mse_ci_hi, nees, nees_band``
+    ``t, components, estimates, mse, mse_ci_lo, mse_ci_hi, nees, nees_band``
     and ``example`` (run 0): the arrays of ``curves.npz``.
     """
 
@@ -402,7 +307,7 @@ class MonteCarloResult:
         first = fold.first
         self.t = first["t"]
         self.components = list(first["components"])
-        self.algorithms = list(first["algorithms"])
+        self.estimates = list(first["estimates"])
         self.mse = fold.mean
         self.mse_ci_lo, self.mse_ci_hi = t_interval_from_moments(fold.mean, fold.m2, fold.n)
         self.nees = fold.nees_sum / fold.n
@@ -411,41 +316,39 @@ class MonteCarloResult:
                         "example_node0": first["example_node0"]}
 
     # ------------------------------------------------------------------ access
-    def column(self, algorithm: str, key: str, component: str | None = None) -> np.ndarray:
-        """Per-run values of ``key`` (a ``runs.csv`` column) for one algorithm, in run order.
+    def column(self, estimate: str, key: str, component: str | None = None) -> np.ndarray:
+        """Per-run values of ``key`` (a ``runs.csv`` column) for one estimate, in run order.
 
         ``component`` defaults to the first one (per-run scalars such as
         ``anees`` repeat over components).
         """
         comp = self.components[0] if component is None else component
-        vals = [row[key] for row in self.rows if row["algorithm"] == algorithm and row["component"] == comp]
+        vals = [row[key] for row in self.rows if row["estimate"] == estimate and row["component"] == comp]
         if not vals:
-            raise KeyError(f"no rows for algorithm {algorithm!r}, component {comp!r}")
+            raise KeyError(f"no rows for estimate {estimate!r}, component {comp!r}")
         return np.asarray(vals, dtype=float)
 
-    def algorithm_summary(self, algorithm: str) -> dict:
-        a = self.algorithms.index(algorithm)
+    def estimate_summary(self, estimate: str) -> dict:
+        a = self.estimates.index(estimate)
         nx = len(self.components)
         out = {"mse": {}, "mse_ci95": {}}
         for comp in self.components:
-            mean, lo, hi = t_interval(self.column(algorithm, "mse", comp))
+            mean, lo, hi = t_interval(self.column(estimate, "mse", comp))
             out["mse"][comp] = float(mean)
             out["mse_ci95"][comp] = [float(lo), float(hi)]
         an = anees_summary(self.nees[a], self.runs, nx, self.burn_in)
-        per_run = self.column(algorithm, "anees")
+        per_run = self.column(estimate, "anees")
         _, lo, hi = t_interval(per_run) if not np.isnan(per_run).any() else (0, np.nan, np.nan)
         out["anees"] = float(an["anees"])
         out["anees_band95"] = [float(v) for v in an["band"]]
         out["anees_fraction_in_band"] = float(an["fraction_in_band"])
         out["anees_ci95"] = [float(lo), float(hi)]
         for key in ("disagreement", "messages_per_tick", "bytes_per_tick", "lost", "late"):
-            mean = float(np.mean(self.column(algorithm, key)))
+            mean = float(np.mean(self.column(estimate, key)))
             out[key] = None if math.isnan(mean) else mean      # NaN rows: not modelled for it
         return out
 
     def summary(self) -> dict:
-        from dkfsim.engine.results import versions
-        from dkfsim.config.schema import scenario_hash
         sc = self.scenario
         return {
             "scenario": sc.name,
@@ -473,13 +376,13 @@ class MonteCarloResult:
                          "per-tick 95% chi-square band chi2.ppf([0.025, 0.975], runs*nx)/runs; "
                          "anees_fraction_in_band: fraction of ticks after burn-in whose mean NEES "
                          "is inside it; anees_ci95: Student-t interval of the per-run time averages; "
-                         "per-node algorithms: NEES averaged over nodes",
+                         "per-node estimates: NEES averaged over nodes",
                 "traffic": "messages_per_tick = packets sent / K; bytes_per_tick assumes ONE "
                            "window row per packet (16 + 8*(nx + nx(nx+1)/2) + ceil(n/8) bytes); "
                            "lost = packets, late = contributions; means over runs; null = not "
-                           "modelled for that algorithm",
+                           "modelled for that estimate",
             },
-            "algorithms": {name: self.algorithm_summary(name) for name in self.algorithms},
+            "estimates": {name: self.estimate_summary(name) for name in self.estimates},
             "scenario_config": sc.to_dict(),
         }
 
@@ -488,13 +391,9 @@ class MonteCarloResult:
         """Write ``runs.csv``, ``curves.npz`` and ``summary.json`` into ``out_dir``."""
         summary = self.summary()
         with staged(out_dir, "montecarlo") as tmp:
-            with open(tmp / "runs.csv", "w", newline="") as fh:
-                w = csv.writer(fh, lineterminator="\n")
-                w.writerow(CSV_COLUMNS)
-                for row in self.rows:
-                    w.writerow([csv_cell(row[c]) for c in CSV_COLUMNS])
+            write_rows(tmp / "runs.csv", self.rows)
             np.savez(tmp / "curves.npz",
-                     t=self.t, components=np.array(self.components), algorithms=np.array(self.algorithms),
+                     t=self.t, components=np.array(self.components), estimates=np.array(self.estimates),
                      mse=self.mse, mse_ci_lo=self.mse_ci_lo, mse_ci_hi=self.mse_ci_hi,
                      nees=self.nees, nees_band=self.nees_band, **self.example)
             write_json(tmp / "summary.json", summary)
@@ -502,10 +401,10 @@ class MonteCarloResult:
 
     def table(self) -> str:
         """Algorithm x component: MSE with its 95 % CI; ANEES with its per-tick band."""
-        head = ("algorithm", "component", "MSE", "95% CI", "ANEES", "95% band (per tick)", "in band")
+        head = ("estimate", "component", "MSE", "95% CI", "ANEES", "95% band (per tick)", "in band")
         body = []
-        for name in self.algorithms:
-            s = self.algorithm_summary(name)
+        for name in self.estimates:
+            s = self.estimate_summary(name)
             for c, comp in enumerate(self.components):
                 lo, hi = s["mse_ci95"][comp]
                 ci = "-" if math.isnan(lo) else f"[{lo:.4g}, {hi:.4g}]"
@@ -528,65 +427,3 @@ class MonteCarloResult:
                  fmt(head), "  " + "  ".join("-" * w for w in widths)]
         lines += [fmt(r) for r in body]
         return "\n".join(lines)
-
-
-# =========================================================================== CLI
-def add_command(subparsers) -> None:
-    from dkfsim.cli.main import add_scenario_args, add_yes_arg
-    p = subparsers.add_parser(
-        "montecarlo", help="N independent runs of a scenario: MSE with confidence intervals, ANEES, traffic",
-        description="Run a scenario N times with derived seeds (run r uses derive_seed(seed, r), "
-                    "the same whatever N and --jobs) and pool the results per algorithm and state "
-                    "component: MSE over time with 95% confidence intervals, ANEES with its 95% "
-                    "chi-square band, disagreement between nodes, messages, bytes, lost packets and "
-                    "late contributions. Writes DIR/runs.csv (one row per run x algorithm x "
-                    "component), DIR/curves.npz (per-tick curves and one example run) and "
-                    "DIR/summary.json, and prints a table.")
-    add_scenario_args(p)
-    p.add_argument("--runs", type=int, required=True, metavar="N",
-                   help="number of independent runs (>= 1)")
-    p.add_argument("--jobs", type=int, default=1, metavar="J",
-                   help="worker processes on this machine (>= 1; 1 runs in this process; "
-                        "results do not depend on it) (default: 1)")
-    p.add_argument("--out", required=True, metavar="DIR", help="output folder (created if missing)")
-    p.add_argument("--burn-in", type=int, metavar="ROWS",
-                   help="rows skipped before time-averaging MSE, ANEES and disagreement "
-                        "(default: 10%% of the ticks)")
-    p.add_argument("--steps", type=int, metavar="K",
-                   help="override the number of ticks K of every run (same as --set steps=K)")
-    p.add_argument("--seed", type=int, metavar="S",
-                   help="override the base seed from which every run's seed derives (same as --set seed=S)")
-    p.add_argument("--quiet", action="store_true",
-                   help="no progress bar and no table (the bar is shown on stderr only when it is a terminal)")
-    add_yes_arg(p)
-    p.set_defaults(func=cmd_montecarlo)
-
-
-def cmd_montecarlo(args) -> int:
-    from dkfsim.cli.main import load_from_args
-    if args.runs < 1:
-        raise DkfsimError(f"--runs: must be >= 1, got {args.runs}")
-    if args.jobs < 1:
-        raise DkfsimError(f"--jobs: must be >= 1, got {args.jobs}")
-    sc = load_from_args(args)
-    _check_burn_in(args.burn_in, int(sc.steps))
-    check_target(args.out)                 # before any run: a bad --out costs nothing
-    check_montecarlo(sc, args.runs, args.jobs, yes=args.yes)
-    bar = progress = None
-    if not args.quiet and sys.stderr.isatty():
-        from tqdm import tqdm
-        bar = tqdm(total=args.runs, unit="run", desc=sc.name, leave=False, file=sys.stderr)
-
-        def progress(done, total):
-            bar.update(done - bar.n)
-    try:
-        res = montecarlo(sc, args.runs, jobs=args.jobs, burn_in=args.burn_in, progress=progress,
-                         yes=True)                              # checked above
-    finally:
-        if bar is not None:
-            bar.close()
-    out = res.save(args.out)
-    if not args.quiet:
-        print(res.table())
-        print(f"wrote {out / 'runs.csv'}, {out / 'curves.npz'} and {out / 'summary.json'}")
-    return 0

@@ -24,13 +24,11 @@ at all.  Re-running the same command after an interruption (Ctrl-C,
 
 Decisions:
 
-* **One row per (parameter set, run, algorithm)**, components as columns:
-  ``mse_<component>`` for the per-component MSE, and one column per
-  per-run metric (``anees``, ``disagreement``, ``messages_per_tick``,
-  ``bytes_per_tick``, ``lost``, ``late``).  A metric that ever differs
-  between the components of one algorithm gets ``<metric>_<component>``
-  columns instead, so nothing is dropped.  NaN (not modelled) is stored as
-  NULL (SQLite has no NaN) and exported as an empty cell / Parquet null.
+* **The tidy rows every output shares**: one row per (parameter set, run,
+  estimate, state component), every registered metric a column
+  (:func:`dkfsim.analysis.metrics.score`), the grid values in front.  NaN
+  (not applicable) is stored as NULL (SQLite has no NaN) and exported as an
+  empty cell / Parquet null.
 * **The file stores its sweep definition** (grid, ``set``, ``runs``,
   ``burn_in`` and the hash of every resolved parameter set's scenario) and
   refuses to resume from a different one, including a changed scenario file
@@ -40,7 +38,7 @@ Decisions:
   the parameter set's grid values, so it does not depend on the grid's order.
 * Tasks are submitted run-major (run 0 of every parameter set, then run 1,
   ...), so an interrupted sweep holds a balanced picture.
-* Exports are sorted by (parameter set in grid order, run, algorithm), so the
+* Exports are sorted by (parameter set in grid order, run, estimate, component), so the
   file is byte-identical whatever executor, worker count or interruptions
   produced the database.
 * One process at a time may write a database (an advisory lock on the file);
@@ -55,7 +53,6 @@ import itertools
 import json
 import math
 import os
-import re
 import sqlite3
 import stat
 import sys
@@ -65,29 +62,38 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Iterator, Mapping
 
+import numpy as np
 import yaml
+from tqdm import tqdm
+
+try:
+    import fcntl
+except ImportError:  # pragma: no cover  (Windows)
+    fcntl = None
 
 from dkfsim.experiments import executors
 from dkfsim.core.errors import DkfsimError, ScenarioError
-from dkfsim.core.resources import C_VALIDATE, Estimate, check, estimate_run
+from dkfsim.config.load import load_scenario, scenario_hash
+from dkfsim.core.registry import METRICS
+from dkfsim.core.resources import C_VALIDATE, Cost, check
+from dkfsim.core.version import __version__
+from dkfsim.engine.estimate import estimate_run
+from dkfsim.experiments.montecarlo import derive_seed, run_rows
 from dkfsim.core.threads import single_thread
-from dkfsim.core.files import MAX_YAML_BYTES, check_plain_data, parse_yaml, read_text, yaml_error_text
+from dkfsim.config.yaml import parse_yaml, yaml_error_text
+from dkfsim.core.extras import optional
+from dkfsim.core.files import MAX_YAML_BYTES, check_plain_data, read_text
+from dkfsim.core.folders import write_csv
 
 #: Version of the database layout (``meta.format``).
-DB_FORMAT = 1
+DB_FORMAT = 2
 
 #: Keys a sweep file may have.
 SWEEP_KEYS = ("scenario", "grid", "set", "runs", "burn_in", "output")
 
 #: Metrics of :func:`dkfsim.experiments.montecarlo.run_rows` stored per component.
-PER_COMPONENT = ("mse",)
-
-#: Column order of metrics in exports (others follow alphabetically).
-METRIC_ORDER = ("mse", "anees", "disagreement", "messages_per_tick", "bytes_per_tick",
-                "lost", "late")
-
-#: Key columns of ``results`` (in export order).
-KEY_COLUMNS = ("param_hash", "run", "seed", "algorithm")
+#: The key columns of a stored row; the metrics (every registered one) follow.
+KEY_COLUMNS = ("param_hash", "run", "seed", "estimate", "component")
 
 _SQLITE_MAGIC = b"SQLite format 3\x00"
 
@@ -313,7 +319,7 @@ def load_sweep(source, *, output: str | os.PathLike | None = None, yes: bool = F
             out = Path(out_raw) if Path(out_raw).is_absolute() else base / out_raw
 
     n_sets = math.prod(len(values) for _, values in grid)
-    check(Estimate(f"{label}: validating {n_sets:,} parameter sets",
+    check(Cost(f"{label}: validating {n_sets:,} parameter sets",
                    memory={"validated scenarios": n_sets * 50_000.0}, seconds=n_sets * C_VALIDATE),
           yes=yes, hint="a smaller grid")
     psets = _parameter_sets(label, scenario_path, grid, list(sets), burn_in)
@@ -335,7 +341,6 @@ def _finite_json(v: Any) -> bool:
 
 
 def _parameter_sets(label, scenario_path, grid, sets, burn_in) -> list[ParameterSet]:
-    from dkfsim.config.schema import load_scenario, scenario_hash
     keys = [k for k, _ in grid]
     out = []
     for index, combo in enumerate(itertools.product(*(v for _, v in grid))):
@@ -363,8 +368,6 @@ def run_task(scenario: dict, seed: int, burn_in: int | None,
     Returns ``(rows, wall seconds)``; rows as :func:`dkfsim.experiments.montecarlo.run_rows`
     gives them, with plain Python numbers.
     """
-    from dkfsim.experiments.montecarlo import run_rows
-    from dkfsim.config.schema import load_scenario
     t0 = time.perf_counter()
     rows, _curves = run_rows(load_scenario(scenario, base_dir=base_dir), int(seed), burn_in=burn_in)
     return [{k: _plain(v) for k, v in row.items()} for row in rows], time.perf_counter() - t0
@@ -375,47 +378,13 @@ def _plain(v: Any) -> Any:
         return v
     if isinstance(v, int):
         return int(v)
-    try:
-        import numpy as np
-        if isinstance(v, np.integer):
-            return int(v)
-        if isinstance(v, np.floating):
-            return float(v)
-    except ImportError:  # pragma: no cover
-        pass
+    if isinstance(v, np.integer):
+        return int(v)
+    if isinstance(v, np.floating):
+        return float(v)
     if isinstance(v, float):
         return float(v)
     return v
-
-
-def _same(a: Any, b: Any) -> bool:
-    if isinstance(a, float) and isinstance(b, float) and math.isnan(a) and math.isnan(b):
-        return True
-    return a == b and type(a) is type(b)
-
-
-def widen(rows: list[dict]) -> list[tuple[str, int, dict]]:
-    """Tidy rows (one per algorithm x component) -> one ``(algorithm, seed,
-    columns)`` per algorithm, in the order the algorithms first appear."""
-    by_alg: dict[str, list[dict]] = {}
-    for row in rows:
-        by_alg.setdefault(row["algorithm"], []).append(row)
-    out = []
-    for alg, group in by_alg.items():
-        seeds = {row["seed"] for row in group}
-        if len(seeds) != 1:
-            raise RuntimeError(f"run_rows gave several seeds for {alg}: {seeds}")
-        cols: dict[str, Any] = {}
-        metrics = [k for k in group[0] if k not in ("seed", "algorithm", "component")]
-        for m in metrics:
-            vals = [row.get(m) for row in group]
-            if m in PER_COMPONENT or not all(_same(vals[0], v) for v in vals[1:]):
-                for row, v in zip(group, vals):
-                    cols[f"{m}_{row['component']}"] = v
-            else:
-                cols[m] = vals[0]
-        out.append((alg, group[0]["seed"], cols))
-    return out
 
 
 def _sql_value(v: Any) -> Any:
@@ -454,8 +423,9 @@ CREATE TABLE IF NOT EXISTS results (
     param_hash TEXT NOT NULL,
     run        INTEGER NOT NULL,
     seed       INTEGER NOT NULL,
-    algorithm  TEXT NOT NULL,
-    UNIQUE (param_hash, run, algorithm)
+    estimate   TEXT NOT NULL,
+    component  TEXT NOT NULL,
+    UNIQUE (param_hash, run, estimate, component)
 );
 """
 
@@ -511,9 +481,7 @@ class SweepDB:
 
     # -- opening -----------------------------------------------------------------
     def _lock(self) -> None:
-        try:
-            import fcntl
-        except ImportError:  # pragma: no cover  (no advisory locks: trust the user)
+        if fcntl is None:  # pragma: no cover  (no advisory locks: trust the user)
             return
         fh = open(self.path, "ab")
         try:
@@ -558,7 +526,6 @@ class SweepDB:
             for stmt in SCHEMA.split(";"):
                 if stmt.strip():
                     self.conn.execute(stmt)
-            from dkfsim import __version__
             meta = {"format": str(DB_FORMAT), "definition": _canonical(new),
                     "sweep_file": sweep.source, "dkfsim_version": __version__,
                     "created": time.strftime("%Y-%m-%dT%H:%M:%S%z")}
@@ -584,28 +551,28 @@ class SweepDB:
     # -- writing -------------------------------------------------------------------
     def write_task(self, param_hash: str, run: int, seed: int, rows: list[dict],
                    wall_s: float | None) -> None:
-        """All rows of one task, or nothing (one transaction)."""
-        wide = widen(rows)
+        """All rows of one task (tidy: one per estimate and component), or nothing (one
+        transaction).  A metric column is added the first time a row has it."""
         conn = self.conn
         conn.execute("BEGIN IMMEDIATE")
         try:
             have = set(self.columns())
-            for _alg, _seed, cols in wide:
-                for c in cols:
-                    if c not in have:
-                        conn.execute(f"ALTER TABLE results ADD COLUMN {_q(c)}")
-                        have.add(c)
+            metrics = [k for k in (rows[0] if rows else {}) if k not in KEY_COLUMNS]
+            for c in metrics:
+                if c not in have:
+                    conn.execute(f"ALTER TABLE results ADD COLUMN {_q(c)}")
             conn.execute("INSERT INTO tasks(param_hash, run, seed, wall_s, finished) "
                          "VALUES (?, ?, ?, ?, ?)",
                          (param_hash, run, seed, wall_s, time.strftime("%Y-%m-%dT%H:%M:%S%z")))
-            for alg, row_seed, cols in wide:
-                if row_seed != seed:
-                    raise RuntimeError(f"task ({param_hash}, {run}): rows carry seed {row_seed}, "
+            names = list(KEY_COLUMNS) + metrics
+            for row in rows:
+                if row["seed"] != seed:
+                    raise RuntimeError(f"task ({param_hash}, {run}): rows carry seed {row['seed']}, "
                                        f"expected {seed}")
-                names = list(KEY_COLUMNS) + list(cols)
                 conn.execute(f"INSERT INTO results({', '.join(map(_q, names))}) VALUES "
                              f"({', '.join('?' * len(names))})",
-                             [param_hash, run, seed, alg, *(_sql_value(v) for v in cols.values())])
+                             [param_hash, run, seed, row["estimate"], row["component"],
+                              *(_sql_value(row.get(m)) for m in metrics)])
             conn.execute("COMMIT")
         except BaseException:
             conn.execute("ROLLBACK")
@@ -673,7 +640,6 @@ def run_sweep(sweep: Sweep | str | os.PathLike, *, executor=None, jobs: int | No
     once, when ``executor`` is a callable): refused if they cannot fit in
     memory, and needing ``yes`` above 10 minutes.
     """
-    from dkfsim.experiments.montecarlo import derive_seed
     if not isinstance(sweep, Sweep):
         sweep = load_sweep(sweep, output=db, yes=yes)
     path = Path(db) if db is not None else sweep.output
@@ -701,7 +667,6 @@ def run_sweep(sweep: Sweep | str | os.PathLike, *, executor=None, jobs: int | No
         computed = 0
         bar = None
         if progress and todo:
-            from tqdm import tqdm
             bar = tqdm(total=sweep.n_tasks, initial=skipped, unit="run", desc=sweep.name,
                        file=sys.stderr, dynamic_ncols=True, smoothing=0.1)
         try:
@@ -731,9 +696,9 @@ def run_sweep(sweep: Sweep | str | os.PathLike, *, executor=None, jobs: int | No
                        wall_s=wall, executor=label)
 
 
-def estimate_tasks(sweep: Sweep, done: set, workers: int) -> Estimate:
+def estimate_tasks(sweep: Sweep, done: set, workers: int) -> Cost:
     """Memory and time of the tasks of ``sweep`` not yet in ``done``."""
-    est = Estimate(f"{sweep.source}: {sweep.n_tasks - len(done):,} tasks left of {sweep.n_tasks:,}",
+    est = Cost(f"{sweep.source}: {sweep.n_tasks - len(done):,} tasks left of {sweep.n_tasks:,}",
                    workers=max(1, workers))
     biggest = 0.0
     for p in sweep.parameter_sets:
@@ -747,28 +712,23 @@ def estimate_tasks(sweep: Sweep, done: set, workers: int) -> Estimate:
 
 
 # =========================================================================== reading, export
-def _metric_rank(col: str) -> tuple:
-    for i, m in enumerate(METRIC_ORDER):
-        if col == m or col.startswith(m + "_"):
-            return (i, "")
-    return (len(METRIC_ORDER), col)
-
-
 def read_results(db: str | os.PathLike) -> tuple[list[str], list[list]]:
-    """``(columns, rows)`` of a sweep database, sorted by (parameter set in
-    grid order, run, algorithm): the grid values first (one column per grid
-    key), then ``param_hash, run, seed, algorithm`` and the metrics."""
+    """``(columns, rows)`` of a sweep database, sorted by (parameter set in grid order,
+    run, estimate in output order, component in state order): the grid values first
+    (one column per grid key), then ``param_hash, run, seed, estimate, component`` and
+    the metrics in registry order -- the tidy schema of every output."""
     store = SweepDB(db, readonly=True)
     try:
         definition = store.definition
         grid_keys = [k for k, _ in definition["grid"]]
-        metric_cols = [c for c in store.columns() if c not in KEY_COLUMNS]
-        # Stable: by metric, then component in the order the columns were made.
-        metric_cols = sorted(metric_cols, key=lambda c: (_metric_rank(c),))
+        stored = [c for c in store.columns() if c not in KEY_COLUMNS]
+        order = list(METRICS.names())
+        metric_cols = sorted(stored, key=lambda c: (order.index(c) if c in order else len(order), c))
         select = ", ".join(["p.values_json"] + [f"r.{_q(c)}" for c in KEY_COLUMNS + tuple(metric_cols)])
+        # rowid: the order the task's rows were written in (estimates, then components).
         cur = store.conn.execute(
             f"SELECT {select} FROM results r JOIN params p ON p.param_hash = r.param_hash "
-            "ORDER BY p.idx, r.run, r.algorithm")
+            "ORDER BY p.idx, r.run, r.rowid")
         rows = []
         for values_json, *rest in cur:
             values = json.loads(values_json)
@@ -792,7 +752,7 @@ def export(db: str | os.PathLike, to: str | os.PathLike) -> tuple[Path, int]:
     try:
         to.parent.mkdir(parents=True, exist_ok=True)
         if suffix == ".csv":
-            _write_csv(to, columns, rows)
+            write_csv(to, columns, rows)
         else:
             _write_parquet(to, columns, rows)
     except OSError as exc:
@@ -800,35 +760,8 @@ def export(db: str | os.PathLike, to: str | os.PathLike) -> tuple[Path, int]:
     return to, len(rows)
 
 
-def _cell(v: Any) -> Any:
-    if v is None:
-        return ""
-    if isinstance(v, float):
-        return repr(v)
-    if isinstance(v, (list, dict)):
-        return _canonical(v)
-    return v
-
-
-def _write_csv(path: Path, columns, rows) -> None:
-    import csv
-    tmp = path.with_name(path.name + ".tmp")
-    with open(tmp, "w", newline="", encoding="utf-8") as fh:
-        w = csv.writer(fh, lineterminator="\n")
-        w.writerow(columns)
-        for row in rows:
-            w.writerow([_cell(v) for v in row])
-    os.replace(tmp, path)
-
-
 def _write_parquet(path: Path, columns, rows) -> None:
-    try:
-        import pyarrow as pa
-        import pyarrow.parquet as pq
-    except ImportError:
-        raise DkfsimError("Parquet export needs the 'pyarrow' package, which is not installed: "
-                          "pip install 'dkfsim[cluster]' (or pip install pyarrow), or export "
-                          "to a .csv file") from None
+    pa, pq = optional("pyarrow"), optional("pyarrow.parquet")
     arrays = []
     for j, _name in enumerate(columns):
         col = [row[j] for row in rows]
@@ -871,114 +804,6 @@ def throughput(scenario: str | os.PathLike | None = None, *, steps: int = 1000, 
             "runs_per_minute": rep.runs_per_minute}
 
 
-# =========================================================================== CLI
-HELP = """\
-Run a parameter sweep: every parameter set of the grid (the cartesian product of the
-grid's value lists) times `runs` Monte Carlo runs, run r using seed
-derive_seed(scenario seed, r). Results go to an SQLite file, one transaction per task;
-interrupt it at any point (Ctrl-C, kill) and re-run the same command to resume: tasks
-already in the file are skipped.
-
-sweep file keys:
-  scenario   scenario file, relative to the sweep file (required)
-  grid       mapping of dotted scenario keys (as --set) to lists of values (default: none)
-  set        list of fixed "dotted.key=value" overrides, applied before the grid
-  runs       Monte Carlo runs per parameter set (default: 1)
-  burn_in    rows skipped before time averages (default: null = 10% of the ticks)
-  output     results database (default: <sweep file stem>.sqlite beside the sweep file)
-
-database: tables meta (the sweep definition), params (one row per parameter set, with its
-resolved scenario), tasks (one row per finished (param_hash, run)) and results (one row
-per parameter set, run and algorithm: mse_<component>, anees, disagreement,
-messages_per_tick, bytes_per_tick, lost, late).
-
-examples:
-  dkfsim sweep scenarios/sweep_delay_bound.yaml --jobs 4
-  dkfsim sweep scenarios/sweep_delay_bound.yaml --dask-local 4 --export out/delay.parquet
-  dkfsim sweep scenarios/sweep_delay_bound.yaml --scheduler tcp://10.0.0.5:8786
-  dkfsim sweep scenarios/sweep_delay_bound.sqlite --export out/delay.csv     (export only)
-"""
-
-
-def add_command(subparsers) -> None:
-    import argparse
-    p = subparsers.add_parser(
-        "sweep", help="parameter sweep x Monte Carlo runs into a resumable SQLite file",
-        description=HELP, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("file", metavar="FILE",
-                   help="a sweep YAML file to run or resume; or a sweep database (.sqlite) to "
-                        "export with --export, computing nothing")
-    where = p.add_mutually_exclusive_group()
-    where.add_argument("--jobs", type=int, metavar="J",
-                       help="local worker processes (1 = this process; default: every CPU)")
-    where.add_argument("--scheduler", metavar="tcp://HOST:PORT",
-                       help="run the tasks on an existing Dask distributed cluster (its workers "
-                            "need the same dkfsim installed); needs dkfsim[cluster]")
-    where.add_argument("--dask-local", type=int, metavar="N",
-                       help="start a Dask LocalCluster of N single-threaded worker processes on "
-                            "this machine; needs dkfsim[cluster]")
-    p.add_argument("--db", metavar="PATH",
-                   help="results database (overrides the sweep file's output)")
-    p.add_argument("--export", metavar="PATH",
-                   help="when the sweep is complete, write every result row to PATH (.csv or "
-                        ".parquet, by suffix; Parquet needs pyarrow), sorted by parameter set, "
-                        "run and algorithm")
-    p.add_argument("--dry-run", action="store_true",
-                   help="validate, list the parameter sets and how many of their runs are done; "
-                        "compute nothing")
-    p.add_argument("--quiet", action="store_true", help="no progress bar and no summary lines")
-    from dkfsim.cli.main import add_yes_arg
-    add_yes_arg(p)
-    p.set_defaults(func=cmd_sweep)
-
-
-def cmd_sweep(args) -> int:
-    say = (lambda *a: None) if args.quiet else print
-    if is_database(args.file):
-        if args.export is None:
-            raise DkfsimError(f"{args.file} is a sweep database: give --export PATH to export "
-                              "it, or give the sweep YAML file to run or resume it")
-        if args.jobs is not None or args.scheduler or args.dask_local is not None or args.db:
-            raise DkfsimError(f"{args.file} is a sweep database: only --export applies "
-                              "(nothing is computed)")
-        out, n = export(args.file, args.export)
-        say(f"wrote {out} ({n} rows)")
-        return 0
-    sweep = load_sweep(args.file, output=args.db, yes=args.yes)
-    if args.dry_run:
-        return _dry_run(sweep, say)
-    if args.export is not None:
-        suffix = Path(args.export).suffix.lower()
-        if suffix not in (".csv", ".parquet", ".pq"):
-            raise DkfsimError(f"--export {args.export}: unknown format {suffix or '(no suffix)'!r}; "
-                              "use a .csv or .parquet file name")
-        if suffix != ".csv":
-            try:
-                import pyarrow  # noqa: F401
-            except ImportError:
-                raise DkfsimError("--export to Parquet needs the 'pyarrow' package: pip install "
-                                  "'dkfsim[cluster]', or export to .csv") from None
-    if args.scheduler is not None or args.dask_local is not None:
-        executors._distributed()          # a missing package is reported before any work
-
-    def make():
-        return executors.make_executor(jobs=args.jobs, scheduler=args.scheduler,
-                                       dask_local=args.dask_local)
-
-    say(f"{sweep.source}: {len(sweep.parameter_sets)} parameter set(s) x {sweep.runs} "
-        f"run(s) = {sweep.n_tasks} tasks -> {sweep.output}")
-    workers = args.jobs or args.dask_local or (1 if args.scheduler else executors.available_cpus())
-    rep = run_sweep(sweep, executor=make, progress=not args.quiet and sys.stderr.isatty(),
-                    yes=args.yes, workers=workers)
-    rate = f" on {rep.executor} ({rep.runs_per_minute:.1f} runs/min)" if rep.computed else ""
-    say(f"done: {rep.skipped} already in the database, {rep.computed} computed in "
-        f"{_duration(rep.wall_s)}{rate}")
-    if args.export is not None:
-        out, n = export(rep.db, args.export)
-        say(f"wrote {out} ({n} rows)")
-    return 0
-
-
 def tasks_done(path: Path, sweep: Sweep) -> set:
     """``(param_hash, run)`` of the tasks already in the database at ``path`` (none if
     there is no database yet); a database of another sweep definition is an error."""
@@ -992,21 +817,3 @@ def tasks_done(path: Path, sweep: Sweep) -> set:
         return {(h, r) for h, r in store.conn.execute("SELECT param_hash, run FROM tasks")}
     finally:
         store.close()
-
-
-def _dry_run(sweep: Sweep, say) -> int:
-    done = tasks_done(sweep.output, sweep)
-    say(f"{sweep.source}: scenario {sweep.scenario_path}, {len(sweep.parameter_sets)} parameter "
-        f"set(s) x {sweep.runs} run(s) = {sweep.n_tasks} tasks; results in {sweep.output}")
-    for p in sweep.parameter_sets:
-        n = sum((p.param_hash, r) in done for r in range(sweep.runs))
-        say(f"  [{p.index}] {p.param_hash}  {n}/{sweep.runs} done  {p.describe()}")
-    return 0
-
-
-def _duration(s: float) -> str:
-    if s < 60:
-        return f"{s:.1f} s"
-    m, s = divmod(int(round(s)), 60)
-    h, m = divmod(m, 60)
-    return f"{h}h{m:02d}m{s:02d}s" if h else f"{m}m{s:02d}s"

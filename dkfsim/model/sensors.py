@@ -34,7 +34,10 @@ from __future__ import annotations
 
 import numpy as np
 
+from dkfsim.core.registry import SENSOR_KINDS
 
+
+@SENSOR_KINDS.register("radar")
 class RadarSensor:
     """Range/azimuth radar at ``position``, handled as a converted measurement.
 
@@ -51,6 +54,10 @@ class RadarSensor:
     """
 
     kind = "radar"
+
+    @classmethod
+    def from_params(cls, params, nx: int) -> "RadarSensor":
+        return cls(params.position, params.sigma_range, params.sigma_azimuth, nx, params.state_index)
 
     def __init__(self, position, sigma_range: float, sigma_azimuth: float, nx: int,
                  state_index=(0, 2)):

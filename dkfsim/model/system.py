@@ -17,6 +17,7 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.linalg
 
+from dkfsim.core.registry import SENSOR_KINDS
 from dkfsim.core.streams import stream
 
 
@@ -35,10 +36,15 @@ def psd_factor(S: np.ndarray) -> np.ndarray:
         return V * np.sqrt(np.clip(w, 0.0, None))
 
 
+@SENSOR_KINDS.register("linear")
 class LinearSensor:
     """``y = H x + v``, ``v ~ N(0, R)``: its information is the same every row."""
 
     kind = "linear"
+
+    @classmethod
+    def from_params(cls, params, nx: int) -> "LinearSensor":
+        return cls(params.H_matrix(), params.R_matrix())
 
     def __init__(self, H: np.ndarray, R: np.ndarray):
         self.H = np.asarray(H, float)
@@ -174,3 +180,17 @@ class LinearGaussianSystem:
             factor = np.concatenate([np.broadcast_to(p[2], (K,) + p[2].shape[-2:]) for p in parts], axis=2)
         return Information(theta=theta, omega=np.ascontiguousarray(omega),
                            factor=np.ascontiguousarray(factor), column_sensor=owner)
+
+
+def build_system(scenario) -> LinearGaussianSystem:
+    """The model as simulated: matrices and each sensor's implementation (by its kind)."""
+    return LinearGaussianSystem(
+        Phi=scenario.model.Phi_matrix(),
+        Q=scenario.model.Q_matrix(),
+        x0_mean=scenario.prior.mean_vector(),
+        P0=scenario.prior.cov_matrix(),
+        sensors=tuple(SENSOR_KINDS.get(s.kind).implementation.from_params(s, scenario.nx)
+                      for s in scenario.sensors),
+        names=tuple(s.name for s in scenario.sensors),
+        T_ns=scenario.T_ns,
+    )

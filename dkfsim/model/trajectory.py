@@ -40,87 +40,9 @@ relative path resolving against the scenario file's folder
 
 from __future__ import annotations
 
-import os
-from dataclasses import dataclass
-from pathlib import Path
-
 import numpy as np
 
-from dkfsim.core.datafiles import DataFileError, read_table
-
-#: Seconds per unit of the time column.
-TIME_UNITS = {"s": 1.0, "ms": 1e-3, "us": 1e-6, "ns": 1e-9}
-
-
-
-class TrackError(ValueError):
-    """A problem with a track file; ``key`` is the truth key it concerns."""
-
-    def __init__(self, reason: str, key: str = "file"):
-        super().__init__(reason)
-        self.key = key
-
-
-@dataclass(frozen=True)
-class Track:
-    """A recorded track: time (s, from the first row, increasing) and positions."""
-
-    path: str
-    t: np.ndarray      # (N,)
-    x: np.ndarray      # (N,)
-    y: np.ndarray      # (N,)
-
-    @property
-    def duration(self) -> float:
-        return float(self.t[-1] - self.t[0])
-
-
-_CACHE: dict[tuple, Track] = {}
-
-
-def read_track(path: str | os.PathLike, time_column: str, x_column: str, y_column: str,
-               time_unit: str = "ms") -> Track:
-    """Read, sort and check a track (cached on the table and the columns)."""
-    try:
-        table = read_table(path)
-        if table.header is None or len(table.lines) < 2:
-            raise TrackError(f"{table.path.name} needs a header line and at least two rows")
-        key = (str(table.path), id(table), time_column, x_column, y_column, time_unit)
-        if key in _CACHE:
-            return _CACHE[key]
-        cols = []
-        for c, k in ((time_column, "time_column"), (x_column, "x_column"), (y_column, "y_column")):
-            try:
-                cols.append(table.column_index(c))
-            except DataFileError as err:
-                raise TrackError(str(err), k) from None
-        rows = np.array([[v for _, v in table.floats(col, table.header[col])] for col in cols]).T
-    except DataFileError as err:
-        raise TrackError(str(err)) from None
-    path = table.path
-    if not np.isfinite(rows).all():
-        no = table.lines[int(np.nonzero(~np.isfinite(rows).all(axis=1))[0][0])][0]
-        raise TrackError(f"{path.name} line {no}: values must be finite")
-    order = np.argsort(rows[:, 0], kind="stable")
-    rows = rows[order]
-    # Subtract the first stamp before scaling: epoch milliseconds stay exact.
-    t = (rows[:, 0] - rows[0, 0]) * TIME_UNITS[time_unit]
-    same = np.nonzero(np.diff(t) == 0)[0]
-    if len(same):
-        bad = same[np.any(rows[same + 1, 1:] != rows[same, 1:], axis=1)]
-        if len(bad):
-            raise TrackError(f"{path.name}: two rows at time {rows[bad[0], 0]:.15g} with different "
-                             "positions")
-        keep = np.ones(len(t), dtype=bool)
-        keep[same + 1] = False
-        t, rows = t[keep], rows[keep]
-    if len(t) < 2:
-        raise TrackError(f"{path.name} needs rows at two different times at least")
-    track = Track(str(path), t, rows[:, 1].copy(), rows[:, 2].copy())
-    for a in (track.t, track.x, track.y):
-        a.setflags(write=False)
-    _CACHE[key] = track
-    return track
+from dkfsim.components.truth import Track, TrackError
 
 
 def positions_at(track: Track, times: np.ndarray) -> np.ndarray:

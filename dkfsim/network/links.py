@@ -1,29 +1,25 @@
-"""The SimPy network: directed links with per-packet latency, loss and faults.
+"""The SimPy network: directed links with per-packet latency, loss and faults, shared
+by every estimator of a run.
 
-Time is kept in integer nanoseconds (docs/design.md §2), so "arrived by
-tick k" is an exact integer comparison, never one of accumulated floats.
+Time is integer nanoseconds (docs/design.md §2), so "arrived by tick k" is an
+exact integer comparison.  Every estimator of a run talks through its own
+:class:`Port` of one :class:`Network`: a port sends packets over the links
+and receives its own packets back; it counts them (per link and in total).
 
-A packet is handed to a :class:`Link` with :meth:`Network.send`; the link
-draws whether it is lost and, if not, its latency, and a single SimPy
-``Timeout`` carries it to the receiver's callback.  No process per packet:
-per-packet Python work is a couple of list pops and one event.  Latency and
-loss are drawn in blocks from the link's own streams ``("link", u, v,
-"latency")`` and ``("link", u, v, "loss")``, so adding a link changes no
-other draw, and changing the loss probability leaves the latencies alone
-(common random numbers across scenarios).  Packets on one link may overtake
-each other whenever a later draw is shorter: links reorder.
+Draws are keyed, the common-random-numbers rule of docs/design.md §9: a
+packet's latency, loss, duplication and jitter are pure functions of (the
+link, the send instant, the packet's number among those its port put on the
+link at that instant), drawn by :func:`dkfsim.core.streams.keyed_uniform`
+from the link's named keys (``("link", u, v, "latency")``, ``"loss"``,
+``"duplicate"``, ``"jitter"``, ...).  So two estimators that send over one
+link at one instant see the same delay, adding loss or a fault leaves every
+other draw unchanged, and adding a link changes no other link's draws.  A
+schedule scales the latency by its factor at the send time; an outage drops
+what is sent during it; a crash window drops what arrives at a node that
+is down (``crash_dropped``).  Packets on one link overtake each other when a
+later draw is shorter: links reorder.
 
-The link faults of :mod:`dkfsim.components.faults` (duplication, jitter, a latency
-schedule, outages) and stateful latency models (``empirical`` replay,
-``gilbert_elliott``, which also loses packets) draw from further streams of
-the same link (``("link", u, v, "duplicate")``, ``("link", u, v, "jitter",
-...)``, ...).  Every draw is taken per packet whatever the packet's fate, so
-adding a fault leaves the other draws unchanged; a link with none of them
-runs exactly the code (and draws) it always did.  Crash windows
-(:class:`dkfsim.components.faults.CrashSchedule`) drop every packet that arrives at a
-node while it is down (``crash_dropped``).
-
-Counting identity, per link and in total (see :mod:`dkfsim.components.faults`)::
+Counting identity, per port, per link and in total::
 
     sent + copies = delivered + lost + crash_dropped + in_flight
 
@@ -36,19 +32,19 @@ chain of zero-latency relays it starts, counts for tick ``k``.
 
 from __future__ import annotations
 
-import numpy as np
 import simpy
 from simpy.events import NORMAL, Event, Timeout
 
 from dkfsim.components.faults import LinkSpec, ScaleSchedule, Windows
-from dkfsim.components.latency import _MAX_NS, LatencyBase
-from dkfsim.core.streams import stream
+from dkfsim.core.params import MAX_NS
+from dkfsim.core.streams import key64, keyed_uniform
 
 PRIORITY_DELIVER = NORMAL
 PRIORITY_FLUSH = NORMAL + 1
 PRIORITY_UPDATE = NORMAL + 2
 
-_BLOCK = 256
+#: Counters of a port, per link: ``sent + copies = delivered + lost + crash_dropped + in_flight``.
+COUNTERS = ("sent", "delivered", "lost", "copies", "crash_dropped", "outage_lost", "bytes")
 
 
 class Scheduled(Event):
@@ -74,203 +70,167 @@ def _as_spec(spec) -> LinkSpec:
 
 
 class Recipe:
-    """The latency of successive packets on one link: model draw, times the
-    schedule's factor at the send time, plus jitter.
+    """The latency of a packet on one link: model draw, times the schedule's factor at the
+    send time, plus jitter; and whether the model lost it (``gilbert_elliott``)."""
 
-    ``rng_for(*name)`` gives the link's named streams.  :meth:`next` also
-    returns whether the latency model lost the packet (``gilbert_elliott``).
-    Usable without SimPy (e.g. for a baseline's direct links).
-    """
+    __slots__ = ("_model", "_sched", "_jitter")
 
-    __slots__ = ("_sampler", "_lat", "_mlost", "_sched", "_jsampler", "_jit")
-
-    def __init__(self, spec: LinkSpec, rng_for, T_ns: int):
-        self._sampler = spec.latency.sampler(rng_for, T_ns)
+    def __init__(self, spec: LinkSpec, prefix: tuple, seed: int, T_ns: int):
+        self._model = spec.latency.sampler(prefix, seed, T_ns)
         self._sched = ScaleSchedule(spec.schedule) if spec.schedule else None
-        self._jsampler = (spec.jitter.sampler(lambda *name: rng_for("jitter", *name), T_ns)
-                          if spec.jitter is not None else None)
-        self._lat: list[int] = []
-        self._mlost: list[bool] | None = None
-        self._jit: list[int] = []
+        self._jitter = spec.jitter.sampler(prefix + ("jitter",), seed, T_ns) \
+            if spec.jitter is not None else None
 
-    def next(self, now_ns: int) -> tuple[int, bool]:
-        """``(latency in ns, lost by the model)`` of the next packet, sent at ``now_ns``."""
-        if not self._lat:
-            lat, lost = self._sampler.block(_BLOCK)
-            self._lat = np.asarray(lat, dtype=np.int64)[::-1].tolist()
-            self._mlost = None if lost is None else np.asarray(lost, dtype=bool)[::-1].tolist()
-        lat = self._lat.pop()
-        mlost = self._mlost.pop() if self._mlost is not None else False
+    def draw(self, t_ns: int, seq: int) -> tuple[int, bool]:
+        lat, lost = self._model.draw(t_ns, seq)
         if self._sched is not None:
-            f = self._sched.factor(now_ns)
+            f = self._sched.factor(t_ns)
             if f != 1.0:
-                lat = min(int(round(lat * f)), _MAX_NS)
-        if self._jsampler is not None:
-            if not self._jit:
-                j, _ = self._jsampler.block(_BLOCK)
-                self._jit = np.asarray(j, dtype=np.int64)[::-1].tolist()
-            lat = min(lat + self._jit.pop(), _MAX_NS)
-        return lat, mlost
+                scaled = lat * f
+                lat = MAX_NS if scaled >= MAX_NS else int(round(scaled))
+        if self._jitter is not None:
+            lat = min(lat + self._jitter.draw(t_ns, seq)[0], MAX_NS)
+        return lat, lost
 
 
 class Link:
-    """Directed link ``src -> dst``: its draws, faults and counters.
+    """Directed link ``src -> dst``: its settings and its keyed draws.
 
-    :param spec: a :class:`~dkfsim.components.faults.LinkSpec` (or anything with
-        ``.latency`` and ``.loss``).
-    :param key: prefix of the link's stream names, ``("link", src, dst)`` by default.
+    :param spec: a :class:`~dkfsim.components.faults.LinkSpec` (or anything
+        with ``.latency`` and ``.loss``).
+    :param key: the prefix of the link's draw names, ``("link", src, dst)`` by default.
     """
 
-    __slots__ = ("id", "src", "dst", "spec", "latency", "loss", "duplicate", "plain", "_T_ns",
-                 "_lat_rng", "_loss_rng", "_lat", "_u", "_main", "_copy", "_dup_rng", "_du",
-                 "_outages", "sent", "delivered", "lost", "copies", "crash_dropped",
-                 "outage_lost", "seq")
+    __slots__ = ("id", "src", "dst", "spec", "loss", "duplicate", "_main", "_copy",
+                 "_loss_key", "_dup_key", "_outages")
 
     def __init__(self, link_id, src, dst, spec, seed, T_ns, key=None):
         spec = _as_spec(spec)
-        self.id = link_id
-        self.src = src
-        self.dst = dst
-        self.spec = spec
-        self.latency = spec.latency
+        self.id, self.src, self.dst, self.spec = link_id, src, dst, spec
         self.loss = float(spec.loss)
         self.duplicate = float(spec.duplicate)
-        self._T_ns = int(T_ns)
         prefix = ("link", src, dst) if key is None else tuple(key)
+        self._main = Recipe(spec, prefix, seed, T_ns)
+        self._loss_key = key64(seed, *prefix, "loss") if self.loss > 0 else None
+        self._dup_key = key64(seed, *prefix, "duplicate") if self.duplicate > 0 else None
+        self._copy = Recipe(spec, prefix + ("duplicate",), seed, T_ns) if self.duplicate > 0 else None
+        self._outages = Windows(spec.outages) if spec.outages else None
 
-        def rng_for(*name, _seed=seed, _prefix=prefix):
-            return stream(_seed, *_prefix, *name)
-
-        self._lat_rng = self._main = self._copy = self._dup_rng = self._outages = None
-        self._loss_rng = rng_for("loss")
-        self._lat: list[int] = []
-        self._u: list[float] = []
-        self._du: list[float] = []
-        # A plain link: an i.i.d. model, no faults -- the original fast path.
-        self.plain = spec.plain and type(spec.latency).sampler is LatencyBase.sampler
-        if self.plain:
-            self._lat_rng = rng_for("latency")
-        else:
-            self._main = Recipe(spec, rng_for, self._T_ns)
-            if self.duplicate > 0.0:
-                self._dup_rng = rng_for("duplicate")
-                self._copy = Recipe(spec, lambda *name: rng_for("duplicate", *name), self._T_ns)
-            if spec.outages:
-                self._outages = Windows(spec.outages)
-        self.sent = self.delivered = self.lost = 0
-        self.copies = self.crash_dropped = self.outage_lost = 0
-        self.seq = 0
-
-    def draw(self, now_ns: int):
-        """Latency in ns of the next packet, or ``None`` if it is lost (plain links;
-        the copy of a duplicated packet is not reported here: see :meth:`transmit`)."""
-        if not self.plain:
-            lats = self.transmit(now_ns, count=False)
-            return lats[0] if lats else None
-        if not self._lat:
-            block = self.latency.sample_ns(self._lat_rng, _BLOCK, self._T_ns)
-            self._lat = np.asarray(block, dtype=np.int64)[::-1].tolist()
-        lat = self._lat.pop()
-        if self.loss > 0.0:
-            if not self._u:
-                self._u = self._loss_rng.random(_BLOCK)[::-1].tolist()
-            if self._u.pop() < self.loss:
-                return None
-        return lat
-
-    def transmit(self, now_ns: int, count: bool = True) -> tuple[int, ...]:
-        """Latencies of the arrivals a packet sent at ``now_ns`` makes: ``()`` if
-        it is lost, one, or two when it is duplicated.  Counts ``lost``,
-        ``outage_lost`` and ``copies`` (not ``sent``)."""
-        if self.plain:
-            lat = self.draw(now_ns)
-            if lat is None:
-                if count:
-                    self.lost += 1
-                return ()
-            return (lat,)
-        lat, lost = self._main.next(now_ns)
-        if self.loss > 0.0:
-            if not self._u:
-                self._u = self._loss_rng.random(_BLOCK)[::-1].tolist()
-            if self._u.pop() < self.loss:
-                lost = True
-        dup = False
-        if self._dup_rng is not None:
-            if not self._du:
-                self._du = self._dup_rng.random(_BLOCK)[::-1].tolist()
-            dup = self._du.pop() < self.duplicate
-        if self._outages is not None and now_ns in self._outages:
-            if count:
-                self.lost += 1
-                self.outage_lost += 1
-            return ()
+    def transmit(self, t_ns: int, seq: int = 0) -> tuple[tuple[int, ...], str | None]:
+        """The arrivals of a packet sent at ``t_ns`` as number ``seq`` of its sender at
+        that instant: ``(latencies, why lost)`` -- ``()`` and ``"lost"`` or
+        ``"outage"`` when it is lost, one latency, or two when it is duplicated."""
+        lat, lost = self._main.draw(t_ns, seq)
+        if self._loss_key is not None and keyed_uniform(self._loss_key, t_ns, seq) < self.loss:
+            lost = True
+        if self._outages is not None and t_ns in self._outages:
+            return (), "outage"
         if lost:
-            if count:
-                self.lost += 1
-            return ()
-        if dup:
-            if count:
-                self.copies += 1
-            return (lat, self._copy.next(now_ns)[0])
-        return (lat,)
+            return (), "lost"
+        if self._dup_key is not None and keyed_uniform(self._dup_key, t_ns, seq) < self.duplicate:
+            return (lat, self._copy.draw(t_ns, seq)[0]), None
+        return (lat,), None
 
 
 class Network:
-    """Links of one exchange graph inside a SimPy environment.
+    """The links of one run inside a SimPy environment, shared by every estimator.
 
     :param arcs: directed ``(u, v)`` pairs; link ids are their positions.
-    :param link_spec: ``link_spec(u, v)`` -> a :class:`~dkfsim.components.faults.LinkSpec`
-        (or any object with ``.latency`` and ``.loss``).
-    :param receive: ``receive(link, payload)`` called on each delivery.
+    :param link_spec: ``link_spec(u, v)`` -> a :class:`~dkfsim.components.faults.LinkSpec`.
     :param crashes: optional :class:`~dkfsim.components.faults.CrashSchedule`; a packet
         arriving at a node that is down is dropped (``crash_dropped``).
     """
 
-    def __init__(self, env: simpy.Environment, arcs, link_spec, seed, T_ns, receive,
-                 crashes=None):
+    def __init__(self, env: simpy.Environment, arcs, link_spec, seed, T_ns, crashes=None):
         self.env = env
-        self.links = []
-        for i, (u, v) in enumerate(arcs):
-            self.links.append(Link(i, u, v, link_spec(u, v), seed, T_ns))
+        self.seed, self.T_ns = int(seed), int(T_ns)
+        self.links = [Link(i, u, v, link_spec(u, v), seed, T_ns) for i, (u, v) in enumerate(arcs)]
         self.index = {(l.src, l.dst): l for l in self.links}
-        self._receive = receive
-        self._crashes = crashes if crashes else None
+        self.crashes = crashes if crashes else None
+        self.ports: list[Port] = []
 
-    def send(self, link: Link, payload) -> None:
-        link.sent += 1
-        if link.plain:
-            lat = link.draw(self.env.now)
-            if lat is None:
-                link.lost += 1
-                return
-            ev = Timeout(self.env, lat, (link, payload))
-            ev.callbacks.append(self._deliver)
+    def link(self, u: int, v: int) -> Link:
+        return self.index[(u, v)]
+
+    def extra_link(self, key: tuple, spec, src: int, dst: int) -> Link:
+        """A link outside the graph (e.g. a sensor's direct link to a fusion centre),
+        its draws named ``key``; it joins the network's link list."""
+        link = Link(len(self.links), src, dst, spec, self.seed, self.T_ns, key=key)
+        self.links.append(link)
+        return link
+
+    def port(self, name: str, receive, links=None, until: int | None = None) -> "Port":
+        """A new port for an estimator: ``receive(link, payload)`` gets its deliveries;
+        ``links`` are the links it reports on (default: those it uses); deliveries
+        after ``until`` ns (default: the run's last tick) stay in flight."""
+        p = Port(self, name, receive, links, until)
+        self.ports.append(p)
+        return p
+
+
+class Port:
+    """One estimator's attachment to the network: what it sends, what it receives, counts."""
+
+    def __init__(self, network: Network, name: str, receive, links=None, until=None):
+        self.net = network
+        self.env = network.env
+        self.name = name
+        self.until = until
+        self._receive = receive
+        self._links = None if links is None else [l.id for l in links]
+        self._count: dict[str, dict[int, int]] = {k: {} for k in COUNTERS}
+        self._instant = -1
+        self._seq: dict[int, int] = {}
+
+    def _add(self, key: str, link_id: int, amount: int = 1) -> None:
+        c = self._count[key]
+        c[link_id] = c.get(link_id, 0) + amount
+
+    def send(self, link: Link, payload, nbytes: int = 0) -> None:
+        """Hand ``payload`` to ``link`` now (``nbytes``: its nominal size, for traffic)."""
+        now = self.env.now
+        if now != self._instant:
+            self._instant, self._seq = now, {}
+        seq = self._seq.get(link.id, 0)
+        self._seq[link.id] = seq + 1
+        self._add("sent", link.id)
+        self._add("bytes", link.id, nbytes)
+        arrivals, why = link.transmit(now, seq)
+        if why is not None:
+            self._add("lost", link.id)
+            if why == "outage":
+                self._add("outage_lost", link.id)
             return
-        for lat in link.transmit(self.env.now):
+        if len(arrivals) > 1:
+            self._add("copies", link.id)
+        for lat in arrivals:
             ev = Timeout(self.env, lat, (link, payload))
             ev.callbacks.append(self._deliver)
 
     def _deliver(self, event) -> None:
         link, payload = event._value
-        if self._crashes is not None and self._crashes.down(link.dst, self.env.now):
-            link.crash_dropped += 1
+        if self.until is not None and self.env.now > self.until:
+            return                            # after the port's last instant: in flight
+        crashes = self.net.crashes
+        if crashes is not None and crashes.down(link.dst, self.env.now):
+            self._add("crash_dropped", link.id)
             return
-        link.delivered += 1
+        self._add("delivered", link.id)
         self._receive(link, payload)
 
-    @staticmethod
-    def _in_flight(l: Link) -> int:
-        return l.sent + l.copies - l.delivered - l.lost - l.crash_dropped
-
     def counts(self) -> dict:
-        """Packet counts; ``sent + copies = delivered + lost + crash_dropped + in_flight``."""
-        keys = ("sent", "delivered", "lost", "copies", "crash_dropped", "outage_lost")
-        out = {k: sum(getattr(l, k) for l in self.links) for k in keys}
-        out["in_flight"] = sum(self._in_flight(l) for l in self.links)
-        out["per_link"] = [
-            {"link": (l.src, l.dst), **{k: getattr(l, k) for k in keys},
-             "in_flight": self._in_flight(l)}
-            for l in self.links
-        ]
-        return out
+        """Totals and ``per_link`` (links this port used); ``in_flight`` by the identity."""
+        totals = {k: sum(self._count[k].values()) for k in COUNTERS}
+        totals["in_flight"] = (totals["sent"] + totals["copies"] - totals["delivered"]
+                               - totals["lost"] - totals["crash_dropped"])
+        used = self._links if self._links is not None else \
+            sorted(set().union(*(self._count[k].keys() for k in COUNTERS)))
+        per_link = []
+        for i in used:
+            link = self.net.links[i]
+            row = {"link": (link.src, link.dst), **{k: self._count[k].get(i, 0) for k in COUNTERS}}
+            row["in_flight"] = (row["sent"] + row["copies"] - row["delivered"] - row["lost"]
+                                - row["crash_dropped"])
+            per_link.append(row)
+        totals["per_link"] = per_link
+        return totals

@@ -1,0 +1,1 @@
+"""What a person reads: tables and figures of run, Monte Carlo and sweep folders."""

@@ -5,7 +5,7 @@
 * ``tracking``: truth, the fused estimate, node 0's estimate and the references
   (centralized Kalman filter; the consensus-on-information baseline when it
   ran), one panel per state component -- the paper's Fig. 3;
-* ``mse``: mean squared error per tick and component for every algorithm in the
+* ``mse``: mean squared error per tick and component for every estimate in the
   folder, log scale -- the paper's Fig. 4.  A Monte Carlo folder gives the mean
   over runs with its 95 % confidence band; a single run gives the squared error
   of that run, smoothed by a centred moving average (``--smooth``);
@@ -27,6 +27,7 @@ without matplotlib.
 from __future__ import annotations
 
 import csv
+import io
 import json
 import os
 import zipfile
@@ -36,34 +37,28 @@ from pathlib import Path
 import numpy as np
 
 from dkfsim.core.errors import DkfsimError
-from dkfsim.core.folders import from_json
-from dkfsim.core.files import MAX_YAML_BYTES, clip, read_text
+from dkfsim.config.schema import component_names as names_of
+from dkfsim.core.encoding import from_json
+from dkfsim.core.extras import available, optional, pyplot
+from dkfsim.core.files import MAX_YAML_BYTES, read_text
 
 FORMATS = ("png", "pdf", "svg")
 DEFAULT_FORMATS = ("png", "pdf")
 
-#: Display order, legend label and colour of every algorithm name a folder may hold.
-ALGORITHMS: dict[str, tuple[str, str]] = {
-    "anti_delay_dkf": ("anti-delay DKF (fused)", "C0"),
-    "anti_delay_dkf_local": ("anti-delay DKF, node estimates (mean over nodes)", "C9"),
-    "centralized": ("centralized KF (all data on time)", "k"),
-    "centralized_delayed": ("centralized KF over delayed direct links", "C2"),
-    "no_buffer": ("no buffer (L = 1), fused", "C1"),
-    "ci_consensus": ("consensus on information (CI)", "C3"),
-    "local": ("local only (own sensor)", "C7"),
+#: Display order, legend label and colour of the estimate names (any other name is drawn
+#: after these, labelled by its name).
+ESTIMATES: dict[str, tuple[str, str]] = {
+    "fused": ("fused: anti-delay DKF", "C0"),
+    "local": ("local: DKF node estimates (mean over nodes)", "C9"),
+    "centralized": ("centralized: all data on time", "k"),
+    "centralized_delayed": ("centralized_delayed: over delayed direct links", "C2"),
+    "no_buffer": ("no_buffer: L = 1, fused", "C1"),
+    "ci_consensus": ("ci_consensus: consensus on information", "C3"),
+    "local_only": ("local_only: own sensor", "C7"),
 }
 
-#: Run-folder array -> algorithm name.  Per-node arrays (K, n, nx) are scored
-#: by the mean over nodes of the squared error.
-RUN_KEYS = {
-    "x_fused": "anti_delay_dkf",
-    "x_local": "anti_delay_dkf_local",
-    "x_centralized": "centralized",
-    "x_centralized_delayed": "centralized_delayed",
-    "x_no_buffer": "no_buffer",
-    "x_ci_consensus": "ci_consensus",
-    "x_local_only": "local",
-}
+#: Names folders written by earlier versions used (read as the current ones).
+OLD_NAMES = {"fused": "fused", "anti_delay_dkf_local": "local", "local": "local_only"}
 NOT_ESTIMATES = {"x_final", "x0_mean"}
 
 CA_COMPONENTS = ("position", "velocity", "acceleration")
@@ -71,17 +66,17 @@ CA_UNITS = {"position": "m", "velocity": "m/s", "acceleration": "m/s$^2$"}
 
 
 def label_of(name: str) -> str:
-    return ALGORITHMS.get(name, (name.replace("_", " "), None))[0]
+    return ESTIMATES.get(name, (name, None))[0]
 
 
 def color_of(name: str, fallback_index: int = 0):
-    c = ALGORITHMS.get(name, (None, None))[1]
+    c = ESTIMATES.get(name, (None, None))[1]
     return c if c is not None else f"C{(4 + fallback_index) % 10}"
 
 
 def _order(names) -> list[str]:
-    known = [a for a in ALGORITHMS if a in names]
-    return known + sorted(a for a in names if a not in ALGORITHMS)
+    known = [a for a in ESTIMATES if a in names]
+    return known + sorted(a for a in names if a not in ESTIMATES)
 
 
 # ----------------------------------------------------------------------------
@@ -98,27 +93,27 @@ class Folder:
     t: np.ndarray                     # (K,)
     components: list[str]
     units: list[str]                  # "" when the model has no physical units
-    mse: dict[str, np.ndarray]        # algorithm -> (K, nx): squared error per tick (mean over runs)
+    mse: dict[str, np.ndarray]        # estimate -> (K, nx): squared error per tick (mean over runs)
     ci: dict[str, tuple[np.ndarray, np.ndarray]] = field(default_factory=dict)
     truth: np.ndarray | None = None   # (K, nx), one example run
-    examples: dict[str, np.ndarray] = field(default_factory=dict)   # algorithm -> (K, nx)
+    examples: dict[str, np.ndarray] = field(default_factory=dict)   # estimate -> (K, nx)
     node0: np.ndarray | None = None   # (K, nx)
     n_runs: int = 1
     d_t: int | None = None
-    nees: dict[str, np.ndarray] = field(default_factory=dict)       # algorithm -> (K,)
+    nees: dict[str, np.ndarray] = field(default_factory=dict)       # estimate -> (K,)
     nees_band: tuple[float, float] | None = None
     burn_in: int | None = None        # rows skipped in the time averages (default: 10 % of K)
-    mse_ci95: dict[str, list] = field(default_factory=dict)   # algorithm -> per component [lo, hi]
+    mse_ci95: dict[str, list] = field(default_factory=dict)   # estimate -> per component [lo, hi]
 
-    def time_average(self, algorithm: str, i: int) -> float:
+    def time_average(self, estimate: str, i: int) -> float:
         """MSE of one component averaged over the ticks after the burn-in."""
         b = self.burn_in if self.burn_in is not None and 0 <= self.burn_in < self.K else self.K // 10
-        return float(np.mean(self.mse[algorithm][b:, i]))
+        return float(np.mean(self.mse[estimate][b:, i]))
 
-    def ci95(self, algorithm: str, i: int) -> tuple[float, float] | None:
+    def ci95(self, estimate: str, i: int) -> tuple[float, float] | None:
         """95 % interval of the time-averaged MSE over runs (Monte Carlo summary.json), if known."""
         try:
-            v = self.mse_ci95[algorithm]
+            v = self.mse_ci95[estimate]
             lo, hi = v[self.components[i]] if isinstance(v, dict) else v[i]
             return (float(lo), float(hi)) if lo is not None and hi is not None else None
         except (KeyError, IndexError, TypeError, ValueError):
@@ -140,8 +135,7 @@ class Folder:
 
 
 def component_names(nx: int, model_kind: str | None) -> list[str]:
-    from dkfsim.config.schema import component_names as names
-    return names(model_kind, nx)
+    return names_of(model_kind, nx)
 
 
 def _units(components, model_kind) -> list[str]:
@@ -249,12 +243,10 @@ def _load_run(p: Path) -> Folder:
     comps = component_names(nx, kind)
     mse, examples = {}, {}
     node0 = None
-    extra = sorted(k for k in arrays if k.startswith("x_") and k not in RUN_KEYS and k not in NOT_ESTIMATES)
-    for key in [*RUN_KEYS, *extra]:
-        if key not in arrays:
-            continue
+    keys = [k for k in arrays if k.startswith("x_") and k not in NOT_ESTIMATES]
+    for key in keys:
         x = np.asarray(arrays[key], dtype=float)
-        name = RUN_KEYS.get(key, key[2:])
+        name = key[2:]
         if x.ndim == 2 and x.shape == (K, nx):
             err = (x - truth) ** 2
             examples[name] = x
@@ -267,7 +259,7 @@ def _load_run(p: Path) -> Folder:
             raise DkfsimError(f"{p / 'run.npz'}: array {key!r} has shape {x.shape}, "
                               f"expected ({K}, {nx}) or ({K}, n, {nx})")
         mse[name] = err
-    if "anti_delay_dkf" not in mse and "anti_delay_dkf_local" not in mse:
+    if "fused" not in mse and "local" not in mse:
         raise DkfsimError(f"{p / 'run.npz'}: no estimates (x_fused or x_local) to plot")
     return Folder(path=p, kind="run", scenario=str(summary.get("scenario", p.name)), t=t,
                   components=comps, units=_units(comps, kind), mse=mse, truth=truth,
@@ -294,7 +286,9 @@ def _load_montecarlo(p: Path) -> Folder:
     K = t.shape[0]
     comps = [str(c) for c in _need(arrays, "components", f, (None,))]
     nx = len(comps)
-    algs = [str(a) for a in _need(arrays, "algorithms", f, (None,))]
+    key = "estimates" if "estimates" in arrays else "algorithms"      # (older folders)
+    algs = [OLD_NAMES.get(str(a), str(a)) if key == "algorithms" else str(a)
+            for a in _need(arrays, key, f, (None,))]
     A = len(algs)
     mse_all = _need(arrays, "mse", f, (A, K, nx)).astype(float)
     mse = {a: mse_all[i] for i, a in enumerate(algs)}
@@ -329,9 +323,10 @@ def _load_montecarlo(p: Path) -> Folder:
     if isinstance(name, dict):
         name = name.get("name", p.name)
     ci95 = {}
-    if isinstance(summary.get("algorithms"), dict):
-        ci95 = {a: v["mse_ci95"] for a, v in summary["algorithms"].items()
-                if isinstance(v, dict) and "mse_ci95" in v}
+    per_estimate = summary.get("estimates", summary.get("algorithms"))
+    if isinstance(per_estimate, dict):
+        ci95 = {OLD_NAMES.get(a, a) if "algorithms" in summary else a: v["mse_ci95"]
+                for a, v in per_estimate.items() if isinstance(v, dict) and "mse_ci95" in v}
     return Folder(path=p, kind="montecarlo", scenario=str(name), t=t, components=comps,
                   units=_units(comps, kind), mse=mse, ci=ci, truth=truth, examples=examples,
                   node0=node0, n_runs=n_runs or 0, d_t=_d_t(summary), nees=nees, nees_band=band,
@@ -402,27 +397,15 @@ def mse_note(folder: Folder, smooth: int) -> str:
     return note
 
 
-def _pyplot():
-    try:
-        import matplotlib
-    except ImportError:
-        raise DkfsimError("plotting needs matplotlib: pip install 'dkfsim[plots]' "
-                          "(or pip install matplotlib)") from None
-    matplotlib.use("Agg", force=True)
-    import matplotlib.pyplot as plt
-    return plt
-
-
 def _save_png(fig, path: Path, dpi: int = 100) -> None:
     """PNG with a 256-colour palette: a third of the size of matplotlib's RGBA, same look."""
-    import io
     buf = io.BytesIO()
     fig.savefig(buf, format="png", dpi=dpi, bbox_inches="tight")
-    try:
-        from PIL import Image
+    if available("PIL"):
+        Image = optional("PIL.Image")
         img = Image.open(buf).convert("RGB").quantize(colors=256, method=Image.Quantize.MEDIANCUT)
         img.save(path, format="PNG", optimize=True)
-    except ImportError:   # Pillow ships with matplotlib; keep the plain file if it is missing
+    else:                 # Pillow ships with matplotlib; keep the plain file if it is missing
         Path(path).write_bytes(buf.getvalue())
 
 
@@ -448,7 +431,7 @@ def _save(fig, stem: Path, formats) -> list[Path]:
             tmp.unlink(missing_ok=True)
         out.append(path)
     fig.clf()
-    _pyplot().close(fig)
+    pyplot().close(fig)
     return out
 
 
@@ -463,9 +446,9 @@ def _averages(ax, entries, folder: Folder) -> None:
                 fontsize=7.5, color=col, fontweight="bold")
 
 
-def _avg_text(folder: Folder, algorithm: str, i: int) -> str:
-    m = folder.time_average(algorithm, i)
-    ci = folder.ci95(algorithm, i)
+def _avg_text(folder: Folder, estimate: str, i: int) -> str:
+    m = folder.time_average(estimate, i)
+    ci = folder.ci95(estimate, i)
     return f"{m:.4g}" if ci is None else f"{m:.4g} ± {(ci[1] - ci[0]) / 2:.2g}"
 
 
@@ -501,9 +484,7 @@ def _band(lo, hi):
 
 def _plain_log_ticks(ax) -> None:
     """Tick labels 0.2, 0.05, 1e-05 instead of 2 x 10^-1 (matplotlib decides which ticks get one)."""
-    from matplotlib.ticker import LogFormatter
-
-    class Plain(LogFormatter):
+    class Plain(optional("matplotlib.ticker").LogFormatter):
         def __call__(self, x, pos=None):
             return f"{x:g}" if super().__call__(x, pos) else ""
 
@@ -543,16 +524,16 @@ def plot_tracking(folder: Folder, stem, formats=DEFAULT_FORMATS, components=None
     if folder.truth is None:
         raise DkfsimError(f"{folder.path}: no example run (example_truth) to draw the tracking figure from")
     idx = select_components(folder, components)
-    plt = _pyplot()
+    plt = pyplot()
     ncols = 2 if zoom and folder.K >= 20 else 1
     fig, axes = plt.subplots(len(idx), ncols, figsize=(9.0 if ncols == 2 else 7.5, 2.3 * len(idx) + 0.6),
                              sharex="col", squeeze=False,
                              gridspec_kw={"width_ratios": [2.2, 1]} if ncols == 2 else None)
     t = folder.t
     lines = [("truth", folder.truth, dict(color="0.6", lw=3.0, zorder=1))]
-    if "anti_delay_dkf" in folder.examples:
-        lines.append((label_of("anti_delay_dkf"), folder.examples["anti_delay_dkf"],
-                      dict(color=color_of("anti_delay_dkf"), lw=1.2, zorder=4)))
+    if "fused" in folder.examples:
+        lines.append((label_of("fused"), folder.examples["fused"],
+                      dict(color=color_of("fused"), lw=1.2, zorder=4)))
     if folder.node0 is not None:
         lines.append(("anti-delay DKF, node 0 (real time)", folder.node0,
                       dict(color="C4", lw=1.0, ls=(0, (1.5, 1.2)), zorder=3)))
@@ -590,15 +571,15 @@ def plot_tracking(folder: Folder, stem, formats=DEFAULT_FORMATS, components=None
 
 
 def plot_mse(folder: Folder, stem, formats=DEFAULT_FORMATS, components=None, smooth=None,
-             algorithms=None, title=None) -> list[Path]:
-    """MSE per tick and component for every algorithm in the folder (paper Fig. 4)."""
+             estimates=None, title=None) -> list[Path]:
+    """MSE per tick and component for every estimate in the folder (paper Fig. 4)."""
     formats = _check_formats(formats)
     idx = select_components(folder, components)
     w = default_smooth(folder) if smooth is None else max(1, int(smooth))
-    names = _order(folder.mse) if algorithms is None else [a for a in algorithms if a in folder.mse]
+    names = _order(folder.mse) if estimates is None else [a for a in estimates if a in folder.mse]
     if not names:
-        raise DkfsimError(f"{folder.path}: none of the algorithms {', '.join(algorithms or [])} is in the folder")
-    plt = _pyplot()
+        raise DkfsimError(f"{folder.path}: none of the estimates {', '.join(estimates or [])} is in the folder")
+    plt = pyplot()
     fig, axes = plt.subplots(len(idx), 1, figsize=(7.5, 2.3 * len(idx) + 0.9), sharex=True, squeeze=False)
     for ax, i in zip(axes[:, 0], idx):
         drawn, entries = [], []
@@ -606,7 +587,7 @@ def plot_mse(folder: Folder, stem, formats=DEFAULT_FORMATS, components=None, smo
             col = color_of(a, j)
             entries.append((_avg_text(folder, a, i), col))
             style = dict(color=col, lw=1.0, ls="--" if a == "centralized" else "-",
-                         zorder={"anti_delay_dkf": 5, "centralized": 6}.get(a, 3))
+                         zorder={"fused": 5, "centralized": 6}.get(a, 3))
             y = _positive(moving_average(folder.mse[a][:, i], w))
             drawn.append(y)
             ax.plot(folder.t, y, label=label_of(a), **style)
@@ -631,7 +612,7 @@ def plot_nees(folder: Folder, stem, formats=DEFAULT_FORMATS, title=None) -> list
     formats = _check_formats(formats)
     if not folder.nees:
         raise DkfsimError(f"{folder.path}: no NEES curves")
-    plt = _pyplot()
+    plt = pyplot()
     fig, ax = plt.subplots(figsize=(7.5, 3.4))
     for j, a in enumerate(_order(folder.nees)):
         if np.all(~np.isfinite(folder.nees[a])):
@@ -667,7 +648,7 @@ def check_comparable(folders: list[Folder]) -> None:
 
 
 def plot_compare(folders: list[Folder], stem, labels=None, formats=DEFAULT_FORMATS, components=None,
-                 smooth=None, title=None, algorithm="anti_delay_dkf", bands=None,
+                 smooth=None, title=None, estimate="fused", bands=None,
                  relative=False) -> list[Path]:
     """Fused MSE of several folders and the centralized filter of the first (paper Figs. 5, 6).
 
@@ -686,8 +667,8 @@ def plot_compare(folders: list[Folder], stem, labels=None, formats=DEFAULT_FORMA
         raise DkfsimError(f"--labels: {len(labels)} labels for {len(folders)} folders; give one label per folder")
     check_comparable(folders)
     for f in folders:
-        if algorithm not in f.mse:
-            raise DkfsimError(f"--compare: {f.path} has no {label_of(algorithm)} estimate")
+        if estimate not in f.mse:
+            raise DkfsimError(f"--compare: {f.path} has no {label_of(estimate)} estimate")
     first = folders[0]
     if relative and "centralized" not in first.mse:
         raise DkfsimError(f"--relative: the first folder ({first.path}) has no centralized baseline "
@@ -697,7 +678,7 @@ def plot_compare(folders: list[Folder], stem, labels=None, formats=DEFAULT_FORMA
     if smooth is None and any(f.kind == "run" for f in folders):
         w = max(default_smooth(f) for f in folders)
     wr = max(w, first.K // 20)
-    plt = _pyplot()
+    plt = pyplot()
     ncols = 2 if relative else 1
     height = 2.3 * len(idx) + 1.0 if len(idx) > 1 else 3.8
     fig, axes = plt.subplots(len(idx), ncols, figsize=(12.0 if relative else 7.5, height),
@@ -712,12 +693,12 @@ def plot_compare(folders: list[Folder], stem, labels=None, formats=DEFAULT_FORMA
         ax = axes[row, 0]
         drawn, entries = [], []
         for f, lab, col in zip(folders, labels, colors):
-            y = _positive(moving_average(f.mse[algorithm][:, i], w))
+            y = _positive(moving_average(f.mse[estimate][:, i], w))
             drawn.append(y)
-            entries.append((_avg_text(f, algorithm, i), col))
+            entries.append((_avg_text(f, estimate, i), col))
             ax.plot(f.t, y, color=col, lw=1.1, label=lab)
-            if bands and algorithm in f.ci:
-                lo, hi = f.ci[algorithm]
+            if bands and estimate in f.ci:
+                lo, hi = f.ci[estimate]
                 ax.fill_between(f.t, *_band(moving_average(lo[:, i], w), moving_average(hi[:, i], w)),
                                 color=col, alpha=0.18, lw=0)
         if "centralized" in first.mse:
@@ -735,7 +716,7 @@ def plot_compare(folders: list[Folder], stem, labels=None, formats=DEFAULT_FORMA
             ar = axes[row, 1]
             den = moving_average(first.mse["centralized"][:, i], wr)
             for f, col in zip(folders, colors):
-                ar.plot(f.t, moving_average(f.mse[algorithm][:, i], wr) / den, color=col, lw=1.2)
+                ar.plot(f.t, moving_average(f.mse[estimate][:, i], wr) / den, color=col, lw=1.2)
             ar.axhline(1.0, color="k", lw=1.0, ls="--")
             ar.set_ylabel(f"{first.components[i]} MSE / centralized")
             ar.grid(True, alpha=0.3)
@@ -750,7 +731,7 @@ def plot_compare(folders: list[Folder], stem, labels=None, formats=DEFAULT_FORMA
     note = mse_note(ref if kinds == {ref.kind} else next(f for f in folders if f.kind == "run"), w)
     if not bands and any(f.ci for f in folders):
         note = note.replace(", 95 % CI shaded", "")
-    what = "fused anti-delay DKF" if algorithm == "anti_delay_dkf" else label_of(algorithm)
+    what = "fused anti-delay DKF" if estimate == "fused" else label_of(estimate)
     fig.suptitle((title or f"MSE of the {what}: " + ", ".join(labels)) + f"\n({note})", fontsize=11)
     _legend_below(fig, axes[0, 0], ncol=3 if n + 1 > 4 else 2)
     return _save(fig, stem, formats)
@@ -771,83 +752,3 @@ def plot_folder(folder: Folder, out_dir, formats=DEFAULT_FORMATS, components=Non
 # ----------------------------------------------------------------------------
 # command line
 # ----------------------------------------------------------------------------
-
-EPILOG = """\
-examples:
-  dkfsim plot out/case1                                   # out/case1/figures/{tracking,mse}.{png,pdf}
-  dkfsim plot out/mc_case1 --format png                   # a Monte Carlo folder; adds nees.png
-  dkfsim plot out/case1 out/case2 --compare --labels "case 1 (undirected)" "case 2 (directed)"
-  dkfsim plot out/d0 out/d1 out/d2 out/d3 out/d4 --compare --component position \\
-      --labels "d_t = 0" "d_t = 1" "d_t = 2" "d_t = 3" "d_t = 4" --out figs --name delay_bounds
-"""
-
-
-def add_command(sub) -> None:
-    import argparse
-    p = sub.add_parser(
-        "plot", help="draw figures from run or Monte Carlo folders",
-        description="Draw figures (matplotlib, Agg backend) from folders written by dkfsim run "
-                    "(run.npz + summary.json) or dkfsim montecarlo (curves.npz + runs.csv + summary.json): "
-                    "tracking (truth, fused, node 0, references), MSE per tick (log scale; Monte Carlo: "
-                    "95% CI shaded) and, for Monte Carlo folders, NEES. With --compare, overlay the fused "
-                    "MSE of several folders and the centralized filter of the first.",
-        epilog=EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("dirs", nargs="+", metavar="DIR", help="run or Monte Carlo folder(s)")
-    p.add_argument("--out", metavar="FIGDIR",
-                   help="folder for the figures (default: DIR/figures; with --compare: the first DIR's)")
-    p.add_argument("--format", dest="formats", nargs="+", default=list(DEFAULT_FORMATS), choices=FORMATS,
-                   metavar="FMT", help=f"file formats: {', '.join(FORMATS)} (default: png pdf)")
-    p.add_argument("--compare", action="store_true",
-                   help="overlay the fused MSE of all DIRs (same number of ticks) in one figure")
-    p.add_argument("--relative", action="store_true",
-                   help="with --compare: add a column with each MSE divided by the first folder's "
-                        "centralized MSE (shows differences of a few per cent)")
-    p.add_argument("--labels", nargs="+", metavar="LABEL", help="legend label per DIR (with --compare)")
-    p.add_argument("--component", dest="components", nargs="+", metavar="NAME",
-                   help="state components to draw, by name (position) or index (0); default: all")
-    p.add_argument("--smooth", type=int, metavar="TICKS",
-                   help="centred moving average of the MSE curves over TICKS ticks "
-                        "(default: 2%% of the ticks for a single run, none for Monte Carlo)")
-    p.add_argument("--name", default=None, metavar="STEM",
-                   help="file name (without extension) of the --compare figure (default: compare_mse)")
-    p.add_argument("--title", default=None,
-                   help="title of the --compare figure (default: generated; a line saying what the curves are follows it)")
-    p.set_defaults(func=cmd_plot)
-
-
-def cmd_plot(args) -> int:
-    formats = _check_formats(args.formats)
-    if args.smooth is not None and args.smooth < 1:
-        raise DkfsimError(f"--smooth: must be >= 1 tick, got {args.smooth}")
-    if args.labels is not None and not args.compare:
-        raise DkfsimError("--labels: only used with --compare")
-    for flag in ("name", "title"):
-        if getattr(args, flag) is not None and not args.compare:
-            raise DkfsimError(f"--{flag}: only used with --compare")
-    if args.relative and not args.compare:
-        raise DkfsimError("--relative: only used with --compare")
-    if args.compare and len(args.dirs) < 2:
-        raise DkfsimError("--compare: give at least two folders")
-    if args.name is not None and (not args.name.strip() or args.name != Path(args.name).name
-                                  or args.name in (".", "..")):
-        raise DkfsimError(f"--name {clip(args.name)}: a file name without folders (use --out for "
-                          "the folder)")
-    folders = [load_folder(d) for d in args.dirs]
-    written = []
-    if args.compare:
-        out = Path(args.out) if args.out else folders[0].path / "figures"
-        written = plot_compare(folders, out / (args.name or "compare_mse"), labels=args.labels,
-                               formats=formats, components=args.components, smooth=args.smooth,
-                               title=args.title, relative=args.relative)
-    else:
-        for f in folders:
-            if args.out is None:
-                out = f.path / "figures"
-            elif len(folders) == 1:
-                out = Path(args.out)
-            else:
-                out = Path(args.out) / f.path.resolve().name
-            written += plot_folder(f, out, formats, args.components, args.smooth)
-    for path in written:
-        print(f"wrote {path}")
-    return 0

@@ -1,45 +1,41 @@
-"""Exchange protocols: how contributions travel from node to node.
+"""What every exchange protocol shares: rows, holdings, late accounting, flushes.
 
-Both protocols forward on receipt, not at ticks (docs/design.md §2), and
+Protocols forward on receipt, not at ticks (docs/design.md §2), and
 coalesce: everything a node learns at one instant leaves in one packet per
 out-link, sent by a flush event that runs after every delivery at that
 instant (zero-latency chains included) and before the tick update.
 
-What a packet carries
----------------------
-For each row it mentions, a packet carries an information-form aggregate
-``(theta, omega)`` and the set of origins it includes, as a bitmask.  With
-the fixed weights of both protocols the aggregate is a *linear function of
-that set*: ``sum_o c_o * (theta_o, omega_o)`` with ``c_o`` the product of the
-weights along the (unique, on a tree) path from ``o`` -- so it is exactly
-determined by the bitmask, and we let the bitmask stand for it on the wire.
-The receiving node's :class:`~dkfsim.estimators.window.WindowFilter` materialises the
-numbers for every node at once when it updates.  Per-packet work is then a
-few integer operations; the arithmetic is batched.
-
-``tree`` (the paper's Algorithm 2, on a tree)
-    Node ``i`` sends neighbour ``j`` the aggregate of its own contribution and
-    the latest message from every other neighbour.  On a tree these
-    subtrees are disjoint, so that set is ``held_i minus msg(j -> i)``.  It
-    never uses the paper's ``Theta_i - msg(j -> i)`` update, which subtracts a
-    stale message under asynchrony.  Messages carry a per-link sequence number;
-    a message for a row supersedes the stored one only if its number is
-    higher (links reorder).
-``flood`` (strongly connected digraphs)
-    Each contribution ``(origin, row)`` is relayed once along every out-link
-    except back to the neighbour it came from; duplicates are dropped.
+What a packet carries: for each row it mentions, an information-form
+aggregate ``(theta, omega)`` and the set of origins it includes, as a
+bitmask.  With fixed weights the aggregate is a *linear function of that
+set* (``sum_o c_o (theta_o, omega_o)``, ``c_o`` the product of the weights
+along the path from ``o``), so the bitmask stands for it on the wire and the
+receiving node's :class:`~dkfsim.estimators.window.WindowFilter`
+materialises the numbers for every node at once when it updates.  Traffic
+is counted with the nominal size of the numbers (:func:`row_bytes`).
 
 A contribution for a row that is already final at the receiver is *late*:
 counted (once per receiver, origin and row) and discarded.  Nothing is
 forwarded for a final row: every node finalises a row at the same tick.
+The protocols themselves are :mod:`dkfsim.protocols.tree` and
+:mod:`dkfsim.protocols.flood`.
 """
 
 from __future__ import annotations
 
-
 import numpy as np
 
 from dkfsim.network.links import PRIORITY_FLUSH, Scheduled
+
+
+#: Bytes of a packet's header (sequence number, sender, receiver, length).
+PACKET_HEADER = 16
+
+
+def row_bytes(nx: int, n: int) -> int:
+    """Nominal bytes of one row of a packet: the row number, ``theta`` (nx floats),
+    the upper triangle of ``omega`` and the origin bitmask."""
+    return 8 + 8 * (nx + nx * (nx + 1) // 2) + -(-n // 8)
 
 
 #: Above this many origins in one mask, newly held contributions are unpacked with numpy.
@@ -75,12 +71,20 @@ class Exchange:
     :param late_horizon: how many final rows keep their holdings so that a
         late contribution is counted once; older late bits are counted per
         packet.
+    :param nx: the state size and :param T_ns: the tick period (ns), for
+        the nominal packet size and for protocols that act on the tick grid.
     """
 
     tree = False
+    #: The graph the protocol runs on (:func:`dkfsim.components.topology.make_exchange`):
+    #: ``"tree"`` (an undirected tree, or a spanning tree of the topology) or ``"digraph"``
+    #: (every arc of the topology; undirected edges both ways).
+    graph = "digraph"
 
-    def __init__(self, env, n, window, arrival=None, late_horizon=4096):
+    def __init__(self, env, n, window, arrival=None, late_horizon=4096, nx=1, T_ns=1):
         self.env = env
+        self.T_ns = int(T_ns)
+        self.row_bytes = row_bytes(nx, n)
         self.n = n
         self.window = window
         self.arrival = arrival
@@ -95,17 +99,31 @@ class Exchange:
         self._flush_cb = [self._make_flush(j) for j in range(n)]
 
     # -- wiring ----------------------------------------------------------------
-    def attach(self, network) -> None:
-        self.net = network
+    def attach(self, port, links) -> None:
+        """Send through ``port`` over ``links`` (the exchange graph's arcs, in order).
+
+        Links are indexed locally, ``0 .. len(links) - 1`` (``self.lid[link.id]``).
+        """
+        self.port = port
+        self.links = list(links)
+        self.lid = {link.id: i for i, link in enumerate(self.links)}
+        self.n_links = len(self.links)
         #: per link: delivered packets that carried a contribution for a row
         #: already final at the receiver.
-        self.late_packets = [0] * len(network.links)
+        self.late_packets = [0] * self.n_links
+        #: per link: the number of the last packet sent (links reorder: receivers keep the newest)
+        self.seq = [0] * self.n_links
         self.out_links = [[] for _ in range(self.n)]
-        for link in network.links:
+        for link in self.links:
             self.out_links[link.src].append(link)
-        self.n_links = len(network.links)
-        rev = [network.index.get((l.dst, l.src)) for l in network.links]
-        self.reverse = [r.id if r is not None else None for r in rev]
+        by_arc = {(l.src, l.dst): i for i, l in enumerate(self.links)}
+        self.reverse = [by_arc.get((l.dst, l.src)) for l in self.links]
+
+    def _send(self, link, items) -> None:
+        """One packet on ``link`` carrying ``items`` ((row, origin mask) pairs)."""
+        i = self.lid[link.id]
+        self.seq[i] += 1
+        self.port.send(link, (self.seq[i], items), PACKET_HEADER + len(items) * self.row_bytes)
 
     def _make_flush(self, j):
         def cb(_event, j=j):
@@ -171,7 +189,7 @@ class Exchange:
                 new ^= low
 
     # -- protocol hooks ----------------------------------------------------------
-    #: :class:`dkfsim.components.faults.CrashSchedule` (set by the simulation) or None.  A
+    #: :class:`dkfsim.components.faults.CrashSchedule` (set by the estimator) or None.  A
     #: node that is down does not measure; the network drops what arrives at
     #: it, so it never has anything to send while down.
     crashes = None
@@ -198,7 +216,7 @@ class Exchange:
             else:
                 self._accept(link, seq, row, st, mask)
         if late:
-            self.late_packets[link.id] += 1
+            self.late_packets[self.lid[link.id]] += 1
 
     def _accept(self, link, seq: int, row: int, st: _Row, mask: int) -> None:
         raise NotImplementedError
@@ -209,100 +227,3 @@ class Exchange:
     def counts(self) -> dict:
         return {"late": self.late, "late_per_node": list(self.late_per_node),
                 "duplicates": self.duplicates, "stale": self.stale}
-
-
-class TreeExchange(Exchange):
-    """The paper's Algorithm 2 on a tree, asynchronous and exact (unit weights)."""
-
-    tree = True
-
-    def __init__(self, *args, **kwargs):
-        super().__init__(*args, **kwargs)
-        self._dirty: list[set[int]] = [set() for _ in range(self.n)]
-
-    def measure(self, row: int) -> None:
-        st = self.rows[row]
-        for i in self._measuring():
-            self._gain(i, row, st, 1 << i)
-            self._dirty[i].add(row)
-            self._schedule_flush(i)
-
-    def _accept(self, link, seq, row, st, mask) -> None:
-        j, e = link.dst, link.id
-        if seq <= st.inseq[e]:
-            self.stale += 1
-            return
-        st.inseq[e] = seq
-        st.inbox[e] = mask
-        new = mask & ~st.held[j]
-        if new:
-            self._gain(j, row, st, new)
-            self._dirty[j].add(row)
-            self._schedule_flush(j)
-
-    def flush(self, j: int) -> None:
-        rows = self._dirty[j]
-        if not rows:
-            return
-        self._dirty[j] = set()
-        links = self.out_links[j]
-        items = [[] for _ in links]
-        for row in sorted(rows):
-            st = self.rows.get(row)
-            if st is None:
-                continue
-            held = st.held[j]
-            for idx, link in enumerate(links):
-                # Everything j holds except what came from the receiver: on a
-                # tree, own + the other neighbours' subtrees, disjoint sets.
-                out = held & ~st.inbox[self.reverse[link.id]]
-                if out != st.sent[link.id]:
-                    st.sent[link.id] = out
-                    items[idx].append((row, out))
-        for link, its in zip(links, items):
-            if its:
-                link.seq += 1
-                self.net.send(link, (link.seq, tuple(its)))
-
-
-class FloodExchange(Exchange):
-    """Relay every new contribution once along every out-link (digraphs)."""
-
-    def attach(self, network) -> None:
-        super().attach(network)
-        self._pending = [dict() for _ in network.links]
-
-    def _queue(self, j: int, row: int, bits: int, exclude: int) -> None:
-        for link in self.out_links[j]:
-            if link.dst != exclude:
-                p = self._pending[link.id]
-                p[row] = p.get(row, 0) | bits
-        self._schedule_flush(j)
-
-    def measure(self, row: int) -> None:
-        st = self.rows[row]
-        for i in self._measuring():
-            self._gain(i, row, st, 1 << i)
-            self._queue(i, row, 1 << i, -1)
-
-    def _accept(self, link, seq, row, st, mask) -> None:
-        j = link.dst
-        new = mask & ~st.held[j]
-        if new != mask:
-            self.duplicates += 1
-        if new:
-            self._gain(j, row, st, new)
-            self._queue(j, row, new, link.src)
-
-    def flush(self, j: int) -> None:
-        for link in self.out_links[j]:
-            p = self._pending[link.id]
-            if p:
-                items = tuple((row, m) for row, m in sorted(p.items()) if row in self.rows)
-                p.clear()
-                if items:
-                    link.seq += 1
-                    self.net.send(link, (link.seq, items))
-
-
-PROTOCOLS = {"tree": TreeExchange, "flood": FloodExchange}

@@ -1,0 +1,85 @@
+"""``dkfsim run`` (one scenario, one result folder) and ``dkfsim validate`` (check, run nothing)."""
+
+from __future__ import annotations
+
+import sys
+
+from tqdm import tqdm
+
+from dkfsim.cli.common import add_scenario_args, add_yes_arg, load_from_args
+from dkfsim.core.errors import DkfsimError
+from dkfsim.core.folders import check_target
+from dkfsim.core.resources import human_bytes, human_seconds
+from dkfsim.engine.driver import run
+from dkfsim.engine.estimate import check_run, estimate_run, exchange_shape
+from dkfsim.report.tables import run_table
+
+
+def add_command(sub) -> None:
+    p = sub.add_parser("run", help="simulate one scenario and write summary.json and run.npz",
+                       description="Simulate one scenario: truth, sensors, the SimPy network, every node's "
+                                   "anti-delay DKF, fusion and the baselines. Writes DIR/summary.json and "
+                                   "DIR/run.npz (the arrays listed in docs/design.md, section 8) and prints an MSE table. "
+                                   "DIR is replaced as a whole, atomically, when the run is done.")
+    add_scenario_args(p)
+    p.add_argument("--out", required=True, metavar="DIR", help="output folder (created if missing)")
+    p.add_argument("--seed", type=int, help="override the scenario seed (same as --set seed=N)")
+    p.add_argument("--steps", type=int, help="override the number of ticks K (same as --set steps=K)")
+    p.add_argument("--save", default="auto", choices=["auto", "full", "estimates", "summary"],
+                   help="what run.npz keeps: full (everything, including the n*n*K arrival log), "
+                        "estimates (no arrival log), summary (no run.npz); auto = full unless the "
+                        "arrival log would exceed 20 million entries (default: auto)")
+    p.add_argument("--burn-in", type=int, metavar="ROWS",
+                   help="rows skipped before averaging the MSE (default: 10%% of the ticks)")
+    p.add_argument("--quiet", action="store_true", help="no progress bar and no table")
+    add_yes_arg(p)
+    p.set_defaults(func=cmd_run)
+
+    p = sub.add_parser("validate", help="check a scenario file without running it",
+                       description="Load and validate a scenario (schema, matrices, topology, "
+                                   "protocol and buffer rules); print what would run, or the first "
+                                   "problem with its file and key path.")
+    add_scenario_args(p)
+    p.set_defaults(func=cmd_validate)
+
+
+def cmd_validate(args) -> int:
+    sc = load_from_args(args)
+    est = estimate_run(sc)
+    if est.seconds > 60:               # a large graph: do not spend minutes on its exact diameter
+        L, arcs, _ = exchange_shape(sc)
+        shape = f"{arcs} directed links, buffer length L ~ {L}"
+    else:
+        xg = sc.exchange()
+        shape = (f"{len(xg.arcs)} directed links (d_g = {xg.d_g}), buffer length "
+                 f"L = {sc.resolved_buffer_length()}")
+    print(f"{args.scenario}: ok — {sc.name}: {len(sc.sensors)} sensors, nx = {sc.nx}, "
+          f"{sc.steps} ticks of {sc.model.T} s, protocol {sc.protocol} on {shape} "
+          f"(d_t = {sc.resolved_d_t()}), fusion {sc.fusion}; a run needs about "
+          f"{human_bytes(est.bytes)} and {human_seconds(est.seconds)} (rough estimate)")
+    return 0
+
+
+def cmd_run(args) -> int:
+    sc = load_from_args(args)
+    if args.burn_in is not None and not 0 <= args.burn_in < sc.steps:
+        raise DkfsimError(f"--burn-in: must be in [0, steps) = [0, {sc.steps}), got {args.burn_in}")
+    check_target(args.out)                 # before the run: a bad --out costs nothing
+    check_run(sc, save=args.save, yes=args.yes)
+    progress = None
+    bar = None
+    if not args.quiet and sys.stderr.isatty():
+        bar = tqdm(total=sc.steps, unit="tick", desc=sc.name, leave=False)
+
+        def progress(k, K):
+            bar.update(k - bar.n)
+    try:
+        res = run(sc, save=args.save, progress=progress, yes=True)   # checked above
+    finally:
+        if bar is not None:
+            bar.close()
+    out = res.save(args.out, burn_in=args.burn_in)
+    if not args.quiet:
+        print(run_table(res, args.burn_in))
+        print(f"wrote {out / 'summary.json'}" + ("" if res.info["save"] == "summary" else f" and {out / 'run.npz'}"))
+    return 0

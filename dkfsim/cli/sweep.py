@@ -1,0 +1,132 @@
+"""``dkfsim sweep``: a grid of scenario keys x Monte Carlo runs into a resumable SQLite file."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+from dkfsim.cli.common import add_yes_arg
+from dkfsim.core.errors import DkfsimError
+from dkfsim.core.extras import optional
+from dkfsim.experiments import executors
+from dkfsim.experiments.sweep import (Sweep, export, is_database, load_sweep, run_sweep,
+                                      tasks_done)
+
+HELP = """\
+Run a parameter sweep: every parameter set of the grid (the cartesian product of the
+grid's value lists) times `runs` Monte Carlo runs, run r using seed
+derive_seed(scenario seed, r). Results go to an SQLite file, one transaction per task;
+interrupt it at any point (Ctrl-C, kill) and re-run the same command to resume: tasks
+already in the file are skipped.
+
+sweep file keys:
+  scenario   scenario file, relative to the sweep file (required)
+  grid       mapping of dotted scenario keys (as --set) to lists of values (default: none)
+  set        list of fixed "dotted.key=value" overrides, applied before the grid
+  runs       Monte Carlo runs per parameter set (default: 1)
+  burn_in    rows skipped before time averages (default: null = 10% of the ticks)
+  output     results database (default: <sweep file stem>.sqlite beside the sweep file)
+
+database: tables meta (the sweep definition), params (one row per parameter set, with its
+resolved scenario), tasks (one row per finished (param_hash, run)) and results (the tidy
+rows: one per parameter set, run, estimate and state component, with mse, anees,
+disagreement, messages_per_tick, bytes_per_tick, lost, late).
+
+examples:
+  dkfsim sweep scenarios/sweep_delay_bound.yaml --jobs 4
+  dkfsim sweep scenarios/sweep_delay_bound.yaml --dask-local 4 --export out/delay.parquet
+  dkfsim sweep scenarios/sweep_delay_bound.yaml --scheduler tcp://10.0.0.5:8786
+  dkfsim sweep scenarios/sweep_delay_bound.sqlite --export out/delay.csv     (export only)
+"""
+
+
+def add_command(subparsers) -> None:
+    p = subparsers.add_parser(
+        "sweep", help="parameter sweep x Monte Carlo runs into a resumable SQLite file",
+        description=HELP, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("file", metavar="FILE",
+                   help="a sweep YAML file to run or resume; or a sweep database (.sqlite) to "
+                        "export with --export, computing nothing")
+    where = p.add_mutually_exclusive_group()
+    where.add_argument("--jobs", type=int, metavar="J",
+                       help="local worker processes (1 = this process; default: every CPU)")
+    where.add_argument("--scheduler", metavar="tcp://HOST:PORT",
+                       help="run the tasks on an existing Dask distributed cluster (its workers "
+                            "need the same dkfsim installed); needs dkfsim[cluster]")
+    where.add_argument("--dask-local", type=int, metavar="N",
+                       help="start a Dask LocalCluster of N single-threaded worker processes on "
+                            "this machine; needs dkfsim[cluster]")
+    p.add_argument("--db", metavar="PATH",
+                   help="results database (overrides the sweep file's output)")
+    p.add_argument("--export", metavar="PATH",
+                   help="when the sweep is complete, write every result row to PATH (.csv or "
+                        ".parquet, by suffix; Parquet needs pyarrow), sorted by parameter set, "
+                        "run, estimate and component")
+    p.add_argument("--dry-run", action="store_true",
+                   help="validate, list the parameter sets and how many of their runs are done; "
+                        "compute nothing")
+    p.add_argument("--quiet", action="store_true", help="no progress bar and no summary lines")
+    add_yes_arg(p)
+    p.set_defaults(func=cmd_sweep)
+
+
+def cmd_sweep(args) -> int:
+    say = (lambda *a: None) if args.quiet else print
+    if is_database(args.file):
+        if args.export is None:
+            raise DkfsimError(f"{args.file} is a sweep database: give --export PATH to export "
+                              "it, or give the sweep YAML file to run or resume it")
+        if args.jobs is not None or args.scheduler or args.dask_local is not None or args.db:
+            raise DkfsimError(f"{args.file} is a sweep database: only --export applies "
+                              "(nothing is computed)")
+        out, n = export(args.file, args.export)
+        say(f"wrote {out} ({n} rows)")
+        return 0
+    sweep = load_sweep(args.file, output=args.db, yes=args.yes)
+    if args.dry_run:
+        return _dry_run(sweep, say)
+    if args.export is not None:
+        suffix = Path(args.export).suffix.lower()
+        if suffix not in (".csv", ".parquet", ".pq"):
+            raise DkfsimError(f"--export {args.export}: unknown format {suffix or '(no suffix)'!r}; "
+                              "use a .csv or .parquet file name")
+        if suffix != ".csv":
+            optional("pyarrow")            # a missing package is reported before any work
+    if args.scheduler is not None or args.dask_local is not None:
+        executors._distributed()          # a missing package is reported before any work
+
+    def make():
+        return executors.make_executor(jobs=args.jobs, scheduler=args.scheduler,
+                                       dask_local=args.dask_local)
+
+    say(f"{sweep.source}: {len(sweep.parameter_sets)} parameter set(s) x {sweep.runs} "
+        f"run(s) = {sweep.n_tasks} tasks -> {sweep.output}")
+    workers = args.jobs or args.dask_local or (1 if args.scheduler else executors.available_cpus())
+    rep = run_sweep(sweep, executor=make, progress=not args.quiet and sys.stderr.isatty(),
+                    yes=args.yes, workers=workers)
+    rate = f" on {rep.executor} ({rep.runs_per_minute:.1f} runs/min)" if rep.computed else ""
+    say(f"done: {rep.skipped} already in the database, {rep.computed} computed in "
+        f"{_duration(rep.wall_s)}{rate}")
+    if args.export is not None:
+        out, n = export(rep.db, args.export)
+        say(f"wrote {out} ({n} rows)")
+    return 0
+
+
+def _dry_run(sweep: Sweep, say) -> int:
+    done = tasks_done(sweep.output, sweep)
+    say(f"{sweep.source}: scenario {sweep.scenario_path}, {len(sweep.parameter_sets)} parameter "
+        f"set(s) x {sweep.runs} run(s) = {sweep.n_tasks} tasks; results in {sweep.output}")
+    for p in sweep.parameter_sets:
+        n = sum((p.param_hash, r) in done for r in range(sweep.runs))
+        say(f"  [{p.index}] {p.param_hash}  {n}/{sweep.runs} done  {p.describe()}")
+    return 0
+
+
+def _duration(s: float) -> str:
+    if s < 60:
+        return f"{s:.1f} s"
+    m, s = divmod(int(round(s)), 60)
+    h, m = divmod(m, 60)
+    return f"{h}h{m:02d}m{s:02d}s" if h else f"{m}m{s:02d}s"

@@ -1,0 +1,186 @@
+"""Registries: the named components a scenario can ask for, declared once.
+
+Each family (graph generators, latency models, protocols, estimators,
+sensor kinds, metrics) is a :class:`Registry` that implementations register
+into.  An entry carries the name a scenario uses, a one-line description,
+its parameter model (a pydantic class: the schema of its keys, with
+defaults) and its implementation.  The scenario schema looks components up
+here when it validates a file, so ``dkfsim.config`` never imports the
+stages that implement them, and a component added by a plugin is valid in
+every scenario key, every command and ``dkfsim list`` at once.
+
+Plugins: the entry-point group ``dkfsim.plugins`` (modules imported the
+first time a registry is read) and a scenario's ``plugins:`` key (modules
+or ``.py`` files imported before the scenario is validated).  Importing a
+plugin runs its code: that is what a plugin is for.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import importlib
+import importlib.util
+import sys
+from importlib.metadata import entry_points
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Callable, Iterator
+
+from dkfsim.core.errors import DkfsimError
+from dkfsim.core.files import clip
+from dkfsim.core.params import suggest
+
+
+@dataclass
+class Entry:
+    """One registered component."""
+
+    name: str
+    description: str = ""
+    params: type | None = None          # pydantic model of its scenario keys
+    implementation: Any = None          # class or function that does the work
+
+
+def _first_line(obj) -> str:
+    doc = (getattr(obj, "__doc__", None) or "").strip()
+    return doc.splitlines()[0].strip().rstrip(".").replace("``", "") if doc else ""
+
+
+class Registry:
+    """Named components of one family, in registration order."""
+
+    def __init__(self, family: str, key: str):
+        #: What a member is called in messages ("latency model").
+        self.family = family
+        #: The scenario key that names a member (``model``, ``kind``, ``generator``).
+        self.key = key
+        self._entries: dict[str, Entry] = {}
+        self._aliases: dict[str, str] = {}
+
+    # -- registering ---------------------------------------------------------
+    def add(self, name: str, *, params: type | None = None, implementation: Any = None,
+            description: str | None = None, aliases: tuple[str, ...] = ()) -> Entry:
+        """Add (or complete) entry ``name``: the parameter model and the implementation may
+        be registered by different modules (the first at the bottom layer, the second
+        in the stage that runs it)."""
+        entry = self._entries.get(name)
+        if entry is None:
+            entry = self._entries[name] = Entry(name)
+        if params is not None:
+            if entry.params is not None and entry.params is not params:
+                raise ValueError(f"{self.family} {name!r}: parameters registered twice")
+            entry.params = params
+        if implementation is not None:
+            if entry.implementation is not None and entry.implementation is not implementation:
+                raise ValueError(f"{self.family} {name!r}: implementation registered twice")
+            entry.implementation = implementation
+        if description is not None:
+            entry.description = description
+        elif not entry.description:
+            entry.description = _first_line(implementation) or _first_line(params)
+        for alias in aliases:
+            self._aliases[alias] = name
+        return entry
+
+    def register(self, name: str | None = None, **kw) -> Callable:
+        """Class decorator: ``@REGISTRY.register("name", params=...)`` registers the
+        decorated class as the implementation (and as the parameter model when it is
+        one: a class with ``model_fields``)."""
+        def deco(cls):
+            key = name or cls.__name__
+            if hasattr(cls, "model_fields") and "params" not in kw:
+                self.add(key, params=cls, implementation=kw.get("implementation", cls),
+                         description=kw.get("description"), aliases=kw.get("aliases", ()))
+            else:
+                self.add(key, implementation=cls, **kw)
+            return cls
+        return deco
+
+    # -- reading ---------------------------------------------------------------
+    def canonical(self, name: str) -> str:
+        """The registered name of ``name`` (itself, or what it is an alias of)."""
+        return self._aliases.get(name, name)
+
+    def get(self, name: Any) -> Entry:
+        """The entry named ``name`` (or an alias); :class:`KeyError` with the message
+        "unknown <family> 'x' (did you mean 'y'?); valid: ..." when there is none."""
+        load_entry_point_plugins()
+        key = self.canonical(name) if isinstance(name, str) else name
+        entry = self._entries.get(key) if isinstance(key, str) else None
+        if entry is None:
+            raise KeyError(self.unknown(name))
+        return entry
+
+    def unknown(self, name: Any) -> str:
+        """The message for a name that is not registered, with the closest one."""
+        names = self.names()
+        return f"unknown {self.family} {clip(name)}{suggest(name, names)}; valid: " + ", ".join(names)
+
+    def __contains__(self, name: object) -> bool:
+        return isinstance(name, str) and self.canonical(name) in self._entries
+
+    def names(self) -> list[str]:
+        load_entry_point_plugins()
+        return list(self._entries)
+
+    def entries(self) -> Iterator[Entry]:
+        load_entry_point_plugins()
+        return iter(list(self._entries.values()))
+
+    def aliases(self) -> dict[str, str]:
+        return dict(self._aliases)
+
+
+#: Every family, by the word ``dkfsim list`` uses.
+GENERATORS = Registry("graph generator", "generator")
+LATENCY_MODELS = Registry("latency model", "model")
+PROTOCOLS = Registry("protocol", "protocol")
+ESTIMATORS = Registry("estimator", "kind")
+SENSOR_KINDS = Registry("sensor kind", "kind")
+METRICS = Registry("metric", "metric")
+REGISTRIES: dict[str, Registry] = {
+    "generators": GENERATORS, "latency": LATENCY_MODELS, "protocols": PROTOCOLS,
+    "estimators": ESTIMATORS, "sensors": SENSOR_KINDS, "metrics": METRICS,
+}
+
+_PLUGINS_LOADED = False
+
+
+def load_entry_point_plugins() -> None:
+    """Import the modules of the ``dkfsim.plugins`` entry-point group, once."""
+    global _PLUGINS_LOADED
+    if _PLUGINS_LOADED:
+        return
+    _PLUGINS_LOADED = True
+    for ep in entry_points(group="dkfsim.plugins"):
+        try:
+            ep.load()
+        except Exception as exc:  # noqa: BLE001  (a broken plugin must not break dkfsim)
+            print(f"dkfsim: plugin {ep.name!r} ({ep.value}) failed to load: {exc}", file=sys.stderr)
+
+
+def load_plugin(spec: str, base_dir: str | None = None) -> None:
+    """Import a plugin: a module name (``my_pkg.my_estimator``) or a ``.py`` file
+    (relative paths resolve against ``base_dir``).  Raises :class:`DkfsimError`."""
+    if spec.endswith(".py"):
+        path = Path(spec)
+        if not path.is_absolute() and base_dir is not None:
+            path = Path(base_dir) / path
+        if not path.is_file():
+            raise DkfsimError(f"plugin file not found: {path}")
+        name = "dkfsim_plugin_" + hashlib.sha1(str(path.resolve()).encode()).hexdigest()[:16]
+        if name in sys.modules:
+            return
+        module_spec = importlib.util.spec_from_file_location(name, path)
+        module = importlib.util.module_from_spec(module_spec)
+        sys.modules[name] = module
+        try:
+            module_spec.loader.exec_module(module)
+        except Exception as exc:
+            del sys.modules[name]
+            raise DkfsimError(f"plugin {path} failed to load: {type(exc).__name__}: {exc}") from None
+        return
+    try:
+        importlib.import_module(spec)
+    except ImportError as exc:
+        raise DkfsimError(f"plugin module {spec!r} cannot be imported: {exc}") from None

@@ -1,0 +1,36 @@
+"""``local_only``: every node filters its own measurements only (no communication).
+
+Reported per node, ``(K, n, nx)``; metrics average over the nodes.  Its
+traffic is zero.  (The scenario key of earlier versions was ``local``,
+still accepted in a ``baselines:`` list.)
+"""
+
+from __future__ import annotations
+
+from dkfsim.core.registry import ESTIMATORS
+from dkfsim.core.resources import B_FLOAT, C_NODE_ROW, C_ROW, Cost
+from dkfsim.components.estimators import LocalOnlyParams
+from dkfsim.estimators.base import Estimate, Estimator, EstimatorResult
+from dkfsim.estimators.window import batched_filter
+
+
+class LocalOnly(Estimator):
+    """Each node's Kalman filter of its own measurements, batched over nodes."""
+
+    Params = LocalOnlyParams
+
+    @classmethod
+    def cost(cls, params, scenario, *, L: int, arcs: int, save: str = "estimates") -> Cost:
+        K, n, nx = int(scenario.steps), scenario.n, scenario.nx
+        return Cost(params.label, memory={"local_only": K * n * (nx + nx * nx) * B_FLOAT},
+                    seconds=K * (C_ROW + n * C_NODE_ROW))
+
+    def finish(self) -> EstimatorResult:
+        s = self.ctx.system
+        omega, theta = self.ctx.existing_information()
+        x, P = batched_filter(s.Phi, s.Q, s.x0_mean, s.P0, omega, theta)
+        zero = {"sent": 0, "delivered": 0, "lost": 0, "bytes": 0, "in_flight": 0, "late": 0}
+        return EstimatorResult({self.name: Estimate(x, P)}, traffic=zero)
+
+
+ESTIMATORS.add("local_only", implementation=LocalOnly)

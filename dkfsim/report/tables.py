@@ -1,0 +1,46 @@
+"""Tables printed for a person: a run's MSE per estimate and its packet counts."""
+
+from __future__ import annotations
+
+#: One line per estimate name that is not self-explanatory (the vocabulary of the README).
+DESCRIPTIONS = {
+    "fused": "the anti-delay DKF, fused ({fusion})",
+    "local": "the DKF nodes' own estimates (mean over nodes)",
+    "local_only": "each node alone (mean over nodes)",
+    "centralized": "every measurement on time",
+}
+
+
+def aligned(rows: list[tuple[str, ...]], left=(0,)) -> list[str]:
+    """Rows of cells as text lines: the columns in ``left`` left-aligned, the others
+    right-aligned; a rule under the header row."""
+    widths = [max(len(r[c]) for r in rows) for c in range(len(rows[0]))]
+    left = {c % len(widths) for c in left}
+    fmt = lambda r: "  " + "  ".join(c.ljust(w) if j in left else c.rjust(w)  # noqa: E731
+                                     for j, (c, w) in enumerate(zip(r, widths))).rstrip()
+    return [fmt(rows[0]), "  " + "  ".join("-" * w for w in widths)] + [fmt(r) for r in rows[1:]]
+
+
+def run_table(res, burn_in: int | None = None) -> str:
+    """MSE per state component of every estimate of a run, its packet counts, divergence."""
+    m = res.metrics(burn_in)
+    sc = res.scenario
+    rows = [("estimate", *res.components, "")]
+    for name in res.estimates:
+        what = DESCRIPTIONS.get(name, "").format(fusion=sc.fusion)
+        rows.append((name, *("%.4g" % v for v in m[name]), what))
+    lines = [f"{sc.name}: {sc.steps} ticks, {sc.n} nodes, protocol {sc.protocol}, "
+             f"L = {res.info['buffer_length']} (d_t = {res.info['d_t']}, d_g = {res.info['d_g']}), "
+             f"MSE after {m['burn_in']} burn-in rows"]
+    lines += aligned(rows, left=(0, -1))
+    c = res.counts
+    extra = "".join(f", {label} {c[key]}" for key, label in
+                    (("copies", "duplicate copies"), ("crash_dropped", "dropped at crashed nodes"))
+                    if c.get(key))
+    lines.append(f"packets: sent {c['sent']}, delivered {c['delivered']}, lost {c['lost']}, "
+                 f"in flight at end {c['in_flight']}{extra}; late contributions {c['late']}")
+    if res.diverged:
+        lines.append("DIVERGED: " + ", ".join(res.diverged) + " hold non-finite values (the "
+                     "model or the numbers overflow float64); their MSE is inf or nan")
+    lines.append(f"wall time {res.info['wall_time_s']:.2f} s")
+    return "\n".join(lines)

@@ -1,0 +1,197 @@
+"""docs/extending.md's examples run: one file (plus its registration) is all a component needs.
+
+Each example in docs/examples/ is loaded as a plugin (a scenario's ``plugins:``
+key, or the ``dkfsim.plugins`` entry point) and checked against an
+independent truth: the estimator against the mean it promises, computed here
+from the run's own local filters; the latency model against scipy's
+triangular law; the protocol against the arrival-log oracle; the metric
+against the squared errors.  The estimator then runs through ``montecarlo``,
+``sweep``, ``plot`` and ``maxdelay``'s Monte Carlo search with no other edit.
+Registrations are undone after each test, so the rest of the suite never
+sees them.
+"""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+from scipy import stats
+
+import dkfsim
+from conftest import scenario
+from dkfsim.core import registry
+from reference import node_estimates
+
+ROOT = Path(__file__).resolve().parents[1]
+EXAMPLES = ROOT / "docs" / "examples"
+CASE1 = ROOT / "scenarios" / "paper_case1.yaml"
+
+
+@pytest.fixture(autouse=True)
+def isolated_registries():
+    """Snapshot every registry and the loaded plugin modules; restore after the test."""
+    saved = {name: (dict(reg._entries), dict(reg._aliases)) for name, reg in registry.REGISTRIES.items()}
+    modules = set(sys.modules)
+    yield
+    for name, reg in registry.REGISTRIES.items():
+        reg._entries, reg._aliases = saved[name]
+    for m in set(sys.modules) - modules:
+        if m.startswith("dkfsim_plugin_") or m.startswith("dkfsim_test_entry"):
+            del sys.modules[m]
+
+
+def case1_with(tmp_path, steps=40, **keys) -> Path:
+    d = yaml.safe_load(CASE1.read_text())
+    d.pop("baselines", None)
+    d.update(steps=steps, **keys)
+    path = tmp_path / "s.yaml"
+    path.write_text(yaml.safe_dump(d))
+    return path
+
+
+def test_the_example_estimator_is_the_mean_it_promises(tmp_path):
+    path = case1_with(tmp_path, plugins=[str(EXAMPLES / "neighbour_mean.py")],
+                      links={"default": {"latency": {"model": "constant", "value": 0.0}}},
+                      estimators=[{"kind": "neighbour_mean"}, {"kind": "local_only"},
+                                  {"kind": "neighbour_mean", "name": "nm_half", "weight_self": 0.5}])
+    res = dkfsim.run(path)
+    own = res["x_local_only"]                          # each node's own Kalman filter
+    x, half = res["x_neighbour_mean"], res["x_nm_half"]
+    graph = res.scenario.exchange()
+    for i in range(res.scenario.n):
+        nbrs = [u for u, v in graph.arcs if v == i]
+        # zero latency: every neighbour's estimate of row r has arrived by the update at t_{r+1}
+        np.testing.assert_allclose(x[:, i], np.mean([own[:, i]] + [own[:, j] for j in nbrs], axis=0),
+                                   rtol=1e-12, atol=1e-12)
+        np.testing.assert_allclose(half[:, i], 0.5 * own[:, i] + 0.5 * np.mean([own[:, j] for j in nbrs], axis=0),
+                                   rtol=1e-12, atol=1e-12)
+    t = res.traffic["neighbour_mean"]
+    assert t["sent"] == 40 * len(graph.arcs) == t["delivered"] and t["bytes"] == t["sent"] * (16 + 8 * 3)
+    assert "neighbour_mean" in res.estimates and "neighbour_mean" in res.metrics()
+
+
+def test_two_estimators_sending_together_see_the_same_delays():
+    """Common random numbers on the shared network: the n-th packet two ports put on one link at
+    one instant takes the same latency (and fate), whatever else either port sent before."""
+    import simpy
+    from dkfsim.components.latency import Exponential
+    from dkfsim.components.faults import LinkSpec
+    from dkfsim.network.links import Network
+    env = simpy.Environment()
+    spec = LinkSpec(latency=Exponential(mean=0.05), loss=0.2)
+    net = Network(env, [(0, 1), (1, 0)], lambda u, v: spec, seed=7, T_ns=10_000_000)
+    got = {"a": [], "b": []}
+    ports = {name: net.port(name, lambda link, payload, name=name: got[name].append((payload, env.now)))
+             for name in got}
+    link = net.link(0, 1)
+
+    def sender(env):
+        for k in range(200):
+            extra = k % 3 == 0                   # port a sends two packets at some instants
+            for seq in range(2 if extra else 1):
+                ports["a"].send(link, (k, seq))
+            ports["b"].send(link, (k, 0))
+            yield env.timeout(10_000_000)
+    env.process(sender(env))
+    env.run()
+    a, b = dict(got["a"]), dict(got["b"])
+    assert len(b) > 100 and len(a) > len(b)                     # 20 % loss, two ports
+    assert all(a[key] == t for key, t in b.items())            # b's packets: a's first ones exactly
+    lost_b = {(k, 0) for k in range(200)} - set(b)
+    assert lost_b and not lost_b & set(a)                      # the same packets are lost too
+    second = [a[(k, 1)] - (k * 10_000_000) for k in range(0, 200, 3) if (k, 1) in a]
+    first = [a[(k, 0)] - (k * 10_000_000) for k in range(0, 200, 3) if (k, 0) in a]
+    assert second != first[:len(second)]                       # a second packet draws anew
+
+
+def test_the_example_estimator_runs_everywhere(tmp_path):
+    path = case1_with(tmp_path, steps=30, plugins=[str(EXAMPLES / "neighbour_mean.py")],
+                      estimators=[{"kind": "neighbour_mean"}, {"kind": "centralized"}])
+    mc = dkfsim.montecarlo(str(path), 3, jobs=2)
+    assert "neighbour_mean" in mc.estimates and mc.estimate_summary("neighbour_mean")["mse"]["position"] > 0
+    out = tmp_path / "mc"
+    mc.save(out)
+    from dkfsim.report.plots import load_folder, plot_folder
+    folder = load_folder(out)
+    assert "neighbour_mean" in folder.mse
+    assert plot_folder(folder, tmp_path / "figs", ("png",))
+    sweep = tmp_path / "sweep.yaml"
+    sweep.write_text(yaml.safe_dump({"scenario": str(path), "grid": {"links.default.latency.d_t": [0, 2]},
+                                     "runs": 2}))
+    rep = dkfsim.sweep(sweep, jobs=1)
+    from dkfsim.experiments.sweep import read_results
+    cols, rows = read_results(rep.db)
+    est = cols.index("estimate")
+    assert sum(r[est] == "neighbour_mean" for r in rows) == 2 * 2 * 3          # sets x runs x components
+    md = dkfsim.maxdelay(str(path), metric="mse", estimate="neighbour_mean", relative=3.0, max_runs=4,
+                         batch=2, max_delay=2)
+    assert md.to_dict()["empirical"]["candidates"]
+
+
+def test_the_example_latency_model_draws_its_law(tmp_path):
+    from dkfsim.core.registry import load_plugin
+    load_plugin(str(EXAMPLES / "triangular_latency.py"))
+    from dkfsim.components.latency import parse_latency
+    m = parse_latency({"model": "triangular", "low": 0.001, "mode": 0.004, "high": 0.01})
+    x = m.sample_ns(np.random.default_rng(3), 20_000, 10_000_000) / 1e9
+    law = stats.triang(c=(0.004 - 0.001) / 0.009, loc=0.001, scale=0.009)
+    assert stats.kstest(x, law.cdf).pvalue > 0.01
+    assert stats.kstest(x, stats.triang(c=0.5, loc=0.001, scale=0.009).cdf).pvalue < 1e-6
+    path = case1_with(tmp_path, plugins=[str(EXAMPLES / "triangular_latency.py")],
+                      links={"default": {"latency": {"model": "triangular", "low": 0.0, "mode": 0.01,
+                                                     "high": 0.025}}})
+    sc = dkfsim.load_scenario(path)
+    assert sc.resolved_d_t() == 3 and sc.resolved_buffer_length() == 3 * 4 + 1
+    res = dkfsim.run(sc)
+    assert res.counts["late"] == 0 and res.counts["delivered"] > 0
+    with pytest.raises(dkfsim.ScenarioError, match="low <= mode <= high"):
+        dkfsim.load_scenario(path, ["links.default.latency.mode=0.5"])
+
+
+def test_the_example_protocol_keeps_the_dkf_exact(tmp_path):
+    from dkfsim.core.registry import load_plugin
+    load_plugin(str(EXAMPLES / "tick_flood.py"))
+    d = scenario(6, steps=30, protocol="tick_flood", latency={"model": "uniform", "low": 0.0, "high": 0.25},
+                 fusion="none")
+    res = dkfsim.run(d, save="full")
+    ref = node_estimates(res.arrays)
+    np.testing.assert_allclose(res["x_local"], ref["x_local"], rtol=1e-9, atol=1e-11)
+    np.testing.assert_allclose(res["x_final"], ref["x_final"], rtol=1e-9, atol=1e-11)
+    # it is not flood: relays wait for ticks, so information reaches nodes later
+    flood = dkfsim.run({**d, "protocol": "flood"}, save="full")
+    assert np.sum(res["arrival"] > flood["arrival"]) > 0
+
+
+def test_the_example_metric_is_a_column_everywhere(tmp_path):
+    from dkfsim.core.registry import load_plugin
+    load_plugin(str(EXAMPLES / "peak_error.py"))
+    res = dkfsim.run(case1_with(tmp_path))
+    burn = res.metrics()["burn_in"]
+    for row in res.rows():
+        c = res.components.index(row["component"])
+        x = res[f"x_{row['estimate']}"]
+        err = (x - (res["truth"] if x.ndim == 2 else res["truth"][:, None, :])) ** 2
+        expected = (err if x.ndim == 2 else err.mean(axis=1))[burn:, c].max()
+        assert row["peak_error"] == pytest.approx(expected)
+    from dkfsim.analysis.metrics import row_columns
+    assert row_columns()[-1] == "peak_error"
+
+
+def test_an_entry_point_plugin_is_loaded(tmp_path, monkeypatch):
+    """The ``dkfsim.plugins`` entry-point group of an installed package (here a dist-info on
+    sys.path) is imported the first time a registry is read."""
+    site = tmp_path / "site"
+    pkg = site / "dkfsim_test_entry.py"
+    site.mkdir()
+    pkg.write_text((EXAMPLES / "peak_error.py").read_text())
+    dist = site / "dkfsim_test_entry-1.0.dist-info"
+    dist.mkdir()
+    (dist / "METADATA").write_text("Metadata-Version: 2.1\nName: dkfsim-test-entry\nVersion: 1.0\n")
+    (dist / "entry_points.txt").write_text("[dkfsim.plugins]\npeak = dkfsim_test_entry\n")
+    monkeypatch.syspath_prepend(str(site))
+    monkeypatch.setattr(registry, "_PLUGINS_LOADED", False)
+    assert "peak_error" in registry.METRICS.names()
