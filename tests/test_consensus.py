@@ -1,4 +1,4 @@
-"""The ``ci_consensus`` baseline (dkfsim/consensus.py, issue 3).
+"""The ``ci_consensus`` estimator (dkfsim/estimators/ci_consensus.py, issue 3).
 
 Oracles, each computed here independently of the engine's batched code:
 
@@ -8,7 +8,8 @@ Oracles, each computed here independently of the engine's batched code:
   adds the *average* information ``sum_o omega_o / n`` per row;
 * any latency, loss and number of rounds: a slow per-node reference of the
   documented semantics (explicit inverses, step-by-step prediction of stale
-  pairs, packet m on a link sees the m-th latency/loss draw of its streams);
+  pairs, a packet's latency and loss are the keyed draws of its link at its
+  send instant with seq 0: one packet per arc per round instant);
 * CI is conservative: mean NEES <= nx (with margin), with and without delays.
 """
 
@@ -34,19 +35,25 @@ def ci_scenario(n=6, *, rounds=1, steps=60, latency=None, loss=0.0, edges=None, 
                 protocol="tree", seed=1, nx=2, **kw):
     sc = scenario(n, nx=nx, steps=steps, latency=latency, loss=loss, edges=edges, directed=directed,
                   protocol=protocol, fusion="none", seed=seed, **kw)
-    sc["consensus_rounds"] = rounds
-    sc["baselines"] = []
+    sc["estimators"] = [{"kind": "ci_consensus", "rounds": rounds}]
     return sc
 
 
 def simulate(sc):
-    """A finished Simulation (the DKF run) and the baseline on its draws."""
+    """One run (the DKF and ci_consensus on the same draws): the run's context
+    (model, truth, measurements) and the ci_consensus arrays and side facts
+    (``_ci_consensus_<fact>``), the dict the old ``ci_consensus(sim)`` returned."""
     import dkfsim
-    from dkfsim.estimators.ci_consensus import ci_consensus
-    from dkfsim.engine.driver import Simulation
-    sim = Simulation(dkfsim.load_scenario(copy.deepcopy(sc)))
-    sim.run()
-    return sim, ci_consensus(sim)
+    from dkfsim.engine.driver import Run
+    run = Run(dkfsim.load_scenario(copy.deepcopy(sc)))
+    res = run.run()
+    name = "ci_consensus"
+    out = {f"x_{name}": res.arrays[f"x_{name}"], f"P_{name}": res.arrays[f"P_{name}"]}
+    for k in ("sent", "delivered", "lost", "in_flight"):
+        out[f"_{name}_{k}"] = res.traffic[name][k]
+    for k in ("rounds", "used", "stale"):
+        out[f"_{name}_{k}"] = res.facts[name][k]
+    return run.ctx, out
 
 
 def model_of(sim):
@@ -67,20 +74,21 @@ def local_filters(sim):
 # the slow reference of the documented semantics
 # ----------------------------------------------------------------------------
 
-def link_draws(sim, u, v, count):
-    """Latency (ns) and lost flag of packets 0..count-1 on link u -> v, drawn in
-    blocks of 256 from the link's two streams (as every link of dkfsim does)."""
-    from dkfsim.core.streams import stream
+def link_draws(sim, u, v, times):
+    """Latency (ns) and lost flag of the packets sent on link u -> v at the
+    instants ``times`` (ns), each the only packet (seq 0) its sender put on
+    the link at that instant: keyed draws, pure functions of (the link's named
+    key, the send instant, seq), as every link of dkfsim draws them."""
+    from dkfsim.core.streams import key64, keyed_uniform
     spec = sim.scenario.link_spec(u, v)
-    lat_rng = stream(sim.seed, "link", u, v, "latency")
-    loss_rng = stream(sim.seed, "link", u, v, "loss")
-    blocks = -(-count // 256)
-    lat = np.concatenate([np.asarray(spec.latency.sample_ns(lat_rng, 256, T_NS), dtype=np.int64)
-                          for _ in range(blocks)])[:count]
+    lat_key = key64(sim.seed, "link", u, v, "latency")
+    loss_key = key64(sim.seed, "link", u, v, "loss")
+    u_lat = np.array([keyed_uniform(lat_key, t, 0) for t in times])
+    lat = np.asarray(spec.latency.from_uniform(u_lat, T_NS), dtype=np.int64).reshape(len(times))
     if spec.loss > 0:
-        lost = np.concatenate([loss_rng.random(256) for _ in range(blocks)])[:count] < spec.loss
+        lost = np.array([keyed_uniform(loss_key, t, 0) for t in times]) < spec.loss
     else:
-        lost = np.zeros(count, dtype=bool)
+        lost = np.zeros(len(times), dtype=bool)
     return lat, lost
 
 
@@ -90,11 +98,11 @@ def reference_ci(sim, rounds):
     inv = np.linalg.inv
     n, nx, K = len(Hs), Phi.shape[0], sim.K
     dt = T_NS // rounds
-    arcs = list(sim.exchange_graph.arcs)
+    arcs = list(sim.scenario.exchange().arcs)
     indeg = [sum(1 for _, v in arcs if v == i) for i in range(n)]
     n_instants = K * rounds                      # packets sent per arc
-    draws = {a: link_draws(sim, a[0], a[1], n_instants) for a in arcs}
     time_of = lambda g: T_NS + g * dt            # noqa: E731
+    draws = {a: link_draws(sim, a[0], a[1], [time_of(g) for g in range(n_instants)]) for a in arcs}
     packets = {a: [] for a in arcs}             # (stamp, arrival time, Om, q)
     Om = [None] * n
     q = [None] * n
@@ -236,7 +244,7 @@ def test_against_the_slow_reference(case):
     ref.assert_close(out["x_ci_consensus"], xr, f"{case}: x", TOL)
     ref.assert_close(out["P_ci_consensus"], Pr, f"{case}: P", TOL)
     c = {k: out[f"_ci_consensus_{k}"] for k in ("sent", "delivered", "lost", "in_flight")}
-    assert c["sent"] == sim.K * rounds * len(sim.exchange_graph.arcs)
+    assert c["sent"] == sim.K * rounds * len(sim.scenario.exchange().arcs)
     assert c["sent"] == c["delivered"] + c["lost"] + c["in_flight"]
     if kw.get("loss"):
         assert c["lost"] > 0
@@ -257,7 +265,7 @@ def test_reference_detects_a_missing_prediction():
 
     consensus._Powers.get = no_prediction
     try:
-        bad = consensus.ci_consensus(sim)
+        _, bad = simulate(sc)
     finally:
         consensus._Powers.get = orig
     assert ref.rel_err(bad["x_ci_consensus"], out["x_ci_consensus"]) > 1e-6
@@ -320,9 +328,11 @@ def test_rounds_must_divide_the_period():
 def test_end_to_end_through_run():
     import dkfsim
     sc = ci_scenario(6, rounds=2, steps=50, latency={"model": "uniform_steps", "d_t": 2})
-    sc["baselines"] = ["ci_consensus"]
-    res = dkfsim.run(dkfsim.load_scenario(copy.deepcopy(sc)))
+    old = {k: v for k, v in copy.deepcopy(sc).items() if k != "estimators"}
+    old["baselines"] = ["ci_consensus"]          # the old spelling, converted
+    old["consensus_rounds"] = sc["estimators"][0]["rounds"]
+    res = dkfsim.run(dkfsim.load_scenario(old))
     _, direct = simulate(sc)
     assert np.array_equal(np.asarray(res["x_ci_consensus"]), direct["x_ci_consensus"])
-    assert res.counts["ci_consensus_sent"] == direct["_ci_consensus_sent"] > 0
+    assert res.traffic["ci_consensus"]["sent"] == direct["_ci_consensus_sent"] > 0
     assert "ci_consensus" in res.metrics()

@@ -17,8 +17,8 @@ from reference import assert_close, centralized, node_estimates
 @pytest.mark.parametrize("many_bits", [0, 10**9], ids=["numpy-unpacking", "per-origin"])
 @pytest.mark.parametrize("protocol", ["tree", "flood"])
 def test_forty_nodes_match_the_arrival_log_reference(protocol, many_bits, monkeypatch):
-    import dkfsim.protocols.exchange
-    monkeypatch.setattr(dkfsim.protocols.exchange, "_MANY_BITS", many_bits)
+    import dkfsim.protocols.base
+    monkeypatch.setattr(dkfsim.protocols.base, "_MANY_BITS", many_bits)
     d = scenario(40, steps=25, generator="random_tree", params={"seed": 4},
                  latency={"model": "uniform_steps", "d_t": 1}, fusion="none", protocol=protocol)
     res = dkfsim.run(dkfsim.load_scenario(d))

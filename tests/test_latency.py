@@ -6,8 +6,10 @@ import numpy as np
 import pytest
 from pydantic import ValidationError
 
-from dkfsim.components.latency import (LATENCY_MODELS, Constant, Exponential, LatencyBase, Uniform,
-                            UniformSteps, parse_latency, register, seconds_to_ns)
+from dkfsim.components.latency import (Constant, Exponential, LatencyParams, Uniform, UniformSteps,
+                                       parse_latency)
+from dkfsim.core.params import seconds_to_ns
+from dkfsim.core.registry import LATENCY_MODELS
 
 T_NS = 10_000_000  # T = 0.01 s
 N = 200_000
@@ -165,21 +167,23 @@ def test_invalid_parameters_rejected(spec):
 
 
 def test_registry_lists_models():
-    assert set(LATENCY_MODELS) >= {"constant", "uniform_steps", "uniform", "exponential"}
-    for name, cls in LATENCY_MODELS.items():
-        assert issubclass(cls, LatencyBase)
-        assert cls.model_fields["model"].default == name
+    assert set(LATENCY_MODELS.names()) >= {"constant", "uniform_steps", "uniform", "exponential"}
+    for entry in LATENCY_MODELS.entries():
+        cls = entry.params
+        assert issubclass(cls, LatencyParams)
+        assert cls.model_fields["model"].default == entry.name
+        assert entry.name in LATENCY_MODELS
 
 
 def test_register_rejects_duplicate_name():
     from typing import Literal
 
-    class Again(LatencyBase):
+    class Again(LatencyParams):
         model: Literal["constant"] = "constant"
 
     with pytest.raises(ValueError):
-        register(Again)
-    assert LATENCY_MODELS["constant"] is Constant
+        LATENCY_MODELS.register("constant")(Again)
+    assert LATENCY_MODELS.get("constant").params is Constant
 
 
 def test_models_are_frozen():
@@ -196,8 +200,8 @@ from scipy import stats  # noqa: E402
 
 from dkfsim.core.datafiles import DATA_DIR, resolve_data_file  # noqa: E402
 from dkfsim.components.latency import (Empirical, GilbertElliott, Gamma, Lognormal,  # noqa: E402
-                            Pareto, read_column)
-from dkfsim.core.streams import stream  # noqa: E402
+                                       Pareto, read_column)
+from dkfsim.core.streams import key64, keyed_uniform, keyed_uniforms  # noqa: E402
 
 CICV = DATA_DIR / "cicv5g"                  # shipped inside the package
 URBAN = CICV / "urban_n8_v30_run01.txt"
@@ -308,22 +312,43 @@ def test_empirical_resample_reproduces_the_trace_distribution():
     assert stats.ks_2samp(s, trace_ns * 1.1).pvalue < 1e-4
 
 
-def test_empirical_replay_plays_the_trace_in_order_and_cycles():
+def _free_start(seed, u, v, rows):
+    """The replay start of link (u, v) when the scenario gives none: one keyed draw
+    from the link's ``start`` name."""
+    return min(int(keyed_uniform(key64(seed, "link", u, v, "start"), 0, 0) * rows), rows - 1)
+
+
+def test_empirical_replay_plays_one_row_per_tick_and_cycles():
     raw = read_column(URBAN, "delay_ms")
     m = parse_latency({"model": "empirical", "file": str(URBAN), "mode": "replay",
                        "start": 4430, "unit": "ms", "scale": 2.0})
-    s = m.sample_ns(rng(), 10, T_NS)
-    expect = np.concatenate([raw[4430:], raw[:8]]) * 2e6
-    assert np.array_equal(s, expect.astype(np.int64))
-    # a link's sampler: a random start from its latency stream, then consecutive rows
+    expect = (np.concatenate([raw[4430:], raw[:8]]) * 2e6).astype(np.int64)
+    smp = m.sampler(("link", 0, 1), 7, T_NS)
+    # a packet sent during tick k (t in [k T, (k+1) T)) takes row start + k, cycling,
+    # whatever its instant inside the tick and its number among that instant's packets
+    for k in range(10):
+        for t in (k * T_NS, k * T_NS + 1, k * T_NS + T_NS // 2, (k + 1) * T_NS - 1):
+            for seq in (0, 1, 5):
+                assert smp.draw(t, seq) == (int(expect[k]), False), (k, t, seq)
+    # the row is a function of the send instant only: a fresh sampler (another link,
+    # another seed: the start is explicit) queried backwards gives the same rows
+    other = m.sampler(("link", 3, 2), 99, T_NS)
+    assert [other.draw(k * T_NS, 0)[0] for k in reversed(range(10))] == expect[::-1].tolist()
+    # a link's sampler without start: a random start keyed by the link, then one row per
+    # tick (6000 ticks: the trace of 4432 rows cycles)
     free = parse_latency({"model": "empirical", "file": str(URBAN), "mode": "replay"})
-    smp = free.sampler(lambda *name: stream(7, "link", 0, 1, *name), T_NS)
-    a, _ = smp.block(3000)
-    b, _ = smp.block(3000)
-    seq = np.concatenate([a, b])
-    start = int(stream(7, "link", 0, 1, "latency").integers(0, len(raw)))
-    idx = (start + np.arange(6000)) % len(raw)
-    assert np.array_equal(seq, (raw[idx] * 1e6).astype(np.int64))
+    smp = free.sampler(("link", 0, 1), 7, T_NS)
+    ticks = np.arange(6000)
+    got = np.array([smp.draw(int(k) * T_NS + int(k * 7919) % T_NS, int(k) % 3)[0] for k in ticks])
+    start = _free_start(7, 0, 1, len(raw))
+    idx = (start + ticks) % len(raw)
+    assert np.array_equal(got, (raw[idx] * 1e6).astype(np.int64))
+    # each link draws its own start
+    starts = {_free_start(7, u, v, len(raw)) for u, v in ((0, 1), (1, 0), (1, 2), (2, 1))}
+    assert len(starts) > 1
+    first = {free.sampler(("link", u, v), 7, T_NS).draw(0, 0)[0] for u, v in ((0, 1), (1, 0), (1, 2), (2, 1))}
+    assert first == {int(raw[_free_start(7, u, v, len(raw))] * 1e6)
+                     for u, v in ((0, 1), (1, 0), (1, 2), (2, 1))}
 
 
 def test_empirical_csv_relative_path_and_errors(tmp_path):
@@ -332,7 +357,9 @@ def test_empirical_csv_relative_path_and_errors(tmp_path):
     (sub / "trace.csv").write_text("# a comment\nt,lat_s\n0,0.010\n1,0.030\n\n2,0.020\n")
     m = parse_latency({"model": "empirical", "file": "trace.csv", "column": "lat_s",
                        "unit": "s", "mode": "replay", "start": 0}, base_dir=sub)
-    assert m.sample_ns(rng(), 4, T_NS).tolist() == [10_000_000, 30_000_000, 20_000_000, 10_000_000]
+    smp = m.sampler(("link", 0, 1), 1, T_NS)          # replay: one row per tick
+    assert [smp.draw(k * T_NS, 0)[0] for k in range(4)] == [10_000_000, 30_000_000, 20_000_000,
+                                                             10_000_000]
     assert m.bound_steps(T_NS) == 3
     path, tried = resolve_data_file("trace.csv", tmp_path)
     assert path is None and tried == [tmp_path / "trace.csv"]     # the scenario's folder only
@@ -352,35 +379,73 @@ def _ge(p_gb, p_bg, **kw):
                           good=Constant(value=0.001), bad=Constant(value=0.1), **kw)
 
 
-def test_gilbert_elliott_stationary_fraction_and_burst_length():
+def test_gilbert_elliott_stationary_fraction_and_burst_length_per_tick():
+    """The chain steps once per tick per link: the fraction of bad TICKS is the
+    stationary law, bad bursts last 1 / p_bad_to_good ticks on average, and every
+    packet sent during a tick sees that tick's state (its loss drawn per packet)."""
     p_gb, p_bg = 0.05, 0.2
     m = _ge(p_gb, p_bg, loss_good=0.01, loss_bad=0.4)
-    smp = m.sampler(lambda *name: stream(3, "link", 0, 1, *name), T_NS)
-    lats, losts = zip(*(smp.block(256) for _ in range(800)))      # 204 800 packets
-    lat, lost = np.concatenate(lats), np.concatenate(losts)
-    bad = lat == 100_000_000
-    assert abs(bad.mean() - p_gb / (p_gb + p_bg)) < 0.01            # 0.2
-    # runs of consecutive bad packets: geometric with mean 1 / p_bg = 5
+    smp = m.sampler(("link", 0, 1), 3, T_NS)
+    n = 204_800                                                     # ticks
+    bad = np.array([smp.state(k) for k in range(n)])
+    assert abs(bad.mean() - m.stationary_bad()) < 0.01              # 0.2
+    assert m.stationary_bad() == pytest.approx(p_gb / (p_gb + p_bg))
+    # runs of consecutive bad ticks: geometric with mean 1 / p_bg = 5
     edges = np.diff(np.concatenate([[0], bad.astype(int), [0]]))
     runs = np.flatnonzero(edges == -1) - np.flatnonzero(edges == 1)
     assert abs(runs.mean() - 1 / p_bg) < 0.15
     good_runs_mean = (len(bad) - bad.sum()) / len(runs)
     assert abs(good_runs_mean - 1 / p_gb) < 1.0
-    # losses per state
-    assert abs(lost[bad].mean() - 0.4) < 0.01
-    assert abs(lost[~bad].mean() - 0.01) < 0.002
     # an i.i.d. channel with the same bad fraction has runs of mean 1/(1-0.2) = 1.25: the
     # burstiness test can fail
     assert runs.mean() > 3
+    # two packets per tick, at different instants of the tick: both see the tick's state
+    offs = np.random.default_rng(0).integers(0, T_NS, size=n)
+    d0 = [smp.draw(k * T_NS, 0) for k in range(n)]
+    d1 = [smp.draw(k * T_NS + int(o), 1) for k, o in zip(range(n), offs)]
+    lat0 = np.array([d[0] for d in d0])
+    lat1 = np.array([d[0] for d in d1])
+    lost0 = np.array([d[1] for d in d0])
+    lost1 = np.array([d[1] for d in d1])
+    assert np.array_equal(lat0 == 100_000_000, bad) and np.array_equal(lat1 == 100_000_000, bad)
+    assert np.all((lat0 == 100_000_000) | (lat0 == 1_000_000))
+    # losses per state
+    assert abs(lost0[bad].mean() - 0.4) < 0.01
+    assert abs(lost0[~bad].mean() - 0.01) < 0.002
+    assert abs(lost1[bad].mean() - 0.4) < 0.01
+    # ... drawn per packet: two packets of one bad tick are lost independently
+    both = (lost0 & lost1)[bad].mean()
+    assert abs(both - 0.4 ** 2) < 0.01, both
+    # the states are a function of the tick: a fresh sampler queried out of order agrees
+    again = m.sampler(("link", 0, 1), 3, T_NS)
+    probe = np.random.default_rng(1).integers(0, n, size=500)
+    assert all(again.state(int(k)) == bad[k] for k in probe[::-1])
+    assert [again.draw(int(k) * T_NS, 0) for k in probe] == [d0[k] for k in probe]
+    # another link has its own chain
+    other = m.sampler(("link", 1, 0), 3, T_NS)
+    other_bad = np.array([other.state(k) for k in range(n)])
+    assert abs(other_bad.mean() - m.stationary_bad()) < 0.01
+    assert abs(np.corrcoef(bad, other_bad)[0, 1]) < 0.02
+
+
+def test_gilbert_elliott_stationary_initial_state():
+    """initial: stationary starts each link's chain bad with the stationary probability."""
+    m = _ge(0.05, 0.2)
+    first = np.array([m.sampler(("link", i, i + 1), 11, T_NS).state(0) for i in range(4000)])
+    p = m.stationary_bad()
+    assert abs(first.mean() - p) < 5 * np.sqrt(p * (1 - p) / len(first))
 
 
 def test_gilbert_elliott_initial_state_and_no_loss():
-    smp = _ge(0.0, 0.5, initial="good").sampler(lambda *n: stream(1, *n), T_NS)
-    lat, lost = smp.block(100)
-    assert lost is None and np.all(lat == 1_000_000)
-    smp = _ge(0.0, 1.0, initial="bad").sampler(lambda *n: stream(1, *n), T_NS)
-    lat, _ = smp.block(5)
-    assert lat.tolist() == [100_000_000] + [1_000_000] * 4
+    smp = _ge(0.0, 0.5, initial="good").sampler(("link", 0, 1), 1, T_NS)
+    assert [smp.draw(k * T_NS, 0) for k in range(100)] == [(1_000_000, False)] * 100
+    assert not any(smp.state(k) for k in range(100))
+    smp = _ge(0.0, 1.0, initial="bad").sampler(("link", 0, 1), 1, T_NS)
+    assert [smp.draw(k * T_NS, 0)[0] for k in range(5)] == [100_000_000] + [1_000_000] * 4
+    assert [smp.state(k) for k in range(5)] == [True] + [False] * 4
+    # every packet of the bad tick 0 is bad; no loss model: never lost
+    assert {smp.draw(t, q) for t in (0, 1, T_NS - 1) for q in range(4)} == {(100_000_000, False)}
+    assert {smp.draw(T_NS + t, q) for t in (0, 1, T_NS - 1) for q in range(4)} == {(1_000_000, False)}
     # stateless sample_ns: reproducible from the generator
     m = _ge(0.1, 0.3)
     assert np.array_equal(m.sample_ns(rng(5), (4, 5), T_NS), m.sample_ns(rng(5), (4, 5), T_NS))
@@ -399,12 +464,48 @@ def test_new_models_round_trip(spec):
     assert parse_latency(m.to_dict()) == m
 
 
-def test_iid_sampler_gives_the_sample_ns_draws():
-    """A link draws i.i.d. models through ``sampler``: the same stream, the same blocks."""
+def test_iid_sampler_draws_are_keyed_quantiles():
+    """A link draws i.i.d. models through ``sampler``: the model's quantile function of
+    one keyed uniform per (send instant, seq) -- a pure function of the link, the
+    instant and the packet's number at that instant, whatever was drawn before."""
+    g = np.random.default_rng(0)
+    ts = g.integers(0, 10**12, size=3000)
+    seqs = g.integers(0, 5, size=3000)
     for m in (UniformSteps(d_t=4), Uniform(high=0.02), Exponential(mean=0.005),
               Lognormal(median=0.01, sigma=0.3)):
-        smp = m.sampler(lambda *name: stream(9, "link", 2, 3, *name), T_NS)
-        a = np.concatenate([smp.block(256)[0] for _ in range(3)])
-        ref_rng = stream(9, "link", 2, 3, "latency")
-        b = np.concatenate([m.sample_ns(ref_rng, 256, T_NS) for _ in range(3)])
+        smp = m.sampler(("link", 2, 3), 9, T_NS)
+        draws = [smp.draw(int(t), int(q)) for t, q in zip(ts, seqs)]
+        a = np.array([d[0] for d in draws])
+        assert not any(d[1] for d in draws)                           # i.i.d. models never lose
+        key = key64(9, "link", 2, 3, "latency")
+        assert np.array_equal(a, m.from_uniform(keyed_uniforms(key, ts, seqs), T_NS))
+        assert a[0] == int(m.from_uniform(keyed_uniform(key, int(ts[0]), int(seqs[0])), T_NS))
+        # pure: a fresh sampler queried in reverse order gives the same draws
+        again = m.sampler(("link", 2, 3), 9, T_NS)
+        b = np.array([again.draw(int(t), int(q))[0] for t, q in zip(ts[::-1], seqs[::-1])])[::-1]
         assert np.array_equal(a, b)
+        # another link, another seed, another seq: other draws
+        for o in (m.sampler(("link", 3, 2), 9, T_NS), m.sampler(("link", 2, 3), 10, T_NS)):
+            c = np.array([o.draw(int(t), int(q))[0] for t, q in zip(ts, seqs)])
+            assert np.mean(a == c) < 0.3
+        c = np.array([smp.draw(int(t), int(q) + 1)[0] for t, q in zip(ts, seqs)])
+        assert np.mean(a == c) < 0.3
+
+
+def test_keyed_draws_follow_the_model_law():
+    """The keyed uniforms over a run's send instants and seqs are U(0, 1), so a link's
+    draws follow the law sample_ns follows (KS, with power to reject a 10 % error)."""
+    key = key64(4, "link", 0, 1, "latency")
+    k = np.arange(N_KS)
+    t, q = (k // 2) * T_NS, k % 2                              # two packets per tick
+    u = keyed_uniforms(key, t, q)
+    assert u.min() > 0 and u.max() < 1
+    assert stats.kstest(u, "uniform").pvalue > 0.01
+    assert all(keyed_uniform(key, int(a), int(b)) == v for a, b, v in zip(t[:200], q[:200], u[:200]))
+    m = Exponential(mean=0.01, offset=0.002)
+    smp = m.sampler(("link", 0, 1), 4, T_NS)
+    x = np.array([smp.draw(int(a), int(b))[0] for a, b in zip(t, q)]) / 1e9 - 0.002
+    assert stats.kstest(x, stats.expon(scale=0.01).cdf).pvalue > 0.01
+    assert stats.kstest(x, stats.expon(scale=0.011).cdf).pvalue < 1e-4
+    y = _seconds(m, offset=0.002)
+    assert stats.ks_2samp(x, y).pvalue > 0.01

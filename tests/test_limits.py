@@ -2,19 +2,22 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import pytest
 
 import dkfsim
-import dkfsim.engine.driver as simulation
+import dkfsim.config.schema as schema
+import dkfsim.estimators.anti_delay as anti_delay
 from conftest import scenario
 from dkfsim.core.errors import ScenarioError
 
 
 def test_matrix_fusion_too_large_is_a_clear_error(monkeypatch):
-    monkeypatch.setattr(simulation, "FUSION_MEMORY_LIMIT", 1_000)   # (L+1)(n nx)^2 8 = 4096 B here
-    sc = dkfsim.load_scenario(scenario(8, steps=5))
+    monkeypatch.setattr(schema, "FUSION_MEMORY_LIMIT", 1_000)   # (L+1)(n nx)^2 8 = 4096 B here
+    # checked when the scenario is validated
     with pytest.raises(ScenarioError, match="fusion: matrix keeps the cross-covariances") as err:
-        dkfsim.run(sc)
+        dkfsim.load_scenario(scenario(8, steps=5))
     assert "fusion: none" in str(err.value) and "fusion" == err.value.path
     # fusion: none runs.
     assert dkfsim.run(dkfsim.load_scenario(scenario(8, steps=5, fusion="none")))["x_local"].shape == (5, 8, 2)
@@ -24,19 +27,19 @@ def test_p_local_is_kept_only_when_it_will_be_saved_and_fits(monkeypatch):
     sc = dkfsim.load_scenario(scenario(4, steps=6))
     assert "P_local" in dkfsim.run(sc, save="estimates").arrays
     assert "P_local" not in dkfsim.run(sc, save="summary").arrays
-    monkeypatch.setattr(simulation, "P_LOCAL_LIMIT", 10)
+    monkeypatch.setattr(anti_delay, "P_LOCAL_LIMIT", 10)
     res = dkfsim.run(sc, save="full")
     assert "P_local" not in res.arrays and "x_local" in res.arrays and "arrival" in res.arrays
 
 
 def test_late_bookkeeping_is_bounded_by_the_latency_bound():
     bounded = dkfsim.load_scenario(scenario(4, latency={"model": "uniform_steps", "d_t": 3}))
-    assert simulation.late_horizon(bounded, 4, 7) == 5
+    assert anti_delay.late_horizon(bounded, 4, 7) == 5
     unbounded = dkfsim.load_scenario(scenario(4, latency={"model": "exponential", "mean": 0.1},
                                               buffer_length=3))
-    assert simulation.late_horizon(unbounded, 4, 3) == 4096
+    assert anti_delay.late_horizon(unbounded, 4, 3) == 4096
     # 1000 nodes: the kept holdings stay near 64 MB instead of ~0.7 GB.
-    assert simulation.late_horizon(unbounded, 1000, 3) < 500
+    assert anti_delay.late_horizon(unbounded, 1000, 3) < 500
 
 
 def test_a_delay_bound_longer_than_the_run_costs_no_memory():
@@ -69,3 +72,18 @@ def test_montecarlo_with_one_run_writes_valid_json(tmp_path):
     montecarlo(dkfsim.load_scenario(scenario(3, steps=10)), 1).save(tmp_path)
     summary = json.loads((tmp_path / "summary.json").read_text())
     assert summary["runs"] == 1
+
+
+def test_an_anti_delay_instance_with_a_huge_fusion_ring_is_refused_before_its_first_tick(monkeypatch):
+    """Validation bounds the scenario's own fusion ring; a second anti-delay DKF with
+    its own long buffer is checked exactly when it starts, before any tick."""
+    monkeypatch.setattr(anti_delay, "FUSION_MEMORY_LIMIT", 100 * 36 * 36 * 8)   # 100 rows of 12 x 3 states
+    case1 = Path(__file__).resolve().parents[1] / "scenarios" / "paper_case1.yaml"
+    sc = dkfsim.load_scenario(case1, overrides=[
+        "steps=300", "estimators=[{kind: centralized}, {kind: anti_delay_dkf, name: long, buffer_length: 150}]"])
+    with pytest.raises(ScenarioError, match=r"estimators\.1: fusion: matrix .* 151 window rows") as err:
+        dkfsim.run(sc)
+    assert "paper_case1.yaml" in str(err.value)
+    ok = dkfsim.load_scenario(case1, overrides=[
+        "steps=300", "estimators=[{kind: anti_delay_dkf, name: short, buffer_length: 90}]"])
+    assert dkfsim.run(ok).estimates[-1] == "short"

@@ -106,17 +106,25 @@ def test_nees_per_tick_single_and_per_node():
 
 
 def test_packet_bytes_nominal_size():
-    # paper case 1: nx = 3 (3 + 6 numbers = 72 bytes), 12 nodes (2 bitmask bytes), 16 header bytes
-    assert M.packet_bytes(3, 12) == 16 + 72 + 2
-    assert M.packet_bytes(3, 12, rows=3) == 16 + 3 * 74
-    assert M.packet_bytes(2, 8) == 16 + 8 * 5 + 1
-    assert M.packet_bytes(2, 9) == 16 + 8 * 5 + 2
+    # Bytes are counted per packet by the port: header + rows * row_bytes (the row number,
+    # theta and the upper triangle of omega as 8-byte floats, the origin bitmask).
+    from dkfsim.protocols.base import PACKET_HEADER, row_bytes
+
+    def packet_bytes(nx, n, rows=1):
+        return PACKET_HEADER + rows * row_bytes(nx, n)
+    # paper case 1: nx = 3 (3 + 6 numbers = 72 bytes), 12 nodes (2 bitmask bytes), 16 header
+    # bytes, 8 bytes of row number per row
+    assert packet_bytes(3, 12) == 16 + 8 + 72 + 2
+    assert packet_bytes(3, 12, rows=3) == 16 + 3 * (8 + 74)
+    assert packet_bytes(2, 8) == 16 + 8 + 8 * 5 + 1
+    assert packet_bytes(2, 9) == 16 + 8 + 8 * 5 + 2
 
 
 def test_existing_run_metrics_still_work():
     truth = np.zeros((4, 2))
     arrays = {"truth": truth, "x_local": np.ones((4, 3, 2)), "x_fused": np.full((4, 2), 2.0),
               "x_centralized": np.zeros((4, 2)), "x_final": np.ones((4, 3, 2)), "x0_mean": np.zeros(2)}
-    m = M.run_metrics(arrays, burn_in=1)
-    assert m["fused"] == [4.0, 4.0] and m["local_mean"] == [1.0, 1.0] and m["centralized"] == [0.0, 0.0]
-    assert set(m) == {"burn_in", "fused", "local_mean", "centralized"}
+    from dkfsim.engine.results import RunResult
+    m = RunResult(None, arrays, {}, {}).metrics(burn_in=1)      # run_metrics is res.metrics()
+    assert m["fused"] == [4.0, 4.0] and m["local"] == [1.0, 1.0] and m["centralized"] == [0.0, 0.0]
+    assert set(m) == {"burn_in", "fused", "local", "centralized"}

@@ -4,7 +4,7 @@
 * run r does not depend on N (its seed is ``derive_seed(seed, r)``);
 * the centralized Kalman filter's Monte Carlo MSE matches the steady-state Riccati covariance
   (solved independently with scipy), and the exact filters' ANEES lies in its chi-square band;
-* with delays on paper case 1: centralized < anti-delay DKF < no buffer, and < local, each
+* with delays on paper case 1: centralized < anti-delay DKF (fused) < no buffer, and < local_only, each
   asserted per component with a one-sided paired t bound over independent runs.
 """
 
@@ -28,8 +28,8 @@ from dkfsim import load_scenario
 
 from dkfsim.cli import main as cli
 from dkfsim.core.errors import DkfsimError
-from dkfsim.analysis.metrics import nees_band, paired_lower_bound
-from dkfsim.experiments.montecarlo import CSV_COLUMNS, derive_seed, montecarlo, run_rows
+from dkfsim.analysis.metrics import nees_band, paired_lower_bound, row_columns
+from dkfsim.experiments.montecarlo import derive_seed, montecarlo, run_rows
 
 ROOT = Path(__file__).resolve().parents[1]
 CASE1 = ROOT / "scenarios" / "paper_case1.yaml"
@@ -62,7 +62,7 @@ def test_run_r_is_the_same_whatever_the_number_of_runs():
     two, three = montecarlo(sc, 2), montecarlo(sc, 3)
     assert repr(two.rows) == repr(three.rows[:len(two.rows)])       # repr: nan == nan
     rows, curves = run_rows(sc, derive_seed(sc.seed, 2))
-    assert repr([{"run": 2, **r} for r in rows]) == repr([r for r in three.rows if r["run"] == 2])
+    assert repr([{**r, "run": 2} for r in rows]) == repr([r for r in three.rows if r["run"] == 2])
     assert rows[0]["seed"] == derive_seed(sc.seed, 2)
     np.testing.assert_array_equal(three.example["example_truth"], run_rows(sc, three.seeds[0])[1]["example_truth"])
 
@@ -103,14 +103,14 @@ def test_a_failing_run_is_reported_by_run_and_seed_whatever_the_jobs(tmp_path, c
     import dkfsim.engine.driver
     from dkfsim.core.errors import ScenarioError
     bad = {derive_seed(0, 2), derive_seed(0, 4)}
-    original = dkfsim.engine.driver.Simulation.run
+    original = dkfsim.engine.driver.Run.run
 
     def flaky(self):
-        if self.seed in bad:
+        if int(self.scenario.seed) in bad:
             raise ScenarioError("simulated failure", source=self.scenario.source)
         return original(self)
 
-    monkeypatch.setattr(dkfsim.engine.driver.Simulation, "run", flaky)
+    monkeypatch.setattr(dkfsim.engine.driver.Run, "run", flaky)
     spec = tmp_path / "s.yaml"
     spec.write_text(yaml.safe_dump(scenario(4, steps=10, seed=0)))
     errs = []
@@ -130,7 +130,7 @@ def test_jobs_1_and_2_write_identical_results(tmp_path):
         p = dkfsim("montecarlo", CASE1, "--runs", 5, "--jobs", jobs, "--steps", 40, "--seed", 11,
                    "--set", ALL_BASELINES, "--out", out)
         assert p.returncode == 0, p.stderr
-        assert "anti_delay_dkf" in p.stdout and "95% CI" in p.stdout
+        assert "fused" in p.stdout and "95% CI" in p.stdout
         outs[jobs] = out
     a, b = outs[1], outs[2]
     assert (a / "runs.csv").read_bytes() == (b / "runs.csv").read_bytes()
@@ -148,18 +148,18 @@ def test_output_contract(tmp_path):
     out = tmp_path / "mc"
     assert cli.main(["montecarlo", str(CASE1), "--runs", "3", "--steps", "40", "--burn-in", "5",
                      "--set", ALL_BASELINES, "--out", str(out), "--quiet"]) == 0
-    algs = ["anti_delay_dkf", "anti_delay_dkf_local", "centralized", "centralized_delayed", "no_buffer", "local",
+    algs = ["fused", "local", "centralized", "centralized_delayed", "no_buffer", "local_only",
             "ci_consensus"]
     comps = ["position", "velocity", "acceleration"]
     with open(out / "runs.csv", newline="") as fh:
         rows = list(csv.DictReader(fh))
-    assert tuple(rows[0]) == CSV_COLUMNS
+    assert tuple(rows[0]) == row_columns()
     assert len(rows) == 3 * len(algs) * len(comps)
-    assert [(r["run"], r["algorithm"], r["component"]) for r in rows] == \
+    assert [(r["run"], r["estimate"], r["component"]) for r in rows] == \
         [(str(r), a, c) for r in range(3) for a in algs for c in comps]
     z = _npz(out / "curves.npz")
     K, A = 40, len(algs)
-    assert list(z["algorithms"]) == algs and list(z["components"]) == comps
+    assert list(z["estimates"]) == algs and list(z["components"]) == comps
     assert z["t"].shape == (K,) and z["nees_band"].shape == (2,)
     for key in ("mse", "mse_ci_lo", "mse_ci_hi", "example_x"):
         assert z[key].shape == (A, K, 3), key
@@ -170,11 +170,11 @@ def test_output_contract(tmp_path):
     s = json.loads((out / "summary.json").read_text())
     assert s["runs"] == 3 and s["burn_in"] == 5 and s["base_seed"] == 1 and s["scenario"] == "paper_case1"
     assert len(s["scenario_hash"]) == 64 and s["scenario_config"]["steps"] == 40
-    assert list(s["algorithms"]) == algs
-    for name, a in s["algorithms"].items():
+    assert list(s["estimates"]) == algs
+    for name, a in s["estimates"].items():
         i = algs.index(name)
         for c, comp in enumerate(comps):
-            per_run = [float(r["mse"]) for r in rows if r["algorithm"] == name and r["component"] == comp]
+            per_run = [float(r["mse"]) for r in rows if r["estimate"] == name and r["component"] == comp]
             assert a["mse"][comp] == pytest.approx(np.mean(per_run))
             # the per-run time average after burn-in, pooled, is the time average of the pooled curve
             assert a["mse"][comp] == pytest.approx(z["mse"][i, 5:, c].mean())
@@ -182,24 +182,31 @@ def test_output_contract(tmp_path):
             assert lo < a["mse"][comp] < hi
         assert a["anees"] == pytest.approx(np.nanmean(z["nees"][i, 5:]))
         assert a["anees_band95"] == pytest.approx(list(z["nees_band"]))
-    # example run = run 0: the per-node algorithms show node 0, which for the DKF is x_local
-    np.testing.assert_array_equal(z["example_x"][algs.index("anti_delay_dkf_local")], z["example_node0"])
+    # example run = run 0: the per-node estimates show node 0, which for the DKF is x_local
+    np.testing.assert_array_equal(z["example_x"][algs.index("local")], z["example_node0"])
     # traffic
-    A_ = s["algorithms"]
-    assert A_["local"]["messages_per_tick"] == 0 and A_["local"]["bytes_per_tick"] == 0
+    A_ = s["estimates"]
+    assert A_["local_only"]["messages_per_tick"] == 0 and A_["local_only"]["bytes_per_tick"] == 0
     assert A_["centralized"]["messages_per_tick"] is None
     assert A_["centralized_delayed"]["messages_per_tick"] == 12 and A_["centralized_delayed"]["lost"] == 0
-    dkf = A_["anti_delay_dkf"]
-    assert dkf["messages_per_tick"] > 11 and dkf["bytes_per_tick"] == pytest.approx(dkf["messages_per_tick"] * 90)
+    dkf = A_["fused"]
+    # bytes are measured per packet: header 16 B + per window row 8 + 8*(nx + nx(nx+1)/2) + ceil(n/8)
+    # B; every packet holds at least one row (rows per packet are not in the summary)
+    n, nx = load_scenario(CASE1).n, len(comps)
+    pair = 8 * (nx + nx * (nx + 1) // 2)
+    assert dkf["messages_per_tick"] > 11 and dkf["bytes_per_tick"] >= dkf["messages_per_tick"] * (16 + 8 + pair + -(-n // 8))
     assert A_["no_buffer"]["late"] > 0 and dkf["late"] == 0
-    assert dkf["disagreement"] is None and A_["anti_delay_dkf_local"]["disagreement"] > 0
+    assert dkf["disagreement"] is None and A_["local"]["disagreement"] > 0
     assert A_["ci_consensus"]["messages_per_tick"] == 22          # one round per tick on 22 arcs
+    # one (x, P) pair per ci_consensus packet: exactly 16 + 8*(nx + nx(nx+1)/2) bytes each
+    assert A_["ci_consensus"]["bytes_per_tick"] == pytest.approx(A_["ci_consensus"]["messages_per_tick"] * (16 + pair),
+                                                               rel=1e-12)
     assert A_["ci_consensus"]["disagreement"] > 0
 
 
 def test_without_fusion_and_with_a_generic_model():
     res = montecarlo(load_scenario(scenario(3, steps=20, fusion="none")), 2, burn_in=0)
-    assert res.algorithms == ["anti_delay_dkf_local", "centralized"]
+    assert res.estimates == ["local", "centralized"]
     assert res.components == ["x0", "x1"]
     assert res.mse.shape == (2, 20, 2) and np.isfinite(res.nees).all()
 
@@ -222,7 +229,7 @@ def test_centralized_mse_matches_riccati_and_exact_filters_are_consistent():
     P = _steady_state(spec)
     N, nx = 240, 2
     res = montecarlo(load_scenario(spec), N, jobs=2, burn_in=20)
-    algs = res.algorithms
+    algs = res.estimates
     c = algs.index("centralized")
 
     # last tick of each run (independent across runs): mean of e^2 / P_cc ~ chi2(N) / N per component
@@ -231,16 +238,16 @@ def test_centralized_mse_matches_riccati_and_exact_filters_are_consistent():
         ratio = res.mse[c, -1, comp] / P[comp, comp]
         assert lo99 < ratio < hi99, (comp, ratio, (lo99, hi99))
     # time average after burn-in: the t-interval over runs covers the Riccati variance
-    s = res.algorithm_summary("centralized")
+    s = res.estimate_summary("centralized")
     for comp, name in enumerate(res.components):
         lo, hi = s["mse_ci95"][name]
         assert lo < P[comp, comp] < hi, (name, lo, P[comp, comp], hi)
 
     band = nees_band(N, nx)
     np.testing.assert_allclose(res.nees_band, band)
-    for name in ("centralized", "anti_delay_dkf", "anti_delay_dkf_local"):
+    for name in ("centralized", "fused", "local"):
         a = algs.index(name)
-        s = res.algorithm_summary(name)
+        s = res.estimate_summary(name)
         assert band[0] < res.nees[a, -1] < band[1], (name, res.nees[a, -1], band)
         assert band[0] < s["anees"] < band[1], (name, s["anees"])
         assert s["anees_ci95"][0] < nx < s["anees_ci95"][1], (name, s["anees_ci95"])
@@ -248,7 +255,7 @@ def test_centralized_mse_matches_riccati_and_exact_filters_are_consistent():
     # the band has power: a covariance 1.5 times too large would be caught
     assert not band[0] < res.nees[c, -1] / 1.5 < band[1]
     # zero latency: the fused DKF is the centralized filter (to rounding)
-    np.testing.assert_allclose(res.mse[algs.index("anti_delay_dkf")], res.mse[c], rtol=1e-8)
+    np.testing.assert_allclose(res.mse[algs.index("fused")], res.mse[c], rtol=1e-8)
 
 
 def test_with_delays_centralized_beats_dkf_beats_no_buffer_and_local():
@@ -256,7 +263,7 @@ def test_with_delays_centralized_beats_dkf_beats_no_buffer_and_local():
     res = montecarlo(sc, 30, jobs=2)
     for comp in res.components:
         cen, dkf, nob, loc = (res.column(a, "mse", comp)
-                              for a in ("centralized", "anti_delay_dkf", "no_buffer", "local"))
+                              for a in ("centralized", "fused", "no_buffer", "local_only"))
         # one-sided 95 % lower bounds of the paired mean differences over independent runs
         assert paired_lower_bound(cen, dkf) > 0, comp
         assert paired_lower_bound(dkf, nob) > 0, comp

@@ -31,34 +31,34 @@ def run_dir(tmp_path_factory):
 
 
 def write_montecarlo(path: Path, K: int = K_RUN, runs: int = 4, T: float = T,
-                     algorithms=("anti_delay_dkf", "centralized", "ci_consensus")) -> Path:
+                     estimates=("fused", "centralized", "ci_consensus")) -> Path:
     """A Monte Carlo folder with the layout of the montecarlo contract."""
     path.mkdir(parents=True)
     rng = np.random.default_rng(0)
-    A, nx = len(algorithms), 3
+    A, nx = len(estimates), 3
     t = T * np.arange(1, K + 1)
     mse = np.exp(rng.normal(size=(A, K, nx))) * (1 + np.arange(A))[:, None, None]
     truth = np.cumsum(rng.normal(size=(K, nx)), axis=0)
     np.savez(path / "curves.npz", t=t, components=np.array(["position", "velocity", "acceleration"]),
-             algorithms=np.array(list(algorithms)), mse=mse, mse_ci_lo=0.8 * mse, mse_ci_hi=1.25 * mse,
+             estimates=np.array(list(estimates)), mse=mse, mse_ci_lo=0.8 * mse, mse_ci_hi=1.25 * mse,
              nees=3 + rng.normal(size=(A, K)), nees_band=np.array([2.2, 3.9]),
              example_truth=truth, example_x=truth[None] + 0.3 * rng.normal(size=(A, K, nx)),
              example_node0=truth + rng.normal(size=(K, nx)))
     with open(path / "runs.csv", "w", newline="") as fh:
         w = csv.writer(fh)
-        w.writerow(["run", "seed", "algorithm", "component", "mse", "anees", "disagreement",
+        w.writerow(["run", "seed", "estimate", "component", "mse", "anees", "disagreement",
                     "messages_per_tick", "bytes_per_tick", "lost", "late"])
         for r in range(runs):
-            for a in algorithms:
+            for a in estimates:
                 for c in ("position", "velocity", "acceleration"):
                     w.writerow([r, 100 + r, a, c, 0.2, 3.0, 0.0, 20.0, 960.0, 0, 0])
     summary = {"scenario": "fake_mc", "d_t": 3,
                "scenario_config": {"name": "fake_mc", "model": {"kind": "constant_acceleration", "T": T}},
                "runs": runs, "burn_in": K // 5,
-               "algorithms": {a: {"mse": {"position": 0.2, "velocity": 0.2, "acceleration": 0.1},
+               "estimates": {a: {"mse": {"position": 0.2, "velocity": 0.2, "acceleration": 0.1},
                                   "mse_ci95": {"position": [0.1, 0.3], "velocity": [0.15, 0.25],
                                                "acceleration": [None, None]},
-                                  "anees": 3.0, "anees_band95": [2.2, 3.9]} for a in algorithms}}
+                                  "anees": 3.0, "anees_band95": [2.2, 3.9]} for a in estimates}}
     (path / "summary.json").write_text(json.dumps(summary))
     return path
 
@@ -91,8 +91,8 @@ def test_run_folder_curves_are_the_squared_errors(run_dir):
     assert f.kind == "run" and f.K == K_RUN
     assert f.components == ["position", "velocity", "acceleration"]
     assert f.units == ["m", "m/s", "m/s$^2$"]
-    np.testing.assert_allclose(f.mse["anti_delay_dkf"], (d["x_fused"] - d["truth"]) ** 2)
-    np.testing.assert_allclose(f.mse["anti_delay_dkf_local"],
+    np.testing.assert_allclose(f.mse["fused"], (d["x_fused"] - d["truth"]) ** 2)
+    np.testing.assert_allclose(f.mse["local"],
                                np.mean((d["x_local"] - d["truth"][:, None]) ** 2, axis=1))
     np.testing.assert_allclose(f.mse["centralized"], (d["x_centralized"] - d["truth"]) ** 2)
     np.testing.assert_allclose(f.node0, d["x_local"][:, 0])
@@ -110,13 +110,32 @@ def test_montecarlo_folder(tmp_path):
     mc = write_montecarlo(tmp_path / "mc")
     f = plots.load_folder(mc)
     assert f.kind == "montecarlo" and f.n_runs == 4 and f.d_t == 3
-    assert set(f.ci) == {"anti_delay_dkf", "centralized", "ci_consensus"}
+    assert set(f.ci) == {"fused", "centralized", "ci_consensus"}
     assert f.nees_band == (2.2, 3.9)
     assert f.ci95("centralized", 1) == (0.15, 0.25) and f.ci95("centralized", 2) is None
     z = np.load(mc / "curves.npz")
     assert f.time_average("ci_consensus", 2) == pytest.approx(z["mse"][2, K_RUN // 5:, 2].mean())
     assert main(["plot", str(mc)]) == 0
     assert_figures(mc / "figures", ["tracking", "mse", "nees"])
+
+
+def test_montecarlo_folder_of_an_older_version_reads_in_todays_names(tmp_path):
+    """Folders written before the one vocabulary said ``algorithms`` and
+    ``anti_delay_dkf`` / ``anti_delay_dkf_local`` / ``local``."""
+    old_names = ("anti_delay_dkf", "anti_delay_dkf_local", "local", "centralized")
+    mc = write_montecarlo(tmp_path / "old", estimates=old_names)
+    z = dict(np.load(mc / "curves.npz"))
+    z["algorithms"] = z.pop("estimates")
+    np.savez(mc / "curves.npz", **z)
+    summary = json.loads((mc / "summary.json").read_text())
+    summary["algorithms"] = summary.pop("estimates")
+    (mc / "summary.json").write_text(json.dumps(summary))
+    f = plots.load_folder(mc)
+    assert list(f.mse) == ["fused", "local", "local_only", "centralized"]
+    np.testing.assert_array_equal(f.mse["local_only"], z["mse"][2])
+    assert f.ci95("fused", 0) == (0.1, 0.3)
+    assert main(["plot", str(mc), "--format", "png"]) == 0
+    assert_figures(mc / "figures", ["mse"], formats=("png",))
 
 
 def test_montecarlo_folder_without_examples_or_nees(tmp_path):
@@ -178,7 +197,7 @@ def test_errors(run_dir, tmp_path, capsys):
     fails(capsys, ["plot", str(run_dir), "--component", "jerk"], "'jerk'", "position")
     fails(capsys, ["plot", str(run_dir), "--smooth", "0"], "--smooth")
     fails(capsys, ["plot", str(run_dir), "--relative"], "--relative", "--compare")
-    no_central = write_montecarlo(tmp_path / "nocentral", algorithms=("anti_delay_dkf", "ci_consensus"))
+    no_central = write_montecarlo(tmp_path / "nocentral", estimates=("fused", "ci_consensus"))
     fails(capsys, ["plot", str(no_central), str(run_dir), "--compare", "--relative"], "no centralized")
 
 

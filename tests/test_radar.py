@@ -285,10 +285,10 @@ def test_run_npz_keeps_the_converted_measurements():
     """H_i, z_i and Rc_i reproduce the information the filters used, row by row."""
     import numpy as np
     import dkfsim
-    from dkfsim.engine.driver import Simulation
+    from dkfsim.engine.driver import Run
     sc = dkfsim.load_scenario(RADAR, overrides=["steps=8"])
     a = dkfsim.run(sc).arrays
-    info = Simulation(sc).info
+    info = Run(sc).ctx.info
     for i in range(3):
         z, Rc, H = a[f"z_{i}"], a[f"Rc_{i}"], a[f"H_{i}"]
         assert z.shape == (8, 2) and Rc.shape == (8, 2, 2)

@@ -4,15 +4,18 @@ from __future__ import annotations
 
 import copy
 from pathlib import Path
+from typing import Literal
 
 import numpy as np
 import pytest
 import yaml
 
-import dkfsim.config.schema as scenario_mod
 from dkfsim.core.errors import ScenarioError
+from dkfsim.core.registry import ESTIMATORS
+from dkfsim.components.estimators import EstimatorParams
 from dkfsim.components.latency import Constant, Exponential, Uniform, UniformSteps
-from dkfsim.config.schema import KNOWN_BASELINES, Scenario, load_scenario, scenario_hash
+from dkfsim.config.load import load_scenario, scenario_hash
+from dkfsim.config.schema import Scenario
 
 SCENARIOS = Path(__file__).resolve().parents[1] / "scenarios"
 
@@ -86,7 +89,8 @@ def test_base_loads_with_defaults():
     assert sc.links.overrides == () and sc.links.d_t is None
     assert sc.protocol == "tree" and sc.weights == "unit" and sc.spanning_tree is False
     assert sc.buffer_length == "auto" and sc.fusion == "matrix"
-    assert sc.baselines == ("centralized",)
+    assert tuple(p.kind for p in sc.estimators) == ("centralized",)
+    assert tuple(p.label for p in sc.estimators) == ("centralized",)
     assert sc.topology.directed is False
 
 
@@ -296,7 +300,7 @@ def test_dict_source_is_named(tmp_path):
     ("sensors.1.name", "a", "sensors.1.name", ["already the name of sensors.0"]),
     ("sensors.0", [1, 2], "sensors.0", ["must be a mapping"]),
     ("baselines", ["centralised"], "baselines.0",
-     ["unknown baseline 'centralised'", "did you mean 'centralized'?", "centralized"]),
+     ["unknown estimator 'centralised'", "did you mean 'centralized'?", "centralized"]),
     ("baselines", ["centralized", "centralized"], "baselines.1", ["listed twice"]),
 ])
 def test_bad_values(tmp_path, dotted, value, key, reasons):
@@ -344,7 +348,7 @@ def test_latency_without_model(tmp_path):
 
 def test_unknown_generator(tmp_path):
     expect(tmp_path, put(base(), "topology.generator", "balanced_tre"), "topology.generator",
-           "unknown generator 'balanced_tre'", "did you mean 'balanced_tree'?",
+           "unknown graph generator 'balanced_tre'", "did you mean 'balanced_tree'?",
            "path, star, balanced_tree, random_tree, ring, random_regular, erdos_renyi, edges")
 
 
@@ -465,7 +469,7 @@ def test_overrides_parse_yaml_values():
                                 "links.default.latency.d_t=0", "name=with=equals",
                                 "buffer_length=4"])
     assert sc.seed == 3 and sc.links.default.loss == 0.5 and sc.protocol == "flood"
-    assert sc.baselines == () and sc.links.d_t == 5
+    assert sc.estimators == () and sc.links.d_t == 5
     assert sc.sensors[0].R_matrix()[0, 0] == 2.0
     assert sc.link_spec(0, 1).latency == UniformSteps(d_t=0)
     assert sc.name == "with=equals" and sc.buffer_length == 4
@@ -666,15 +670,46 @@ def test_errors_are_scenario_errors_never_pydantic():
         assert msg.startswith("<dict>: ")
 
 
-def test_known_baselines_is_one_extendable_tuple(monkeypatch):
-    assert isinstance(KNOWN_BASELINES, tuple) and "centralized" in KNOWN_BASELINES
+def test_estimator_registry_is_the_one_extension_point():
+    import dkfsim.estimators  # noqa: F401  (registers the built-in implementations)
+    from dkfsim.estimators.base import Estimator
+    from dkfsim.estimators.centralized import Centralized
+
+    assert "centralized" in ESTIMATORS and "kalman_oracle" not in ESTIMATORS
     d = put(base(), "baselines", ["centralized", "kalman_oracle"])
-    assert "unknown baseline 'kalman_oracle'" in load_error(d)
-    monkeypatch.setattr(scenario_mod, "KNOWN_BASELINES", KNOWN_BASELINES + ("kalman_oracle",))
-    assert load_scenario(d).baselines == ("centralized", "kalman_oracle")
-    # Every baseline the engine implements is accepted, and only those.
-    from dkfsim.estimators.baselines import BASELINES
-    assert set(scenario_mod.KNOWN_BASELINES) - {"kalman_oracle"} == set(BASELINES)
+    assert "unknown estimator 'kalman_oracle'" in load_error(d)
+    e = put(base(), "estimators", [{"kind": "centralized"}, {"kind": "kalman_oracle"}])
+    assert "unknown estimator 'kalman_oracle'" in load_error(e)
+
+    class KalmanOracleParams(EstimatorParams):
+        """A test-only estimator."""
+
+        kind: Literal["kalman_oracle"] = "kalman_oracle"
+
+    class KalmanOracle(Centralized):
+        Params = KalmanOracleParams
+
+    try:
+        ESTIMATORS.add("kalman_oracle", params=KalmanOracleParams, implementation=KalmanOracle)
+        assert "kalman_oracle" in ESTIMATORS
+        for sc in (load_scenario(d), load_scenario(e)):
+            assert tuple(p.kind for p in sc.estimators) == ("centralized", "kalman_oracle")
+            assert isinstance(sc.estimators[1], KalmanOracleParams)
+    finally:
+        ESTIMATORS._entries.pop("kalman_oracle", None)
+    assert "kalman_oracle" not in ESTIMATORS
+    assert "unknown estimator 'kalman_oracle'" in load_error(d)
+    # Every estimator a scenario may name has an implementation (and its own parameter
+    # model), and every implementation is reachable from a scenario.
+    assert ESTIMATORS.names()
+    for entry in ESTIMATORS.entries():
+        assert entry.params is not None and issubclass(entry.params, EstimatorParams), entry.name
+        assert entry.implementation is not None, entry.name
+        assert issubclass(entry.implementation, Estimator), entry.name
+        assert entry.implementation.Params is entry.params, entry.name
+        assert load_scenario(put(base(), "estimators", [{"kind": entry.name}])).estimators[0].kind \
+            == entry.name
+    assert ESTIMATORS.canonical("local") == "local_only"
 
 
 def test_scenario_model_validate_without_loader():
@@ -685,9 +720,46 @@ def test_scenario_model_validate_without_loader():
 def test_consensus_rounds_must_divide_the_period():
     d = put(put(base(), "baselines", ["ci_consensus"]), "consensus_rounds", 3)
     d["model"]["T"] = 0.01
-    assert "consensus_rounds" in load_error(d) and "do not divide" in load_error(d)
+    msg = load_error(d)
+    assert msg.startswith("<dict>: estimators.0.rounds: "), msg
+    assert "consensus_rounds" in msg and "do not divide" in msg
     d["consensus_rounds"] = 4
-    assert load_scenario(d).consensus_rounds == 4
+    (ci,) = [p for p in load_scenario(d).estimators if p.kind == "ci_consensus"]
+    assert ci.rounds == 4
+
+
+def kinds_and_names(sc) -> list[tuple[str, str]]:
+    return [(p.kind, p.label) for p in sc.estimators]
+
+
+def test_the_older_baselines_spelling_is_the_same_scenario():
+    old = put(put(base(), "baselines", ["centralized", "local", "ci_consensus"]), "consensus_rounds", 2)
+    new = put(base(), "estimators", [{"kind": "centralized"}, {"kind": "local_only"},
+                                     {"kind": "ci_consensus", "rounds": 2}])
+    assert load_scenario(old) == load_scenario(new)
+    assert scenario_hash(load_scenario(old)) == scenario_hash(load_scenario(new))
+    # Neither key: the centralized filter alone; an empty list: nothing beside the DKF.
+    assert kinds_and_names(load_scenario(base())) == [("centralized", "centralized")]
+    assert load_scenario(put(base(), "baselines", [])).estimators == ()
+    assert load_scenario(put(base(), "estimators", [])).estimators == ()
+
+
+def test_both_spellings_are_joined_and_an_explicit_entry_wins():
+    """An older file (``baselines:``) with ``--set estimators=[...]``: nothing is
+    silently dropped, and an entry given both ways is the explicit one."""
+    d = put(put(base(), "baselines", ["centralized", "ci_consensus"]), "consensus_rounds", 2)
+    d["estimators"] = [{"kind": "ci_consensus", "rounds": 5}, {"kind": "local_only", "name": "alone"}]
+    sc = load_scenario(d)
+    assert kinds_and_names(sc) == [("centralized", "centralized"), ("ci_consensus", "ci_consensus"),
+                                   ("local_only", "alone")]
+    assert sc.estimators[1].rounds == 5
+    old = put(base(), "baselines", ["centralized"])
+    sc = load_scenario(old, overrides=["estimators=[{kind: no_buffer}]"])
+    assert kinds_and_names(sc) == [("centralized", "centralized"), ("no_buffer", "no_buffer")]
+    # Two explicit entries of one name are still an error.
+    d = put(base(), "estimators", [{"kind": "ci_consensus"}, {"kind": "ci_consensus", "rounds": 2}])
+    msg = load_error(d)
+    assert "estimators.1" in msg and "'ci_consensus' is taken" in msg, msg
 
 
 def test_missing_generator_parameter_names_its_params_key():

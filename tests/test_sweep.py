@@ -1,5 +1,5 @@
-"""dkfsim sweep: one row per task and algorithm, crash-safe resume, identical
-results on every executor, and clear errors for bad sweeps."""
+"""dkfsim sweep: tidy rows (one per task, estimate and state component), crash-safe
+resume, identical results on every executor, and clear errors for bad sweeps."""
 
 from __future__ import annotations
 
@@ -18,6 +18,8 @@ from dkfsim.core.errors import DkfsimError
 
 ROOT = Path(__file__).resolve().parents[1]
 CASE1 = ROOT / "scenarios" / "paper_case1.yaml"
+COMPONENTS = ["position", "velocity", "acceleration"]      # paper_case1's state
+NC = len(COMPONENTS)                                       # tidy rows per estimate and task
 
 
 def dkfsim(*args, cwd=ROOT, **kw):
@@ -43,7 +45,7 @@ def table(db: Path, sql: str):
 
 
 # --------------------------------------------------------------------------- one row per task
-def test_small_sweep_writes_one_row_per_parameter_set_seed_and_algorithm(tmp_path):
+def test_small_sweep_writes_one_row_per_parameter_set_seed_estimate_and_component(tmp_path):
     from dkfsim.experiments.montecarlo import derive_seed
     from dkfsim.experiments.sweep import load_sweep, read_results, run_sweep
     path = write_sweep(tmp_path, grid={"links.default.latency.d_t": [0, 1, 3]}, runs=2,
@@ -61,42 +63,52 @@ def test_small_sweep_writes_one_row_per_parameter_set_seed_and_algorithm(tmp_pat
     for h, r, seed in tasks:
         assert seed == derive_seed(base[h], r)
 
-    rows = table(db, "SELECT param_hash, run, seed, algorithm FROM results")
-    algorithms = {a for *_, a in rows}
-    assert algorithms == {"anti_delay_dkf", "anti_delay_dkf_local", "centralized", "local"}
-    keys = [(h, r, a) for h, r, _, a in rows]
-    assert len(keys) == len(set(keys)) == 6 * len(algorithms)
+    rows = table(db, "SELECT param_hash, run, seed, estimate, component FROM results")
+    estimates = {e for *_, e, _ in rows}
+    assert estimates == {"fused", "local", "centralized", "local_only"}
+    assert {c for *_, c in rows} == set(COMPONENTS)
+    keys = [(h, r, e, c) for h, r, _, e, c in rows]
+    assert len(keys) == len(set(keys)) == 6 * len(estimates) * NC
     assert {(h, r) for h, r, *_ in rows} == {(h, r) for h, r, _ in tasks}
 
     columns, exported = read_results(db)
-    assert columns[:5] == ["links.default.latency.d_t", "param_hash", "run", "seed", "algorithm"]
-    for c in ("mse_position", "mse_velocity", "mse_acceleration", "anees", "disagreement",
+    assert columns[:6] == ["links.default.latency.d_t", "param_hash", "run", "seed", "estimate", "component"]
+    for c in ("mse", "anees", "disagreement",
               "messages_per_tick", "bytes_per_tick", "lost", "late"):
         assert c in columns
     assert [row[0] for row in exported] == sorted(row[0] for row in exported)
-    mse = columns.index("mse_position")
+    comp, mse = columns.index("component"), columns.index("mse")
+    for name in COMPONENTS:            # every component's MSE (was mse_position, ... columns)
+        assert sum(row[comp] == name for row in exported) == 6 * len(estimates)
     assert all(row[mse] > 0 for row in exported)
     # d_t = 0 is the zero-latency case: the fused estimate equals the centralized filter.
-    at0 = {(r[2], r[4]): r for r in exported if r[0] == 0}
+    at0 = {(r[2], r[4]): r for r in exported if r[0] == 0 and r[comp] == "position"}
     for run in (0, 1):
-        f, c = at0[(run, "anti_delay_dkf")][mse], at0[(run, "centralized")][mse]
+        f, c = at0[(run, "fused")][mse], at0[(run, "centralized")][mse]
         assert f == pytest.approx(c, rel=1e-9)
 
 
-def test_widen_keeps_per_component_values_of_any_metric():
-    from dkfsim.experiments.sweep import widen
-    rows = [{"seed": 5, "algorithm": "a", "component": c, "mse": m, "anees": 3.0, "late": late}
+def test_tidy_rows_keep_per_component_values_of_any_metric(tmp_path):
+    """Rows are stored tidy (one per component): a metric that differs per component
+    (here ``late``) keeps each component's value, a per-run one (``anees``) repeats."""
+    from dkfsim.experiments.sweep import SweepDB, load_sweep, read_results
+    sweep = load_sweep(write_sweep(tmp_path, grid={}, runs=1))
+    rows = [{"seed": 5, "estimate": "a", "component": c, "mse": m, "anees": 3.0, "late": late}
             for c, m, late in (("x0", 0.1, 1), ("x1", 0.2, 2))]
-    ((alg, seed, cols),) = widen(rows)
-    assert (alg, seed) == ("a", 5)
-    assert cols == {"mse_x0": 0.1, "mse_x1": 0.2, "anees": 3.0, "late_x0": 1, "late_x1": 2}
+    h = sweep.parameter_sets[0].param_hash
+    with SweepDB(sweep.output, sweep) as store:
+        store.write_task(h, 0, 5, rows, 0.1)
+    columns, exported = read_results(sweep.output)
+    got = [dict(zip(columns, row)) for row in exported]
+    assert [(g["estimate"], g["seed"], g["component"], g["mse"], g["anees"], g["late"]) for g in got] == \
+        [("a", 5, "x0", 0.1, 3.0, 1), ("a", 5, "x1", 0.2, 3.0, 2)]
 
 
 def test_a_task_is_written_entirely_or_not_at_all(tmp_path):
     from dkfsim.experiments.sweep import SweepDB, load_sweep
     sweep = load_sweep(write_sweep(tmp_path, grid={}, runs=1))
-    good = [{"seed": 7, "algorithm": a, "component": "x0", "mse": 1.0} for a in ("a", "b")]
-    bad = good[:1] + [{"seed": 8, "algorithm": "b", "component": "x0", "mse": 1.0}]
+    good = [{"seed": 7, "estimate": a, "component": "x0", "mse": 1.0} for a in ("a", "b")]
+    bad = good[:1] + [{"seed": 8, "estimate": "b", "component": "x0", "mse": 1.0}]
     h = sweep.parameter_sets[0].param_hash
     with SweepDB(sweep.output, sweep) as store:
         with pytest.raises(RuntimeError):
@@ -144,8 +156,8 @@ def test_killed_sweep_resumes_without_losing_or_repeating_a_task(tmp_path):
             proc.kill()
     saved = table(db, "SELECT COUNT(*) FROM tasks")[0][0]
     assert 3 <= saved < total, saved
-    # Every saved task has all its rows (3 algorithms: fused, local, centralized).
-    assert table(db, "SELECT COUNT(*) FROM results")[0][0] == 3 * saved
+    # Every saved task has all its rows (3 estimates: fused, local, centralized; 3 components each).
+    assert table(db, "SELECT COUNT(*) FROM results")[0][0] == 3 * NC * saved
     # The pool's workers notice that their parent is gone and exit.
     assert workers, "no worker processes seen"
     gone, alive = psutil.wait_procs(workers, timeout=10)
@@ -155,13 +167,13 @@ def test_killed_sweep_resumes_without_losing_or_repeating_a_task(tmp_path):
     assert again.returncode == 0, again.stderr
     assert f"done: {saved} already in the database, {total - saved} computed" in again.stdout
     assert table(db, "SELECT COUNT(*) FROM tasks")[0][0] == total
-    assert table(db, "SELECT COUNT(*) FROM results")[0][0] == 3 * total
+    assert table(db, "SELECT COUNT(*) FROM results")[0][0] == 3 * NC * total
 
     clean = dkfsim("sweep", fresh, "--jobs", "1", "--quiet", "--export", tmp_path / "fresh.csv")
     assert clean.returncode == 0, clean.stderr
     a = (tmp_path / "killed.csv").read_text()
     b = (tmp_path / "fresh.csv").read_text()
-    assert len(a.splitlines()) == 1 + 3 * total
+    assert len(a.splitlines()) == 1 + 3 * NC * total
     assert a == b
 
 
@@ -182,15 +194,16 @@ def test_dask_local_cluster_and_local_pool_give_identical_rows(tmp_path):
                "--export", tmp_path / "pool.csv")
     assert p.returncode == 0, p.stderr
     a, b = (tmp_path / "dask.csv").read_text(), (tmp_path / "pool.csv").read_text()
-    assert len(a.splitlines()) == 1 + 8 * 3
+    assert len(a.splitlines()) == 1 + 8 * 3 * NC
     assert a == b
 
     pq = pytest.importorskip("pyarrow.parquet")
     out, n = export(tmp_path / "pool.sqlite", tmp_path / "pool.parquet")
     t = pq.read_table(out)
-    assert t.num_rows == n == 24
-    assert t.column("algorithm").to_pylist()[:3] == ["anti_delay_dkf", "anti_delay_dkf_local",
-                                                     "centralized"]
+    assert t.num_rows == n == 24 * NC
+    assert t.column("estimate").to_pylist()[:3 * NC] == [e for e in ("fused", "local", "centralized")
+                                                         for _ in range(NC)]
+    assert t.column("component").to_pylist()[:NC] == COMPONENTS
 
 
 def test_cli_dask_local_processes(tmp_path):
@@ -237,6 +250,27 @@ def test_resume_refuses_a_changed_sweep_definition(tmp_path):
     assert "Traceback" not in p.stderr and len(p.stderr.strip().splitlines()) == 1
 
 
+def test_a_database_of_an_earlier_format_is_refused_by_name(tmp_path):
+    """A database written by an earlier dkfsim (format 1: wide rows, old names)
+    is not resumed into: the message names the format and the way out."""
+    import json as _json
+    import sqlite3
+    from dkfsim.experiments.sweep import run_sweep
+    path = write_sweep(tmp_path, grid={}, runs=1, steps=20, output="res.sqlite")
+    assert run_sweep(path, jobs=1, progress=False).computed == 1
+    db = tmp_path / "res.sqlite"
+    con = sqlite3.connect(db)
+    definition = _json.loads(con.execute("SELECT value FROM meta WHERE key='definition'").fetchone()[0])
+    definition["format"] = 1                      # what the earlier version stored
+    con.execute("UPDATE meta SET value=? WHERE key='definition'", (_json.dumps(definition),))
+    con.commit()
+    con.close()
+    p = dkfsim("sweep", path)
+    assert p.returncode == 2
+    assert "database format 1 of an earlier dkfsim" in p.stderr and "--db" in p.stderr
+    assert "Traceback" not in p.stderr
+
+
 def test_a_second_writer_is_refused(tmp_path):
     from dkfsim.experiments.sweep import SweepDB, load_sweep, run_sweep
     sweep = load_sweep(write_sweep(tmp_path, grid={}, runs=1, steps=20))
@@ -255,7 +289,7 @@ BAD = [
     ({"runs": 1.5}, "runs: must be an integer"),
     ({"scenario": "missing.yaml"}, "scenario: file not found"),
     ({"burn_in": 1000}, "burn_in: must be less than steps"),
-    ({"rnus": 3}, "rnus: unknown key; did you mean 'runs'?"),
+    ({"rnus": 3}, "rnus: unknown key (did you mean 'runs'?)"),
     ({"set": ["steps"]}, "bad override 'steps'"),
 ]
 
@@ -316,7 +350,7 @@ def test_export_only_from_a_database_and_help(tmp_path, capsys):
     db = tmp_path / "s.sqlite"
     rc, out, err = cli(capsys, "sweep", db, "--export", tmp_path / "x.csv")
     assert rc == 0, err
-    assert "wrote" in out and len((tmp_path / "x.csv").read_text().splitlines()) == 1 + 3
+    assert "wrote" in out and len((tmp_path / "x.csv").read_text().splitlines()) == 1 + 3 * NC
     rc, _, err = cli(capsys, "sweep", db)
     assert rc == 2 and "--export" in err
     rc, out, _ = cli(capsys, "sweep", "--help")
@@ -329,7 +363,11 @@ def test_export_only_from_a_database_and_help(tmp_path, capsys):
 
 
 def test_throughput_reports_runs_per_minute():
-    from dkfsim.experiments.sweep import throughput
-    out = throughput(steps=20, jobs=1, runs=2)
+    # a benchmark helper: it lives in tools/bench.py, not in the package
+    import importlib.util
+    spec = importlib.util.spec_from_file_location("dkfsim_bench", ROOT / "tools" / "bench.py")
+    bench = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(bench)
+    out = bench.throughput(steps=20, jobs=1, runs=2)
     assert out["runs"] == 2 and out["steps"] == 20
     assert out["runs_per_minute"] > 0 and out["wall_s"] > 0

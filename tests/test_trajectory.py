@@ -57,7 +57,7 @@ def scenario_dict(file, steps=8, T=0.05, **truth):
 
 
 def test_read_sorts_and_drops_repeated_stamps(tmp_path):
-    from dkfsim.model.trajectory import read_track
+    from dkfsim.components.truth import read_track
     tr = read_track(write(tmp_path), "time_ms", "east_m", "north_m", "ms")
     np.testing.assert_array_equal(tr.t, [0.0, 0.1, 0.2, 0.4, 0.5])
     np.testing.assert_array_equal(tr.x, [10, 11, 13, 13, 12])
@@ -66,7 +66,8 @@ def test_read_sorts_and_drops_repeated_stamps(tmp_path):
 
 
 def test_interpolation_and_finite_differences_by_hand(tmp_path):
-    from dkfsim.model.trajectory import cv_states, read_track
+    from dkfsim.components.truth import read_track
+    from dkfsim.model.trajectory import cv_states
     tr = read_track(write(tmp_path), "time_ms", "east_m", "north_m", "ms")
     X = cv_states(tr, T=0.1, K=5, origin="none")
     # Positions at t = 0.1 .. 0.5 (0.3 lies half way across the gap 0.2 -> 0.4).
@@ -88,7 +89,7 @@ def test_interpolation_and_finite_differences_by_hand(tmp_path):
 
 
 def test_whitespace_table_and_loose_column_names(tmp_path):
-    from dkfsim.model.trajectory import read_track
+    from dkfsim.components.truth import read_track
     text = "t(s) utmX(m) utmY(m) cell\n0 1.0 2.0 5C4\n1.5 4.0 2.0 5C4\n"
     tr = read_track(write(tmp_path, text, "ws.txt"), "t_s", "utm_x_m", "utmY(m)", "s")
     np.testing.assert_array_equal(tr.t, [0.0, 1.5])
@@ -96,7 +97,8 @@ def test_whitespace_table_and_loose_column_names(tmp_path):
 
 
 def test_smoothing_is_a_centred_moving_average(tmp_path):
-    from dkfsim.model.trajectory import read_track, smoothed
+    from dkfsim.components.truth import read_track
+    from dkfsim.model.trajectory import smoothed
     tr = read_track(write(tmp_path), "time_ms", "east_m", "north_m", "ms")
     s = smoothed(tr, 0.2)             # +-0.1 s: neighbours within 100 ms
     np.testing.assert_allclose(s.x, [10.5, 34 / 3, 12.0, 12.5, 12.5])
@@ -106,7 +108,8 @@ def test_smoothing_is_a_centred_moving_average(tmp_path):
 
 def test_scenario_runs_on_a_hand_made_track(tmp_path):
     import dkfsim
-    from dkfsim.model.trajectory import cv_states, read_track
+    from dkfsim.components.truth import read_track
+    from dkfsim.model.trajectory import cv_states
     p = write(tmp_path)
     sc = dkfsim.load_scenario(scenario_dict(p, steps=10))
     res = dkfsim.run(sc)

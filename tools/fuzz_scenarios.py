@@ -269,10 +269,27 @@ def _steps_1e12(root: dict) -> None:
 
 
 def _consensus_rounds_1e7(root: dict) -> None:
-    """10**7 rounds per tick, with the ci_consensus baseline that runs them."""
-    root["consensus_rounds"] = 10**7
-    if "ci_consensus" not in root["baselines"]:
-        root["baselines"].append("ci_consensus")
+    """10**7 rounds per tick, with the ci_consensus estimator that runs them.
+
+    A base is ``to_dict()`` output (an ``estimators:`` list of ``{kind, ...}``
+    entries); the older spelling (``baselines:`` names with a top-level
+    ``consensus_rounds``) is handled too, so a mapping written either way works.
+    """
+    rounds = 10**7
+    found = False
+    old = root.get("baselines")
+    if isinstance(old, list):
+        root["consensus_rounds"] = rounds
+        found = "ci_consensus" in old
+    for entry in root.get("estimators") or []:
+        if isinstance(entry, dict) and entry.get("kind") == "ci_consensus":
+            entry["rounds"] = rounds
+            found = True
+    if not found:
+        if isinstance(old, list) and "estimators" not in root:
+            old.append("ci_consensus")
+        else:
+            root.setdefault("estimators", []).append({"kind": "ci_consensus", "rounds": rounds})
 
 
 def _random_tree_20000(root: dict) -> None:
