@@ -26,6 +26,7 @@ import argparse
 import multiprocessing
 import os
 import sys
+import tempfile
 import time
 from pathlib import Path
 
@@ -61,6 +62,32 @@ def bare_simpy(n_events: int, horizon: int) -> float:
     return time.perf_counter() - t0
 
 
+def throughput(scenario: str | os.PathLike | None = None, *, steps: int = 1000, jobs: int = 2,
+               runs: int | None = None, executor=None, overrides=()) -> dict:
+    """Measured sweep throughput: ``runs`` Monte Carlo runs of ``scenario``
+    (default ``scenarios/paper_case1.yaml``) at ``steps`` ticks through the
+    whole sweep machinery (executor, scoring, SQLite writes), into a
+    temporary database.
+
+    ``executor`` defaults to ``jobs`` local processes; ``runs`` to ``4 *
+    jobs``.  Worker start-up is included (it is part of what a sweep costs).
+    Returns ``{"scenario", "steps", "runs", "executor", "wall_s",
+    "runs_per_minute"}``.
+    """
+    from dkfsim.experiments.sweep import load_sweep, run_sweep
+    if scenario is None:
+        scenario = ROOT / "scenarios" / "paper_case1.yaml"
+    runs = 4 * jobs if runs is None else runs
+    with tempfile.TemporaryDirectory(prefix="dkfsim-throughput-") as tmp:
+        sweep = load_sweep({"scenario": str(Path(scenario).resolve()),
+                            "set": [f"steps={int(steps)}", *overrides], "runs": runs,
+                            "output": str(Path(tmp) / "throughput.sqlite")})
+        rep = run_sweep(sweep, executor=executor, jobs=jobs, progress=False)
+    return {"scenario": str(scenario), "steps": int(steps), "runs": rep.computed,
+            "executor": rep.executor, "wall_s": rep.wall_s,
+            "runs_per_minute": rep.runs_per_minute}
+
+
 def tree_scenario(n: int, ticks: int, fusion: str) -> dkfsim.Scenario:
     base = dkfsim.load_scenario(ROOT / "scenarios" / "paper_case1.yaml")
     d = base.to_dict()
@@ -85,7 +112,7 @@ def threads_under_load(ticks: int) -> tuple[float, float, int]:
     each with a busy process beside it; and the default thread count."""
     from threadpoolctl import threadpool_info, threadpool_limits
 
-    from dkfsim.engine.driver import Simulation        # the engine, below the API's thread pin
+    from dkfsim.engine.driver import Run               # the engine, below the API's thread pin
     sc = tree_scenario(50, ticks, "matrix")
     default = max((i["num_threads"] for i in threadpool_info()), default=1)
     times = []
@@ -96,7 +123,7 @@ def threads_under_load(ticks: int) -> tuple[float, float, int]:
         try:
             with threadpool_limits(limit):
                 t0 = time.perf_counter()
-                Simulation(sc, save="summary").run()
+                Run(sc, save="summary").run()
                 times.append(time.perf_counter() - t0)
         finally:
             stop.set()
@@ -146,7 +173,7 @@ def main(argv=None) -> int:
 
     if args.big_nodes:
         s = tree_scenario(args.big_nodes, args.big_ticks, "none")
-        s = dkfsim.load_scenario(s, overrides=["links.default.latency.d_t=1", "baselines=[]"])
+        s = dkfsim.load_scenario(s, overrides=["links.default.latency.d_t=1", "estimators=[]"])
         t0 = time.perf_counter()
         r = dkfsim.run(s, save="summary")
         w = time.perf_counter() - t0
@@ -166,7 +193,6 @@ def main(argv=None) -> int:
         print(f"  one BLAS thread (dkfsim)  {one:8.2f} s   (ratio default / one {many / one:.2f} x)")
 
     if not args.skip_sweep:
-        from dkfsim.experiments.sweep import throughput
         print()
         one = throughput(steps=args.ticks, jobs=1, runs=4)
         two = throughput(steps=args.ticks, jobs=2, runs=12)

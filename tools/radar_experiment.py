@@ -12,7 +12,7 @@ starting at (0, 6.123) m, T = 0.01 s, 21 ticks, a 3-node tree with delays of
   radar's local-only filter (overview and zoom on the track);
 * ``docs/figures/radar_mse.png``: the position MSE per tick (mean over runs of
   ``(x - x_true)^2 + (y - y_true)^2``, shaded 95 % Student-t intervals) of the
-  fused estimate, the centralized filters, the baselines and each radar alone;
+  fused estimate, the centralized filters, the other estimators and each radar alone;
 
 and prints the table of time-averaged position MSEs with 95 % intervals.
 See docs/radar.md for the assumptions and the reading of the results.

@@ -16,13 +16,9 @@ fig5_case1_vs_case2.png   fused MSE of case 1 vs case 2 (d_t = 4, the paper's de
 fig6_delay_bounds.png     case 1: fused position MSE for d_t = 0, 1, 2, 3, 4 (Fig. 6)
 ========================  ==================================================================
 
-Each case is a Monte Carlo of ``--runs`` runs (``dkfsim montecarlo``) when that
-command is available, otherwise a single ``dkfsim run`` (then ``--runs`` is
-ignored and the MSE curves are one run's squared error, smoothed).  The
+Each case is a Monte Carlo of ``--runs`` runs (``dkfsim montecarlo``).  The
 reference of the paper's Figs. 3/4 ([2020Distributed], a consensus filter) is
-represented by the ``ci_consensus`` baseline when the installed dkfsim accepts
-and runs it; otherwise those figures show the centralized KF only, and the
-script says so.
+represented by the ``ci_consensus`` estimator.
 
 Simulation folders go to ``--work`` (default ``out/reproduce_paper``); figures
 (PNG and PDF) to ``--out`` (default ``docs/figures``).  ``--plot-only``
@@ -40,9 +36,7 @@ import argparse
 import os
 import subprocess
 import sys
-import tempfile
 import time
-from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -55,7 +49,7 @@ from dkfsim.core.errors import DkfsimError  # noqa: E402
 CASE1 = ROOT / "scenarios" / "paper_case1.yaml"
 CASE2 = ROOT / "scenarios" / "paper_case2.yaml"
 DKFSIM = [sys.executable, "-m", "dkfsim"]
-REFERENCE = ["centralized", "ci_consensus"]
+REFERENCE = ["centralized", "ci_consensus"]      # estimators beside the DKF in Figs. 3/4
 DELAY_BOUNDS = (0, 1, 2, 3, 4)
 
 
@@ -64,43 +58,21 @@ class Job:
     name: str
     scenario: Path
     d_t: int
-    baselines: list[str]
+    estimators: list[str]
 
     def overrides(self) -> list[str]:
+        entries = ", ".join("{kind: %s}" % kind for kind in self.estimators)
         return ["--set", f"links.default.latency.d_t={self.d_t}",
-                "--set", "baselines=[" + ",".join(self.baselines) + "]"]
+                "--set", f"estimators=[{entries}]"]
 
 
 def quiet_run(argv) -> subprocess.CompletedProcess:
     return subprocess.run(DKFSIM + argv, capture_output=True, text=True, cwd=ROOT)
 
 
-def has_montecarlo() -> bool:
-    p = quiet_run(["montecarlo", "--help"])
-    return p.returncode == 0 and "--runs" in p.stdout and "--out" in p.stdout
-
-
-def reference_baselines() -> tuple[list[str], str | None]:
-    """[centralized, ci_consensus] if this dkfsim validates and runs them, else [centralized]."""
-    spec = "baselines=[" + ",".join(REFERENCE) + "]"
-    p = quiet_run(["validate", str(CASE1), "--set", spec])
-    if p.returncode != 0:
-        return ["centralized"], p.stderr.strip() or p.stdout.strip()
-    with tempfile.TemporaryDirectory() as tmp:
-        p = quiet_run(["run", str(CASE1), "--set", spec, "--steps", "5", "--save", "summary",
-                       "--quiet", "--out", tmp])
-    if p.returncode != 0:
-        last = (p.stderr.strip().splitlines() or ["(no message)"])[-1]
-        return ["centralized"], f"validates but does not run: {last}"
-    return list(REFERENCE), None
-
-
-def simulate(job: Job, folder: Path, args, montecarlo: bool) -> float:
-    if montecarlo:
-        argv = ["montecarlo", str(job.scenario), "--runs", str(args.runs), "--jobs", str(args.jobs)]
-    else:
-        argv = ["run", str(job.scenario), "--save", "estimates"]
-    argv += ["--out", str(folder), "--quiet", *job.overrides()]
+def simulate(job: Job, folder: Path, args) -> float:
+    argv = ["montecarlo", str(job.scenario), "--runs", str(args.runs), "--jobs", str(args.jobs),
+            "--out", str(folder), "--quiet", *job.overrides()]
     if args.steps is not None:
         argv += ["--steps", str(args.steps)]
     print("  $ dkfsim " + " ".join(a if " " not in a else repr(a) for a in argv), flush=True)
@@ -116,7 +88,7 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
                                  epilog="See the module docstring for the figures and what each shows.")
     ap.add_argument("--runs", type=int, default=20, metavar="N",
-                    help="Monte Carlo runs per case (default: 20; ignored without dkfsim montecarlo)")
+                    help="Monte Carlo runs per case (default: 20)")
     ap.add_argument("--steps", type=int, default=None, metavar="K",
                     help="ticks per run (default: the scenarios' 1000, i.e. 10 s)")
     ap.add_argument("--jobs", type=int, default=min(2, os.cpu_count() or 1), metavar="J",
@@ -128,8 +100,7 @@ def main(argv=None) -> int:
     ap.add_argument("--format", dest="formats", nargs="+", default=["png", "pdf"], choices=plots.FORMATS,
                     help="figure formats (default: png pdf)")
     ap.add_argument("--smooth", type=int, default=None, metavar="TICKS",
-                    help="moving average of the MSE curves (default: none for Monte Carlo, "
-                         "2%% of the ticks for single runs)")
+                    help="moving average of the MSE curves, in ticks (default: none)")
     ap.add_argument("--plot-only", action="store_true",
                     help="do not simulate; redraw from the folders in --work")
     args = ap.parse_args(argv)
@@ -138,50 +109,31 @@ def main(argv=None) -> int:
 
     work, out = args.work, args.out
     t_start = time.perf_counter()
-    if args.plot_only:
-        montecarlo = all((work / n / "curves.npz").is_file() for n in ("case1_d3", "case2_d4"))
-        baselines = REFERENCE
-    else:
-        montecarlo = has_montecarlo()
-        baselines, why = reference_baselines()
-        if why:
-            print(f"note: the reference baseline ci_consensus is not usable here ({why}); "
-                  f"Figs. 3/4 compare with the centralized KF only", flush=True)
-        if not montecarlo:
-            print("note: `dkfsim montecarlo` is not available; running ONE run per case "
-                  "(--runs ignored): the MSE curves are a single run's squared error, smoothed", flush=True)
-    jobs = [Job("case1_d3", CASE1, 3, baselines)]
+    jobs = [Job("case1_d3", CASE1, 3, REFERENCE)]
     jobs += [Job(f"case1_d{d}", CASE1, d, ["centralized"]) for d in DELAY_BOUNDS if d != 3]
     jobs += [Job("case2_d4", CASE2, 4, ["centralized"])]
 
     if not args.plot_only:
-        mode = f"Monte Carlo, {args.runs} runs each, {args.jobs} job(s)" if montecarlo else \
-            f"single runs, {args.jobs} in parallel"
-        print(f"simulating {len(jobs)} cases into {work} ({mode})", flush=True)
-        if montecarlo:        # each Monte Carlo uses every worker itself
-            for job in jobs:
-                dt = simulate(job, work / job.name, args, True)
-                print(f"    {job.name}: {dt:.1f} s", flush=True)
-        else:
-            with ThreadPoolExecutor(max_workers=args.jobs) as pool:
-                times = list(pool.map(lambda j: simulate(j, work / j.name, args, False), jobs))
-            for job, dt in zip(jobs, times):
-                print(f"    {job.name}: {dt:.1f} s")
+        print(f"simulating {len(jobs)} cases into {work} (Monte Carlo, {args.runs} runs each, "
+              f"{args.jobs} job(s))", flush=True)
+        for job in jobs:          # each Monte Carlo uses every worker itself
+            dt = simulate(job, work / job.name, args)
+            print(f"    {job.name}: {dt:.1f} s", flush=True)
 
     try:
         f = {job.name: plots.load_folder(work / job.name) for job in jobs}
     except DkfsimError as exc:
         raise SystemExit(f"reproduce_paper: {exc}") from None
     c1 = f["case1_d3"]
-    what = (f"{c1.n_runs} Monte Carlo runs" if c1.kind == "montecarlo" else "one run")
+    what = f"{c1.n_runs} Monte Carlo runs"
     written = []
     written += plots.plot_tracking(
         c1, out / "fig3_tracking", args.formats,
-        title="Fig. 3: tracking with delay bound $d_t$ = 3, case 1 (undirected tree)"
-              + ("" if c1.kind == "run" else "; run 0 of the Monte Carlo"))
-    fig4_algs = ["anti_delay_dkf", "anti_delay_dkf_local", "ci_consensus", "centralized"]
+        title="Fig. 3: tracking with delay bound $d_t$ = 3, case 1 (undirected tree); "
+              "run 0 of the Monte Carlo")
+    fig4_estimates = ["fused", "local", "ci_consensus", "centralized"]
     written += plots.plot_mse(
-        c1, out / "fig4_mse", args.formats, smooth=args.smooth, algorithms=fig4_algs,
+        c1, out / "fig4_mse", args.formats, smooth=args.smooth, estimates=fig4_estimates,
         title="Fig. 4: MSE with delay bound $d_t$ = 3, case 1 (undirected tree)")
     pair = [f["case1_d4"], f["case2_d4"]]
     written += plots.plot_compare(

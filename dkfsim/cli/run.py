@@ -18,7 +18,7 @@ from dkfsim.report.tables import run_table
 def add_command(sub) -> None:
     p = sub.add_parser("run", help="simulate one scenario and write summary.json and run.npz",
                        description="Simulate one scenario: truth, sensors, the SimPy network, every node's "
-                                   "anti-delay DKF, fusion and the baselines. Writes DIR/summary.json and "
+                                   "anti-delay DKF, fusion and the listed estimators. Writes DIR/summary.json and "
                                    "DIR/run.npz (the arrays listed in docs/design.md, section 8) and prints an MSE table. "
                                    "DIR is replaced as a whole, atomically, when the run is done.")
     add_scenario_args(p)

@@ -64,6 +64,7 @@ from dkfsim.core.params import (MAX_MAGNITUDE, MAX_NS, MAX_SECONDS, Matrix, Name
                                 StrictInt, StrictModel, Vector, check_spd, check_square, custom_error,
                                 registered, suggest)
 from dkfsim.core.registry import ESTIMATORS, GENERATORS, PROTOCOLS, SENSOR_KINDS
+from dkfsim.core.resources import CHEAP_VISITS
 
 #: Largest ring of fusion cross-covariances a scenario may ask for (bytes).
 FUSION_MEMORY_LIMIT = 2 << 30
@@ -299,7 +300,9 @@ class Scenario(StrictModel):
     @classmethod
     def _old_spellings(cls, data: Any) -> Any:
         """``baselines: [names]`` (and ``consensus_rounds``) are the old spelling of
-        ``estimators``: converted here, before ``estimators`` is validated."""
+        ``estimators``: converted here, before ``estimators`` is validated.  With
+        both keys the lists are joined, an explicit entry replacing a converted
+        one of the same name."""
         if not isinstance(data, dict) or ("baselines" not in data and "consensus_rounds" not in data):
             return data
         data = dict(data)
@@ -321,7 +324,20 @@ class Scenario(StrictModel):
             if entry["kind"] == "ci_consensus" and rounds is not None:
                 entry["rounds"] = rounds
             entries.append(entry)
-        data["estimators"] = entries + list(data.get("estimators") or [])
+        explicit = data.get("estimators") or []
+        if isinstance(explicit, (list, tuple)):
+            # Both spellings (an old file with ``--set estimators=...``, or the other
+            # way round): an explicit entry takes the place of the converted one of
+            # the same name; the other explicit entries follow.
+            by_name = {}
+            for e in explicit:
+                name = (e.get("name") or ESTIMATORS.canonical(str(e.get("kind")))) \
+                    if isinstance(e, dict) else None
+                by_name.setdefault(name, e)
+            joined = [by_name.get(e["kind"], e) for e in entries]
+            data["estimators"] = joined + [e for e in explicit if not any(e is j for j in joined)]
+        else:
+            data["estimators"] = explicit       # (reported by the estimators validator)
         return data
 
     @model_validator(mode="after")
@@ -364,13 +380,15 @@ class Scenario(StrictModel):
                     key = f"estimators.{i}" + (f".{ctx['key']}" if ctx.get("key") else "")
                     raise custom_error(str(ctx.get("reason", err)), key) from None
         if self.fusion != "none":
-            S = min(self.resolved_buffer_length(), self.steps) + 1
+            L, exact = self.buffer_length_bound()
+            S = min(L, self.steps) + 1
             need = S * (self.n * self.nx) ** 2 * 8
             if need > FUSION_MEMORY_LIMIT:
+                least = "" if exact else "at least "
                 raise custom_error(
                     f"fusion: {self.fusion} keeps the cross-covariances of all {self.n} nodes for the "
-                    f"{S} window rows, {need / 2**30:.1f} GiB; use fusion: none for a network "
-                    f"this large (or a shorter buffer_length)", "fusion")
+                    f"{least}{S} window rows, {least}{need / 2**30:.1f} GiB of memory; use fusion: "
+                    f"none for a network this large (or a shorter buffer_length)", "fusion")
 
     def _check_truth(self) -> None:
         if self.model.kind != "constant_velocity" or self.model.nx != 4:
@@ -572,6 +590,19 @@ class Scenario(StrictModel):
         if self.buffer_length == "paper":
             return max(d_t, 1)
         return d_t * self.exchange().d_g + 1
+
+    def buffer_length_bound(self) -> tuple[int, bool]:
+        """``(L, exact)``: the buffer length, or, when ``auto`` would need the exact
+        diameter of a large graph that is not a tree (a search per node), the cheap
+        lower bound ``d_t * lower + 1`` with ``exact`` false.  For checks that must
+        answer in seconds (validation, resource estimates)."""
+        if self.buffer_length == "auto":
+            graph = self.graph()
+            costly = (self.protocol_graph == "digraph" or self.spanning_tree) and not topo.is_tree(graph)
+            if costly and topo.all_pairs_work(graph) > CHEAP_VISITS:
+                lower, _ = topo.diameter_bounds(graph)
+                return (self.resolved_d_t() or 0) * lower + 1, False
+        return self.resolved_buffer_length(), True
 
     # ------------------------------------------------------------------ identity
     def to_dict(self) -> dict:

@@ -26,12 +26,7 @@ def exchange_shape(scenario) -> tuple[int, int, float]:
     if topo.is_tree(graph) or not (scenario.protocol_graph == "digraph" or scenario.spanning_tree) \
             or topo.all_pairs_work(graph) <= CHEAP_VISITS:
         return scenario.resolved_buffer_length(), len(scenario.exchange().arcs), 0.0
-    lower, _ = topo.diameter_bounds(graph)
-    if isinstance(scenario.buffer_length, int):
-        L = scenario.buffer_length
-    else:
-        d_t = scenario.resolved_d_t() or 0
-        L = max(d_t, 1) if scenario.buffer_length == "paper" else d_t * lower + 1
+    L, _ = scenario.buffer_length_bound()
     arcs = 2 * (scenario.n - 1) if scenario.spanning_tree else \
         graph.number_of_edges() * (1 if graph.is_directed() else 2)
     return L, arcs, topo.all_pairs_work(graph) * C_VISIT

@@ -24,6 +24,8 @@ from __future__ import annotations
 import numpy as np
 
 from dkfsim.components.estimators import AntiDelayParams, NoBufferParams
+from dkfsim.config.schema import FUSION_MEMORY_LIMIT
+from dkfsim.core.errors import ScenarioError
 from dkfsim.core.registry import ESTIMATORS, PROTOCOLS
 from dkfsim.core.resources import (B_FLOAT, C_CONTRIBUTION, C_FLOP, C_FUSION_ROW, C_NODE_ROW, C_PACKET,
                                    C_ROW, C_TICK, Cost)
@@ -105,6 +107,18 @@ class AntiDelayDKF(Estimator):
         sys_, K, n, nx = ctx.system, ctx.K, ctx.n, ctx.nx
         xg = sc.exchange()
         self.L = self.resolve_L(sc, self.buffer_length)
+        if self.fusion != "none":
+            # Validation checks the scenario's own fusion with a cheap bound of L
+            # on large graphs; this is the exact check, for every instance.
+            need = (min(self.L, K) + 1) * (n * nx) ** 2 * B_FLOAT
+            if need > FUSION_MEMORY_LIMIT:
+                where = "fusion" if self.main else next(
+                    f"estimators.{i}" for i, p in enumerate(sc.estimators) if p.label == self.name)
+                raise ScenarioError(
+                    f"fusion: {self.fusion} keeps the cross-covariances of all {n} nodes for "
+                    f"{min(self.L, K) + 1} window rows, {need / 2**30:.1f} GiB of memory; use "
+                    "fusion: none for a network this large (or a shorter buffer_length)",
+                    source=sc.source, path=where)
         self.A = paper_weights(xg.graph) if self.weights == "paper" else np.ones((n, n))
         self.window = WindowFilter(sys_.Phi, sys_.Q, sys_.x0_mean, sys_.P0, ctx.info, self.A, self.L)
         self.xcov = CrossCovariance(self.window, sys_.P0) if self.fusion != "none" else None

@@ -1,4 +1,4 @@
-"""The ``ci_consensus`` baseline: consensus on information over the same delayed links.
+"""The ``ci_consensus`` estimator: consensus on information over the same delayed links.
 
 The distributed Kalman filter of Battistelli & Chisci (Automatica 2014,
 "Kullback-Leibler average, consensus on probability densities, and
@@ -13,7 +13,7 @@ Per tick ``k`` (time ``t_k``, row ``r = k-1``):
    batched solve): ``x -> Phi x``, ``P -> Phi P Phi' + Q``;
 2. *correction with its own data only*: ``Omega_i += omega_i`` (of row ``r``
    when a sensor's information varies per row), ``q_i += theta_i[r]``, unscaled;
-3. ``L_c`` *consensus rounds* (scenario key ``consensus_rounds``): the pairs are
+3. ``L_c`` *consensus rounds* (the entry's key ``rounds``): the pairs are
    replaced by convex combinations ``sum_j pi_ij (Omega_j, q_j)`` with
    Metropolis weights.
 
@@ -49,7 +49,7 @@ doubly stochastic Metropolis matrix); ``pi_ii = 1 - sum_j pi_ij``.  On a
 digraph the same formula with in-degrees gives a row-stochastic matrix with
 positive diagonal: the nodes still agree (strong connectivity) and CI stays
 consistent, but the agreed value is not the plain average.  The graph is
-``sim.exchange_graph``: the one the DKF's protocol runs on (with
+the scenario's protocol graph: the one the DKF's protocol runs on (with
 ``spanning_tree: true`` that is the spanning tree).
 
 Timing with delays (integer nanoseconds, as :mod:`dkfsim.network.links`)
@@ -65,10 +65,11 @@ tick ``k`` (``l = 0..L_c-1``) is the instant ``t_k + l dt``:
   The last row is finished at ``t_{K+1}``; packets still in flight then are
   counted as ``in_flight``.
 
-Each send puts one packet per out-link ``i -> j`` on the same SimPy
-:class:`~dkfsim.network.links.Network` class the DKF uses, so each link draws its
-latency and loss from the streams ``("link", u, v, "latency" | "loss")`` in the
-same order: the m-th packet on a link sees the m-th draw of the DKF run.
+Each send puts one packet per out-link ``i -> j`` through this estimator's
+own port on the run's one :class:`~dkfsim.network.links.Network`, which the
+DKF uses too: a packet's latency and loss are keyed by (link, send instant,
+seq), so a consensus packet sent on a link at the instant a DKF packet is
+sent there sees the same delay (common random numbers, docs/design.md §3).
 A packet is stamped with its round (tick and ``l``); a receiver keeps, per
 in-link, the packet with the newest stamp (links reorder).  An averaging at
 an instant uses every packet delivered at or before it (deliveries have

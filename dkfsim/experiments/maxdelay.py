@@ -35,7 +35,7 @@ value is deterministic.
 
 Runs hold the graph fixed (a random topology generator without
 ``params.seed`` gets the scenario seed, i.e. the graph of the base
-scenario) and drop the baselines (they do not change the anti-delay DKF's
+scenario) and drop every listed estimator but the one measured (they do not change the anti-delay DKF's
 estimates).  The buffer length follows the candidate delay when it is
 ``auto`` (``d_t d_g + 1``).
 """
@@ -176,7 +176,7 @@ class DelayAxis:
     ``links.d_t``, when set, becomes ``ceil(s * links.d_t)``.  Schedules (a
     factor on the latency over time) are left as they are.
 
-    ``base`` is the scenario with the baselines dropped and a random
+    ``base`` is the scenario with every estimator but the measured one dropped and a random
     topology's seed pinned (so every run has the base scenario's graph).
     """
 

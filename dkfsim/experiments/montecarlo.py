@@ -217,7 +217,7 @@ def montecarlo(scenario, runs: int, jobs: int = 1, burn_in: int | None = None,
     t0 = time.perf_counter()
 
     def take(r, run_rows_, curves):
-        rows.extend({"run": r, **row} for row in run_rows_)
+        rows.extend({**row, "run": r} for row in run_rows_)
         fold.add(curves)
 
     if jobs == 1:
@@ -377,10 +377,11 @@ class MonteCarloResult:
                          "anees_fraction_in_band: fraction of ticks after burn-in whose mean NEES "
                          "is inside it; anees_ci95: Student-t interval of the per-run time averages; "
                          "per-node estimates: NEES averaged over nodes",
-                "traffic": "messages_per_tick = packets sent / K; bytes_per_tick assumes ONE "
-                           "window row per packet (16 + 8*(nx + nx(nx+1)/2) + ceil(n/8) bytes); "
-                           "lost = packets, late = contributions; means over runs; null = not "
-                           "modelled for that estimate",
+                "traffic": "messages_per_tick = packets the estimator sent / K; bytes_per_tick = "
+                           "nominal bytes of those packets / K (16-byte header; the DKF: per row "
+                           "8 + 8*(nx + nx(nx+1)/2) + ceil(n/8)); lost = packets, late = "
+                           "contributions (the DKF) or stale packets; means over runs; null = "
+                           "not modelled for that estimate",
             },
             "estimates": {name: self.estimate_summary(name) for name in self.estimates},
             "scenario_config": sc.to_dict(),

@@ -47,7 +47,6 @@ Decisions:
 
 from __future__ import annotations
 
-import difflib
 import hashlib
 import itertools
 import json
@@ -56,7 +55,6 @@ import os
 import sqlite3
 import stat
 import sys
-import tempfile
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -82,6 +80,7 @@ from dkfsim.experiments.montecarlo import derive_seed, run_rows
 from dkfsim.core.threads import single_thread
 from dkfsim.config.yaml import parse_yaml, yaml_error_text
 from dkfsim.core.extras import optional
+from dkfsim.core.params import suggest
 from dkfsim.core.files import MAX_YAML_BYTES, check_plain_data, read_text
 from dkfsim.core.folders import write_csv
 
@@ -196,11 +195,6 @@ def _err(source: str, key: str | None, message: str) -> DkfsimError:
     return DkfsimError(f"{source}: {key}: {message}" if key else f"{source}: {message}")
 
 
-def _suggest(word: str, names) -> str:
-    close = difflib.get_close_matches(str(word), list(names), n=1)
-    return f"; did you mean {close[0]!r}?" if close else ""
-
-
 def load_sweep(source, *, output: str | os.PathLike | None = None, yes: bool = False) -> Sweep:
     """Read and validate a sweep file (or a mapping: paths relative to the
     current folder).  Every parameter set is loaded as a scenario here, so a
@@ -234,7 +228,7 @@ def load_sweep(source, *, output: str | os.PathLike | None = None, yes: bool = F
                                 "'dkfsim montecarlo' on it")
     for key in data:
         if key not in SWEEP_KEYS:
-            raise _err(label, str(key), f"unknown key{_suggest(key, SWEEP_KEYS)} "
+            raise _err(label, str(key), f"unknown key{suggest(key, SWEEP_KEYS)} "
                                         f"(valid: {', '.join(SWEEP_KEYS)})")
 
     # scenario
@@ -597,15 +591,16 @@ class SweepDB:
 
 def _difference(stored: dict, new: dict) -> str:
     a, b = identity(stored), identity(new)
+    if a["format"] != b["format"]:
+        return (f"database format {a['format'] or 1} of an earlier dkfsim, this one writes "
+                f"format {b['format']}; keep that file, and give this sweep another --db")
     parts = []
     for key in ("grid", "set", "runs", "burn_in"):
         if a[key] != b[key]:
             parts.append(f"{key}: {_short(a[key])} in the file, {_short(b[key])} now")
     if not parts and a["scenarios"] != b["scenarios"]:
         parts.append("the scenario resolves differently (the scenario file changed)")
-    if not parts:
-        parts.append(f"database format {a['format']}, expected {b['format']}")
-    return "; ".join(parts)
+    return "; ".join(parts) or "the stored definition differs"
 
 
 # =========================================================================== running
@@ -776,32 +771,6 @@ def _write_parquet(path: Path, columns, rows) -> None:
     tmp = path.with_name(path.name + ".tmp")
     pq.write_table(table, tmp)
     os.replace(tmp, path)
-
-
-# =========================================================================== throughput
-def throughput(scenario: str | os.PathLike | None = None, *, steps: int = 1000, jobs: int = 2,
-               runs: int | None = None, executor=None, overrides=()) -> dict:
-    """Measured sweep throughput: ``runs`` Monte Carlo runs of ``scenario``
-    (default ``scenarios/paper_case1.yaml``) at ``steps`` ticks through the
-    whole sweep machinery (executor, scoring, SQLite writes), into a
-    temporary database.
-
-    ``executor`` defaults to ``jobs`` local processes; ``runs`` to ``4 *
-    jobs``.  Worker start-up is included (it is part of what a sweep costs).
-    Returns ``{"scenario", "steps", "runs", "executor", "wall_s",
-    "runs_per_minute"}``.
-    """
-    if scenario is None:
-        scenario = Path(__file__).resolve().parents[2] / "scenarios" / "paper_case1.yaml"
-    runs = 4 * jobs if runs is None else runs
-    with tempfile.TemporaryDirectory(prefix="dkfsim-throughput-") as tmp:
-        sweep = load_sweep({"scenario": str(Path(scenario).resolve()),
-                            "set": [f"steps={int(steps)}", *overrides], "runs": runs,
-                            "output": str(Path(tmp) / "throughput.sqlite")})
-        rep = run_sweep(sweep, executor=executor, jobs=jobs, progress=False)
-    return {"scenario": str(scenario), "steps": int(steps), "runs": rep.computed,
-            "executor": rep.executor, "wall_s": rep.wall_s,
-            "runs_per_minute": rep.runs_per_minute}
 
 
 def tasks_done(path: Path, sweep: Sweep) -> set:

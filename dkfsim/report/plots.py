@@ -3,7 +3,7 @@
 ``dkfsim plot DIR`` reads either layout and draws
 
 * ``tracking``: truth, the fused estimate, node 0's estimate and the references
-  (centralized Kalman filter; the consensus-on-information baseline when it
+  (centralized Kalman filter; the consensus-on-information estimator when it
   ran), one panel per state component -- the paper's Fig. 3;
 * ``mse``: mean squared error per tick and component for every estimate in the
   folder, log scale -- the paper's Fig. 4.  A Monte Carlo folder gives the mean
@@ -58,7 +58,9 @@ ESTIMATES: dict[str, tuple[str, str]] = {
 }
 
 #: Names folders written by earlier versions used (read as the current ones).
-OLD_NAMES = {"fused": "fused", "anti_delay_dkf_local": "local", "local": "local_only"}
+#: Estimate names of folders written before the one vocabulary (``algorithms`` in
+#: Monte Carlo output), mapped to today's names.
+OLD_NAMES = {"anti_delay_dkf": "fused", "anti_delay_dkf_local": "local", "local": "local_only"}
 NOT_ESTIMATES = {"x_final", "x0_mean"}
 
 CA_COMPONENTS = ("position", "velocity", "acceleration")
@@ -671,8 +673,8 @@ def plot_compare(folders: list[Folder], stem, labels=None, formats=DEFAULT_FORMA
             raise DkfsimError(f"--compare: {f.path} has no {label_of(estimate)} estimate")
     first = folders[0]
     if relative and "centralized" not in first.mse:
-        raise DkfsimError(f"--relative: the first folder ({first.path}) has no centralized baseline "
-                          f"to divide by; run it with baselines including centralized")
+        raise DkfsimError(f"--relative: the first folder ({first.path}) has no centralized estimate "
+                          f"to divide by; run it with estimators including {{kind: centralized}}")
     idx = select_components(first, components)
     w = default_smooth(first) if smooth is None else max(1, int(smooth))
     if smooth is None and any(f.kind == "run" for f in folders):
