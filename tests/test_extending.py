@@ -181,17 +181,24 @@ def test_the_example_metric_is_a_column_everywhere(tmp_path):
     assert row_columns()[-1] == "peak_error"
 
 
-def test_an_entry_point_plugin_is_loaded(tmp_path, monkeypatch):
-    """The ``dkfsim.plugins`` entry-point group of an installed package (here a dist-info on
-    sys.path) is imported the first time a registry is read."""
+@pytest.mark.parametrize("group", ["dkfsim.plugins", "dkfsim.estimators"])
+def test_an_entry_point_plugin_is_loaded(tmp_path, monkeypatch, group):
+    """The ``dkfsim.plugins`` (or ``dkfsim.estimators``) entry-point group of an installed
+    package (here a dist-info on sys.path) is imported the first time a registry is read."""
+    metric = "peak_error_" + group.split(".")[1]                # a name no other test registers
+    module = "dkfsim_test_entry_" + group.split(".")[1]
     site = tmp_path / "site"
-    pkg = site / "dkfsim_test_entry.py"
     site.mkdir()
-    pkg.write_text((EXAMPLES / "peak_error.py").read_text())
-    dist = site / "dkfsim_test_entry-1.0.dist-info"
+    (site / f"{module}.py").write_text((EXAMPLES / "peak_error.py").read_text()
+                                       .replace('METRICS.add("peak_error"', f'METRICS.add("{metric}"'))
+    dist = site / f"{module}-1.0.dist-info"
     dist.mkdir()
-    (dist / "METADATA").write_text("Metadata-Version: 2.1\nName: dkfsim-test-entry\nVersion: 1.0\n")
-    (dist / "entry_points.txt").write_text("[dkfsim.plugins]\npeak = dkfsim_test_entry\n")
+    (dist / "METADATA").write_text(f"Metadata-Version: 2.1\nName: {module}\nVersion: 1.0\n")
+    (dist / "entry_points.txt").write_text(f"[{group}]\npeak = {module}\n")
+    assert metric not in registry.METRICS.names()
     monkeypatch.syspath_prepend(str(site))
     monkeypatch.setattr(registry, "_PLUGINS_LOADED", False)
-    assert "peak_error" in registry.METRICS.names()
+    try:
+        assert metric in registry.METRICS.names()
+    finally:
+        registry.METRICS._entries.pop(metric, None)

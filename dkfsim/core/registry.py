@@ -9,8 +9,8 @@ here when it validates a file, so ``dkfsim.config`` never imports the
 stages that implement them, and a component added by a plugin is valid in
 every scenario key, every command and ``dkfsim list`` at once.
 
-Plugins: the entry-point group ``dkfsim.plugins`` (modules imported the
-first time a registry is read) and a scenario's ``plugins:`` key (modules
+Plugins: the entry-point groups ``dkfsim.plugins`` and ``dkfsim.estimators``
+(modules imported the first time a registry is read) and a scenario's ``plugins:`` key (modules
 or ``.py`` files imported before the scenario is validated).  Importing a
 plugin runs its code: that is what a plugin is for.
 """
@@ -146,13 +146,19 @@ REGISTRIES: dict[str, Registry] = {
 _PLUGINS_LOADED = False
 
 
+#: Entry-point groups whose modules are imported as plugins: ``dkfsim.plugins``
+#: (any component) and ``dkfsim.estimators`` (the name an estimator package may
+#: expect); both are the same mechanism.
+PLUGIN_GROUPS = ("dkfsim.plugins", "dkfsim.estimators")
+
+
 def load_entry_point_plugins() -> None:
-    """Import the modules of the ``dkfsim.plugins`` entry-point group, once."""
+    """Import the modules of the :data:`PLUGIN_GROUPS` entry-point groups, once."""
     global _PLUGINS_LOADED
     if _PLUGINS_LOADED:
         return
     _PLUGINS_LOADED = True
-    for ep in entry_points(group="dkfsim.plugins"):
+    for ep in (ep for group in PLUGIN_GROUPS for ep in entry_points(group=group)):
         try:
             ep.load()
         except Exception as exc:  # noqa: BLE001  (a broken plugin must not break dkfsim)
