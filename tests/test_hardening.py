@@ -38,6 +38,20 @@ def cli(*args, timeout=60, **kw):
                           text=True, timeout=timeout, **kw)
 
 
+class cpu_clock:
+    """CPU seconds spent by child processes inside the block: what "answered in seconds" means,
+    measured so that a loaded machine (other jobs, a parallel test worker) cannot fail it."""
+
+    def __enter__(self):
+        t = os.times()
+        self.start = t.children_user + t.children_system
+        return self
+
+    def __exit__(self, *exc):
+        t = os.times()
+        self.seconds = t.children_user + t.children_system - self.start
+
+
 def one_paragraph(p, *words):
     """Exit 2, no traceback, one line naming every word."""
     assert p.returncode == 2, (p.returncode, p.stdout, p.stderr)
@@ -61,9 +75,9 @@ def one_paragraph(p, *words):
 def test_hostile_yaml_is_refused_quickly(tmp_path, text, words):
     path = tmp_path / "bad.yaml"
     path.write_text(text)
-    t0 = time.perf_counter()
-    p = cli("validate", path)
-    assert time.perf_counter() - t0 < 20
+    with cpu_clock() as c:
+        p = cli("validate", path)
+    assert c.seconds < 20
     one_paragraph(p, str(path), *words)
     assert len(p.stderr) < 2000
 
@@ -110,9 +124,9 @@ def test_deep_mapping_from_python_is_a_clean_error():
 def test_a_fifo_does_not_block(tmp_path):
     fifo = tmp_path / "pipe.yaml"
     os.mkfifo(fifo)
-    t0 = time.perf_counter()
-    one_paragraph(cli("validate", fifo, timeout=20), str(fifo), "not a regular file")
-    assert time.perf_counter() - t0 < 20
+    with cpu_clock() as c:
+        one_paragraph(cli("validate", fifo, timeout=20), str(fifo), "not a regular file")
+    assert c.seconds < 20
 
 
 def test_special_files_are_refused(tmp_path):
@@ -196,10 +210,10 @@ def test_an_exploding_model_finishes_and_says_it_diverged(tmp_path):
 
 # =========================================================================== resources
 def test_a_run_that_cannot_fit_is_refused_before_it_starts(tmp_path):
-    t0 = time.perf_counter()
-    p = cli("run", CASE1, "--out", tmp_path / "o", "--set", "model.T=1e-6", "--steps", 10**12)
+    with cpu_clock() as c:
+        p = cli("run", CASE1, "--out", tmp_path / "o", "--set", "model.T=1e-6", "--steps", 10**12)
     err = one_paragraph(p, "memory", "more than the")
-    assert time.perf_counter() - t0 < 20 and not (tmp_path / "o").exists(), err
+    assert c.seconds < 20 and not (tmp_path / "o").exists(), err
     with pytest.raises(ResourceError, match="memory"):
         dkfsim.run(dkfsim.load_scenario(CASE1, ["model.T=1e-6", "steps=1000000000000"]))
 
@@ -220,10 +234,11 @@ def test_a_20000_node_graph_is_answered_in_seconds(tmp_path):
         d["topology"], d["protocol"] = topology, protocol
         path = tmp_path / f"{protocol}.yaml"
         path.write_text(yaml.safe_dump(d))
-        t0 = time.perf_counter()
         # Refused at validation (fusion's cross-covariances): the size in GiB names the memory.
-        one_paragraph(cli("run", path, "--out", tmp_path / "o", timeout=120), "20000 nodes", "GiB")
-        assert time.perf_counter() - t0 < 60
+        with cpu_clock() as c:
+            p = cli("run", path, "--out", tmp_path / "o", timeout=300)
+        one_paragraph(p, "20000 nodes", "GiB")
+        assert c.seconds < 60
     d["topology"] = {"generator": "erdos_renyi", "params": {"p": 0.5}}
     with pytest.raises(ScenarioError, match="edges, more than") as info:
         dkfsim.load_scenario(d)
@@ -241,10 +256,10 @@ def test_huge_sweeps_are_refused_or_need_yes(tmp_path):
     p = cli("sweep", write_sweep(tmp_path, runs=10**9), timeout=60)
     one_paragraph(p, "tasks left", "memory")
     grid = {"seed": list(range(1000)), "steps": list(range(1, 1001))}
-    t0 = time.perf_counter()
-    p = cli("sweep", write_sweep(tmp_path, grid=grid), "--dry-run", timeout=60)
+    with cpu_clock() as c:
+        p = cli("sweep", write_sweep(tmp_path, grid=grid), "--dry-run", timeout=120)
     one_paragraph(p, "1,000,000 parameter sets")
-    assert time.perf_counter() - t0 < 30
+    assert c.seconds < 30
     p = cli("sweep", write_sweep(tmp_path, runs=2000), "--jobs", 1, timeout=60)
     one_paragraph(p, "would take about", "--yes")
 
@@ -267,14 +282,16 @@ def test_out_problems_are_found_before_the_run(tmp_path):
     (tmp_path / "theirs").mkdir()
     (tmp_path / "theirs" / "notes.txt").write_text("mine")
     (tmp_path / "npzdir" / "run.npz").mkdir(parents=True)
-    slow = ["--set", "consensus_rounds=10", "--set", "baselines=[ci_consensus]"]
+    # A run this long would need minutes of CPU: far over the bound below if it ever started.
+    slow = ["--set", "consensus_rounds=10", "--set", "baselines=[ci_consensus]", "--steps", 5000]
     for out, words in ((tmp_path / "file", ["not a folder"]),
                        (tmp_path / "theirs", ["did not write", "notes.txt"]),
                        (tmp_path / "npzdir", ["run.npz inside it is a folder"]),
                        (tmp_path / "file" / "sub", ["cannot write"])):
-        t0 = time.perf_counter()
-        one_paragraph(cli("run", CASE1, "--out", out, *slow), "--out", *words)
-        assert time.perf_counter() - t0 < 15          # the 1000-tick run never started
+        with cpu_clock() as c:
+            p = cli("run", CASE1, "--out", out, *slow, timeout=600)
+        one_paragraph(p, "--out", *words)
+        assert c.seconds < 10          # the 5000-tick run never started
     assert (tmp_path / "theirs" / "notes.txt").read_text() == "mine"
     for cmd in (["montecarlo", CASE1, "--runs", 2], ["maxdelay", CASE1, "--relative", 1.5]):
         one_paragraph(cli(*cmd, "--out", tmp_path / "theirs"), "did not write")
