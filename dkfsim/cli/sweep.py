@@ -6,10 +6,9 @@ import argparse
 import sys
 from pathlib import Path
 
-from dkfsim.cli.common import add_yes_arg
+from dkfsim.cli.common import add_executor_args, add_yes_arg, executor_from_args, workers_from_args
 from dkfsim.core.errors import DkfsimError
 from dkfsim.core.extras import optional
-from dkfsim.experiments import executors
 from dkfsim.experiments.sweep import (Sweep, export, is_database, load_sweep, run_sweep,
                                       tasks_done)
 
@@ -48,15 +47,7 @@ def add_command(subparsers) -> None:
     p.add_argument("file", metavar="FILE",
                    help="a sweep YAML file to run or resume; or a sweep database (.sqlite) to "
                         "export with --export, computing nothing")
-    where = p.add_mutually_exclusive_group()
-    where.add_argument("--jobs", type=int, metavar="J",
-                       help="local worker processes (1 = this process; default: every CPU)")
-    where.add_argument("--scheduler", metavar="tcp://HOST:PORT",
-                       help="run the tasks on an existing Dask distributed cluster (its workers "
-                            "need the same dkfsim installed); needs dkfsim[cluster]")
-    where.add_argument("--dask-local", type=int, metavar="N",
-                       help="start a Dask LocalCluster of N single-threaded worker processes on "
-                            "this machine; needs dkfsim[cluster]")
+    add_executor_args(p)
     p.add_argument("--db", metavar="PATH",
                    help="results database (overrides the sweep file's output)")
     p.add_argument("--export", metavar="PATH",
@@ -66,7 +57,6 @@ def add_command(subparsers) -> None:
     p.add_argument("--dry-run", action="store_true",
                    help="validate, list the parameter sets and how many of their runs are done; "
                         "compute nothing")
-    p.add_argument("--quiet", action="store_true", help="no progress bar and no summary lines")
     add_yes_arg(p)
     p.set_defaults(func=cmd_sweep)
 
@@ -93,18 +83,12 @@ def cmd_sweep(args) -> int:
                               "use a .csv or .parquet file name")
         if suffix != ".csv":
             optional("pyarrow")            # a missing package is reported before any work
-    if args.scheduler is not None or args.dask_local is not None:
-        executors._distributed()          # a missing package is reported before any work
-
-    def make():
-        return executors.make_executor(jobs=args.jobs, scheduler=args.scheduler,
-                                       dask_local=args.dask_local)
-
+    make = executor_from_args(args)      # a missing Dask package is reported before any work
     say(f"{sweep.source}: {len(sweep.parameter_sets)} parameter set(s) x {sweep.runs} "
         f"run(s) = {sweep.n_tasks} tasks -> {sweep.output}")
-    workers = args.jobs or args.dask_local or (1 if args.scheduler else executors.available_cpus())
-    rep = run_sweep(sweep, executor=make, progress=not args.quiet and sys.stderr.isatty(),
-                    yes=args.yes, workers=workers)
+    rep = run_sweep(sweep, executor=make, jobs=args.jobs,
+                    progress=not args.quiet and sys.stderr.isatty(), yes=args.yes,
+                    workers=workers_from_args(args))
     rate = f" on {rep.executor} ({rep.runs_per_minute:.1f} runs/min)" if rep.computed else ""
     say(f"done: {rep.skipped} already in the database, {rep.computed} computed in "
         f"{_duration(rep.wall_s)}{rate}")

@@ -19,6 +19,7 @@ from dkfsim.core.errors import DkfsimError
 from dkfsim.core.resources import Cost, check, repeat
 from dkfsim.core.threads import single_thread
 from dkfsim.engine.estimate import estimate_run
+from dkfsim.experiments import executors
 from dkfsim.experiments.maxdelay.axis import latencies_deterministic, make_axis
 from dkfsim.experiments.maxdelay.report import MaxDelayResult
 from dkfsim.experiments.maxdelay.search import (COVARIANCE_METRICS, FUSED_METRICS, METRICS, UNDECIDED,
@@ -39,7 +40,7 @@ class Settings:
     batch: int = 5
     max_runs: int = 40
     burn_in: int | None = None
-    jobs: int = 1
+    jobs: int | None = None            # local processes; None = every available CPU
     max_delay: int = 32
     scale_step: float = 0.25
     max_scale: float = 16.0
@@ -62,8 +63,7 @@ def check_settings(st: Settings) -> None:
         raise DkfsimError(f"--batch: must be >= 2 (a confidence interval needs two runs), got {st.batch}")
     if st.max_runs < st.batch:
         raise DkfsimError(f"--max-runs: must be >= --batch ({st.batch}), got {st.max_runs}")
-    if st.jobs < 1:
-        raise DkfsimError(f"--jobs: must be >= 1, got {st.jobs}")
+    executors.check_jobs(st.jobs)
     for flag, value in (("--batch", st.batch), ("--max-runs", st.max_runs), ("--max-delay", st.max_delay)):
         if value > 10**9:
             raise DkfsimError(f"{flag}: at most 10^9, got {value}")
@@ -90,8 +90,10 @@ def resolve_component(scenario, metric: str, text) -> tuple[int | None, str]:
 class MaxDelay:
     """Runs the three answers for one scenario (see the module docstring)."""
 
-    def __init__(self, scenario, settings: Settings, progress=None, yes: bool = False):
+    def __init__(self, scenario, settings: Settings, progress=None, yes: bool = False,
+                 executor=None):
         check_settings(settings)
+        self.executor = executor
         self.sc = scenario
         self.st = settings
         if settings.metric == "mse" and settings.estimate not in ("fused", "local") \
@@ -133,7 +135,14 @@ class MaxDelay:
         runs = looks * st.max_runs + (J + 3)
         one = estimate_run(self.axis.base, "estimates")
         return repeat(one, f"{self.sc.name}: maxdelay over {J + 1} candidates ({self.axis.name})",
-                      runs, st.jobs, extra_bytes=(J + 1) * 2048)
+                      runs, self.workers, extra_bytes=(J + 1) * 2048)
+
+    @property
+    def workers(self) -> int:
+        """How many runs at once: the executor's workers, else ``jobs`` (at most a batch)."""
+        if isinstance(self.executor, executors.Executor):
+            return self.executor.workers
+        return min(self.st.jobs or executors.available_cpus(), self.st.batch)
 
     # ------------------------------------------------------------------ helpers
     def _candidate_scenario(self, j: int):
@@ -221,7 +230,9 @@ class MaxDelay:
     def run(self) -> "MaxDelayResult":
         t0 = time.perf_counter()
         st, J = self.st, self.axis.max_index
-        with Runner(st.jobs, on_run=lambda k: self.progress(runs=k)) as runner:
+        ex, own = executors.executor_for(self.executor, st.jobs, st.batch)
+        try:
+            runner = Runner(ex, on_run=lambda k: self.progress(runs=k))
             # 1. empirical
             emp = empirical_search(_Evaluator(self, runner), J)
             runs_empirical = runner.runs
@@ -241,6 +252,9 @@ class MaxDelay:
                 self.notes.append("worst case not computed: a latency (or jitter) model is unbounded "
                                   "and links.d_t is not set, so there is no largest latency")
             runs_total = runner.runs
+        finally:
+            if own:
+                ex.close()
         # 3. the paper's bound
         paper = self._paper_bound(wc_tol if wc_tol is not None else st.tolerance)
         wall = time.perf_counter() - t0
@@ -288,11 +302,14 @@ class MaxDelay:
 
 
 # =========================================================================== result
-def maxdelay(scenario, progress=None, yes: bool = False, **settings) -> "MaxDelayResult":
+def maxdelay(scenario, progress=None, yes: bool = False, executor=None,
+             **settings) -> "MaxDelayResult":
     """The maximum allowable delay of ``scenario`` (a Scenario, a path or a mapping).
 
     ``settings`` are the fields of :class:`Settings` (the ``dkfsim maxdelay``
     flags: ``relative=1.5`` or ``tolerance=...``, ``metric``, ``jobs``, ...).
+    ``executor``: where the runs happen (as :func:`dkfsim.experiments.montecarlo.montecarlo`);
+    the result does not depend on it.
     A search estimated above 10 minutes needs ``yes`` (:mod:`dkfsim.core.resources`).
     """
     sc = scenario if isinstance(scenario, Scenario) else load_scenario(scenario)
@@ -300,5 +317,5 @@ def maxdelay(scenario, progress=None, yes: bool = False, **settings) -> "MaxDela
     if unknown:
         raise DkfsimError(f"maxdelay: unknown setting {unknown[0]!r}; known: "
                           + ", ".join(Settings.__dataclass_fields__))
-    return MaxDelay(sc, Settings(**settings), progress=progress, yes=yes).run()
+    return MaxDelay(sc, Settings(**settings), progress=progress, yes=yes, executor=executor).run()
 

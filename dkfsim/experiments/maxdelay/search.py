@@ -8,15 +8,12 @@ the axis.  See :mod:`dkfsim.experiments.maxdelay` and docs/design.md.
 from __future__ import annotations
 
 import math
-import signal
-from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass, field
 
 import numpy as np
 
 from dkfsim.analysis.metrics import mse_per_component, t_interval
 from dkfsim.config.load import load_scenario
-from dkfsim.core.threads import pin_process
 from dkfsim.engine.driver import Run
 
 
@@ -83,53 +80,19 @@ def _simulate(base, overrides: list, seed: int | None, metric: str, comp, burn: 
     return metric_value(res.arrays, metric, comp, burn, estimate)
 
 
-def _init_worker() -> None:
-    pin_process()                     # one BLAS thread: the parallelism is the processes
-    signal.signal(signal.SIGINT, signal.SIG_IGN)
-
-
-def _task(args):
-    return _simulate(*args)
-
-
 class Runner:
-    """Runs simulations here or on ``jobs`` worker processes; counts them."""
+    """Runs simulations on an executor (:mod:`dkfsim.experiments.executors`), results in
+    task order; counts them."""
 
-    def __init__(self, jobs: int = 1, on_run=None):
-        self.jobs = jobs
-        self.pool = None
+    def __init__(self, executor, on_run=None):
+        self.executor = executor
         self.runs = 0
         self.on_run = on_run
-
-    def __enter__(self):
-        if self.jobs > 1:
-            self.pool = ProcessPoolExecutor(max_workers=self.jobs, initializer=_init_worker)
-        return self
-
-    def __exit__(self, exc_type, exc, tb):
-        if self.pool is not None:
-            if exc_type is not None:
-                procs = list((getattr(self.pool, "_processes", None) or {}).values())
-                self.pool.shutdown(wait=False, cancel_futures=True)
-                for p in procs:
-                    if p.is_alive():
-                        p.terminate()
-            else:
-                self.pool.shutdown(wait=True)
-        return False
 
     def map(self, tasks: list[tuple]) -> list[float]:
         if not tasks:
             return []
-        if self.pool is None:
-            out = []
-            for t in tasks:
-                out.append(_simulate(*t))
-                self._count(1)
-            return out
-        out = list(self.pool.map(_task, tasks))
-        self._count(len(tasks))
-        return out
+        return self.executor.map(_simulate, tasks, on_done=lambda: self._count(1))
 
     def _count(self, k: int) -> None:
         self.runs += k

@@ -102,13 +102,10 @@ def run_sweep(sweep: Sweep | str | os.PathLike, *, executor=None, jobs: int | No
         done = store.done()
         todo = [(p, r) for p, r in sweep.tasks() if (p.param_hash, r) not in done]
         skipped = sweep.n_tasks - len(todo)
-        own = executor is None or not isinstance(executor, executors.Executor)
         if not todo:
             executor, own = executors.InlineExecutor(), True   # nothing to start
-        elif executor is None:
-            executor = executors.local(jobs)
-        elif own:
-            executor = executor()
+        else:
+            executor, own = executors.executor_for(executor, jobs, len(todo))
         label = executor.label
         t0 = time.perf_counter()
         computed = 0
