@@ -277,6 +277,9 @@ def in_order(executor: Executor, fn: Callable, tasks: Iterable[Task],
                 raise got.exc
             yield keys[nxt], got
             nxt += 1
+    if nxt != len(keys):             # an executor must give back every task it was given
+        raise RuntimeError(f"{executor.label}: {len(keys) - nxt} of {len(keys)} tasks came back "
+                           f"with no result (the first: {describe(keys[nxt])})")
 
 
 # =========================================================================== Dask
