@@ -105,7 +105,8 @@ class Sweep:
         return len(self.parameter_sets) * self.runs
 
     def definition(self) -> dict:
-        """What the database stores; :meth:`identity` of it must match to resume."""
+        """What the database stores; a later definition must be this one or grow from it
+        (:func:`dkfsim.experiments.sweep.store.growth_problem`)."""
         return {
             "format": DB_FORMAT,
             "scenario_file": str(self.scenario_path),

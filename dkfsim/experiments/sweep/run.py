@@ -24,20 +24,30 @@ from dkfsim.engine.estimate import estimate_run
 from dkfsim.experiments.montecarlo import derive_seed, run_rows
 from dkfsim.core.threads import single_thread
 from dkfsim.experiments.sweep.definition import Sweep, load_sweep
-from dkfsim.experiments.sweep.store import SweepDB, tasks_done
+from dkfsim.experiments.sweep.store import SweepDB, missing_estimates, tasks_done
 
 
 # =========================================================================== one task (workers)
-def run_task(scenario: dict, seed: int, burn_in: int | None,
-             base_dir: str | None = None) -> tuple[list[dict], float]:
+def run_task(scenario: dict, seed: int, burn_in: int | None, base_dir: str | None = None,
+             only: list[str] | None = None) -> tuple[list[dict], float]:
     """Simulate and score one task where it runs; send back only the rows.
 
     Returns ``(rows, wall seconds)``; rows as :func:`dkfsim.experiments.montecarlo.run_rows`
-    gives them, with plain Python numbers.
+    gives them, with plain Python numbers; ``only``: just the rows of these estimates.
     """
     t0 = time.perf_counter()
     rows, _curves = run_rows(load_scenario(scenario, base_dir=base_dir), int(seed), burn_in=burn_in)
-    return [{k: _plain(v) for k, v in row.items()} for row in rows], time.perf_counter() - t0
+    return [{k: _plain(v) for k, v in row.items()} for row in rows
+            if only is None or row["estimate"] in only], time.perf_counter() - t0
+
+
+def _only(scenario: dict, estimators: list[str] | None) -> dict:
+    """``scenario`` running just the estimators named (all when None): an estimator's
+    rows do not depend on the others it runs beside."""
+    if estimators is None:
+        return scenario
+    return {**scenario, "estimators": [e for e in scenario.get("estimators", [])
+                                       if (e.get("name") or e.get("kind")) in estimators]}
 
 
 def _plain(v: Any) -> Any:
@@ -99,8 +109,11 @@ def run_sweep(sweep: Sweep | str | os.PathLike, *, executor=None, jobs: int | No
     check(estimate_tasks(sweep, tasks_done(path, sweep), workers), yes=yes,
           hint="fewer runs, a smaller grid, or more workers")
     with SweepDB(path, sweep) as store:
-        done = store.done()
-        todo = [(p, r) for p, r in sweep.tasks() if (p.param_hash, r) not in done]
+        done, missing = store.done(), missing_estimates(store, sweep)
+        # Runs not done yet (every estimate), then estimators added to runs done before.
+        todo = [(p, r, None) for p, r in sweep.tasks() if (p.param_hash, r) not in done]
+        todo += [(p, r, missing[p.param_hash, r]) for p, r in sweep.tasks()
+                 if (p.param_hash, r) in missing]
         skipped = sweep.n_tasks - len(todo)
         if not todo:
             executor, own = executors.InlineExecutor(), True   # nothing to start
@@ -115,11 +128,12 @@ def run_sweep(sweep: Sweep | str | os.PathLike, *, executor=None, jobs: int | No
                        file=sys.stderr, dynamic_ncols=True, smoothing=0.1)
         try:
             if todo:
-                tasks = (((p.param_hash, r, seed),
-                          (p.scenario.to_dict(), seed, sweep.burn_in, p.scenario.base_dir))
-                         for p, r in todo for seed in (derive_seed(p.base_seed, r),))
-                for (h, r, seed), (rows, wall) in executor.imap_unordered(run_task, tasks):
-                    store.write_task(h, r, seed, rows, wall)
+                tasks = (((p.param_hash, r, seed, only is None),
+                          (_only(p.scenario.to_dict(), only), seed, sweep.burn_in,
+                           p.scenario.base_dir, only))
+                         for p, r, only in todo for seed in (derive_seed(p.base_seed, r),))
+                for (h, r, seed, whole), (rows, wall) in executor.imap_unordered(run_task, tasks):
+                    store.write_task(h, r, seed, rows, wall, whole=whole)
                     computed += 1
                     if bar is not None:
                         bar.update(1)

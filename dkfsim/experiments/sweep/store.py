@@ -22,7 +22,7 @@ except ImportError:  # pragma: no cover  (Windows)
 from dkfsim.core.errors import DkfsimError
 from dkfsim.core.version import __version__
 from dkfsim.experiments.sweep.definition import (DB_FORMAT, KEY_COLUMNS, Sweep, _canonical, _short,
-                                                 identity, is_database)
+                                                 is_database)
 
 
 def _sql_value(v: Any) -> Any:
@@ -143,12 +143,15 @@ class SweepDB:
             return
         new = sweep.definition()
         if stored is not None:
-            if identity(stored) != identity(new):
+            problem = growth_problem(self.conn, stored, sweep)
+            if problem:
                 raise DkfsimError(f"{label} was made by a different sweep definition "
-                                  f"({_difference(stored, new)}); refusing to mix their results. "
+                                  f"({problem}); refusing to mix their results. "
                                   "Write to another file (output: in the sweep file, or --db "
                                   "PATH), or delete this one to start over.")
-            self.definition = stored
+            if _canonical(stored) != _canonical(new):
+                self._grow(sweep, new)
+            self.definition = new
             return
         self.conn.execute("BEGIN IMMEDIATE")
         try:
@@ -170,18 +173,52 @@ class SweepDB:
             raise
         self.definition = new
 
+    def _grow(self, sweep: Sweep, new: dict) -> None:
+        """The sweep grew (more runs, grid values or estimators; :func:`growth_problem`
+        allowed it): store its definition and parameter sets, keep every result."""
+        conn = self.conn
+        conn.execute("BEGIN IMMEDIATE")
+        try:
+            conn.execute("UPDATE meta SET value=? WHERE key='definition'", (_canonical(new),))
+            conn.execute("INSERT OR REPLACE INTO meta(key, value) VALUES ('grown', ?)",
+                         (time.strftime("%Y-%m-%dT%H:%M:%S%z"),))
+            conn.execute("UPDATE params SET idx = -1 - idx")       # idx is UNIQUE: out of the way
+            for p in sweep.parameter_sets:
+                conn.execute(
+                    "INSERT INTO params(param_hash, idx, values_json, scenario_hash, base_seed, "
+                    "scenario_json) VALUES (?, ?, ?, ?, ?, ?) ON CONFLICT(param_hash) DO UPDATE "
+                    "SET idx=excluded.idx, values_json=excluded.values_json, "
+                    "scenario_hash=excluded.scenario_hash, scenario_json=excluded.scenario_json",
+                    (p.param_hash, p.index, _canonical(p.values), p.scenario_hash, p.base_seed,
+                     _canonical(p.scenario.to_dict())))
+            conn.execute("COMMIT")
+        except BaseException:
+            conn.execute("ROLLBACK")
+            raise
+
     # -- reading -------------------------------------------------------------------
     def done(self) -> set[tuple[str, int]]:
+        """``(param_hash, run)`` of the tasks computed whole (every estimate of their time)."""
         return {(h, r) for h, r in self.conn.execute("SELECT param_hash, run FROM tasks")}
+
+    def estimates_done(self) -> dict[tuple[str, int], set[str]]:
+        """The estimates stored per ``(param_hash, run)`` (estimators added later are
+        computed for the runs already done as tasks of their own)."""
+        out: dict[tuple[str, int], set[str]] = {}
+        for h, r, e in self.conn.execute("SELECT DISTINCT param_hash, run, estimate FROM results"):
+            out.setdefault((h, r), set()).add(e)
+        return out
 
     def columns(self) -> list[str]:
         return [r[1] for r in self.conn.execute("PRAGMA table_info(results)")]
 
     # -- writing -------------------------------------------------------------------
     def write_task(self, param_hash: str, run: int, seed: int, rows: list[dict],
-                   wall_s: float | None) -> None:
+                   wall_s: float | None, whole: bool = True) -> None:
         """All rows of one task (tidy: one per estimate and component), or nothing (one
-        transaction).  A metric column is added the first time a row has it."""
+        transaction).  A metric column is added the first time a row has it.  ``whole``:
+        a run with every estimate (recorded in ``tasks``); else the rows of estimators
+        added to a run already done."""
         conn = self.conn
         conn.execute("BEGIN IMMEDIATE")
         try:
@@ -190,9 +227,10 @@ class SweepDB:
             for c in metrics:
                 if c not in have:
                     conn.execute(f"ALTER TABLE results ADD COLUMN {_q(c)}")
-            conn.execute("INSERT INTO tasks(param_hash, run, seed, wall_s, finished) "
-                         "VALUES (?, ?, ?, ?, ?)",
-                         (param_hash, run, seed, wall_s, time.strftime("%Y-%m-%dT%H:%M:%S%z")))
+            if whole:
+                conn.execute("INSERT INTO tasks(param_hash, run, seed, wall_s, finished) "
+                             "VALUES (?, ?, ?, ?, ?)",
+                             (param_hash, run, seed, wall_s, time.strftime("%Y-%m-%dT%H:%M:%S%z")))
             names = list(KEY_COLUMNS) + metrics
             for row in rows:
                 if row["seed"] != seed:
@@ -224,32 +262,96 @@ class SweepDB:
         return False
 
 
-def _difference(stored: dict, new: dict) -> str:
-    a, b = identity(stored), identity(new)
-    if a["format"] != b["format"]:
-        return (f"database format {a['format'] or 1} of an earlier dkfsim, this one writes "
-                f"format {b['format']}; keep that file, and give this sweep another --db")
-    parts = []
-    for key in ("grid", "set", "runs", "burn_in"):
-        if a[key] != b[key]:
-            parts.append(f"{key}: {_short(a[key])} in the file, {_short(b[key])} now")
-    if not parts and a["scenarios"] != b["scenarios"]:
-        parts.append("the scenario resolves differently (the scenario file changed)")
-    return "; ".join(parts) or "the stored definition differs"
+def _format_problem(stored: dict, new: dict) -> str | None:
+    a, b = stored.get("format"), new.get("format")
+    if a != b:
+        return (f"database format {a or 1} of an earlier dkfsim, this one writes "
+                f"format {b}; keep that file, and give this sweep another --db")
+    return None
 
+
+def _labels(estimators: list) -> list[str]:
+    return [e.get("name") or e.get("kind") for e in estimators]
+
+
+def growth_problem(conn, stored: dict, sweep: Sweep) -> str | None:
+    """Why the database (``conn``, its definition ``stored``) cannot take ``sweep``, or None.
+
+    A sweep may grow: more ``runs``, more values of its grid keys, more estimators (listed
+    after the ones it had).  Task ``(parameter set, run)`` is the same task whatever the
+    number of runs or the other grid values (its seed is ``derive_seed(base seed, run)``,
+    its ``param_hash`` depends on its own values only) and one estimator's rows do not
+    depend on the others, so every stored row stays valid.  What would change stored rows,
+    or leave rows that are no longer part of the sweep, is refused: a changed scenario or
+    ``set`` (beyond added estimators), ``burn_in``, grid keys, fewer runs, a removed grid
+    value, a removed, changed or reordered estimator."""
+    new = sweep.definition()
+    problem = _format_problem(stored, new)
+    if problem:
+        return problem
+    if stored.get("burn_in") != new["burn_in"]:
+        return (f"burn_in: {_short(stored.get('burn_in'))} in the file, {_short(new['burn_in'])} "
+                "now (it changes every stored row)")
+    keys_a = [k for k, _ in stored.get("grid", [])]
+    keys_b = [k for k, _ in sweep.grid]
+    if sorted(keys_a) != sorted(keys_b):
+        return (f"grid keys: {_short(keys_a)} in the file, {_short(keys_b)} now (a sweep can grow "
+                "by values of its grid keys, not by keys)")
+    if new["runs"] < stored.get("runs", 0):
+        return (f"runs: {stored.get('runs')} in the file, {new['runs']} now (runs can be raised, "
+                "not lowered)")
+    now = {p.param_hash: p for p in sweep.parameter_sets}
+    scenarios = dict(conn.execute("SELECT param_hash, scenario_json FROM params"))
+    for old in stored.get("parameter_sets", []):
+        h = old.get("param_hash")
+        values = ", ".join(f"{k}={_short(v)}" for k, v in (old.get("values") or {}).items())
+        if h not in now:
+            return (f"grid: the parameter set {values or '(no grid)'} has results in the file but "
+                    "is no longer in the grid (values can be added, not removed)")
+        if old.get("scenario_hash") == now[h].scenario_hash:
+            continue
+        a, b = json.loads(scenarios.get(h, "{}")), json.loads(_canonical(now[h].scenario.to_dict()))
+        est_a, est_b = a.pop("estimators", []), b.pop("estimators", [])
+        if a != b:
+            return (f"the parameter set {values or '(no grid)'} resolves differently (the scenario "
+                    "file or set changed)")
+        if est_b[:len(est_a)] != est_a:
+            return (f"estimators: {_short(_labels(est_a))} in the file, {_short(_labels(est_b))} now "
+                    "(estimators can be added after the existing ones, not removed, changed or "
+                    "reordered)")
+    return None
 
 
 def tasks_done(path: Path, sweep: Sweep) -> set:
-    """``(param_hash, run)`` of the tasks already in the database at ``path`` (none if
-    there is no database yet); a database of another sweep definition is an error."""
+    """``(param_hash, run)`` of the tasks already in the database at ``path`` with every
+    estimate ``sweep`` asks for (none if there is no database yet); a database the sweep
+    cannot grow from is an error."""
     if not Path(path).exists():
         return set()
     store = SweepDB(path, readonly=True)
     try:
-        if identity(store.definition) != identity(sweep.definition()):
-            raise DkfsimError(f"{path} was made by a different sweep definition "
-                              f"({_difference(store.definition, sweep.definition())})")
-        return {(h, r) for h, r in store.conn.execute("SELECT param_hash, run FROM tasks")}
+        problem = growth_problem(store.conn, store.definition, sweep)
+        if problem:
+            raise DkfsimError(f"{path} was made by a different sweep definition ({problem})")
+        return whole_tasks(store, sweep)
     finally:
         store.close()
 
+
+def missing_estimates(store: "SweepDB", sweep: Sweep) -> dict[tuple[str, int], list[str]]:
+    """Per task already done, the estimators of ``sweep`` it has no rows for (in order)."""
+    done, have = store.done(), store.estimates_done()
+    labels = {p.param_hash: [e.label for e in p.scenario.estimators] for p in sweep.parameter_sets}
+    out = {}
+    for h, r in sorted(done):
+        if h in labels and r < sweep.runs:
+            missing = [e for e in labels[h] if e not in have.get((h, r), set())]
+            if missing:
+                out[(h, r)] = missing
+    return out
+
+
+def whole_tasks(store: "SweepDB", sweep: Sweep) -> set:
+    """Tasks of ``sweep`` done with every estimate it asks for."""
+    missing = missing_estimates(store, sweep)
+    return {t for t in store.done() if t not in missing}
