@@ -158,6 +158,11 @@ class LocalExecutor(Executor):
             if not active and not dead:
                 return
             finished, _ = wait(list(active), return_when=FIRST_COMPLETED)
+            if dead or any(isinstance(f.exception(), BrokenProcessPool) for f in finished):
+                # A worker died and the pool with it: every task still in flight lost its
+                # result (those back already keep theirs); they run again, on a new pool.
+                finished = list(active)
+                wait(finished)
             for fut in finished:
                 item = active.pop(fut)
                 if isinstance(fut.exception(), BrokenProcessPool):
@@ -165,16 +170,6 @@ class LocalExecutor(Executor):
                 else:
                     yield item[0], fut.result()
             if broken or dead:
-                # A worker died and the pool with it: every task still in flight lost
-                # its result (those back already were given); they run again, on a new pool.
-                rest = list(active)
-                wait(rest)
-                for fut in rest:
-                    item = active.pop(fut)
-                    if isinstance(fut.exception(), BrokenProcessPool):
-                        broken.append(item)
-                    else:
-                        yield item[0], fut.result()
                 self.close()
                 for key, _args in broken:
                     crashes[key] = crashes.get(key, 0) + 1
