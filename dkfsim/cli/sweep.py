@@ -17,7 +17,9 @@ Run a parameter sweep: every parameter set of the grid (the cartesian product of
 grid's value lists) times `runs` Monte Carlo runs, run r using seed
 derive_seed(scenario seed, r). Results go to an SQLite file, one transaction per task;
 interrupt it at any point (Ctrl-C, kill) and re-run the same command to resume: tasks
-already in the file are skipped.
+already in the file are skipped. A sweep may grow: raise runs, add grid values or append
+estimators and re-run; only the new tasks are computed. Changes that would alter stored
+results (fewer runs, removed values, other grid keys, burn_in, a changed scenario) are refused.
 
 sweep file keys:
   scenario   scenario file, relative to the sweep file (required)
