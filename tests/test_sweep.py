@@ -218,35 +218,99 @@ def test_cli_dask_local_processes(tmp_path):
     assert (tmp_path / "d.csv").read_text() == (tmp_path / "i.csv").read_text()
 
 
+# --------------------------------------------------------------------------- sweeps that grow
+def _count_tasks(monkeypatch) -> list:
+    """Record (seed, estimates asked for) of every task this process computes (jobs=1)."""
+    import dkfsim.experiments.sweep.run as sweep_run
+    seen, real = [], sweep_run.run_task
+
+    def counting(scenario, seed, burn_in, base_dir=None, only=None):
+        seen.append((seed, None if only is None else tuple(only)))
+        return real(scenario, seed, burn_in, base_dir, only)
+    monkeypatch.setattr(sweep_run, "run_task", counting)
+    return seen
+
+
+def test_a_sweep_grown_from_2_to_3_runs_equals_one_run_with_3_and_computes_only_the_third(
+        tmp_path, monkeypatch):
+    from dkfsim.experiments.montecarlo import derive_seed
+    from dkfsim.experiments.sweep import load_sweep, read_results, run_sweep
+    grid = {"protocol": ["tree", "flood"]}
+    grown = write_sweep(tmp_path, name="grown", grid=grid, runs=2, steps=20)
+    assert run_sweep(grown, jobs=1, progress=False).computed == 4
+    write_sweep(tmp_path, name="grown", grid=grid, runs=3, steps=20)
+    seen = _count_tasks(monkeypatch)
+    rep = run_sweep(grown, jobs=1, progress=False)
+    base = load_sweep(grown).parameter_sets[0].base_seed
+    assert (rep.total, rep.skipped, rep.computed) == (6, 4, 2)
+    assert seen == [(derive_seed(base, 2), None)] * 2         # run 2 of each parameter set, only
+
+    fresh = write_sweep(tmp_path, name="fresh", grid=grid, runs=3, steps=20)
+    assert run_sweep(fresh, jobs=1, progress=False).computed == 6
+    assert read_results(tmp_path / "grown.sqlite") == read_results(tmp_path / "fresh.sqlite")
+
+
+def test_added_grid_values_and_estimators_compute_only_what_is_new(tmp_path, monkeypatch):
+    from dkfsim.experiments.sweep import read_results, run_sweep
+    one = ["estimators=[{kind: centralized}]"]
+    two = ["estimators=[{kind: centralized}, {kind: local_only}]"]
+    grown = write_sweep(tmp_path, name="grown", grid={"links.default.latency.d_t": [2]}, runs=2,
+                        steps=20, extra_set=one)
+    assert run_sweep(grown, jobs=1, progress=False).computed == 2
+    new_grid = {"links.default.latency.d_t": [0, 2]}           # a value before the old one
+    write_sweep(tmp_path, name="grown", grid=new_grid, runs=3, steps=20, extra_set=two)
+    seen = _count_tasks(monkeypatch)
+    rep = run_sweep(grown, jobs=1, progress=False)
+    # d_t=0: 3 new runs; d_t=2: run 2 new, runs 0 and 1 only gain local_only
+    assert rep.computed == 6 and sorted(o for _, o in seen if o) == [("local_only",)] * 2
+    fresh = write_sweep(tmp_path, name="fresh", grid=new_grid, runs=3, steps=20, extra_set=two)
+    assert run_sweep(fresh, jobs=1, progress=False).computed == 6
+    a, b = read_results(tmp_path / "grown.sqlite"), read_results(tmp_path / "fresh.sqlite")
+    assert a == b and len(b[1]) == 2 * 3 * 4 * NC               # fused, local, centralized, local_only
+    assert run_sweep(grown, jobs=1, progress=False).computed == 0
+
+
 # --------------------------------------------------------------------------- definition checks
-def test_resume_refuses_a_changed_sweep_definition(tmp_path):
-    from dkfsim.experiments.sweep import load_sweep, run_sweep
+def test_changes_that_alter_stored_tasks_are_refused(tmp_path):
+    from dkfsim.experiments.sweep import run_sweep
     scen = tmp_path / "case.yaml"
     scen.write_text(CASE1.read_text())
-    path = write_sweep(tmp_path, scenario="case.yaml", runs=1, steps=20,
-                       grid={"protocol": ["tree"]}, output="res.sqlite")
-    assert run_sweep(path, jobs=1, progress=False).computed == 1
+    est = ["estimators=[{kind: centralized}, {kind: local_only}]"]
+    keep = dict(scenario="case.yaml", steps=20, output="res.sqlite")
+    path = write_sweep(tmp_path, runs=2, grid={"protocol": ["tree", "flood"]}, extra_set=est, **keep)
+    assert run_sweep(path, jobs=1, progress=False).computed == 4
 
-    # Same definition (comments, a moved output key order): resumes, computes nothing.
+    # Same definition (comments): resumes, computes nothing.
     path.write_text("# a comment\n" + path.read_text())
     assert run_sweep(path, jobs=1, progress=False).computed == 0
 
-    write_sweep(tmp_path, scenario="case.yaml", runs=2, steps=20, grid={"protocol": ["tree"]},
-                output="res.sqlite")
-    with pytest.raises(DkfsimError, match=r"different sweep definition.*runs: 1 in the file, 2 now"):
-        run_sweep(path, jobs=1, progress=False)
+    refused = [
+        (dict(runs=1, grid={"protocol": ["tree", "flood"]}, extra_set=est),
+         r"runs: 2 in the file, 1 now \(runs can be raised, not lowered\)"),
+        (dict(runs=2, grid={"protocol": ["tree"]}, extra_set=est),
+         r"parameter set protocol=\"flood\" has results in the file but is no longer in the grid"),
+        (dict(runs=2, grid={"protocol": ["tree", "flood"], "fusion": ["matrix"]}, extra_set=est),
+         r"grid keys: .*not by keys"),
+        (dict(runs=2, grid={"protocol": ["tree", "flood"]},
+              extra_set=["estimators=[{kind: local_only}, {kind: centralized}]"]),
+         r"estimators: .*not removed, changed or reordered"),
+        (dict(runs=2, grid={"protocol": ["tree", "flood"]}, extra_set=["estimators=[]"]),
+         r"estimators: .*not removed"),
+        (dict(runs=2, grid={"protocol": ["tree", "flood"]}, extra_set=est + ["fusion=diagonal"]),
+         r"resolves differently \(the scenario file or set changed\)"),
+        (dict(runs=2, grid={"protocol": ["tree", "flood"]}, extra_set=est, burn_in=3),
+         r"burn_in: null in the file, 3 now"),
+    ]
+    for change, message in refused:
+        write_sweep(tmp_path, **change, **keep)
+        with pytest.raises(DkfsimError, match=r"different sweep definition \(.*" + message):
+            run_sweep(path, jobs=1, progress=False)
 
-    write_sweep(tmp_path, scenario="case.yaml", runs=1, steps=20,
-                grid={"protocol": ["tree", "flood"]}, output="res.sqlite")
-    with pytest.raises(DkfsimError, match=r"different sweep definition.*grid"):
-        run_sweep(path, jobs=1, progress=False)
-
-    write_sweep(tmp_path, scenario="case.yaml", runs=1, steps=20, grid={"protocol": ["tree"]},
-                output="res.sqlite")
+    write_sweep(tmp_path, runs=2, grid={"protocol": ["tree", "flood"]}, extra_set=est, **keep)
     scen.write_text(CASE1.read_text().replace("R: [[0.8]]", "R: [[0.9]]"))
     p = dkfsim("sweep", path)
     assert p.returncode == 2
-    assert "different sweep definition" in p.stderr and "scenario file changed" in p.stderr
+    assert "different sweep definition" in p.stderr and "scenario file or set changed" in p.stderr
     assert "Traceback" not in p.stderr and len(p.stderr.strip().splitlines()) == 1
 
 

@@ -14,9 +14,12 @@
 5. BLAS threads under load: a 50-node matrix-fusion run with the BLAS
    library's default threads and with one thread (what dkfsim uses), each
    while a CPU hog process spins beside it.
+6. Monte Carlo on the one executor: this process, 2 local processes and a Dask
+   LocalCluster of 2 worker processes (start-up included), runs per minute and
+   whether the rows are identical.
 
 Usage: ``python tools/bench.py [--ticks 1000] [--sizes 12 50 200] [--skip-sweep] [--big-ticks 60]
-[--skip-threads]``.
+[--skip-threads] [--skip-executors]``.
 Timing lives here, never in the tests.
 """
 
@@ -131,6 +134,22 @@ def threads_under_load(ticks: int) -> tuple[float, float, int]:
     return times[0], times[1], default
 
 
+def executors_compared(steps: int, runs: int) -> list[tuple[str, float, bool]]:
+    """Monte Carlo of ``paper_case1`` on each backend: ``(label, runs per minute, same rows)``."""
+    from dkfsim.experiments.executors import DaskExecutor, local
+    sc = dkfsim.load_scenario(ROOT / "scenarios" / "paper_case1.yaml", overrides=[f"steps={steps}"])
+    out, first = [], None
+    for make in (lambda: local(1), lambda: local(2), lambda: DaskExecutor(n_workers=2)):
+        t0 = time.perf_counter()
+        with make() as ex:
+            res = dkfsim.montecarlo(sc, runs, executor=ex, yes=True)
+            label = ex.label
+        wall = time.perf_counter() - t0
+        first = repr(res.rows) if first is None else first
+        out.append((label, 60.0 * runs / wall, repr(res.rows) == first))
+    return out
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--ticks", type=int, default=1000)
@@ -141,6 +160,8 @@ def main(argv=None) -> int:
     ap.add_argument("--big-ticks", type=int, default=60, help="ticks of the large-tree run")
     ap.add_argument("--skip-threads", action="store_true", help="skip the BLAS-threads measurement")
     ap.add_argument("--thread-ticks", type=int, default=100, help="ticks of the BLAS-threads runs")
+    ap.add_argument("--skip-executors", action="store_true",
+                    help="skip the Monte Carlo comparison of the executors")
     args = ap.parse_args(argv)
 
     sc = dkfsim.load_scenario(ROOT / "scenarios" / "paper_case1.yaml", overrides=[f"steps={args.ticks}"])
@@ -200,6 +221,16 @@ def main(argv=None) -> int:
         print(f"  1 process            {one['runs_per_minute']:7.1f} runs/min")
         print(f"  2 local workers      {two['runs_per_minute']:7.1f} runs/min  "
               f"(ratio {two['runs_per_minute'] / one['runs_per_minute']:.2f} x)")
+
+    if not args.skip_executors:
+        print()
+        rows = executors_compared(args.ticks, 12)
+        base = rows[0][1]
+        print(f"Monte Carlo of paper_case1, 12 runs x {args.ticks} ticks, on each executor "
+              "(start-up included):")
+        for label, rate, same in rows:
+            print(f"  {label:40s} {rate:7.1f} runs/min  (ratio {rate / base:.2f} x)  "
+                  f"rows {'identical' if same else 'DIFFER'}")
     return 0
 
 

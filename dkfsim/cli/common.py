@@ -1,10 +1,16 @@
-"""What every sub-command shares: the scenario arguments, ``--yes``, loading."""
+"""What every sub-command shares: the scenario arguments, ``--yes``, loading, and where
+runs happen (``--jobs``, ``--scheduler``, ``--dask-local``), ``--quiet`` and the progress bar
+(one meaning for ``montecarlo``, ``sweep`` and ``maxdelay``: docs/decisions.md)."""
 
 from __future__ import annotations
 
 import argparse
+import sys
+
+from tqdm import tqdm
 
 from dkfsim.config.load import load_scenario
+from dkfsim.experiments import executors
 
 
 def add_scenario_args(p: argparse.ArgumentParser) -> None:
@@ -29,3 +35,54 @@ def load_from_args(args):
         if val is not None:
             overrides.append(f"{key}={val}")
     return load_scenario(args.scenario, overrides=overrides)
+
+
+def add_executor_args(p: argparse.ArgumentParser) -> None:
+    """``--jobs`` / ``--scheduler`` / ``--dask-local`` (one of them) and ``--quiet``."""
+    where = p.add_mutually_exclusive_group()
+    where.add_argument("--jobs", type=int, metavar="J",
+                       help="worker processes on this machine (1 = this process; default: every "
+                            "CPU this process may use, at most one per run); results do not "
+                            "depend on it")
+    where.add_argument("--scheduler", metavar="tcp://HOST:PORT",
+                       help="run on an existing Dask distributed cluster (its workers need the "
+                            "same dkfsim installed); needs dkfsim[cluster]")
+    where.add_argument("--dask-local", type=int, metavar="N",
+                       help="start a Dask LocalCluster of N single-threaded worker processes on "
+                            "this machine; needs dkfsim[cluster]")
+    p.add_argument("--quiet", action="store_true",
+                   help="no progress bar and nothing on stdout (errors are still reported); the "
+                        "bar is drawn on stderr only when it is a terminal")
+
+
+def executor_from_args(args, tasks: int | None = None):
+    """A callable making the executor the flags ask for (called once work is checked), or
+    None for the library's default (``--jobs`` local processes).  A missing Dask package
+    is reported here, before any work."""
+    if args.scheduler is None and args.dask_local is None:
+        return None
+    executors._distributed()
+
+    def make():
+        return executors.make_executor(scheduler=args.scheduler, dask_local=args.dask_local,
+                                       tasks=tasks)
+    return make
+
+
+def workers_from_args(args, tasks: int | None = None) -> int:
+    """How many runs at once the flags ask for (for the cost estimate)."""
+    if args.dask_local is not None:
+        return args.dask_local
+    if args.scheduler is not None:
+        return 1
+    n = args.jobs or executors.available_cpus()
+    return max(1, min(n, tasks)) if tasks else n
+
+
+def progress_bar(args, total: int | None, desc: str):
+    """The progress bar of a command: tqdm on stderr counting runs, when stderr is a
+    terminal and ``--quiet`` is not given; else None."""
+    if args.quiet or not sys.stderr.isatty():
+        return None
+    return tqdm(total=total, unit="run", desc=desc, leave=False, file=sys.stderr,
+                dynamic_ncols=True)

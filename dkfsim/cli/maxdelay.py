@@ -4,9 +4,8 @@ from __future__ import annotations
 
 import sys
 
-from tqdm import tqdm
-
-from dkfsim.cli.common import add_scenario_args, add_yes_arg, load_from_args
+from dkfsim.cli.common import (add_executor_args, add_scenario_args, add_yes_arg, executor_from_args,
+                               load_from_args, progress_bar)
 from dkfsim.core.folders import check_target
 from dkfsim.experiments.maxdelay import METRICS, Candidate, MaxDelay, Settings
 
@@ -63,9 +62,7 @@ def add_command(subparsers) -> None:
                                              "fewer ticks make every run cheaper")
     p.add_argument("--seed", type=int, help="override the base seed from which run r's seed derives "
                                             "(same as --set seed=S)")
-    p.add_argument("--jobs", type=int, default=1, metavar="J",
-                   help="worker processes (results do not depend on it) (default: 1)")
-    p.add_argument("--quiet", action="store_true", help="no progress and no table")
+    add_executor_args(p)
     add_yes_arg(p)
     p.set_defaults(func=cmd_maxdelay)
 
@@ -73,11 +70,9 @@ def add_command(subparsers) -> None:
 class _Progress:
     """tqdm on a terminal; otherwise one line per decided candidate on stderr."""
 
-    def __init__(self, quiet: bool):
-        self.quiet = quiet
-        self.bar = None
-        if not quiet and sys.stderr.isatty():
-                self.bar = tqdm(unit="run", desc="maxdelay", leave=False, file=sys.stderr)
+    def __init__(self, args):
+        self.quiet = args.quiet
+        self.bar = progress_bar(args, None, "maxdelay")
 
     def __call__(self, runs: int = 0, label: str | None = None, done: Candidate | None = None):
         if self.quiet:
@@ -110,9 +105,9 @@ def cmd_maxdelay(args) -> int:
                   burn_in=args.burn_in, jobs=args.jobs, max_delay=args.max_delay,
                   scale_step=args.scale_step, max_scale=args.max_scale, component=args.component)
     check_target(args.out)                 # before any run: a bad --out costs nothing
-    prog = _Progress(args.quiet)
+    prog = _Progress(args)
     try:
-        res = MaxDelay(sc, st, progress=prog, yes=args.yes).run()
+        res = MaxDelay(sc, st, progress=prog, yes=args.yes, executor=executor_from_args(args)).run()
     finally:
         prog.close()
     out = res.save(args.out)

@@ -2,11 +2,8 @@
 
 from __future__ import annotations
 
-import sys
-
-from tqdm import tqdm
-
-from dkfsim.cli.common import add_scenario_args, add_yes_arg, load_from_args
+from dkfsim.cli.common import (add_executor_args, add_scenario_args, add_yes_arg, executor_from_args,
+                               load_from_args, progress_bar, workers_from_args)
 from dkfsim.core.errors import DkfsimError
 from dkfsim.core.folders import check_target
 from dkfsim.experiments.montecarlo import _check_burn_in, check_montecarlo, montecarlo
@@ -24,9 +21,6 @@ def add_command(subparsers) -> None:
     add_scenario_args(p)
     p.add_argument("--runs", type=int, required=True, metavar="N",
                    help="number of independent runs (>= 1)")
-    p.add_argument("--jobs", type=int, default=1, metavar="J",
-                   help="worker processes on this machine (>= 1; 1 runs in this process; "
-                        "results do not depend on it) (default: 1)")
     p.add_argument("--out", required=True, metavar="DIR", help="output folder (created if missing)")
     p.add_argument("--burn-in", type=int, metavar="ROWS",
                    help="rows skipped before time-averaging MSE, ANEES and disagreement "
@@ -35,8 +29,7 @@ def add_command(subparsers) -> None:
                    help="override the number of ticks K of every run (same as --set steps=K)")
     p.add_argument("--seed", type=int, metavar="S",
                    help="override the base seed from which every run's seed derives (same as --set seed=S)")
-    p.add_argument("--quiet", action="store_true",
-                   help="no progress bar and no table (the bar is shown on stderr only when it is a terminal)")
+    add_executor_args(p)
     add_yes_arg(p)
     p.set_defaults(func=cmd_montecarlo)
 
@@ -44,21 +37,18 @@ def add_command(subparsers) -> None:
 def cmd_montecarlo(args) -> int:
     if args.runs < 1:
         raise DkfsimError(f"--runs: must be >= 1, got {args.runs}")
-    if args.jobs < 1:
+    if args.jobs is not None and args.jobs < 1:
         raise DkfsimError(f"--jobs: must be >= 1, got {args.jobs}")
     sc = load_from_args(args)
     _check_burn_in(args.burn_in, int(sc.steps))
     check_target(args.out)                 # before any run: a bad --out costs nothing
-    check_montecarlo(sc, args.runs, args.jobs, yes=args.yes)
-    bar = progress = None
-    if not args.quiet and sys.stderr.isatty():
-        bar = tqdm(total=args.runs, unit="run", desc=sc.name, leave=False, file=sys.stderr)
-
-        def progress(done, total):
-            bar.update(done - bar.n)
+    check_montecarlo(sc, args.runs, workers_from_args(args, args.runs), yes=args.yes)
+    make = executor_from_args(args, args.runs)
+    bar = progress_bar(args, args.runs, sc.name)
+    progress = None if bar is None else (lambda done, total: bar.update(done - bar.n))
     try:
         res = montecarlo(sc, args.runs, jobs=args.jobs, burn_in=args.burn_in, progress=progress,
-                         yes=True)                              # checked above
+                         yes=True, executor=make)                  # checked above
     finally:
         if bar is not None:
             bar.close()

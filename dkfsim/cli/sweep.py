@@ -6,10 +6,9 @@ import argparse
 import sys
 from pathlib import Path
 
-from dkfsim.cli.common import add_yes_arg
+from dkfsim.cli.common import add_executor_args, add_yes_arg, executor_from_args, workers_from_args
 from dkfsim.core.errors import DkfsimError
 from dkfsim.core.extras import optional
-from dkfsim.experiments import executors
 from dkfsim.experiments.sweep import (Sweep, export, is_database, load_sweep, run_sweep,
                                       tasks_done)
 
@@ -18,7 +17,9 @@ Run a parameter sweep: every parameter set of the grid (the cartesian product of
 grid's value lists) times `runs` Monte Carlo runs, run r using seed
 derive_seed(scenario seed, r). Results go to an SQLite file, one transaction per task;
 interrupt it at any point (Ctrl-C, kill) and re-run the same command to resume: tasks
-already in the file are skipped.
+already in the file are skipped. A sweep may grow: raise runs, add grid values or append
+estimators and re-run; only the new tasks are computed. Changes that would alter stored
+results (fewer runs, removed values, other grid keys, burn_in, a changed scenario) are refused.
 
 sweep file keys:
   scenario   scenario file, relative to the sweep file (required)
@@ -48,15 +49,7 @@ def add_command(subparsers) -> None:
     p.add_argument("file", metavar="FILE",
                    help="a sweep YAML file to run or resume; or a sweep database (.sqlite) to "
                         "export with --export, computing nothing")
-    where = p.add_mutually_exclusive_group()
-    where.add_argument("--jobs", type=int, metavar="J",
-                       help="local worker processes (1 = this process; default: every CPU)")
-    where.add_argument("--scheduler", metavar="tcp://HOST:PORT",
-                       help="run the tasks on an existing Dask distributed cluster (its workers "
-                            "need the same dkfsim installed); needs dkfsim[cluster]")
-    where.add_argument("--dask-local", type=int, metavar="N",
-                       help="start a Dask LocalCluster of N single-threaded worker processes on "
-                            "this machine; needs dkfsim[cluster]")
+    add_executor_args(p)
     p.add_argument("--db", metavar="PATH",
                    help="results database (overrides the sweep file's output)")
     p.add_argument("--export", metavar="PATH",
@@ -66,7 +59,6 @@ def add_command(subparsers) -> None:
     p.add_argument("--dry-run", action="store_true",
                    help="validate, list the parameter sets and how many of their runs are done; "
                         "compute nothing")
-    p.add_argument("--quiet", action="store_true", help="no progress bar and no summary lines")
     add_yes_arg(p)
     p.set_defaults(func=cmd_sweep)
 
@@ -93,18 +85,12 @@ def cmd_sweep(args) -> int:
                               "use a .csv or .parquet file name")
         if suffix != ".csv":
             optional("pyarrow")            # a missing package is reported before any work
-    if args.scheduler is not None or args.dask_local is not None:
-        executors._distributed()          # a missing package is reported before any work
-
-    def make():
-        return executors.make_executor(jobs=args.jobs, scheduler=args.scheduler,
-                                       dask_local=args.dask_local)
-
+    make = executor_from_args(args)      # a missing Dask package is reported before any work
     say(f"{sweep.source}: {len(sweep.parameter_sets)} parameter set(s) x {sweep.runs} "
         f"run(s) = {sweep.n_tasks} tasks -> {sweep.output}")
-    workers = args.jobs or args.dask_local or (1 if args.scheduler else executors.available_cpus())
-    rep = run_sweep(sweep, executor=make, progress=not args.quiet and sys.stderr.isatty(),
-                    yes=args.yes, workers=workers)
+    rep = run_sweep(sweep, executor=make, jobs=args.jobs,
+                    progress=not args.quiet and sys.stderr.isatty(), yes=args.yes,
+                    workers=workers_from_args(args))
     rate = f" on {rep.executor} ({rep.runs_per_minute:.1f} runs/min)" if rep.computed else ""
     say(f"done: {rep.skipped} already in the database, {rep.computed} computed in "
         f"{_duration(rep.wall_s)}{rate}")

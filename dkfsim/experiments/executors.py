@@ -1,27 +1,37 @@
-"""Where the tasks of a sweep run: local processes or a Dask cluster.
+"""Where the runs of ``montecarlo``, ``sweep`` and ``maxdelay`` happen: this process,
+local processes or a Dask cluster -- one executor for the three commands.
 
 Every executor has one job: take an iterable of ``(key, args)`` tasks and a
 picklable, importable function, keep a bounded number of them in flight, and
-yield ``(key, result)`` as each finishes.  Workers only compute; the caller
-(the parent process) does all the writing, so the results do not depend on
-the executor, the number of workers or the order in which tasks finish.
+yield ``(key, result)`` as each finishes, exactly once per task.  Workers only
+compute; the caller (the parent process) assembles or writes the results by
+key, so they do not depend on the executor, the number of workers or the order
+in which tasks finish.  :func:`in_order` gives them back in task order (and a
+task's error at its place in that order), :meth:`Executor.map` as a list.
 
 * :class:`InlineExecutor`: this process, one task after another (``--jobs 1``).
 * :class:`LocalExecutor`: a :class:`concurrent.futures.ProcessPoolExecutor`
-  of ``jobs`` processes (the default).
+  of ``jobs`` processes (the default: every CPU this process may use).  A
+  worker that dies (killed, out of memory) breaks the pool: the tasks that
+  were in flight are run again on a new pool, each at most
+  :data:`MAX_RETRIES` times, then reported; results already back are kept.
 * :class:`DaskExecutor`: an existing ``dask.distributed`` scheduler
   (``--scheduler tcp://HOST:PORT``) or a ``LocalCluster`` it starts
   (``--dask-local N``).  Needs the ``distributed`` package
-  (``pip install 'dkfsim[cluster]'``), imported only when asked for.
+  (``pip install 'dkfsim[cluster]'``), imported only when asked for.  Dask
+  re-runs the task of a lost worker itself (``allowed-failures``) and reports
+  it as killed after that.
 
 Executors are context managers; leaving the ``with`` block early (an error,
 Ctrl-C) cancels what has not started and stops the local workers.
+docs/design.md (Experiments) and docs/decisions.md say why.
 """
 
 from __future__ import annotations
 
 import logging
 import os
+from collections import deque
 import signal
 import threading
 import time
@@ -35,6 +45,9 @@ from dkfsim.core.extras import optional
 from dkfsim.core.threads import call_single_threaded, pin_process
 
 Task = tuple[Any, tuple]
+
+#: How many times a task whose worker process died is run again before it is reported.
+MAX_RETRIES = 2
 
 
 def available_cpus() -> int:
@@ -65,6 +78,11 @@ class Executor:
 
     def imap_unordered(self, fn: Callable, tasks: Iterable[Task]) -> Iterator[tuple[Any, Any]]:
         raise NotImplementedError
+
+    def map(self, fn: Callable, arglist: Iterable[tuple], on_done: Callable | None = None) -> list:
+        """``[fn(*args) for args in arglist]``, computed on this executor; ``on_done()``
+        after each task finishes (in any order)."""
+        return [r for _, r in in_order(self, fn, enumerate(arglist), on_done)]
 
     def in_flight(self) -> int:
         """How many tasks to keep submitted: enough to keep every worker busy
@@ -118,28 +136,49 @@ class LocalExecutor(Executor):
         return self._pool
 
     def imap_unordered(self, fn, tasks):
-        pool = self._start()
         todo = iter(tasks)
-        active: dict = {}
+        retry: deque = deque()             # (key, args) of tasks whose worker died
+        crashes: dict = {}                 # key -> how many times its worker died
+        active: dict = {}                  # future -> (key, args)
         limit = self.in_flight()
-        try:
-            while True:
-                while len(active) < limit:
-                    item = next(todo, None)
-                    if item is None:
-                        break
-                    key, args = item
-                    active[pool.submit(fn, *args)] = key
-                if not active:
-                    return
-                finished, _ = wait(list(active), return_when=FIRST_COMPLETED)
-                for fut in finished:
-                    key = active.pop(fut)
-                    yield key, fut.result()
-        except BrokenProcessPool:
-            raise DkfsimError("a worker process died unexpectedly (out of memory, or killed); "
-                              "every task finished before that is saved: re-run the same "
-                              "command to resume") from None
+        while True:
+            pool = self._start()
+            broken: list = []              # tasks in flight when a worker died
+            dead = False
+            while len(active) < limit:
+                item = retry.popleft() if retry else next(todo, None)
+                if item is None:
+                    break
+                try:
+                    active[pool.submit(fn, *item[1])] = item
+                except BrokenProcessPool:  # the pool broke before this one was sent
+                    retry.appendleft(item)
+                    dead = True
+                    break
+            if not active and not dead:
+                return
+            finished, _ = wait(list(active), return_when=FIRST_COMPLETED)
+            if dead or any(isinstance(f.exception(), BrokenProcessPool) for f in finished):
+                # A worker died and the pool with it: every task still in flight lost its
+                # result (those back already keep theirs); they run again, on a new pool.
+                finished = list(active)
+                wait(finished)
+            for fut in finished:
+                item = active.pop(fut)
+                if isinstance(fut.exception(), BrokenProcessPool):
+                    broken.append(item)
+                else:
+                    yield item[0], fut.result()
+            if broken or dead:
+                self.close()
+                for key, _args in broken:
+                    crashes[key] = crashes.get(key, 0) + 1
+                    if crashes[key] > MAX_RETRIES:
+                        raise DkfsimError(
+                            f"a worker process died {crashes[key]} times while running "
+                            f"{describe(key)} (out of memory, or killed); the tasks finished "
+                            "before are kept (a sweep: re-run the same command to resume)")
+                retry.extendleft(reversed(broken))
 
     def close(self) -> None:
         pool, self._pool = self._pool, None
@@ -163,12 +202,79 @@ def kill_pool(pool) -> None:
         p.join(timeout=5)
 
 
-def local(jobs: int | None = None) -> Executor:
-    """``jobs`` local processes (default: every available CPU); 1 means this process."""
+def local(jobs: int | None = None, tasks: int | None = None) -> Executor:
+    """``jobs`` local processes (default: every available CPU), at most ``tasks`` of
+    them when that is known; 1 means this process."""
+    check_jobs(jobs)
     jobs = available_cpus() if jobs is None else jobs
-    if isinstance(jobs, bool) or not isinstance(jobs, int) or jobs < 1:
-        raise DkfsimError(f"--jobs: must be an integer >= 1, got {jobs!r}")
+    if tasks is not None:
+        jobs = max(1, min(jobs, tasks))
     return InlineExecutor() if jobs == 1 else LocalExecutor(jobs)
+
+
+def check_jobs(jobs) -> None:
+    """``--jobs``: None (every CPU) or an integer >= 1."""
+    if jobs is not None and (isinstance(jobs, bool) or not isinstance(jobs, int) or jobs < 1):
+        raise DkfsimError(f"--jobs: must be an integer >= 1, got {jobs!r}")
+
+
+# =========================================================================== task order
+def describe(key) -> str:
+    """A task's key for messages (a string key is its own description)."""
+    if isinstance(key, _Numbered):
+        key = key[1]
+    return key if isinstance(key, str) else f"task {key!r}"
+
+
+class _Numbered(tuple):
+    """``(position in task order, key)``: what :func:`in_order` submits."""
+
+
+class _Raised:
+    """A task's exception, carried back as a result so that it is raised in task order."""
+
+    def __init__(self, exc: BaseException):
+        self.exc = exc
+
+
+def _capture(fn, *args):
+    try:
+        return fn(*args)
+    except Exception as exc:  # noqa: BLE001  (re-raised by in_order, at its place)
+        return _Raised(exc)
+
+
+def in_order(executor: Executor, fn: Callable, tasks: Iterable[Task],
+             on_done: Callable | None = None) -> Iterator[tuple[Any, Any]]:
+    """``(key, fn(*args))`` in the order of ``tasks``, computed on ``executor``.
+
+    A result that finishes early waits (at most about :meth:`Executor.in_flight` of
+    them) until every earlier one is given back; a task that raised re-raises its
+    exception at its place, so the first failing task in task order is the one
+    reported, whatever the executor.  ``on_done()`` is called as each task finishes.
+    """
+    keys: list = []
+
+    def numbered():
+        for key, args in tasks:
+            keys.append(key)
+            yield _Numbered((len(keys) - 1, key)), (fn, *args)
+
+    pending: dict[int, Any] = {}
+    nxt = 0
+    for slot, result in executor.imap_unordered(_capture, numbered()):
+        if on_done is not None:
+            on_done()
+        pending[slot[0]] = result
+        while nxt in pending:
+            got = pending.pop(nxt)
+            if isinstance(got, _Raised):
+                raise got.exc
+            yield keys[nxt], got
+            nxt += 1
+    if nxt != len(keys):             # an executor must give back every task it was given
+        raise RuntimeError(f"{executor.label}: {len(keys) - nxt} of {len(keys)} tasks came back "
+                           f"with no result (the first: {describe(keys[nxt])})")
 
 
 # =========================================================================== Dask
@@ -234,12 +340,17 @@ class DaskExecutor(Executor):
         if not first:
             return
         ac = distributed.as_completed(first, with_results=True)
-        for fut, result in ac:
-            key = keys.pop(fut)
-            nxt = submit_one()
-            if nxt is not None:
-                ac.add(nxt)
-            yield key, result
+        try:
+            for fut, result in ac:
+                key = keys.pop(fut)
+                nxt = submit_one()
+                if nxt is not None:
+                    ac.add(nxt)
+                yield key, result
+        except distributed.KilledWorker as exc:
+            raise DkfsimError(f"Dask: the workers running a task died too often ({exc}); the "
+                              "tasks finished before are kept (a sweep: re-run the same "
+                              "command to resume)") from None
 
     def close(self) -> None:
         if self._futures:
@@ -254,9 +365,11 @@ class DaskExecutor(Executor):
 
 
 def make_executor(*, jobs: int | None = None, scheduler: str | None = None,
-                  dask_local: int | None = None, dask_processes: bool = True) -> Executor:
+                  dask_local: int | None = None, dask_processes: bool = True,
+                  tasks: int | None = None) -> Executor:
     """The executor the command-line flags ask for (at most one of
-    ``scheduler`` and ``dask_local``; ``jobs`` applies to local processes only)."""
+    ``scheduler`` and ``dask_local``; ``jobs`` applies to local processes only, at
+    most ``tasks`` of them)."""
     if scheduler is not None and dask_local is not None:
         raise DkfsimError("--scheduler and --dask-local: give at most one of them")
     if (scheduler is not None or dask_local is not None) and jobs is not None:
@@ -266,4 +379,15 @@ def make_executor(*, jobs: int | None = None, scheduler: str | None = None,
         return DaskExecutor(address=scheduler)
     if dask_local is not None:
         return DaskExecutor(n_workers=dask_local, processes=dask_processes)
-    return local(jobs)
+    return local(jobs, tasks)
+
+
+def executor_for(executor=None, jobs: int | None = None, tasks: int | None = None):
+    """``(executor, owned)`` for a library call: ``executor`` given (an
+    :class:`Executor`, used and left open; or a callable making one, closed by the
+    caller), else ``jobs`` local processes for ``tasks`` tasks."""
+    if isinstance(executor, Executor):
+        return executor, False
+    if executor is not None:
+        return executor(), True
+    return local(jobs, tasks), True

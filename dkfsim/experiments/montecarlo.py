@@ -31,9 +31,7 @@ packets, late information); the idealised ``centralized`` filter has none
 from __future__ import annotations
 
 import math
-import signal
 import time
-from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from pathlib import Path
 
 import numpy as np
@@ -42,15 +40,16 @@ from dkfsim.analysis.metrics import (anees_summary, default_burn_in, nees_band, 
                                      squared_error, t_interval, t_interval_from_moments)
 from dkfsim.components.topology import GENERATOR_PARAMS
 from dkfsim.config.load import load_scenario, scenario_hash
-from dkfsim.config.schema import Scenario, component_names
+from dkfsim.config.dynamics import component_names
+from dkfsim.config.schema import Scenario
 from dkfsim.core.errors import DkfsimError
 from dkfsim.core.folders import staged, write_json
 from dkfsim.core.resources import Cost, check, repeat
-from dkfsim.core.threads import pin_process, single_thread
+from dkfsim.core.threads import single_thread
 from dkfsim.engine.driver import Run
 from dkfsim.engine.estimate import estimate_run
 from dkfsim.engine.results import versions, write_rows
-from dkfsim.experiments.executors import kill_pool
+from dkfsim.experiments import executors
 
 #: Columns of ``runs.csv``, in order.
 # =========================================================================== seeds, names
@@ -70,7 +69,7 @@ def derive_seed(base_seed: int, run: int) -> int:
 
 
 def components_of(scenario) -> list[str]:
-    """The scenario's state component names (see :func:`dkfsim.config.schema.component_names`)."""
+    """The scenario's state component names (see :func:`dkfsim.config.dynamics.component_names`)."""
     return component_names(scenario.model.kind, scenario.nx)
 
 
@@ -138,19 +137,9 @@ def _curves(res) -> dict:
             "example_node0": np.asarray(arrays["x_local"])[:, 0]}
 
 
-# =========================================================================== workers
-_WORKER_SCENARIO = None
-
-
-def _init_worker(scenario) -> None:
-    """Keep the scenario once per worker; leave Ctrl-C to the parent (no worker tracebacks)."""
-    global _WORKER_SCENARIO
-    pin_process()                     # one BLAS thread: the parallelism is the processes
-    signal.signal(signal.SIGINT, signal.SIG_IGN)
-    _WORKER_SCENARIO = scenario
-
-
-def _one(scenario, r: int, seed: int, burn_in: int) -> tuple[int, list[dict], dict]:
+# =========================================================================== one task
+def _one(scenario, r: int, seed: int, burn_in: int) -> tuple[list[dict], dict]:
+    """Run ``r`` where it runs (a worker, or this process): its rows and curves."""
     try:
         rows, curves = run_rows(scenario, seed, burn_in)
     except DkfsimError as exc:      # e.g. a random topology that is disconnected for this seed
@@ -158,13 +147,7 @@ def _one(scenario, r: int, seed: int, burn_in: int) -> tuple[int, list[dict], di
     if r != 0:       # only run 0 is kept as the example: do not ship the rest
         for key in ("example_truth", "example_x", "example_node0"):
             del curves[key]
-    return r, rows, curves
-
-
-def _worker_run(r: int, seed: int, burn_in: int):
-    return _one(_WORKER_SCENARIO, r, seed, burn_in)
-
-
+    return rows, curves
 
 
 # =========================================================================== pooling
@@ -194,81 +177,51 @@ class _Fold:
 
 
 @single_thread
-def montecarlo(scenario, runs: int, jobs: int = 1, burn_in: int | None = None,
-               progress=None, yes: bool = False) -> "MonteCarloResult":
-    """``runs`` independent runs of ``scenario`` on ``jobs`` local processes.
+def montecarlo(scenario, runs: int, jobs: int | None = None, burn_in: int | None = None,
+               progress=None, yes: bool = False, executor=None) -> "MonteCarloResult":
+    """``runs`` independent runs of ``scenario``.
 
     ``scenario``: a Scenario, a path or a mapping.  Run ``r`` uses seed
-    ``derive_seed(scenario.seed, r)``.  ``jobs = 1`` runs in this process.
-    ``progress(done, total)`` is called after each run.  The result does not
-    depend on ``jobs``.  Work that cannot fit in memory is refused, and work
-    estimated above 10 minutes needs ``yes`` (:mod:`dkfsim.core.resources`).
+    ``derive_seed(scenario.seed, r)``.  Where the runs happen: ``executor`` (a
+    :mod:`dkfsim.experiments.executors` executor, left open, or a callable making one),
+    else ``jobs`` local processes (default: every available CPU, at most ``runs``;
+    1 runs in this process).  ``progress(done, total)`` is called after each run.
+    The result does not depend on where the runs happened: they are folded in run
+    order, and a failing run is reported as the first one in run order.  Work that
+    cannot fit in memory is refused, and work estimated above 10 minutes needs ``yes``
+    (:mod:`dkfsim.core.resources`).
     """
     if isinstance(runs, bool) or not isinstance(runs, int) or runs < 1:
         raise DkfsimError(f"--runs: must be an integer >= 1, got {runs!r}")
-    if isinstance(jobs, bool) or not isinstance(jobs, int) or jobs < 1:
-        raise DkfsimError(f"--jobs: must be an integer >= 1, got {jobs!r}")
+    executors.check_jobs(jobs)
     sc = scenario if isinstance(scenario, Scenario) else load_scenario(scenario)
     burn = _check_burn_in(burn_in, int(sc.steps))
-    check_montecarlo(sc, runs, jobs, yes=yes)
+    workers = executor.workers if isinstance(executor, executors.Executor) else \
+        min(jobs or executors.available_cpus(), runs)
+    check_montecarlo(sc, runs, workers, yes=yes)
     seeds = [derive_seed(sc.seed, r) for r in range(runs)]
     rows: list[dict] = []
     fold = _Fold()
     t0 = time.perf_counter()
+    done = 0
 
-    def take(r, run_rows_, curves):
-        rows.extend({**row, "run": r} for row in run_rows_)
-        fold.add(curves)
+    def tick():
+        nonlocal done
+        done += 1
+        if progress is not None:
+            progress(done, runs)
 
-    if jobs == 1:
-        for r, seed in enumerate(seeds):
-            take(*_one(sc, r, seed, burn))
-            if progress is not None:
-                progress(r + 1, runs)
-    else:
-        pending: dict[int, tuple] = {}
-        nxt = 0
-        pool = ProcessPoolExecutor(max_workers=min(jobs, runs), initializer=_init_worker,
-                                   initargs=(sc,))
-        try:
-            # Keep at most 2 * jobs runs submitted: results that finish early wait
-            # in `pending` until every earlier run is folded.
-            todo = iter(enumerate(seeds))
-            active = set()
-            index = {}
-            done_count = 0
-            while True:
-                while len(active) < 2 * jobs:
-                    item = next(todo, None)
-                    if item is None:
-                        break
-                    fut = pool.submit(_worker_run, item[0], item[1], burn)
-                    index[fut] = item[0]
-                    active.add(fut)
-                if not active:
-                    break
-                finished, active = wait(active, return_when=FIRST_COMPLETED)
-                for fut in finished:
-                    r = index.pop(fut)
-                    try:
-                        pending[r] = fut.result()[1:]
-                    except DkfsimError as exc:   # raised in run order, as with jobs = 1
-                        pending[r] = exc
-                    done_count += 1
-                    if progress is not None:
-                        progress(done_count, runs)
-                while nxt in pending:
-                    got = pending.pop(nxt)
-                    if isinstance(got, BaseException):
-                        raise got
-                    take(nxt, *got)
-                    nxt += 1
-        except BaseException:
-            kill_pool(pool)
-            raise
-        pool.shutdown(wait=True)
+    tasks = ((f"run {r} (seed {seed})", (sc, r, seed, burn)) for r, seed in enumerate(seeds))
+    ex, own = executors.executor_for(executor, jobs, runs)
+    try:
+        for r, (_key, (run_rows_, curves)) in enumerate(executors.in_order(ex, _one, tasks, tick)):
+            rows.extend({**row, "run": r} for row in run_rows_)
+            fold.add(curves)
+    finally:
+        if own:
+            ex.close()
     wall = time.perf_counter() - t0
-    return MonteCarloResult(sc, runs, jobs, burn, seeds, rows, fold, wall)
+    return MonteCarloResult(sc, runs, ex.workers, burn, seeds, rows, fold, wall, ex.label)
 
 
 def estimate_montecarlo(sc, runs: int, jobs: int) -> Cost:
@@ -296,10 +249,12 @@ class MonteCarloResult:
     and ``example`` (run 0): the arrays of ``curves.npz``.
     """
 
-    def __init__(self, scenario, runs, jobs, burn_in, seeds, rows, fold: _Fold, wall):
+    def __init__(self, scenario, runs, jobs, burn_in, seeds, rows, fold: _Fold, wall,
+                 executor: str = "this process"):
         self.scenario = scenario
         self.runs = runs
         self.jobs = jobs
+        self.executor = executor
         self.burn_in = burn_in
         self.seeds = seeds
         self.rows = rows
@@ -423,7 +378,7 @@ class MonteCarloResult:
                                          for i, (v, w) in enumerate(zip(r, widths))).rstrip()
         sc = self.scenario
         lines = [f"{sc.name}: {self.runs} runs x {sc.steps} ticks (base seed {sc.seed}), "
-                 f"burn-in {self.burn_in} rows, {self.jobs} job(s), {self.wall_time_s:.1f} s; "
+                 f"burn-in {self.burn_in} rows, on {self.executor}, {self.wall_time_s:.1f} s; "
                  f"ANEES expected {len(self.components)}",
                  fmt(head), "  " + "  ".join("-" * w for w in widths)]
         lines += [fmt(r) for r in body]
