@@ -26,6 +26,7 @@ from __future__ import annotations
 import numpy as np
 import scipy.sparse
 
+from dkfsim.components.topology import topology_arcs
 from dkfsim.core.linalg import solve
 from dkfsim.estimators.base import Estimate, Estimator, EstimatorResult
 from dkfsim.network.links import PRIORITY_UPDATE, Scheduled
@@ -114,7 +115,27 @@ class RoundBased(Estimator):
 
     # -- what a subclass provides ------------------------------------------------
     def setup(self) -> None:
-        """Set the filter state (``self.x``, ``self.P``, ...) before the first tick."""
+        """Set the filter state before the first tick (default: every node's posterior
+        ``x``, ``P`` is the prior; a tick starts by predicting it)."""
+        s = self.ctx.system
+        n, nx = self.n, self.nx
+        self.x = np.broadcast_to(np.asarray(s.x0_mean, float), (n, nx)).copy()
+        self.P = np.broadcast_to(np.asarray(s.P0, float), (n, nx, nx)).copy()
+
+    def predict(self) -> tuple[np.ndarray, np.ndarray]:
+        """Every node's predicted ``(x, P)`` from its posterior ``self.x``, ``self.P``."""
+        return self.x @ self.Phi.T, sym(self.Phi @ self.P @ self.Phi.T + self.Q)
+
+    def topology_arcs(self) -> list[tuple[int, int]]:
+        """Every directed link of the scenario's topology (the full graph, not the protocol's
+        spanning tree)."""
+        return topology_arcs(self.ctx.scenario.graph())
+
+    def info_bytes(self, vectors: int, matrices: int) -> int:
+        """Nominal size of a message of ``vectors`` nx-vectors and ``matrices`` symmetric
+        nx x nx matrices: a 16-byte header (stamp, sender) and 8-byte floats."""
+        nx = self.nx
+        return 16 + 8 * (vectors * nx + matrices * nx * (nx + 1) // 2)
 
     def boxes(self) -> dict[str, dict[str, tuple]]:
         """Message kinds: name -> {field: shape of one node's value}."""
