@@ -367,3 +367,11 @@ def test_rounds_not_dividing_the_period_are_rejected():
             simulate(zoo_scenario(4, [est], edges=path(4), steps=5))
     with pytest.raises(ScenarioError, match="omega"):
         simulate(zoo_scenario(4, [{"kind": "hcmci", "omega": 5}], edges=path(4), steps=5))
+
+
+def test_list_estimators_shows_them(capsys):
+    from dkfsim.cli.main import main
+    assert main(["list", "estimators"]) in (0, None)
+    out = capsys.readouterr().out
+    for kind in ZOO:
+        assert f"  {kind} " in out, kind
