@@ -32,7 +32,6 @@ import scipy.sparse
 
 from dkfsim.components.estimators import DiffusionParams
 from dkfsim.core.registry import ESTIMATORS
-from dkfsim.core.resources import B_FLOAT, C_NODE_ROW, C_PACKET, C_ROW, C_TICK, Cost
 from dkfsim.estimators.rounds import RoundBased, solve_pair
 
 
@@ -42,10 +41,8 @@ class DiffusionKF(RoundBased):
     Params = DiffusionParams
 
     @classmethod
-    def cost(cls, params, scenario, *, L: int, arcs: int, save: str = "estimates") -> Cost:
-        K, n, nx = int(scenario.steps), scenario.n, scenario.nx
-        return Cost(params.label, memory={params.label: K * n * (nx + nx * nx) * B_FLOAT},
-                    seconds=K * 2 * (C_TICK + 3 * C_ROW + arcs * C_PACKET + 2 * n * C_NODE_ROW))
+    def slots_of(cls, params) -> int:
+        return 2
 
     def start(self) -> None:
         self.start_rounds(self.topology_arcs(), 2)

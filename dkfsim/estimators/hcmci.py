@@ -28,7 +28,6 @@ from __future__ import annotations
 
 from dkfsim.components.estimators import HCMCIParams
 from dkfsim.core.registry import ESTIMATORS
-from dkfsim.core.resources import B_FLOAT, C_NODE_ROW, C_PACKET, C_ROW, C_TICK, Cost
 from dkfsim.estimators.rounds import RoundBased, solve_pair, sym
 
 
@@ -37,12 +36,7 @@ class HCMCI(RoundBased):
 
     Params = HCMCIParams
 
-    @classmethod
-    def cost(cls, params, scenario, *, L: int, arcs: int, save: str = "estimates") -> Cost:
-        K, n, nx = int(scenario.steps), scenario.n, scenario.nx
-        return Cost(params.label, memory={params.label: K * n * (nx + nx * nx) * B_FLOAT},
-                    seconds=K * (C_ROW + n * C_NODE_ROW) + K * params.rounds * (
-                        C_TICK + 5 * C_ROW + arcs * C_PACKET + n * 4 * C_NODE_ROW))
+    WORK = 4
 
     def start(self) -> None:
         self.start_rounds(self.topology_arcs(), int(self.params.rounds))

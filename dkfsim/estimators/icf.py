@@ -26,7 +26,6 @@ from __future__ import annotations
 
 from dkfsim.components.estimators import ICFParams
 from dkfsim.core.registry import ESTIMATORS
-from dkfsim.core.resources import B_FLOAT, C_NODE_ROW, C_PACKET, C_ROW, C_TICK, Cost
 from dkfsim.estimators.rounds import RoundBased, solve_pair, sym
 
 
@@ -34,13 +33,6 @@ class ICF(RoundBased):
     """Kamal et al.'s ICF at every node, batched over nodes."""
 
     Params = ICFParams
-
-    @classmethod
-    def cost(cls, params, scenario, *, L: int, arcs: int, save: str = "estimates") -> Cost:
-        K, n, nx = int(scenario.steps), scenario.n, scenario.nx
-        return Cost(params.label, memory={params.label: K * n * (nx + nx * nx) * B_FLOAT},
-                    seconds=K * (C_ROW + n * C_NODE_ROW) + K * params.rounds * (
-                        C_TICK + 3 * C_ROW + arcs * C_PACKET + n * 2 * C_NODE_ROW))
 
     def start(self) -> None:
         self.start_rounds(self.topology_arcs(), int(self.params.rounds))

@@ -27,7 +27,6 @@ import numpy as np
 
 from dkfsim.components.estimators import KCFParams
 from dkfsim.core.registry import ESTIMATORS
-from dkfsim.core.resources import B_FLOAT, C_NODE_ROW, C_PACKET, C_ROW, C_TICK, Cost
 from dkfsim.estimators.rounds import RoundBased, solve_pair
 
 
@@ -36,11 +35,11 @@ class KCF(RoundBased):
 
     Params = KCFParams
 
+    WORK = 3
+
     @classmethod
-    def cost(cls, params, scenario, *, L: int, arcs: int, save: str = "estimates") -> Cost:
-        K, n, nx = int(scenario.steps), scenario.n, scenario.nx
-        return Cost(params.label, memory={params.label: K * n * (nx + nx * nx) * B_FLOAT},
-                    seconds=K * (C_TICK + 3 * C_ROW + 2 * arcs * C_PACKET + 3 * n * C_NODE_ROW))
+    def slots_of(cls, params) -> int:
+        return 1
 
     def start(self) -> None:
         self.start_rounds(self.topology_arcs(), 1)

@@ -28,6 +28,7 @@ import scipy.sparse
 
 from dkfsim.components.topology import topology_arcs
 from dkfsim.core.linalg import solve
+from dkfsim.core.resources import B_FLOAT, C_NODE_ROW, C_PACKET, C_ROW, C_TICK, Cost
 from dkfsim.estimators.base import Estimate, Estimator, EstimatorResult
 from dkfsim.network.links import PRIORITY_UPDATE, Scheduled
 
@@ -112,6 +113,20 @@ class RoundBased(Estimator):
 
     #: Drop (and count ``late``) a message once its last usable instant has passed.
     DROP_LATE = True
+    #: Batched per-node matrix operations of one sub-slot (for :meth:`cost`).
+    WORK = 2
+
+    @classmethod
+    def slots_of(cls, params) -> int:
+        """Sub-slots per tick of an entry (default: its ``rounds``)."""
+        return int(params.rounds)
+
+    @classmethod
+    def cost(cls, params, scenario, *, L: int, arcs: int, save: str = "estimates") -> Cost:
+        K, n, nx = int(scenario.steps), scenario.n, scenario.nx
+        return Cost(params.label, memory={params.label: K * n * (nx + nx * nx) * B_FLOAT},
+                    seconds=K * (C_ROW + n * C_NODE_ROW) + K * cls.slots_of(params) * (
+                        C_TICK + 3 * C_ROW + arcs * C_PACKET + n * cls.WORK * C_NODE_ROW))
 
     # -- what a subclass provides ------------------------------------------------
     def setup(self) -> None:
