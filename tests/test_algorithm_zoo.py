@@ -145,6 +145,7 @@ def test_diffusion_on_a_path_follows_the_papers_equations(weights):
 
 def test_icf_complete_graph_one_round_is_the_centralized_filter():
     n = 5
+    assert np.allclose(metropolis(n, complete(n)), 1.0 / n)     # uniform weights 1/N
     sim, res = simulate(zoo_scenario(n, [{"kind": "icf", "rounds": 1}], edges=complete(n)))
     x, P = xP(res, "icf")
     xc, Pc = centralized(sim)
