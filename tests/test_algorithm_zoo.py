@@ -376,3 +376,16 @@ def test_list_estimators_shows_them(capsys):
     out = capsys.readouterr().out
     for kind in ZOO:
         assert f"  {kind} " in out, kind
+
+
+def test_icf_is_hcmci_with_omega_n_even_under_delays_and_loss():
+    """Algebra: N * avg(Jbar/N + U) = avg(Jbar) + N avg(U), so with the same weights and the
+    same packets ICF equals HCMCI with omega = n (two separate implementations)."""
+    sc = zoo_scenario(5, [{"kind": "icf", "rounds": 2}, {"kind": "hcmci", "rounds": 2, "omega": "n"}],
+                      edges=CYCLE, steps=40, seed=9, latency={"model": "uniform_steps", "d_t": 1}, loss=0.1)
+    _, res = simulate(sc)
+    xi, Pi = xP(res, "icf")
+    xh, Ph = xP(res, "hcmci")
+    ref.assert_close(xi, xh, "icf vs hcmci(omega=n) x", 1e-8)
+    ref.assert_close(Pi, Ph, "icf vs hcmci(omega=n) P", 1e-8)
+    assert res.traffic["icf"]["late"] > 0
