@@ -82,8 +82,8 @@ import dkfsim  # noqa: E402
 from dkfsim.core.errors import DkfsimError  # noqa: E402
 
 SCENARIO_DIR = ROOT / "scenarios"
-#: Shipped YAML files that are not scenarios.
-NOT_SCENARIOS = frozenset({"sweep_delay_bound.yaml"})
+#: Shipped YAML files that are not scenarios: the sweep files, named ``sweep_*.yaml``.
+NOT_SCENARIOS = frozenset(p.name for p in SCENARIO_DIR.glob("sweep_*.yaml"))
 DKFSIM_DIR = Path(dkfsim.__file__).resolve().parent
 
 #: Steps of every mutant's run (the mutant's own ``steps`` key, so a mutation of it sticks).

@@ -12,7 +12,7 @@ from typing import Annotated, Any, Literal
 
 from pydantic import BeforeValidator, Field
 
-from dkfsim.core.params import StrictModel, custom_error
+from dkfsim.core.params import NonNegReal, StrictBool, StrictModel, custom_error
 from dkfsim.core.registry import ESTIMATORS
 
 
@@ -77,6 +77,17 @@ class AntiDelayParams(EstimatorParams):
             raise custom_error("'paper' weights need protocol: tree", "weights")
 
 
+def check_rounds(kind: str, rounds: int, scenario, key: str = "rounds", note: str = "") -> None:
+    """``rounds`` sub-slots must divide ``T`` into whole nanoseconds (docs/consensus.md)."""
+    if rounds > 0 and scenario.T_ns % rounds:
+        raise custom_error(f"{rounds} rounds per tick{note} do not divide T = {scenario.model.T} s "
+                           f"({scenario.T_ns} ns) into whole nanoseconds ({kind} runs a round every "
+                           "T/rounds); choose a divisor of T in ns", key)
+
+
+Rounds = Annotated[int, Field(strict=True, ge=1)]
+
+
 class CIParams(EstimatorParams):
     """Consensus on information (Battistelli & Chisci 2014) with Metropolis weights."""
 
@@ -85,13 +96,71 @@ class CIParams(EstimatorParams):
     rounds: Annotated[int, Field(strict=True, ge=0)] = 1
 
     def check(self, scenario) -> None:
-        if self.rounds > 0 and scenario.T_ns % self.rounds:
-            raise custom_error(f"{self.rounds} rounds per tick (consensus_rounds in older files) do not "
-                               f"divide T = {scenario.model.T} s into whole nanoseconds "
-                               "(ci_consensus runs a round every T/rounds)", "rounds")
+        check_rounds("ci_consensus", self.rounds, scenario, note=" (consensus_rounds in older files)")
+
+
+class KCFParams(EstimatorParams):
+    """Kalman-consensus filter (Olfati-Saber, CDC 2009): one exchange per tick."""
+
+    kind: Literal["kcf"] = "kcf"
+    #: Consensus gain scale: gamma_i = eps / (1 + ||M_i||_F).  0 = neighbourhood filters only.
+    #: Default 0.1: the paper leaves eps free; 0.1 keeps gamma_i ||M_i|| < 0.1, so the consensus
+    #: term stays a contraction for up to 10 neighbours (docs/consensus.md).
+    eps: NonNegReal = 0.1
+
+
+class ICFParams(EstimatorParams):
+    """Information-weighted consensus filter (Kamal, Farrell, Roy-Chowdhury, TAC 2013)."""
+
+    kind: Literal["icf"] = "icf"
+    #: Consensus iterations per tick (>= 1); T / rounds must be whole ns.  Default 1: one
+    #: message per link per tick, the budget of kcf and ci_consensus's default.
+    rounds: Rounds = 1
+
+    def check(self, scenario) -> None:
+        check_rounds("icf", self.rounds, scenario)
+
+
+class DiffusionParams(EstimatorParams):
+    """Diffusion Kalman filter (Cattivelli & Sayed, TAC 2010): incremental update, then diffusion."""
+
+    kind: Literal["diffusion_kf"] = "diffusion_kf"
+    #: Diffusion (combination) weights c_ij: ``metropolis`` (doubly stochastic on an undirected
+    #: graph) or ``uniform`` (1 / (|N_i| + 1) over the closed neighbourhood, as the paper's example).
+    weights: Literal["metropolis", "uniform"] = "metropolis"
+    #: False: the incremental (measurement) step only, C = I.
+    diffusion: StrictBool = True
+
+    def check(self, scenario) -> None:
+        check_rounds("diffusion_kf", 2, scenario, key="kind", note=" (its two exchanges)")
+
+
+def _omega(value: Any) -> Any:
+    if isinstance(value, str) and value == "n":
+        return value
+    if isinstance(value, (int, float)) and not isinstance(value, bool) and 1.0 <= float(value) < float("inf"):
+        return float(value)
+    raise custom_error(f"must be a number >= 1 or 'n' (the number of nodes), got {value!r}")
+
+
+class HCMCIParams(EstimatorParams):
+    """Hybrid consensus on measurements and information (Battistelli et al., TAC 2015)."""
+
+    kind: Literal["hcmci"] = "hcmci"
+    #: Consensus rounds per tick (>= 1); T / rounds must be whole ns.
+    rounds: Rounds = 1
+    #: Scale of the averaged novel information: 1 (default; consistent whatever arrived) or up
+    #: to ``n`` (``'n'``: the centralized filter at full consensus, overconfident before it).
+    omega: Annotated[float | Literal["n"], BeforeValidator(_omega)] = 1.0
+
+    def check(self, scenario) -> None:
+        check_rounds("hcmci", self.rounds, scenario)
+        if self.omega != "n" and self.omega > scenario.n:
+            raise custom_error(f"omega = {self.omega} exceeds the number of nodes n = {scenario.n} "
+                               "(the stability range of Battistelli et al. is 1 <= omega <= n)", "omega")
 
 
 for _params in (CentralizedParams, CentralizedDelayedParams, LocalOnlyParams, NoBufferParams,
-                AntiDelayParams, CIParams):
+                AntiDelayParams, CIParams, KCFParams, ICFParams, DiffusionParams, HCMCIParams):
     ESTIMATORS.add(_params.model_fields["kind"].default, params=_params)
 ESTIMATORS.add("local_only", aliases=("local",))

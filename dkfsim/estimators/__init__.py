@@ -5,4 +5,4 @@ own; importing this package registers the built-in ones.
 """
 
 from dkfsim.estimators import (anti_delay, centralized, centralized_delayed, ci_consensus,  # noqa: F401
-                               local_only)
+                               diffusion_kf, hcmci, icf, kcf, local_only)

@@ -91,6 +91,12 @@ Crash windows (``faults.crashes``): a crashed node does not measure (no
 correction for those rows), sends nothing, drops what arrives, and keeps its
 own pair through the averaging; it still predicts, as the DKF's nodes do.
 
+The rounds, links, packets and weights are the shared machinery of
+:mod:`dkfsim.estimators.rounds` (docs/consensus.md); unlike the other
+round-based estimators, ``ci_consensus`` keeps a pair from an older tick and
+predicts it forward (posteriors can be; partial sums cannot), so it drops
+nothing as late.
+
 Side facts (underscored keys, :func:`ci_consensus`): packets ``sent``,
 ``delivered``, ``lost``, ``in_flight``, the number of rounds, and how many
 neighbour pairs were used (``used``) and how many of them had to be predicted
@@ -100,60 +106,17 @@ from an older tick (``stale``).
 from __future__ import annotations
 
 import numpy as np
-import scipy.sparse
 
-from dkfsim.core.linalg import solve
 from dkfsim.core.registry import ESTIMATORS
 from dkfsim.core.resources import B_FLOAT, C_NODE_ROW, C_PACKET, C_ROW, C_TICK, Cost
 from dkfsim.components.estimators import CIParams
-from dkfsim.estimators.base import Estimate, Estimator, EstimatorResult
-from dkfsim.network.links import PRIORITY_UPDATE, Scheduled
+from dkfsim.estimators.base import Estimate, EstimatorResult
+from dkfsim.estimators.rounds import Powers as _Powers, RoundBased, metropolis_weights, solve_pair as _solve_pair
+
+__all__ = ["CIConsensus", "metropolis_weights"]
 
 
-# --------------------------------------------------------------------------- helpers
-def metropolis_weights(n: int, arcs) -> np.ndarray:
-    """``pi`` of each arc ``(u, v)`` (u sends to v): ``1 / (1 + max(d_u, d_v))``.
-
-    ``d`` counts in-neighbours.  ``pi_vv = 1 - sum`` over v's in-arcs.
-    """
-    arcs = np.asarray(arcs, dtype=np.intp).reshape(-1, 2)
-    indeg = np.bincount(arcs[:, 1], minlength=n)
-    return 1.0 / (1.0 + np.maximum(indeg[arcs[:, 0]], indeg[arcs[:, 1]]))
-
-
-def _solve_pair(A: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """``(A^-1, A^-1 v)`` for a batch of SPD ``A`` by one solve, ``A^-1`` symmetrised."""
-    nx = A.shape[-1]
-    rhs = np.empty(A.shape[:-1] + (nx + 1,))
-    rhs[..., :nx] = np.eye(nx)
-    rhs[..., nx] = v
-    sol = solve(A, rhs)
-    M = sol[..., :nx]
-    return 0.5 * (M + np.swapaxes(M, -1, -2)), sol[..., nx]
-
-
-class _Powers:
-    """``Phi^m`` and ``Q_m = sum_{i<m} Phi^i Q Phi^i'`` for m = 0, 1, ..., grown on demand."""
-
-    def __init__(self, Phi, Q):
-        self.Phi, self.Q = Phi, Q
-        nx = Phi.shape[0]
-        self.F = [np.eye(nx)]
-        self.Qm = [np.zeros((nx, nx))]
-        self._F = self._Q = None
-
-    def get(self, m: np.ndarray):
-        top = int(m.max())
-        if top >= len(self.F) or self._F is None:
-            while len(self.F) <= top:
-                self.F.append(self.Phi @ self.F[-1])
-                Qn = self.Phi @ self.Qm[-1] @ self.Phi.T + self.Q
-                self.Qm.append(0.5 * (Qn + Qn.T))
-            self._F, self._Q = np.array(self.F), np.array(self.Qm)
-        return self._F[m], self._Q[m]
-
-
-class CIConsensus(Estimator):
+class CIConsensus(RoundBased):
     """Every node's CI filter and its exchange, on the run's network.
 
     The filter steps are batched over nodes; rounds are events at
@@ -162,6 +125,7 @@ class CIConsensus(Estimator):
     """
 
     Params = CIParams
+    DROP_LATE = False           # older pairs are predicted forward, never dropped
 
     @classmethod
     def cost(cls, params, scenario, *, L: int, arcs: int, save: str = "estimates") -> Cost:
@@ -172,59 +136,30 @@ class CIConsensus(Estimator):
                         C_TICK + 3 * C_ROW + arcs * C_PACKET + n * 2 * C_NODE_ROW))
 
     def start(self) -> None:
-        ctx = self.ctx
-        s = ctx.system
-        self.Phi, self.Q = np.asarray(s.Phi, float), np.asarray(s.Q, float)
-        omega, theta = ctx.existing_information()          # crashed sensors measure nothing
-        self.omega, self.theta = np.asarray(omega, float), np.asarray(theta, float)
-        self.K, self.n, self.nx = self.theta.shape
-        self._omega_per_row = self.omega.ndim == 4
-        self.rounds = Lc = int(self.params.rounds)
-        self.T_ns = ctx.T_ns
-        self.dt = self.T_ns // Lc if Lc > 0 else self.T_ns
+        self.rounds = int(self.params.rounds)
+        arcs = self.ctx.scenario.exchange().arcs if self.rounds > 0 else []
+        self.start_rounds(arcs, self.rounds)
+
+    def setup(self) -> None:
+        s = self.ctx.system
         n, nx = self.n, self.nx
         self.x = np.broadcast_to(np.asarray(s.x0_mean, float), (n, nx)).copy()
         self.P = np.broadcast_to(np.asarray(s.P0, float), (n, nx, nx)).copy()
         self.Om = self.q = None
-        self.crashes = ctx.crashes
-        self.env = ctx.env
         self.used = self.stale = 0
-        arcs = ctx.scenario.exchange().arcs if Lc > 0 else []
-        self.links = [ctx.network.link(u, v) for u, v in arcs]
-        self.lid = {link.id: a for a, link in enumerate(self.links)}
-        E = len(self.links)
-        self.src = np.array([u for u, _ in arcs], dtype=np.intp)
-        self.dst = np.array([v for _, v in arcs], dtype=np.intp)
-        pi = metropolis_weights(n, arcs) if E else np.zeros(0)
-        # S[v, a] = pi_a for arc a = (u -> v): the neighbour part of the averaging.
-        self.S = scipy.sparse.csr_matrix((pi, (self.dst, np.arange(E))), shape=(n, E))
-        # Newest pair received on each arc: stamp = global round index (-1: none).
-        self.arc_stamp = np.full(E, -1, dtype=np.int64)
-        self.arc_Om = np.zeros((E, nx, nx))
-        self.arc_q = np.zeros((E, nx))
-        self.arc_x = np.zeros((E, nx))
-        self.arc_P = np.zeros((E, nx, nx))
         self.powers = _Powers(self.Phi, self.Q)
-        self.x_out = np.empty((self.K, n, nx))
-        self.P_out = np.empty((self.K, n, nx, nx))
-        # The last averaging of tick K happens at t_{K+1}: deliveries count until then.
-        self.port = ctx.network.port(self.name, self._receive, self.links, until=(self.K + 1) * self.T_ns)
         self.nbytes = 16 + 8 * (nx + nx * (nx + 1) // 2)
-        if Lc == 0:
-            for k in range(1, self.K + 1):
-                self._predict_correct(k)
-                self._record(k)
-        else:
-            self._g = 0
-            Scheduled(self.env, self._instant, PRIORITY_UPDATE, self.T_ns)
+
+    def boxes(self):
+        nx = self.nx
+        return {"pair": {"Om": (nx, nx), "q": (nx,), "x": (nx,), "P": (nx, nx)}}
 
     # -- the filter steps (batched over nodes) -----------------------------
     def _predict_correct(self, k: int) -> None:
         xp = self.x @ self.Phi.T
         Pp = self.Phi @ self.P @ self.Phi.T + self.Q
         Omp, qp = _solve_pair(Pp, xp)
-        omega = self.omega[k - 1] if self._omega_per_row else self.omega
-        self._set_pair(Omp + omega, qp + self.theta[k - 1])
+        self._set_pair(Omp + self.omega_at(k), qp + self.theta[k - 1])
 
     def _set_pair(self, Om, q) -> None:
         # New arrays every time: packets in flight hold references to the old ones.
@@ -234,14 +169,15 @@ class CIConsensus(Estimator):
 
     def _average(self, k: int) -> None:
         """One consensus step at tick ``k`` with the newest pair held from each in-link."""
-        have = self.arc_stamp >= 0
-        Om_nb, q_nb = self.arc_Om, self.arc_q
-        age = k - (self.arc_stamp // self.rounds + 1)
+        box = self.box["pair"]
+        have = box.stamp >= 0
+        Om_nb, q_nb = box.f["Om"], box.f["q"]
+        age = k - (box.stamp // self.rounds + 1)
         old = np.flatnonzero(have & (age > 0))
         if old.size:
             F, Qm = self.powers.get(age[old])
-            Pm = F @ self.arc_P[old] @ np.swapaxes(F, -1, -2) + Qm
-            xm = np.einsum("aij,aj->ai", F, self.arc_x[old])
+            Pm = F @ box.f["P"][old] @ np.swapaxes(F, -1, -2) + Qm
+            xm = np.einsum("aij,aj->ai", F, box.f["x"][old])
             Om_old, q_old = _solve_pair(Pm, xm)
             Om_nb, q_nb = Om_nb.copy(), q_nb.copy()
             Om_nb[old], q_nb[old] = Om_old, q_old
@@ -257,52 +193,23 @@ class CIConsensus(Estimator):
             Om[down], q[down] = self.Om[down], self.q[down]
         self._set_pair(Om, q)
 
-    def _down(self) -> np.ndarray:
-        """Nodes inside a crash window now."""
-        if not self.crashes or self.rounds == 0:
-            return np.zeros(0, dtype=np.intp)
-        now = self.env.now
-        return np.array([i for i in range(self.n) if self.crashes.down(i, now)], dtype=np.intp)
+    # -- the round hooks -------------------------------------------------------
+    def local_tick(self, k: int) -> None:
+        self._predict_correct(k)
+        self.record(k, self.x, self.P)
 
-    def _record(self, k: int) -> None:
-        self.x_out[k - 1] = self.x
-        self.P_out[k - 1] = self.P
+    def begin_tick(self, k: int) -> None:
+        self._predict_correct(k)
 
-    # -- the network ---------------------------------------------------------
-    def _send(self, stamp: int) -> None:
-        state = (stamp, self.Om, self.q, self.x, self.P)
-        send = self.port.send
-        down = set(self._down().tolist())
-        for link in self.links:
-            if link.src not in down:          # a crashed node sends nothing
-                send(link, state, self.nbytes)
+    def step(self, k: int, l: int) -> None:
+        self._average(k)
 
-    def _receive(self, link, payload) -> None:
-        stamp, Om, q, x, P = payload
-        a, u = self.lid[link.id], link.src
-        if stamp > self.arc_stamp[a]:
-            self.arc_stamp[a] = stamp
-            self.arc_Om[a] = Om[u]
-            self.arc_q[a] = q[u]
-            self.arc_x[a] = x[u]
-            self.arc_P[a] = P[u]
+    def end_tick(self, k: int) -> None:
+        self._average(k)
+        self.record(k, self.x, self.P)
 
-    def _instant(self, _event) -> None:
-        g = self._g                  # global round index: tick g // Lc + 1, round g % Lc
-        self._g += 1
-        Lc = self.rounds
-        k, l = g // Lc + 1, g % Lc
-        if l == 0:
-            if k > 1:
-                self._average(k - 1)
-                self._record(k - 1)
-            if k > self.K:
-                return
-            self._predict_correct(k)
-        else:
-            self._average(k)
-        self._send(g)
-        Scheduled(self.env, self._instant, PRIORITY_UPDATE, self.dt)
+    def message(self, g: int):
+        return "pair", {"Om": self.Om, "q": self.q, "x": self.x, "P": self.P}, self.nbytes
 
     # -- the result -------------------------------------------------------------
     def finish(self) -> EstimatorResult:

@@ -1,0 +1,311 @@
+"""Round-based exchange shared by the consensus-type estimators (docs/consensus.md).
+
+``ci_consensus``, ``kcf``, ``icf``, ``diffusion_kf`` and ``hcmci`` all split a
+tick into ``slots`` sub-slots of ``dt = T / slots`` (whole nanoseconds) and,
+at every sub-slot instant, do one step of their algorithm and send one
+packet per out-link through their own port of the run's network.  This
+module holds what they share:
+
+* the clock: global round ``g`` at ``t_1 + g dt`` is tick ``k = g // slots + 1``,
+  sub-slot ``l = g % slots``; at ``l = 0`` the previous tick is finished
+  (:meth:`RoundBased.end_tick`, which records row ``k - 2``) and the new one
+  begun (:meth:`RoundBased.begin_tick`), otherwise :meth:`RoundBased.step`
+  runs; then the node's message goes out (:meth:`RoundBased.message`).
+  The last tick is finished at ``t_{K+1}``;
+* the links (one packet per arc, a crashed sender sends nothing), the
+  receive side (per arc and per *box* -- a kind of message -- the newest
+  stamp is kept; a message whose last usable instant has passed is dropped
+  and counted ``late``; an older stamp than the one held is ``superseded``);
+* Metropolis weights and the masked convex combination that leaves out a
+  neighbour without a fresh message and gives its weight to the node itself;
+* the information-form helpers (one batched solve, no explicit inverse).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import scipy.sparse
+
+from dkfsim.components.topology import topology_arcs
+from dkfsim.core.linalg import solve
+from dkfsim.core.resources import B_FLOAT, C_NODE_ROW, C_PACKET, C_ROW, C_TICK, Cost
+from dkfsim.estimators.base import Estimate, Estimator, EstimatorResult
+from dkfsim.network.links import PRIORITY_UPDATE, Scheduled
+
+
+# --------------------------------------------------------------------------- helpers
+def metropolis_weights(n: int, arcs) -> np.ndarray:
+    """``pi`` of each arc ``(u, v)`` (u sends to v): ``1 / (1 + max(d_u, d_v))``.
+
+    ``d`` counts in-neighbours.  ``pi_vv = 1 - sum`` over v's in-arcs.
+    """
+    arcs = np.asarray(arcs, dtype=np.intp).reshape(-1, 2)
+    indeg = np.bincount(arcs[:, 1], minlength=n)
+    return 1.0 / (1.0 + np.maximum(indeg[arcs[:, 0]], indeg[arcs[:, 1]]))
+
+
+def solve_pair(A: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``(A^-1, A^-1 v)`` for a batch of SPD ``A`` by one solve, ``A^-1`` symmetrised."""
+    nx = A.shape[-1]
+    rhs = np.empty(A.shape[:-1] + (nx + 1,))
+    rhs[..., :nx] = np.eye(nx)
+    rhs[..., nx] = v
+    sol = solve(A, rhs)
+    M = sol[..., :nx]
+    return 0.5 * (M + np.swapaxes(M, -1, -2)), sol[..., nx]
+
+
+def sym(A: np.ndarray) -> np.ndarray:
+    """``(A + A') / 2`` over the last two axes."""
+    return 0.5 * (A + np.swapaxes(A, -1, -2))
+
+
+def predict_info(Phi, Q, Om, q) -> tuple[np.ndarray, np.ndarray]:
+    """Prediction in information form, batched: ``(Omega, q)`` of ``x -> Phi x``,
+    ``P -> Phi P Phi' + Q`` (two batched solves)."""
+    P, x = solve_pair(Om, q)
+    Pp = Phi @ P @ Phi.T + Q
+    return solve_pair(Pp, x @ Phi.T)
+
+
+class Powers:
+    """``Phi^m`` and ``Q_m = sum_{i<m} Phi^i Q Phi^i'`` for m = 0, 1, ..., grown on demand."""
+
+    def __init__(self, Phi, Q):
+        self.Phi, self.Q = Phi, Q
+        nx = Phi.shape[0]
+        self.F = [np.eye(nx)]
+        self.Qm = [np.zeros((nx, nx))]
+        self._F = self._Q = None
+
+    def get(self, m: np.ndarray):
+        top = int(m.max())
+        if top >= len(self.F) or self._F is None:
+            while len(self.F) <= top:
+                self.F.append(self.Phi @ self.F[-1])
+                Qn = self.Phi @ self.Qm[-1] @ self.Phi.T + self.Q
+                self.Qm.append(0.5 * (Qn + Qn.T))
+            self._F, self._Q = np.array(self.F), np.array(self.Qm)
+        return self._F[m], self._Q[m]
+
+
+class Box:
+    """The newest message of one kind received on each arc: ``stamp`` (-1: none) and fields."""
+
+    def __init__(self, E: int, shapes: dict[str, tuple]):
+        self.stamp = np.full(E, -1, dtype=np.int64)
+        self.f = {key: np.zeros((E,) + tuple(shape)) for key, shape in shapes.items()}
+
+    def store(self, a: int, u: int, fields: dict) -> None:
+        for key, arr in self.f.items():
+            arr[a] = fields[key][u]
+
+
+# --------------------------------------------------------------------------- the base
+class RoundBased(Estimator):
+    """Rounds at sub-slots of ``T`` over a set of arcs, packets through the estimator's port.
+
+    A subclass sets up its state in :meth:`setup`, declares its boxes and
+    implements :meth:`begin_tick`, :meth:`step`, :meth:`end_tick` and
+    :meth:`message`.  ``slots = 0`` means no exchange: :meth:`local_tick`
+    runs for every tick at start.
+    """
+
+    #: Drop (and count ``late``) a message once its last usable instant has passed.
+    DROP_LATE = True
+    #: Batched per-node matrix operations of one sub-slot (for :meth:`cost`).
+    WORK = 2
+
+    @classmethod
+    def slots_of(cls, params) -> int:
+        """Sub-slots per tick of an entry (default: its ``rounds``)."""
+        return int(params.rounds)
+
+    @classmethod
+    def cost(cls, params, scenario, *, L: int, arcs: int, save: str = "estimates") -> Cost:
+        K, n, nx = int(scenario.steps), scenario.n, scenario.nx
+        return Cost(params.label, memory={params.label: K * n * (nx + nx * nx) * B_FLOAT},
+                    seconds=K * (C_ROW + n * C_NODE_ROW) + K * cls.slots_of(params) * (
+                        C_TICK + 3 * C_ROW + arcs * C_PACKET + n * cls.WORK * C_NODE_ROW))
+
+    # -- what a subclass provides ------------------------------------------------
+    def setup(self) -> None:
+        """Set the filter state before the first tick (default: every node's posterior
+        ``x``, ``P`` is the prior; a tick starts by predicting it)."""
+        s = self.ctx.system
+        n, nx = self.n, self.nx
+        self.x = np.broadcast_to(np.asarray(s.x0_mean, float), (n, nx)).copy()
+        self.P = np.broadcast_to(np.asarray(s.P0, float), (n, nx, nx)).copy()
+
+    def predict(self) -> tuple[np.ndarray, np.ndarray]:
+        """Every node's predicted ``(x, P)`` from its posterior ``self.x``, ``self.P``."""
+        return self.x @ self.Phi.T, sym(self.Phi @ self.P @ self.Phi.T + self.Q)
+
+    def topology_arcs(self) -> list[tuple[int, int]]:
+        """Every directed link of the scenario's topology (the full graph, not the protocol's
+        spanning tree)."""
+        return topology_arcs(self.ctx.scenario.graph())
+
+    def info_bytes(self, vectors: int, matrices: int) -> int:
+        """Nominal size of a message of ``vectors`` nx-vectors and ``matrices`` symmetric
+        nx x nx matrices: a 16-byte header (stamp, sender) and 8-byte floats."""
+        nx = self.nx
+        return 16 + 8 * (vectors * nx + matrices * nx * (nx + 1) // 2)
+
+    def boxes(self) -> dict[str, dict[str, tuple]]:
+        """Message kinds: name -> {field: shape of one node's value}."""
+        return {}
+
+    def box_of(self, l: int) -> str:
+        """The box a message sent at sub-slot ``l`` goes to (default: the only one)."""
+        return next(iter(self.box))
+
+    def deadline(self, g: int) -> int:
+        """Last instant (ns) at which a message stamped ``g`` can be used: default the
+        end of its tick, ``t_{k+1}``."""
+        return (g // self.slots + 2) * self.T_ns
+
+    def begin_tick(self, k: int) -> None:
+        raise NotImplementedError
+
+    def step(self, k: int, l: int) -> None:
+        """Sub-slot ``l >= 1`` of tick ``k``."""
+
+    def end_tick(self, k: int) -> None:
+        """At ``t_{k+1}``, before tick ``k+1`` begins: finish tick ``k`` and record row ``k-1``."""
+        raise NotImplementedError
+
+    def message(self, g: int) -> tuple[str, dict, int]:
+        """What every node sends at global round ``g``: (box, {field: (n, ...) array}, nbytes)."""
+        raise NotImplementedError
+
+    def local_tick(self, k: int) -> None:
+        """Tick ``k`` without any exchange (``slots = 0``)."""
+        raise NotImplementedError
+
+    def facts(self) -> dict:
+        return {}
+
+    # -- the machinery -------------------------------------------------------------
+    def start_rounds(self, arcs, slots: int) -> None:
+        """Open the port on ``arcs`` and schedule the sub-slot instants (call from ``start``)."""
+        ctx = self.ctx
+        s = ctx.system
+        self.Phi, self.Q = np.asarray(s.Phi, float), np.asarray(s.Q, float)
+        omega, theta = ctx.existing_information()          # crashed sensors measure nothing
+        self.omega, self.theta = np.asarray(omega, float), np.asarray(theta, float)
+        self.K, self.n, self.nx = self.theta.shape
+        self._omega_per_row = self.omega.ndim == 4
+        self.slots = slots
+        self.T_ns = ctx.T_ns
+        self.dt = self.T_ns // slots if slots > 0 else self.T_ns
+        self.crashes = ctx.crashes
+        self.env = ctx.env
+        self.late = self.superseded = 0
+        arcs = list(arcs) if slots > 0 else []
+        self.links = [ctx.network.link(u, v) for u, v in arcs]
+        self.lid = {link.id: a for a, link in enumerate(self.links)}
+        E = self.E = len(self.links)
+        n = self.n
+        self.src = np.array([u for u, _ in arcs], dtype=np.intp)
+        self.dst = np.array([v for _, v in arcs], dtype=np.intp)
+        pi = metropolis_weights(n, arcs) if E else np.zeros(0)
+        # S[v, a] = pi_a for arc a = (u -> v): the neighbour part of a combination.
+        self.S = scipy.sparse.csr_matrix((pi, (self.dst, np.arange(E))), shape=(n, E))
+        # A[v, a] = 1 for arc a = (u -> v): sums over in-neighbours.
+        self.A = scipy.sparse.csr_matrix((np.ones(E), (self.dst, np.arange(E))), shape=(n, E))
+        self.box = {name: Box(E, shapes) for name, shapes in self.boxes().items()}
+        self.setup()
+        self.x_out = np.empty((self.K, n, self.nx))
+        self.P_out = np.empty((self.K, n, self.nx, self.nx))
+        # The last tick is finished at t_{K+1}: deliveries count until then.
+        self.port = ctx.network.port(self.name, self._receive, self.links, until=(self.K + 1) * self.T_ns)
+        if slots == 0:
+            for k in range(1, self.K + 1):
+                self.local_tick(k)
+        else:
+            self._g = 0
+            self._tick = 0
+            Scheduled(self.env, self._instant, PRIORITY_UPDATE, self.T_ns)
+
+    def omega_at(self, k: int) -> np.ndarray:
+        """Every node's measurement information matrix of row ``k - 1`` (n, nx, nx)."""
+        return self.omega[k - 1] if self._omega_per_row else self.omega
+
+    def record(self, k: int, x, P) -> None:
+        self.x_out[k - 1] = x
+        self.P_out[k - 1] = P
+
+    def _down(self) -> np.ndarray:
+        """Nodes inside a crash window now."""
+        if not self.crashes or self.slots == 0:
+            return np.zeros(0, dtype=np.intp)
+        now = self.env.now
+        return np.array([i for i in range(self.n) if self.crashes.down(i, now)], dtype=np.intp)
+
+    def fresh(self, box: str, first: int, last: int | None = None) -> np.ndarray:
+        """(E,) bool: the arc holds a message of ``box`` stamped in ``[first, last]``."""
+        st = self.box[box].stamp
+        return (st >= first) if last is None else (st >= first) & (st <= last)
+
+    def mix(self, own: np.ndarray, nb: np.ndarray, have: np.ndarray) -> np.ndarray:
+        """``pi_ii' own_i + sum_j pi_ij nb_j`` over the arcs in ``have``; the weight of the
+        others goes to the node itself (``pi_ii' = 1 - sum of the used pi_ij``).  A node
+        that is down keeps ``own``."""
+        shape = own.shape
+        self_w = 1.0 - self.S @ have.astype(float)
+        nbm = nb.reshape(self.E, -1) * have[:, None]
+        out = self_w.reshape((-1,) + (1,) * (own.ndim - 1)) * own + (self.S @ nbm).reshape(shape)
+        down = self._down()
+        if down.size:
+            out[down] = own[down]
+        return out
+
+    def nsum(self, nb: np.ndarray, have: np.ndarray) -> np.ndarray:
+        """``sum_j nb_j`` over each node's in-arcs in ``have`` (n, ...)."""
+        nbm = nb.reshape(self.E, -1) * have[:, None]
+        return (self.A @ nbm).reshape((self.n,) + nb.shape[1:])
+
+    def _send(self, g: int) -> None:
+        box, fields, nbytes = self.message(g)
+        state = (g, box, fields)
+        send = self.port.send
+        down = set(self._down().tolist())
+        for link in self.links:
+            if link.src not in down:          # a crashed node sends nothing
+                send(link, state, nbytes)
+
+    def _receive(self, link, payload) -> None:
+        g, box, fields = payload
+        if self.DROP_LATE and self.env.now > self.deadline(g):
+            self.late += 1
+            return
+        a = self.lid[link.id]
+        b = self.box[box]
+        if g > b.stamp[a]:
+            b.stamp[a] = g
+            b.store(a, link.src, fields)
+        else:
+            self.superseded += 1
+
+    def _instant(self, _event) -> None:
+        g = self._g                  # global round index: tick g // slots + 1, sub-slot g % slots
+        self._g += 1
+        k, l = g // self.slots + 1, g % self.slots
+        if l == 0:
+            if k > 1:
+                self.end_tick(k - 1)
+            if k > self.K:
+                return
+            self._tick = k
+            self.begin_tick(k)
+        else:
+            self.step(k, l)
+        self._send(g)
+        Scheduled(self.env, self._instant, PRIORITY_UPDATE, self.dt)
+
+    def finish(self) -> EstimatorResult:
+        traffic = self.port.counts()
+        traffic["late"] = self.late
+        facts = {"slots": self.slots, "late": self.late, "superseded": self.superseded, **self.facts()}
+        return EstimatorResult({self.name: Estimate(self.x_out, self.P_out)}, traffic=traffic, facts=facts)
