@@ -126,6 +126,7 @@ class Run:
             "n_links": len(sc.exchange().arcs),
             "wall_time_s": wall,
             "save": ctx.save,
+            "kernels": self.dkf.window.kernels,
         }
         return RunResult(sc, arrays, counts, info, estimates=list(estimates), traffic=traffic,
                          facts=facts)
