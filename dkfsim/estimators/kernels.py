@@ -261,3 +261,23 @@ def xi_rows(Xi, Xi0, G, P, held, A, column_sensor, factor, varying, Phi, Lq, sta
         YY = np.dot(Ya, Y.T)
         Xi_prev = Xi0 if row == 0 else Xi[(row - 1) % S]
         xi_blocks(Xi_prev, Xi[slot], F, YY, nodes[:na], active)
+
+
+@_jit
+def fold(i, o, r, A, omega, varying, theta, Omega, Theta, held, starts):
+    """Add the contributions ``(node i, origin o, row r)`` to the ring (in order, like
+    ``np.add.at``); ``starts[i]`` becomes the earliest row node ``i`` gained."""
+    S = Omega.shape[0]
+    nx = Omega.shape[2]
+    for k in range(i.shape[0]):
+        node, org, row = i[k], o[k], r[k]
+        slot = row % S
+        a = A[node, org]
+        om = omega[row if varying else 0, org]
+        held[slot, node, org] = True
+        for p in range(nx):
+            for q in range(nx):
+                Omega[slot, node, p, q] += a * om[p, q]
+            Theta[slot, node, p] += a * theta[row, org, p]
+        if row < starts[node]:
+            starts[node] = row

@@ -23,7 +23,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from dkfsim.core.linalg import solve
-from dkfsim.estimators.kernels import kernel_path, window_rows
+from dkfsim.estimators.kernels import fold, kernel_path, window_rows
 
 
 def information_step(Phi, Q, x_prev, P_prev, Omega, Theta):
@@ -169,8 +169,9 @@ class WindowFilter:
         self.x0 = np.broadcast_to(np.asarray(x0, float), (n, nx)).copy()
         self.P0 = np.broadcast_to(np.asarray(P0, float), (n, nx, nx)).copy()
         self._pend_i: list[int] = []
-        self._pend_o: list[int] = []
+        self._pend_m: list[int] = []
         self._pend_r: list[int] = []
+        self._mask_bytes = -(-self.theta.shape[1] // 8)
         self._chunks: list[tuple[int, np.ndarray, int]] = []
         #: ``"numba"`` or ``"numpy"`` (:func:`dkfsim.estimators.kernels.kernel_path`)
         self.kernels = kernel_path()
@@ -178,35 +179,54 @@ class WindowFilter:
     # -- contributions -----------------------------------------------------
     def add(self, node: int, origin: int, row: int) -> None:
         """Node ``node`` now holds ``origin``'s contribution for ``row``."""
+        self.add_mask(node, 1 << origin, row)
+
+    def add_mask(self, node: int, origins: int, row: int) -> None:
+        """Node ``node`` now holds the contributions of the origins set in the bitmask
+        ``origins`` (a non-negative int, bit ``o`` for origin ``o``) for ``row``."""
         self._pend_i.append(node)
-        self._pend_o.append(origin)
+        self._pend_m.append(origins)
         self._pend_r.append(row)
 
     def add_many(self, node: int, origins: np.ndarray, row: int) -> None:
         """Node ``node`` now holds the contributions of all ``origins`` for ``row``."""
         self._chunks.append((node, origins, row))
 
+    def _unpack(self):
+        """The pending contributions as arrays ``(node, origin, row)``, in the order added."""
+        i = np.array(self._pend_i, dtype=np.intp)
+        r = np.array(self._pend_r, dtype=np.intp)
+        nb = self._mask_bytes
+        raw = np.frombuffer(b"".join(m.to_bytes(nb, "little") for m in self._pend_m), dtype=np.uint8)
+        bits = np.unpackbits(raw.reshape(len(i), nb), axis=1, bitorder="little")
+        k, o = np.nonzero(bits)
+        i, r = i[k], r[k]
+        if self._chunks:
+            sizes = [len(c[1]) for c in self._chunks]
+            i = np.concatenate([i, np.repeat([c[0] for c in self._chunks], sizes)]).astype(np.intp)
+            o = np.concatenate([o] + [c[1] for c in self._chunks]).astype(np.intp)
+            r = np.concatenate([r, np.repeat([c[2] for c in self._chunks], sizes)]).astype(np.intp)
+        self._pend_i, self._pend_m, self._pend_r, self._chunks = [], [], [], []
+        return i, o.astype(np.intp), r
+
     def _apply_pending(self) -> np.ndarray | None:
         """Fold pending contributions into the ring; each node's earliest changed row
         (``n`` ints, a huge number for nodes without news), or None."""
         if not self._pend_i and not self._chunks:
             return None
-        i = np.array(self._pend_i, dtype=np.intp)
-        o = np.array(self._pend_o, dtype=np.intp)
-        r = np.array(self._pend_r, dtype=np.intp)
-        if self._chunks:
-            sizes = [len(c[1]) for c in self._chunks]
-            i = np.concatenate([i, np.repeat([c[0] for c in self._chunks], sizes)])
-            o = np.concatenate([o] + [c[1] for c in self._chunks]).astype(np.intp)
-            r = np.concatenate([r, np.repeat([c[2] for c in self._chunks], sizes)])
-        self._pend_i, self._pend_o, self._pend_r, self._chunks = [], [], [], []
+        i, o, r = self._unpack()
+        st = self.state
+        starts = np.full(self.n, np.iinfo(np.intp).max, dtype=np.intp)
+        if self.kernels == "numba":
+            info = self.info
+            omega = info.omega if info.varying else info.omega[None]
+            fold(i, o, r, self.A, omega, info.varying, self.theta, st.Omega, st.Theta, st.held, starts)
+            return starts
         slot = r % self.S
         a = self.A[i, o]
-        st = self.state
         st.held[slot, i, o] = True
         np.add.at(st.Omega, (slot, i), a[:, None, None] * self.info.omega_of(r, o))
         np.add.at(st.Theta, (slot, i), a[:, None] * self.theta[r, o])
-        starts = np.full(self.n, np.iinfo(np.intp).max, dtype=np.intp)
         np.minimum.at(starts, i, r)
         return starts
 

@@ -38,10 +38,6 @@ def row_bytes(nx: int, n: int) -> int:
     return 8 + 8 * (nx + nx * (nx + 1) // 2) + -(-n // 8)
 
 
-#: Above this many origins in one mask, newly held contributions are unpacked with numpy.
-_MANY_BITS = 12
-
-
 def bit_indices(mask: int) -> np.ndarray:
     """Positions of the set bits of a non-negative int, ascending."""
     raw = np.frombuffer(mask.to_bytes((mask.bit_length() + 7) // 8, "little"), dtype=np.uint8)
@@ -150,22 +146,10 @@ class Exchange:
     # -- holdings --------------------------------------------------------------
     def _gain(self, node: int, row: int, st: _Row, bits: int) -> None:
         st.held[node] |= bits
-        if bits.bit_count() > _MANY_BITS:
-            # Large networks: one numpy pass instead of a Python step per origin.
-            origins = bit_indices(bits)
-            self.window.add_many(node, origins, row)
-            if self.arrival is not None:
-                self.arrival[node, origins, row] = self.env.now / 1e9
-            return
-        add = self.window.add
-        t = self.env.now / 1e9 if self.arrival is not None else None
-        while bits:
-            low = bits & -bits
-            o = low.bit_length() - 1
-            bits ^= low
-            add(node, o, row)
-            if t is not None:
-                self.arrival[node, o, row] = t
+        self.window.add_mask(node, bits, row)
+        if self.arrival is not None:            # the arrival log (--save full) only
+            t = self.env.now / 1e9
+            self.arrival[node, bit_indices(bits), row] = t
 
     def _late(self, node: int, row: int, mask: int) -> None:
         held = self.final.get(row)
