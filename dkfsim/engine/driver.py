@@ -127,6 +127,7 @@ class Run:
             "wall_time_s": wall,
             "save": ctx.save,
             "kernels": self.dkf.window.kernels,
+            "node_rows": self.dkf.window.node_rows,
         }
         return RunResult(sc, arrays, counts, info, estimates=list(estimates), traffic=traffic,
                          facts=facts)

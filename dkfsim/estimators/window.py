@@ -175,6 +175,8 @@ class WindowFilter:
         self._chunks: list[tuple[int, np.ndarray, int]] = []
         #: ``"numba"`` or ``"numpy"`` (:func:`dkfsim.estimators.kernels.kernel_path`)
         self.kernels = kernel_path()
+        #: node-rows recomputed so far (the filtering work; tools/bench.py fits its cost)
+        self.node_rows = 0
 
     # -- contributions -----------------------------------------------------
     def add(self, node: int, origin: int, row: int) -> None:
@@ -257,6 +259,7 @@ class WindowFilter:
             np.minimum(starts, last, out=starts)
             np.maximum(starts, lo, out=starts)
         first = int(starts.min())
+        self.node_rows += int((last + 1 - starts).sum())
         st = self.state
         if self.kernels == "numba":
             window_rows(self.Phi, self.Q, self.x0, self.P0, st.x, st.P, st.G, st.Omega, st.Theta,
