@@ -200,8 +200,11 @@ class WindowFilter:
         r = np.array(self._pend_r, dtype=np.intp)
         nb = self._mask_bytes
         raw = np.frombuffer(b"".join(m.to_bytes(nb, "little") for m in self._pend_m), dtype=np.uint8)
-        bits = np.unpackbits(raw.reshape(len(i), nb), axis=1, bitorder="little")
-        k, o = np.nonzero(bits)
+        # Only the non-zero bytes are unpacked: wide masks are mostly zeros.
+        nz = np.flatnonzero(raw)
+        kb, bit = np.nonzero(np.unpackbits(raw[nz][:, None], axis=1, bitorder="little"))
+        k, o = np.divmod(nz[kb], nb)
+        o = o * 8 + bit
         i, r = i[k], r[k]
         if self._chunks:
             sizes = [len(c[1]) for c in self._chunks]
