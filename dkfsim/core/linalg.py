@@ -6,7 +6,7 @@ then reports a singular matrix.  dkfsim does not stop a run for that: the
 slices that cannot be solved become NaN, the run goes on, and the result
 reports which estimates diverged (``RunResult.diverged``).  For finite,
 well-posed input these are exactly ``numpy.linalg.solve`` and
-``scipy.linalg.solve``: the fallback runs only after they raised.
+LAPACK ``dsysv``: the fallback runs only after they raised.
 """
 
 from __future__ import annotations
