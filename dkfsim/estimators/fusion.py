@@ -26,7 +26,6 @@ from __future__ import annotations
 
 import numpy as np
 from dkfsim.core.linalg import solve_symmetric
-from dkfsim.estimators.kernels import xi_rows
 from dkfsim.model.system import psd_factor
 
 
@@ -132,7 +131,7 @@ class CrossCovariance:
         if w.kernels == "numba":
             st, info = w.state, self.info
             factor = info.factor if info.varying else info.factor[None]
-            xi_rows(self.Xi, self.Xi0, st.G, st.P, st.held, w.A, self._column_sensor, factor,
+            w._k.xi_rows(self.Xi, self.Xi0, st.G, st.P, st.held, w.A, self._column_sensor, factor,
                     info.varying, w.Phi, self.Lq, starts, first, last)
             return
         order = np.sort(starts)

@@ -8,7 +8,7 @@ and :class:`dkfsim.estimators.fusion.CrossCovariance` compute in numpy (the
 same formulas, only the summation order differs), without ``fastmath`` and
 single-threaded, so each path is bit-identical run to run.
 
-Which path runs: numba when it imports, unless the environment variable
+Which path runs: numba when it is installed, unless the environment variable
 ``DKFSIM_KERNELS=numpy`` forces the pure-numpy path (the fallback on
 platforms without numba, tested against the compiled one).  Compiled kernels
 are cached on disk (``cache=True``): the first call on a machine compiles them
@@ -18,35 +18,47 @@ docs/design.md §4 ("Kernel paths").
 
 from __future__ import annotations
 
+import importlib.util
 import os
+import sys
 
 import numpy as np
 
-try:                                   # numba is a core dependency; numpy is the fallback
-    import numba
-except ImportError:                    # pragma: no cover - exercised on platforms without it
-    numba = None
+from dkfsim.core.extras import optional
 
 #: Environment variable that selects the kernel path: ``numba`` (default) or ``numpy``.
 KERNELS_ENV = "DKFSIM_KERNELS"
 
+#: The kernels, callees before callers (numba resolves a callee by its module global).
+_KERNELS = ("_step", "xi_blocks", "window_rows", "xi_rows", "fold")
+_compiled: list = []
+
 
 def kernel_path() -> str:
-    """``"numba"`` or ``"numpy"``: the path the filters of a run started now will use."""
+    """``"numba"`` or ``"numpy"``: the path the filters of a run started now will use.
+
+    Checks that numba is installed without importing it: commands that never
+    filter (validation, ``list``, ``--help``) do not pay numba's import.
+    """
     want = os.environ.get(KERNELS_ENV, "").strip().lower()
-    if want == "numpy" or numba is None:
+    if want == "numpy" or importlib.util.find_spec("numba") is None:
         return "numpy"
     return "numba"
 
 
-def _jit(fn):
-    """``numba.njit(cache=True)`` (no fastmath, no parallel), or the function itself."""
-    if numba is None:
-        return fn
-    return numba.njit(cache=True, fastmath=False, nogil=True)(fn)
+def compiled():
+    """This module with its kernels compiled (``numba.njit(cache=True)``, no fastmath, no
+    parallel): numba is imported, and the kernels loaded from the disk cache or compiled,
+    on the first call."""
+    if not _compiled:
+        numba = optional("numba")
+        mod = sys.modules[__name__]
+        for name in _KERNELS:
+            setattr(mod, name, numba.njit(cache=True, fastmath=False, nogil=True)(getattr(mod, name)))
+        _compiled.append(True)
+    return sys.modules[__name__]
 
 
-@_jit
 def _step(Phi, Q, xprev, Pprev, Om, Th, x_out, P_out, G_out, Pp, M, rhs):
     """One information-form predict/update of one node (see window.information_step)."""
     nx = Phi.shape[0]
@@ -134,7 +146,6 @@ def _step(Phi, Q, xprev, Pprev, Om, Th, x_out, P_out, G_out, Pp, M, rhs):
             P_out[a, b] = 0.5 * (M[a, b] + M[b, a])
 
 
-@_jit
 def window_rows(Phi, Q, x0, P0, X, P, G, Omega, Theta, starts, first, last):
     """Re-run rows ``first .. last`` of the ring; node ``i`` from row ``starts[i]`` on.
 
@@ -160,7 +171,6 @@ def window_rows(Phi, Q, x0, P0, X, P, G, Omega, Theta, starts, first, last):
                       X[slot, i], P[slot, i], G[slot, i], Pp, M, rhs)
 
 
-@_jit
 def xi_blocks(Xi_prev, Xi, F, YY, nodes, active):
     """``C_ij = F_i C_ij(prev) F_j' + (Y Y')_ij`` for every block with ``i`` or ``j`` in ``nodes``.
 
@@ -203,7 +213,6 @@ def xi_blocks(Xi_prev, Xi, F, YY, nodes, active):
                         Xi[j0 + b, i0 + a] = Xi[i0 + a, j0 + b]
 
 
-@_jit
 def xi_rows(Xi, Xi0, G, P, held, A, column_sensor, factor, varying, Phi, Lq, starts, first, last):
     """The cross-covariance recursion for rows ``first .. last`` (see fusion.CrossCovariance).
 
@@ -264,7 +273,6 @@ def xi_rows(Xi, Xi0, G, P, held, A, column_sensor, factor, varying, Phi, Lq, sta
         xi_blocks(Xi_prev, Xi[slot], F, YY, nodes[:na], active)
 
 
-@_jit
 def fold(i, o, r, A, omega, varying, theta, Omega, Theta, held, starts):
     """Add the contributions ``(node i, origin o, row r)`` to the ring (in order, like
     ``np.add.at``); ``starts[i]`` becomes the earliest row node ``i`` gained."""

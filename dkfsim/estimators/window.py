@@ -23,7 +23,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from dkfsim.core.linalg import solve
-from dkfsim.estimators.kernels import fold, kernel_path, window_rows
+from dkfsim.estimators import kernels
 
 
 def information_step(Phi, Q, x_prev, P_prev, Omega, Theta):
@@ -174,7 +174,8 @@ class WindowFilter:
         self._mask_bytes = -(-self.theta.shape[1] // 8)
         self._chunks: list[tuple[int, np.ndarray, int]] = []
         #: ``"numba"`` or ``"numpy"`` (:func:`dkfsim.estimators.kernels.kernel_path`)
-        self.kernels = kernel_path()
+        self.kernels = kernels.kernel_path()
+        self._k = kernels.compiled() if self.kernels == "numba" else None
         #: node-rows recomputed so far (the filtering work; tools/bench.py fits its cost)
         self.node_rows = 0
 
@@ -225,7 +226,7 @@ class WindowFilter:
         if self.kernels == "numba":
             info = self.info
             omega = info.omega if info.varying else info.omega[None]
-            fold(i, o, r, self.A, omega, info.varying, self.theta, st.Omega, st.Theta, st.held, starts)
+            self._k.fold(i, o, r, self.A, omega, info.varying, self.theta, st.Omega, st.Theta, st.held, starts)
             return starts
         slot = r % self.S
         a = self.A[i, o]
@@ -265,7 +266,7 @@ class WindowFilter:
         self.node_rows += int((last + 1 - starts).sum())
         st = self.state
         if self.kernels == "numba":
-            window_rows(self.Phi, self.Q, self.x0, self.P0, st.x, st.P, st.G, st.Omega, st.Theta,
+            self._k.window_rows(self.Phi, self.Q, self.x0, self.P0, st.x, st.P, st.G, st.Omega, st.Theta,
                         starts, first, last)
         else:
             for row in range(first, last + 1):
