@@ -76,3 +76,18 @@ def test_one_nanosecond_past_the_tick_misses_it():
     x_own_only = dkfsim.run(dkfsim.load_scenario(
         {**path_scenario(2, {"model": "constant", "value": 1.0}, L=2)}))
     np.testing.assert_array_equal(late["x_final"][0, 1], x_own_only["x_final"][0, 1])
+
+
+def test_late_unit_follows_the_arrival_log():
+    """With the log, ``late`` counts (receiver, origin, row); without it, (packet, row) pairs
+    (docs/design.md §3).  Two nodes: every late packet row carries the one origin the receiver
+    lacks, so both units count the same 20 (rows 0..9, each direction)."""
+    sc = dkfsim.load_scenario(path_scenario(2, {"model": "constant", "value": T + 1e-9}, L=2))
+    full = dkfsim.run(sc, save="full")
+    est = dkfsim.run(sc, save="estimates")
+    assert full.counts["late_unit"] == "contributions"
+    assert est.counts["late_unit"] == "packet_rows"
+    assert full.counts["late"] == est.counts["late"] == 20
+    on = dkfsim.run(dkfsim.load_scenario(path_scenario(2, {"model": "constant", "value": T}, L=2)),
+                    save="estimates")
+    assert on.counts["late"] == 0

@@ -1,16 +1,20 @@
 #!/usr/bin/env python
 """Benchmarks of dkfsim, printed as ratios measured in one process.
 
-1. ``paper_case1`` for 1000 ticks (fusion included): wall time, the number of
-   packet events, the time bare SimPy needs for the same number of
-   ``timeout`` events with a no-op callback, and their ratio.
+1. ``paper_case1`` for 1000 ticks (fusion included): wall and CPU time, the
+   number of packet events, the time bare SimPy needs for the same number of
+   ``timeout`` events with a no-op callback, and their ratio; the same run on
+   the pure-numpy kernel path (``DKFSIM_KERNELS=numpy``) in the same process;
+   the first call's cost (kernel compile, or loading them from the disk cache).
 2. A scaling table for random trees of 12, 50 and 200 nodes: ticks per
    second and packets per tick, with per-tick cost normalised by the work
-   (nodes x window rows for filtering, links for packets).
+   (nodes x window rows for filtering, links for packets); then the fitted
+   exponents of the per-tick cost against the node-rows actually re-run and
+   against the links, over trees of 12 ... 1000 nodes (d_t = 1, no fusion).
 3. Sweep throughput on 2 local workers: runs per minute of ``paper_case1`` at
    1000 ticks, through the whole sweep path (SQLite included), against one
    process in the same run.
-4. The per-tick cost of a 1000-node random tree (no fusion).
+4. The per-tick cost of a 1000-node random tree (no fusion) and the process's peak memory.
 5. BLAS threads under load: a 50-node matrix-fusion run with the BLAS
    library's default threads and with one thread (what dkfsim uses), each
    while a CPU hog process spins beside it.
@@ -18,16 +22,18 @@
    LocalCluster of 2 worker processes (start-up included), runs per minute and
    whether the rows are identical.
 
-Usage: ``python tools/bench.py [--ticks 1000] [--sizes 12 50 200] [--skip-sweep] [--big-ticks 60]
-[--skip-threads] [--skip-executors]``.
+Usage: ``python tools/bench.py [--ticks 1000] [--sizes 12 50 200] [--fit-sizes 12 50 200 1000]
+[--skip-sweep] [--big-ticks 60] [--skip-threads] [--skip-executors]``.
 Timing lives here, never in the tests.
 """
 
 from __future__ import annotations
 
 import argparse
+import math
 import multiprocessing
 import os
+import resource
 import sys
 import tempfile
 import time
@@ -39,6 +45,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 import dkfsim  # noqa: E402
+from dkfsim.estimators.kernels import KERNELS_ENV  # noqa: E402
 
 
 def bare_simpy(n_events: int, horizon: int) -> float:
@@ -89,6 +96,20 @@ def throughput(scenario: str | os.PathLike | None = None, *, steps: int = 1000, 
     return {"scenario": str(scenario), "steps": int(steps), "runs": rep.computed,
             "executor": rep.executor, "wall_s": rep.wall_s,
             "runs_per_minute": rep.runs_per_minute}
+
+
+def timed(sc, save: str = "estimates"):
+    """Wall and CPU seconds of one run (the machine may be shared: CPU time is the steadier)."""
+    t0, c0 = time.perf_counter(), time.process_time()
+    r = dkfsim.run(sc, save=save)
+    return time.perf_counter() - t0, time.process_time() - c0, r
+
+
+def slope(x, y) -> float:
+    """Least-squares slope of log y against log x."""
+    lx, ly = [math.log(v) for v in x], [math.log(v) for v in y]
+    mx, my = sum(lx) / len(lx), sum(ly) / len(ly)
+    return sum((a - mx) * (b - my) for a, b in zip(lx, ly)) / sum((a - mx) ** 2 for a in lx)
 
 
 def tree_scenario(n: int, ticks: int, fusion: str) -> dkfsim.Scenario:
@@ -156,6 +177,8 @@ def main(argv=None) -> int:
     ap.add_argument("--sizes", type=int, nargs="+", default=[12, 50, 200])
     ap.add_argument("--scale-ticks", type=int, default=200, help="ticks per scaling run")
     ap.add_argument("--skip-sweep", action="store_true", help="skip the sweep throughput measurement")
+    ap.add_argument("--fit-sizes", type=int, nargs="*", default=[12, 50, 200, 1000],
+                    help="tree sizes of the exponent fit (none skips it)")
     ap.add_argument("--big-nodes", type=int, default=1000, help="nodes of the large tree (0 skips it)")
     ap.add_argument("--big-ticks", type=int, default=60, help="ticks of the large-tree run")
     ap.add_argument("--skip-threads", action="store_true", help="skip the BLAS-threads measurement")
@@ -165,45 +188,75 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
 
     sc = dkfsim.load_scenario(ROOT / "scenarios" / "paper_case1.yaml", overrides=[f"steps={args.ticks}"])
-    dkfsim.run(sc, steps=50, save="estimates")          # warm-up (imports, caches)
     t0 = time.perf_counter()
-    res = dkfsim.run(sc, save="estimates")
-    wall = time.perf_counter() - t0
+    first = dkfsim.run(sc, steps=50, save="estimates")     # warm-up (imports, kernel compile or cache load)
+    first_s = time.perf_counter() - t0
+    wall, cpu, res = timed(sc)
     events = res.counts["delivered"]
-    bare = bare_simpy(events, args.ticks)
-    print(f"paper_case1, {args.ticks} ticks, L = {res.info['buffer_length']}, fusion {sc.fusion}")
-    print(f"  wall time of the run          {wall:8.3f} s")
+    b0, c0 = time.perf_counter(), time.process_time()
+    bare_simpy(events, args.ticks)
+    bare, bare_cpu = time.perf_counter() - b0, time.process_time() - c0
+    print(f"paper_case1, {args.ticks} ticks, L = {res.info['buffer_length']}, fusion {sc.fusion}, "
+          f"kernels {res.info['kernels']}")
+    print(f"  first call, 50 ticks (compile or cache load) {first_s:8.3f} s  ({first.info['kernels']})")
+    print(f"  wall time of the run          {wall:8.3f} s   (CPU {cpu:.3f} s)")
     print(f"  packet events (deliveries)    {events:8d}  ({events / args.ticks:.1f} per tick)")
-    print(f"  bare SimPy, same # timeouts   {bare:8.3f} s")
-    print(f"  ratio run / bare SimPy        {wall / bare:8.1f} x")
+    print(f"  bare SimPy, same # timeouts   {bare:8.3f} s   (CPU {bare_cpu:.3f} s)")
+    print(f"  ratio run / bare SimPy        {wall / bare:8.1f} x  (CPU {cpu / bare_cpu:.1f} x)")
+    if res.info["kernels"] == "numba":
+        os.environ[KERNELS_ENV] = "numpy"
+        try:
+            wall_np, cpu_np, _ = timed(sc)
+        finally:
+            del os.environ[KERNELS_ENV]
+        print(f"  pure-numpy path               {wall_np:8.3f} s   (CPU {cpu_np:.3f} s; numpy / numba "
+              f"{cpu_np / cpu:.2f} x CPU)")
     print()
     print("scaling on random trees (uniform_steps d_t = 4, L = d_t * d_g + 1)")
-    hdr = f"{'nodes':>6} {'fusion':>7} {'L':>4} {'ticks/s':>9} {'packets/tick':>13} {'us/(node*row)':>14} {'us/packet':>10}"
+    hdr = (f"{'nodes':>6} {'fusion':>7} {'L':>4} {'ticks/s':>9} {'(CPU)':>7} {'packets/tick':>13} "
+           f"{'rows/tick':>9} {'us/(node*row)':>14} {'us/packet':>10}")
     print(hdr)
     for n in args.sizes:
         for fusion in (["matrix", "none"] if n <= 50 else ["none"]):
-            s = tree_scenario(n, args.scale_ticks, fusion)
-            t0 = time.perf_counter()
-            r = dkfsim.run(s, save="summary")
-            w = time.perf_counter() - t0
+            w, c, r = timed(tree_scenario(n, args.scale_ticks, fusion), save="summary")
             L = r.info["buffer_length"]
             per_tick = w / args.scale_ticks
             pkts = r.counts["delivered"] / args.scale_ticks
-            print(f"{n:6d} {fusion:>7} {L:4d} {args.scale_ticks / w:9.1f} {pkts:13.1f} "
-                  f"{per_tick / (n * L) * 1e6:14.2f} {per_tick / max(pkts, 1) * 1e6:10.2f}")
+            rows = r.info["node_rows"] / args.scale_ticks / n
+            print(f"{n:6d} {fusion:>7} {L:4d} {args.scale_ticks / w:9.1f} {args.scale_ticks / c:7.1f} "
+                  f"{pkts:13.1f} {rows:9.1f} {per_tick / (n * rows) * 1e6:14.2f} "
+                  f"{per_tick / max(pkts, 1) * 1e6:10.2f}")
+
+    if args.fit_sizes:
+        print()
+        print("per-tick cost against the work, random trees, uniform_steps d_t = 1, no fusion (CPU time)")
+        print(f"{'nodes':>6} {'links':>6} {'node-rows/tick':>15} {'ms/tick':>8}")
+        pts = []
+        for n in args.fit_sizes:
+            ticks = max(20, min(args.scale_ticks, 20_000 // n))
+            s = dkfsim.load_scenario(tree_scenario(n, ticks, "none"),
+                                     overrides=["links.default.latency.d_t=1", "estimators=[]"])
+            _, c, r = timed(s, save="summary")
+            nr = r.info["node_rows"] / ticks
+            pts.append((n, r.info["n_links"], nr, c / ticks))
+            print(f"{n:6d} {r.info['n_links']:6d} {nr:15.0f} {c / ticks * 1e3:8.2f}")
+        print(f"  fitted exponent, cost ~ (node-rows re-run)^p: p = {slope([p[2] for p in pts], [p[3] for p in pts]):.2f}")
+        print(f"  fitted exponent, cost ~ links^p:               p = {slope([p[1] for p in pts], [p[3] for p in pts]):.2f}")
 
     if args.big_nodes:
         s = tree_scenario(args.big_nodes, args.big_ticks, "none")
         s = dkfsim.load_scenario(s, overrides=["links.default.latency.d_t=1", "estimators=[]"])
-        t0 = time.perf_counter()
-        r = dkfsim.run(s, save="summary")
-        w = time.perf_counter() - t0
+        w, c, r = timed(s, save="summary")
         L = r.info["buffer_length"]
+        peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 2**20       # KiB -> GiB
         print()
         print(f"{args.big_nodes}-node random tree (d_g = {r.info['d_g']}, uniform_steps d_t = 1, L = {L}, "
-              f"no fusion), {args.big_ticks} ticks: {w / args.big_ticks * 1e3:.1f} ms per tick, "
+              f"no fusion), {args.big_ticks} ticks: {w / args.big_ticks * 1e3:.1f} ms per tick "
+              f"(CPU {c / args.big_ticks * 1e3:.1f} ms), "
               f"{r.counts['delivered'] / args.big_ticks:.0f} packets per tick, "
-              f"{w / args.big_ticks / (args.big_nodes * min(L, args.big_ticks)) * 1e6:.2f} us per node x row")
+              f"{r.info['node_rows'] / args.big_ticks / args.big_nodes:.1f} rows re-run per node, "
+              f"{c / r.info['node_rows'] * 1e6:.2f} us CPU per node x row re-run; "
+              f"process peak memory {peak:.2f} GiB")
 
     if not args.skip_threads:
         many, one, default = threads_under_load(args.thread_ticks)

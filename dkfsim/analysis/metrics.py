@@ -142,7 +142,8 @@ for _name, _metric, _doc in (
          "nominal bytes of those packets (8-byte floats, headers, origin masks), per tick"),
         ("lost", Metric(_traffic("lost", False)), "packets the links lost"),
         ("late", Metric(_traffic("late", False)),
-         "information that arrived too late to be used (the DKF: late contributions)")):
+         "information that arrived too late to be used (the DKF: late (packet, row) pairs, or late "
+         "contributions when the run keeps the arrival log; docs/design.md §3)")):
     METRICS.add(_name, implementation=_metric, description=_doc)
 
 #: The columns of a tidy row, in order (metrics by their registration order).

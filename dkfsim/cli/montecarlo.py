@@ -15,7 +15,7 @@ def add_command(subparsers) -> None:
                     "the same whatever N and --jobs) and pool the results per estimate and state "
                     "component: MSE over time with 95% confidence intervals, ANEES with its 95% "
                     "chi-square band, disagreement between nodes, messages, bytes, lost packets and "
-                    "late contributions. Writes DIR/runs.csv (one row per run x estimate x "
+                    "late information (packet rows). Writes DIR/runs.csv (one row per run x estimate x "
                     "component), DIR/curves.npz (per-tick curves and one example run) and "
                     "DIR/summary.json, and prints a table.")
     add_scenario_args(p)

@@ -6,15 +6,14 @@ then reports a singular matrix.  dkfsim does not stop a run for that: the
 slices that cannot be solved become NaN, the run goes on, and the result
 reports which estimates diverged (``RunResult.diverged``).  For finite,
 well-posed input these are exactly ``numpy.linalg.solve`` and
-``scipy.linalg.solve``: the fallback runs only after they raised.
+LAPACK ``dsysv``: the fallback runs only after they raised.
 """
 
 from __future__ import annotations
 
-import warnings
-
 import numpy as np
 import scipy.linalg
+import scipy.linalg.lapack
 
 
 def solve(A: np.ndarray, B: np.ndarray) -> np.ndarray:
@@ -36,11 +35,25 @@ def solve(A: np.ndarray, B: np.ndarray) -> np.ndarray:
     return out
 
 
+_SYSV = scipy.linalg.lapack.dsysv
+_SYSV_LWORK: dict[int, int] = {}
+
+
 def solve_symmetric(A: np.ndarray, B: np.ndarray) -> np.ndarray:
-    """``A^-1 B`` for one symmetric (indefinite) ``A`` (LAPACK ``sysv``); NaN if it fails."""
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", scipy.linalg.LinAlgWarning)
-        try:
-            return scipy.linalg.solve(A, B, assume_a="sym", check_finite=False)
-        except (np.linalg.LinAlgError, ValueError):
-            return np.full(np.shape(B), np.nan)
+    """``A^-1 B`` for one symmetric (indefinite) ``A`` (LAPACK ``dsysv``); NaN if it fails.
+
+    LAPACK is called directly (what ``scipy.linalg.solve(assume_a="sym")`` does
+    minus its checks and condition estimate, which cost more than the solve at
+    fusion sizes).  ``A`` and ``B`` are not modified.
+    """
+    A = np.asarray(A, float)
+    B = np.asarray(B, float)
+    n = A.shape[0]
+    lwork = _SYSV_LWORK.get(n)
+    if lwork is None:
+        lwork = _SYSV_LWORK[n] = int(scipy.linalg.lapack.dsysv_lwork(n)[0])
+    one = B.ndim == 1
+    _, _, x, info = _SYSV(A, B[:, None] if one else B, lwork=lwork)
+    if info != 0:
+        return np.full(np.shape(B), np.nan)
+    return x[:, 0] if one else x

@@ -95,9 +95,10 @@ class Run:
         sys_, K = ctx.system, self.K
         arrays = {"t": sys_.times(K), "truth": ctx.truth,
                   "Phi": sys_.Phi, "Q": sys_.Q, "x0_mean": sys_.x0_mean, "P0": sys_.P0}
+        H, R = sys_.H, sys_.R              # properties that build a tuple: once, not per sensor
         for i in range(sys_.n):
-            arrays[f"H_{i}"] = sys_.H[i]
-            arrays[f"R_{i}"] = sys_.R[i]
+            arrays[f"H_{i}"] = H[i]
+            arrays[f"R_{i}"] = R[i]
             arrays[f"y_{i}"] = ctx.ys[i]
             convert = getattr(sys_.sensors[i], "convert", None)
             if convert is not None:
@@ -126,6 +127,8 @@ class Run:
             "n_links": len(sc.exchange().arcs),
             "wall_time_s": wall,
             "save": ctx.save,
+            "kernels": self.dkf.window.kernels,
+            "node_rows": self.dkf.window.node_rows,
         }
         return RunResult(sc, arrays, counts, info, estimates=list(estimates), traffic=traffic,
                          facts=facts)

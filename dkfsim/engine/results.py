@@ -178,7 +178,8 @@ def write_rows(path, rows: list[dict]) -> None:
 
 
 #: Keys of summary.json that are facts of the run (``RunResult.info``).
-INFO_KEYS = ("buffer_length", "d_t", "d_g", "n_links", "wall_time_s", "save")
+INFO_KEYS = ("buffer_length", "d_t", "d_g", "n_links", "wall_time_s", "save", "kernels",
+             "node_rows")
 
 
 def load_run(folder) -> RunResult:

@@ -147,7 +147,7 @@ class AntiDelayDKF(Estimator):
 
     def on_update(self, k: int) -> None:
         L, w = self.L, self.window
-        w.update(k, on_row=self.xcov.on_row if self.xcov is not None else None)
+        w.update(k, on_rows=self.xcov.on_rows if self.xcov is not None else None)
         row = k - 1
         slot = row % w.S
         st = w.state

@@ -12,7 +12,10 @@ Two pieces:
   ``Xi = F Xi F' + Y Y'`` with ``F = blockdiag(G_i Phi)`` and
   ``Y = [G E Lq | P V]`` (``Lq Lq' = Q``, ``E`` stacks identities, ``V`` the
   held omega factors ``a_im U_m``), i.e. three BLAS products per row instead
-  of n^2 small ones.  The paper's ``(I - K_i H_i)(...)(I - K_j H_j)`` form is
+  of n^2 small ones.  Only the block rows and columns of the nodes the
+  window filter recomputed change (``F`` is block-diagonal): those are
+  computed, with the compiled kernel of :mod:`dkfsim.estimators.kernels` or
+  with batched numpy products.  The paper's ``(I - K_i H_i)(...)(I - K_j H_j)`` form is
   not used: it has no term for measurements both nodes hold.
 * :func:`fuse_matrix` / :func:`fuse_diagonal` turn ``Xi`` and the local
   estimates into the fused estimate (Sun & Deng 2004; the paper's eq.
@@ -35,17 +38,32 @@ def kkt_weights(Xi: np.ndarray, n: int, nx: int) -> np.ndarray:
     (docs/design.md §7).
     """
     N = n * nx
-    delta = 1e-8 * np.trace(Xi) / N
-    K = np.zeros((N + nx, N + nx))
+    K, rhs = _kkt_template(n, nx)
+    K = K.copy()
     K[:N, :N] = Xi
-    K[np.arange(N), np.arange(N)] += delta
-    E = np.tile(np.eye(nx), (n, 1))
-    K[:N, N:] = E
-    K[N:, :N] = E.T
-    rhs = np.zeros((N + nx, nx))
-    rhs[N:] = np.eye(nx)
+    K.reshape(-1)[:N * (N + nx + 1):N + nx + 1] += 1e-8 * np.trace(Xi) / N
     sol = solve_symmetric(K, rhs)
     return sol[:N]
+
+
+_KKT: dict[tuple[int, int], tuple[np.ndarray, np.ndarray]] = {}
+
+
+def _kkt_template(n: int, nx: int):
+    """The constant parts of the KKT system (the constraint blocks and right-hand side), cached."""
+    got = _KKT.get((n, nx))
+    if got is None:
+        N = n * nx
+        K = np.zeros((N + nx, N + nx))
+        E = np.tile(np.eye(nx), (n, 1))
+        K[:N, N:] = E
+        K[N:, :N] = E.T
+        rhs = np.zeros((N + nx, nx))
+        rhs[N:] = np.eye(nx)
+        K.setflags(write=False)
+        rhs.setflags(write=False)
+        got = _KKT[(n, nx)] = (K, rhs)
+    return got
 
 
 def fuse_matrix(Xi: np.ndarray, x: np.ndarray):
@@ -100,18 +118,60 @@ class CrossCovariance:
         self.info = window.info          # factor U per row and the sensor of each column
         self._F = np.zeros((n, nx, n, nx))
         self._diag = np.arange(n)
+        self._column_sensor = np.ascontiguousarray(self.info.column_sensor, dtype=np.intp)
 
-    def on_row(self, row: int, slot: int, prev: int | None) -> None:
-        st, nx, N = self.w.state, self.nx, self.N
+    def on_rows(self, first: int, last: int, starts: np.ndarray) -> None:
+        """Recompute ``Xi`` of rows ``first .. last``; node ``i``'s blocks from row ``starts[i]``.
+
+        The hook of :meth:`WindowFilter.update
+        <dkfsim.estimators.window.WindowFilter.update>`, called after the
+        filter recomputed those rows.
+        """
+        w = self.w
+        if w.kernels == "numba":
+            st, info = w.state, self.info
+            factor = info.factor if info.varying else info.factor[None]
+            w._k.xi_rows(self.Xi, self.Xi0, st.G, st.P, st.held, w.A, self._column_sensor, factor,
+                    info.varying, w.Phi, self.Lq, starts, first, last)
+            return
+        order = np.sort(starts)
+        for row in range(first, last + 1):
+            # numpy's cost is per call: the dense product unless few nodes changed.
+            many = 2 * int(np.searchsorted(order, row, side="right")) > self.n
+            self.on_row(row, row % w.S, None if row == 0 else (row - 1) % w.S,
+                        None if many else np.flatnonzero(starts <= row))
+
+    def on_row(self, row: int, slot: int, prev: int | None, nodes: np.ndarray | None = None) -> None:
+        """Recompute ``Xi`` of ``row`` for the blocks of ``nodes`` (all when None), in numpy."""
+        st, n, nx, N = self.w.state, self.n, self.nx, self.N
         Xi_prev = self.Xi0 if prev is None else self.Xi[prev]
         G, P = st.G[slot], st.P[slot]
-        F = self._F
-        F[self._diag, :, self._diag, :] = G @ self.w.Phi
-        Fd = F.reshape(N, N)
+        F = G @ self.w.Phi                                   # (n, nx, nx): the blocks of F
         # Weights of each measurement column at each node: a_im if held, else 0.
         a_held = (self.w.A * st.held[slot])[:, self.info.column_sensor]   # (n, M)
         Z = P @ (self.info.factor_row(row)[None, :, :] * a_held[:, None, :])  # (n, nx, M)
         Y = np.concatenate([(G @ self.Lq).reshape(N, nx), Z.reshape(N, -1)], axis=1)
-        Xi = Fd @ Xi_prev @ Fd.T
-        Xi += Y @ Y.T
-        self.Xi[slot] = 0.5 * (Xi + Xi.T)
+        Xi = self.Xi[slot]
+        if nodes is None:
+            Fd = self._F
+            Fd[self._diag, :, self._diag, :] = F
+            Fd = Fd.reshape(N, N)
+            new = Fd @ Xi_prev @ Fd.T
+            new += Y @ Y.T
+            Xi[...] = new
+            Xi += new.T
+            Xi *= 0.5
+            return
+        na = len(nodes)
+        Ya = Y.reshape(n, nx, -1)[nodes].reshape(na * nx, -1)
+        YY = Ya @ Y.T                                        # block rows of Y Y' of ``nodes``
+        # The block rows F_i C_i. F' of ``nodes``, then mirrored.
+        R = F[nodes] @ Xi_prev.reshape(n, nx, N)[nodes]      # (na, nx, N)
+        R = R.reshape(na * nx, n, nx).transpose(1, 0, 2) @ F.transpose(0, 2, 1)   # (n, na nx, nx)
+        R = R.transpose(1, 0, 2).reshape(na * nx, N)
+        R += YY
+        sel = (nodes[:, None] * nx + np.arange(nx)).reshape(-1)
+        Xi[sel, :] = R
+        Xi[:, sel] = R.T
+        sub = R[:, sel]
+        Xi[np.ix_(sel, sel)] = 0.5 * (sub + sub.T)

@@ -23,6 +23,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from dkfsim.core.linalg import solve
+from dkfsim.estimators import kernels
 
 
 def information_step(Phi, Q, x_prev, P_prev, Omega, Theta):
@@ -140,9 +141,10 @@ class WindowFilter:
     The filter itself holds no network logic: the exchange protocol reports
     each contribution a node newly holds through :meth:`add`, and the tick
     driver calls :meth:`update` once per tick after every delivery at that
-    instant.  ``update`` re-runs rows from the earliest row that changed
-    since the last tick (an optimisation docs/design.md §4 allows because the
-    result is identical), batched over nodes.
+    instant.  ``update`` re-runs each node from its own earliest row that
+    changed since the last tick (an optimisation docs/design.md §4 allows
+    because the result is identical), batched over nodes, with the compiled
+    kernel of :mod:`dkfsim.estimators.kernels` or in numpy.
 
     :param info: the :class:`~dkfsim.model.system.Information` of all sensors.
     :param A: (nodes, origins) effective origin weights ``a_io`` (ones for
@@ -167,69 +169,121 @@ class WindowFilter:
         self.x0 = np.broadcast_to(np.asarray(x0, float), (n, nx)).copy()
         self.P0 = np.broadcast_to(np.asarray(P0, float), (n, nx, nx)).copy()
         self._pend_i: list[int] = []
-        self._pend_o: list[int] = []
+        self._pend_m: list[int] = []
         self._pend_r: list[int] = []
+        self._mask_bytes = -(-self.theta.shape[1] // 8)
         self._chunks: list[tuple[int, np.ndarray, int]] = []
+        #: ``"numba"`` or ``"numpy"`` (:func:`dkfsim.estimators.kernels.kernel_path`)
+        self.kernels = kernels.kernel_path()
+        self._k = kernels.compiled() if self.kernels == "numba" else None
+        #: node-rows recomputed so far (the filtering work; tools/bench.py fits its cost)
+        self.node_rows = 0
 
     # -- contributions -----------------------------------------------------
     def add(self, node: int, origin: int, row: int) -> None:
         """Node ``node`` now holds ``origin``'s contribution for ``row``."""
+        self.add_mask(node, 1 << origin, row)
+
+    def add_mask(self, node: int, origins: int, row: int) -> None:
+        """Node ``node`` now holds the contributions of the origins set in the bitmask
+        ``origins`` (a non-negative int, bit ``o`` for origin ``o``) for ``row``."""
         self._pend_i.append(node)
-        self._pend_o.append(origin)
+        self._pend_m.append(origins)
         self._pend_r.append(row)
 
     def add_many(self, node: int, origins: np.ndarray, row: int) -> None:
         """Node ``node`` now holds the contributions of all ``origins`` for ``row``."""
         self._chunks.append((node, origins, row))
 
-    def _apply_pending(self) -> int | None:
-        """Fold pending contributions into the ring; earliest changed row."""
-        if not self._pend_i and not self._chunks:
-            return None
+    def _unpack(self):
+        """The pending contributions as arrays ``(node, origin, row)``, in the order added."""
         i = np.array(self._pend_i, dtype=np.intp)
-        o = np.array(self._pend_o, dtype=np.intp)
         r = np.array(self._pend_r, dtype=np.intp)
+        nb = self._mask_bytes
+        raw = np.frombuffer(b"".join(m.to_bytes(nb, "little") for m in self._pend_m), dtype=np.uint8)
+        # Only the non-zero bytes are unpacked: wide masks are mostly zeros.
+        nz = np.flatnonzero(raw)
+        kb, bit = np.nonzero(np.unpackbits(raw[nz][:, None], axis=1, bitorder="little"))
+        k, o = np.divmod(nz[kb], nb)
+        o = o * 8 + bit
+        i, r = i[k], r[k]
         if self._chunks:
             sizes = [len(c[1]) for c in self._chunks]
-            i = np.concatenate([i, np.repeat([c[0] for c in self._chunks], sizes)])
+            i = np.concatenate([i, np.repeat([c[0] for c in self._chunks], sizes)]).astype(np.intp)
             o = np.concatenate([o] + [c[1] for c in self._chunks]).astype(np.intp)
-            r = np.concatenate([r, np.repeat([c[2] for c in self._chunks], sizes)])
-        self._pend_i, self._pend_o, self._pend_r, self._chunks = [], [], [], []
+            r = np.concatenate([r, np.repeat([c[2] for c in self._chunks], sizes)]).astype(np.intp)
+        self._pend_i, self._pend_m, self._pend_r, self._chunks = [], [], [], []
+        return i, o.astype(np.intp), r
+
+    def _apply_pending(self) -> np.ndarray | None:
+        """Fold pending contributions into the ring; each node's earliest changed row
+        (``n`` ints, a huge number for nodes without news), or None."""
+        if not self._pend_i and not self._chunks:
+            return None
+        i, o, r = self._unpack()
+        st = self.state
+        starts = np.full(self.n, np.iinfo(np.intp).max, dtype=np.intp)
+        if self.kernels == "numba":
+            info = self.info
+            omega = info.omega if info.varying else info.omega[None]
+            self._k.fold(i, o, r, self.A, omega, info.varying, self.theta, st.Omega, st.Theta, st.held, starts)
+            return starts
         slot = r % self.S
         a = self.A[i, o]
-        st = self.state
         st.held[slot, i, o] = True
         np.add.at(st.Omega, (slot, i), a[:, None, None] * self.info.omega_of(r, o))
         np.add.at(st.Theta, (slot, i), a[:, None] * self.theta[r, o])
-        return int(r.min())
+        np.minimum.at(starts, i, r)
+        return starts
 
     # -- the tick ------------------------------------------------------------
     def begin_row(self, row: int) -> None:
         """Clear the ring slot that ``row`` (a new row) will use."""
         self.state.reset_slot(row % self.S)
 
-    def update(self, k: int, on_row=None) -> int:
+    def update(self, k: int, on_rows=None) -> int:
         """Run the window at tick ``k`` (1-based) for rows ``k-L .. k-1``.
 
-        :param on_row: optional callback ``on_row(row, slot, prev_slot)`` after
-            each recomputed row (the fusion recursion hooks in here);
-            ``prev_slot`` is None when the row starts from the prior.
+        Each node re-runs from its own earliest row that changed since the
+        last tick (the newest row ``k-1`` for all): a node whose holdings did
+        not change keeps its estimates, which are what a re-run would give
+        (docs/design.md §4).
+
+        :param on_rows: optional callback ``on_rows(first, last, starts)`` after
+            the rows ``first .. last`` were recomputed, node ``i`` from row
+            ``starts[i]`` on (the fusion recursion hooks in here).
         :returns: the first row recomputed.
         """
-        changed = self._apply_pending()
+        starts = self._apply_pending()
         last = k - 1
-        start = last if changed is None else min(changed, last)
-        start = max(start, k - self.L, 0)
+        lo = max(k - self.L, 0)
+        if starts is None:
+            starts = np.full(self.n, last, dtype=np.intp)
+        else:
+            np.minimum(starts, last, out=starts)
+            np.maximum(starts, lo, out=starts)
+        first = int(starts.min())
+        self.node_rows += int((last + 1 - starts).sum())
         st = self.state
-        for row in range(start, last + 1):
-            slot = row % self.S
-            if row == 0:
-                xp, Pp, prev = self.x0, self.P0, None
-            else:
-                prev = (row - 1) % self.S
-                xp, Pp = st.x[prev], st.P[prev]
-            x, P, G = information_step(self.Phi, self.Q, xp, Pp, st.Omega[slot], st.Theta[slot])
+        if self.kernels == "numba":
+            self._k.window_rows(self.Phi, self.Q, self.x0, self.P0, st.x, st.P, st.G, st.Omega, st.Theta,
+                        starts, first, last)
+        else:
+            for row in range(first, last + 1):
+                self._row_numpy(row, np.flatnonzero(starts <= row))
+        if on_rows is not None:
+            on_rows(first, last, starts)
+        return first
+
+    def _row_numpy(self, row: int, nodes: np.ndarray) -> None:
+        """Recompute ``row`` for ``nodes`` with :func:`information_step` (the numpy path)."""
+        st = self.state
+        slot = row % self.S
+        src = (self.x0, self.P0) if row == 0 else (st.x[(row - 1) % self.S], st.P[(row - 1) % self.S])
+        if 2 * len(nodes) > self.n:       # numpy's cost is per call: recompute all nodes
+            x, P, G = information_step(self.Phi, self.Q, src[0], src[1], st.Omega[slot], st.Theta[slot])
             st.x[slot], st.P[slot], st.G[slot] = x, P, G
-            if on_row is not None:
-                on_row(row, slot, prev)
-        return start
+            return
+        x, P, G = information_step(self.Phi, self.Q, src[0][nodes], src[1][nodes],
+                                   st.Omega[slot, nodes], st.Theta[slot, nodes])
+        st.x[slot, nodes], st.P[slot, nodes], st.G[slot, nodes] = x, P, G

@@ -15,7 +15,9 @@ materialises the numbers for every node at once when it updates.  Traffic
 is counted with the nominal size of the numbers (:func:`row_bytes`).
 
 A contribution for a row that is already final at the receiver is *late*:
-counted (once per receiver, origin and row) and discarded.  Nothing is
+counted and discarded.  Without the arrival log a late (packet, row) pair
+counts once; with it (``--save full``), each late (receiver, origin, row)
+contribution counts once (docs/design.md §3); ``counts()["late_unit"]`` says which.  Nothing is
 forwarded for a final row: every node finalises a row at the same tick.
 The protocols themselves are :mod:`dkfsim.protocols.tree` and
 :mod:`dkfsim.protocols.flood`.
@@ -36,10 +38,6 @@ def row_bytes(nx: int, n: int) -> int:
     """Nominal bytes of one row of a packet: the row number, ``theta`` (nx floats),
     the upper triangle of ``omega`` and the origin bitmask."""
     return 8 + 8 * (nx + nx * (nx + 1) // 2) + -(-n // 8)
-
-
-#: Above this many origins in one mask, newly held contributions are unpacked with numpy.
-_MANY_BITS = 12
 
 
 def bit_indices(mask: int) -> np.ndarray:
@@ -68,9 +66,9 @@ class Exchange:
         held contribution.
     :param arrival: optional (n, n, K) array filled with ``inf``: the arrival
         log of docs/design.md §8 (late arrivals are logged too).
-    :param late_horizon: how many final rows keep their holdings so that a
-        late contribution is counted once; older late bits are counted per
-        packet.
+    :param late_horizon: with the arrival log, how many final rows keep their
+        holdings so that a late contribution is counted once; older late bits
+        are counted per packet.
     :param nx: the state size and :param T_ns: the tick period (ns), for
         the nominal packet size and for protocols that act on the tick grid.
     """
@@ -141,33 +139,26 @@ class Exchange:
         self.rows[row] = _Row(self.n, self.n_links, self.tree)
 
     def close_row(self, row: int) -> None:
-        """``row`` became final: keep only its holdings, for late accounting."""
+        """``row`` became final: keep only its holdings, for late accounting per contribution
+        (only with the arrival log; without it late counts need no per-origin state)."""
         st = self.rows.pop(row, None)
-        if st is not None:
+        if st is not None and self.arrival is not None:
             self.final[row] = st.held
-        self.final.pop(row - self.late_horizon, None)
+            self.final.pop(row - self.late_horizon, None)
 
     # -- holdings --------------------------------------------------------------
     def _gain(self, node: int, row: int, st: _Row, bits: int) -> None:
         st.held[node] |= bits
-        if bits.bit_count() > _MANY_BITS:
-            # Large networks: one numpy pass instead of a Python step per origin.
-            origins = bit_indices(bits)
-            self.window.add_many(node, origins, row)
-            if self.arrival is not None:
-                self.arrival[node, origins, row] = self.env.now / 1e9
-            return
-        add = self.window.add
-        t = self.env.now / 1e9 if self.arrival is not None else None
-        while bits:
-            low = bits & -bits
-            o = low.bit_length() - 1
-            bits ^= low
-            add(node, o, row)
-            if t is not None:
-                self.arrival[node, o, row] = t
+        self.window.add_mask(node, bits, row)
+        if self.arrival is not None:            # the arrival log (--save full) only
+            t = self.env.now / 1e9
+            self.arrival[node, bit_indices(bits), row] = t
 
     def _late(self, node: int, row: int, mask: int) -> None:
+        if self.arrival is None:          # no log: one late (packet, row) pair
+            self.late += 1
+            self.late_per_node[node] += 1
+            return
         held = self.final.get(row)
         if held is None:          # older than the horizon: cannot deduplicate
             c = mask.bit_count()
@@ -226,4 +217,5 @@ class Exchange:
 
     def counts(self) -> dict:
         return {"late": self.late, "late_per_node": list(self.late_per_node),
+                "late_unit": "contributions" if self.arrival is not None else "packet_rows",
                 "duplicates": self.duplicates, "stale": self.stale}

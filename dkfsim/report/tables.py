@@ -38,7 +38,8 @@ def run_table(res, burn_in: int | None = None) -> str:
                     (("copies", "duplicate copies"), ("crash_dropped", "dropped at crashed nodes"))
                     if c.get(key))
     lines.append(f"packets: sent {c['sent']}, delivered {c['delivered']}, lost {c['lost']}, "
-                 f"in flight at end {c['in_flight']}{extra}; late contributions {c['late']}")
+                 f"in flight at end {c['in_flight']}{extra}; late "
+                 f"{'packet rows' if c.get('late_unit') == 'packet_rows' else 'contributions'} {c['late']}")
     if res.diverged:
         lines.append("DIVERGED: " + ", ".join(res.diverged) + " hold non-finite values (the "
                      "model or the numbers overflow float64); their MSE is inf or nan")
