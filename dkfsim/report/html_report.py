@@ -46,16 +46,24 @@ body{font-family:system-ui,-apple-system,"Segoe UI",Helvetica,Arial,sans-serif;m
 margin:1.5em auto;padding:0 1em;color:#222;line-height:1.4}
 h1{font-size:1.6em;margin-bottom:.1em}h2{font-size:1.2em;border-bottom:1px solid #ccc;margin-top:1.6em}
 .sub{color:#666;margin-top:0}table{border-collapse:collapse;margin:.6em 0;font-size:.9em}
-th,td{border:1px solid #ddd;padding:.25em .6em}th{background:#f3f5f8;text-align:left}
-td.num{text-align:right;font-variant-numeric:tabular-nums}tr:nth-child(even) td{background:#fafbfc}
+th,td{border:1px solid #ddd;padding:.2em .5em}th{background:#f3f5f8;text-align:left}
+td.num{text-align:right;font-variant-numeric:tabular-nums;white-space:nowrap}tr:nth-child(even) td{background:#fafbfc}
 figure{margin:.8em 0}figure img{max-width:100%;border:1px solid #eee}
-figcaption{color:#555;font-size:.88em}pre{background:#f6f8fa;padding:.8em;overflow:auto;font-size:.8em}
-.note{color:#555;font-size:.88em}
+figcaption{color:#555;font-size:.88em}caption{caption-side:top;text-align:left;padding:.2em 0}
+table.facts td:first-child{color:#555}pre{background:#f6f8fa;padding:.8em;overflow:auto;font-size:.8em}
+.note{color:#555;font-size:.88em}.wrap{overflow-x:auto;max-width:100%}
 """
 
 
 # =========================================================================== building blocks
+class Interval(tuple):
+    """A table cell ``mean [low, high]`` (a 95 % interval), 5 significant digits."""
+
+
 def _num(v) -> str:
+    if isinstance(v, Interval):
+        return " ".join(("–" if x is None or math.isnan(x) else f"{x:.5g}") for x in v[:1]) + \
+            " [" + ", ".join(("–" if x is None or math.isnan(x) else f"{x:.5g}") for x in v[1:]) + "]"
     if v is None:
         return "–"
     if isinstance(v, bool):
@@ -63,23 +71,25 @@ def _num(v) -> str:
     if isinstance(v, int):
         return str(v)
     if isinstance(v, float):
-        return "nan" if math.isnan(v) else f"{v:.6g}"
+        return "–" if math.isnan(v) else f"{v:.6g}"      # NaN: not applicable (docs/design.md §8)
     return html.escape(str(v))
 
 
 def table(table_id: str, head, rows, caption: str = "") -> str:
-    """An HTML table; numbers right-aligned with 6 significant digits."""
-    out = [f'<table id="{table_id}">']
+    """An HTML table; numbers right-aligned with 6 significant digits ("–": not applicable).
+    ``head`` None: no header row (a two-column list of facts)."""
+    out = [f'<div class="wrap"><table id="{table_id}" class="{table_id}">']
     if caption:
         out.append(f"<caption class='note'>{html.escape(caption)}</caption>")
-    out.append("<tr>" + "".join(f"<th>{html.escape(str(h))}</th>" for h in head) + "</tr>")
+    if head is not None:
+        out.append("<tr>" + "".join(f"<th>{html.escape(str(h))}</th>" for h in head) + "</tr>")
     for row in rows:
         cells = []
         for v in row:
-            cls = ' class="num"' if isinstance(v, (int, float)) and not isinstance(v, bool) else ""
+            cls = ' class="num"' if isinstance(v, (int, float, Interval)) and not isinstance(v, bool) else ""
             cells.append(f"<td{cls}>{_num(v)}</td>")
         out.append("<tr>" + "".join(cells) + "</tr>")
-    out.append("</table>")
+    out.append("</table></div>")
     return "\n".join(out)
 
 
@@ -129,7 +139,7 @@ def _facts(sc, extra: list) -> str:
                      f", {k} = {v}" for k, v in lat.model_dump().items() if k != "model")),
                  ("loss", sc.links.default.loss),
                  ("estimators", ", ".join(e.name or e.kind for e in sc.estimators) or "none")]
-    return table("facts", ("", ""), rows)
+    return table("facts", None, [(k, str(v)) for k, v in rows])
 
 
 def _network(sc, note: str = "") -> str:
@@ -295,8 +305,17 @@ def sweep_page(db: Path) -> str:
     cfg = json.loads(params[0][3]) if params else {}
     sc = _scenario(cfg, str(Path(definition.get("scenario_file", ".")).resolve().parent))
     ix = {c: i for i, c in enumerate(scols)}
-    mse_rows = [(*(r[ix[k]] for k in grid), r[ix["estimate"]], r[ix["component"]], r[ix["runs"]],
-                 r[ix["mse"]], r[ix["mse_ci95_lo"]], r[ix["mse_ci95_hi"]]) for r in srows]
+    comps = []
+    for r in srows:
+        if r[ix["component"]] not in comps:
+            comps.append(r[ix["component"]])
+    wide: dict = {}                 # one row per grid point and estimate, 3 cells per component
+    for r in srows:
+        key = (r[ix["param_hash"]], r[ix["estimate"]])
+        if key not in wide:
+            wide[key] = [*(r[ix[k]] for k in grid), r[ix["estimate"]], r[ix["runs"]]]
+        wide[key].append(Interval((r[ix["mse"]], r[ix["mse_ci95_lo"]], r[ix["mse_ci95_hi"]])))
+    mse_rows = list(wide.values())
     first = {}
     for r in srows:
         first.setdefault((r[ix["param_hash"]], r[ix["estimate"]]), r)
@@ -328,19 +347,24 @@ def sweep_page(db: Path) -> str:
     facts = [("kind", "sweep"), ("database", db.name), ("parameter sets", len(params)),
              ("runs per set", definition.get("runs")),
              ("grid", "; ".join(f"{k} ∈ {v}" for k, v in definition.get("grid", []))),
-             ("fixed settings", ", ".join(definition.get("set", [])) or "none")]
-    gh = tuple(k.removeprefix("param:") for k in grid)
+             ("fixed settings", ", ".join(definition.get("set", [])) or "none"),
+             ("rows below", "the scenario as resolved for the first parameter set")]
+    short = [k.removeprefix("param:").rsplit(".", 1)[-1] for k in grid]
+    gh = tuple(sh if short.count(sh) == 1 else k.removeprefix("param:") for sh, k in zip(short, grid))
     sections = [
         ("Scenario", _facts(sc, facts) + _scenario_text(cfg)),
-        ("Network", _network(sc, "Drawn for the first parameter set")),
-        ("MSE", table("mse", (*gh, "estimate", "component", "runs", "MSE", "95 % CI low", "95 % CI high"),
-                      mse_rows, "per grid point: mean over runs of the time-averaged MSE, Student-t "
-                      "interval (the sweep summary file)")),
+        ("Network", _network(sc, "Drawn for the first parameter set" + (
+            f" ({', '.join(f'{k} = {v}' for k, v in zip(gh, _first_values(srows, ix, grid)))})"
+            if grid else ""))),
+        ("Figures", "\n".join(figs)),
+        ("MSE", table("mse", (*gh, "estimate", "runs",
+                              *(f"{c} MSE [95 % CI]" for c in comps)),
+                      mse_rows, "per grid point: mean over runs of the time-averaged MSE and its 95 % "
+                      "Student-t interval (the sweep summary file <db>.summary.csv)")),
         ("NEES", table("nees", (*gh, "estimate", "ANEES", "band low", "band high"), nees_rows,
                        "mean over runs of each run's time-averaged NEES; 95 % chi-square band")),
         ("Packets", table("packets", (*gh, "estimate", "messages per tick", "bytes per tick", "late"),
                           pk, "means over runs; – : not modelled for that estimate")),
-        ("Figures", "\n".join(figs)),
         ("Versions and seeds", _versions({"dkfsim (database)": meta.get("dkfsim_version")},
                                          [("created", meta.get("created", ""))])
          + table("seeds", ("parameter set", "param_hash", "base seed"),
@@ -349,6 +373,10 @@ def sweep_page(db: Path) -> str:
     ]
     return _page(f"dkfsim report: sweep {Path(meta.get('sweep_file', db.stem)).stem}",
                  f"{len(params)} parameter sets x {definition.get('runs')} runs", sections)
+
+
+def _first_values(srows, ix, grid) -> list:
+    return [srows[0][ix[k]] for k in grid] if srows else []
 
 
 # =========================================================================== entry
