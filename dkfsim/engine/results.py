@@ -25,7 +25,7 @@ from dkfsim.core.version import __version__
 from dkfsim.analysis.frames import rows_frame, run_dataset
 from dkfsim.analysis.metrics import default_burn_in, mse_per_component, row_columns, score
 from dkfsim.config.load import load_scenario, scenario_hash
-from dkfsim.config.schema import component_names
+from dkfsim.config.dynamics import component_names
 from dkfsim.core.encoding import from_json
 from dkfsim.core.errors import DkfsimError
 from dkfsim.core.files import MAX_YAML_BYTES, check_regular_file, read_text

@@ -43,7 +43,8 @@ from dkfsim.analysis.metrics import (anees_summary, default_burn_in, nees_band, 
                                      row_columns, squared_error, t_interval, t_interval_from_moments)
 from dkfsim.components.topology import GENERATOR_PARAMS
 from dkfsim.config.load import load_scenario, scenario_hash
-from dkfsim.config.schema import Scenario, component_names
+from dkfsim.config.dynamics import component_names
+from dkfsim.config.schema import Scenario
 from dkfsim.core.errors import DkfsimError
 from dkfsim.core.folders import staged, write_json
 from dkfsim.core.progress import progress_callback
@@ -72,7 +73,7 @@ def derive_seed(base_seed: int, run: int) -> int:
 
 
 def components_of(scenario) -> list[str]:
-    """The scenario's state component names (see :func:`dkfsim.config.schema.component_names`)."""
+    """The scenario's state component names (see :func:`dkfsim.config.dynamics.component_names`)."""
     return component_names(scenario.model.kind, scenario.nx)
 
 

@@ -1,0 +1,304 @@
+"""The engine of ``dkfsim maxdelay``: settings, the three answers for one scenario.
+
+:class:`MaxDelay` runs the Monte Carlo search, the deterministic worst case and the
+paper's bound; :func:`maxdelay` is the library entry point.  See
+:mod:`dkfsim.experiments.maxdelay` and docs/design.md.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass
+
+from dkfsim.analysis.bounds import paper_bound_for_scenario
+from dkfsim.analysis.metrics import default_burn_in
+from dkfsim.config.load import load_scenario
+from dkfsim.config.schema import Scenario
+from dkfsim.core.errors import DkfsimError
+from dkfsim.core.resources import Cost, check, repeat
+from dkfsim.core.threads import single_thread
+from dkfsim.engine.estimate import estimate_run
+from dkfsim.experiments.maxdelay.axis import latencies_deterministic, make_axis
+from dkfsim.experiments.maxdelay.report import MaxDelayResult
+from dkfsim.experiments.maxdelay.search import (COVARIANCE_METRICS, FUSED_METRICS, METRICS, UNDECIDED,
+                                                Candidate, Runner, _Evaluator, classify,
+                                                empirical_search, worst_case_scan)
+from dkfsim.experiments.montecarlo import components_of, derive_seed
+
+
+# =========================================================================== the command's engine
+@dataclass
+class Settings:
+    metric: str = "fused_mse"
+    estimate: str = "fused"            # the estimate whose mse the Monte Carlo search tracks (metric mse)
+    component: str | int | None = None  # a name, an index, "all"; None = the first component
+    tolerance: float | None = None     # absolute
+    relative: float | None = None      # relative to zero delay
+    confidence: float = 0.95
+    batch: int = 5
+    max_runs: int = 40
+    burn_in: int | None = None
+    jobs: int = 1
+    max_delay: int = 32
+    scale_step: float = 0.25
+    max_scale: float = 16.0
+
+
+def check_settings(st: Settings) -> None:
+    if st.metric not in METRICS:
+        raise DkfsimError(f"--metric: unknown metric {st.metric!r}; choose one of {', '.join(METRICS)}")
+    if (st.tolerance is None) == (st.relative is None):
+        raise DkfsimError("give exactly one of --tolerance (absolute) and --relative (a factor of the "
+                          "zero-delay value)")
+    if st.tolerance is not None and not (st.tolerance > 0 and math.isfinite(st.tolerance)):
+        raise DkfsimError(f"--tolerance: must be a finite number > 0, got {st.tolerance}")
+    if st.relative is not None and not (st.relative > 1 and math.isfinite(st.relative)):
+        raise DkfsimError(f"--relative: must be a finite factor > 1 (metric <= factor x its zero-delay "
+                          f"value), got {st.relative}")
+    if not 0 < st.confidence < 1:
+        raise DkfsimError(f"--confidence: must be in (0, 1), got {st.confidence}")
+    if st.batch < 2:
+        raise DkfsimError(f"--batch: must be >= 2 (a confidence interval needs two runs), got {st.batch}")
+    if st.max_runs < st.batch:
+        raise DkfsimError(f"--max-runs: must be >= --batch ({st.batch}), got {st.max_runs}")
+    if st.jobs < 1:
+        raise DkfsimError(f"--jobs: must be >= 1, got {st.jobs}")
+    for flag, value in (("--batch", st.batch), ("--max-runs", st.max_runs), ("--max-delay", st.max_delay)):
+        if value > 10**9:
+            raise DkfsimError(f"{flag}: at most 10^9, got {value}")
+
+
+def resolve_component(scenario, metric: str, text) -> tuple[int | None, str]:
+    """``--component`` (a name, an index or ``all``) -> (index or None, name)."""
+    names = components_of(scenario)
+    if metric == "trace_P":
+        return None, "all"
+    if text is None:
+        return 0, names[0]
+    t = str(text)
+    if t == "all":
+        return None, "all"
+    if t in names:
+        return names.index(t), t
+    if t.lstrip("-").isdigit() and 0 <= int(t) < len(names):
+        return int(t), names[int(t)]
+    raise DkfsimError(f"--component: unknown component {t!r}; choose one of {', '.join(names)}, "
+                      f"an index 0..{len(names) - 1}, or all")
+
+
+class MaxDelay:
+    """Runs the three answers for one scenario (see the module docstring)."""
+
+    def __init__(self, scenario, settings: Settings, progress=None, yes: bool = False):
+        check_settings(settings)
+        self.sc = scenario
+        self.st = settings
+        if settings.metric == "mse" and settings.estimate not in ("fused", "local") \
+                and settings.estimate not in {p.label for p in scenario.estimators}:
+            raise DkfsimError(f"--estimate {settings.estimate!r}: not an estimate of this scenario; "
+                              "choose fused, local or one of its estimators: "
+                              + ", ".join(p.label for p in scenario.estimators))
+        if (settings.metric in FUSED_METRICS or (settings.metric == "mse" and settings.estimate == "fused")) \
+                and scenario.fusion == "none":
+            raise DkfsimError(f"--metric {settings.metric}: the scenario has fusion: none, so there is "
+                              "no fused estimate; set fusion: matrix (or diagonal) or use --metric local_mse")
+        K = int(scenario.steps)
+        self.burn = default_burn_in(K) if settings.burn_in is None else int(settings.burn_in)
+        if not 0 <= self.burn < K:
+            raise DkfsimError(f"--burn-in: must be in [0, steps) = [0, {K}), got {settings.burn_in}")
+        self.comp, self.comp_name = resolve_component(scenario, settings.metric, settings.component)
+        self.axis = make_axis(scenario, max_delay=settings.max_delay, scale_step=settings.scale_step,
+                              max_scale=settings.max_scale,
+                              keep=settings.estimate if settings.metric == "mse" else None)
+        check(self.estimate(), yes=yes, hint="a larger --scale-step, a smaller --max-scale or "
+                                             "--max-delay, fewer --max-runs or --steps")
+        self.seeds = [derive_seed(int(scenario.seed), r) for r in range(settings.max_runs)]
+        self.progress = progress or (lambda *a, **k: None)
+        self.notes: list[str] = []
+        if scenario.buffer_length != "auto":
+            self.notes.append(f"buffer_length is {scenario.buffer_length!r}, not auto: it does not follow "
+                              "the candidate delay")
+        self.cands: dict[int, Candidate] = {}
+        self.ref: list[float] = []                  # zero-delay values by run (relative)
+        self.wc: dict[int, Candidate] = {}
+        self._order = 0
+        self._scen_cache: dict[int, tuple] = {}
+
+    def estimate(self) -> Cost:
+        """Memory and time of the search at its worst: every look at every candidate the
+        galloping and bisection can visit, and the worst-case scan over the whole axis."""
+        J, st = self.axis.max_index, self.st
+        looks = 2 * math.ceil(math.log2(J + 2)) + 3
+        runs = looks * st.max_runs + (J + 3)
+        one = estimate_run(self.axis.base, "estimates")
+        return repeat(one, f"{self.sc.name}: maxdelay over {J + 1} candidates ({self.axis.name})",
+                      runs, st.jobs, extra_bytes=(J + 1) * 2048)
+
+    # ------------------------------------------------------------------ helpers
+    def _candidate_scenario(self, j: int):
+        """``(overrides, deterministic)`` of candidate ``j`` (validated once)."""
+        if j not in self._scen_cache:
+            ov = self.axis.overrides(j)
+            try:
+                sc = self.axis.scenario(j, ov)
+            except DkfsimError as exc:
+                raise DkfsimError(f"candidate {self.axis.label(j)}: the rewritten scenario is invalid: "
+                                  f"{exc}") from None
+            det = self.st.metric in COVARIANCE_METRICS and latencies_deterministic(sc)
+            self._scen_cache[j] = (ov, det)
+        return self._scen_cache[j]
+
+    def _tasks(self, ov, runs, covariance=False):
+        return [(self.axis.base, ov, self.seeds[r], self.st.metric, self.comp, self.burn, covariance,
+                 self.st.estimate) for r in runs]
+
+    def _reference(self, upto: int, runner: Runner) -> list[float]:
+        """Zero-delay values of runs ``0 .. upto-1`` (cached; the pairs of relative mode)."""
+        if len(self.ref) < upto:
+            data, det = self._candidate_scenario(0)
+            if det:
+                if not self.ref:
+                    self.ref = runner.map(self._tasks(data, [0]))
+                self.ref = self.ref + [self.ref[0]] * (upto - len(self.ref))
+            else:
+                self.ref += runner.map(self._tasks(data, range(len(self.ref), upto)))
+        return self.ref[:upto]
+
+    # ------------------------------------------------------------------ empirical
+    def evaluate(self, j: int, runner: Runner) -> Candidate:
+        if j in self.cands:
+            return self.cands[j]
+        st = self.st
+        data, det = self._candidate_scenario(j)
+        det_ref = det and (st.relative is None or self._candidate_scenario(0)[1])
+        c = Candidate(index=j, delay=self.axis.value(j), deterministic=det_ref)
+        self._order += 1
+        c.order = self._order
+        self.progress(label=self.axis.label(j))
+        while True:
+            n0 = c.runs
+            n1 = 1 if c.deterministic else min(n0 + st.batch, st.max_runs)
+            if j == 0 and st.relative is not None:
+                new = self._reference(n1, runner)[n0:n1]
+            else:
+                new = runner.map(self._tasks(data, range(n0, n1)))
+            c.values += new
+            if st.relative is None:
+                c.excess = [v - st.tolerance for v in c.values]
+            else:
+                ref = self._reference(n1, runner)
+                c.excess = [v - st.relative * m0 for v, m0 in zip(c.values, ref)]
+            classify(c, st.confidence)
+            if c.decision != UNDECIDED or c.deterministic or c.runs >= st.max_runs:
+                break
+        self.cands[j] = c
+        self.progress(done=c, label=self.axis.label(j))
+        return c
+
+    # ------------------------------------------------------------------ worst case
+    def worst_value(self, ov: list, runner: Runner) -> float:
+        """The covariance metric of ONE run with overrides ``ov`` (no seed: nothing random)."""
+        return runner.map([(self.axis.base, ov, None, self.st.metric, self.comp, self.burn, True)])[0]
+
+    def evaluate_worst(self, j: int, runner: Runner, tol: float, value: float | None = None):
+        if j in self.wc:
+            return self.wc[j]
+        ov = self.axis.worst_overrides(j)
+        if ov is None:
+            return None
+        v = self.worst_value(ov, runner) if value is None else value
+        c = Candidate(index=j, delay=self.axis.value(j), deterministic=True, values=[v],
+                      excess=[v - tol])
+        self._order += 1
+        c.order = self._order
+        classify(c, self.st.confidence)
+        self.wc[j] = c
+        return c
+
+    # ------------------------------------------------------------------ everything
+    @single_thread
+    def run(self) -> "MaxDelayResult":
+        t0 = time.perf_counter()
+        st, J = self.st, self.axis.max_index
+        with Runner(st.jobs, on_run=lambda k: self.progress(runs=k)) as runner:
+            # 1. empirical
+            emp = empirical_search(_Evaluator(self, runner), J)
+            runs_empirical = runner.runs
+            # 2. deterministic worst case
+            self.progress(label="worst case")
+            wc_data0 = self.axis.worst_overrides(0)
+            wc = None
+            wc_tol = None
+            limit = None
+            if wc_data0 is not None:
+                ref0 = self.worst_value(wc_data0, runner)
+                wc_tol = st.tolerance if st.relative is None else st.relative * ref0
+                self.evaluate_worst(0, runner, wc_tol, value=ref0)
+                wc = worst_case_scan(lambda j: self.evaluate_worst(j, runner, wc_tol), J)
+                limit = self.worst_value(self.axis.limit_overrides(), runner)
+            else:
+                self.notes.append("worst case not computed: a latency (or jitter) model is unbounded "
+                                  "and links.d_t is not set, so there is no largest latency")
+            runs_total = runner.runs
+        # 3. the paper's bound
+        paper = self._paper_bound(wc_tol if wc_tol is not None else st.tolerance)
+        wall = time.perf_counter() - t0
+        return MaxDelayResult(self, emp, wc, wc_tol, limit, paper, runs_empirical, runs_total, wall)
+
+    def _paper_bound(self, cov_tol):
+        if cov_tol is None:
+            return {"error": "no covariance tolerance (relative tolerance without a worst case)"}
+        nx = self.sc.nx
+        per_lambda = self.st.metric == "trace_P" or self.comp is None
+        p_tol = cov_tol / nx if per_lambda else cov_tol
+        try:
+            b = paper_bound_for_scenario(self.sc, p_tol)
+        except ValueError as exc:
+            return {"error": str(exc)}
+        d = b.terms()
+        d["covariance_tolerance"] = cov_tol
+        d["p_tol_rule"] = ("lambda_max(P) <= tol / nx guarantees trace(P) <= tol" if per_lambda else
+                           "lambda_max(P) <= tol guarantees P[c, c] <= tol")
+        d["log10_lambda_max_bound"] = {str(k): b.log10_lambda_max_bound(k) for k in range(0, 9)}
+        d["d_star_in_axis_units"] = None
+        if b.d_star is not None and math.isfinite(b.d_star):
+            if self.axis.mode == "d_t":
+                d["d_star_in_axis_units"] = b.d_star
+            else:
+                sup0 = self._sup_at_scale_one()
+                if sup0:
+                    d["d_star_in_axis_units"] = b.d_star * self.axis.T / sup0
+        d["_object"] = b
+        return d
+
+    def _sup_at_scale_one(self) -> float | None:
+        """Largest per-hop delay (s) at scale 1: latency sup plus jitter sup."""
+        ax = self.axis
+        lat = [ax._sup(l, 1.0) for _, l in ax.specs]
+        jit = [ax._sup(l, 1.0) for _, l in ax.jitters]
+        if any(v is None for v in jit):
+            return None
+        if any(v is None for v in lat):
+            if ax.links_d_t is None:
+                return None
+            lat = [ax.links_d_t * ax.T]
+        total = max(lat) + (max(jit) if jit else 0.0)
+        return total if total > 0 else None
+
+
+# =========================================================================== result
+def maxdelay(scenario, progress=None, yes: bool = False, **settings) -> "MaxDelayResult":
+    """The maximum allowable delay of ``scenario`` (a Scenario, a path or a mapping).
+
+    ``settings`` are the fields of :class:`Settings` (the ``dkfsim maxdelay``
+    flags: ``relative=1.5`` or ``tolerance=...``, ``metric``, ``jobs``, ...).
+    A search estimated above 10 minutes needs ``yes`` (:mod:`dkfsim.core.resources`).
+    """
+    sc = scenario if isinstance(scenario, Scenario) else load_scenario(scenario)
+    unknown = sorted(set(settings) - set(Settings.__dataclass_fields__))
+    if unknown:
+        raise DkfsimError(f"maxdelay: unknown setting {unknown[0]!r}; known: "
+                          + ", ".join(Settings.__dataclass_fields__))
+    return MaxDelay(sc, Settings(**settings), progress=progress, yes=yes).run()
+

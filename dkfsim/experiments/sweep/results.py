@@ -1,0 +1,87 @@
+"""Reading a sweep database back: tidy rows in a fixed order, exported as CSV or Parquet.
+
+The order (parameter set in grid order, run, estimate, component) makes an export
+byte-identical whatever executor, worker count or interruptions produced the database.
+See :mod:`dkfsim.experiments.sweep` and docs/design.md.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
+
+from dkfsim.core.errors import DkfsimError
+from dkfsim.core.registry import METRICS
+from dkfsim.core.extras import optional
+from dkfsim.core.folders import write_csv
+from dkfsim.experiments.sweep.definition import KEY_COLUMNS, _canonical
+from dkfsim.experiments.sweep.store import SweepDB, _q
+
+
+# =========================================================================== reading, export
+def read_results(db: str | os.PathLike) -> tuple[list[str], list[list]]:
+    """``(columns, rows)`` of a sweep database, sorted by (parameter set in grid order,
+    run, estimate in output order, component in state order): the grid values first
+    (one column per grid key), then ``param_hash, run, seed, estimate, component`` and
+    the metrics in registry order -- the tidy schema of every output."""
+    store = SweepDB(db, readonly=True)
+    try:
+        definition = store.definition
+        grid_keys = [k for k, _ in definition["grid"]]
+        stored = [c for c in store.columns() if c not in KEY_COLUMNS]
+        order = list(METRICS.names())
+        metric_cols = sorted(stored, key=lambda c: (order.index(c) if c in order else len(order), c))
+        select = ", ".join(["p.values_json"] + [f"r.{_q(c)}" for c in KEY_COLUMNS + tuple(metric_cols)])
+        # rowid: the order the task's rows were written in (estimates, then components).
+        cur = store.conn.execute(
+            f"SELECT {select} FROM results r JOIN params p ON p.param_hash = r.param_hash "
+            "ORDER BY p.idx, r.run, r.rowid")
+        rows = []
+        for values_json, *rest in cur:
+            values = json.loads(values_json)
+            rows.append([values.get(k) for k in grid_keys] + rest)
+    finally:
+        store.close()
+    taken = set(KEY_COLUMNS) | set(metric_cols)
+    names = [k if k not in taken else f"param:{k}" for k in grid_keys]
+    return names + list(KEY_COLUMNS) + metric_cols, rows
+
+
+def export(db: str | os.PathLike, to: str | os.PathLike) -> tuple[Path, int]:
+    """Write the results of ``db`` to ``to`` (``.csv`` or ``.parquet``), sorted
+    by key (see :func:`read_results`); return ``(path, number of rows)``."""
+    to = Path(to)
+    suffix = to.suffix.lower()
+    if suffix not in (".csv", ".parquet", ".pq"):
+        raise DkfsimError(f"--export {to}: unknown format {suffix or '(no suffix)'!r}; "
+                          "use a .csv or .parquet file name")
+    columns, rows = read_results(db)
+    try:
+        to.parent.mkdir(parents=True, exist_ok=True)
+        if suffix == ".csv":
+            write_csv(to, columns, rows)
+        else:
+            _write_parquet(to, columns, rows)
+    except OSError as exc:
+        raise DkfsimError(f"--export {to}: cannot write ({exc.strerror})") from None
+    return to, len(rows)
+
+
+def _write_parquet(path: Path, columns, rows) -> None:
+    pa, pq = optional("pyarrow"), optional("pyarrow.parquet")
+    arrays = []
+    for j, _name in enumerate(columns):
+        col = [row[j] for row in rows]
+        if any(isinstance(v, (list, dict)) for v in col):
+            col = [None if v is None else _canonical(v) for v in col]
+        try:
+            arr = pa.array(col)
+        except (pa.ArrowInvalid, pa.ArrowTypeError):
+            arr = pa.array([None if v is None else _canonical(v) for v in col], type=pa.string())
+        arrays.append(arr)
+    table = pa.Table.from_arrays(arrays, names=list(columns))
+    tmp = path.with_name(path.name + ".tmp")
+    pq.write_table(table, tmp)
+    os.replace(tmp, path)
+

@@ -1,0 +1,159 @@
+"""Running a sweep: the tasks left in the database go to an executor, the results come back here.
+
+:func:`run_task` is what a worker computes; :func:`run_sweep` checks the database,
+estimates the cost of what is left, submits it and writes every result as it arrives.
+See :mod:`dkfsim.experiments.sweep` and docs/design.md.
+"""
+
+from __future__ import annotations
+
+import os
+import sys
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from tqdm import tqdm
+
+from dkfsim.experiments import executors
+from dkfsim.config.load import load_scenario
+from dkfsim.core.resources import Cost, check
+from dkfsim.engine.estimate import estimate_run
+from dkfsim.experiments.montecarlo import derive_seed, run_rows
+from dkfsim.core.threads import single_thread
+from dkfsim.experiments.sweep.definition import Sweep, load_sweep
+from dkfsim.experiments.sweep.store import SweepDB, tasks_done
+
+
+# =========================================================================== one task (workers)
+def run_task(scenario: dict, seed: int, burn_in: int | None,
+             base_dir: str | None = None) -> tuple[list[dict], float]:
+    """Simulate and score one task where it runs; send back only the rows.
+
+    Returns ``(rows, wall seconds)``; rows as :func:`dkfsim.experiments.montecarlo.run_rows`
+    gives them, with plain Python numbers.
+    """
+    t0 = time.perf_counter()
+    rows, _curves = run_rows(load_scenario(scenario, base_dir=base_dir), int(seed), burn_in=burn_in)
+    return [{k: _plain(v) for k, v in row.items()} for row in rows], time.perf_counter() - t0
+
+
+def _plain(v: Any) -> Any:
+    if isinstance(v, (str, bool)) or v is None:
+        return v
+    if isinstance(v, int):
+        return int(v)
+    if isinstance(v, np.integer):
+        return int(v)
+    if isinstance(v, np.floating):
+        return float(v)
+    if isinstance(v, float):
+        return float(v)
+    return v
+
+
+
+# =========================================================================== running
+@dataclass
+class SweepReport:
+    """What :func:`run_sweep` did."""
+
+    db: Path
+    total: int
+    skipped: int
+    computed: int
+    wall_s: float
+    executor: str
+
+    @property
+    def runs_per_minute(self) -> float:
+        return 60.0 * self.computed / self.wall_s if self.wall_s > 0 else float("nan")
+
+
+@single_thread
+def run_sweep(sweep: Sweep | str | os.PathLike, *, executor=None, jobs: int | None = None,
+              progress: bool | None = None, db: str | os.PathLike | None = None,
+              yes: bool = False, workers: int | None = None) -> SweepReport:
+    """Run (or resume) a sweep; return a :class:`SweepReport`.
+
+    ``executor`` is a :mod:`dkfsim.experiments.executors` executor, or a callable that
+    makes one (called only once the database is checked and some task is
+    left to run; the executor it returns is closed here).  Default: ``jobs``
+    local processes, every CPU if None.  ``progress``: a tqdm bar on stderr
+    (default: when stderr is a terminal).  ``db`` overrides the output file.
+    The remaining tasks are estimated first (``workers``: how many run at
+    once, when ``executor`` is a callable): refused if they cannot fit in
+    memory, and needing ``yes`` above 10 minutes.
+    """
+    if not isinstance(sweep, Sweep):
+        sweep = load_sweep(sweep, output=db, yes=yes)
+    path = Path(db) if db is not None else sweep.output
+    if progress is None:
+        progress = sys.stderr.isatty()
+    if workers is None:
+        workers = executor.workers if isinstance(executor, executors.Executor) else \
+            (jobs or executors.available_cpus())
+    # Estimated before the database is created or changed: a refusal leaves no trace.
+    check(estimate_tasks(sweep, tasks_done(path, sweep), workers), yes=yes,
+          hint="fewer runs, a smaller grid, or more workers")
+    with SweepDB(path, sweep) as store:
+        done = store.done()
+        todo = [(p, r) for p, r in sweep.tasks() if (p.param_hash, r) not in done]
+        skipped = sweep.n_tasks - len(todo)
+        own = executor is None or not isinstance(executor, executors.Executor)
+        if not todo:
+            executor, own = executors.InlineExecutor(), True   # nothing to start
+        elif executor is None:
+            executor = executors.local(jobs)
+        elif own:
+            executor = executor()
+        label = executor.label
+        t0 = time.perf_counter()
+        computed = 0
+        bar = None
+        if progress and todo:
+            bar = tqdm(total=sweep.n_tasks, initial=skipped, unit="run", desc=sweep.name,
+                       file=sys.stderr, dynamic_ncols=True, smoothing=0.1)
+        try:
+            if todo:
+                tasks = (((p.param_hash, r, seed),
+                          (p.scenario.to_dict(), seed, sweep.burn_in, p.scenario.base_dir))
+                         for p, r in todo for seed in (derive_seed(p.base_seed, r),))
+                for (h, r, seed), (rows, wall) in executor.imap_unordered(run_task, tasks):
+                    store.write_task(h, r, seed, rows, wall)
+                    computed += 1
+                    if bar is not None:
+                        bar.update(1)
+        except KeyboardInterrupt:
+            if bar is not None:
+                bar.close()
+                bar = None
+            print(f"dkfsim sweep: interrupted; {skipped + computed} of {sweep.n_tasks} tasks are "
+                  f"saved in {path}: re-run the same command to resume", file=sys.stderr)
+            raise
+        finally:
+            if bar is not None:
+                bar.close()
+            if own:
+                executor.close()
+        wall = time.perf_counter() - t0
+    return SweepReport(db=path, total=sweep.n_tasks, skipped=skipped, computed=computed,
+                       wall_s=wall, executor=label)
+
+
+def estimate_tasks(sweep: Sweep, done: set, workers: int) -> Cost:
+    """Memory and time of the tasks of ``sweep`` not yet in ``done``."""
+    est = Cost(f"{sweep.source}: {sweep.n_tasks - len(done):,} tasks left of {sweep.n_tasks:,}",
+                   workers=max(1, workers))
+    biggest = 0.0
+    for p in sweep.parameter_sets:
+        one = estimate_run(p.scenario, "estimates")
+        left = sweep.runs - sum((p.param_hash, r) in done for r in range(min(sweep.runs, 10**6)))
+        est.seconds += one.seconds * left
+        biggest = max(biggest, one.bytes)
+    est.memory["one run per worker"] = biggest * est.workers
+    est.memory["task list"] = (sweep.n_tasks - len(done)) * 200.0
+    return est
+

@@ -1,0 +1,255 @@
+"""The sweep database: one SQLite file per sweep, written only by the parent process.
+
+One transaction per task (its rows are there entirely or not at all), the sweep
+definition stored in ``meta`` and checked on resume, an advisory lock so one process
+at a time writes it.  See :mod:`dkfsim.experiments.sweep` and docs/design.md.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import sqlite3
+import time
+from pathlib import Path
+from typing import Any
+
+try:
+    import fcntl
+except ImportError:  # pragma: no cover  (Windows)
+    fcntl = None
+
+from dkfsim.core.errors import DkfsimError
+from dkfsim.core.version import __version__
+from dkfsim.experiments.sweep.definition import (DB_FORMAT, KEY_COLUMNS, Sweep, _canonical, _short,
+                                                 identity, is_database)
+
+
+def _sql_value(v: Any) -> Any:
+    if isinstance(v, float) and math.isnan(v):
+        return None
+    return v
+
+
+
+# =========================================================================== the database
+def _q(name: str) -> str:
+    return '"' + name.replace('"', '""') + '"'
+
+
+SCHEMA = """
+CREATE TABLE IF NOT EXISTS meta (
+    key   TEXT PRIMARY KEY,
+    value TEXT NOT NULL
+);
+CREATE TABLE IF NOT EXISTS params (
+    param_hash    TEXT PRIMARY KEY,
+    idx           INTEGER NOT NULL UNIQUE,
+    values_json   TEXT NOT NULL,
+    scenario_hash TEXT NOT NULL,
+    base_seed     INTEGER NOT NULL,
+    scenario_json TEXT NOT NULL
+);
+CREATE TABLE IF NOT EXISTS tasks (
+    param_hash TEXT NOT NULL,
+    run        INTEGER NOT NULL,
+    seed       INTEGER NOT NULL,
+    wall_s     REAL,
+    finished   TEXT NOT NULL,
+    UNIQUE (param_hash, run)
+);
+CREATE TABLE IF NOT EXISTS results (
+    param_hash TEXT NOT NULL,
+    run        INTEGER NOT NULL,
+    seed       INTEGER NOT NULL,
+    estimate   TEXT NOT NULL,
+    component  TEXT NOT NULL,
+    UNIQUE (param_hash, run, estimate, component)
+);
+"""
+
+
+
+class SweepDB:
+    """The results file of one sweep.  Only the parent process writes it."""
+
+    def __init__(self, path, sweep: Sweep | None = None, *, readonly: bool = False):
+        self.path = Path(path)
+        self._lock_fh = None
+        label = str(self.path)
+        if readonly:
+            if not self.path.exists():
+                raise DkfsimError(f"{label}: file not found")
+            if not is_database(self.path):
+                raise DkfsimError(f"{label}: not an SQLite file (a sweep database was expected)")
+            # A plain connection (a read-only one cannot recover a WAL left by kill -9).
+            self.conn = sqlite3.connect(self.path, isolation_level=None, timeout=30)
+            self.definition = self._stored_definition()
+            if self.definition is None:
+                raise DkfsimError(f"{label}: not a dkfsim sweep database (no sweep definition)")
+            return
+        if self.path.exists() and self.path.stat().st_size > 0 and not is_database(self.path):
+            raise DkfsimError(f"{label}: exists and is not an SQLite file; refusing to "
+                              "overwrite it (choose another output)")
+        try:
+            self.path.parent.mkdir(parents=True, exist_ok=True)
+            self._lock()
+            self.conn = sqlite3.connect(self.path, isolation_level=None, timeout=30)
+            self.conn.execute("PRAGMA journal_mode=WAL")
+            self.conn.execute("PRAGMA synchronous=FULL")
+        except sqlite3.Error as exc:
+            raise DkfsimError(f"{label}: cannot open the sweep database ({exc})") from None
+        except OSError as exc:
+            raise DkfsimError(f"{label}: cannot create the sweep database "
+                              f"({exc.strerror})") from None
+        try:
+            self._setup(sweep)
+        except BaseException:
+            self.close()
+            raise
+
+    # -- opening -----------------------------------------------------------------
+    def _lock(self) -> None:
+        if fcntl is None:  # pragma: no cover  (no advisory locks: trust the user)
+            return
+        fh = open(self.path, "ab")
+        try:
+            fcntl.flock(fh.fileno(), fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except OSError:
+            fh.close()
+            raise DkfsimError(f"{self.path}: another dkfsim sweep is writing this database; "
+                              "wait for it to finish (or stop it) and re-run") from None
+        self._lock_fh = fh
+
+    def _stored_definition(self) -> dict | None:
+        try:
+            row = self.conn.execute("SELECT value FROM meta WHERE key='definition'").fetchone()
+        except sqlite3.DatabaseError:
+            return None
+        return json.loads(row[0]) if row else None
+
+    def _setup(self, sweep: Sweep | None) -> None:
+        label = str(self.path)
+        tables = {r[0] for r in self.conn.execute(
+            "SELECT name FROM sqlite_master WHERE type='table'")}
+        if tables and "meta" not in tables:
+            raise DkfsimError(f"{label}: an SQLite file that is not a dkfsim sweep database; "
+                              "refusing to write into it (choose another output)")
+        stored = self._stored_definition() if "meta" in tables else None
+        if sweep is None:
+            if stored is None:
+                raise DkfsimError(f"{label}: not a dkfsim sweep database")
+            self.definition = stored
+            return
+        new = sweep.definition()
+        if stored is not None:
+            if identity(stored) != identity(new):
+                raise DkfsimError(f"{label} was made by a different sweep definition "
+                                  f"({_difference(stored, new)}); refusing to mix their results. "
+                                  "Write to another file (output: in the sweep file, or --db "
+                                  "PATH), or delete this one to start over.")
+            self.definition = stored
+            return
+        self.conn.execute("BEGIN IMMEDIATE")
+        try:
+            for stmt in SCHEMA.split(";"):
+                if stmt.strip():
+                    self.conn.execute(stmt)
+            meta = {"format": str(DB_FORMAT), "definition": _canonical(new),
+                    "sweep_file": sweep.source, "dkfsim_version": __version__,
+                    "created": time.strftime("%Y-%m-%dT%H:%M:%S%z")}
+            self.conn.executemany("INSERT INTO meta(key, value) VALUES (?, ?)", meta.items())
+            self.conn.executemany(
+                "INSERT INTO params(param_hash, idx, values_json, scenario_hash, base_seed, "
+                "scenario_json) VALUES (?, ?, ?, ?, ?, ?)",
+                [(p.param_hash, p.index, _canonical(p.values), p.scenario_hash, p.base_seed,
+                  _canonical(p.scenario.to_dict())) for p in sweep.parameter_sets])
+            self.conn.execute("COMMIT")
+        except BaseException:
+            self.conn.execute("ROLLBACK")
+            raise
+        self.definition = new
+
+    # -- reading -------------------------------------------------------------------
+    def done(self) -> set[tuple[str, int]]:
+        return {(h, r) for h, r in self.conn.execute("SELECT param_hash, run FROM tasks")}
+
+    def columns(self) -> list[str]:
+        return [r[1] for r in self.conn.execute("PRAGMA table_info(results)")]
+
+    # -- writing -------------------------------------------------------------------
+    def write_task(self, param_hash: str, run: int, seed: int, rows: list[dict],
+                   wall_s: float | None) -> None:
+        """All rows of one task (tidy: one per estimate and component), or nothing (one
+        transaction).  A metric column is added the first time a row has it."""
+        conn = self.conn
+        conn.execute("BEGIN IMMEDIATE")
+        try:
+            have = set(self.columns())
+            metrics = [k for k in (rows[0] if rows else {}) if k not in KEY_COLUMNS]
+            for c in metrics:
+                if c not in have:
+                    conn.execute(f"ALTER TABLE results ADD COLUMN {_q(c)}")
+            conn.execute("INSERT INTO tasks(param_hash, run, seed, wall_s, finished) "
+                         "VALUES (?, ?, ?, ?, ?)",
+                         (param_hash, run, seed, wall_s, time.strftime("%Y-%m-%dT%H:%M:%S%z")))
+            names = list(KEY_COLUMNS) + metrics
+            for row in rows:
+                if row["seed"] != seed:
+                    raise RuntimeError(f"task ({param_hash}, {run}): rows carry seed {row['seed']}, "
+                                       f"expected {seed}")
+                conn.execute(f"INSERT INTO results({', '.join(map(_q, names))}) VALUES "
+                             f"({', '.join('?' * len(names))})",
+                             [param_hash, run, seed, row["estimate"], row["component"],
+                              *(_sql_value(row.get(m)) for m in metrics)])
+            conn.execute("COMMIT")
+        except BaseException:
+            conn.execute("ROLLBACK")
+            raise
+
+    def close(self) -> None:
+        conn = getattr(self, "conn", None)
+        if conn is not None:
+            conn.close()
+            self.conn = None
+        if self._lock_fh is not None:
+            self._lock_fh.close()
+            self._lock_fh = None
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
+        return False
+
+
+def _difference(stored: dict, new: dict) -> str:
+    a, b = identity(stored), identity(new)
+    if a["format"] != b["format"]:
+        return (f"database format {a['format'] or 1} of an earlier dkfsim, this one writes "
+                f"format {b['format']}; keep that file, and give this sweep another --db")
+    parts = []
+    for key in ("grid", "set", "runs", "burn_in"):
+        if a[key] != b[key]:
+            parts.append(f"{key}: {_short(a[key])} in the file, {_short(b[key])} now")
+    if not parts and a["scenarios"] != b["scenarios"]:
+        parts.append("the scenario resolves differently (the scenario file changed)")
+    return "; ".join(parts) or "the stored definition differs"
+
+
+
+def tasks_done(path: Path, sweep: Sweep) -> set:
+    """``(param_hash, run)`` of the tasks already in the database at ``path`` (none if
+    there is no database yet); a database of another sweep definition is an error."""
+    if not Path(path).exists():
+        return set()
+    store = SweepDB(path, readonly=True)
+    try:
+        if identity(store.definition) != identity(sweep.definition()):
+            raise DkfsimError(f"{path} was made by a different sweep definition "
+                              f"({_difference(store.definition, sweep.definition())})")
+        return {(h, r) for h, r in store.conn.execute("SELECT param_hash, run FROM tasks")}
+    finally:
+        store.close()
+

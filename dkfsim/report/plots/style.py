@@ -1,0 +1,219 @@
+"""What every figure shares: estimate labels and colours, smoothing, axes, atomic saving.
+
+See :mod:`dkfsim.report.plots`.
+"""
+
+from __future__ import annotations
+
+import io
+import os
+from pathlib import Path
+
+import numpy as np
+
+from dkfsim.core.errors import DkfsimError
+from dkfsim.core.extras import available, optional, pyplot
+from dkfsim.report.plots.folders import Folder
+
+
+FORMATS = ("png", "pdf", "svg")
+DEFAULT_FORMATS = ("png", "pdf")
+
+#: Display order, legend label and colour of the estimate names (any other name is drawn
+#: after these, labelled by its name).
+ESTIMATES: dict[str, tuple[str, str]] = {
+    "fused": ("fused: anti-delay DKF", "C0"),
+    "local": ("local: DKF node estimates (mean over nodes)", "C9"),
+    "centralized": ("centralized: all data on time", "k"),
+    "centralized_delayed": ("centralized_delayed: over delayed direct links", "C2"),
+    "no_buffer": ("no_buffer: L = 1, fused", "C1"),
+    "ci_consensus": ("ci_consensus: consensus on information", "C3"),
+    "local_only": ("local_only: own sensor", "C7"),
+}
+
+
+
+def label_of(name: str) -> str:
+    return ESTIMATES.get(name, (name, None))[0]
+
+
+def color_of(name: str, fallback_index: int = 0):
+    c = ESTIMATES.get(name, (None, None))[1]
+    return c if c is not None else f"C{(4 + fallback_index) % 10}"
+
+
+def _order(names) -> list[str]:
+    known = [a for a in ESTIMATES if a in names]
+    return known + sorted(a for a in names if a not in ESTIMATES)
+
+
+
+
+
+# ----------------------------------------------------------------------------
+# helpers
+# ----------------------------------------------------------------------------
+
+def moving_average(a: np.ndarray, w: int) -> np.ndarray:
+    """Centred moving average over ``w`` rows along axis 0; the window shrinks at the ends."""
+    a = np.asarray(a, dtype=float)
+    if w <= 1:
+        return a
+    K = a.shape[0]
+    c = np.concatenate([np.zeros((1,) + a.shape[1:]), np.cumsum(a, axis=0)])
+    lo = np.clip(np.arange(K) - w // 2, 0, K)
+    hi = np.clip(np.arange(K) - w // 2 + w, 0, K)
+    n = (hi - lo).reshape((K,) + (1,) * (a.ndim - 1))
+    return (c[hi] - c[lo]) / n
+
+
+def default_smooth(folder: Folder) -> int:
+    """Single runs: 2 % of the ticks (the squared error of one run is very noisy); Monte Carlo: none."""
+    return max(1, folder.K // 50) if folder.kind == "run" else 1
+
+
+def select_components(folder: Folder, wanted) -> list[int]:
+    """Indices of the components named (or numbered) in ``wanted``; all when empty."""
+    if not wanted:
+        return list(range(folder.nx))
+    out = []
+    for w in wanted:
+        s = str(w)
+        if s in folder.components:
+            out.append(folder.components.index(s))
+        elif s.isdigit() and int(s) < folder.nx:
+            out.append(int(s))
+        else:
+            raise DkfsimError(f"--component: {s!r} is not a component of {folder.path} "
+                              f"(components: {', '.join(folder.components)}, or 0..{folder.nx - 1})")
+    return out
+
+
+def _unit_label(unit: str, squared: bool = False) -> str:
+    if not unit:
+        return ""
+    if squared:
+        return f" [({unit})$^2$]" if "/" in unit or "$" in unit else f" [{unit}$^2$]"
+    return f" [{unit}]"
+
+
+def _mse_ylabel(folder: Folder, i: int, smooth: int) -> str:
+    comp, unit = folder.components[i], folder.units[i]
+    return f"{comp} MSE{_unit_label(unit, squared=True)}"
+
+
+def mse_note(folder: Folder, smooth: int) -> str:
+    if folder.kind == "montecarlo":
+        note = f"mean over {folder.n_runs} Monte Carlo runs" if folder.n_runs else "mean over Monte Carlo runs"
+        if folder.ci:
+            note += ", 95 % CI shaded"
+    else:
+        note = "single run: squared error"
+    if smooth > 1:
+        note += f", {smooth}-tick moving average"
+    return note
+
+
+def _save_png(fig, path: Path, dpi: int = 100) -> None:
+    """PNG with a 256-colour palette: a third of the size of matplotlib's RGBA, same look."""
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=dpi, bbox_inches="tight")
+    if available("PIL"):
+        Image = optional("PIL.Image")
+        img = Image.open(buf).convert("RGB").quantize(colors=256, method=Image.Quantize.MEDIANCUT)
+        img.save(path, format="PNG", optimize=True)
+    else:                 # Pillow ships with matplotlib; keep the plain file if it is missing
+        Path(path).write_bytes(buf.getvalue())
+
+
+def _save(fig, stem: Path, formats) -> list[Path]:
+    stem = Path(stem)
+    try:
+        stem.parent.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise DkfsimError(f"{stem.parent}: cannot create the figure folder ({exc.strerror})") from None
+    out = []
+    for fmt in formats:
+        path = stem.with_name(f"{stem.name}.{fmt}")
+        tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
+        try:                       # written beside, then renamed: never half a figure
+            if fmt == "png":
+                _save_png(fig, tmp)
+            else:
+                fig.savefig(tmp, bbox_inches="tight", format=fmt)
+            os.replace(tmp, path)
+        except OSError as exc:
+            raise DkfsimError(f"{path}: cannot write the figure ({exc.strerror})") from None
+        finally:
+            tmp.unlink(missing_ok=True)
+        out.append(path)
+    fig.clf()
+    pyplot().close(fig)
+    return out
+
+
+def _averages(ax, entries, folder: Folder) -> None:
+    """A column right of the panel: each curve's time-averaged MSE after the burn-in, in its colour
+    (with the 95 % interval over runs when the Monte Carlo summary has it)."""
+    b = folder.burn_in if folder.burn_in is not None else folder.K // 10
+    ax.text(1.02, 1.0, f"MSE, mean\nover t ≥ {folder.t[min(b, folder.K - 1)]:g} s:", transform=ax.transAxes,
+            ha="left", va="top", fontsize=7.5, color="0.3")
+    for j, (text, col) in enumerate(entries):
+        ax.text(1.02, 0.80 - 0.105 * j, text, transform=ax.transAxes, ha="left", va="top",
+                fontsize=7.5, color=col, fontweight="bold")
+
+
+def _avg_text(folder: Folder, estimate: str, i: int) -> str:
+    m = folder.time_average(estimate, i)
+    ci = folder.ci95(estimate, i)
+    return f"{m:.4g}" if ci is None else f"{m:.4g} ± {(ci[1] - ci[0]) / 2:.2g}"
+
+
+def _legend_below(fig, ax, ncol=2):
+    """One legend for all panels, under them, so that it never hides a curve."""
+    handles, labels = ax.get_legend_handles_labels()
+    fig.tight_layout()
+    fig.legend(handles, labels, loc="upper center", bbox_to_anchor=(0.5, 0.0), ncol=ncol,
+               fontsize=8.5, frameon=False)
+
+
+def _check_formats(formats) -> tuple[str, ...]:
+    formats = tuple(formats)
+    if not formats:
+        raise DkfsimError("--format: give at least one format")
+    for f in formats:
+        if f not in FORMATS:
+            raise DkfsimError(f"--format: unknown format {f!r}; choose from {', '.join(FORMATS)}")
+    return formats
+
+
+def _positive(a):
+    """Zeros (exact estimates) cannot be drawn on a log axis; mask them."""
+    a = np.asarray(a, dtype=float)
+    return np.where(a > 0, a, np.nan)
+
+
+def _band(lo, hi):
+    """A confidence band for a log axis: a lower bound <= 0 (t-interval of few runs) goes to the floor."""
+    lo = np.asarray(lo, dtype=float)
+    return np.where(lo > 0, lo, 1e-300), _positive(hi)
+
+
+def _plain_log_ticks(ax) -> None:
+    """Tick labels 0.2, 0.05, 1e-05 instead of 2 x 10^-1 (matplotlib decides which ticks get one)."""
+    class Plain(optional("matplotlib.ticker").LogFormatter):
+        def __call__(self, x, pos=None):
+            return f"{x:g}" if super().__call__(x, pos) else ""
+
+    ax.yaxis.set_major_formatter(Plain(labelOnlyBase=False))
+    ax.yaxis.set_minor_formatter(Plain(labelOnlyBase=False))
+
+
+def _log_limits(ax, curves) -> None:
+    """Fit the log axis to the mean curves (not to the bands, whose lower ends can be ~0)."""
+    _plain_log_ticks(ax)
+    vals = np.concatenate([np.asarray(c, dtype=float).ravel() for c in curves])
+    vals = vals[np.isfinite(vals) & (vals > 0)]
+    if vals.size:
+        ax.set_ylim(np.percentile(vals, 0.5) / 2.0, vals.max() * 2.0)
+
