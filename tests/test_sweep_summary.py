@@ -92,3 +92,23 @@ def test_bad_sweep_plot_flags_exit_2_with_one_paragraph(swept, args, message, ca
     assert main(["plot", str(swept / "s.sqlite"), *args, "--out", str(swept / "bad")]) == 2
     err = capsys.readouterr().err
     assert message in err and err.count("\n") == 1
+
+
+def test_python_api_frames_equal_the_files(swept):
+    import dkfsim
+    rep = dkfsim.sweep(swept / "s.yaml", jobs=1)          # complete: resumes with nothing to do
+    assert rep.computed == 0
+    frame, summary = rep.to_frame(), rep.summary()
+    rows, srows = read(swept / "s.csv"), read(swept / "s.summary.csv")
+    assert list(frame.columns) == list(rows[0]) and len(frame) == len(rows)
+    assert list(summary.columns) == list(srows[0]) and len(summary) == len(srows)
+    for got, want in ((frame, rows), (summary, srows)):
+        for i in (0, len(want) // 2, len(want) - 1):
+            for c, cell in want[i].items():
+                v = got.iloc[i][c]
+                if cell == "" or cell == "nan":
+                    assert v is None or v != v
+                elif isinstance(v, str):
+                    assert v == cell
+                else:
+                    assert float(v) == float(cell)

@@ -95,10 +95,3 @@ def write_summary(db, to=None) -> tuple[Path, int]:
     except OSError as exc:
         raise DkfsimError(f"{to}: cannot write the sweep summary ({exc.strerror})") from None
     return to, len(rows)
-
-
-def summary_frame(db):
-    """The summary of a sweep database or export as a pandas DataFrame."""
-    pd = optional("pandas")
-    columns, rows = summarize(*read_table(db))
-    return pd.DataFrame(rows, columns=columns)

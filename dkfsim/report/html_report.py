@@ -29,7 +29,7 @@ import yaml
 
 from dkfsim.analysis.grid import grid_columns, summarize
 from dkfsim.config.load import load_scenario
-from dkfsim.config.schema import component_names
+from dkfsim.config.dynamics import component_names
 from dkfsim.core.encoding import from_json
 from dkfsim.core.errors import DkfsimError
 from dkfsim.core.extras import pyplot

@@ -23,7 +23,8 @@ from dkfsim.core.extras import pyplot
 from dkfsim.core.params import suggest
 from dkfsim.core.registry import METRICS
 from dkfsim.experiments.sweep_summary import read_table
-from dkfsim.report.plots import DEFAULT_FORMATS, _check_formats, _order, _plain_log_ticks, _save, color_of, label_of
+from dkfsim.report.plots.style import (DEFAULT_FORMATS, _check_formats, _order, _plain_log_ticks, _save,
+                                       color_of, label_of)
 
 #: y-axis label per metric (the README's metric vocabulary).
 METRIC_LABELS = {"mse": "MSE", "anees": "ANEES", "disagreement": "disagreement",

@@ -33,9 +33,6 @@ from pathlib import Path
 import matplotlib.pyplot as plt
 
 import dkfsim
-from dkfsim.experiments.sweep import read_results
-from dkfsim.analysis.frames import rows_frame
-from dkfsim.experiments.sweep_summary import summary_frame
 
 # The repository's scenarios folder, from wherever the notebook was started.
 ROOT = next(p for p in [Path.cwd(), *Path.cwd().parents] if (p / "scenarios" / "paper_case1.yaml").is_file())
@@ -120,12 +117,14 @@ sweep = {"scenario": str(ROOT / "scenarios" / "paper_case1.yaml"),
          "set": [f"steps={STEPS}", "estimators=[{kind: centralized}, {kind: no_buffer}]"],
          "runs": max(2, RUNS // 2)}
 report = dkfsim.sweep(sweep, db=OUT / "delay.sqlite", jobs=1, progress=True)
-columns, stored = read_results(report.db)
-rows = rows_frame(stored, columns)
+report                          # what ran; the rows are in the database
+
+# %%
+rows = report.to_frame()        # the export's table: grid columns, then the tidy columns
 rows.head()
 
 # %%
-points = summary_frame(report.db)
+points = report.summary()       # = <database stem>.summary.csv of `dkfsim sweep`
 pos = points[points.component == "position"]
 fig, ax = plt.subplots(figsize=(6, 3))
 for name, g in pos.groupby("estimate", sort=False):
