@@ -7,6 +7,7 @@ import json
 from pathlib import Path
 
 import numpy as np
+from PIL import Image
 import pytest
 
 pytest.importorskip("matplotlib")
@@ -73,7 +74,9 @@ def assert_figures(folder: Path, stems, formats=("png", "pdf")):
                 img = mpimg.imread(f)
                 assert img.ndim == 3 and img.shape[0] > 200 and img.shape[1] > 300
                 assert img[..., :3].std() > 0.05, f"{f} looks blank"
-                assert f.stat().st_size < 300_000
+                assert f.stat().st_size < 1_500_000          # 300 dpi, 256-colour palette
+                with Image.open(f) as im:                      # print resolution (issue 11)
+                    assert round(im.info["dpi"][0]) == 300
             if fmt == "pdf":
                 assert f.read_bytes()[:5] == b"%PDF-"
 

@@ -39,7 +39,11 @@ from dkfsim.core.version import __version__
 from dkfsim.experiments.sweep import is_database, read_results
 from dkfsim.report.network import draw_network
 from dkfsim.report.plots import load_folder, plot_mse, plot_nees, plot_tracking
+from dkfsim.report.plots.style import png_resolution
 from dkfsim.report.sweep_plot import plot_sweep
+
+#: Resolution of the inline figures (a screen, not print: the page stays small).
+SCREEN_DPI = 110
 
 CSS = """
 body{font-family:system-ui,-apple-system,"Segoe UI",Helvetica,Arial,sans-serif;max-width:1100px;
@@ -178,7 +182,7 @@ def _figures(folder_path: Path, kinds) -> list[str]:
         folder = load_folder(folder_path)
     except DkfsimError as exc:
         return [f"<p class='note'>No figures: {html.escape(str(exc))}</p>"]
-    with tempfile.TemporaryDirectory(prefix="dkfsim-report-") as tmp:
+    with tempfile.TemporaryDirectory(prefix="dkfsim-report-") as tmp, png_resolution(SCREEN_DPI):
         tmp = Path(tmp)
         if folder.truth is not None and "tracking" in kinds:
             plot_tracking(folder, tmp / "tracking", ("png",))
@@ -324,7 +328,7 @@ def sweep_page(db: Path) -> str:
     pk = [(*(r[ix[k]] for k in grid), r[ix["estimate"]], r[ix["messages_per_tick"]],
            r[ix["bytes_per_tick"]], r[ix["late"]]) for r in first.values()]
     figs = []
-    with tempfile.TemporaryDirectory(prefix="dkfsim-report-") as tmp:
+    with tempfile.TemporaryDirectory(prefix="dkfsim-report-") as tmp, png_resolution(SCREEN_DPI):
         if grid:
             x = grid[0]
             hue = grid[1] if len(grid) > 1 else None
