@@ -256,8 +256,17 @@ class MaxDelayResult:
             if st.relative is not None and self.wc_tol is not None:
                 top.axhline(self.wc_tol, color="C1", ls="--", lw=0.8, label="worst-case tolerance")
             if self.limit is not None:
-                top.axhline(self.limit, color="C1", ls=(0, (1, 3)), lw=1,
-                            label="worst case with no exchange at all")
+                shown = [v for c in cs + ws for v in (c.mean, *getattr(c, "ci", ())) if math.isfinite(v)]
+                shown += [v for v in (st.tolerance, self.wc_tol,
+                                      (self.reference or {}).get("tolerance")) if v is not None]
+                top_of_data = max(shown) if shown else self.limit
+                if self.limit > 2.0 * top_of_data:    # far above: keep the axis on the data
+                    lo_y = min(min(shown), 0.0)
+                    top.set_ylim(lo_y, top_of_data + 0.15 * (top_of_data - lo_y))
+                    label = f"worst case with no exchange at all: {self.limit:.4g} (above the axis)"
+                else:
+                    label = "worst case with no exchange at all"
+                top.axhline(self.limit, color="C1", ls=(0, (1, 3)), lw=1, label=label)
             if self.wc is not None and self.wc.answer is not None:
                 top.axvline(ax.value(self.wc.answer), color="C1", ls=":", lw=2,
                             label=f"worst-case answer {ax.value(self.wc.answer):g} ({self.wc.status})")
