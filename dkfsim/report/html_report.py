@@ -30,15 +30,14 @@ import yaml
 from dkfsim.analysis.grid import grid_columns, summarize
 from dkfsim.config.load import load_scenario
 from dkfsim.config.dynamics import component_names
-from dkfsim.core.encoding import from_json
 from dkfsim.core.errors import DkfsimError
 from dkfsim.core.extras import pyplot
-from dkfsim.core.files import MAX_YAML_BYTES, read_text
 from dkfsim.core.folders import write_text
 from dkfsim.core.version import __version__
 from dkfsim.experiments.sweep import is_database, read_results
 from dkfsim.report.network import draw_network
 from dkfsim.report.plots import load_folder, plot_mse, plot_nees, plot_tracking
+from dkfsim.report.plots.folders import _read_json
 from dkfsim.report.plots.style import png_resolution
 from dkfsim.report.sweep_plot import plot_sweep
 
@@ -111,16 +110,6 @@ def _fig_b64(fig) -> str:
     fig.savefig(buf, format="png", dpi=110, bbox_inches="tight")
     pyplot().close(fig)
     return base64.b64encode(buf.getvalue()).decode("ascii")
-
-
-def _read_json(path: Path) -> dict:
-    try:
-        data = from_json(json.loads(read_text(path, limit=MAX_YAML_BYTES, what="summary.json")))
-    except ValueError as exc:
-        raise DkfsimError(f"{path}: cannot read ({exc})") from None
-    if not isinstance(data, dict):
-        raise DkfsimError(f"{path}: expected a JSON object")
-    return data
 
 
 # =========================================================================== sections
