@@ -121,12 +121,15 @@ def test_montecarlo_report_tables_hold_summary_json(folders, tmp_path):
     page = Page(out.read_text())
     self_contained(page)
     s = json.loads((folders / "mc" / "summary.json").read_text())
-    body = page.tables["mse"][1:]
-    assert len(body) == len(s["estimates"]) * 3
-    for name, comp, mse, lo, hi in body:
+    head, *body = page.tables["mse"]
+    assert head == ["estimate"] + [f"{c} MSE [95 % CI]" for c in s["components"]]
+    assert [r[0] for r in body] == list(s["estimates"])
+    for name, *cells in body:
         e = s["estimates"][name]
-        assert close(mse, e["mse"][comp])
-        assert close(lo, e["mse_ci95"][comp][0]) and close(hi, e["mse_ci95"][comp][1])
+        for comp, cell in zip(s["components"], cells):     # "MSE [low, high]", 5 significant digits
+            mse, lo, hi = cell.replace("[", " ").replace(",", " ").replace("]", " ").split()
+            assert close(mse, e["mse"][comp], 6e-5)
+            assert close(lo, e["mse_ci95"][comp][0], 6e-5) and close(hi, e["mse_ci95"][comp][1], 6e-5)
     for name, anees, blo, bhi, frac in page.tables["nees"][1:]:
         e = s["estimates"][name]
         assert close(anees, e["anees"]) and close(blo, e["anees_band95"][0])

@@ -244,11 +244,8 @@ def montecarlo_page(folder: Path) -> str:
     sc = _scenario(cfg, str(Path(s["source"]).resolve().parent) if s.get("source") else None)
     comps = s.get("components") or []
     est = s.get("estimates") or {}
-    mse_rows = []
-    for name, e in est.items():
-        for c in comps:
-            lo, hi = e["mse_ci95"][c]
-            mse_rows.append((name, c, e["mse"][c], lo, hi))
+    mse_rows = [(name, *(Interval((e["mse"][c], *e["mse_ci95"][c])) for c in comps))
+                 for name, e in est.items()]
     nees_rows = [(name, e.get("anees"), *(e.get("anees_band95") or (None, None)),
                   e.get("anees_fraction_in_band")) for name, e in est.items()]
     pk = [(name, e.get("messages_per_tick"), e.get("bytes_per_tick"), e.get("lost"), e.get("late"))
@@ -260,8 +257,8 @@ def montecarlo_page(folder: Path) -> str:
     sections = [
         ("Scenario", _facts(sc, facts) + _scenario_text(cfg)),
         ("Network", _network(sc)),
-        ("MSE", table("mse", ("estimate", "component", "MSE", "95 % CI low", "95 % CI high"), mse_rows,
-                      "mean over runs of the time-averaged MSE, Student-t interval over runs")),
+        ("MSE", table("mse", ("estimate", *(f"{c} MSE [95 % CI]" for c in comps)), mse_rows,
+                      "mean over runs of the time-averaged MSE and its 95 % Student-t interval over runs")),
         ("NEES", table("nees", ("estimate", "ANEES", "band low", "band high", "fraction in band"),
                        nees_rows, f"expected {len(comps)} when consistent; band: per-tick 95 % "
                        "chi-square band of the mean NEES over runs")),

@@ -48,7 +48,7 @@ def metric_label(metric: str, comp_name, sc) -> str:
     unit = CA_UNITS.get(comp_name) if sc.model.kind == "constant_acceleration" else None
     sq = f" [({unit})²]" if unit and "/" in unit else (f" [{unit}²]" if unit else "")
     if metric == "trace_P":
-        return "trace of P_fused (sum of the state variances)"
+        return "trace of P_fused (sum of the state variances; mixed units)"
     what = {"fused_var": "fused variance"}.get(metric, "MSE" if "mse" in metric else metric)
     return f"{comp_name} {what}{sq}" if comp_name else f"{what} (sum over components)"
 
