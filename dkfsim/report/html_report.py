@@ -89,7 +89,7 @@ def table(table_id: str, head, rows, caption: str = "") -> str:
     for row in rows:
         cells = []
         for v in row:
-            cls = ' class="num"' if isinstance(v, (int, float, Interval)) and not isinstance(v, bool) else ""
+            cls = ' class="num"' if (v is None or isinstance(v, (int, float, Interval))) and not isinstance(v, bool) else ""
             cells.append(f"<td{cls}>{_num(v)}</td>")
         out.append("<tr>" + "".join(cells) + "</tr>")
     out.append("</table></div>")
@@ -361,8 +361,8 @@ def sweep_page(db: Path) -> str:
                  [(i, h, s) for i, h, s, _ in params],
                  "run r of a parameter set uses derive_seed(base seed, r)")),
     ]
-    return _page(f"dkfsim report: sweep {Path(meta.get('sweep_file', db.stem)).stem}",
-                 f"{len(params)} parameter sets x {definition.get('runs')} runs", sections)
+    return _page(f"dkfsim report: {Path(meta.get('sweep_file', db.stem)).stem}",
+                 f"sweep: {len(params)} parameter sets x {definition.get('runs')} runs", sections)
 
 
 def _first_values(srows, ix, grid) -> list:

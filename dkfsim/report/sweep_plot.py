@@ -23,7 +23,8 @@ from dkfsim.core.extras import pyplot
 from dkfsim.core.params import suggest
 from dkfsim.core.registry import METRICS
 from dkfsim.experiments.sweep_summary import read_table
-from dkfsim.report.plots.style import (DEFAULT_FORMATS, _check_formats, _order, _plain_log_ticks, _save,
+from dkfsim.report.plots.folders import _units
+from dkfsim.report.plots.style import (_unit_label, DEFAULT_FORMATS, _check_formats, _order, _plain_log_ticks, _save,
                                        color_of, label_of)
 
 #: y-axis label per metric (the README's metric vocabulary).
@@ -75,6 +76,11 @@ def _values(gs, key) -> list:
 
 def _numeric(values) -> bool:
     return all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in values)
+
+
+def per_component(metric: str) -> bool:
+    """True for a metric with one value per state component (``mse``)."""
+    return metric in METRICS and METRICS.get(metric).implementation.per_component
 
 
 def sweep_curves(path, x: str | None = None, hue: str | None = None, metric: str = "mse",
@@ -129,8 +135,7 @@ def sweep_curves(path, x: str | None = None, hue: str | None = None, metric: str
     for g in gs:
         if g["component"] not in components:
             components.append(g["component"])
-    per_component = metric in METRICS and METRICS.get(metric).implementation.per_component
-    if not per_component:
+    if not per_component(metric):
         components = components[:1]       # scalar metrics repeat on every component row
     nx = {}
     for g in gs:
@@ -164,6 +169,7 @@ def plot_sweep(path, stem, x=None, hue=None, metric="mse", estimate=None, where=
                              squeeze=False)
     cmap = plt.get_cmap("viridis")
     n_lines = len(cur["lines"])
+    units = _units(comps, None) if per_component(metric) else [""] * len(comps)
     runs = set()
     for ax, comp in zip(axes[:, 0], comps):
         means = []
@@ -187,7 +193,7 @@ def plot_sweep(path, stem, x=None, hue=None, metric="mse", estimate=None, where=
             ax.plot(px, m, marker="o", ms=3.5, lw=1.2, color=col, label=lab)
             if not np.isnan(lo).all():
                 ax.fill_between(px, lo, hi, color=col, alpha=0.18, lw=0)
-        if metric == "anees" and cur["hue"] is None and len(runs) == 1 and cur["nx"]:
+        if metric == "anees" and len(runs) == 1 and cur["nx"]:
             nx = max(cur["nx"].values())
             band = nees_band(next(iter(runs)), nx)
             ax.axhspan(*band, color="0.5", alpha=0.15, lw=0,
@@ -199,7 +205,8 @@ def plot_sweep(path, stem, x=None, hue=None, metric="mse", estimate=None, where=
             ax.set_yscale("log")
             _plain_log_ticks(ax)
         name = METRIC_LABELS.get(metric, metric)
-        ax.set_ylabel(f"{comp} {name}" if len(comps) > 1 or metric == "mse" else name)
+        unit = _unit_label(units[comps.index(comp)], squared=True) if metric == "mse" else ""
+        ax.set_ylabel(f"{comp} {name}{unit}" if len(comps) > 1 or metric == "mse" else name)
         ax.grid(True, which="both", alpha=0.25)
     last = axes[-1, 0]
     xname = cur["x"].removeprefix("param:")
