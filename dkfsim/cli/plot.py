@@ -33,7 +33,7 @@ def add_command(sub) -> None:
                     "95% CI shaded) and, for Monte Carlo folders, NEES. With --compare, overlay the fused "
                     "MSE of several folders and the centralized filter of the first. Given a sweep database "
                     "(or its --export .csv/.parquet), draw a metric against one grid key (--x) with "
-                    "95%% interval bands over the runs, one line per estimate or per value of --hue.",
+                    "95% interval bands over the runs, one line per estimate or per value of --hue.",
         epilog=EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("dirs", nargs="+", metavar="DIR",
                    help="run or Monte Carlo folder(s), or one sweep database / export file")
