@@ -20,6 +20,7 @@ from dkfsim.analysis.bounds import (delay_bound_formula, omega_min_of, paper_bou
 from dkfsim.core.errors import DkfsimError
 from dkfsim.experiments.maxdelay import (EXCEEDS, UNDECIDED, WITHIN, MaxDelay, Settings, make_axis,
                              metric_value)
+from dkfsim.experiments.maxdelay.report import _pow10
 from dkfsim.experiments.montecarlo import derive_seed
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -336,3 +337,25 @@ def test_cli_bad_input_is_one_paragraph(tmp_path, args, data_change, expected):
     assert expected in p.stderr
     assert p.stderr.startswith("dkfsim maxdelay: error:") and "Traceback" not in p.stderr
     assert len(p.stderr.strip().splitlines()) == 1
+
+
+def test_capped_answer_names_the_option_and_the_figure_has_units_and_only_what_occurred(tmp_path):
+    # Constant 1 s latencies on a random walk: with a 100x relative tolerance every scale up
+    # to --max-scale 2 is within, so the search is capped.
+    res = search(rw_scenario(const_latency(1.0), q=0.05), metric="trace_P", relative=100.0,
+                 scale_step=1.0, max_scale=2.0)
+    assert res.emp.status == "capped"
+    table = res.table()
+    assert "capped" in table and "raise it with --max-scale" in table
+    drawn = res.plot(tmp_path)
+    assert "[" in drawn["xlabel"] and "latency scale" in drawn["xlabel"]
+    assert drawn["ylabel"].startswith("trace of P_fused")
+    assert "decided within" in drawn["legend"]
+    assert "decided exceeds" not in drawn["legend"] and "undecided (run cap)" not in drawn["legend"]
+    assert not any("10^" in t for t in drawn["texts"] + drawn["legend"])
+    assert (tmp_path / "maxdelay.png").stat().st_size > 0
+
+
+def test_powers_of_ten_print_as_plain_numbers():
+    assert _pow10(-0.0549) == "0.8813"          # 10^-0.0549 = exp(-0.12641) = 0.88125
+    assert _pow10(5.5) == "3.162e+05" and _pow10(400) == "10^400"

@@ -7,6 +7,7 @@ import json
 from pathlib import Path
 
 import numpy as np
+from PIL import Image
 import pytest
 
 pytest.importorskip("matplotlib")
@@ -15,6 +16,20 @@ import matplotlib.image as mpimg  # noqa: E402
 from dkfsim.cli.main import main  # noqa: E402
 from dkfsim.core.errors import DkfsimError  # noqa: E402
 from dkfsim.report import plots  # noqa: E402
+from dkfsim.report.plots.style import png_resolution  # noqa: E402
+
+#: The one test that draws at the default (print) resolution; the others draw at 100 dpi
+#: to keep the suite fast (the figures are the same, only the pixel count differs).
+PRINT_DPI_TEST = "test_run_folder_default_png_and_pdf"
+
+
+@pytest.fixture(autouse=True)
+def screen_dpi(request):
+    if request.node.name == PRINT_DPI_TEST:
+        yield 300
+        return
+    with png_resolution(100):
+        yield 100
 
 ROOT = Path(__file__).resolve().parents[1]
 K_RUN = 60
@@ -63,7 +78,7 @@ def write_montecarlo(path: Path, K: int = K_RUN, runs: int = 4, T: float = T,
     return path
 
 
-def assert_figures(folder: Path, stems, formats=("png", "pdf")):
+def assert_figures(folder: Path, stems, formats=("png", "pdf"), dpi=100):
     for stem in stems:
         for fmt in formats:
             f = folder / f"{stem}.{fmt}"
@@ -73,14 +88,16 @@ def assert_figures(folder: Path, stems, formats=("png", "pdf")):
                 img = mpimg.imread(f)
                 assert img.ndim == 3 and img.shape[0] > 200 and img.shape[1] > 300
                 assert img[..., :3].std() > 0.05, f"{f} looks blank"
-                assert f.stat().st_size < 300_000
+                assert f.stat().st_size < 1_500_000          # 300 dpi, 256-colour palette
+                with Image.open(f) as im:                      # 300: print resolution (issue 11)
+                    assert round(im.info["dpi"][0]) == dpi
             if fmt == "pdf":
                 assert f.read_bytes()[:5] == b"%PDF-"
 
 
 def test_run_folder_default_png_and_pdf(run_dir, capsys):
     assert main(["plot", str(run_dir)]) == 0
-    assert_figures(run_dir / "figures", ["tracking", "mse"])
+    assert_figures(run_dir / "figures", ["tracking", "mse"], dpi=300)     # the default
     out = capsys.readouterr().out
     assert str(run_dir / "figures" / "mse.png") in out
 

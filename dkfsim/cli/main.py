@@ -12,7 +12,7 @@ import os
 import sys
 
 from dkfsim.cli import list as list_cmd
-from dkfsim.cli import maxdelay, montecarlo, plot, run, sweep
+from dkfsim.cli import maxdelay, montecarlo, plot, report, run, sweep
 from dkfsim.core.errors import DkfsimError
 from dkfsim.core.threads import pin_process
 from dkfsim.core.version import __version__
@@ -26,7 +26,7 @@ examples:
 """
 
 #: The sub-command modules (each ``add_command(subparsers)``), in help order.
-COMMANDS = (run, list_cmd, montecarlo, plot, sweep, maxdelay)
+COMMANDS = (run, list_cmd, montecarlo, plot, report, sweep, maxdelay)
 
 
 def build_parser() -> argparse.ArgumentParser:

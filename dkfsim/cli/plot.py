@@ -7,6 +7,8 @@ from pathlib import Path
 
 from dkfsim.core.errors import DkfsimError
 from dkfsim.core.files import clip
+from dkfsim.experiments.sweep import is_database
+from dkfsim.report.sweep_plot import plot_sweep
 from dkfsim.report.plots import (DEFAULT_FORMATS, FORMATS, _check_formats, load_folder, plot_compare,
                                  plot_folder)
 
@@ -15,6 +17,8 @@ examples:
   dkfsim plot out/case1                                   # out/case1/figures/{tracking,mse}.{png,pdf}
   dkfsim plot out/mc_case1 --format png                   # a Monte Carlo folder; adds nees.png
   dkfsim plot out/case1 out/case2 --compare --labels "case 1 (undirected)" "case 2 (directed)"
+  dkfsim plot scenarios/sweep_delay_bound.sqlite --x links.default.latency.d_t --hue protocol
+  dkfsim plot out/delay.csv --x links.default.latency.d_t --metric anees --where protocol=tree
   dkfsim plot out/d0 out/d1 out/d2 out/d3 out/d4 --compare --component position \\
       --labels "d_t = 0" "d_t = 1" "d_t = 2" "d_t = 3" "d_t = 4" --out figs --name delay_bounds
 """
@@ -22,14 +26,17 @@ examples:
 
 def add_command(sub) -> None:
     p = sub.add_parser(
-        "plot", help="draw figures from run or Monte Carlo folders",
+        "plot", help="draw figures from run or Monte Carlo folders, or a sweep",
         description="Draw figures (matplotlib, Agg backend) from folders written by dkfsim run "
                     "(run.npz + summary.json) or dkfsim montecarlo (curves.npz + runs.csv + summary.json): "
                     "tracking (truth, fused, node 0, references), MSE per tick (log scale; Monte Carlo: "
                     "95% CI shaded) and, for Monte Carlo folders, NEES. With --compare, overlay the fused "
-                    "MSE of several folders and the centralized filter of the first.",
+                    "MSE of several folders and the centralized filter of the first. Given a sweep database "
+                    "(or its --export .csv/.parquet), draw a metric against one grid key (--x) with "
+                    "95% interval bands over the runs, one line per estimate or per value of --hue.",
         epilog=EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("dirs", nargs="+", metavar="DIR", help="run or Monte Carlo folder(s)")
+    p.add_argument("dirs", nargs="+", metavar="DIR",
+                   help="run or Monte Carlo folder(s), or one sweep database / export file")
     p.add_argument("--out", metavar="FIGDIR",
                    help="folder for the figures (default: DIR/figures; with --compare: the first DIR's)")
     p.add_argument("--format", dest="formats", nargs="+", default=list(DEFAULT_FORMATS), choices=FORMATS,
@@ -49,11 +56,61 @@ def add_command(sub) -> None:
                    help="file name (without extension) of the --compare figure (default: compare_mse)")
     p.add_argument("--title", default=None,
                    help="title of the --compare figure (default: generated; a line saying what the curves are follows it)")
+    s = p.add_argument_group("sweeps (SWEEP: a sweep database or its .csv/.parquet export)")
+    s.add_argument("--x", metavar="KEY", help="grid key on the x axis (default: the only one)")
+    s.add_argument("--hue", metavar="KEY",
+                   help="one line per value of this grid key (for one --estimate); default: one "
+                        "line per estimate")
+    s.add_argument("--metric", default="mse", metavar="NAME",
+                   help="column to draw: mse (default; one panel per component), anees, "
+                        "messages_per_tick, bytes_per_tick, disagreement, lost, late")
+    s.add_argument("--estimate", metavar="NAME",
+                   help="with --hue: the estimate drawn (default fused); without: a comma-separated "
+                        "list of estimates to draw (default: all)")
+    s.add_argument("--where", nargs="+", metavar="KEY=VALUE", default=[],
+                   help="fix grid keys that are neither --x nor --hue")
     p.set_defaults(func=cmd_plot)
+
+
+SWEEP_FLAGS = ("x", "hue", "estimate")
+
+
+def _is_sweep(path: str) -> bool:
+    p = Path(path)
+    return p.is_file() and (is_database(p) or p.suffix.lower() in (".csv", ".parquet", ".pq"))
+
+
+def cmd_plot_sweep(args, formats) -> int:
+    for flag in ("compare", "relative"):
+        if getattr(args, flag):
+            raise DkfsimError(f"--{flag}: only for run and Monte Carlo folders, not a sweep")
+    for flag in ("labels", "components", "smooth"):
+        if getattr(args, flag) is not None:
+            raise DkfsimError(f"--{flag.rstrip('s') if flag == 'components' else flag}: only for "
+                              "run and Monte Carlo folders; a sweep takes --x, --hue, --metric, "
+                              "--estimate, --where")
+    path = Path(args.dirs[0])
+    curves_x = (args.x or "x").removeprefix("param:").replace(".", "_")
+    stem = args.name or f"{args.metric}_vs_{curves_x}" + (f"_by_{args.hue.replace('.', '_')}"
+                                                         if args.hue else "")
+    out = Path(args.out) if args.out else path.with_name(path.stem + "_figures")
+    written = plot_sweep(path, out / stem, x=args.x, hue=args.hue, metric=args.metric,
+                         estimate=args.estimate, where=args.where, formats=formats, title=args.title)
+    for f in written:
+        print(f"wrote {f}")
+    return 0
 
 
 def cmd_plot(args) -> int:
     formats = _check_formats(args.formats)
+    if len(args.dirs) == 1 and _is_sweep(args.dirs[0]):
+        return cmd_plot_sweep(args, formats)
+    for flag in SWEEP_FLAGS + ("metric",):
+        value = getattr(args, flag)
+        if value is not None and not (flag == "metric" and value == "mse"):
+            raise DkfsimError(f"--{flag}: only for a sweep database or export (give one file)")
+    if args.where:
+        raise DkfsimError("--where: only for a sweep database or export (give one file)")
     if args.smooth is not None and args.smooth < 1:
         raise DkfsimError(f"--smooth: must be >= 1 tick, got {args.smooth}")
     if args.labels is not None and not args.compare:

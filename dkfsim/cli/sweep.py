@@ -9,6 +9,7 @@ from pathlib import Path
 from dkfsim.cli.common import add_executor_args, add_yes_arg, executor_from_args, workers_from_args
 from dkfsim.core.errors import DkfsimError
 from dkfsim.core.extras import optional
+from dkfsim.experiments.sweep_summary import write_summary
 from dkfsim.experiments.sweep import (Sweep, export, is_database, load_sweep, run_sweep,
                                       tasks_done)
 
@@ -33,6 +34,12 @@ database: tables meta (the sweep definition), params (one row per parameter set,
 resolved scenario), tasks (one row per finished (param_hash, run)) and results (the tidy
 rows: one per parameter set, run, estimate and state component, with mse, anees,
 disagreement, messages_per_tick, bytes_per_tick, lost, late).
+
+summary: when the sweep is complete, <database stem>.summary.csv beside the database holds
+one row per parameter set, estimate and state component: runs, mse with its 95% Student-t
+interval over runs (mse_ci95_lo, mse_ci95_hi), anees with its t-interval and the 95%
+chi-square band of a consistent filter, messages_per_tick, bytes_per_tick, late (means
+over runs). Draw it with: dkfsim plot DATABASE --x KEY [--hue KEY] [--metric mse].
 
 examples:
   dkfsim sweep scenarios/sweep_delay_bound.yaml --jobs 4
@@ -74,6 +81,8 @@ def cmd_sweep(args) -> int:
                               "(nothing is computed)")
         out, n = export(args.file, args.export)
         say(f"wrote {out} ({n} rows)")
+        out, n = write_summary(args.file)
+        say(f"wrote {out} ({n} rows: mean and 95 % interval per grid point, estimate and component)")
         return 0
     sweep = load_sweep(args.file, output=args.db, yes=args.yes)
     if args.dry_run:
@@ -97,6 +106,9 @@ def cmd_sweep(args) -> int:
     if args.export is not None:
         out, n = export(rep.db, args.export)
         say(f"wrote {out} ({n} rows)")
+    out, n = write_summary(rep.db)
+    say(f"wrote {out} ({n} rows: mean and 95 % interval per grid point, estimate and component; "
+        f"draw it with dkfsim plot {rep.db} --x KEY)")
     return 0
 
 

@@ -38,7 +38,8 @@ from dkfsim.core.errors import DkfsimError
 MARKER = ".dkfsim-output"
 #: Names dkfsim writes into a result folder (a folder holding only these is ours).
 KNOWN_OUTPUTS = frozenset({MARKER, "summary.json", "run.npz", "runs.csv", "curves.npz",
-                           "maxdelay.json", "maxdelay.png", "maxdelay.pdf", "figures"})
+                           "maxdelay.json", "maxdelay.png", "maxdelay.pdf", "figures",
+                           "rows.csv", "report.html"})
 
 
 def json_text(obj) -> str:

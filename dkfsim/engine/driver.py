@@ -23,6 +23,7 @@ from dkfsim.components.faults import CrashSchedule
 from dkfsim.components.topology import topology_arcs
 from dkfsim.config.load import load_scenario
 from dkfsim.config.schema import Scenario
+from dkfsim.core.progress import progress_callback
 from dkfsim.core.registry import ESTIMATORS
 from dkfsim.core.threads import single_thread
 from dkfsim.engine.estimate import check_run
@@ -144,12 +145,14 @@ def run(scenario, *, seed: int | None = None, steps: int | None = None,
     scenario's (the same as ``--set``).  A run that cannot fit in memory
     raises :class:`~dkfsim.core.errors.ResourceError`; one estimated to take
     more than 10 minutes does too unless ``yes`` (:mod:`dkfsim.core.resources`).
-    BLAS runs on one thread during the call (:mod:`dkfsim.core.threads`).
+    ``progress``: True for a ``tqdm.auto`` bar (a widget in notebooks), or a
+    callable ``progress(tick, K)``.  BLAS runs on one thread during the call (:mod:`dkfsim.core.threads`).
     """
     overrides = [f"{key}={int(val)}" for key, val in (("seed", seed), ("steps", steps)) if val is not None]
     if overrides or not isinstance(scenario, Scenario):   # validated exactly as --set would be
         scenario = load_scenario(scenario, overrides=overrides)
     check_run(scenario, save=save, yes=yes)
-    with np.errstate(all="ignore"):      # an exploding truth is reported, not warned about
-        sim = Run(scenario, save=save, progress=progress)
-    return sim.run()
+    with progress_callback(progress, int(scenario.steps), scenario.name, "tick") as callback:
+        with np.errstate(all="ignore"):      # an exploding truth is reported, not warned about
+            sim = Run(scenario, save=save, progress=callback)
+        return sim.run()

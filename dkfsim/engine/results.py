@@ -22,6 +22,7 @@ import scipy
 import simpy
 
 from dkfsim.core.version import __version__
+from dkfsim.analysis.frames import rows_frame, run_dataset
 from dkfsim.analysis.metrics import default_burn_in, mse_per_component, row_columns, score
 from dkfsim.config.load import load_scenario, scenario_hash
 from dkfsim.config.dynamics import component_names
@@ -96,8 +97,33 @@ class RunResult(Mapping):
 
     def __repr__(self) -> str:
         sc = self.scenario
-        return (f"<RunResult {sc.name}: {sc.steps} ticks, {sc.n} nodes, estimates "
-                f"{', '.join(self.estimates)}; {len(self.arrays)} arrays>")
+        head = (f"RunResult {sc.name}: {sc.steps} ticks, {sc.n} nodes, seed {sc.seed}, "
+                f"L = {self.info.get('buffer_length')}; {len(self.arrays)} arrays")
+        if "truth" not in self.arrays:
+            return f"<{head}; estimates {', '.join(self.estimates)}>"
+        m = self.metrics()
+        lines = [head, f"  MSE after {m['burn_in']} burn-in rows ({', '.join(self.components)}):"]
+        width = max(len(n) for n in self.estimates)
+        lines += [f"    {n.ljust(width)}  " + "  ".join(f"{v:.4g}" for v in m[n]) for n in self.estimates]
+        c = self.counts
+        if "sent" in c:
+            lines.append(f"  packets: sent {c['sent']}, lost {c.get('lost')}, late contributions "
+                         f"{c.get('late')}")
+        if self.diverged:
+            lines.append(f"  DIVERGED: {', '.join(self.diverged)}")
+        return "<" + "\n".join(lines) + ">"
+
+    def to_frame(self, burn_in: int | None = None):
+        """The tidy rows (:meth:`rows`) as a pandas DataFrame, the columns of ``rows.csv``."""
+        return rows_frame(self.rows(burn_in), row_columns())
+
+    def to_xarray(self):
+        """The arrays as an :class:`xarray.Dataset` with named dimensions (``tick``, ``node``,
+        ``state``, ...; :func:`dkfsim.analysis.frames.run_dataset`)."""
+        sc = self.scenario
+        return run_dataset(self.arrays, self.components, sc.n,
+                           attrs={"scenario": sc.name, "seed": int(sc.seed),
+                                  "estimates": ", ".join(self.estimates)})
 
     @property
     def components(self) -> list[str]:

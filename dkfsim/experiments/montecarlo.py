@@ -36,14 +36,16 @@ from pathlib import Path
 
 import numpy as np
 
+from dkfsim.analysis.frames import curves_dataset, rows_frame
 from dkfsim.analysis.metrics import (anees_summary, default_burn_in, nees_band, nees_per_tick,
-                                     squared_error, t_interval, t_interval_from_moments)
+                                     row_columns, squared_error, t_interval, t_interval_from_moments)
 from dkfsim.components.topology import GENERATOR_PARAMS
 from dkfsim.config.load import load_scenario, scenario_hash
 from dkfsim.config.dynamics import component_names
 from dkfsim.config.schema import Scenario
 from dkfsim.core.errors import DkfsimError
 from dkfsim.core.folders import staged, write_json
+from dkfsim.core.progress import progress_callback
 from dkfsim.core.resources import Cost, check, repeat
 from dkfsim.core.threads import single_thread
 from dkfsim.engine.driver import Run
@@ -185,7 +187,8 @@ def montecarlo(scenario, runs: int, jobs: int | None = None, burn_in: int | None
     ``derive_seed(scenario.seed, r)``.  Where the runs happen: ``executor`` (a
     :mod:`dkfsim.experiments.executors` executor, left open, or a callable making one),
     else ``jobs`` local processes (default: every available CPU, at most ``runs``;
-    1 runs in this process).  ``progress(done, total)`` is called after each run.
+    1 runs in this process).  ``progress``: True for a ``tqdm.auto`` bar (a widget in
+    notebooks), or a callable ``progress(done, total)`` called after each run.
     The result does not depend on where the runs happened: they are folded in run
     order, and a failing run is reported as the first one in run order.  Work that
     cannot fit in memory is refused, and work estimated above 10 minutes needs ``yes``
@@ -199,6 +202,11 @@ def montecarlo(scenario, runs: int, jobs: int | None = None, burn_in: int | None
     workers = executor.workers if isinstance(executor, executors.Executor) else \
         min(jobs or executors.available_cpus(), runs)
     check_montecarlo(sc, runs, workers, yes=yes)
+    with progress_callback(progress, runs, sc.name, "run") as callback:
+        return _montecarlo(sc, runs, jobs, burn, callback, executor)
+
+
+def _montecarlo(sc, runs: int, jobs, burn: int, progress, executor) -> "MonteCarloResult":
     seeds = [derive_seed(sc.seed, r) for r in range(runs)]
     rows: list[dict] = []
     fold = _Fold()
@@ -269,6 +277,38 @@ class MonteCarloResult:
         self.nees_band = nees_band(runs, len(self.components))
         self.example = {"example_truth": first["example_truth"], "example_x": first["example_x"],
                         "example_node0": first["example_node0"]}
+
+    def __repr__(self) -> str:
+        sc = self.scenario
+        lines = [f"MonteCarloResult {sc.name}: {self.runs} runs x {sc.steps} ticks (base seed "
+                 f"{sc.seed}), burn-in {self.burn_in} rows",
+                 f"  MSE over runs with 95 % interval ({', '.join(self.components)}):"]
+        width = max(len(n) for n in self.estimates)
+        for name in self.estimates:
+            cells = []
+            for comp in self.components:
+                mean, lo, hi = t_interval(self.column(name, "mse", comp))
+                cells.append(f"{mean:.4g}" + ("" if math.isnan(lo) else f" ± {(hi - lo) / 2:.2g}"))
+            lines.append(f"    {name.ljust(width)}  " + "   ".join(cells))
+        lines.append("  (± is the 95 % half-width; .to_frame(): the runs.csv rows, "
+                     ".to_xarray(): the curves)")
+        return "<" + "\n".join(lines) + ">"
+
+    def to_frame(self):
+        """The per-run tidy rows (``runs.csv``) as a pandas DataFrame."""
+        return rows_frame(self.rows, row_columns())
+
+    def to_xarray(self):
+        """The pooled curves (``curves.npz``) as an :class:`xarray.Dataset` on (``estimate``,
+        ``tick``, ``state``): ``mse``, ``mse_ci_lo``, ``mse_ci_hi``, ``nees``; the NEES band
+        and the run count are attributes."""
+        sc = self.scenario
+        return curves_dataset(self.t, self.estimates, self.components,
+                              {"mse": self.mse, "mse_ci_lo": self.mse_ci_lo,
+                               "mse_ci_hi": self.mse_ci_hi, "nees": self.nees},
+                              attrs={"scenario": sc.name, "runs": self.runs,
+                                     "base_seed": int(sc.seed), "burn_in": self.burn_in,
+                                     "nees_band95": [float(v) for v in self.nees_band]})
 
     # ------------------------------------------------------------------ access
     def column(self, estimate: str, key: str, component: str | None = None) -> np.ndarray:

@@ -18,6 +18,41 @@ from dkfsim.experiments.maxdelay.search import (EXCEEDS, METRICS, UNDECIDED, WIT
                                                 _num, interval)
 
 
+#: Units of the constant-acceleration model's components (other models have none).
+CA_UNITS = {"position": "m", "velocity": "m/s", "acceleration": "m/s²"}
+
+
+def _pow10(x) -> str:
+    """``10**x`` as a plain number (``0.8812``, ``3.2e+05``), not ``10^-0.0549``."""
+    try:
+        x = float(x)
+    except (TypeError, ValueError):
+        return "n/a"
+    if not math.isfinite(x) or abs(x) > 300:
+        return f"10^{x:.3g}"
+    return f"{10 ** x:.4g}"
+
+
+def axis_label(ax) -> str:
+    """The delay axis with its unit."""
+    return "delay bound d_t [ticks]" if ax.mode == "d_t" else "latency scale s [× the scenario's latencies]"
+
+
+def cap_option(ax) -> str:
+    """The option that raises the last candidate of the delay axis."""
+    return "--max-delay" if ax.mode == "d_t" else "--max-scale"
+
+
+def metric_label(metric: str, comp_name, sc) -> str:
+    """The metric with its unit (squared state units for an MSE or a variance)."""
+    unit = CA_UNITS.get(comp_name) if sc.model.kind == "constant_acceleration" else None
+    sq = f" [({unit})²]" if unit and "/" in unit else (f" [{unit}²]" if unit else "")
+    if metric == "trace_P":
+        return "trace of P_fused (sum of the state variances; mixed units)"
+    what = {"fused_var": "fused variance"}.get(metric, "MSE" if "mse" in metric else metric)
+    return f"{comp_name} {what}{sq}" if comp_name else f"{what} (sum over components)"
+
+
 class MaxDelayResult:
     """The three answers of one search; ``md`` is the
     :class:`~dkfsim.experiments.maxdelay.run.MaxDelay` that produced them."""
@@ -138,7 +173,7 @@ class MaxDelayResult:
             lines.append(f"  zero-delay value {r['mean']:.4g} [{r['ci'][0]:.4g}, {r['ci'][1]:.4g}] "
                          f"({how}) -> tolerance {r['tolerance']:.4g}")
         e = d["empirical"]
-        lines.append(f"  (1) empirical:   {_answer_text(e, unit)}  ({self.runs_empirical} runs)")
+        lines.append(f"  (1) empirical:   {_answer_text(e, unit, cap_option(ax))}  ({self.runs_empirical} runs)")
         for key, what in (("at_answer", "at answer"), ("at_answer_plus_1", "at answer+1")):
             a = e[key]
             if a:
@@ -150,7 +185,7 @@ class MaxDelayResult:
         if w is None:
             lines.append("  (2) worst case:  not computed (unbounded latency without links.d_t)")
         else:
-            lines.append(f"  (2) worst case:  {_answer_text(w, unit)}  (every link at its largest "
+            lines.append(f"  (2) worst case:  {_answer_text(w, unit, cap_option(ax))}  (every link at its largest "
                          f"latency; tolerance {w['tolerance']:.4g}; no-exchange limit "
                          f"{w['no_exchange_limit']:.4g})")
         p = d["paper_bound"]
@@ -165,9 +200,9 @@ class MaxDelayResult:
                 f"n_bar = {p['n_bar']}, Z = {p['Z']}, alpha_bar = {p['alpha_used']:.4g}, "
                 f"eta = {p['eta']:.6g}, gamma_hat = {p['gamma_hat']:.4g}, omega_min = {p['omega_min']:.4g} "
                 f"(literal {p['omega_min_literal']:.4g}), p_tol = {p['p_tol']:.4g}")
-            lines.append(f"        guaranteed lambda_max(P) <= 10^{p['log10_lambda_max_bound']['0']:.3g} at "
-                         f"d_t = 0, 10^{p['log10_lambda_max_bound']['1']:.3g} at d_t = 1, "
-                         f"10^{p['log10_lambda_max_bound']['4']:.3g} at d_t = 4")
+            lines.append(f"        guaranteed lambda_max(P) <= {_pow10(p['log10_lambda_max_bound']['0'])} at "
+                         f"d_t = 0, {_pow10(p['log10_lambda_max_bound']['1'])} at d_t = 1, "
+                         f"{_pow10(p['log10_lambda_max_bound']['4'])} at d_t = 4")
             if p["note"]:
                 lines.append(f"        {p['note']}")
         for n in d["notes"]:
@@ -176,9 +211,10 @@ class MaxDelayResult:
         return "\n".join(lines)
 
     # ------------------------------------------------------------------ plot
-    def plot(self, out: Path) -> None:
-        """``maxdelay.png`` / ``.pdf``: the metric against the delay (top) and the
-        excess over the tolerance that the decisions use (bottom)."""
+    def plot(self, out: Path) -> dict:
+        """``maxdelay.png`` / ``.pdf`` (300 dpi): the metric against the delay (top) and the
+        excess over the tolerance that the decisions use (bottom).  Returns the axis labels
+        and legend entries drawn (``xlabel``, ``ylabel``, ``legend``), for tests."""
         plt = pyplot()
         MaxNLocator = optional("matplotlib.ticker").MaxNLocator
         md, st, ax = self.md, self.md.st, self.md.axis
@@ -187,6 +223,7 @@ class MaxDelayResult:
         cs = sorted(md.cands.values(), key=lambda c: c.index)
         x = np.array([c.delay for c in cs], float)
         colours = {WITHIN: "C2", EXCEEDS: "C3", UNDECIDED: "0.5"}
+        seen = {c.decision for c in cs}
         # -- top: the metric
         top.fill_between(x, [c.ci[0] for c in cs], [c.ci[1] for c in cs], color="C0", alpha=0.25, lw=0,
                          label=f"{100 * st.confidence:g}% confidence band (Monte Carlo)")
@@ -196,6 +233,8 @@ class MaxDelayResult:
             top.annotate(str(c.runs), (c.delay, c.ci[1] if math.isfinite(c.ci[1]) else c.mean),
                          textcoords="offset points", xytext=(0, 3), ha="center", fontsize=7, color="0.3")
         for dec, col in colours.items():
+            if dec not in seen:              # no legend entry for what did not occur
+                continue
             top.plot([], [], "o", color=col, ms=5,
                      label={WITHIN: "decided within", EXCEEDS: "decided exceeds",
                             UNDECIDED: "undecided (run cap)"}[dec])
@@ -217,8 +256,17 @@ class MaxDelayResult:
             if st.relative is not None and self.wc_tol is not None:
                 top.axhline(self.wc_tol, color="C1", ls="--", lw=0.8, label="worst-case tolerance")
             if self.limit is not None:
-                top.axhline(self.limit, color="C1", ls=(0, (1, 3)), lw=1,
-                            label="worst case with no exchange at all")
+                shown = [v for c in cs + ws for v in (c.mean, *getattr(c, "ci", ())) if math.isfinite(v)]
+                shown += [v for v in (st.tolerance, self.wc_tol,
+                                      (self.reference or {}).get("tolerance")) if v is not None]
+                top_of_data = max(shown) if shown else self.limit
+                if self.limit > 2.0 * top_of_data:    # far above: keep the axis on the data
+                    lo_y = min(min(shown), 0.0)
+                    top.set_ylim(lo_y, top_of_data + 0.15 * (top_of_data - lo_y))
+                    label = f"worst case with no exchange at all: {self.limit:.4g} (above the axis)"
+                else:
+                    label = "worst case with no exchange at all"
+                top.axhline(self.limit, color="C1", ls=(0, (1, 3)), lw=1, label=label)
             if self.wc is not None and self.wc.answer is not None:
                 top.axvline(ax.value(self.wc.answer), color="C1", ls=":", lw=2,
                             label=f"worst-case answer {ax.value(self.wc.answer):g} ({self.wc.status})")
@@ -229,12 +277,12 @@ class MaxDelayResult:
                 top.axvline(dax, color="C4", ls="-.", lw=1.5, label=f"paper bound {dax:.3g}")
             txt = (f"paper bound, eq. (delay_bound): d_t <= {_fmt(p['d_star'])}"
                    + ("" if p["meaningful"] else " (meaningless)") +
-                   f"\nit guarantees lambda_max(P) <= 10^{p['log10_lambda_max_bound']['0']:.3g} at d_t = 0, "
-                   f"10^{p['log10_lambda_max_bound']['1']:.3g} at d_t = 1")
+                   f"\nit guarantees lambda_max(P) <= {_pow10(p['log10_lambda_max_bound']['0'])} at d_t = 0, "
+                   f"{_pow10(p['log10_lambda_max_bound']['1'])} at d_t = 1")
             top.text(0.01, 0.98, txt, transform=top.transAxes, va="top", fontsize=7.5, color="C4",
                      bbox=dict(boxstyle="round", fc="white", ec="C4", alpha=0.85))
-        top.set_ylabel(st.metric if st.metric == "trace_P" else f"{st.metric} ({md.comp_name})")
-        top.set_title(f"{md.sc.name}: largest {ax.name} within tolerance", fontsize=10)
+        top.set_ylabel(metric_label(st.metric, md.comp_name, md.sc))
+        top.set_title(f"Largest {ax.name} within tolerance (point labels: Monte Carlo runs)", fontsize=10)
         top.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0)
         top.grid(alpha=0.3)
         # -- bottom: what the decisions use
@@ -250,16 +298,24 @@ class MaxDelayResult:
         bot.plot([], [], "o", color="0.3", label="Monte Carlo: mean and CI of " +
                  ("metric - tolerance" if st.relative is None else
                   f"metric_d[r] - {st.relative:g} metric_0[r] (paired runs)"))
-        bot.set_ylabel("excess over tolerance")
-        bot.set_xlabel(ax.name)
+        bot.set_ylabel("excess over tolerance\n(units of the metric)")
+        bot.set_xlabel(axis_label(ax))
         bot.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0)
         bot.grid(alpha=0.3)
         if ax.mode == "d_t":
             bot.xaxis.set_major_locator(MaxNLocator(integer=True))
         fig.tight_layout()
         for ext in ("png", "pdf"):
-            fig.savefig(out / f"maxdelay.{ext}", dpi=150)
+            fig.savefig(out / f"maxdelay.{ext}", dpi=300)
+        drawn = {"xlabel": bot.get_xlabel(), "ylabel": top.get_ylabel(),
+                 "legend": [t.get_text() for a in (top, bot) for t in a.get_legend().get_texts()],
+                 "texts": [t.get_text() for t in top.texts]}
         plt.close(fig)
+        return drawn
+
+
+def _double(v) -> str:
+    return f"{2 * v:g}" if v else "8"
 
 
 def _fmt(v) -> str:
@@ -270,12 +326,13 @@ def _fmt(v) -> str:
     return f"{v:.4g}"
 
 
-def _answer_text(e: dict, unit: str) -> str:
+def _answer_text(e: dict, unit: str, option: str = "--max-delay") -> str:
     s = e["status"]
     if s == "decided":
         return f"{unit} = {e['answer']:g} (decided: {unit} = {e['first_exceeding']:g} exceeds)"
     if s == "capped":
-        return f"{unit} >= {e['answer']:g} (within up to the largest candidate; raise the cap)"
+        return (f"{unit} >= {e['answer']:g} (capped: within tolerance up to the largest candidate "
+                f"tried; raise it with {option}, e.g. {option} {_double(e['answer'])})")
     if s == "none":
         return "none: even zero delay exceeds the tolerance"
     a = "none" if e["answer"] is None else f"{e['answer']:g}"

@@ -15,8 +15,10 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from tqdm import tqdm
+from tqdm.auto import tqdm
 
+from dkfsim.analysis.frames import rows_frame
+from dkfsim.analysis.grid import summarize
 from dkfsim.experiments import executors
 from dkfsim.config.load import load_scenario
 from dkfsim.core.resources import Cost, check
@@ -24,6 +26,7 @@ from dkfsim.engine.estimate import estimate_run
 from dkfsim.experiments.montecarlo import derive_seed, run_rows
 from dkfsim.core.threads import single_thread
 from dkfsim.experiments.sweep.definition import Sweep, load_sweep
+from dkfsim.experiments.sweep.results import read_results
 from dkfsim.experiments.sweep.store import SweepDB, missing_estimates, tasks_done
 
 
@@ -81,6 +84,23 @@ class SweepReport:
     def runs_per_minute(self) -> float:
         return 60.0 * self.computed / self.wall_s if self.wall_s > 0 else float("nan")
 
+    def __repr__(self) -> str:
+        return (f"<SweepReport {self.db}: {self.total} tasks ({self.skipped} already stored, "
+                f"{self.computed} computed in {self.wall_s:.1f} s on {self.executor}); "
+                ".to_frame(): the stored rows, .summary(): mean and 95 % interval per grid point>")
+
+    def to_frame(self):
+        """Every stored row as a pandas DataFrame: the grid columns, then the tidy columns
+        (the export's table, :func:`dkfsim.experiments.sweep.results.read_results`)."""
+        columns, rows = read_results(self.db)
+        return rows_frame(rows, columns)
+
+    def summary(self):
+        """Per grid point, estimate and component: mean, 95 % interval, ANEES band, traffic
+        (:func:`dkfsim.analysis.grid.summarize`; the file ``dkfsim sweep`` writes)."""
+        columns, rows = summarize(*read_results(self.db))
+        return rows_frame(rows, columns)
+
 
 @single_thread
 def run_sweep(sweep: Sweep | str | os.PathLike, *, executor=None, jobs: int | None = None,
@@ -91,8 +111,8 @@ def run_sweep(sweep: Sweep | str | os.PathLike, *, executor=None, jobs: int | No
     ``executor`` is a :mod:`dkfsim.experiments.executors` executor, or a callable that
     makes one (called only once the database is checked and some task is
     left to run; the executor it returns is closed here).  Default: ``jobs``
-    local processes, every CPU if None.  ``progress``: a tqdm bar on stderr
-    (default: when stderr is a terminal).  ``db`` overrides the output file.
+    local processes, every CPU if None.  ``progress``: a ``tqdm.auto`` bar (a
+    widget in notebooks; default: when stderr is a terminal).  ``db`` overrides the output file.
     The remaining tasks are estimated first (``workers``: how many run at
     once, when ``executor`` is a callable): refused if they cannot fit in
     memory, and needing ``yes`` above 10 minutes.

@@ -18,18 +18,57 @@ from dkfsim.report.plots.style import (DEFAULT_FORMATS, _averages, _avg_text, _b
                                        _mse_ylabel, _order, _positive, _save, select_components)
 
 
+#: A ratio panel is added when the worst estimate's MSE exceeds the best one's by this factor.
+RATIO_PANEL_ABOVE = 10.0
+#: The ratio panel shows the estimates within this factor of the reference.
+RATIO_SHOWN_WITHIN = 3.0
+#: Above this many estimates with a NEES curve the NEES figure has one small panel per estimate.
+NEES_SMALL_MULTIPLES_ABOVE = 4
+
+
+def _ratio_reference(folder: Folder, names, idx) -> str | None:
+    """The reference of the ratio panel: ``centralized`` when present, else the best estimate,
+    when the MSEs of ``names`` span more than :data:`RATIO_PANEL_ABOVE` in some component."""
+    if len(names) < 2:
+        return None
+    for i in idx:
+        avg = [folder.time_average(a, i) for a in names]
+        avg = [v for v in avg if np.isfinite(v) and v > 0]
+        if avg and max(avg) / min(avg) > RATIO_PANEL_ABOVE:
+            break
+    else:
+        return None
+    if "centralized" in names:
+        return "centralized"
+    return min(names, key=lambda a: folder.time_average(a, idx[0]))
+
+
 def plot_mse(folder: Folder, stem, formats=DEFAULT_FORMATS, components=None, smooth=None,
-             estimates=None, title=None) -> list[Path]:
-    """MSE per tick and component for every estimate in the folder (paper Fig. 4)."""
+             estimates=None, title=None, ratio=None) -> list[Path]:
+    """MSE per tick and component for every estimate in the folder (paper Fig. 4).
+
+    When the estimates' MSEs differ by more than :data:`RATIO_PANEL_ABOVE` (``ratio``
+    None; True / False force it), a right-hand column divides each estimate within
+    :data:`RATIO_SHOWN_WITHIN` of the centralized filter (or of the best estimate) by
+    it, on a linear axis, so the best estimates are not hidden under a far worse
+    one on the log scale; the others are named in the panel with their factor.
+    """
     formats = _check_formats(formats)
     idx = select_components(folder, components)
     w = default_smooth(folder) if smooth is None else max(1, int(smooth))
     names = _order(folder.mse) if estimates is None else [a for a in estimates if a in folder.mse]
     if not names:
         raise DkfsimError(f"{folder.path}: none of the estimates {', '.join(estimates or [])} is in the folder")
+    ref = _ratio_reference(folder, names, idx) if ratio is None else \
+        (("centralized" if "centralized" in names else names[0]) if ratio else None)
     plt = pyplot()
-    fig, axes = plt.subplots(len(idx), 1, figsize=(7.5, 2.3 * len(idx) + 0.9), sharex=True, squeeze=False)
-    for ax, i in zip(axes[:, 0], idx):
+    ncols = 2 if ref else 1
+    fig, axes = plt.subplots(len(idx), ncols, figsize=(12.0 if ref else 7.5, 2.3 * len(idx) + 0.9),
+                             sharex=True, squeeze=False,
+                             gridspec_kw={"width_ratios": [1.25, 1]} if ref else None)
+    wr = max(w, folder.K // 20)
+    for row, i in enumerate(idx):
+        ax = axes[row, 0]
         drawn, entries = [], []
         for j, a in enumerate(names):
             col = color_of(a, j)
@@ -45,26 +84,68 @@ def plot_mse(folder: Folder, stem, formats=DEFAULT_FORMATS, components=None, smo
                                 color=col, alpha=0.2, lw=0)
         ax.set_yscale("log")
         _log_limits(ax, drawn)
-        _averages(ax, entries, folder)
         ax.set_ylabel(_mse_ylabel(folder, i, w))
         ax.grid(True, which="both", alpha=0.25)
         ax.margins(x=0)
-    axes[-1, 0].set_xlabel("time [s]")
-    fig.suptitle((title or f"MSE per tick: {folder.describe()}") + f"\n({mse_note(folder, w)})", fontsize=11)
-    _legend_below(fig, axes[0, 0])
+        if ref:
+            _ratio_panel(axes[row, 1], folder, names, ref, i, wr, first=row == 0)
+        _averages(axes[row, -1], entries, folder)
+    for c in range(ncols):
+        axes[-1, c].set_xlabel("time [s]")
+    cond = folder.condition()
+    fig.suptitle((title or f"MSE per tick{', ' + cond if cond else ''}") + f"\n({mse_note(folder, w)})",
+                 fontsize=11)
+    _legend_below(fig, axes[0, 0], ncol=3 if ref and len(names) > 4 else 2)
     return _save(fig, stem, formats)
 
 
+def _ratio_panel(ar, folder: Folder, names, ref: str, i: int, wr: int, first: bool) -> None:
+    """Each estimate within :data:`RATIO_SHOWN_WITHIN` of ``ref`` divided by it (linear axis)."""
+    den = moving_average(folder.mse[ref][:, i], wr)
+    base = folder.time_average(ref, i)
+    off = []
+    for j, a in enumerate(names):
+        factor = folder.time_average(a, i) / base if base > 0 else np.inf
+        if a == ref:
+            continue
+        if not np.isfinite(factor) or factor > RATIO_SHOWN_WITHIN:
+            off.append(f"{a} ×{factor:.3g}" if np.isfinite(factor) else a)
+            continue
+        with np.errstate(divide="ignore", invalid="ignore"):
+            ar.plot(folder.t, moving_average(folder.mse[a][:, i], wr) / den, color=color_of(a, j), lw=1.2)
+    ar.axhline(1.0, color="k", lw=1.0, ls="--")
+    ar.set_ylabel(f"{folder.components[i]} MSE / {ref}")
+    ar.grid(True, alpha=0.3)
+    ar.margins(x=0)
+    if off:
+        lines = [", ".join(off[k:k + 2]) for k in range(0, len(off), 2)]
+        ar.text(0.02, 0.97, "off this scale:\n" + ",\n".join(lines), transform=ar.transAxes, va="top",
+                fontsize=7, color="0.3", bbox=dict(fc="white", ec="none", alpha=0.8, pad=1.5))
+    if first:
+        ar.set_title(f"relative to {ref} (estimates within ×{RATIO_SHOWN_WITHIN:g}; {wr}-tick "
+                     "moving averages)", fontsize=9)
+
+
 def plot_nees(folder: Folder, stem, formats=DEFAULT_FORMATS, title=None) -> list[Path]:
-    """Average NEES per tick with its 95 % consistency band (Monte Carlo folders)."""
+    """Average NEES per tick with its 95 % consistency band (Monte Carlo folders).
+
+    Up to :data:`NEES_SMALL_MULTIPLES_ABOVE` estimates share one panel; more get one
+    small panel each (same band, own y range), so a dozen estimates stay readable.
+    """
     formats = _check_formats(formats)
     if not folder.nees:
         raise DkfsimError(f"{folder.path}: no NEES curves")
+    names = [a for a in _order(folder.nees) if not np.all(~np.isfinite(folder.nees[a]))]
+    if not names:
+        raise DkfsimError(f"{folder.path}: no finite NEES curve (no estimate has a covariance)")
+    n = f"{folder.n_runs} runs" if folder.n_runs else "Monte Carlo runs"
+    cond = folder.condition()
+    head = title or f"Consistency{', ' + cond if cond else ''}: mean NEES over {n} (expected {folder.nx})"
+    if len(names) > NEES_SMALL_MULTIPLES_ABOVE:
+        return _nees_small_multiples(folder, names, stem, formats, head)
     plt = pyplot()
     fig, ax = plt.subplots(figsize=(7.5, 3.4))
-    for j, a in enumerate(_order(folder.nees)):
-        if np.all(~np.isfinite(folder.nees[a])):
-            continue
+    for j, a in enumerate(names):
         ax.plot(folder.t, folder.nees[a], color=color_of(a, j), lw=1.0, label=label_of(a),
                 ls="--" if a == "centralized" else "-")
     if folder.nees_band is not None:
@@ -74,9 +155,37 @@ def plot_nees(folder: Folder, stem, formats=DEFAULT_FORMATS, title=None) -> list
     ax.set_ylabel("average NEES")
     ax.grid(True, alpha=0.3)
     ax.margins(x=0)
-    n = f"{folder.n_runs} runs" if folder.n_runs else "Monte Carlo runs"
-    ax.set_title(title or f"Consistency: {folder.describe()} (mean NEES over {n}; expected value {folder.nx})",
-                 fontsize=10)
+    ax.set_title(head, fontsize=10)
     _legend_below(fig, ax)
     return _save(fig, stem, formats)
 
+
+def _nees_small_multiples(folder: Folder, names, stem, formats, head) -> list[Path]:
+    plt = pyplot()
+    ncols = 3 if len(names) > 4 else 2
+    nrows = -(-len(names) // ncols)
+    fig, axes = plt.subplots(nrows, ncols, figsize=(3.3 * ncols, 2.1 * nrows + 0.8), sharex=True,
+                             squeeze=False)
+    for k, ax in enumerate(axes.flat):
+        if k >= len(names):
+            ax.set_visible(False)
+            continue
+        a = names[k]
+        if folder.nees_band is not None:
+            ax.axhspan(*folder.nees_band, color="0.5", alpha=0.18, lw=0)
+        ax.axhline(folder.nx, color="0.3", lw=0.8, ls=":")
+        ax.plot(folder.t, folder.nees[a], color=color_of(a, k), lw=0.9)
+        ax.set_title(label_of(a), fontsize=8.5)
+        ax.grid(True, alpha=0.3)
+        ax.margins(x=0)
+        ax.tick_params(labelsize=7.5)
+        if k % ncols == 0:
+            ax.set_ylabel("average NEES", fontsize=8)
+        if k >= len(names) - ncols:         # the lowest panel of its column: its own time axis
+            ax.set_xlabel("time [s]", fontsize=8)
+            ax.xaxis.set_tick_params(labelbottom=True)
+    band = "" if folder.nees_band is None else \
+        f"; grey: 95 % consistency band [{folder.nees_band[0]:.3g}, {folder.nees_band[1]:.3g}]"
+    fig.suptitle(head + band, fontsize=10)
+    fig.tight_layout()
+    return _save(fig, stem, formats)

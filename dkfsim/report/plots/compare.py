@@ -117,7 +117,7 @@ def plot_compare(folders: list[Folder], stem, labels=None, formats=DEFAULT_FORMA
     if not bands and any(f.ci for f in folders):
         note = note.replace(", 95 % CI shaded", "")
     what = "fused anti-delay DKF" if estimate == "fused" else label_of(estimate)
-    fig.suptitle((title or f"MSE of the {what}: " + ", ".join(labels)) + f"\n({note})", fontsize=11)
+    fig.suptitle((title or f"MSE of the {what}") + f"\n({note})", fontsize=11)   # labels: in the legend
     _legend_below(fig, axes[0, 0], ncol=3 if n + 1 > 4 else 2)
     return _save(fig, stem, formats)
 

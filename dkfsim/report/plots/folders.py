@@ -86,6 +86,11 @@ class Folder:
             s += f", $d_t$ = {self.d_t}"
         return s
 
+    def condition(self) -> str:
+        """What a figure title says about the folder: its conditions (``d_t``), never a
+        file or folder name (figures go into papers; decisions in docs/decisions.md)."""
+        return f"$d_t$ = {self.d_t}" if self.d_t is not None else ""
+
 
 def component_names(nx: int, model_kind: str | None) -> list[str]:
     return names_of(model_kind, nx)

@@ -5,6 +5,8 @@ See :mod:`dkfsim.report.plots`.
 
 from __future__ import annotations
 
+import contextlib
+
 import io
 import os
 from pathlib import Path
@@ -114,14 +116,29 @@ def mse_note(folder: Folder, smooth: int) -> str:
     return note
 
 
-def _save_png(fig, path: Path, dpi: int = 100) -> None:
+#: Resolution of PNG figures (print quality); :func:`png_resolution` lowers it for screen use.
+PNG_DPI = [300]
+
+
+@contextlib.contextmanager
+def png_resolution(dpi: int):
+    """PNGs written inside the block use ``dpi`` (e.g. inline figures of an HTML report)."""
+    PNG_DPI.append(int(dpi))
+    try:
+        yield
+    finally:
+        PNG_DPI.pop()
+
+
+def _save_png(fig, path: Path, dpi: int | None = None) -> None:
     """PNG with a 256-colour palette: a third of the size of matplotlib's RGBA, same look."""
+    dpi = PNG_DPI[-1] if dpi is None else dpi
     buf = io.BytesIO()
     fig.savefig(buf, format="png", dpi=dpi, bbox_inches="tight")
     if available("PIL"):
         Image = optional("PIL.Image")
         img = Image.open(buf).convert("RGB").quantize(colors=256, method=Image.Quantize.MEDIANCUT)
-        img.save(path, format="PNG", optimize=True)
+        img.save(path, format="PNG", optimize=True, dpi=(dpi, dpi))   # the resolution, for layout programs
     else:                 # Pillow ships with matplotlib; keep the plain file if it is missing
         Path(path).write_bytes(buf.getvalue())
 
@@ -156,10 +173,13 @@ def _averages(ax, entries, folder: Folder) -> None:
     """A column right of the panel: each curve's time-averaged MSE after the burn-in, in its colour
     (with the 95 % interval over runs when the Monte Carlo summary has it)."""
     b = folder.burn_in if folder.burn_in is not None else folder.K // 10
-    ax.text(1.02, 1.0, f"MSE, mean\nover t ≥ {folder.t[min(b, folder.K - 1)]:g} s:", transform=ax.transAxes,
-            ha="left", va="top", fontsize=7.5, color="0.3")
+    pm = any("±" in text for text, _ in entries)
+    head = f"MSE, mean\nover t ≥ {folder.t[min(b, folder.K - 1)]:g} s" + ("\n(± 95 % half-width)" if pm else "")
+    ax.text(1.02, 1.0, head + ":", transform=ax.transAxes, ha="left", va="top", fontsize=7.5, color="0.3")
+    top = 0.80 - (0.09 if pm else 0.0)
+    step = min(0.105, top / max(1, len(entries)))
     for j, (text, col) in enumerate(entries):
-        ax.text(1.02, 0.80 - 0.105 * j, text, transform=ax.transAxes, ha="left", va="top",
+        ax.text(1.02, top - step * j, text, transform=ax.transAxes, ha="left", va="top",
                 fontsize=7.5, color=col, fontweight="bold")
 
 

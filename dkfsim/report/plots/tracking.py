@@ -79,7 +79,8 @@ def plot_tracking(folder: Folder, stem, formats=DEFAULT_FORMATS, components=None
         axes[-1, 1].set_xlabel("time [s] (zoom)")
         axes[0, 1].set_title("zoom on the shaded window", fontsize=9)
     sub = "" if folder.kind == "run" else " (one example run)"
-    fig.suptitle(title or f"Tracking: {folder.describe()}{sub}", fontsize=11)
+    cond = folder.condition()
+    fig.suptitle(title or f"Tracking{', ' + cond if cond else ''}{sub}", fontsize=11)
     _legend_below(fig, axes[0, 0], ncol=3 if len(lines) > 4 else 2)
     return _save(fig, stem, formats)
 

@@ -1,0 +1,97 @@
+"""A sweep's answer on disk: ``<database stem>.summary.csv`` beside the database.
+
+``dkfsim sweep`` writes it when the sweep is complete (and ``dkfsim plot SWEEP``
+draws from the same numbers: :mod:`dkfsim.analysis.grid`); this module reads a
+database or its export (``.csv``, ``.parquet``) and writes the summary: per grid
+point, estimate and component, the mean and 95 % interval over runs of the MSE,
+the ANEES with its chi-square band, and the traffic per tick.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+from pathlib import Path
+
+from dkfsim.analysis.grid import summarize
+from dkfsim.core.errors import DkfsimError
+from dkfsim.core.extras import optional
+from dkfsim.core.files import check_regular_file
+from dkfsim.core.folders import write_csv
+from dkfsim.experiments.sweep import KEY_COLUMNS, is_database, read_results
+
+#: An export (or summary) is at most this big when read back for a plot (bytes).
+MAX_TABLE_BYTES = 1 << 31
+
+
+def summary_path(db) -> Path:
+    """Where the summary of the database ``db`` goes: ``<stem>.summary.csv`` beside it."""
+    db = Path(db)
+    return db.with_name(db.stem + ".summary.csv")
+
+
+def _cell(text: str):
+    """A cell of an exported CSV back as a value: empty -> None, numbers as numbers,
+    JSON lists and mappings as data, anything else as text."""
+    if text == "":
+        return None
+    try:
+        return int(text)
+    except ValueError:
+        pass
+    try:
+        return float(text)
+    except ValueError:
+        pass
+    if text[:1] in "[{":
+        try:
+            return json.loads(text)
+        except ValueError:
+            pass
+    return text
+
+
+def read_table(path) -> tuple[list[str], list[list]]:
+    """``(columns, rows)`` of a sweep database or of its export (``.csv`` / ``.parquet``)."""
+    p = Path(path)
+    if not p.exists():
+        raise DkfsimError(f"{path}: no such file (give a sweep database or its --export file)")
+    if is_database(p):
+        return read_results(p)
+    suffix = p.suffix.lower()
+    check_regular_file(p, limit=MAX_TABLE_BYTES, what="sweep export")
+    if suffix == ".csv":
+        try:
+            with open(p, newline="", encoding="utf-8") as fh:
+                reader = csv.reader(fh)
+                columns = next(reader, None)
+                rows = [[_cell(c) for c in row] for row in reader]
+        except (OSError, UnicodeDecodeError, csv.Error) as exc:
+            raise DkfsimError(f"{path}: cannot read as CSV ({exc})") from None
+    elif suffix in (".parquet", ".pq"):
+        pq = optional("pyarrow.parquet")
+        try:
+            table = pq.read_table(p)
+        except Exception as exc:             # pyarrow raises many kinds for a bad file
+            raise DkfsimError(f"{path}: cannot read as Parquet ({exc})") from None
+        columns = list(table.column_names)
+        data = table.to_pydict()
+        rows = [[data[c][i] for c in columns] for i in range(table.num_rows)]
+    else:
+        raise DkfsimError(f"{path}: neither a sweep database nor a .csv / .parquet export")
+    if not columns or any(c not in columns for c in KEY_COLUMNS):
+        raise DkfsimError(f"{path}: not a sweep export (the columns "
+                          f"{', '.join(KEY_COLUMNS)} are missing)")
+    return list(columns), rows
+
+
+def write_summary(db, to=None) -> tuple[Path, int]:
+    """Summarize the sweep database (or export) ``db`` into ``to`` (default
+    :func:`summary_path`), atomically; return ``(path, number of rows)``."""
+    columns, rows = summarize(*read_table(db))
+    to = Path(to) if to is not None else summary_path(db)
+    try:
+        write_csv(to, columns, rows)
+    except OSError as exc:
+        raise DkfsimError(f"{to}: cannot write the sweep summary ({exc.strerror})") from None
+    return to, len(rows)

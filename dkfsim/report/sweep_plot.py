@@ -1,0 +1,234 @@
+"""``dkfsim plot SWEEP``: a metric against one swept key, with 95 % interval bands.
+
+SWEEP is a sweep database or its export (``.csv`` / ``.parquet``).  Each point is
+the mean over the runs of one grid point (:mod:`dkfsim.analysis.grid`), its band
+the 95 % Student-t interval over those runs -- the numbers of the summary file
+``dkfsim sweep`` writes.  One line per estimate, or with ``--hue KEY`` one line
+per value of a second grid key (for one ``--estimate``).  Grid keys that are
+neither ``--x`` nor ``--hue`` must be fixed with ``--where KEY=VALUE`` when they
+take several values.  A per-component metric (``mse``) gets one panel per state
+component; ``anees`` shows the 95 % chi-square band of a consistent filter.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from dkfsim.analysis.grid import grid_columns, groups, interval
+from dkfsim.analysis.metrics import nees_band
+from dkfsim.core.errors import DkfsimError
+from dkfsim.core.extras import pyplot
+from dkfsim.core.params import suggest
+from dkfsim.core.registry import METRICS
+from dkfsim.experiments.sweep_summary import read_table
+from dkfsim.report.plots.folders import _units
+from dkfsim.report.plots.style import (_unit_label, DEFAULT_FORMATS, _check_formats, _order, _plain_log_ticks, _save,
+                                       color_of, label_of)
+
+#: y-axis label per metric (the README's metric vocabulary).
+METRIC_LABELS = {"mse": "MSE", "anees": "ANEES", "disagreement": "disagreement",
+                 "messages_per_tick": "messages per tick", "bytes_per_tick": "bytes per tick",
+                 "lost": "lost packets", "late": "late information"}
+
+#: Units of common swept keys, by the last part of the dotted key.
+KEY_UNITS = {"d_t": "ticks", "steps": "ticks", "buffer_length": "ticks", "T": "s", "value": "s",
+             "mean": "s", "median": "s", "offset": "s", "loss": "probability",
+             "rounds": "rounds per tick"}
+
+
+def _key(columns, name: str, flag: str) -> str:
+    grid = grid_columns(columns)
+    if name in grid:
+        return name
+    if f"param:{name}" in grid:
+        return f"param:{name}"
+    tail = [k for k in grid if k.endswith("." + name)]
+    if len(tail) == 1:                    # --x d_t for links.default.latency.d_t
+        return tail[0]
+    raise DkfsimError(f"{flag} {name}: not a grid key of this sweep{suggest(name, grid)} "
+                      f"(grid keys: {', '.join(grid) or 'none'})")
+
+
+def _same(a, b) -> bool:
+    return a == b or str(a) == str(b)
+
+
+def _parse_where(columns, where) -> dict:
+    out = {}
+    for item in where or ():
+        key, sep, value = str(item).partition("=")
+        if not sep:
+            raise DkfsimError(f"--where {item}: expected KEY=VALUE, e.g. --where protocol=tree")
+        out[_key(columns, key.strip(), "--where")] = value.strip()
+    return out
+
+
+def _values(gs, key) -> list:
+    seen = []
+    for g in gs:
+        v = g["grid"][key]
+        if not any(_same(v, s) for s in seen):
+            seen.append(v)
+    return seen
+
+
+def _numeric(values) -> bool:
+    return all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in values)
+
+
+def per_component(metric: str) -> bool:
+    """True for a metric with one value per state component (``mse``)."""
+    return metric in METRICS and METRICS.get(metric).implementation.per_component
+
+
+def sweep_curves(path, x: str | None = None, hue: str | None = None, metric: str = "mse",
+                 estimate: str | None = None, where=()) -> dict:
+    """The points to draw: ``{"x": key, "hue": key or None, "xs": values, "lines": {label:
+    {component: [(x, n, mean, lo, hi), ...]}}, "components": [...], "nx": {estimate: nx}}``."""
+    columns, rows = read_table(path)
+    if metric not in columns:
+        metrics = [c for c in columns if c in METRICS]
+        raise DkfsimError(f"--metric {metric}: not a column of {path}{suggest(metric, metrics)} "
+                          f"(metrics: {', '.join(metrics)})")
+    grid = grid_columns(columns)
+    if not grid:
+        raise DkfsimError(f"{path}: the sweep has no grid keys; there is nothing to plot against")
+    if x is None:
+        if len(grid) != 1:
+            raise DkfsimError(f"{path}: give --x KEY, one of the grid keys: {', '.join(grid)}")
+        x = grid[0]
+    x = _key(columns, x, "--x")
+    hue_key = None if hue in (None, "estimate") else _key(columns, hue, "--hue")
+    if hue_key == x:
+        raise DkfsimError(f"--hue {hue}: the same key as --x; choose another grid key or 'estimate'")
+    fixed = _parse_where(columns, where)
+    gs = [g for g in groups(columns, rows).values()
+          if all(_same(g["grid"][k], v) for k, v in fixed.items())]
+    if not gs:
+        raise DkfsimError(f"--where: no rows of {path} match "
+                          + ", ".join(f"{k}={v}" for k, v in fixed.items()))
+    for k in grid:
+        if k in (x, hue_key) or k in fixed:
+            continue
+        vals = _values(gs, k)
+        if len(vals) > 1:
+            raise DkfsimError(f"grid key {k} takes {len(vals)} values ({', '.join(map(str, vals))}): "
+                              f"give --hue {k}, or fix it with --where {k}=VALUE")
+    names = _order({g["estimate"] for g in gs})
+    if hue_key is not None:
+        estimate = estimate or ("fused" if "fused" in names else names[0])
+        if estimate not in names:
+            raise DkfsimError(f"--estimate {estimate}: not in the sweep{suggest(estimate, names)} "
+                              f"(estimates: {', '.join(names)})")
+        gs = [g for g in gs if g["estimate"] == estimate]
+    elif estimate is not None:
+        wanted = [e.strip() for e in str(estimate).split(",")]
+        for e in wanted:
+            if e not in names:
+                raise DkfsimError(f"--estimate {e}: not in the sweep{suggest(e, names)} "
+                                  f"(estimates: {', '.join(names)})")
+        gs = [g for g in gs if g["estimate"] in wanted]
+        names = [n for n in names if n in wanted]
+    components = []
+    for g in gs:
+        if g["component"] not in components:
+            components.append(g["component"])
+    if not per_component(metric):
+        components = components[:1]       # scalar metrics repeat on every component row
+    nx = {}
+    for g in gs:
+        nx.setdefault(g["estimate"], set()).add(g["component"])
+    lines: dict = {}
+    order = names if hue_key is None else [str(v) for v in _values(gs, hue_key)]
+    for label in order:
+        lines[label] = {c: [] for c in components}
+    for g in gs:
+        if g["component"] not in components:
+            continue
+        label = g["estimate"] if hue_key is None else str(g["grid"][hue_key])
+        mean, lo, hi = interval(r.get(metric) for r in g["rows"])
+        lines[label][g["component"]].append((g["grid"][x], len(g["rows"]), mean, lo, hi))
+    xs = _values(gs, x)
+    return {"x": x, "hue": hue_key, "estimate": estimate if hue_key else None, "xs": xs,
+            "lines": lines, "components": components, "metric": metric, "fixed": fixed,
+            "nx": {e: len(c) for e, c in nx.items()}}
+
+
+def plot_sweep(path, stem, x=None, hue=None, metric="mse", estimate=None, where=(),
+               formats=DEFAULT_FORMATS, title=None) -> list[Path]:
+    """Draw :func:`sweep_curves` into ``stem.<format>``; return the files written."""
+    formats = _check_formats(formats)
+    cur = sweep_curves(path, x, hue, metric, estimate, where)
+    comps, xs = cur["components"], cur["xs"]
+    numeric = _numeric(xs)
+    pos = {str(v): (float(v) if numeric else i) for i, v in enumerate(xs)}
+    plt = pyplot()
+    fig, axes = plt.subplots(len(comps), 1, figsize=(6.4, 2.4 * len(comps) + 1.0), sharex=True,
+                             squeeze=False)
+    cmap = plt.get_cmap("viridis")
+    n_lines = len(cur["lines"])
+    units = _units(comps, None) if per_component(metric) else [""] * len(comps)
+    runs = set()
+    for ax, comp in zip(axes[:, 0], comps):
+        means = []
+        for j, (label, by_comp) in enumerate(cur["lines"].items()):
+            pts = sorted(by_comp[comp], key=lambda p: pos[str(p[0])])
+            if not pts:
+                continue
+            runs.update(p[1] for p in pts)
+            px = [pos[str(p[0])] for p in pts]
+            m = np.array([p[2] for p in pts])
+            lo = np.array([p[3] for p in pts])
+            hi = np.array([p[4] for p in pts])
+            if cur["hue"] is None:
+                col, lab = color_of(label, j), label_of(label)
+            else:
+                col = f"C{j}" if n_lines <= 8 else cmap(0.9 * j / (n_lines - 1))
+                lab = f"{cur['hue']} = {label}"
+            if np.isnan(m).all():
+                continue                      # not applicable to this estimate: no legend entry
+            means.append(m)
+            ax.plot(px, m, marker="o", ms=3.5, lw=1.2, color=col, label=lab)
+            if not np.isnan(lo).all():
+                ax.fill_between(px, lo, hi, color=col, alpha=0.18, lw=0)
+        if metric == "anees" and len(runs) == 1 and cur["nx"]:
+            nx = max(cur["nx"].values())
+            band = nees_band(next(iter(runs)), nx)
+            ax.axhspan(*band, color="0.5", alpha=0.15, lw=0,
+                       label=f"95 % band of a consistent filter ({next(iter(runs))} runs)")
+            ax.axhline(nx, color="0.3", lw=0.8, ls=":")
+        vals = np.concatenate(means) if means else np.array([])
+        vals = vals[np.isfinite(vals) & (vals > 0)]
+        if metric == "mse" and vals.size and vals.max() / vals.min() > 10:
+            ax.set_yscale("log")
+            _plain_log_ticks(ax)
+        name = METRIC_LABELS.get(metric, metric)
+        unit = _unit_label(units[comps.index(comp)], squared=True) if metric == "mse" else ""
+        ax.set_ylabel(f"{comp} {name}{unit}" if len(comps) > 1 or metric == "mse" else name)
+        ax.grid(True, which="both", alpha=0.25)
+    last = axes[-1, 0]
+    xname = cur["x"].removeprefix("param:")
+    unit = KEY_UNITS.get(xname.rsplit(".", 1)[-1])
+    last.set_xlabel(f"{xname} [{unit}]" if unit else xname)
+    if numeric:
+        last.set_xticks([float(v) for v in xs])
+        last.set_xticklabels([f"{v:g}" if isinstance(v, float) else str(v) for v in xs])
+    else:
+        last.set_xticks(range(len(xs)))
+        last.set_xticklabels([str(v) for v in xs])
+    r = sorted(runs)
+    per = f"{r[0]} runs" if len(r) == 1 else f"{r[0]}-{r[-1]} runs"
+    what = METRIC_LABELS.get(metric, metric)
+    sub = f"mean over {per} per point; band: 95 % interval (Student t)"
+    if cur["estimate"]:
+        sub = f"{label_of(cur['estimate'])}; " + sub
+    if cur["fixed"]:
+        sub += "; " + ", ".join(f"{k.removeprefix('param:')} = {v}" for k, v in cur["fixed"].items())
+    fig.suptitle((title or f"{what} against {xname}") + f"\n({sub})", fontsize=10.5)
+    handles, labels = axes[0, 0].get_legend_handles_labels()
+    fig.tight_layout()
+    fig.legend(handles, labels, loc="upper center", bbox_to_anchor=(0.5, 0.0),
+               ncol=2 if len(labels) > 2 else len(labels), fontsize=8.5, frameon=False)
+    return _save(fig, stem, formats)
