@@ -20,8 +20,9 @@ $(STAMP): pyproject.toml
 run: $(STAMP)
 	$(BIN)/dkfsim run scenarios/paper_case1.yaml --out $(OUT)
 
+# One test process per CPU (pytest-xdist): the suite is many independent small simulations.
 test: $(STAMP)
-	$(BIN)/python -m pytest
+	$(BIN)/python -m pytest -n auto
 
 bench: $(STAMP)
 	$(BIN)/python tools/bench.py

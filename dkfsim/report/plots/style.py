@@ -31,7 +31,16 @@ ESTIMATES: dict[str, tuple[str, str]] = {
     "no_buffer": ("no_buffer: L = 1, fused", "C1"),
     "ci_consensus": ("ci_consensus: consensus on information", "C3"),
     "local_only": ("local_only: own sensor", "C7"),
+    "kcf": ("kcf: Kalman-consensus filter", "C4"),
+    "icf": ("icf: information-weighted consensus", "C5"),
+    "diffusion_kf": ("diffusion_kf: diffusion Kalman filter", "C6"),
+    "hcmci": ("hcmci: hybrid consensus (measurements + information)", "C8"),
 }
+
+#: Colours for names not listed above (a second ``hcmci``, a plugin's estimator): darker
+#: shades that none of the listed colours repeats, so no two lines of one figure share one.
+OTHER_COLORS = ("#393b79", "#637939", "#8c6d31", "#843c39", "#7b4173",
+                "#3182bd", "#e6550d", "#31a354", "#756bb1", "#636363")
 
 
 
@@ -41,7 +50,7 @@ def label_of(name: str) -> str:
 
 def color_of(name: str, fallback_index: int = 0):
     c = ESTIMATES.get(name, (None, None))[1]
-    return c if c is not None else f"C{(4 + fallback_index) % 10}"
+    return c if c is not None else OTHER_COLORS[fallback_index % len(OTHER_COLORS)]
 
 
 def _order(names) -> list[str]:
