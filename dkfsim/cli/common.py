@@ -79,10 +79,10 @@ def workers_from_args(args, tasks: int | None = None) -> int:
     return max(1, min(n, tasks)) if tasks else n
 
 
-def progress_bar(args, total: int | None, desc: str):
-    """The progress bar of a command: tqdm on stderr counting runs, when stderr is a
+def progress_bar(args, total: int | None, desc: str, unit: str = "run"):
+    """The progress bar of a command: tqdm on stderr counting ``unit``, when stderr is a
     terminal and ``--quiet`` is not given; else None."""
     if args.quiet or not sys.stderr.isatty():
         return None
-    return tqdm(total=total, unit="run", desc=desc, leave=False, file=sys.stderr,
+    return tqdm(total=total, unit=unit, desc=desc, leave=False, file=sys.stderr,
                 dynamic_ncols=True)

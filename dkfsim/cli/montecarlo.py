@@ -6,6 +6,7 @@ from dkfsim.cli.common import (add_executor_args, add_scenario_args, add_yes_arg
                                load_from_args, progress_bar, workers_from_args)
 from dkfsim.core.errors import DkfsimError
 from dkfsim.core.folders import check_target
+from dkfsim.experiments import executors
 from dkfsim.experiments.montecarlo import _check_burn_in, check_montecarlo, montecarlo
 
 def add_command(subparsers) -> None:
@@ -37,8 +38,7 @@ def add_command(subparsers) -> None:
 def cmd_montecarlo(args) -> int:
     if args.runs < 1:
         raise DkfsimError(f"--runs: must be >= 1, got {args.runs}")
-    if args.jobs is not None and args.jobs < 1:
-        raise DkfsimError(f"--jobs: must be >= 1, got {args.jobs}")
+    executors.check_jobs(args.jobs)
     sc = load_from_args(args)
     _check_burn_in(args.burn_in, int(sc.steps))
     check_target(args.out)                 # before any run: a bad --out costs nothing

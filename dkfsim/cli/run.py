@@ -2,11 +2,7 @@
 
 from __future__ import annotations
 
-import sys
-
-from tqdm import tqdm
-
-from dkfsim.cli.common import add_scenario_args, add_yes_arg, load_from_args
+from dkfsim.cli.common import add_scenario_args, add_yes_arg, load_from_args, progress_bar
 from dkfsim.core.errors import DkfsimError
 from dkfsim.core.folders import check_target
 from dkfsim.core.resources import human_bytes, human_seconds
@@ -66,13 +62,8 @@ def cmd_run(args) -> int:
         raise DkfsimError(f"--burn-in: must be in [0, steps) = [0, {sc.steps}), got {args.burn_in}")
     check_target(args.out)                 # before the run: a bad --out costs nothing
     check_run(sc, save=args.save, yes=args.yes)
-    progress = None
-    bar = None
-    if not args.quiet and sys.stderr.isatty():
-        bar = tqdm(total=sc.steps, unit="tick", desc=sc.name, leave=False)
-
-        def progress(k, K):
-            bar.update(k - bar.n)
+    bar = progress_bar(args, sc.steps, sc.name, unit="tick")
+    progress = None if bar is None else (lambda k, K: bar.update(k - bar.n))
     try:
         res = run(sc, save=args.save, progress=progress, yes=True)   # checked above
     finally:

@@ -122,8 +122,7 @@ class LocalExecutor(Executor):
     """``jobs`` worker processes on this machine."""
 
     def __init__(self, jobs: int):
-        if isinstance(jobs, bool) or not isinstance(jobs, int) or jobs < 1:
-            raise DkfsimError(f"--jobs: must be an integer >= 1, got {jobs!r}")
+        check_jobs(jobs, every_cpu=False)
         self.workers = jobs
         self.label = f"{jobs} local process{'es' if jobs != 1 else ''}"
         self._pool: ProcessPoolExecutor | None = None
@@ -212,9 +211,10 @@ def local(jobs: int | None = None, tasks: int | None = None) -> Executor:
     return InlineExecutor() if jobs == 1 else LocalExecutor(jobs)
 
 
-def check_jobs(jobs) -> None:
-    """``--jobs``: None (every CPU) or an integer >= 1."""
-    if jobs is not None and (isinstance(jobs, bool) or not isinstance(jobs, int) or jobs < 1):
+def check_jobs(jobs, *, every_cpu: bool = True) -> None:
+    """``--jobs``: an integer >= 1, or None (every CPU) where ``every_cpu``."""
+    if (jobs is None and not every_cpu) or (
+            jobs is not None and (isinstance(jobs, bool) or not isinstance(jobs, int) or jobs < 1)):
         raise DkfsimError(f"--jobs: must be an integer >= 1, got {jobs!r}")
 
 
