@@ -51,11 +51,11 @@ Decisions:
 from __future__ import annotations
 
 from dkfsim.experiments.sweep.definition import (DB_FORMAT, KEY_COLUMNS, SWEEP_KEYS, ParameterSet,
-                                                 Sweep, identity, is_database, load_sweep)
+                                                 Sweep, is_database, load_sweep)
 from dkfsim.experiments.sweep.results import export, read_results
 from dkfsim.experiments.sweep.run import SweepReport, estimate_tasks, run_sweep, run_task
 from dkfsim.experiments.sweep.store import SCHEMA, SweepDB, tasks_done
 
 __all__ = ["DB_FORMAT", "KEY_COLUMNS", "SCHEMA", "SWEEP_KEYS", "ParameterSet", "Sweep", "SweepDB",
-           "SweepReport", "estimate_tasks", "export", "identity", "is_database", "load_sweep",
+           "SweepReport", "estimate_tasks", "export", "is_database", "load_sweep",
            "read_results", "run_sweep", "run_task", "tasks_done"]

@@ -1,8 +1,8 @@
 """What a sweep is: the sweep file, its grid of parameter sets and the definition a database stores.
 
 :func:`load_sweep` reads and validates a sweep file (every parameter set is loaded as a
-scenario before anything runs); :func:`identity` is the part of a definition that decides
-the results.  The sweep as a whole is described in :mod:`dkfsim.experiments.sweep` and
+scenario before anything runs); the store compares the definitions of stored and new sweeps
+(:mod:`dkfsim.experiments.sweep.store`).  The sweep as a whole is described in :mod:`dkfsim.experiments.sweep` and
 docs/design.md (Experiments).
 """
 
@@ -123,19 +123,6 @@ class Sweep:
         for r in range(self.runs):
             for p in self.parameter_sets:
                 yield p, r
-
-
-def identity(definition: Mapping) -> dict:
-    """The parts of a definition that decide the results (not file names)."""
-    return {
-        "format": definition.get("format"),
-        "grid": definition.get("grid"),
-        "set": definition.get("set"),
-        "runs": definition.get("runs"),
-        "burn_in": definition.get("burn_in"),
-        "scenarios": [[p.get("param_hash"), p.get("scenario_hash")]
-                      for p in definition.get("parameter_sets", [])],
-    }
 
 
 def _err(source: str, key: str | None, message: str) -> DkfsimError:
