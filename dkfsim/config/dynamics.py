@@ -17,6 +17,10 @@ from dkfsim.core.params import (MAX_MAGNITUDE, MAX_SECONDS, Matrix, StrictModel,
                                 check_square, custom_error)
 
 
+#: Units of the constant-acceleration model's components (matplotlib mathtext), for axis labels.
+CA_UNITS = {"position": "m", "velocity": "m/s", "acceleration": "m/s$^2$"}
+
+
 def component_names(kind: str | None, nx: int) -> list[str]:
     """Names of the state components, for tables, CSV columns and plots.
 

@@ -10,6 +10,7 @@ from pathlib import Path
 
 import numpy as np
 
+from dkfsim.config.dynamics import CA_UNITS
 from dkfsim.config.load import scenario_hash
 from dkfsim.core.extras import optional, pyplot
 from dkfsim.core.folders import staged, write_json
@@ -19,7 +20,6 @@ from dkfsim.experiments.maxdelay.search import (EXCEEDS, METRICS, UNDECIDED, WIT
 
 
 #: Units of the constant-acceleration model's components (other models have none).
-CA_UNITS = {"position": "m", "velocity": "m/s", "acceleration": "m/s²"}
 
 
 def _pow10(x) -> str:

@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from dkfsim.core.errors import DkfsimError
-from dkfsim.config.dynamics import component_names as names_of
+from dkfsim.config.dynamics import CA_UNITS, component_names as names_of
 from dkfsim.core.encoding import from_json
 from dkfsim.core.files import MAX_YAML_BYTES, read_text
 
@@ -28,7 +28,6 @@ OLD_NAMES = {"anti_delay_dkf": "fused", "anti_delay_dkf_local": "local", "local"
 NOT_ESTIMATES = {"x_final", "x0_mean"}
 
 CA_COMPONENTS = ("position", "velocity", "acceleration")
-CA_UNITS = {"position": "m", "velocity": "m/s", "acceleration": "m/s$^2$"}
 
 
 
