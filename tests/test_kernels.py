@@ -17,6 +17,10 @@ depend on the kernel path.
 
 from __future__ import annotations
 
+import os
+import subprocess
+import sys
+
 import numpy as np
 import pytest
 
@@ -99,3 +103,28 @@ def test_kernels_switch_is_recorded_in_the_summary(monkeypatch, tmp_path):
     res = _run(scenario(4, steps=5), "numpy", monkeypatch, save="summary")
     res.save(tmp_path / "out")
     assert json.loads((tmp_path / "out" / "summary.json").read_text())["kernels"] == "numpy"
+
+
+def test_threads_starting_together_compile_the_kernels_once():
+    """Runs in threads (a Dask worker with threads, a notebook) may reach the first filter at
+    the same instant; each must get the compiled kernels, none may jit a jitted function."""
+    code = """
+import threading
+from dkfsim.estimators import kernels
+go, errors = threading.Barrier(16), []
+def start():
+    go.wait()
+    try:
+        kernels.compiled()
+    except Exception as exc:
+        errors.append(repr(exc))
+threads = [threading.Thread(target=start) for _ in range(16)]
+[t.start() for t in threads]
+[t.join() for t in threads]
+assert not errors, errors[0]
+assert all(hasattr(getattr(kernels, name), "py_func") for name in kernels._KERNELS)
+"""
+    for _ in range(5):
+        p = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120,
+                           env={**os.environ, "DKFSIM_KERNELS": "numba"})
+        assert p.returncode == 0, p.stderr[-2000:]

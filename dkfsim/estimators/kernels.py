@@ -21,6 +21,7 @@ from __future__ import annotations
 import importlib.util
 import os
 import sys
+import threading
 
 import numpy as np
 
@@ -32,6 +33,8 @@ KERNELS_ENV = "DKFSIM_KERNELS"
 #: The kernels, callees before callers (numba resolves a callee by its module global).
 _KERNELS = ("_step", "xi_blocks", "window_rows", "xi_rows", "fold")
 _compiled: list = []
+#: Runs in threads (a Dask worker with threads, a notebook) may start together: one compiles.
+_compile_lock = threading.Lock()
 
 
 def kernel_path() -> str:
@@ -51,11 +54,13 @@ def compiled():
     parallel): numba is imported, and the kernels loaded from the disk cache or compiled,
     on the first call."""
     if not _compiled:
-        numba = optional("numba")
-        mod = sys.modules[__name__]
-        for name in _KERNELS:
-            setattr(mod, name, numba.njit(cache=True, fastmath=False, nogil=True)(getattr(mod, name)))
-        _compiled.append(True)
+        with _compile_lock:
+            if not _compiled:
+                numba = optional("numba")
+                mod = sys.modules[__name__]
+                for name in _KERNELS:
+                    setattr(mod, name, numba.njit(cache=True, fastmath=False, nogil=True)(getattr(mod, name)))
+                _compiled.append(True)
     return sys.modules[__name__]
 
 
