@@ -176,6 +176,7 @@ class AntiDelayDKF(Estimator):
         if self.main:
             arrays = {"buffer_length": np.array(self.L), "weights_A": self.A, "x_final": self.x_final}
             if self.arrival is not None:
+                self.exchange.write_log()
                 arrays["arrival"] = self.arrival
         traffic = self.port.counts()
         traffic.update(self.exchange.counts())

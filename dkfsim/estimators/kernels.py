@@ -31,7 +31,7 @@ from dkfsim.core.extras import optional
 KERNELS_ENV = "DKFSIM_KERNELS"
 
 #: The kernels, callees before callers (numba resolves a callee by its module global).
-_KERNELS = ("_step", "xi_blocks", "window_rows", "xi_rows", "fold")
+_KERNELS = ("_step", "xi_blocks", "window_rows", "xi_rows", "fold", "fold_masks")
 _compiled: list = []
 #: Runs in threads (a Dask worker with threads, a notebook) may start together: one compiles.
 _compile_lock = threading.Lock()
@@ -293,5 +293,34 @@ def fold(i, o, r, A, omega, varying, theta, Omega, Theta, held, starts):
             for q in range(nx):
                 Omega[slot, node, p, q] += a * om[p, q]
             Theta[slot, node, p] += a * theta[row, org, p]
+        if row < starts[node]:
+            starts[node] = row
+
+
+def fold_masks(i, r, words, A, omega, varying, theta, Omega, Theta, held, starts):
+    """:func:`fold` for contributions given as origin bitmasks: ``words[k]`` holds the
+    origins of node ``i[k]`` for row ``r[k]`` as little-endian 64-bit words; origins
+    are added in ascending order, contribution after contribution."""
+    S = Omega.shape[0]
+    nx = Omega.shape[2]
+    n_words = words.shape[1]
+    for k in range(i.shape[0]):
+        node, row = i[k], r[k]
+        slot = row % S
+        for w in range(n_words):
+            m = words[k, w]
+            b = 0
+            while m != 0:
+                if m & 1:
+                    org = w * 64 + b
+                    a = A[node, org]
+                    om = omega[row if varying else 0, org]
+                    held[slot, node, org] = True
+                    for p in range(nx):
+                        for q in range(nx):
+                            Omega[slot, node, p, q] += a * om[p, q]
+                        Theta[slot, node, p] += a * theta[row, org, p]
+                m >>= 1
+                b += 1
         if row < starts[node]:
             starts[node] = row

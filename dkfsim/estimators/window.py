@@ -22,6 +22,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from dkfsim.core.bits import mask_words, set_bits
 from dkfsim.core.linalg import solve
 from dkfsim.estimators import kernels
 
@@ -168,11 +169,9 @@ class WindowFilter:
         self.state = WindowState.empty(self.S - 1, n, nx, n_origins=self.theta.shape[1])
         self.x0 = np.broadcast_to(np.asarray(x0, float), (n, nx)).copy()
         self.P0 = np.broadcast_to(np.asarray(P0, float), (n, nx, nx)).copy()
-        self._pend_i: list[int] = []
-        self._pend_m: list[int] = []
-        self._pend_r: list[int] = []
-        self._mask_bytes = -(-self.theta.shape[1] // 8)
-        self._chunks: list[tuple[int, np.ndarray, int]] = []
+        #: contributions reported since the last update: node, origin bitmask, row (flat)
+        self._pend: list[int] = []
+        self._mask_words = -(-self.theta.shape[1] // 64)
         #: ``"numba"`` or ``"numpy"`` (:func:`dkfsim.estimators.kernels.kernel_path`)
         self.kernels = kernels.kernel_path()
         self._k = kernels.compiled() if self.kernels == "numba" else None
@@ -187,47 +186,37 @@ class WindowFilter:
     def add_mask(self, node: int, origins: int, row: int) -> None:
         """Node ``node`` now holds the contributions of the origins set in the bitmask
         ``origins`` (a non-negative int, bit ``o`` for origin ``o``) for ``row``."""
-        self._pend_i.append(node)
-        self._pend_m.append(origins)
-        self._pend_r.append(row)
+        self._pend.extend((node, origins, row))
 
-    def add_many(self, node: int, origins: np.ndarray, row: int) -> None:
-        """Node ``node`` now holds the contributions of all ``origins`` for ``row``."""
-        self._chunks.append((node, origins, row))
+    def _pending_arrays(self):
+        """The pending contributions as arrays: nodes, rows and the masks as
+        little-endian 64-bit words (one row of ``words`` per contribution)."""
+        pend, self._pend = self._pend, []
+        return (np.array(pend[0::3], dtype=np.intp), np.array(pend[2::3], dtype=np.intp),
+                mask_words(pend[1::3], self._mask_words))
 
     def _unpack(self):
-        """The pending contributions as arrays ``(node, origin, row)``, in the order added."""
-        i = np.array(self._pend_i, dtype=np.intp)
-        r = np.array(self._pend_r, dtype=np.intp)
-        nb = self._mask_bytes
-        raw = np.frombuffer(b"".join(m.to_bytes(nb, "little") for m in self._pend_m), dtype=np.uint8)
-        # Only the non-zero bytes are unpacked: wide masks are mostly zeros.
-        nz = np.flatnonzero(raw)
-        kb, bit = np.nonzero(np.unpackbits(raw[nz][:, None], axis=1, bitorder="little"))
-        k, o = np.divmod(nz[kb], nb)
-        o = o * 8 + bit
-        i, r = i[k], r[k]
-        if self._chunks:
-            sizes = [len(c[1]) for c in self._chunks]
-            i = np.concatenate([i, np.repeat([c[0] for c in self._chunks], sizes)]).astype(np.intp)
-            o = np.concatenate([o] + [c[1] for c in self._chunks]).astype(np.intp)
-            r = np.concatenate([r, np.repeat([c[2] for c in self._chunks], sizes)]).astype(np.intp)
-        self._pend_i, self._pend_m, self._pend_r, self._chunks = [], [], [], []
-        return i, o.astype(np.intp), r
+        """The pending contributions as arrays ``(node, origin, row)``, in the order added
+        (origins ascending within one mask)."""
+        i, r, words = self._pending_arrays()
+        k, o = set_bits(words)
+        return i[k], o, r[k]
 
     def _apply_pending(self) -> np.ndarray | None:
         """Fold pending contributions into the ring; each node's earliest changed row
         (``n`` ints, a huge number for nodes without news), or None."""
-        if not self._pend_i and not self._chunks:
+        if not self._pend:
             return None
-        i, o, r = self._unpack()
         st = self.state
         starts = np.full(self.n, np.iinfo(np.intp).max, dtype=np.intp)
         if self.kernels == "numba":
+            i, r, words = self._pending_arrays()
             info = self.info
             omega = info.omega if info.varying else info.omega[None]
-            self._k.fold(i, o, r, self.A, omega, info.varying, self.theta, st.Omega, st.Theta, st.held, starts)
+            self._k.fold_masks(i, r, words, self.A, omega, info.varying, self.theta, st.Omega, st.Theta,
+                               st.held, starts)
             return starts
+        i, o, r = self._unpack()
         slot = r % self.S
         a = self.A[i, o]
         st.held[slot, i, o] = True

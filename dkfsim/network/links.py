@@ -33,7 +33,7 @@ chain of zero-latency relays it starts, counts for tick ``k``.
 from __future__ import annotations
 
 import simpy
-from simpy.events import NORMAL, Event, Timeout
+from simpy.events import NORMAL, Event
 
 from dkfsim.components.faults import LinkSpec, ScaleSchedule, Windows
 from dkfsim.core.params import MAX_NS
@@ -101,7 +101,7 @@ class Link:
     :param key: the prefix of the link's draw names, ``("link", src, dst)`` by default.
     """
 
-    __slots__ = ("id", "src", "dst", "spec", "loss", "duplicate", "_main", "_copy",
+    __slots__ = ("id", "src", "dst", "spec", "loss", "duplicate", "plain", "_main", "_copy",
                  "_loss_key", "_dup_key", "_outages")
 
     def __init__(self, link_id, src, dst, spec, seed, T_ns, key=None):
@@ -115,6 +115,12 @@ class Link:
         self._dup_key = key64(seed, *prefix, "duplicate") if self.duplicate > 0 else None
         self._copy = Recipe(spec, prefix + ("duplicate",), seed, T_ns) if self.duplicate > 0 else None
         self._outages = Windows(spec.outages) if spec.outages else None
+        #: The latency model's own ``draw(t_ns, seq) -> (ns, lost)`` when nothing else acts
+        #: on the link (no loss, duplication, outage, schedule or jitter): the per-packet
+        #: fast path of :meth:`Port.send`, equal to :meth:`transmit`.  None otherwise.
+        plain = not (self.loss > 0 or self.duplicate > 0 or spec.outages or spec.schedule
+                     or spec.jitter is not None)
+        self.plain = self._main._model.draw if plain else None
 
     def transmit(self, t_ns: int, seq: int = 0) -> tuple[tuple[int, ...], str | None]:
         """The arrivals of a packet sent at ``t_ns`` as number ``seq`` of its sender at
@@ -169,7 +175,13 @@ class Network:
 
 
 class Port:
-    """One estimator's attachment to the network: what it sends, what it receives, counts."""
+    """One estimator's attachment to the network: what it sends, what it receives, counts.
+
+    Packets due at one instant are delivered by one SimPy event (in the order
+    they were sent), not one event each: at an instant every delivery runs
+    before the flushes and the tick update anyway (their priorities), so the
+    order of a port's deliveries is all that matters, and that is kept.
+    """
 
     def __init__(self, network: Network, name: str, receive, links=None, until=None):
         self.net = network
@@ -178,57 +190,100 @@ class Port:
         self.until = until
         self._receive = receive
         self._links = None if links is None else [l.id for l in links]
-        self._count: dict[str, dict[int, int]] = {k: {} for k in COUNTERS}
+        self._count: dict[str, list[int]] = {k: [] for k in COUNTERS}
+        self._grow()
         self._instant = -1
         self._seq: dict[int, int] = {}
+        #: arrival instant (ns) -> [link, payload, link, payload, ...] still to deliver
+        self._due: dict[int, list] = {}
+
+    def _grow(self) -> None:
+        """One counter slot per link of the network (links may be added after the port)."""
+        size = len(self.net.links)
+        for c in self._count.values():
+            c.extend([0] * (size - len(c)))
 
     def _add(self, key: str, link_id: int, amount: int = 1) -> None:
         c = self._count[key]
-        c[link_id] = c.get(link_id, 0) + amount
+        if link_id >= len(c):
+            self._grow()
+        c[link_id] += amount
 
     def send(self, link: Link, payload, nbytes: int = 0) -> None:
         """Hand ``payload`` to ``link`` now (``nbytes``: its nominal size, for traffic)."""
         now = self.env.now
         if now != self._instant:
             self._instant, self._seq = now, {}
-        seq = self._seq.get(link.id, 0)
-        self._seq[link.id] = seq + 1
-        self._add("sent", link.id)
-        self._add("bytes", link.id, nbytes)
+        lid = link.id
+        seq = self._seq.get(lid, 0)
+        self._seq[lid] = seq + 1
+        count = self._count
+        if lid >= len(count["sent"]):
+            self._grow()
+        count["sent"][lid] += 1
+        count["bytes"][lid] += nbytes
+        plain = link.plain
+        if plain is not None:
+            lat, lost = plain(now, seq)
+            if lost:
+                count["lost"][lid] += 1
+                return
+            self._enqueue(now, lat, link, payload)
+            return
         arrivals, why = link.transmit(now, seq)
         if why is not None:
-            self._add("lost", link.id)
+            count["lost"][lid] += 1
             if why == "outage":
-                self._add("outage_lost", link.id)
+                count["outage_lost"][lid] += 1
             return
         if len(arrivals) > 1:
-            self._add("copies", link.id)
+            count["copies"][lid] += 1
         for lat in arrivals:
-            ev = Timeout(self.env, lat, (link, payload))
-            ev.callbacks.append(self._deliver)
+            self._enqueue(now, lat, link, payload)
 
-    def _deliver(self, event) -> None:
-        link, payload = event._value
-        if self.until is not None and self.env.now > self.until:
+    def _enqueue(self, now: int, lat: int, link: Link, payload) -> None:
+        due = self._due.get(now + lat)
+        if due is None:
+            due = self._due[now + lat] = []
+            Scheduled(self.env, self._deliver, PRIORITY_DELIVER, lat)
+        due.append(link)
+        due.append(payload)
+
+    def _deliver(self, _event) -> None:
+        self.deliver_now()
+
+    def deliver_now(self) -> None:
+        """Deliver what is due now (the instant's event finds nothing left afterwards)."""
+        now = self.env.now
+        due = self._due.pop(now, None)
+        if due is None:
+            return
+        if self.until is not None and now > self.until:
             return                            # after the port's last instant: in flight
         crashes = self.net.crashes
-        if crashes is not None and crashes.down(link.dst, self.env.now):
-            self._add("crash_dropped", link.id)
-            return
-        self._add("delivered", link.id)
-        self._receive(link, payload)
+        delivered = self._count["delivered"]
+        receive = self._receive
+        for k in range(0, len(due), 2):
+            link = due[k]
+            if crashes is not None and crashes.down(link.dst, now):
+                self._count["crash_dropped"][link.id] += 1
+                continue
+            delivered[link.id] += 1
+            receive(link, due[k + 1])
 
     def counts(self) -> dict:
         """Totals and ``per_link`` (links this port used); ``in_flight`` by the identity."""
-        totals = {k: sum(self._count[k].values()) for k in COUNTERS}
+        self._grow()
+        count = self._count
+        totals = {k: sum(count[k]) for k in COUNTERS}
         totals["in_flight"] = (totals["sent"] + totals["copies"] - totals["delivered"]
                                - totals["lost"] - totals["crash_dropped"])
         used = self._links if self._links is not None else \
-            sorted(set().union(*(self._count[k].keys() for k in COUNTERS)))
+            [i for i in range(len(self.net.links)) if any(count[k][i] for k in COUNTERS)]
         per_link = []
         for i in used:
             link = self.net.links[i]
-            row = {"link": (link.src, link.dst), **{k: self._count[k].get(i, 0) for k in COUNTERS}}
+            row = {"link": (link.src, link.dst), **{k: count[k][i] for k in COUNTERS}}
             row["in_flight"] = (row["sent"] + row["copies"] - row["delivered"] - row["lost"]
                                 - row["crash_dropped"])
             per_link.append(row)

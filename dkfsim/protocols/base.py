@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from dkfsim.core.bits import mask_words, set_bits
 from dkfsim.network.links import PRIORITY_FLUSH, Scheduled
 
 
@@ -38,12 +39,6 @@ def row_bytes(nx: int, n: int) -> int:
     """Nominal bytes of one row of a packet: the row number, ``theta`` (nx floats),
     the upper triangle of ``omega`` and the origin bitmask."""
     return 8 + 8 * (nx + nx * (nx + 1) // 2) + -(-n // 8)
-
-
-def bit_indices(mask: int) -> np.ndarray:
-    """Positions of the set bits of a non-negative int, ascending."""
-    raw = np.frombuffer(mask.to_bytes((mask.bit_length() + 7) // 8, "little"), dtype=np.uint8)
-    return np.flatnonzero(np.unpackbits(raw, bitorder="little"))
 
 
 class _Row:
@@ -86,6 +81,10 @@ class Exchange:
         self.n = n
         self.window = window
         self.arrival = arrival
+        #: with the arrival log: node, origin mask, row, ns (flat, four entries per item) of
+        #: every newly held or late contribution, written into ``arrival`` in bulk
+        #: (:meth:`write_log`); each cell is written at most once, so order does not matter.
+        self._log: list | None = [] if arrival is not None else None
         self.late_horizon = late_horizon
         self.rows: dict[int, _Row] = {}
         self.final: dict[int, list[int]] = {}
@@ -94,6 +93,10 @@ class Exchange:
         self.duplicates = 0
         self.stale = 0
         self._flush_due = [False] * n
+        #: nodes whose flush is due at this instant, in the order they became due
+        self._flush_queue: list[int] = []
+        #: per node, an event callback that flushes it (for protocols that flush later,
+        #: e.g. docs/examples/tick_flood.py)
         self._flush_cb = [self._make_flush(j) for j in range(n)]
 
     # -- wiring ----------------------------------------------------------------
@@ -132,7 +135,24 @@ class Exchange:
     def _schedule_flush(self, j: int) -> None:
         if not self._flush_due[j]:
             self._flush_due[j] = True
-            Scheduled(self.env, self._flush_cb[j], PRIORITY_FLUSH)
+            self._flush_queue.append(j)
+            if len(self._flush_queue) == 1:
+                Scheduled(self.env, self._flush_all, PRIORITY_FLUSH)
+
+    def _flush_all(self, _event) -> None:
+        """Flush every due node, first due first; what a flush sends with zero latency is
+        delivered before the next node flushes (as separate events of higher priority
+        would be), so a zero-latency chain joins the flushes of the same instant."""
+        queue, due = self._flush_queue, self._flush_due
+        deliver_now = self.port.deliver_now
+        k = 0
+        while k < len(queue):
+            j = queue[k]
+            k += 1
+            due[j] = False
+            self.flush(j)
+            deliver_now()
+        queue.clear()
 
     # -- rows ------------------------------------------------------------------
     def open_row(self, row: int) -> None:
@@ -145,14 +165,24 @@ class Exchange:
         if st is not None and self.arrival is not None:
             self.final[row] = st.held
             self.final.pop(row - self.late_horizon, None)
+            if len(self._log) > 400_000:          # bound the log's memory
+                self.write_log()
+
+    def write_log(self) -> None:
+        """Write the logged arrivals into the arrival array (seconds)."""
+        if not self._log:
+            return
+        log, self._log = self._log, []
+        k, o = set_bits(mask_words(log[1::4], -(-self.n // 64)))
+        nodes, rows = np.array(log[0::4], dtype=np.intp), np.array(log[2::4], dtype=np.intp)
+        self.arrival[nodes[k], o, rows[k]] = np.array(log[3::4], dtype=np.int64)[k] / 1e9
 
     # -- holdings --------------------------------------------------------------
     def _gain(self, node: int, row: int, st: _Row, bits: int) -> None:
         st.held[node] |= bits
         self.window.add_mask(node, bits, row)
-        if self.arrival is not None:            # the arrival log (--save full) only
-            t = self.env.now / 1e9
-            self.arrival[node, bit_indices(bits), row] = t
+        if self._log is not None:            # the arrival log (--save full) only
+            self._log.extend((node, bits, row, self.env.now))
 
     def _late(self, node: int, row: int, mask: int) -> None:
         if self.arrival is None:          # no log: one late (packet, row) pair
@@ -172,12 +202,7 @@ class Exchange:
         c = new.bit_count()
         self.late += c
         self.late_per_node[node] += c
-        if self.arrival is not None:
-            t = self.env.now / 1e9
-            while new:
-                low = new & -new
-                self.arrival[node, low.bit_length() - 1, row] = t
-                new ^= low
+        self._log.extend((node, new, row, self.env.now))
 
     # -- protocol hooks ----------------------------------------------------------
     #: :class:`dkfsim.components.faults.CrashSchedule` (set by the estimator) or None.  A

@@ -12,7 +12,7 @@ number is higher (links reorder).
 from __future__ import annotations
 
 from dkfsim.core.registry import PROTOCOLS
-from dkfsim.protocols.base import Exchange
+from dkfsim.protocols.base import PACKET_HEADER, Exchange
 
 
 @PROTOCOLS.register("tree")
@@ -26,12 +26,63 @@ class TreeExchange(Exchange):
         super().__init__(*args, **kwargs)
         self._dirty: list[set[int]] = [set() for _ in range(self.n)]
 
+    def attach(self, port, links) -> None:
+        super().attach(port, links)
+        #: per node: its out-links as (local index, local index of the reverse link, link)
+        self._outs = [tuple((self.lid[l.id], self.reverse[self.lid[l.id]], l) for l in self.out_links[j])
+                      for j in range(self.n)]
+        self._local = [-1] * (max(self.lid, default=-1) + 1)
+        for lid, e in self.lid.items():
+            self._local[lid] = e
+
     def measure(self, row: int) -> None:
         st = self.rows[row]
         for i in self._measuring():
             self._gain(i, row, st, 1 << i)
             self._dirty[i].add(row)
             self._schedule_flush(i)
+
+    def receive(self, link, payload) -> None:
+        """:meth:`Exchange.receive` and :meth:`_accept` in one loop (the per-packet hot path)."""
+        seq, items = payload
+        j, e = link.dst, self._local[link.id]
+        rows = self.rows
+        window = self.window
+        log = self._log
+        dirty = None
+        late = 0
+        late_logged = False
+        for row, mask in items:
+            st = rows.get(row)
+            if st is None:
+                if log is None:
+                    late += 1             # one late (packet, row) pair
+                else:
+                    self._late(j, row, mask)        # per contribution, logged
+                    late_logged = True
+                continue
+            if seq <= st.inseq[e]:
+                self.stale += 1
+                continue
+            st.inseq[e] = seq
+            st.inbox[e] = mask
+            held = st.held
+            new = mask & ~held[j]
+            if new:
+                held[j] |= new
+                window.add_mask(j, new, row)
+                if log is not None:
+                    log.extend((j, new, row, self.env.now))
+                if dirty is None:
+                    dirty = self._dirty[j]
+                dirty.add(row)
+        if dirty is not None:
+            self._schedule_flush(j)
+        if late:
+            self.late += late
+            self.late_per_node[j] += late
+        if late or late_logged:
+            self.late_packets[e] += 1
 
     def _accept(self, link, seq, row, st, mask) -> None:
         j, e = link.dst, self.lid[link.id]
@@ -51,21 +102,23 @@ class TreeExchange(Exchange):
         if not rows:
             return
         self._dirty[j] = set()
-        links = self.out_links[j]
-        items = [[] for _ in links]
+        outs = self._outs[j]
+        items = [[] for _ in outs]
+        live = self.rows
         for row in sorted(rows):
-            st = self.rows.get(row)
+            st = live.get(row)
             if st is None:
                 continue
-            held = st.held[j]
-            for idx, link in enumerate(links):
-                e = self.lid[link.id]
+            held, inbox, sent = st.held[j], st.inbox, st.sent
+            for k, (e, rev, _link) in enumerate(outs):
                 # Everything j holds except what came from the receiver: on a
                 # tree, own + the other neighbours' subtrees, disjoint sets.
-                out = held & ~st.inbox[self.reverse[e]]
-                if out != st.sent[e]:
-                    st.sent[e] = out
-                    items[idx].append((row, out))
-        for link, its in zip(links, items):
+                out = held & ~inbox[rev]
+                if out != sent[e]:
+                    sent[e] = out
+                    items[k].append((row, out))
+        send, seq, size, header = self.port.send, self.seq, self.row_bytes, PACKET_HEADER
+        for (e, _rev, link), its in zip(outs, items):
             if its:
-                self._send(link, tuple(its))
+                seq[e] += 1
+                send(link, (seq[e], its), header + len(its) * size)
