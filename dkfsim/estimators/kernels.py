@@ -18,50 +18,20 @@ docs/design.md §4 ("Kernel paths").
 
 from __future__ import annotations
 
-import importlib.util
-import os
-import sys
-import threading
-
 import numpy as np
 
-from dkfsim.core.extras import optional
-
-#: Environment variable that selects the kernel path: ``numba`` (default) or ``numpy``.
-KERNELS_ENV = "DKFSIM_KERNELS"
+from dkfsim.core.jit import KERNELS_ENV, LazyKernels, kernel_path  # noqa: F401  (re-exported)
 
 #: The kernels, callees before callers (numba resolves a callee by its module global).
 _KERNELS = ("_step", "xi_blocks", "window_rows", "xi_rows", "fold", "fold_masks")
-_compiled: list = []
-#: Runs in threads (a Dask worker with threads, a notebook) may start together: one compiles.
-_compile_lock = threading.Lock()
-
-
-def kernel_path() -> str:
-    """``"numba"`` or ``"numpy"``: the path the filters of a run started now will use.
-
-    Checks that numba is installed without importing it: commands that never
-    filter (validation, ``list``, ``--help``) do not pay numba's import.
-    """
-    want = os.environ.get(KERNELS_ENV, "").strip().lower()
-    if want == "numpy" or importlib.util.find_spec("numba") is None:
-        return "numpy"
-    return "numba"
+_lazy = LazyKernels(__name__, _KERNELS)
 
 
 def compiled():
     """This module with its kernels compiled (``numba.njit(cache=True)``, no fastmath, no
     parallel): numba is imported, and the kernels loaded from the disk cache or compiled,
-    on the first call."""
-    if not _compiled:
-        with _compile_lock:
-            if not _compiled:
-                numba = optional("numba")
-                mod = sys.modules[__name__]
-                for name in _KERNELS:
-                    setattr(mod, name, numba.njit(cache=True, fastmath=False, nogil=True)(getattr(mod, name)))
-                _compiled.append(True)
-    return sys.modules[__name__]
+    on the first call (:class:`dkfsim.core.jit.LazyKernels`)."""
+    return _lazy.get()
 
 
 def _step(Phi, Q, xprev, Pprev, Om, Th, x_out, P_out, G_out, Pp, M, rhs):
