@@ -121,6 +121,12 @@ class Sampler:
     def draw(self, t_ns: int, seq: int) -> tuple[int, bool]:
         raise NotImplementedError
 
+    def compiled_form(self) -> tuple[int, int, int] | None:
+        """``(kind, key, parameter)`` for compiled protocols that draw this model
+        themselves: ``(0, 0, ns)`` a constant, ``(1, key, d_t)`` uniform steps; None
+        for a model they cannot draw (they then leave the run to the Python path)."""
+        return None
+
 
 class KeyedSampler(Sampler):
     """An i.i.d. model: the quantile of one keyed uniform per packet."""
@@ -167,6 +173,9 @@ class _Fixed(Sampler):
     def draw(self, t_ns, seq):
         return self.ns, False
 
+    def compiled_form(self):
+        return 0, 0, self.ns
+
 
 @LATENCY_MODELS.register("uniform_steps")
 class UniformSteps(LatencyParams):
@@ -203,6 +212,9 @@ class _Steps(Sampler):
 
     def draw(self, t_ns, seq):
         return min(int(keyed_uniform(self.key, t_ns, seq) * (self.d_t + 1)), self.d_t) * self.T_ns, False
+
+    def compiled_form(self):
+        return 1, self.key, self.d_t
 
 
 @LATENCY_MODELS.register("uniform")

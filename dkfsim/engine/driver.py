@@ -130,6 +130,7 @@ class Run:
             "save": ctx.save,
             "kernels": self.dkf.window.kernels,
             "node_rows": self.dkf.window.node_rows,
+            "exchange": self.dkf.exchange.bookkeeping,
         }
         return RunResult(sc, arrays, counts, info, estimates=list(estimates), traffic=traffic,
                          facts=facts)

@@ -32,6 +32,9 @@ from dkfsim.core.resources import (B_FLOAT, C_CONTRIBUTION, C_FLOP, C_FUSION_ROW
 from dkfsim.estimators.base import Estimate, Estimator, EstimatorResult
 from dkfsim.estimators.fusion import FUSERS, CrossCovariance
 from dkfsim.estimators.window import WindowFilter
+from dkfsim.protocols.tree import TreeExchange
+from dkfsim.protocols.tree_compiled import CompiledTreeExchange
+from dkfsim.protocols.tree_compiled import usable as compiled_tree_usable
 from dkfsim.components.topology import paper_weights
 
 #: Largest P_local (entries) kept: 400 MB.
@@ -123,11 +126,14 @@ class AntiDelayDKF(Estimator):
         self.window = WindowFilter(sys_.Phi, sys_.Q, sys_.x0_mean, sys_.P0, ctx.info, self.A, self.L)
         self.xcov = CrossCovariance(self.window, sys_.P0) if self.fusion != "none" else None
         self.arrival = np.full((n, n, K), np.inf) if (self.main and ctx.save == "full") else None
+        links = [ctx.network.link(u, v) for u, v in xg.arcs]
         protocol = PROTOCOLS.get(sc.protocol).implementation
+        if protocol is TreeExchange and compiled_tree_usable(links, self.window.kernels,
+                                                             self.arrival is not None, ctx.crashes):
+            protocol = CompiledTreeExchange
         self.exchange = protocol(ctx.env, n, self.window, arrival=self.arrival,
                                  late_horizon=late_horizon(sc, n, self.L), nx=nx, T_ns=ctx.T_ns)
         self.exchange.crashes = ctx.crashes
-        links = [ctx.network.link(u, v) for u, v in xg.arcs]
         self.port = ctx.network.port(self.name, self.exchange.receive, links)
         self.exchange.attach(self.port, links)
         self.x_local = np.empty((K, n, nx))
@@ -163,6 +169,7 @@ class AntiDelayDKF(Estimator):
 
     def finish(self) -> EstimatorResult:
         K, st = self.ctx.K, self.window.state
+        self.exchange.finish()
         # Rows still in the window at the end were never final: keep their last value.
         for row in range(max(K - self.L + 1, 0), K):
             self.x_final[row] = st.x[row % self.window.S]
@@ -176,13 +183,13 @@ class AntiDelayDKF(Estimator):
         if self.main:
             arrays = {"buffer_length": np.array(self.L), "weights_A": self.A, "x_final": self.x_final}
             if self.arrival is not None:
-                self.exchange.write_log()
                 arrays["arrival"] = self.arrival
         traffic = self.port.counts()
         traffic.update(self.exchange.counts())
         for entry, late in zip(traffic["per_link"], self.exchange.late_packets):
             entry["late_packets"] = late
-        return EstimatorResult(estimates, arrays, traffic, {"buffer_length": self.L})
+        return EstimatorResult(estimates, arrays, traffic,
+                               {"buffer_length": self.L, "exchange": self.exchange.bookkeeping})
 
 
 ESTIMATORS.add("anti_delay_dkf", implementation=AntiDelayDKF)

@@ -56,6 +56,8 @@ def information_step(Phi, Q, x_prev, P_prev, Omega, Theta):
 
 
 _EYES: dict[int, np.ndarray] = {}
+#: ``starts`` of a node without news.
+NO_ROW = np.iinfo(np.int64).max
 
 
 def _eye(nx: int) -> np.ndarray:
@@ -171,6 +173,9 @@ class WindowFilter:
         self.P0 = np.broadcast_to(np.asarray(P0, float), (n, nx, nx)).copy()
         #: contributions reported since the last update: node, origin bitmask, row (flat)
         self._pend: list[int] = []
+        #: each node's earliest row changed since the last update by an exchange that folds
+        #: contributions into the ring itself (:mod:`dkfsim.protocols.tree_compiled`)
+        self.starts_in = np.full(n, NO_ROW, dtype=np.int64)
         self._mask_words = -(-self.theta.shape[1] // 64)
         #: ``"numba"`` or ``"numpy"`` (:func:`dkfsim.estimators.kernels.kernel_path`)
         self.kernels = kernels.kernel_path()
@@ -205,10 +210,11 @@ class WindowFilter:
     def _apply_pending(self) -> np.ndarray | None:
         """Fold pending contributions into the ring; each node's earliest changed row
         (``n`` ints, a huge number for nodes without news), or None."""
+        starts = self.starts_in.copy()
+        self.starts_in.fill(NO_ROW)           # in place: an exchange may hold a reference
         if not self._pend:
-            return None
+            return None if starts.min() == NO_ROW else starts
         st = self.state
-        starts = np.full(self.n, np.iinfo(np.intp).max, dtype=np.intp)
         if self.kernels == "numba":
             i, r, words = self._pending_arrays()
             info = self.info

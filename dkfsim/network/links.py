@@ -122,6 +122,11 @@ class Link:
                      or spec.jitter is not None)
         self.plain = self._main._model.draw if plain else None
 
+    def compiled_latency(self) -> tuple[int, int, int] | None:
+        """The latency model's :meth:`~dkfsim.components.latency.Sampler.compiled_form` when
+        nothing else acts on the link, else None (a compiled protocol cannot draw it)."""
+        return self._main._model.compiled_form() if self.plain is not None else None
+
     def transmit(self, t_ns: int, seq: int = 0) -> tuple[tuple[int, ...], str | None]:
         """The arrivals of a packet sent at ``t_ns`` as number ``seq`` of its sender at
         that instant: ``(latencies, why lost)`` -- ``()`` and ``"lost"`` or

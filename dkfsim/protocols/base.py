@@ -69,6 +69,8 @@ class Exchange:
     """
 
     tree = False
+    #: How holdings are kept (``summary.json``'s ``exchange``): origin bitmasks, in Python.
+    bookkeeping = "masks"
     #: The graph the protocol runs on (:func:`dkfsim.components.topology.make_exchange`):
     #: ``"tree"`` (an undirected tree, or a spanning tree of the topology) or ``"digraph"``
     #: (every arc of the topology; undirected edges both ways).
@@ -167,6 +169,10 @@ class Exchange:
             self.final.pop(row - self.late_horizon, None)
             if len(self._log) > 400_000:          # bound the log's memory
                 self.write_log()
+
+    def finish(self) -> None:
+        """The run is over: write what is still buffered (the arrival log)."""
+        self.write_log()
 
     def write_log(self) -> None:
         """Write the logged arrivals into the arrival array (seconds)."""

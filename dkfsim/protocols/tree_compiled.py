@@ -1,0 +1,198 @@
+"""``tree`` with its instants compiled: the same protocol, packets and counts as
+:class:`~dkfsim.protocols.tree.TreeExchange`, a few kernel calls per instant instead of
+Python per packet.
+
+SimPy still runs the clock: one event per arrival instant (deliveries), the tick's
+measure, one event per instant that flushes the due nodes (priority after deliveries,
+before the update), in the order the Python protocol creates them.  Inside, the kernels of
+:mod:`dkfsim.protocols.tree_compiled_kernels` keep every row's holdings, messages and
+sequence numbers as uint64 words, draw each packet's latency from its link's keys, keep
+packets in flight on a heap and fold new contributions straight into the window filter.
+
+Used by the anti-delay DKF when it can be (:func:`usable`): numba kernels, origin bitmasks
+needed (fusion or weights), no arrival log, no crashes, and every link plain (no loss,
+duplication, outage, schedule or jitter) with a ``constant`` or ``uniform_steps`` latency.
+Anything else runs the Python protocol.  docs/design.md §5 ("Compiled tree").
+"""
+
+from __future__ import annotations
+
+import os
+
+import numpy as np
+from simpy.events import NORMAL
+
+from dkfsim.core.jit import entry_point
+from dkfsim.network.links import PRIORITY_FLUSH, Scheduled
+from dkfsim.protocols import tree_compiled_kernels as tk
+from dkfsim.protocols.base import PACKET_HEADER
+from dkfsim.protocols.tree import TreeExchange
+
+
+#: Environment variable: ``python`` runs the Python protocol where the compiled one would run.
+EXCHANGE_ENV = "DKFSIM_EXCHANGE"
+
+
+def usable(links, kernels: str, arrival_log: bool, crashes) -> bool:
+    """Whether :class:`CompiledTreeExchange` can run these ``links`` (see the module)."""
+    if os.environ.get(EXCHANGE_ENV, "").strip().lower() == "python":
+        return False
+    return (kernels == "numba" and not arrival_log and not crashes
+            and all(link.compiled_latency() is not None for link in links))
+
+
+class CompiledTreeExchange(TreeExchange):
+    """The ``tree`` protocol with its instants compiled (identical packets and counts)."""
+
+    bookkeeping = "masks, compiled"
+    #: Packets the pool holds at first (it doubles when a flush needs more).
+    initial_pool = 64
+
+    def __init__(self, env, n, window, arrival=None, late_horizon=4096, nx=1, T_ns=1):
+        if arrival is not None:
+            raise ValueError("the compiled tree keeps no arrival log")
+        super().__init__(env, n, window, None, late_horizon, nx, T_ns)
+        self._k = tk.compiled()
+        self.W = -(-window.theta.shape[1] // 64)
+        self.CT = np.zeros(11, dtype=np.int64)
+        self._flush_pending = False
+
+    def attach(self, port, links) -> None:
+        super().attach(port, links)
+        n, E, S, W = self.n, self.n_links, self.window.S, self.W
+        self.G = np.array([[l.src, l.dst, -1 if r is None else r, 0]
+                           for l, r in zip(self.links, self.reverse)], dtype=np.int64).reshape(E, 4)
+        order = np.argsort(self.G[:, 0], kind="stable")      # out-links of a node in link order
+        self.out_ptr = np.searchsorted(self.G[order, 0], np.arange(n + 1)).astype(np.int64)
+        self.out_idx = order.astype(np.int64)
+        forms = [l.compiled_latency() for l in self.links]
+        self.lkind = np.array([f[0] for f in forms], dtype=np.int64)
+        self.lkey = np.array([f[1] for f in forms], dtype=np.uint64)
+        self.lpar = np.array([f[2] for f in forms], dtype=np.int64)
+        self.dinst = np.full(E, -1, dtype=np.int64)
+        self.dcnt = np.zeros(E, dtype=np.int64)
+        self.lseq = np.zeros(E, dtype=np.int64)
+        self.rowid = np.full(S, -1, dtype=np.int64)
+        self.held = np.zeros((S, n, W), dtype=np.uint64)
+        self.inbox = np.zeros((S, E, W), dtype=np.uint64)
+        self.inseq = np.zeros((S, E), dtype=np.int64)
+        self.sent = np.zeros((S, E, W), dtype=np.uint64)
+        self.dirty = np.zeros((n, S), dtype=np.uint8)
+        self.due = np.zeros(n, dtype=np.uint8)
+        self.queue = np.zeros(n + 1, dtype=np.int64)
+        self.counts_ = np.zeros((4, E), dtype=np.int64)     # sent, delivered, late packets, bytes
+        self.late_node = np.zeros(n, dtype=np.int64)
+        deg = int(np.diff(self.out_ptr).max()) if n else 0
+        self.outp = np.full(max(deg, 1), -1, dtype=np.int64)
+        self.new = np.zeros(W, dtype=np.uint64)
+        self.out = np.zeros(W, dtype=np.uint64)
+        self._pool(max(self.initial_pool, 4 * E) if self.initial_pool > 1 else 1)
+        w, info = self.window, self.window.info
+        self._fold_args = (w.A, info.omega if info.varying else info.omega[None], bool(info.varying),
+                           w.theta, w.state.Omega, w.state.Theta, w.state.held, w.starts_in, self.new)
+        self._bind()
+        # Compiled entry points of exactly these argument types (numba's per-call type
+        # dispatch skipped); each kernel called once with nothing to do (empty heap and queue).
+        k = self._k
+        self._deliver = entry_point(k.deliver, -1, *self._dargs)
+        self._flush_k = entry_point(k.flush_all, -1, -1, *self._fargs)
+        self._measure_k = k.measure
+
+    def _pool(self, P: int) -> None:
+        """A packet pool of ``P`` slots (the heap holds at most that many); grows, keeping
+        the packets in flight."""
+        S, W = self.window.S, self.W
+        pk = np.zeros((P, 3), dtype=np.int64)
+        rows = np.zeros((P, S), dtype=np.int64)
+        masks = np.zeros((P, S, W), dtype=np.uint64)
+        heap = tuple(np.zeros(P, dtype=np.int64) for _ in range(3))
+        free = np.arange(P - 1, -1, -1, dtype=np.int64)
+        if hasattr(self, "pk"):
+            P0, nfree = self.pk.shape[0], int(self.CT[tk.NFREE])
+            pk[:P0], rows[:P0], masks[:P0] = self.pk, self.pk_rows, self.pk_masks
+            for new, old in zip(heap, self.heap):
+                new[:P0] = old
+            free[:nfree] = self.free[:nfree]
+            free[nfree:nfree + P - P0] = np.arange(P - 1, P0 - 1, -1)
+            self.CT[tk.NFREE] = nfree + P - P0
+        else:
+            self.CT[tk.NFREE] = P
+        self.pk, self.pk_rows, self.pk_masks, self.heap, self.free = pk, rows, masks, heap, free
+        newt = np.zeros(P, dtype=np.int64)
+        if hasattr(self, "newt"):
+            newt[:len(self.newt)] = self.newt
+        self.newt = newt
+
+    def _bind(self) -> None:
+        """The kernels' argument tuples (rebuilt when the pool grows)."""
+        state = (self.CT, self.G, self.rowid, self.held, self.inbox, self.inseq, self.dirty, self.due,
+                 self.queue, *self.heap, self.free, self.pk, self.pk_rows, self.pk_masks, self.counts_,
+                 self.late_node)
+        self._dargs = state + self._fold_args
+        self._margs = (self.CT, self.rowid, self.held, self.inbox, self.inseq, self.sent, self.dirty,
+                       self.due, self.queue) + self._fold_args
+        self._fargs = (PACKET_HEADER, self.row_bytes, self.T_ns, self.CT, self.G, self.out_ptr,
+                       self.out_idx, self.lkind, self.lkey, self.lpar, self.dinst, self.dcnt, self.lseq,
+                       self.rowid, self.held, self.inbox, self.inseq, self.sent, self.dirty, self.due,
+                       self.queue, *self.heap, self.free, self.pk, self.pk_rows, self.pk_masks,
+                       self.counts_, self.late_node, self.newt, self.outp) + self._fold_args + (self.out,)
+
+    # -- rows ------------------------------------------------------------------
+    def open_row(self, row: int) -> None:
+        """Nothing: :meth:`measure` opens the row in the kernel."""
+
+    def close_row(self, row: int) -> None:
+        """``row`` became final: what arrives for it from now on is late."""
+        self.CT[tk.LO] = row + 1
+        if self.rowid[row % self.window.S] == row:
+            self.rowid[row % self.window.S] = -1
+
+    # -- events ----------------------------------------------------------------
+    def measure(self, row: int) -> None:
+        self._measure_k(row, *self._margs)
+        self._after()
+
+    def _on_deliver(self, _event) -> None:
+        self._deliver(self.env.now, *self._dargs)
+        self._after()
+
+    def _on_flush(self, _event) -> None:
+        self._flush_pending = False
+        now, until = self.env.now, self.port.until
+        while self._flush_k(now, until, *self._fargs) == tk.NEED_ROOM:
+            self._pool(2 * self.pk.shape[0])
+            self._bind()
+        CT, env = self.CT, self.env
+        for t in self.newt[:CT[tk.NEWT]].tolist():
+            if t <= until:
+                Scheduled(env, self._on_deliver, NORMAL, t - now)
+        CT[tk.NEWT] = 0
+
+    def _after(self) -> None:
+        if self.CT[tk.QLEN] and not self._flush_pending:
+            self._flush_pending = True
+            Scheduled(self.env, self._on_flush, PRIORITY_FLUSH)
+
+    def receive(self, link, payload) -> None:
+        raise RuntimeError("the compiled tree exchange receives nothing through its port")
+
+    # -- results ---------------------------------------------------------------
+    def finish(self) -> None:
+        """Write the kernels' per-link counts into the port (what ``port.counts()`` reports)."""
+        count = self.port._count
+        self.port._grow()
+        for k, key in ((0, "sent"), (1, "delivered"), (3, "bytes")):
+            for link, v in zip(self.links, self.counts_[k].tolist()):
+                count[key][link.id] = v
+
+    @property
+    def late_packets(self) -> list[int]:
+        return self.counts_[2].tolist()
+
+    @late_packets.setter
+    def late_packets(self, _value) -> None:
+        """(The base class sets a list in ``attach``; the kernels count into an array.)"""
+
+    def counts(self) -> dict:
+        return {"late": int(self.CT[tk.LATE]), "late_per_node": self.late_node.tolist(),
+                "late_unit": "packet_rows", "duplicates": 0, "stale": int(self.CT[tk.STALE])}

@@ -1,0 +1,288 @@
+"""Kernels of :mod:`dkfsim.protocols.tree_compiled`: the ``tree`` protocol's instants, compiled.
+
+One call handles what one event of :class:`~dkfsim.protocols.tree.TreeExchange` and its
+port would do at an instant: :func:`deliver` the packets due now (in the order they were
+sent), :func:`measure` a new row, or :func:`flush_all` the nodes that gained something
+(each flush's zero-latency packets delivered before the next node flushes).  Packets wait
+in a binary heap ordered by (arrival instant, send order); their latencies are the links'
+keyed draws (:func:`dkfsim.core.streams.keyed_uniform`, bit for bit) for ``constant`` and
+``uniform_steps`` links.  New contributions are folded straight into the window filter's
+ring, in the order the Python protocol reports them, so the sums are the same numbers.
+
+The scalar state lives in one int64 array ``CT`` (indices below); origin sets are rows
+of little-endian uint64 words.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from dkfsim.core.jit import LazyKernels
+
+_KERNELS = ("keyed_uniform", "_fold", "_push", "_pop", "_enqueue", "_receive", "deliver", "measure",
+            "flush_all")
+_lazy = LazyKernels(__name__, _KERNELS)
+
+# CT indices
+HEAP, NFREE, QHEAD, QLEN, LO, HI, ORDER, LATE, STALE, NEWT, PKTS = range(11)
+#: Flag returned by :func:`flush_all` when the packet pool is full (grow it and call again).
+NEED_ROOM = -2
+
+_GOLDEN = np.uint64(0x9E3779B97F4A7C15)
+_M1 = np.uint64(0xBF58476D1CE4E5B9)
+_M2 = np.uint64(0x94D049BB133111EB)
+_S30, _S27, _S31, _S11 = np.uint64(30), np.uint64(27), np.uint64(31), np.uint64(11)
+_ONE = np.uint64(1)
+_ZERO = np.uint64(0)
+_SCALE = 1.0 / 9007199254740992.0
+
+
+def compiled():
+    """This module with its kernels compiled by numba (loaded from the disk cache after the
+    first time)."""
+    return _lazy.get()
+
+
+def keyed_uniform(key, t, seq):
+    """:func:`dkfsim.core.streams.keyed_uniform` in uint64 arithmetic (the same bits)."""
+    z = key + _GOLDEN * np.uint64(t)
+    z = (z ^ (z >> _S30)) * _M1
+    z = (z ^ (z >> _S27)) * _M2
+    z = (z ^ (z >> _S31)) + _GOLDEN * np.uint64(seq + 1)
+    z = (z ^ (z >> _S30)) * _M1
+    z = (z ^ (z >> _S27)) * _M2
+    return (np.float64((z ^ (z >> _S31)) >> _S11) + 0.5) * _SCALE
+
+
+def _fold(node, row, bits, A, omega, varying, theta, Omega, Theta, held, starts):
+    """Add origins ``bits`` (words) of ``row`` to ``node``'s sums, origins ascending (as
+    :func:`dkfsim.estimators.kernels.fold_masks`)."""
+    S = Omega.shape[0]
+    nx = Omega.shape[2]
+    slot = row % S
+    for w in range(bits.shape[0]):
+        m = bits[w]
+        b = 0
+        while m != _ZERO:
+            if m & _ONE:
+                org = w * 64 + b
+                a = A[node, org]
+                om = omega[row if varying else 0, org]
+                held[slot, node, org] = True
+                for p in range(nx):
+                    for q in range(nx):
+                        Omega[slot, node, p, q] += a * om[p, q]
+                    Theta[slot, node, p] += a * theta[row, org, p]
+            m >>= _ONE
+            b += 1
+    if row < starts[node]:
+        starts[node] = row
+
+
+def _push(CT, heap_t, heap_o, heap_p, t, p):
+    """Put packet ``p`` due at ``t`` on the heap (ties: send order)."""
+    k = CT[HEAP]
+    CT[HEAP] = k + 1
+    o = CT[ORDER]
+    CT[ORDER] = o + 1
+    while k > 0:
+        up = (k - 1) // 2
+        if heap_t[up] < t or (heap_t[up] == t and heap_o[up] < o):
+            break
+        heap_t[k], heap_o[k], heap_p[k] = heap_t[up], heap_o[up], heap_p[up]
+        k = up
+    heap_t[k], heap_o[k], heap_p[k] = t, o, p
+
+
+def _pop(CT, heap_t, heap_o, heap_p):
+    """Remove the heap's first packet and return it."""
+    top = heap_p[0]
+    n = CT[HEAP] - 1
+    CT[HEAP] = n
+    t, o, p = heap_t[n], heap_o[n], heap_p[n]
+    k = 0
+    while True:
+        c = 2 * k + 1
+        if c >= n:
+            break
+        if c + 1 < n and (heap_t[c + 1] < heap_t[c] or (heap_t[c + 1] == heap_t[c] and heap_o[c + 1] < heap_o[c])):
+            c += 1
+        if t < heap_t[c] or (t == heap_t[c] and o < heap_o[c]):
+            break
+        heap_t[k], heap_o[k], heap_p[k] = heap_t[c], heap_o[c], heap_p[c]
+        k = c
+    heap_t[k], heap_o[k], heap_p[k] = t, o, p
+    return top
+
+
+def _receive(p, CT, G, rowid, held, inbox, inseq, dirty, due, queue, pk, pk_rows, pk_masks, counts,
+             late_node, A, omega, varying, theta, Omega, Theta, wheld, starts, new):
+    """The Python protocol's ``receive`` for pooled packet ``p`` (then its slot is free)."""
+    n = held.shape[1]
+    S = rowid.shape[0]
+    W = held.shape[2]
+    e = pk[p, 0]
+    seq = pk[p, 1]
+    j = G[e, 1]
+    counts[1, e] += 1                              # delivered
+    late = 0
+    gained = False
+    for q in range(pk[p, 2]):
+        row = pk_rows[p, q]
+        slot = row % S
+        if rowid[slot] != row:
+            late += 1
+            continue
+        if seq <= inseq[slot, e]:
+            CT[STALE] += 1
+            continue
+        inseq[slot, e] = seq
+        some = False
+        for w in range(W):
+            m = pk_masks[p, q, w]
+            inbox[slot, e, w] = m
+            new[w] = m & ~held[slot, j, w]
+            if new[w] != _ZERO:
+                some = True
+        if some:
+            for w in range(W):
+                held[slot, j, w] |= new[w]
+            _fold(j, row, new, A, omega, varying, theta, Omega, Theta, wheld, starts)
+            dirty[j, slot] = 1
+            gained = True
+    if late:
+        CT[LATE] += late
+        late_node[j] += late
+        counts[2, e] += 1                          # late packets
+    if gained:
+        _enqueue(j, CT, due, queue)
+
+
+def _enqueue(j, CT, due, queue):
+    """Node ``j``'s flush is due (once until it runs), after those due before it."""
+    if not due[j]:
+        due[j] = 1
+        queue[(CT[QHEAD] + CT[QLEN]) % queue.shape[0]] = j
+        CT[QLEN] += 1
+
+
+def deliver(now, CT, G, rowid, held, inbox, inseq, dirty, due, queue, heap_t, heap_o, heap_p, free,
+            pk, pk_rows, pk_masks, counts, late_node, A, omega, varying, theta, Omega, Theta, wheld,
+            starts, new):
+    """Deliver every packet due at ``now`` (send order).  Returns the heap's next instant or -1."""
+    while CT[HEAP] > 0 and heap_t[0] <= now:
+        p = _pop(CT, heap_t, heap_o, heap_p)
+        _receive(p, CT, G, rowid, held, inbox, inseq, dirty, due, queue, pk, pk_rows, pk_masks, counts,
+                 late_node, A, omega, varying, theta, Omega, Theta, wheld, starts, new)
+        free[CT[NFREE]] = p
+        CT[NFREE] += 1
+    return heap_t[0] if CT[HEAP] > 0 else -1
+
+
+def measure(row, CT, rowid, held, inbox, inseq, sent, dirty, due, queue, A, omega, varying, theta,
+            Omega, Theta, wheld, starts, new):
+    """Open ``row`` and give every node its own contribution (the Python ``measure``)."""
+    n = held.shape[1]
+    S = rowid.shape[0]
+    slot = row % S
+    rowid[slot] = row
+    held[slot] = _ZERO
+    inbox[slot] = _ZERO
+    inseq[slot] = 0
+    sent[slot] = _ZERO
+    for i in range(n):
+        dirty[i, slot] = 0
+    CT[HI] = row
+    for i in range(n):
+        new[:] = _ZERO
+        new[i // 64] = _ONE << np.uint64(i % 64)
+        held[slot, i, i // 64] |= new[i // 64]
+        _fold(i, row, new, A, omega, varying, theta, Omega, Theta, wheld, starts)
+        dirty[i, slot] = 1
+        _enqueue(i, CT, due, queue)
+
+
+def flush_all(now, until, header, row_bytes, T_ns, CT, G, out_ptr, out_idx, lkind, lkey, lpar, dinst, dcnt, lseq,
+              rowid, held, inbox, inseq, sent, dirty, due, queue, heap_t, heap_o, heap_p, free, pk,
+              pk_rows, pk_masks, counts, late_node, newt, outp, A, omega, varying, theta, Omega, Theta,
+              wheld, starts, new, out):
+    """Flush the due nodes, first due first; after each flush the zero-latency packets are
+    delivered (they may make more nodes due).  Packets with a latency go on the heap and a
+    new arrival instant is listed in ``newt``.  Returns :data:`NEED_ROOM` if the pool has
+    fewer free packets than the next node has out-links (nothing of that node done yet)."""
+    n = held.shape[1]
+    S = rowid.shape[0]
+    W = held.shape[2]
+    while CT[QLEN] > 0:
+        j = queue[CT[QHEAD]]
+        deg = out_ptr[j + 1] - out_ptr[j]
+        if CT[NFREE] < deg:
+            return NEED_ROOM
+        CT[QHEAD] = (CT[QHEAD] + 1) % queue.shape[0]
+        CT[QLEN] -= 1
+        due[j] = 0
+        lo = max(CT[LO], CT[HI] - S + 1)
+        for row in range(lo, CT[HI] + 1):
+            s = row % S
+            if rowid[s] != row or not dirty[j, s]:
+                continue
+            dirty[j, s] = 0
+            for k in range(deg):
+                e = out_idx[out_ptr[j] + k]
+                r = G[e, 2]
+                changed = False
+                for w in range(W):
+                    out[w] = held[s, j, w] & ~inbox[s, r, w]
+                    if out[w] != sent[s, e, w]:
+                        changed = True
+                if not changed:
+                    continue
+                p = outp[k]
+                if p < 0:
+                    CT[NFREE] -= 1
+                    p = free[CT[NFREE]]
+                    outp[k] = p
+                    pk[p, 2] = 0
+                q = pk[p, 2]
+                pk[p, 2] = q + 1
+                pk_rows[p, q] = row
+                for w in range(W):
+                    sent[s, e, w] = out[w]
+                    pk_masks[p, q, w] = out[w]
+        for k in range(deg):
+            p = outp[k]
+            if p < 0:
+                continue
+            outp[k] = -1
+            e = out_idx[out_ptr[j] + k]
+            lseq[e] += 1
+            pk[p, 0] = e
+            pk[p, 1] = lseq[e]
+            if dinst[e] != now:
+                dinst[e] = now
+                dcnt[e] = 0
+            d = dcnt[e]
+            dcnt[e] = d + 1
+            if lkind[e] == 0:
+                lat = lpar[e]
+            else:
+                v = int(keyed_uniform(lkey[e], now, d) * (lpar[e] + 1))
+                lat = min(v, lpar[e]) * T_ns
+            counts[0, e] += 1
+            counts[3, e] += header + pk[p, 2] * row_bytes
+            t = now + lat
+            if lat > 0:
+                fresh = True
+                for h in range(CT[HEAP]):
+                    if heap_t[h] == t:
+                        fresh = False
+                        break
+                if fresh:
+                    newt[CT[NEWT]] = t
+                    CT[NEWT] += 1
+            _push(CT, heap_t, heap_o, heap_p, t, p)
+        if now <= until:
+            deliver(now, CT, G, rowid, held, inbox, inseq, dirty, due, queue, heap_t, heap_o, heap_p, free,
+                    pk, pk_rows, pk_masks, counts, late_node, A, omega, varying, theta, Omega, Theta, wheld,
+                    starts, new)
+    return 0

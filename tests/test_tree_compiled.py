@@ -1,0 +1,112 @@
+"""The compiled tree exchange is the Python tree protocol, packet for packet.
+
+:mod:`dkfsim.protocols.tree_compiled` re-implements the ``tree`` protocol and its port
+(keyed latency draws, one delivery event per instant, flushes after deliveries, zero-latency
+packets delivered before the next flush) in kernels, and folds contributions into the window
+in the Python protocol's order.  So against the Python protocol (``DKFSIM_EXCHANGE=python``,
+same numba kernels otherwise) every count, per link too, is identical and every estimate is
+the same number, bit for bit.  A case where either differs fails.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+import dkfsim
+from conftest import scenario, tree_edges
+from dkfsim.core.streams import keyed_uniform
+from dkfsim.protocols import tree_compiled, tree_compiled_kernels
+
+CASES = {
+    # the paper's latency model, 3 states, 9 nodes
+    "uniform_steps": dict(n=9, nx=3, edges=tree_edges(9, 11), latency={"model": "uniform_steps", "d_t": 3}),
+    # 70 nodes: origin sets of two 64-bit words
+    "two_words": dict(n=70, edges=tree_edges(70, 3), steps=25, latency={"model": "uniform_steps", "d_t": 2}),
+    # a latency that is not a multiple of T: arrivals between ticks, relays landing on ticks
+    "constant_off_grid": dict(n=8, edges=tree_edges(8, 4), latency={"model": "constant", "value": 0.013}),
+    # zero latency: chains of relays inside one instant
+    "zero_latency": dict(n=8, edges=tree_edges(8, 6)),
+    # a buffer shorter than the delays: late packets, stale messages
+    "short_buffer": dict(n=8, edges=tree_edges(8, 2), buffer_length=2,
+                         latency={"model": "uniform_steps", "d_t": 3}),
+    "paper_weights_diagonal": dict(n=8, edges=tree_edges(8, 5), weights="paper", fusion="diagonal",
+                                   latency={"model": "uniform_steps", "d_t": 2}),
+}
+
+
+def _run(d, exchange, monkeypatch):
+    monkeypatch.setenv("DKFSIM_KERNELS", "numba")
+    monkeypatch.setenv(tree_compiled.EXCHANGE_ENV, exchange)
+    return dkfsim.run(dkfsim.load_scenario(d), save="estimates")
+
+
+def _same(a, b):
+    assert a.counts == b.counts                      # totals, per link, late, stale
+    for name in ("x_local", "P_local", "x_final", "x_fused", "P_fused"):
+        if name in a.arrays:
+            assert np.array_equal(a.arrays[name], b.arrays[name]), name
+
+
+@pytest.mark.parametrize("case", list(CASES))
+def test_compiled_tree_is_the_python_protocol(case, monkeypatch):
+    d = scenario(**{"steps": 40, **CASES[case]})
+    a, b = _run(d, "", monkeypatch), _run(d, "python", monkeypatch)
+    assert a.info["exchange"] == "masks, compiled" and b.info["exchange"] == "masks"
+    assert a.counts["sent"] > 0
+    _same(a, b)
+    if case == "short_buffer":
+        assert a.counts["late"] > 0 and a.counts["stale"] > 0      # the case exercises both
+
+
+def test_a_growing_packet_pool_keeps_the_packets_in_flight(monkeypatch):
+    d = scenario(n=12, edges=tree_edges(12, 9), steps=30, latency={"model": "uniform_steps", "d_t": 4})
+    monkeypatch.setattr(tree_compiled.CompiledTreeExchange, "initial_pool", 1)
+    a = _run(d, "", monkeypatch)
+    monkeypatch.undo()
+    _same(a, _run(d, "python", monkeypatch))
+
+
+def test_an_extra_dkf_instance_runs_compiled_beside_the_main_one(monkeypatch):
+    d = scenario(n=7, edges=tree_edges(7, 1), latency={"model": "uniform_steps", "d_t": 2})
+    d["estimators"] = [{"kind": "anti_delay_dkf", "name": "dkf_L2", "buffer_length": 2}]
+    _same(_run(d, "", monkeypatch), _run(d, "python", monkeypatch))
+
+
+@pytest.mark.parametrize("change, value", [
+    ("loss", 0.2), ("crash", None), ("latency", {"model": "uniform", "low": 0.0, "high": 0.02})])
+def test_what_the_kernels_cannot_draw_runs_the_python_protocol(change, value, monkeypatch):
+    d = scenario(n=6, edges=tree_edges(6, 1), steps=10, latency={"model": "uniform_steps", "d_t": 1})
+    if change == "loss":
+        d["links"]["default"]["loss"] = value
+    elif change == "latency":
+        d["links"]["default"]["latency"] = value
+    else:
+        d["faults"] = {"crashes": [{"node": 2, "start": 0.02, "end": 0.05}]}
+    assert _run(d, "", monkeypatch).info["exchange"] == "masks"
+
+
+def test_the_arrival_log_runs_the_python_protocol(monkeypatch):
+    d = scenario(n=6, steps=10, latency={"model": "uniform_steps", "d_t": 1})
+    monkeypatch.setenv(tree_compiled.EXCHANGE_ENV, "")
+    assert dkfsim.run(dkfsim.load_scenario(d), save="full").info["exchange"] == "masks"
+
+
+def test_the_compiled_draws_are_the_keyed_uniforms(monkeypatch):
+    k = tree_compiled_kernels.compiled()
+    rng = np.random.default_rng(5)
+    for _ in range(2000):
+        key = int(rng.integers(0, 2**63)) * 2 + int(rng.integers(0, 2))       # all 64 bits
+        t, seq = int(rng.integers(0, 2**62)), int(rng.integers(0, 50))
+        assert k.keyed_uniform(np.uint64(key), t, seq) == keyed_uniform(key, t, seq)
+
+
+def test_zero_latency_compiled_dkf_is_the_centralized_filter(monkeypatch):
+    """The oracle of tests/test_exactness.py on the compiled path: at zero latency every
+    node holds everything on time, so each node's estimate is the centralized one."""
+    d = scenario(n=9, nx=3, edges=tree_edges(9, 2), steps=50)
+    res = _run(d, "", monkeypatch)
+    assert res.info["exchange"] == "masks, compiled"
+    xc = res.arrays["x_centralized"]
+    err = np.abs(res.arrays["x_local"] - xc[:, None, :]).max() / np.abs(xc).max()
+    assert err < 1e-9
