@@ -23,7 +23,7 @@ import numpy as np
 from dkfsim.core.jit import KERNELS_ENV, LazyKernels, kernel_path  # noqa: F401  (re-exported)
 
 #: The kernels, callees before callers (numba resolves a callee by its module global).
-_KERNELS = ("_step", "xi_blocks", "window_rows", "xi_rows", "fold", "fold_masks")
+_KERNELS = ("_step", "xi_blocks", "window_rows", "xi_rows", "fold", "fold_masks", "filter_rows")
 _lazy = LazyKernels(__name__, _KERNELS)
 
 
@@ -294,3 +294,20 @@ def fold_masks(i, r, words, A, omega, varying, theta, Omega, Theta, held, starts
                 b += 1
         if row < starts[node]:
             starts[node] = row
+
+
+def filter_rows(Phi, Q, x0, P0, Omega, per_row, Theta, xs, Ps):
+    """``b`` independent information filters over ``K`` rows (see window.batched_filter):
+    ``Omega`` (1 or K, b, nx, nx), ``Theta`` (K, b, nx); results into ``xs``, ``Ps``."""
+    K, b, nx = Theta.shape
+    Pp = np.empty((nx, nx))
+    M = np.empty((nx, nx))
+    G = np.empty((nx, nx))
+    rhs = np.empty((nx, nx + 1))
+    for r in range(K):
+        Om = Omega[r] if per_row else Omega[0]
+        for i in range(b):
+            if r == 0:
+                _step(Phi, Q, x0[i], P0[i], Om[i], Theta[r, i], xs[r, i], Ps[r, i], G, Pp, M, rhs)
+            else:
+                _step(Phi, Q, xs[r - 1, i], Ps[r - 1, i], Om[i], Theta[r, i], xs[r, i], Ps[r, i], G, Pp, M, rhs)

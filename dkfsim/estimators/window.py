@@ -82,6 +82,11 @@ def batched_filter(Phi, Q, x0, P0, Omega, Theta):
     x = np.broadcast_to(np.asarray(x0, float), (b, nx))
     P = np.broadcast_to(np.asarray(P0, float), (b, nx, nx))
     per_row = Omega.ndim == 4
+    if kernels.kernel_path() == "numba":         # one compiled call instead of K numpy steps
+        kernels.compiled().filter_rows(np.asarray(Phi, float), np.asarray(Q, float), np.ascontiguousarray(x),
+                                       np.ascontiguousarray(P), np.ascontiguousarray(Omega if per_row else Omega[None], float),
+                                       per_row, np.ascontiguousarray(Theta, float), xs, Ps)
+        return xs, Ps
     for r in range(K):
         x, P, _ = information_step(Phi, Q, x, P, Omega[r] if per_row else Omega, Theta[r])
         xs[r] = x
