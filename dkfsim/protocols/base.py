@@ -167,7 +167,7 @@ class Exchange:
         if st is not None and self.arrival is not None:
             self.final[row] = st.held
             self.final.pop(row - self.late_horizon, None)
-            if len(self._log) > 400_000:          # bound the log's memory
+            if len(self._log) > 400_000:          # 100 000 entries: bound the log's memory
                 self.write_log()
 
     def finish(self) -> None:
