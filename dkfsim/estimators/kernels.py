@@ -23,7 +23,7 @@ import numpy as np
 from dkfsim.core.jit import KERNELS_ENV, LazyKernels, kernel_path  # noqa: F401  (re-exported)
 
 #: The kernels, callees before callers (numba resolves a callee by its module global).
-_KERNELS = ("_step", "xi_blocks", "window_rows", "xi_rows", "fold", "fold_masks", "filter_rows")
+_KERNELS = ("_step", "xi_blocks", "window_rows", "xi_rows", "filter_rows")
 _lazy = LazyKernels(__name__, _KERNELS)
 
 
@@ -246,54 +246,6 @@ def xi_rows(Xi, Xi0, G, P, held, A, column_sensor, factor, varying, Phi, Lq, sta
         YY = np.dot(Ya, Y.T)
         Xi_prev = Xi0 if row == 0 else Xi[(row - 1) % S]
         xi_blocks(Xi_prev, Xi[slot], F, YY, nodes[:na], active)
-
-
-def fold(i, o, r, A, omega, varying, theta, Omega, Theta, held, starts):
-    """Add the contributions ``(node i, origin o, row r)`` to the ring (in order, like
-    ``np.add.at``); ``starts[i]`` becomes the earliest row node ``i`` gained."""
-    S = Omega.shape[0]
-    nx = Omega.shape[2]
-    for k in range(i.shape[0]):
-        node, org, row = i[k], o[k], r[k]
-        slot = row % S
-        a = A[node, org]
-        om = omega[row if varying else 0, org]
-        held[slot, node, org] = True
-        for p in range(nx):
-            for q in range(nx):
-                Omega[slot, node, p, q] += a * om[p, q]
-            Theta[slot, node, p] += a * theta[row, org, p]
-        if row < starts[node]:
-            starts[node] = row
-
-
-def fold_masks(i, r, words, A, omega, varying, theta, Omega, Theta, held, starts):
-    """:func:`fold` for contributions given as origin bitmasks: ``words[k]`` holds the
-    origins of node ``i[k]`` for row ``r[k]`` as little-endian 64-bit words; origins
-    are added in ascending order, contribution after contribution."""
-    S = Omega.shape[0]
-    nx = Omega.shape[2]
-    n_words = words.shape[1]
-    for k in range(i.shape[0]):
-        node, row = i[k], r[k]
-        slot = row % S
-        for w in range(n_words):
-            m = words[k, w]
-            b = 0
-            while m != 0:
-                if m & 1:
-                    org = w * 64 + b
-                    a = A[node, org]
-                    om = omega[row if varying else 0, org]
-                    held[slot, node, org] = True
-                    for p in range(nx):
-                        for q in range(nx):
-                            Omega[slot, node, p, q] += a * om[p, q]
-                        Theta[slot, node, p] += a * theta[row, org, p]
-                m >>= 1
-                b += 1
-        if row < starts[node]:
-            starts[node] = row
 
 
 def filter_rows(Phi, Q, x0, P0, Omega, per_row, Theta, xs, Ps):

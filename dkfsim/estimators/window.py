@@ -25,6 +25,7 @@ import numpy as np
 from dkfsim.core.bits import mask_words, set_bits
 from dkfsim.core.linalg import solve
 from dkfsim.estimators import kernels
+from dkfsim.protocols import tree_compiled_kernels
 
 
 def information_step(Phi, Q, x_prev, P_prev, Omega, Theta):
@@ -224,8 +225,9 @@ class WindowFilter:
             i, r, words = self._pending_arrays()
             info = self.info
             omega = info.omega if info.varying else info.omega[None]
-            self._k.fold_masks(i, r, words, self.A, omega, info.varying, self.theta, st.Omega, st.Theta,
-                               st.held, starts)
+            # The bit walk lives with the compiled tree protocol, which folds the same way.
+            tree_compiled_kernels.compiled().fold_masks(i, r, words, self.A, omega, info.varying, self.theta,
+                                                        st.Omega, st.Theta, st.held, starts)
             return starts
         i, o, r = self._unpack()
         slot = r % self.S

@@ -19,7 +19,7 @@ import numpy as np
 
 from dkfsim.core.jit import LazyKernels
 
-_KERNELS = ("keyed_uniform", "_fold", "_push", "_pop", "_enqueue", "_receive", "deliver", "measure",
+_KERNELS = ("keyed_uniform", "_fold", "fold_masks", "_push", "_pop", "_enqueue", "_receive", "deliver", "measure",
             "flush_all")
 _lazy = LazyKernels(__name__, _KERNELS)
 
@@ -35,6 +35,13 @@ _S30, _S27, _S31, _S11 = np.uint64(30), np.uint64(27), np.uint64(31), np.uint64(
 _ONE = np.uint64(1)
 _ZERO = np.uint64(0)
 _SCALE = 1.0 / 9007199254740992.0
+#: De Bruijn multiplication: the index of a word's lowest set bit without scanning the others.
+_DEBRUIJN = 0x03F79D71B4CB0A89
+_BIT_INDEX = np.zeros(64, dtype=np.int64)
+for _i in range(64):
+    _BIT_INDEX[(((1 << _i) * _DEBRUIJN) & ((1 << 64) - 1)) >> 58] = _i
+_DB = np.uint64(_DEBRUIJN)
+_S58 = np.uint64(58)
 
 
 def compiled():
@@ -60,23 +67,28 @@ def _fold(node, row, bits, A, omega, varying, theta, Omega, Theta, held, starts)
     S = Omega.shape[0]
     nx = Omega.shape[2]
     slot = row % S
+    r_om = row if varying else 0
     for w in range(bits.shape[0]):
         m = bits[w]
-        b = 0
         while m != _ZERO:
-            if m & _ONE:
-                org = w * 64 + b
-                a = A[node, org]
-                om = omega[row if varying else 0, org]
-                held[slot, node, org] = True
-                for p in range(nx):
-                    for q in range(nx):
-                        Omega[slot, node, p, q] += a * om[p, q]
-                    Theta[slot, node, p] += a * theta[row, org, p]
-            m >>= _ONE
-            b += 1
+            low = m & (~m + _ONE)
+            m ^= low
+            org = w * 64 + _BIT_INDEX[(low * _DB) >> _S58]
+            a = A[node, org]
+            held[slot, node, org] = True
+            for p in range(nx):
+                for q in range(nx):
+                    Omega[slot, node, p, q] += a * omega[r_om, org, p, q]
+                Theta[slot, node, p] += a * theta[row, org, p]
     if row < starts[node]:
         starts[node] = row
+
+
+def fold_masks(i, r, words, A, omega, varying, theta, Omega, Theta, held, starts):
+    """:func:`_fold` for many contributions, in order: ``words[k]`` holds the origins of node
+    ``i[k]`` for row ``r[k]`` (the window filter's fold of what a Python protocol reported)."""
+    for k in range(i.shape[0]):
+        _fold(i[k], r[k], words[k], A, omega, varying, theta, Omega, Theta, held, starts)
 
 
 def _push(CT, heap_t, heap_o, heap_p, t, p):
