@@ -118,16 +118,18 @@ class CompiledTreeExchange(TreeExchange):
         else:
             self.CT[tk.NFREE] = P
         self.pk, self.pk_rows, self.pk_masks, self.heap, self.free = pk, rows, masks, heap, free
-        newt = np.zeros(P, dtype=np.int64)
-        if hasattr(self, "newt"):
-            newt[:len(self.newt)] = self.newt
-        self.newt = newt
+        for name in ("newt", "times"):          # arrival instants: new ones, those with an event
+            a = np.zeros(P, dtype=np.int64)
+            if hasattr(self, name):
+                old = getattr(self, name)
+                a[:len(old)] = old
+            setattr(self, name, a)
 
     def _bind(self) -> None:
         """The kernels' argument tuples (rebuilt when the pool grows)."""
         state = (self.CT, self.G, self.rowid, self.held, self.inbox, self.inseq, self.dirty, self.due,
                  self.queue, *self.heap, self.free, self.pk, self.pk_rows, self.pk_masks, self.counts_,
-                 self.late_node)
+                 self.late_node, self.times)
         self._dargs = state + self._fold_args
         self._margs = (self.CT, self.rowid, self.held, self.inbox, self.inseq, self.sent, self.dirty,
                        self.due, self.queue) + self._fold_args
@@ -135,7 +137,7 @@ class CompiledTreeExchange(TreeExchange):
                        self.out_idx, self.lkind, self.lkey, self.lpar, self.dinst, self.dcnt, self.lseq,
                        self.rowid, self.held, self.inbox, self.inseq, self.sent, self.dirty, self.due,
                        self.queue, *self.heap, self.free, self.pk, self.pk_rows, self.pk_masks,
-                       self.counts_, self.late_node, self.newt, self.outp) + self._fold_args + (self.out,)
+                       self.counts_, self.late_node, self.times, self.newt, self.outp) + self._fold_args + (self.out,)
 
     # -- rows ------------------------------------------------------------------
     def open_row(self, row: int) -> None:

@@ -24,7 +24,7 @@ _KERNELS = ("keyed_uniform", "_fold", "fold_masks", "_push", "_pop", "_enqueue",
 _lazy = LazyKernels(__name__, _KERNELS)
 
 # CT indices
-HEAP, NFREE, QHEAD, QLEN, LO, HI, ORDER, LATE, STALE, NEWT, PKTS = range(11)
+HEAP, NFREE, QHEAD, QLEN, LO, HI, ORDER, LATE, STALE, NEWT, NTIMES = range(11)
 #: Flag returned by :func:`flush_all` when the packet pool is full (grow it and call again).
 NEED_ROOM = -2
 
@@ -179,9 +179,17 @@ def _enqueue(j, CT, due, queue):
 
 
 def deliver(now, CT, G, rowid, held, inbox, inseq, dirty, due, queue, heap_t, heap_o, heap_p, free,
-            pk, pk_rows, pk_masks, counts, late_node, A, omega, varying, theta, Omega, Theta, wheld,
-            starts, new):
-    """Deliver every packet due at ``now`` (send order).  Returns the heap's next instant or -1."""
+            pk, pk_rows, pk_masks, counts, late_node, times, A, omega, varying, theta, Omega, Theta,
+            wheld, starts, new):
+    """Deliver every packet due at ``now`` (send order).  Returns the heap's next instant or -1.
+
+    ``times[:CT[NTIMES]]`` are the future arrival instants that have an event: ``now`` leaves."""
+    k = 0
+    for h in range(CT[NTIMES]):
+        if times[h] > now:
+            times[k] = times[h]
+            k += 1
+    CT[NTIMES] = k
     while CT[HEAP] > 0 and heap_t[0] <= now:
         p = _pop(CT, heap_t, heap_o, heap_p)
         _receive(p, CT, G, rowid, held, inbox, inseq, dirty, due, queue, pk, pk_rows, pk_masks, counts,
@@ -216,8 +224,8 @@ def measure(row, CT, rowid, held, inbox, inseq, sent, dirty, due, queue, A, omeg
 
 def flush_all(now, until, header, row_bytes, T_ns, CT, G, out_ptr, out_idx, lkind, lkey, lpar, dinst, dcnt, lseq,
               rowid, held, inbox, inseq, sent, dirty, due, queue, heap_t, heap_o, heap_p, free, pk,
-              pk_rows, pk_masks, counts, late_node, newt, outp, A, omega, varying, theta, Omega, Theta,
-              wheld, starts, new, out):
+              pk_rows, pk_masks, counts, late_node, times, newt, outp, A, omega, varying, theta, Omega,
+              Theta, wheld, starts, new, out):
     """Flush the due nodes, first due first; after each flush the zero-latency packets are
     delivered (they may make more nodes due).  Packets with a latency go on the heap and a
     new arrival instant is listed in ``newt``.  Returns :data:`NEED_ROOM` if the pool has
@@ -283,18 +291,20 @@ def flush_all(now, until, header, row_bytes, T_ns, CT, G, out_ptr, out_idx, lkin
             counts[0, e] += 1
             counts[3, e] += header + pk[p, 2] * row_bytes
             t = now + lat
-            if lat > 0:
+            if lat > 0:                            # a new arrival instant needs an event
                 fresh = True
-                for h in range(CT[HEAP]):
-                    if heap_t[h] == t:
+                for h in range(CT[NTIMES]):
+                    if times[h] == t:
                         fresh = False
                         break
                 if fresh:
+                    times[CT[NTIMES]] = t
+                    CT[NTIMES] += 1
                     newt[CT[NEWT]] = t
                     CT[NEWT] += 1
             _push(CT, heap_t, heap_o, heap_p, t, p)
         if now <= until:
             deliver(now, CT, G, rowid, held, inbox, inseq, dirty, due, queue, heap_t, heap_o, heap_p, free,
-                    pk, pk_rows, pk_masks, counts, late_node, A, omega, varying, theta, Omega, Theta, wheld,
-                    starts, new)
+                    pk, pk_rows, pk_masks, counts, late_node, times, A, omega, varying, theta, Omega, Theta,
+                    wheld, starts, new)
     return 0
