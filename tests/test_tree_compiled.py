@@ -35,15 +35,15 @@ CASES = {
 }
 
 
-def _run(d, exchange, monkeypatch):
+def _run(d, exchange, monkeypatch, save="estimates"):
     monkeypatch.setenv("DKFSIM_KERNELS", "numba")
     monkeypatch.setenv(tree_compiled.EXCHANGE_ENV, exchange)
-    return dkfsim.run(dkfsim.load_scenario(d), save="estimates")
+    return dkfsim.run(dkfsim.load_scenario(d), save=save)
 
 
 def _same(a, b):
     assert a.counts == b.counts                      # totals, per link, late, stale
-    for name in ("x_local", "P_local", "x_final", "x_fused", "P_fused"):
+    for name in ("x_local", "P_local", "x_final", "x_fused", "P_fused", "arrival"):
         if name in a.arrays:
             assert np.array_equal(a.arrays[name], b.arrays[name]), name
 
@@ -86,10 +86,17 @@ def test_what_the_kernels_cannot_draw_runs_the_python_protocol(change, value, mo
     assert _run(d, "", monkeypatch).info["exchange"] == "masks"
 
 
-def test_the_arrival_log_runs_the_python_protocol(monkeypatch):
-    d = scenario(n=6, steps=10, latency={"model": "uniform_steps", "d_t": 1})
-    monkeypatch.setenv(tree_compiled.EXCHANGE_ENV, "")
-    assert dkfsim.run(dkfsim.load_scenario(d), save="full").info["exchange"] == "masks"
+@pytest.mark.parametrize("case", ["uniform_steps", "short_buffer", "constant_off_grid"])
+def test_the_arrival_log_is_the_python_protocols(case, monkeypatch):
+    """With the log, late contributions count once each (holdings of final rows kept) and
+    every arrival instant is written: the same array and counts as the Python protocol."""
+    d = scenario(**{"steps": 40, **CASES[case]})
+    a, b = _run(d, "", monkeypatch, "full"), _run(d, "python", monkeypatch, "full")
+    assert a.info["exchange"] == "masks, compiled" and a.counts["late_unit"] == "contributions"
+    assert np.isfinite(a.arrays["arrival"]).sum() > 0
+    _same(a, b)
+    if case == "short_buffer":
+        assert a.counts["late"] > a.counts["per_link"][0]["late_packets"] > 0
 
 
 def test_the_compiled_draws_are_the_keyed_uniforms(monkeypatch):

@@ -128,8 +128,7 @@ class AntiDelayDKF(Estimator):
         self.arrival = np.full((n, n, K), np.inf) if (self.main and ctx.save == "full") else None
         links = [ctx.network.link(u, v) for u, v in xg.arcs]
         protocol = PROTOCOLS.get(sc.protocol).implementation
-        if protocol is TreeExchange and compiled_tree_usable(links, self.window.kernels,
-                                                             self.arrival is not None, ctx.crashes):
+        if protocol is TreeExchange and compiled_tree_usable(links, self.window.kernels, ctx.crashes):
             protocol = CompiledTreeExchange
         self.exchange = protocol(ctx.env, n, self.window, arrival=self.arrival,
                                  late_horizon=late_horizon(sc, n, self.L), nx=nx, T_ns=ctx.T_ns)

@@ -10,7 +10,7 @@ sequence numbers as uint64 words, draw each packet's latency from its link's key
 packets in flight on a heap and fold new contributions straight into the window filter.
 
 Used by the anti-delay DKF when it can be (:func:`usable`): numba kernels, origin bitmasks
-needed (fusion or weights), no arrival log, no crashes, and every link plain (no loss,
+needed (fusion, weights or the arrival log), no crashes, and every link plain (no loss,
 duplication, outage, schedule or jitter) with a ``constant`` or ``uniform_steps`` latency.
 Anything else runs the Python protocol.  docs/design.md §5 ("Compiled tree").
 """
@@ -33,11 +33,11 @@ from dkfsim.protocols.tree import TreeExchange
 EXCHANGE_ENV = "DKFSIM_EXCHANGE"
 
 
-def usable(links, kernels: str, arrival_log: bool, crashes) -> bool:
+def usable(links, kernels: str, crashes) -> bool:
     """Whether :class:`CompiledTreeExchange` can run these ``links`` (see the module)."""
     if os.environ.get(EXCHANGE_ENV, "").strip().lower() == "python":
         return False
-    return (kernels == "numba" and not arrival_log and not crashes
+    return (kernels == "numba" and not crashes
             and all(link.compiled_latency() is not None for link in links))
 
 
@@ -49,9 +49,8 @@ class CompiledTreeExchange(TreeExchange):
     initial_pool = 64
 
     def __init__(self, env, n, window, arrival=None, late_horizon=4096, nx=1, T_ns=1):
-        if arrival is not None:
-            raise ValueError("the compiled tree keeps no arrival log")
-        super().__init__(env, n, window, None, late_horizon, nx, T_ns)
+        super().__init__(env, n, window, arrival, late_horizon, nx, T_ns)
+        self._log = None                 # the kernels write the arrival log themselves
         self._k = tk.compiled()
         self.W = -(-window.theta.shape[1] // 64)
         self.CT = np.zeros(11, dtype=np.int64)
@@ -88,8 +87,14 @@ class CompiledTreeExchange(TreeExchange):
         self.out = np.zeros(W, dtype=np.uint64)
         self._pool(max(self.initial_pool, 4 * E) if self.initial_pool > 1 else 1)
         w, info = self.window, self.window.info
+        logf = self.arrival is not None
+        # With the arrival log: the holdings of the last late_horizon final rows (late accounting).
+        H = self.late_horizon if logf else 1
+        self.fheld = np.zeros((H, n if logf else 1, W), dtype=np.uint64)
+        self.frow = np.full(H, -1, dtype=np.int64)
         self._fold_args = (w.A, info.omega if info.varying else info.omega[None], bool(info.varying),
-                           w.theta, w.state.Omega, w.state.Theta, w.state.held, w.starts_in, self.new)
+                           w.theta, w.state.Omega, w.state.Theta, w.state.held, w.starts_in, self.new,
+                           self.arrival if logf else np.empty((1, 1, 1)), logf, self.fheld, self.frow)
         self._bind()
         # Compiled entry points of exactly these argument types (numba's per-call type
         # dispatch skipped); each kernel called once with nothing to do (empty heap and queue).
@@ -137,7 +142,7 @@ class CompiledTreeExchange(TreeExchange):
                        self.out_idx, self.lkind, self.lkey, self.lpar, self.dinst, self.dcnt, self.lseq,
                        self.rowid, self.held, self.inbox, self.inseq, self.sent, self.dirty, self.due,
                        self.queue, *self.heap, self.free, self.pk, self.pk_rows, self.pk_masks,
-                       self.counts_, self.late_node, self.times, self.newt, self.outp) + self._fold_args + (self.out,)
+                       self.counts_, self.late_node, self.times, self.newt, self.outp, self.out) + self._fold_args
 
     # -- rows ------------------------------------------------------------------
     def open_row(self, row: int) -> None:
@@ -146,12 +151,16 @@ class CompiledTreeExchange(TreeExchange):
     def close_row(self, row: int) -> None:
         """``row`` became final: what arrives for it from now on is late."""
         self.CT[tk.LO] = row + 1
-        if self.rowid[row % self.window.S] == row:
-            self.rowid[row % self.window.S] = -1
+        slot = row % self.window.S
+        if self.rowid[slot] == row:
+            self.rowid[slot] = -1
+            if self.arrival is not None:          # keep its holdings: late ones count once
+                self.fheld[row % self.late_horizon] = self.held[slot]
+                self.frow[row % self.late_horizon] = row
 
     # -- events ----------------------------------------------------------------
     def measure(self, row: int) -> None:
-        self._measure_k(row, *self._margs)
+        self._measure_k(row, self.env.now, *self._margs)
         self._after()
 
     def _on_deliver(self, _event) -> None:
@@ -180,7 +189,8 @@ class CompiledTreeExchange(TreeExchange):
 
     # -- results ---------------------------------------------------------------
     def finish(self) -> None:
-        """Write the kernels' per-link counts into the port (what ``port.counts()`` reports)."""
+        """Write the kernels' per-link counts into the port (what ``port.counts()`` reports);
+        the arrival log is already written."""
         count = self.port._count
         self.port._grow()
         for k, key in ((0, "sent"), (1, "delivered"), (3, "bytes")):
@@ -197,4 +207,5 @@ class CompiledTreeExchange(TreeExchange):
 
     def counts(self) -> dict:
         return {"late": int(self.CT[tk.LATE]), "late_per_node": self.late_node.tolist(),
-                "late_unit": "packet_rows", "duplicates": 0, "stale": int(self.CT[tk.STALE])}
+                "late_unit": "contributions" if self.arrival is not None else "packet_rows",
+                "duplicates": 0, "stale": int(self.CT[tk.STALE])}

@@ -61,9 +61,9 @@ def keyed_uniform(key, t, seq):
     return (np.float64((z ^ (z >> _S31)) >> _S11) + 0.5) * _SCALE
 
 
-def _fold(node, row, bits, A, omega, varying, theta, Omega, Theta, held, starts):
-    """Add origins ``bits`` (words) of ``row`` to ``node``'s sums, origins ascending (as
-    :func:`dkfsim.estimators.kernels.fold_masks`)."""
+def _fold(node, row, bits, A, omega, varying, theta, Omega, Theta, held, starts, t_s, arrival, logf):
+    """Add origins ``bits`` (words) of ``row`` to ``node``'s sums, origins ascending; with
+    ``logf``, log each origin's arrival at ``t_s`` seconds."""
     S = Omega.shape[0]
     nx = Omega.shape[2]
     slot = row % S
@@ -76,6 +76,8 @@ def _fold(node, row, bits, A, omega, varying, theta, Omega, Theta, held, starts)
             org = w * 64 + _BIT_INDEX[(low * _DB) >> _S58]
             a = A[node, org]
             held[slot, node, org] = True
+            if logf:
+                arrival[node, org, row] = t_s
             for p in range(nx):
                 for q in range(nx):
                     Omega[slot, node, p, q] += a * omega[r_om, org, p, q]
@@ -87,8 +89,9 @@ def _fold(node, row, bits, A, omega, varying, theta, Omega, Theta, held, starts)
 def fold_masks(i, r, words, A, omega, varying, theta, Omega, Theta, held, starts):
     """:func:`_fold` for many contributions, in order: ``words[k]`` holds the origins of node
     ``i[k]`` for row ``r[k]`` (the window filter's fold of what a Python protocol reported)."""
+    nolog = np.empty((1, 1, 1))
     for k in range(i.shape[0]):
-        _fold(i[k], r[k], words[k], A, omega, varying, theta, Omega, Theta, held, starts)
+        _fold(i[k], r[k], words[k], A, omega, varying, theta, Omega, Theta, held, starts, 0.0, nolog, False)
 
 
 def _push(CT, heap_t, heap_o, heap_p, t, p):
@@ -127,9 +130,14 @@ def _pop(CT, heap_t, heap_o, heap_p):
     return top
 
 
-def _receive(p, CT, G, rowid, held, inbox, inseq, dirty, due, queue, pk, pk_rows, pk_masks, counts,
-             late_node, A, omega, varying, theta, Omega, Theta, wheld, starts, new):
-    """The Python protocol's ``receive`` for pooled packet ``p`` (then its slot is free)."""
+def _receive(p, now, CT, G, rowid, held, inbox, inseq, dirty, due, queue, pk, pk_rows, pk_masks, counts,
+             late_node, A, omega, varying, theta, Omega, Theta, wheld, starts, new, arrival, logf, fheld,
+             frow):
+    """The Python protocol's ``receive`` for pooled packet ``p`` (then its slot is free).
+
+    A row already final is late: one per (packet, row), or with the arrival log (``logf``) one
+    per contribution the receiver did not hold when the row became final (``fheld``: the
+    holdings of the last final rows, ``frow`` which), logged; older rows count every origin."""
     n = held.shape[1]
     S = rowid.shape[0]
     W = held.shape[2]
@@ -138,12 +146,29 @@ def _receive(p, CT, G, rowid, held, inbox, inseq, dirty, due, queue, pk, pk_rows
     j = G[e, 1]
     counts[1, e] += 1                              # delivered
     late = 0
+    any_late = False
     gained = False
+    t_s = now / 1e9
     for q in range(pk[p, 2]):
         row = pk_rows[p, q]
         slot = row % S
         if rowid[slot] != row:
-            late += 1
+            any_late = True
+            if not logf:
+                late += 1
+                continue
+            h = row % frow.shape[0]
+            for w in range(W):
+                m = pk_masks[p, q, w]
+                if frow[h] == row:
+                    m &= ~fheld[h, j, w]
+                    fheld[h, j, w] |= m
+                while m != _ZERO:
+                    low = m & (~m + _ONE)
+                    m ^= low
+                    late += 1
+                    if frow[h] == row:
+                        arrival[j, w * 64 + _BIT_INDEX[(low * _DB) >> _S58], row] = t_s
             continue
         if seq <= inseq[slot, e]:
             CT[STALE] += 1
@@ -159,10 +184,10 @@ def _receive(p, CT, G, rowid, held, inbox, inseq, dirty, due, queue, pk, pk_rows
         if some:
             for w in range(W):
                 held[slot, j, w] |= new[w]
-            _fold(j, row, new, A, omega, varying, theta, Omega, Theta, wheld, starts)
+            _fold(j, row, new, A, omega, varying, theta, Omega, Theta, wheld, starts, t_s, arrival, logf)
             dirty[j, slot] = 1
             gained = True
-    if late:
+    if any_late:
         CT[LATE] += late
         late_node[j] += late
         counts[2, e] += 1                          # late packets
@@ -180,7 +205,7 @@ def _enqueue(j, CT, due, queue):
 
 def deliver(now, CT, G, rowid, held, inbox, inseq, dirty, due, queue, heap_t, heap_o, heap_p, free,
             pk, pk_rows, pk_masks, counts, late_node, times, A, omega, varying, theta, Omega, Theta,
-            wheld, starts, new):
+            wheld, starts, new, arrival, logf, fheld, frow):
     """Deliver every packet due at ``now`` (send order).  Returns the heap's next instant or -1.
 
     ``times[:CT[NTIMES]]`` are the future arrival instants that have an event: ``now`` leaves."""
@@ -192,15 +217,16 @@ def deliver(now, CT, G, rowid, held, inbox, inseq, dirty, due, queue, heap_t, he
     CT[NTIMES] = k
     while CT[HEAP] > 0 and heap_t[0] <= now:
         p = _pop(CT, heap_t, heap_o, heap_p)
-        _receive(p, CT, G, rowid, held, inbox, inseq, dirty, due, queue, pk, pk_rows, pk_masks, counts,
-                 late_node, A, omega, varying, theta, Omega, Theta, wheld, starts, new)
+        _receive(p, now, CT, G, rowid, held, inbox, inseq, dirty, due, queue, pk, pk_rows, pk_masks, counts,
+                 late_node, A, omega, varying, theta, Omega, Theta, wheld, starts, new, arrival, logf, fheld,
+                 frow)
         free[CT[NFREE]] = p
         CT[NFREE] += 1
     return heap_t[0] if CT[HEAP] > 0 else -1
 
 
-def measure(row, CT, rowid, held, inbox, inseq, sent, dirty, due, queue, A, omega, varying, theta,
-            Omega, Theta, wheld, starts, new):
+def measure(row, now, CT, rowid, held, inbox, inseq, sent, dirty, due, queue, A, omega, varying, theta,
+            Omega, Theta, wheld, starts, new, arrival, logf, fheld, frow):
     """Open ``row`` and give every node its own contribution (the Python ``measure``)."""
     n = held.shape[1]
     S = rowid.shape[0]
@@ -217,15 +243,15 @@ def measure(row, CT, rowid, held, inbox, inseq, sent, dirty, due, queue, A, omeg
         new[:] = _ZERO
         new[i // 64] = _ONE << np.uint64(i % 64)
         held[slot, i, i // 64] |= new[i // 64]
-        _fold(i, row, new, A, omega, varying, theta, Omega, Theta, wheld, starts)
+        _fold(i, row, new, A, omega, varying, theta, Omega, Theta, wheld, starts, now / 1e9, arrival, logf)
         dirty[i, slot] = 1
         _enqueue(i, CT, due, queue)
 
 
 def flush_all(now, until, header, row_bytes, T_ns, CT, G, out_ptr, out_idx, lkind, lkey, lpar, dinst, dcnt, lseq,
               rowid, held, inbox, inseq, sent, dirty, due, queue, heap_t, heap_o, heap_p, free, pk,
-              pk_rows, pk_masks, counts, late_node, times, newt, outp, A, omega, varying, theta, Omega,
-              Theta, wheld, starts, new, out):
+              pk_rows, pk_masks, counts, late_node, times, newt, outp, out, A, omega, varying, theta,
+              Omega, Theta, wheld, starts, new, arrival, logf, fheld, frow):
     """Flush the due nodes, first due first; after each flush the zero-latency packets are
     delivered (they may make more nodes due).  Packets with a latency go on the heap and a
     new arrival instant is listed in ``newt``.  Returns :data:`NEED_ROOM` if the pool has
@@ -306,5 +332,5 @@ def flush_all(now, until, header, row_bytes, T_ns, CT, G, out_ptr, out_idx, lkin
         if now <= until:
             deliver(now, CT, G, rowid, held, inbox, inseq, dirty, due, queue, heap_t, heap_o, heap_p, free,
                     pk, pk_rows, pk_masks, counts, late_node, times, A, omega, varying, theta, Omega, Theta,
-                    wheld, starts, new)
+                    wheld, starts, new, arrival, logf, fheld, frow)
     return 0
