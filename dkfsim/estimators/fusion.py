@@ -135,7 +135,7 @@ class CrossCovariance:
             st, info = w.state, self.info
             factor = info.factor if info.varying else info.factor[None]
             w._k.xi_rows(self.Xi, self.Xi0, st.G, st.P, st.held, w.A, self._unit, self._column_sensor,
-                         factor, info.varying, w.Phi, self.Lq, starts, first, last)
+                         factor, info.varying, w.Phi, self.Lq, starts, first, last, (0,) * self.nx)
             return
         order = np.sort(starts)
         for row in range(first, last + 1):

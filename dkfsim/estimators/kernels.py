@@ -176,7 +176,7 @@ def window_rows(Phi, Q, x0, P0, X, P, G, Omega, Theta, starts, first, last):
                       X[slot, i], P[slot, i], G[slot, i], Pp, M, rhs)
 
 
-def xi_blocks(Xi_prev, Xi, i, F_i, Ft, Y1, sel, E, Y2, R, Out):
+def xi_blocks(Xi_prev, Xi, i, F_i, Ft, Y1, sel, E, Y2, R, Out, T):
     """Block row ``i`` of one row's ``Xi`` (node ``i`` re-ran the row).
 
     ``C_ij = F_i C_ij(prev) F_j' + sum_e Y1[e, a] Y2[sel[e], b n + j]`` for
@@ -188,29 +188,30 @@ def xi_blocks(Xi_prev, Xi, i, F_i, Ft, Y1, sel, E, Y2, R, Out):
     is symmetrized; :func:`xi_rows` makes the whole matrix symmetric once all
     active nodes are done.
     """
-    nx, n = Ft.shape[0], Ft.shape[2]
+    nx, n = len(T), Ft.shape[2]
     i0 = i * nx
     # R[a, d, j] = (F_i C_ij(prev))[a, d]
-    for a in range(nx):
-        for d in range(nx):
-            f = F_i[a, 0]
-            for j in range(n):
-                R[a, d, j] = f * Xi_prev[i0, j * nx + d]
-            for c in range(1, nx):
-                f = F_i[a, c]
-                for j in range(n):
-                    R[a, d, j] += f * Xi_prev[i0 + c, j * nx + d]
+    for j in range(n):
+        j0 = j * nx
+        for a in range(nx):
+            for d in range(nx):
+                s = 0.0
+                for c in range(nx):
+                    s += F_i[a, c] * Xi_prev[i0 + c, j0 + d]
+                R[a, d, j] = s
     Outf = Out.reshape(nx, nx * n)
-    for a in range(nx):
-        o = Outf[a]
-        for q in range(nx * n):
-            o[q] = 0.0
-        for e in range(E):
+    for q in range(nx * n):
+        for a in range(nx):
+            Outf[a, q] = 0.0
+    for e in range(E):
+        y = Y2[sel[e]]
+        for a in range(nx):
             g = Y1[e, a]
             if g != 0.0:
-                y = Y2[sel[e]]
+                o = Outf[a]
                 for q in range(nx * n):
                     o[q] += g * y[q]
+    for a in range(nx):
         for b in range(nx):
             for d in range(nx):
                 for j in range(n):
@@ -224,13 +225,15 @@ def xi_blocks(Xi_prev, Xi, i, F_i, Ft, Y1, sel, E, Y2, R, Out):
             Xi[i0 + a, i0 + b] = 0.5 * (Out[a, b, i] + Out[b, a, i])
 
 
-def xi_rows(Xi, Xi0, G, P, held, A, unit, column_sensor, factor, varying, Phi, Lq, starts, first, last):
+def xi_rows(Xi, Xi0, G, P, held, A, unit, column_sensor, factor, varying, Phi, Lq, starts, first, last, T):
     """The cross-covariance recursion for rows ``first .. last`` (see fusion.CrossCovariance).
 
     ``Xi`` is the ring (S, N, N), ``G, P, held`` the window filter's ring
     arrays, ``factor`` the measurement factor ``U`` (1, nx, M), or (K, nx, M)
     when ``varying``.  Node ``i``'s block row and column change from row
-    ``starts[i]`` on; the rest of each row's ``Xi`` is left as it is.
+    ``starts[i]`` on; the rest of each row's ``Xi`` is left as it is.  ``T``
+    is a tuple of ``nx`` zeros: its length is a compile-time constant, so the
+    loops over the state's components unroll (each ``nx`` compiles once).
 
     The shared-measurement term ``P_i S_ij P_j``, ``S_ij = sum_m a_im a_jm
     h_im h_jm u_m u_m'`` (``h`` the held flags, ``u_m`` column ``m`` of ``U``),
@@ -249,7 +252,7 @@ def xi_rows(Xi, Xi0, G, P, held, A, unit, column_sensor, factor, varying, Phi, L
     ``(P_j u_m)[b]`` times ``missed_jm`` (``M`` rows) and times ``a_jm h_jm``
     (``M`` rows).
     """
-    S, n, nx = G.shape[0], G.shape[1], G.shape[2]
+    S, n, nx = G.shape[0], G.shape[1], len(T)
     N = n * nx
     M = factor.shape[2]
     Ft = np.empty((nx, nx, n))
@@ -264,29 +267,44 @@ def xi_rows(Xi, Xi0, G, P, held, A, unit, column_sensor, factor, varying, Phi, L
     active = np.empty(n, dtype=np.bool_)
     comp = np.empty(n, dtype=np.bool_)
     wj = np.empty(n)
+    MO = np.empty((nx, nx, n))
+    hc = np.empty((M, n))
+    cnt = np.empty(n)
+    need_c = np.empty(M, dtype=np.bool_)
+    need_d = np.empty(M, dtype=np.bool_)
+    act = np.empty(n, dtype=np.int64)
     P2, D2, ZC, ZD = nx, 2 * nx, 3 * nx, 3 * nx + M
     for row in range(first, last + 1):
         slot = row % S
         U = factor[row if varying else 0]
         hs = held[slot]
         na = 0
-        n_direct = 0
-        n_comp = 0
         for i in range(n):
             active[i] = starts[i] <= row
-            comp[i] = False
             if active[i]:
+                act[na] = i
                 na += 1
-                if unit:
-                    h = 0
-                    for m in range(M):
-                        if hs[i, column_sensor[m]]:
-                            h += 1
-                    comp[i] = M - h + 2 * nx < h
-                if comp[i]:
-                    n_comp += 1
-                else:
-                    n_direct += 1
+        if na == 0:
+            continue
+        # hc[m, j]: node j holds column m (its origin), as 0/1; its count per node
+        for m in range(M):
+            o = column_sensor[m]
+            for j in range(n):
+                hc[m, j] = 1.0 if hs[j, o] else 0.0
+        for j in range(n):
+            cnt[j] = 0.0
+        for m in range(M):
+            for j in range(n):
+                cnt[j] += hc[m, j]
+        n_direct = 0
+        n_comp = 0
+        for k in range(na):
+            i = act[k]
+            comp[i] = unit and M - cnt[i] + 2 * nx < cnt[i]
+            if comp[i]:
+                n_comp += 1
+            else:
+                n_direct += 1
         if na == 0:
             continue
         Gs = G[slot]
@@ -302,8 +320,22 @@ def xi_rows(Xi, Xi0, G, P, held, A, unit, column_sensor, factor, varying, Phi, L
                     Ft[a, b, j] = s
                     Y2[b, a * n + j] = t
                     Y2[P2 + a, b * n + j] = Ps[j, a, b]
+        # Which columns m the active nodes' sums need: missed by a complement node
+        # (rows ZC), held by a direct one (rows ZD).
+        for m in range(M):
+            need_c[m] = False
+            need_d[m] = False
+            for k in range(na):
+                i = act[k]
+                if comp[i]:
+                    if hc[m, i] == 0.0:
+                        need_c[m] = True
+                elif hc[m, i] != 0.0:
+                    need_d[m] = True
         # PU[m, b n + j] = sum_d P_j[d, b] U[d, m]
         for m in range(M):
+            if not (need_c[m] or need_d[m]):
+                continue
             u = U[0, m]
             for q in range(N):
                 PU[m, q] = Y2[P2, q] * u
@@ -311,36 +343,49 @@ def xi_rows(Xi, Xi0, G, P, held, A, unit, column_sensor, factor, varying, Phi, L
                 u = U[d, m]
                 for q in range(N):
                     PU[m, q] += Y2[P2 + d, q] * u
+            o = column_sensor[m]
+            if need_c[m]:
+                for j in range(n):
+                    wj[j] = 1.0 - hc[m, j]
+                for b in range(nx):
+                    for j in range(n):
+                        Y2[ZC + m, b * n + j] = wj[j] * PU[m, b * n + j]
+            if need_d[m]:
+                for j in range(n):
+                    wj[j] = A[j, o] * hc[m, j]
+                for b in range(nx):
+                    for j in range(n):
+                        Y2[ZD + m, b * n + j] = wj[j] * PU[m, b * n + j]
         if n_comp > 0:
+            # Ot = U U';  (MO_j P_j)[d, b] at Y2[D2 + d, b n + j]
             for a in range(nx):
                 for b in range(nx):
                     s = 0.0
                     for m in range(M):
                         s += U[a, m] * U[b, m]
                     Ot[a, b] = s
+            # MO[a, c, j] = sum over the columns j misses of U[a, m] U[c, m]
+            for a in range(nx):
+                for c in range(nx):
+                    for j in range(n):
+                        MO[a, c, j] = 0.0
+            for m in range(M):
+                for j in range(n):
+                    wj[j] = 1.0 - hc[m, j]
+                for a in range(nx):
+                    for c in range(nx):
+                        uu = U[a, m] * U[c, m]
+                        if uu != 0.0:
+                            for j in range(n):
+                                MO[a, c, j] += uu * wj[j]
             for d in range(nx):
-                for q in range(N):
-                    Y2[D2 + d, q] = 0.0
-            for m in range(M):
-                o = column_sensor[m]
-                for j in range(n):
-                    wj[j] = 0.0 if hs[j, o] else 1.0
                 for b in range(nx):
+                    q = b * n
                     for j in range(n):
-                        Y2[ZC + m, b * n + j] = wj[j] * PU[m, b * n + j]
-                for d in range(nx):
-                    u = U[d, m]
-                    if u != 0.0:
-                        for q in range(N):
-                            Y2[D2 + d, q] += u * Y2[ZC + m, q]
-        if n_direct > 0:
-            for m in range(M):
-                o = column_sensor[m]
-                for j in range(n):
-                    wj[j] = A[j, o] if hs[j, o] else 0.0
-                for b in range(nx):
-                    for j in range(n):
-                        Y2[ZD + m, b * n + j] = wj[j] * PU[m, b * n + j]
+                        Y2[D2 + d, q + j] = MO[d, 0, j] * Y2[P2, q + j]
+                    for c in range(1, nx):
+                        for j in range(n):
+                            Y2[D2 + d, q + j] += MO[d, c, j] * Y2[P2 + c, q + j]
         Xi_prev = Xi0 if row == 0 else Xi[(row - 1) % S]
         Xs = Xi[slot]
         for i in range(n):
@@ -369,28 +414,29 @@ def xi_rows(Xi, Xi0, G, P, held, A, unit, column_sensor, factor, varying, Phi, L
                     sel[E + 1] = D2 + d
                     E += 2
                 for m in range(M):
-                    if not hs[i, column_sensor[m]]:
+                    if hc[m, i] == 0.0:
                         for a in range(nx):
                             Y1[E, a] = PU[m, a * n + i]
                         sel[E] = ZC + m
                         E += 1
             else:
                 for m in range(M):
-                    o = column_sensor[m]
-                    if hs[i, o] and A[i, o] != 0.0:
+                    w = A[i, column_sensor[m]] * hc[m, i]
+                    if w != 0.0:
                         for a in range(nx):
-                            Y1[E, a] = A[i, o] * PU[m, a * n + i]
+                            Y1[E, a] = w * PU[m, a * n + i]
                         sel[E] = ZD + m
                         E += 1
-            xi_blocks(Xi_prev, Xs, i, F_i, Ft, Y1, sel, E, Y2, R, Out)
+            xi_blocks(Xi_prev, Xs, i, F_i, Ft, Y1, sel, E, Y2, R, Out, T)
         # Symmetry: block (j, i) := block (i, j)' for each active i, from the smaller index's
         # block row when both are active.  Row by row, so the writes stay within one row.
         for j in range(n):
             j0 = j * nx
             for b in range(nx):
                 q = j0 + b
-                for i in range(n):
-                    if active[i] and (i < j or not active[j]):
+                for k in range(na):
+                    i = act[k]
+                    if i < j or not active[j]:
                         i0 = i * nx
                         for a in range(nx):
                             Xs[q, i0 + a] = Xs[i0 + a, q]
