@@ -119,6 +119,9 @@ class CrossCovariance:
         self._F = np.zeros((n, nx, n, nx))
         self._diag = np.arange(n)
         self._column_sensor = np.ascontiguousarray(self.info.column_sensor, dtype=np.intp)
+        #: all weights one: the compiled path may sum the shared-measurement term over
+        #: the columns a node misses (kernels.xi_rows)
+        self._unit = bool((window.A == 1.0).all())
 
     def on_rows(self, first: int, last: int, starts: np.ndarray) -> None:
         """Recompute ``Xi`` of rows ``first .. last``; node ``i``'s blocks from row ``starts[i]``.
@@ -131,8 +134,8 @@ class CrossCovariance:
         if w.kernels == "numba":
             st, info = w.state, self.info
             factor = info.factor if info.varying else info.factor[None]
-            w._k.xi_rows(self.Xi, self.Xi0, st.G, st.P, st.held, w.A, self._column_sensor, factor,
-                    info.varying, w.Phi, self.Lq, starts, first, last)
+            w._k.xi_rows(self.Xi, self.Xi0, st.G, st.P, st.held, w.A, self._unit, self._column_sensor,
+                         factor, info.varying, w.Phi, self.Lq, starts, first, last, (0,) * self.nx)
             return
         order = np.sort(starts)
         for row in range(first, last + 1):
