@@ -46,6 +46,7 @@ CASES = {
                          latency={"model": "uniform_steps", "d_t": 3}),
     "loss": dict(n=8, nx=3, edges=tree_edges(8, 4), loss=0.3, latency={"model": "uniform_steps", "d_t": 2}),
     "zero_latency": dict(n=6, nx=3),
+    "no_fusion": dict(n=9, nx=3, edges=tree_edges(9, 7), fusion="none", latency={"model": "uniform_steps", "d_t": 2}),
 }
 
 

@@ -30,6 +30,8 @@ CASES = {
     # a buffer shorter than the delays: late packets, stale messages
     "short_buffer": dict(n=8, edges=tree_edges(8, 2), buffer_length=2,
                          latency={"model": "uniform_steps", "d_t": 3}),
+    # no fusion: the window keeps no per-origin flags
+    "no_fusion": dict(n=9, edges=tree_edges(9, 7), fusion="none", latency={"model": "uniform_steps", "d_t": 2}),
     "paper_weights_diagonal": dict(n=8, edges=tree_edges(8, 5), weights="paper", fusion="diagonal",
                                    latency={"model": "uniform_steps", "d_t": 2}),
 }

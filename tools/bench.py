@@ -4,7 +4,8 @@
 1. ``paper_case1`` for 1000 ticks (fusion included): wall and CPU time, the
    number of packet events, the time bare SimPy needs for the same number of
    ``timeout`` events with a no-op callback, and their ratio; the same run on
-   the pure-numpy kernel path (``DKFSIM_KERNELS=numpy``) in the same process;
+   the same run with the Python tree protocol (``DKFSIM_EXCHANGE=python``) and on the
+   pure-numpy kernel path (``DKFSIM_KERNELS=numpy``, Python protocol too) in the same process;
    the first call's cost (kernel compile, or loading them from the disk cache).
 2. A scaling table for random trees of 12, 50 and 200 nodes: ticks per
    second and packets per tick, with per-tick cost normalised by the work
@@ -23,7 +24,7 @@
    whether the rows are identical.
 
 Usage: ``python tools/bench.py [--ticks 1000] [--sizes 12 50 200] [--fit-sizes 12 50 200 1000]
-[--skip-sweep] [--big-ticks 60] [--skip-threads] [--skip-executors]``.
+[--skip-sweep] [--big-ticks 200] [--skip-threads] [--skip-executors]``.
 Timing lives here, never in the tests.
 """
 
@@ -46,6 +47,7 @@ sys.path.insert(0, str(ROOT))
 
 import dkfsim  # noqa: E402
 from dkfsim.estimators.kernels import KERNELS_ENV  # noqa: E402
+from dkfsim.protocols.tree_compiled import EXCHANGE_ENV  # noqa: E402
 
 
 def bare_simpy(n_events: int, horizon: int) -> float:
@@ -180,7 +182,7 @@ def main(argv=None) -> int:
     ap.add_argument("--fit-sizes", type=int, nargs="*", default=[12, 50, 200, 1000],
                     help="tree sizes of the exponent fit (none skips it)")
     ap.add_argument("--big-nodes", type=int, default=1000, help="nodes of the large tree (0 skips it)")
-    ap.add_argument("--big-ticks", type=int, default=60, help="ticks of the large-tree run")
+    ap.add_argument("--big-ticks", type=int, default=200, help="ticks of the large-tree run")
     ap.add_argument("--skip-threads", action="store_true", help="skip the BLAS-threads measurement")
     ap.add_argument("--thread-ticks", type=int, default=100, help="ticks of the BLAS-threads runs")
     ap.add_argument("--skip-executors", action="store_true",
@@ -204,6 +206,13 @@ def main(argv=None) -> int:
     print(f"  bare SimPy, same # timeouts   {bare:8.3f} s   (CPU {bare_cpu:.3f} s)")
     print(f"  ratio run / bare SimPy        {wall / bare:8.1f} x  (CPU {cpu / bare_cpu:.1f} x)")
     if res.info["kernels"] == "numba":
+        os.environ[EXCHANGE_ENV] = "python"
+        try:
+            wall_py, cpu_py, r_py = timed(sc)
+        finally:
+            del os.environ[EXCHANGE_ENV]
+        print(f"  Python tree protocol          {wall_py:8.3f} s   (CPU {cpu_py:.3f} s; Python / compiled "
+              f"{cpu_py / cpu:.2f} x CPU; exchange '{r_py.info['exchange']}' vs '{res.info['exchange']}')")
         os.environ[KERNELS_ENV] = "numpy"
         try:
             wall_np, cpu_np, _ = timed(sc)
@@ -250,9 +259,11 @@ def main(argv=None) -> int:
         L = r.info["buffer_length"]
         peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 2**20       # KiB -> GiB
         print()
+        loop = r.info["wall_time_s"]          # the simulation loop alone (no set-up)
         print(f"{args.big_nodes}-node random tree (d_g = {r.info['d_g']}, uniform_steps d_t = 1, L = {L}, "
-              f"no fusion), {args.big_ticks} ticks: {w / args.big_ticks * 1e3:.1f} ms per tick "
-              f"(CPU {c / args.big_ticks * 1e3:.1f} ms), "
+              f"no fusion, exchange '{r.info['exchange']}'), {args.big_ticks} ticks: "
+              f"{w / args.big_ticks * 1e3:.1f} ms per tick (CPU {c / args.big_ticks * 1e3:.1f} ms; "
+              f"the loop alone {loop / args.big_ticks * 1e3:.1f} ms wall), "
               f"{r.counts['delivered'] / args.big_ticks:.0f} packets per tick, "
               f"{r.info['node_rows'] / args.big_ticks / args.big_nodes:.1f} rows re-run per node, "
               f"{c / r.info['node_rows'] * 1e6:.2f} us CPU per node x row re-run; "

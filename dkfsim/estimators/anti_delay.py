@@ -92,7 +92,8 @@ class AntiDelayDKF(Estimator):
         c = Cost(params.label or "anti_delay_dkf")
         c.seconds = K * (C_TICK + rows * (C_ROW + n * C_NODE_ROW) + 1.5 * arcs * C_PACKET
                          + n * n * C_CONTRIBUTION)
-        c.memory["window filters"] = S * n * (2 * nx + 3 * nx * nx) * B_FLOAT + S * n * n
+        c.memory["window filters"] = (S * n * (2 * nx + 3 * nx * nx) * B_FLOAT
+                                      + (S * n * n if fusion != "none" else 0))      # held flags
         c.memory["x_local, x_final"] = 2 * K * n * nx * B_FLOAT
         if save in ("full", "estimates"):
             c.memory["P_local"] = min(K * n * nx * nx, P_LOCAL_LIMIT) * B_FLOAT
@@ -123,7 +124,8 @@ class AntiDelayDKF(Estimator):
                     "fusion: none for a network this large (or a shorter buffer_length)",
                     source=sc.source, path=where)
         self.A = paper_weights(xg.graph) if self.weights == "paper" else np.ones((n, n))
-        self.window = WindowFilter(sys_.Phi, sys_.Q, sys_.x0_mean, sys_.P0, ctx.info, self.A, self.L)
+        self.window = WindowFilter(sys_.Phi, sys_.Q, sys_.x0_mean, sys_.P0, ctx.info, self.A, self.L,
+                                   per_origin=self.fusion != "none")
         self.xcov = CrossCovariance(self.window, sys_.P0) if self.fusion != "none" else None
         self.arrival = np.full((n, n, K), np.inf) if (self.main and ctx.save == "full") else None
         links = [ctx.network.link(u, v) for u, v in xg.arcs]

@@ -161,7 +161,7 @@ class WindowFilter:
         fusion centre without sensors of its own is one node with n origins.
     """
 
-    def __init__(self, Phi, Q, x0, P0, info, A, L):
+    def __init__(self, Phi, Q, x0, P0, info, A, L, per_origin: bool = True):
         self.Phi = np.asarray(Phi, float)
         self.Q = np.asarray(Q, float)
         self.info = info            # dkfsim.model.system.Information
@@ -174,7 +174,9 @@ class WindowFilter:
         self.S = min(self.L, self.theta.shape[0]) + 1
         n, nx = self.A.shape[0], omega.shape[-1]
         self.n, self.nx = n, nx
-        self.state = WindowState.empty(self.S - 1, n, nx, n_origins=self.theta.shape[1])
+        # Which origins each node holds is needed by the fusion only: without it ``held`` has
+        # no origin axis (a 1000-node window would otherwise carry S x 10^6 flags).
+        self.state = WindowState.empty(self.S - 1, n, nx, n_origins=self.theta.shape[1] if per_origin else 0)
         self.x0 = np.broadcast_to(np.asarray(x0, float), (n, nx)).copy()
         self.P0 = np.broadcast_to(np.asarray(P0, float), (n, nx, nx)).copy()
         #: contributions reported since the last update: node, origin bitmask, row (flat)
@@ -232,7 +234,8 @@ class WindowFilter:
         i, o, r = self._unpack()
         slot = r % self.S
         a = self.A[i, o]
-        st.held[slot, i, o] = True
+        if st.held.shape[2]:
+            st.held[slot, i, o] = True
         np.add.at(st.Omega, (slot, i), a[:, None, None] * self.info.omega_of(r, o))
         np.add.at(st.Theta, (slot, i), a[:, None] * self.theta[r, o])
         np.minimum.at(starts, i, r)

@@ -89,7 +89,7 @@ class CompiledTreeExchange(TreeExchange):
         w, info = self.window, self.window.info
         logf = self.arrival is not None
         # With the arrival log: the holdings of the last late_horizon final rows (late accounting).
-        H = self.late_horizon if logf else 1
+        H = min(self.late_horizon, w.theta.shape[0] + 1) if logf else 1     # never more than the rows
         self.fheld = np.zeros((H, n if logf else 1, W), dtype=np.uint64)
         self.frow = np.full(H, -1, dtype=np.int64)
         self._fold_args = (w.A, info.omega if info.varying else info.omega[None], bool(info.varying),
@@ -155,8 +155,8 @@ class CompiledTreeExchange(TreeExchange):
         if self.rowid[slot] == row:
             self.rowid[slot] = -1
             if self.arrival is not None:          # keep its holdings: late ones count once
-                self.fheld[row % self.late_horizon] = self.held[slot]
-                self.frow[row % self.late_horizon] = row
+                self.fheld[row % len(self.frow)] = self.held[slot]
+                self.frow[row % len(self.frow)] = row
 
     # -- events ----------------------------------------------------------------
     def measure(self, row: int) -> None:

@@ -75,7 +75,8 @@ def _fold(node, row, bits, A, omega, varying, theta, Omega, Theta, held, starts,
             m ^= low
             org = w * 64 + _BIT_INDEX[(low * _DB) >> _S58]
             a = A[node, org]
-            held[slot, node, org] = True
+            if held.shape[2]:                      # only kept when the fusion needs it
+                held[slot, node, org] = True
             if logf:
                 arrival[node, org, row] = t_s
             for p in range(nx):
