@@ -18,6 +18,7 @@ intervals over runs, the chi-square band of the mean NEES.
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 from typing import Callable
@@ -103,6 +104,15 @@ class Scored:
     def K(self) -> int:
         return self.truth.shape[0]
 
+    @functools.cached_property
+    def nees(self) -> np.ndarray | None:
+        """:func:`nees_per_tick` of the whole run, ``(K,)`` (None without a covariance):
+        computed once for the ANEES and the Monte Carlo curves (a batched solve per tick)."""
+        if self.P is None:
+            return None
+        with np.errstate(all="ignore"):
+            return nees_per_tick(self.x, self.P, self.truth)
+
 
 @dataclass(frozen=True)
 class Metric:
@@ -126,7 +136,7 @@ def _traffic(key: str, scale: bool):
 def _anees(s: Scored) -> float:
     if s.P is None:
         return math.nan
-    return float(np.mean(nees_per_tick(s.x, s.P, s.truth)[s.burn_in:]))
+    return float(np.mean(s.nees[s.burn_in:]))
 
 
 for _name, _metric, _doc in (
@@ -160,7 +170,17 @@ def score(name: str, x, P, truth, traffic, burn_in: int, components) -> list[dic
 
     ``run`` and ``seed`` are left to the caller.  Non-applicable metrics are NaN.
     """
-    s = Scored(np.asarray(x), None if P is None else np.asarray(P), truth, traffic, int(burn_in))
+    return score_scored(name, scored(x, P, truth, traffic, burn_in), components)
+
+
+def scored(x, P, truth, traffic, burn_in: int) -> Scored:
+    """What the metrics see of one estimate (:class:`Scored`), arrays as numpy arrays."""
+    return Scored(np.asarray(x), None if P is None else np.asarray(P), truth, traffic, int(burn_in))
+
+
+def score_scored(name: str, s: Scored, components) -> list[dict]:
+    """:func:`score` of an estimate already wrapped by :func:`scored` (whose NEES a
+    caller may reuse: :attr:`Scored.nees`)."""
     values = {}
     with np.errstate(all="ignore"):          # diverged estimates: inf / nan, reported as such
         for entry in METRICS.entries():
