@@ -398,7 +398,11 @@ class Scenario(StrictModel):
         return self.model.T_ns
 
     def _graph_key(self) -> tuple:
-        return (self.seed, self.n, self.topology.model_dump_json(), self.protocol,
+        # The seed the graph is drawn from (build_graph: params.seed, else the scenario's),
+        # so that the copies of one scenario with other seeds (Monte Carlo runs, with a
+        # pinned topology) keep its graph.
+        graph_seed = (self.topology.params or {}).get("seed", self.seed)
+        return (graph_seed, self.n, self.topology.model_dump_json(), self.protocol,
                 self.spanning_tree)
 
     def _cached(self) -> tuple:

@@ -116,6 +116,7 @@ class Template:
     def __init__(self, scenario):
         sc = scenario if isinstance(scenario, Scenario) else load_scenario(scenario)
         self.scenario = load_scenario(sc, overrides=pinned_topology(sc))
+        self.scenario.exchange()             # the graph and exchange graph, kept by every copy
         self.system = None if self.scenario.plugins else build_system(self.scenario)
 
     def scenario_for(self, seed: int) -> Scenario:
