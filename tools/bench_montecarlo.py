@@ -12,9 +12,11 @@ this working tree) so that a shared machine's load falls on both alike:
    jobs=1)`` minus the CPU seconds spent inside ``Run.run``, per run (min over
    the repeats), and the loop's CPU per run beside it;
 2. the CLI, ``dkfsim montecarlo scenarios/paper_case1.yaml --runs R --jobs 2``:
-   wall time, runs per minute, the start-up (the same command with ``--runs
-   2``) and the 1000-run time extrapolated as ``start-up + 1000 x (per-run
-   slope)``; the two ``runs.csv`` are compared byte for byte.
+   wall and CPU time (every process of the command), runs per minute, the
+   same with ``--runs 2`` (start-up and one run per worker), and the 1000-run
+   wall time on free cores extrapolated as ``wall(--runs 2) + 998 x (CPU per
+   further run) / jobs``; the two ``runs.csv`` are compared byte for byte;
+3. the start-up: CPU of ``import dkfsim.cli.main``.
 
 Usage: ``python tools/bench_montecarlo.py [--base REF] [--runs 40] [--probe-runs 20]
 [--steps 1000] [--repeats 2]``.  Timing lives here, never in the tests.
@@ -26,6 +28,7 @@ import argparse
 import filecmp
 import json
 import os
+import resource
 import subprocess
 import sys
 import tempfile
@@ -63,6 +66,7 @@ print(json.dumps({"file": dkfsim.__file__, "total": total, "loop": loop[0], "run
 
 def unpack(ref: str, dest: Path) -> Path:
     """``git archive ref`` of this repository, unpacked into ``dest``."""
+    dest.mkdir(parents=True)
     archive = subprocess.run(["git", "-C", str(ROOT), "archive", ref], check=True,
                              capture_output=True).stdout
     subprocess.run(["tar", "-x", "-C", str(dest)], input=archive, check=True)
@@ -84,12 +88,21 @@ def probe(tree: Path, runs: int, steps: int) -> dict:
     return got
 
 
-def cli(tree: Path, runs: int, steps: int, jobs: int, out: Path) -> float:
-    t0 = time.perf_counter()
-    subprocess.run([sys.executable, "-m", "dkfsim", "montecarlo", SCENARIO, "--runs", str(runs),
-                    "--jobs", str(jobs), "--steps", str(steps), "--out", str(out), "--quiet"],
-                   cwd=tree, env=env_for(tree), check=True)
-    return time.perf_counter() - t0
+def children_cpu() -> float:
+    ru = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return ru.ru_utime + ru.ru_stime
+
+
+def timed(cmd: list, tree: Path) -> tuple[float, float]:
+    """Wall and CPU seconds (the process and every process it started) of ``cmd`` in ``tree``."""
+    t0, c0 = time.perf_counter(), children_cpu()
+    subprocess.run(cmd, cwd=tree, env=env_for(tree), check=True)
+    return time.perf_counter() - t0, children_cpu() - c0
+
+
+def cli(tree: Path, runs: int, steps: int, jobs: int, out: Path) -> tuple[float, float]:
+    return timed([sys.executable, "-m", "dkfsim", "montecarlo", SCENARIO, "--runs", str(runs),
+                  "--jobs", str(jobs), "--steps", str(steps), "--out", str(out), "--quiet"], tree)
 
 
 def main(argv=None) -> int:
@@ -121,23 +134,36 @@ def main(argv=None) -> int:
                   f"overhead share {o / (o + lp) * 100:5.1f} %")
         print(f"  overhead ratio base / this {over['base'] / over['this']:.2f} x")
 
-        walls = {name: [] for name in trees}
-        starts = {name: [] for name in trees}
+        imports = {name: [] for name in trees}
+        for _ in range(5):
+            for name, tree in trees.items():
+                imports[name].append(timed([sys.executable, "-c", "import dkfsim.cli.main"], tree)[1])
+        print("start-up: CPU of 'import dkfsim.cli.main' (min of 5)")
+        for name in trees:
+            print(f"  {name:5s} {min(imports[name]):6.2f} s")
+        print(f"  ratio base / this {min(imports['base']) / min(imports['this']):.2f} x")
+
+        big = {name: [] for name in trees}
+        small = {name: [] for name in trees}
         for rep in range(args.repeats):
             for name, tree in trees.items():
-                walls[name].append(cli(tree, args.runs, args.steps, args.jobs, tmp / f"{name}-{rep}"))
-                starts[name].append(cli(tree, 2, args.steps, args.jobs, tmp / f"{name}-s{rep}"))
+                big[name].append(cli(tree, args.runs, args.steps, args.jobs, tmp / f"{name}-{rep}"))
+                small[name].append(cli(tree, 2, args.steps, args.jobs, tmp / f"{name}-s{rep}"))
         same = filecmp.cmp(tmp / "base-0" / "runs.csv", tmp / "this-0" / "runs.csv", shallow=False)
-        print(f"CLI montecarlo --runs {args.runs} --jobs {args.jobs} (min of {args.repeats}; "
-              f"runs.csv {'byte-identical' if same else 'DIFFERS'})")
+        print(f"CLI montecarlo --runs {args.runs} --jobs {args.jobs}, min of {args.repeats} "
+              f"(runs.csv {'byte-identical' if same else 'DIFFERS'}); CPU = every process of the "
+              "command; the wall time depends on the machine's load, the CPU much less")
         rate = {}
         for name in trees:
-            w, s = min(walls[name]), min(starts[name])
-            slope = (w - s) / (args.runs - 2)
+            w, c = min(b[0] for b in big[name]), min(b[1] for b in big[name])
+            w2, c2 = min(b[0] for b in small[name]), min(b[1] for b in small[name])
+            cpu_run = (c - c2) / (args.runs - 2)
             rate[name] = 60 * args.runs / w
-            print(f"  {name:5s} {w:7.1f} s  {rate[name]:6.1f} runs/min   --runs 2: {s:5.1f} s   "
-                  f"1000 runs ~ {(s + 998 * slope) / 60:5.1f} min")
-        print(f"  runs/min ratio this / base {rate['this'] / rate['base']:.2f} x")
+            free = (w2 + 998 * cpu_run / args.jobs) / 60
+            print(f"  {name:5s} wall {w:6.1f} s ({rate[name]:5.1f} runs/min), CPU {c:6.1f} s;  "
+                  f"--runs 2: wall {w2:5.1f} s, CPU {c2:5.1f} s;  CPU per further run "
+                  f"{cpu_run:5.3f} s;  1000 runs on {args.jobs} free cores ~ {free:5.1f} min")
+        print(f"  runs/min ratio this / base {rate['this'] / rate['base']:.2f} x (wall)")
     return 0
 
 

@@ -24,8 +24,7 @@ from dataclasses import dataclass
 from typing import Callable
 
 import numpy as np
-from scipy.stats import chi2
-from scipy.stats import t as student_t
+from scipy.special import gammaincinv, stdtrit
 
 from dkfsim.core.linalg import solve
 from dkfsim.core.registry import METRICS
@@ -195,6 +194,20 @@ def score_scored(name: str, s: Scored, components) -> list[dict]:
 
 
 # =========================================================================== over runs
+# The two quantile functions are scipy.stats' ``t.ppf`` and ``chi2.ppf`` without
+# scipy.stats itself, whose import costs every dkfsim process (the CLI, a spawned
+# worker) about half a second: the same special functions those call, so the same bits
+# (tests/test_metrics.py compares them with scipy.stats).
+def t_quantile(q, df):
+    """Quantile ``q`` of Student's t with ``df`` degrees of freedom (``scipy.stats.t.ppf``)."""
+    return stdtrit(df, q)
+
+
+def chi2_quantile(q, df):
+    """Quantile ``q`` of the chi-square with ``df`` degrees of freedom (``scipy.stats.chi2.ppf``)."""
+    return 2 * gammaincinv(np.asarray(df) / 2, q)
+
+
 def t_interval(samples, level: float = 0.95, axis: int = 0):
     """Mean and two-sided Student-t confidence interval over independent samples.
 
@@ -208,7 +221,7 @@ def t_interval(samples, level: float = 0.95, axis: int = 0):
     if N < 2:
         nan = np.full_like(mean, np.nan)
         return mean, nan, nan.copy()
-    half = student_t.ppf(0.5 + level / 2, N - 1) * a.std(axis=axis, ddof=1) / np.sqrt(N)
+    half = t_quantile(0.5 + level / 2, N - 1) * a.std(axis=axis, ddof=1) / np.sqrt(N)
     return mean, mean - half, mean + half
 
 
@@ -219,7 +232,7 @@ def t_interval_from_moments(mean, m2, N: int, level: float = 0.95):
     if N < 2:
         nan = np.full_like(mean, np.nan)
         return nan, nan.copy()
-    half = student_t.ppf(0.5 + level / 2, N - 1) * np.sqrt(np.asarray(m2) / (N - 1) / N)
+    half = t_quantile(0.5 + level / 2, N - 1) * np.sqrt(np.asarray(m2) / (N - 1) / N)
     return mean - half, mean + half
 
 
@@ -233,7 +246,7 @@ def paired_lower_bound(a, b, level: float = 0.95, axis: int = 0):
     N = d.shape[axis]
     if N < 2:
         return np.full_like(d.mean(axis=axis), np.nan)
-    return d.mean(axis=axis) - student_t.ppf(level, N - 1) * d.std(axis=axis, ddof=1) / np.sqrt(N)
+    return d.mean(axis=axis) - t_quantile(level, N - 1) * d.std(axis=axis, ddof=1) / np.sqrt(N)
 
 
 def nees_band(runs: int, nx: int, level: float = 0.95) -> np.ndarray:
@@ -248,7 +261,7 @@ def nees_band(runs: int, nx: int, level: float = 0.95) -> np.ndarray:
     not the band of the time-averaged ANEES; see :func:`anees_summary`.
     """
     dof = runs * nx
-    return chi2.ppf([0.5 - level / 2, 0.5 + level / 2], dof) / runs
+    return chi2_quantile(np.array([0.5 - level / 2, 0.5 + level / 2]), dof) / runs
 
 
 def anees_summary(mean_nees: np.ndarray, runs: int, nx: int, burn_in: int,
