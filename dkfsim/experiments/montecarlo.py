@@ -7,8 +7,10 @@ random stream of a run derives from that seed (truth, sensors, links, and a
 *random topology* too: fix ``topology.params.seed`` to keep one graph over
 all runs).
 
-Each run is scored where it ran (:func:`run_rows`) and sends back only small
-data: per estimate the squared error per tick and component ``(K, nx)``
+What the runs share is validated and built once (:class:`Template`: the
+pinned scenario, its graphs and its system; run ``r`` is a copy with its
+seed, docs/design.md §10).  Each run is scored where it ran
+(:func:`run_rows`) and sends back only small data: per estimate the squared error per tick and component ``(K, nx)``
 (averaged over nodes for per-node estimates), the NEES per tick ``(K,)``
 and per-run scalars.  The parent folds the runs in run order, whatever order
 they finish in, so every output is identical for any ``J``.
