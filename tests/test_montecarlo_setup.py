@@ -80,3 +80,15 @@ def test_run_rows_without_curves_gives_the_same_rows():
     alone, none = run_rows(sc, 5, curves=False)
     assert none is None and curves is not None
     assert repr(alone) == repr(with_curves)
+
+
+def test_a_copy_with_another_seed_redraws_an_unpinned_random_graph_only():
+    # the graph cache follows the seed the graph is drawn from: a stale graph would be wrong
+    sc = _random_tree_case()                      # random_tree drawn from the scenario seed
+    before = sorted(sc.graph().edges())
+    copy = sc.model_copy(update={"seed": 8})
+    fresh = load_scenario(sc, overrides=["seed=8"])
+    assert sorted(copy.graph().edges()) == sorted(fresh.graph().edges()) != before
+    assert copy.exchange().arcs == fresh.exchange().arcs
+    pinned = load_scenario(sc, overrides=pinned_topology(sc))
+    assert sorted(pinned.model_copy(update={"seed": 8}).graph().edges()) == before
