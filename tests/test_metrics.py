@@ -27,6 +27,16 @@ def test_t_interval_two_samples_and_axis():
     np.testing.assert_allclose(hi, [1.0 + t1, 10.0], rtol=1e-9)
 
 
+def test_quantiles_are_scipy_stats_bit_for_bit():
+    # metrics avoids importing scipy.stats (half a second per process) but must give its numbers
+    from scipy.stats import chi2, t
+    for df in (1, 2, 3, 7, 29, 99, 999, 2999, 30_000):
+        for q in (0.025, 0.05, 0.5, 0.95, 0.975):
+            assert M.t_quantile(q, df) == t.ppf(q, df), (q, df)
+            assert M.chi2_quantile(q, df) == chi2.ppf(q, df), (q, df)
+    np.testing.assert_array_equal(M.nees_band(1000, 3), chi2.ppf([0.025, 0.975], 3000) / 1000)
+
+
 def test_t_interval_of_one_sample_is_undefined():
     mean, lo, hi = M.t_interval([4.0])
     assert mean == 4.0 and math.isnan(lo) and math.isnan(hi)

@@ -18,13 +18,13 @@ intervals over runs, the chi-square band of the mean NEES.
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 from typing import Callable
 
 import numpy as np
-from scipy.stats import chi2
-from scipy.stats import t as student_t
+from scipy.special import gammaincinv, stdtrit
 
 from dkfsim.core.linalg import solve
 from dkfsim.core.registry import METRICS
@@ -103,6 +103,15 @@ class Scored:
     def K(self) -> int:
         return self.truth.shape[0]
 
+    @functools.cached_property
+    def nees(self) -> np.ndarray | None:
+        """:func:`nees_per_tick` of the whole run, ``(K,)`` (None without a covariance):
+        computed once for the ANEES and the Monte Carlo curves (a batched solve per tick)."""
+        if self.P is None:
+            return None
+        with np.errstate(all="ignore"):
+            return nees_per_tick(self.x, self.P, self.truth)
+
 
 @dataclass(frozen=True)
 class Metric:
@@ -126,7 +135,7 @@ def _traffic(key: str, scale: bool):
 def _anees(s: Scored) -> float:
     if s.P is None:
         return math.nan
-    return float(np.mean(nees_per_tick(s.x, s.P, s.truth)[s.burn_in:]))
+    return float(np.mean(s.nees[s.burn_in:]))
 
 
 for _name, _metric, _doc in (
@@ -160,7 +169,17 @@ def score(name: str, x, P, truth, traffic, burn_in: int, components) -> list[dic
 
     ``run`` and ``seed`` are left to the caller.  Non-applicable metrics are NaN.
     """
-    s = Scored(np.asarray(x), None if P is None else np.asarray(P), truth, traffic, int(burn_in))
+    return score_scored(name, scored(x, P, truth, traffic, burn_in), components)
+
+
+def scored(x, P, truth, traffic, burn_in: int) -> Scored:
+    """What the metrics see of one estimate (:class:`Scored`), arrays as numpy arrays."""
+    return Scored(np.asarray(x), None if P is None else np.asarray(P), truth, traffic, int(burn_in))
+
+
+def score_scored(name: str, s: Scored, components) -> list[dict]:
+    """:func:`score` of an estimate already wrapped by :func:`scored` (whose NEES a
+    caller may reuse: :attr:`Scored.nees`)."""
     values = {}
     with np.errstate(all="ignore"):          # diverged estimates: inf / nan, reported as such
         for entry in METRICS.entries():
@@ -175,6 +194,20 @@ def score(name: str, x, P, truth, traffic, burn_in: int, components) -> list[dic
 
 
 # =========================================================================== over runs
+# The two quantile functions are scipy.stats' ``t.ppf`` and ``chi2.ppf`` without
+# scipy.stats itself, whose import costs every dkfsim process (the CLI, a spawned
+# worker) about half a second: the same special functions those call, so the same bits
+# (tests/test_metrics.py compares them with scipy.stats).
+def t_quantile(q, df):
+    """Quantile ``q`` of Student's t with ``df`` degrees of freedom (``scipy.stats.t.ppf``)."""
+    return stdtrit(df, q)
+
+
+def chi2_quantile(q, df):
+    """Quantile ``q`` of the chi-square with ``df`` degrees of freedom (``scipy.stats.chi2.ppf``)."""
+    return 2 * gammaincinv(np.asarray(df) / 2, q)
+
+
 def t_interval(samples, level: float = 0.95, axis: int = 0):
     """Mean and two-sided Student-t confidence interval over independent samples.
 
@@ -188,7 +221,7 @@ def t_interval(samples, level: float = 0.95, axis: int = 0):
     if N < 2:
         nan = np.full_like(mean, np.nan)
         return mean, nan, nan.copy()
-    half = student_t.ppf(0.5 + level / 2, N - 1) * a.std(axis=axis, ddof=1) / np.sqrt(N)
+    half = t_quantile(0.5 + level / 2, N - 1) * a.std(axis=axis, ddof=1) / np.sqrt(N)
     return mean, mean - half, mean + half
 
 
@@ -199,7 +232,7 @@ def t_interval_from_moments(mean, m2, N: int, level: float = 0.95):
     if N < 2:
         nan = np.full_like(mean, np.nan)
         return nan, nan.copy()
-    half = student_t.ppf(0.5 + level / 2, N - 1) * np.sqrt(np.asarray(m2) / (N - 1) / N)
+    half = t_quantile(0.5 + level / 2, N - 1) * np.sqrt(np.asarray(m2) / (N - 1) / N)
     return mean - half, mean + half
 
 
@@ -213,7 +246,7 @@ def paired_lower_bound(a, b, level: float = 0.95, axis: int = 0):
     N = d.shape[axis]
     if N < 2:
         return np.full_like(d.mean(axis=axis), np.nan)
-    return d.mean(axis=axis) - student_t.ppf(level, N - 1) * d.std(axis=axis, ddof=1) / np.sqrt(N)
+    return d.mean(axis=axis) - t_quantile(level, N - 1) * d.std(axis=axis, ddof=1) / np.sqrt(N)
 
 
 def nees_band(runs: int, nx: int, level: float = 0.95) -> np.ndarray:
@@ -228,7 +261,7 @@ def nees_band(runs: int, nx: int, level: float = 0.95) -> np.ndarray:
     not the band of the time-averaged ANEES; see :func:`anees_summary`.
     """
     dof = runs * nx
-    return chi2.ppf([0.5 - level / 2, 0.5 + level / 2], dof) / runs
+    return chi2_quantile(np.array([0.5 - level / 2, 0.5 + level / 2]), dof) / runs
 
 
 def anees_summary(mean_nees: np.ndarray, runs: int, nx: int, burn_in: int,

@@ -263,6 +263,13 @@ def _explicit_edges(edges, n: int, directed: bool) -> list[tuple[int, int]]:
     return out
 
 
+def graph_seed(topology, seed: int):
+    """The seed :func:`build_graph` draws ``topology`` from: ``params.seed``, else the
+    scenario's ``seed``; None for a generator that draws nothing (``edges``, ``ring``...)."""
+    optional = GENERATOR_PARAMS.get(topology.generator, ((), ("seed",)))[1]
+    return (topology.params or {}).get("seed", seed) if "seed" in optional else None
+
+
 def build_graph(topology, n: int, seed: int) -> nx.Graph | nx.DiGraph:
     """Build the topology graph on nodes ``0..n-1``.
 

@@ -398,8 +398,10 @@ class Scenario(StrictModel):
         return self.model.T_ns
 
     def _graph_key(self) -> tuple:
-        return (self.seed, self.n, self.topology.model_dump_json(), self.protocol,
-                self.spanning_tree)
+        # The seed the graph is drawn from, not the scenario's: the copies of one scenario
+        # with other seeds (Monte Carlo runs, topology pinned) keep its graph.
+        return (topo.graph_seed(self.topology, self.seed), self.n, self.topology.model_dump_json(),
+                self.protocol, self.spanning_tree)
 
     def _cached(self) -> tuple:
         key = self._graph_key()

@@ -38,11 +38,14 @@ from dkfsim.network.links import PRIORITY_UPDATE, Network, Scheduled
 class Run:
     """The runtime state of one run (configuration stays in the scenario)."""
 
-    def __init__(self, scenario, *, save: str = "auto", progress=None):
+    def __init__(self, scenario, *, save: str = "auto", progress=None, system=None):
+        """``system``: the scenario's :func:`~dkfsim.model.system.build_system`, when the
+        caller already has it (the runs of a Monte Carlo differ only by their seed and
+        share one; it is read, never changed, by a run)."""
         self.scenario = scenario
         self.K = K = int(scenario.steps)
         seed = int(scenario.seed)
-        system = build_system(scenario)
+        system = build_system(scenario) if system is None else system
         self.progress = progress
         # Everything random but the network is drawn up front, from its own streams.
         truth = track_truth(scenario) if scenario.truth is not None else system.simulate_truth(K, seed)

@@ -23,7 +23,8 @@ import simpy
 
 from dkfsim.core.version import __version__
 from dkfsim.analysis.frames import rows_frame, run_dataset
-from dkfsim.analysis.metrics import default_burn_in, mse_per_component, row_columns, score
+from dkfsim.analysis.metrics import (default_burn_in, mse_per_component, row_columns, score_scored,
+                                     scored)
 from dkfsim.config.load import load_scenario, scenario_hash
 from dkfsim.config.dynamics import component_names
 from dkfsim.core.encoding import from_json
@@ -142,13 +143,21 @@ class RunResult(Mapping):
                 out[name] = mse_per_component(self.arrays[f"x_{name}"], self.arrays["truth"], burn).tolist()
         return out
 
-    def rows(self, burn_in: int | None = None) -> list[dict]:
-        """The tidy rows of this run (``run`` 0): one per estimate and state component."""
+    def scored(self, burn_in: int | None = None) -> dict:
+        """Each estimate as the metrics see it (:class:`~dkfsim.analysis.metrics.Scored`), by name."""
         burn = self._burn(burn_in)
+        return {name: scored(self.arrays[f"x_{name}"], self.arrays.get(f"P_{name}"),
+                             self.arrays["truth"], self.traffic.get(name), burn)
+                for name in self.estimates}
+
+    def rows(self, burn_in: int | None = None, scored_: dict | None = None) -> list[dict]:
+        """The tidy rows of this run (``run`` 0): one per estimate and state component.
+        ``scored_``: :meth:`scored` when the caller has it already (and reuses its NEES)."""
+        scored_ = self.scored(burn_in) if scored_ is None else scored_
+        components = self.components
         out = []
-        for name in self.estimates:
-            for row in score(name, self.arrays[f"x_{name}"], self.arrays.get(f"P_{name}"),
-                             self.arrays["truth"], self.traffic.get(name), burn, self.components):
+        for name, s in scored_.items():
+            for row in score_scored(name, s, components):
                 out.append({"run": 0, "seed": int(self.scenario.seed), **row})
         return out
 

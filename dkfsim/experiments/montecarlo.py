@@ -7,8 +7,10 @@ random stream of a run derives from that seed (truth, sensors, links, and a
 *random topology* too: fix ``topology.params.seed`` to keep one graph over
 all runs).
 
-Each run is scored where it ran (:func:`run_rows`) and sends back only small
-data: per estimate the squared error per tick and component ``(K, nx)``
+What the runs share is validated and built once (:class:`Template`: the
+pinned scenario, its graphs and its system; run ``r`` is a copy with its
+seed, docs/design.md §10).  Each run is scored where it ran
+(:func:`run_rows`) and sends back only small data: per estimate the squared error per tick and component ``(K, nx)``
 (averaged over nodes for per-node estimates), the NEES per tick ``(K,)``
 and per-run scalars.  The parent folds the runs in run order, whatever order
 they finish in, so every output is identical for any ``J``.
@@ -37,8 +39,8 @@ from pathlib import Path
 import numpy as np
 
 from dkfsim.analysis.frames import curves_dataset, rows_frame
-from dkfsim.analysis.metrics import (anees_summary, default_burn_in, nees_band, nees_per_tick,
-                                     row_columns, squared_error, t_interval, t_interval_from_moments)
+from dkfsim.analysis.metrics import (anees_summary, default_burn_in, nees_band, row_columns,
+                                     squared_error, t_interval, t_interval_from_moments)
 from dkfsim.components.topology import GENERATOR_PARAMS
 from dkfsim.config.load import load_scenario, scenario_hash
 from dkfsim.config.dynamics import component_names
@@ -51,6 +53,7 @@ from dkfsim.core.threads import single_thread
 from dkfsim.engine.driver import Run
 from dkfsim.engine.estimate import estimate_run
 from dkfsim.engine.results import versions, write_rows
+from dkfsim.model.system import build_system
 from dkfsim.experiments import executors
 
 #: Columns of ``runs.csv``, in order.
@@ -91,59 +94,89 @@ def pinned_topology(scenario) -> list[str]:
     the scenario seed; Monte Carlo runs vary that seed to redraw noise and
     latencies, not the network, so the graph is pinned to the *base* seed.
     """
-    sc = load_scenario(scenario)
+    sc = scenario if isinstance(scenario, Scenario) else load_scenario(scenario)
     topo = sc.topology
     if "seed" in GENERATOR_PARAMS[topo.generator][1] and "seed" not in (topo.params or {}):
         return [f"topology.params.seed={int(sc.seed)}"]
     return []
 
 
-def run_rows(scenario, seed: int, burn_in: int | None = None) -> tuple[list[dict], dict]:
+class Template:
+    """What every run of a Monte Carlo shares, validated and built once.
+
+    ``scenario``: the base scenario with its random topology pinned
+    (:func:`pinned_topology`), validated once; ``system``: its
+    :func:`~dkfsim.model.system.build_system`.  Nothing of either depends on
+    the seed, so run ``r`` is ``scenario`` with the seed replaced
+    (:meth:`scenario_for`: a copy, not a re-validation) simulated on ``system``
+    -- the same run, field for field, as ``load_scenario(scenario,
+    overrides=pinned + ["seed=S"])`` would give (tests/test_montecarlo_setup.py).
+    A scenario with ``plugins`` is re-validated per run as before: validation is
+    what imports the plugins, and a fresh worker process may not have them yet.
+    """
+
+    def __init__(self, scenario):
+        sc = scenario if isinstance(scenario, Scenario) else load_scenario(scenario)
+        self.scenario = load_scenario(sc, overrides=pinned_topology(sc))
+        self.scenario.exchange()             # the graph and exchange graph, kept by every copy
+        self.system = None if self.scenario.plugins else build_system(self.scenario)
+
+    def scenario_for(self, seed: int) -> Scenario:
+        """The scenario of the run with seed ``seed``."""
+        if self.scenario.plugins:
+            return load_scenario(self.scenario, overrides=[f"seed={int(seed)}"])
+        return self.scenario.model_copy(update={"seed": int(seed)})
+
+
+def run_rows(scenario, seed: int, burn_in: int | None = None, *,
+             curves: bool = True) -> tuple[list[dict], dict | None]:
     """Simulate ``scenario`` with seed ``seed`` and score every estimate.
 
     Returns ``(rows, curves)``.  ``rows``: the run's tidy rows
     (:meth:`~dkfsim.engine.results.RunResult.rows`, with ``seed``).
-    ``curves``: ``t`` (K,), ``components``, ``estimates``, ``se`` (A, K, nx)
-    squared error per tick, ``nees`` (A, K), ``example_truth`` (K, nx),
-    ``example_x`` (A, K, nx) (node 0 for per-node estimates),
-    ``example_node0`` (K, nx) (``x_local`` of node 0).
+    ``curves`` (None unless ``curves``): ``t`` (K,), ``components``,
+    ``estimates``, ``se`` (A, K, nx) squared error per tick, ``nees`` (A, K),
+    ``example_truth`` (K, nx), ``example_x`` (A, K, nx) (node 0 for per-node
+    estimates), ``example_node0`` (K, nx) (``x_local`` of node 0).
 
-    ``scenario`` is a :class:`~dkfsim.config.schema.Scenario`, a dict or a file;
+    ``scenario`` is a :class:`~dkfsim.config.schema.Scenario`, a dict, a file
+    or a :class:`Template` (many runs of one scenario: validated and built once);
     ``burn_in`` defaults to 10 % of the ticks.
     """
-    sc = load_scenario(scenario, overrides=pinned_topology(scenario) + [f"seed={int(seed)}"])
+    tpl = scenario if isinstance(scenario, Template) else Template(scenario)
+    sc = tpl.scenario_for(seed)
     burn = _check_burn_in(burn_in, int(sc.steps))
     with np.errstate(all="ignore"):          # a diverging run gives inf / nan rows, no warnings
-        res = Run(sc, save="estimates").run()
-        rows = [{**row, "seed": int(seed)} for row in res.rows(burn)]
-        return rows, _curves(res)
+        res = Run(sc, save="estimates", system=tpl.system).run()
+        scored = res.scored(burn)            # one NEES per estimate, for the rows and the curves
+        rows = [{**row, "seed": int(seed)} for row in res.rows(burn, scored)]
+        return rows, (_curves(res, scored) if curves else None)
 
 
-def _curves(res) -> dict:
+def _curves(res, scored: dict) -> dict:
     """Per-tick curves of one finished run (see :func:`run_rows`)."""
-    arrays = res.arrays
-    truth = arrays["truth"]
+    truth = res.arrays["truth"]
     names = res.estimates
     K, nx = truth.shape
     se = np.empty((len(names), K, nx))
     nees = np.full((len(names), K), np.nan)
     ex = np.empty((len(names), K, nx))
     for a, name in enumerate(names):
-        x = np.asarray(arrays[f"x_{name}"])
-        se[a] = squared_error(x, truth)
-        if f"P_{name}" in arrays:
-            nees[a] = nees_per_tick(x, np.asarray(arrays[f"P_{name}"]), truth)
-        ex[a] = x if x.ndim == 2 else x[:, 0]
-    return {"t": np.asarray(arrays["t"]), "components": res.components, "estimates": names,
+        s = scored[name]
+        se[a] = squared_error(s.x, truth)
+        if s.nees is not None:
+            nees[a] = s.nees
+        ex[a] = s.x if s.x.ndim == 2 else s.x[:, 0]
+    return {"t": np.asarray(res.arrays["t"]), "components": res.components, "estimates": names,
             "se": se, "nees": nees, "example_truth": truth, "example_x": ex,
-            "example_node0": np.asarray(arrays["x_local"])[:, 0]}
+            "example_node0": np.asarray(res.arrays["x_local"])[:, 0]}
 
 
 # =========================================================================== one task
-def _one(scenario, r: int, seed: int, burn_in: int) -> tuple[list[dict], dict]:
+def _one(template: Template, r: int, seed: int, burn_in: int) -> tuple[list[dict], dict]:
     """Run ``r`` where it runs (a worker, or this process): its rows and curves."""
     try:
-        rows, curves = run_rows(scenario, seed, burn_in)
+        rows, curves = run_rows(template, seed, burn_in)
     except DkfsimError as exc:      # e.g. a random topology that is disconnected for this seed
         raise DkfsimError(f"run {r} (seed {seed}): {exc}") from None
     if r != 0:       # only run 0 is kept as the example: do not ship the rest
@@ -219,7 +252,8 @@ def _montecarlo(sc, runs: int, jobs, burn: int, progress, executor) -> "MonteCar
         if progress is not None:
             progress(done, runs)
 
-    tasks = ((f"run {r} (seed {seed})", (sc, r, seed, burn)) for r, seed in enumerate(seeds))
+    template = Template(sc)
+    tasks = ((f"run {r} (seed {seed})", (template, r, seed, burn)) for r, seed in enumerate(seeds))
     ex, own = executors.executor_for(executor, jobs, runs)
     try:
         for r, (_key, (run_rows_, curves)) in enumerate(executors.in_order(ex, _one, tasks, tick)):

@@ -39,7 +39,8 @@ def run_task(scenario: dict, seed: int, burn_in: int | None, base_dir: str | Non
     gives them, with plain Python numbers; ``only``: just the rows of these estimates.
     """
     t0 = time.perf_counter()
-    rows, _curves = run_rows(load_scenario(scenario, base_dir=base_dir), int(seed), burn_in=burn_in)
+    rows, _ = run_rows(load_scenario(scenario, base_dir=base_dir), int(seed), burn_in=burn_in,
+                       curves=False)
     return [{k: _plain(v) for k, v in row.items()} for row in rows
             if only is None or row["estimate"] in only], time.perf_counter() - t0
 
