@@ -25,7 +25,7 @@ Two pieces:
 from __future__ import annotations
 
 import numpy as np
-from dkfsim.core.linalg import solve, solve_posdef, solve_symmetric
+from dkfsim.core.linalg import solve_posdef, solve_symmetric
 from dkfsim.model.system import psd_factor
 
 
@@ -44,18 +44,20 @@ def kkt_weights(Xi: np.ndarray, n: int, nx: int) -> np.ndarray:
     """
     N = n * nx
     X = np.array(Xi, dtype=float, order="C")
-    X.reshape(-1)[::N + 1] += 1e-8 * np.trace(Xi) / N
+    diag = X.reshape(-1)[::N + 1]
+    delta = 1e-8 * diag.sum() / N
+    diag += delta
     E = _stacked_identities(n, nx)
     Z = solve_posdef(X.T, E, overwrite_a=True)       # X symmetric: X.T is its Fortran view
     if Z is not None:
-        Sm = Z.reshape(n, nx, nx).sum(axis=0)          # E' X^-1 E
-        Gamma = solve(Sm, Z.T).T
-        if np.isfinite(Gamma).all():
-            return Gamma
+        Sm = Z.reshape(n, nx, nx).sum(axis=0)          # E' X^-1 E, positive definite too
+        Gt = solve_posdef(Sm, Z.T)
+        if Gt is not None:
+            return Gt.T
     K, rhs = _kkt_template(n, nx)
     K = K.copy()
     K[:N, :N] = Xi
-    K.reshape(-1)[:N * (N + nx + 1):N + nx + 1] += 1e-8 * np.trace(Xi) / N
+    K.reshape(-1)[:N * (N + nx + 1):N + nx + 1] += delta
     sol = solve_symmetric(K, rhs)
     return sol[:N]
 
