@@ -7,6 +7,8 @@ slices that cannot be solved become NaN, the run goes on, and the result
 reports which estimates diverged (``RunResult.diverged``).  For finite,
 well-posed input these are exactly ``numpy.linalg.solve`` and
 LAPACK ``dsysv``: the fallback runs only after they raised.
+:func:`solve_posdef` instead reports failure (a matrix that is not positive
+definite) to its caller, which picks another method.
 """
 
 from __future__ import annotations
@@ -57,3 +59,23 @@ def solve_symmetric(A: np.ndarray, B: np.ndarray) -> np.ndarray:
     if info != 0:
         return np.full(np.shape(B), np.nan)
     return x[:, 0] if one else x
+
+
+_POTRF = scipy.linalg.lapack.dpotrf
+_POTRS = scipy.linalg.lapack.dpotrs
+
+
+def solve_posdef(A: np.ndarray, B: np.ndarray, overwrite_a: bool = False) -> np.ndarray | None:
+    """``A^-1 B`` for one symmetric positive definite ``A`` by Cholesky (LAPACK ``dpotrf``,
+    ``dpotrs``, lower triangle); None when ``A`` is not numerically positive definite.
+
+    ``B`` is not modified; ``A`` only with ``overwrite_a`` (a Fortran-ordered or symmetric
+    C-ordered scratch the caller no longer needs).
+    """
+    c, info = _POTRF(A, lower=1, clean=0, overwrite_a=overwrite_a)
+    if info != 0:
+        return None
+    x, info = _POTRS(c, B, lower=1)
+    if info != 0:
+        return None
+    return x

@@ -25,7 +25,7 @@ Two pieces:
 from __future__ import annotations
 
 import numpy as np
-from dkfsim.core.linalg import solve_symmetric
+from dkfsim.core.linalg import solve_posdef, solve_symmetric
 from dkfsim.model.system import psd_factor
 
 
@@ -34,16 +34,44 @@ def kkt_weights(Xi: np.ndarray, n: int, nx: int) -> np.ndarray:
 
     ``Xi`` is singular whenever two nodes hold the same information (always
     at zero latency), so we solve the KKT system with the reproducible
-    regularisation ``Xi + delta I``, ``delta = 1e-8 tr(Xi) / (n nx)``
-    (docs/design.md §7).
+    regularisation ``X = Xi + delta I``, ``delta = 1e-8 tr(Xi) / (n nx)``
+    (docs/design.md §7).  ``X`` is positive definite, so the KKT system is
+    solved by eliminating the constraint: ``Z = X^-1 E`` (Cholesky),
+    ``Gamma = Z (E' Z)^-1``, the same solution at half the cost of a solve
+    of the whole indefinite system; that solve (LAPACK ``dsysv``) remains
+    for an ``X`` that Cholesky refuses (non-finite, or an ``Xi`` too
+    indefinite for ``delta`` to fix).
     """
     N = n * nx
+    X = np.array(Xi, dtype=float, order="C")
+    diag = X.reshape(-1)[::N + 1]
+    delta = 1e-8 * diag.sum() / N
+    diag += delta
+    E = _stacked_identities(n, nx)
+    Z = solve_posdef(X.T, E, overwrite_a=True)       # X symmetric: X.T is its Fortran view
+    if Z is not None:
+        Sm = Z.reshape(n, nx, nx).sum(axis=0)          # E' X^-1 E, positive definite too
+        Gt = solve_posdef(Sm, Z.T)
+        if Gt is not None:
+            return Gt.T
     K, rhs = _kkt_template(n, nx)
     K = K.copy()
     K[:N, :N] = Xi
-    K.reshape(-1)[:N * (N + nx + 1):N + nx + 1] += 1e-8 * np.trace(Xi) / N
+    K.reshape(-1)[:N * (N + nx + 1):N + nx + 1] += delta
     sol = solve_symmetric(K, rhs)
     return sol[:N]
+
+
+_E: dict[tuple[int, int], np.ndarray] = {}
+
+
+def _stacked_identities(n: int, nx: int) -> np.ndarray:
+    """``E``: n identities (nx, nx) stacked, Fortran-ordered for LAPACK, cached."""
+    E = _E.get((n, nx))
+    if E is None:
+        E = _E[(n, nx)] = np.asfortranarray(np.tile(np.eye(nx), (n, 1)))
+        E.setflags(write=False)
+    return E
 
 
 _KKT: dict[tuple[int, int], tuple[np.ndarray, np.ndarray]] = {}
