@@ -107,6 +107,15 @@ def timed(sc, save: str = "estimates"):
     return time.perf_counter() - t0, time.process_time() - c0, r
 
 
+def timed_with(sc, env: str, value: str):
+    """:func:`timed` with the environment variable ``env`` set to ``value`` for the run."""
+    os.environ[env] = value
+    try:
+        return timed(sc)
+    finally:
+        del os.environ[env]
+
+
 def slope(x, y) -> float:
     """Least-squares slope of log y against log x."""
     lx, ly = [math.log(v) for v in x], [math.log(v) for v in y]
@@ -206,18 +215,10 @@ def main(argv=None) -> int:
     print(f"  bare SimPy, same # timeouts   {bare:8.3f} s   (CPU {bare_cpu:.3f} s)")
     print(f"  ratio run / bare SimPy        {wall / bare:8.1f} x  (CPU {cpu / bare_cpu:.1f} x)")
     if res.info["kernels"] == "numba":
-        os.environ[EXCHANGE_ENV] = "python"
-        try:
-            wall_py, cpu_py, r_py = timed(sc)
-        finally:
-            del os.environ[EXCHANGE_ENV]
+        wall_py, cpu_py, r_py = timed_with(sc, EXCHANGE_ENV, "python")
         print(f"  Python tree protocol          {wall_py:8.3f} s   (CPU {cpu_py:.3f} s; Python / compiled "
               f"{cpu_py / cpu:.2f} x CPU; exchange '{r_py.info['exchange']}' vs '{res.info['exchange']}')")
-        os.environ[KERNELS_ENV] = "numpy"
-        try:
-            wall_np, cpu_np, _ = timed(sc)
-        finally:
-            del os.environ[KERNELS_ENV]
+        wall_np, cpu_np, _ = timed_with(sc, KERNELS_ENV, "numpy")
         print(f"  pure-numpy path               {wall_np:8.3f} s   (CPU {cpu_np:.3f} s; numpy / numba "
               f"{cpu_np / cpu:.2f} x CPU)")
     print()
