@@ -12,7 +12,7 @@ Which path runs: numba when it is installed, unless the environment variable
 ``DKFSIM_KERNELS=numpy`` forces the pure-numpy path (the fallback on
 platforms without numba, tested against the compiled one).  Compiled kernels
 are cached on disk (``cache=True``): the first call on a machine compiles them
-once (about 9 s of CPU); later processes load them (about 0.4 s).  See
+once (about 20 s of CPU with the compiled tree's); later processes load them.  See
 docs/design.md §4 ("Kernel paths").
 """
 
