@@ -39,13 +39,6 @@ def key64(seed: int, *name) -> int:
     return int.from_bytes(digest, "little")
 
 
-def _mix(z: int) -> int:
-    """SplitMix64's output function: a bijection of 64-bit words with full avalanche."""
-    z = ((z ^ (z >> 30)) * 0xBF58476D1CE4E5B9) & _M64
-    z = ((z ^ (z >> 27)) * 0x94D049BB133111EB) & _M64
-    return z ^ (z >> 31)
-
-
 def keyed_uniform(key: int, t: int, seq: int) -> float:
     """A uniform draw in (0, 1) that is a pure function of ``(key, t, seq)``.
 
@@ -56,7 +49,8 @@ def keyed_uniform(key: int, t: int, seq: int) -> float:
     same delay (common random numbers), and a draw never depends on how many
     packets came before.  Two rounds of SplitMix64 mixing; 53 bits.
     """
-    # _mix twice, written out: this runs once per packet.
+    # Two rounds of SplitMix64's output function (a bijection of 64-bit words with full
+    # avalanche), written out: this runs once per packet.
     z = (key + _GOLDEN * (t & _M64)) & _M64
     z = ((z ^ (z >> 30)) * 0xBF58476D1CE4E5B9) & _M64
     z = ((z ^ (z >> 27)) * 0x94D049BB133111EB) & _M64

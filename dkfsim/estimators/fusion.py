@@ -83,7 +83,7 @@ def _kkt_template(n: int, nx: int):
     if got is None:
         N = n * nx
         K = np.zeros((N + nx, N + nx))
-        E = np.tile(np.eye(nx), (n, 1))
+        E = _stacked_identities(n, nx)
         K[:N, N:] = E
         K[N:, :N] = E.T
         rhs = np.zeros((N + nx, nx))

@@ -208,12 +208,6 @@ class Port:
         for c in self._count.values():
             c.extend([0] * (size - len(c)))
 
-    def _add(self, key: str, link_id: int, amount: int = 1) -> None:
-        c = self._count[key]
-        if link_id >= len(c):
-            self._grow()
-        c[link_id] += amount
-
     def send(self, link: Link, payload, nbytes: int = 0) -> None:
         """Hand ``payload`` to ``link`` now (``nbytes``: its nominal size, for traffic)."""
         now = self.env.now

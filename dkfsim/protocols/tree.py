@@ -43,59 +43,31 @@ class TreeExchange(Exchange):
             self._schedule_flush(i)
 
     def receive(self, link, payload) -> None:
-        """:meth:`Exchange.receive` and :meth:`_accept` in one loop (the per-packet hot path)."""
+        """:meth:`Exchange.receive` with the tree's acceptance in one loop (the per-packet path)."""
         seq, items = payload
         j, e = link.dst, self._local[link.id]
         rows = self.rows
-        window = self.window
-        log = self._log
-        dirty = None
-        late = 0
-        late_logged = False
+        gained = late = False
         for row, mask in items:
             st = rows.get(row)
             if st is None:
-                if log is None:
-                    late += 1             # one late (packet, row) pair
-                else:
-                    self._late(j, row, mask)        # per contribution, logged
-                    late_logged = True
+                self._late(j, row, mask)
+                late = True
                 continue
             if seq <= st.inseq[e]:
                 self.stale += 1
                 continue
             st.inseq[e] = seq
             st.inbox[e] = mask
-            held = st.held
-            new = mask & ~held[j]
+            new = mask & ~st.held[j]
             if new:
-                held[j] |= new
-                window.add_mask(j, new, row)
-                if log is not None:
-                    log.extend((j, new, row, self.env.now))
-                if dirty is None:
-                    dirty = self._dirty[j]
-                dirty.add(row)
-        if dirty is not None:
+                self._gain(j, row, st, new)
+                self._dirty[j].add(row)
+                gained = True
+        if gained:
             self._schedule_flush(j)
         if late:
-            self.late += late
-            self.late_per_node[j] += late
-        if late or late_logged:
             self.late_packets[e] += 1
-
-    def _accept(self, link, seq, row, st, mask) -> None:
-        j, e = link.dst, self.lid[link.id]
-        if seq <= st.inseq[e]:
-            self.stale += 1
-            return
-        st.inseq[e] = seq
-        st.inbox[e] = mask
-        new = mask & ~st.held[j]
-        if new:
-            self._gain(j, row, st, new)
-            self._dirty[j].add(row)
-            self._schedule_flush(j)
 
     def flush(self, j: int) -> None:
         rows = self._dirty[j]

@@ -19,7 +19,7 @@ import numpy as np
 
 from dkfsim.core.jit import LazyKernels
 
-_KERNELS = ("keyed_uniform", "_fold", "fold_masks", "_push", "_pop", "_enqueue", "_receive", "deliver", "measure",
+_KERNELS = ("keyed_uniform", "_bit", "_fold", "fold_masks", "_push", "_pop", "_enqueue", "_receive", "deliver", "measure",
             "flush_all")
 _lazy = LazyKernels(__name__, _KERNELS)
 
@@ -61,6 +61,11 @@ def keyed_uniform(key, t, seq):
     return (np.float64((z ^ (z >> _S31)) >> _S11) + 0.5) * _SCALE
 
 
+def _bit(low):
+    """The index of the one set bit of ``low`` (a word's lowest set bit, ``m & -m``)."""
+    return _BIT_INDEX[(low * _DB) >> _S58]
+
+
 def _fold(node, row, bits, A, omega, varying, theta, Omega, Theta, held, starts, t_s, arrival, logf):
     """Add origins ``bits`` (words) of ``row`` to ``node``'s sums, origins ascending; with
     ``logf``, log each origin's arrival at ``t_s`` seconds."""
@@ -73,7 +78,7 @@ def _fold(node, row, bits, A, omega, varying, theta, Omega, Theta, held, starts,
         while m != _ZERO:
             low = m & (~m + _ONE)
             m ^= low
-            org = w * 64 + _BIT_INDEX[(low * _DB) >> _S58]
+            org = w * 64 + _bit(low)
             a = A[node, org]
             if held.shape[2]:                      # only kept when the fusion needs it
                 held[slot, node, org] = True
@@ -169,7 +174,7 @@ def _receive(p, now, CT, G, rowid, held, inbox, inseq, dirty, due, queue, pk, pk
                     m ^= low
                     late += 1
                     if frow[h] == row:
-                        arrival[j, w * 64 + _BIT_INDEX[(low * _DB) >> _S58], row] = t_s
+                        arrival[j, w * 64 + _bit(low), row] = t_s
             continue
         if seq <= inseq[slot, e]:
             CT[STALE] += 1
