@@ -16,11 +16,11 @@ The package's folders are its stages, in the order data flows (README, "How
 it works"); importing it registers every built-in component.
 """
 
-from dkfsim.core.version import __version__
-from dkfsim.core.errors import DkfsimError, ScenarioError
-from dkfsim import components, model, protocols, estimators  # noqa: F401  (registration)
+from dkfsim import components, estimators, model, protocols  # noqa: F401  (registration)
 from dkfsim.config.load import load_scenario
 from dkfsim.config.schema import Scenario
+from dkfsim.core.errors import DkfsimError, ScenarioError
+from dkfsim.core.version import __version__
 from dkfsim.engine.driver import run
 from dkfsim.engine.results import RunResult, load_run
 from dkfsim.experiments.maxdelay import maxdelay

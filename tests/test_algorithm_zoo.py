@@ -17,10 +17,10 @@ import copy
 
 import numpy as np
 import pytest
-from scipy.stats import chi2, t as student_t
-
 import reference as ref
 from conftest import T2, scenario
+from scipy.stats import chi2
+from scipy.stats import t as student_t
 from test_consensus import link_draws, model_of
 
 TOL = 1e-9

@@ -19,7 +19,6 @@ import copy
 
 import numpy as np
 import pytest
-
 import reference as ref
 from conftest import T2, scenario
 

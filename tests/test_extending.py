@@ -19,12 +19,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 import yaml
+from conftest import scenario
+from reference import node_estimates
 from scipy import stats
 
 import dkfsim
-from conftest import scenario
 from dkfsim.core import registry
-from reference import node_estimates
 
 ROOT = Path(__file__).resolve().parents[1]
 EXAMPLES = ROOT / "docs" / "examples"
@@ -78,8 +78,9 @@ def test_two_estimators_sending_together_see_the_same_delays():
     """Common random numbers on the shared network: the n-th packet two ports put on one link at
     one instant takes the same latency (and fate), whatever else either port sent before."""
     import simpy
-    from dkfsim.components.latency import Exponential
+
     from dkfsim.components.faults import LinkSpec
+    from dkfsim.components.latency import Exponential
     from dkfsim.network.links import Network
     env = simpy.Environment()
     spec = LinkSpec(latency=Exponential(mean=0.05), loss=0.2)

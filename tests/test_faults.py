@@ -14,16 +14,15 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-import simpy
-
 import reference as ref
+import simpy
 from conftest import run_scenario, scc_digraph_edges, scenario, tree_edges
 
-from dkfsim.core.errors import ScenarioError
 from dkfsim.components.faults import CrashSchedule, Faults, LinkSpec, ScaleSchedule, Windows
 from dkfsim.components.latency import parse_latency
-from dkfsim.network.links import Link, Network
 from dkfsim.config.load import load_scenario, scenario_hash
+from dkfsim.core.errors import ScenarioError
+from dkfsim.network.links import Link, Network
 
 TOL = 1e-9
 T_NS = 100_000_000           # T = 0.1 s (conftest's 2-state model)
@@ -545,9 +544,10 @@ def test_stress_scenarios_validate_and_run(name, L):
 
 def test_baselines_do_without_the_measurements_a_crash_prevented():
     """A crashed sensor's rows exist nowhere: not for the centralized filter, not for its local one."""
-    import dkfsim
-    from reference import kalman_filter
     from conftest import scenario
+    from reference import kalman_filter
+
+    import dkfsim
     d = scenario(3, steps=30, generator="path")
     d["faults"] = {"crashes": [{"node": 1, "start": 0.45, "end": 1.05}]}   # T = 0.1: ticks 5..10
     d["baselines"] = ["centralized", "local"]
@@ -570,8 +570,9 @@ def test_baselines_do_without_the_measurements_a_crash_prevented():
 def test_ci_consensus_respects_crash_windows():
     """A crashed node neither corrects, sends nor averages: with the whole run
     inside its window, it is a pure prediction and the others never hear from it."""
-    import dkfsim
     from conftest import scenario
+
+    import dkfsim
     d = scenario(3, steps=20, generator="path")
     d["baselines"] = ["ci_consensus"]
     d["consensus_rounds"] = 2

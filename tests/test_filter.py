@@ -10,7 +10,6 @@
 from __future__ import annotations
 
 import numpy as np
-import pytest
 import scipy.linalg
 from hypothesis import given, settings
 from hypothesis import strategies as st

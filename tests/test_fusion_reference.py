@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-
 import reference as ref
 from conftest import run_scenario, scc_digraph_edges, scenario, tree_edges
 

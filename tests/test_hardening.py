@@ -22,10 +22,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 import yaml
+from conftest import scenario
 
 import dkfsim
-from conftest import scenario
-from dkfsim.core.errors import DkfsimError, ScenarioError
+from dkfsim.core.errors import ScenarioError
 from dkfsim.core.resources import ResourceError
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -23,9 +23,9 @@ import sys
 
 import numpy as np
 import pytest
+from conftest import scc_digraph_edges, scenario, tree_edges
 
 import dkfsim
-from conftest import scc_digraph_edges, scenario, tree_edges
 
 
 def rowwise_rel_err(a: np.ndarray, b: np.ndarray) -> float:

@@ -9,10 +9,10 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-
-import dkfsim
 from conftest import scenario
 from reference import assert_close, centralized, node_estimates
+
+import dkfsim
 
 
 @pytest.mark.parametrize("kernels", ["numba", "numpy"])

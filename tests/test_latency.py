@@ -6,8 +6,7 @@ import numpy as np
 import pytest
 from pydantic import ValidationError
 
-from dkfsim.components.latency import (Constant, Exponential, LatencyParams, Uniform, UniformSteps,
-                                       parse_latency)
+from dkfsim.components.latency import Constant, Exponential, LatencyParams, Uniform, UniformSteps, parse_latency
 from dkfsim.core.params import seconds_to_ns
 from dkfsim.core.registry import LATENCY_MODELS
 
@@ -194,13 +193,11 @@ def test_models_are_frozen():
 
 # =========================================================================== issue 4: new models
 import math  # noqa: E402
-from pathlib import Path  # noqa: E402
 
 from scipy import stats  # noqa: E402
 
+from dkfsim.components.latency import Gamma, GilbertElliott, Lognormal, Pareto, read_column  # noqa: E402
 from dkfsim.core.datafiles import DATA_DIR, resolve_data_file  # noqa: E402
-from dkfsim.components.latency import (Empirical, GilbertElliott, Gamma, Lognormal,  # noqa: E402
-                                       Pareto, read_column)
 from dkfsim.core.streams import key64, keyed_uniform, keyed_uniforms  # noqa: E402
 
 CICV = DATA_DIR / "cicv5g"                  # shipped inside the package

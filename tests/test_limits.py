@@ -5,11 +5,11 @@ from __future__ import annotations
 from pathlib import Path
 
 import pytest
+from conftest import scenario
 
 import dkfsim
 import dkfsim.config.schema as schema
 import dkfsim.estimators.anti_delay as anti_delay
-from conftest import scenario
 from dkfsim.core.errors import ScenarioError
 
 
@@ -68,6 +68,7 @@ def test_save_summary_removes_a_stale_run_npz(tmp_path):
 
 def test_montecarlo_with_one_run_writes_valid_json(tmp_path):
     import json
+
     from dkfsim.experiments.montecarlo import montecarlo
     montecarlo(dkfsim.load_scenario(scenario(3, steps=10)), 1).save(tmp_path)
     summary = json.loads((tmp_path / "summary.json").read_text())

@@ -15,11 +15,15 @@ import pytest
 import yaml
 
 import dkfsim
-from dkfsim.analysis.bounds import (delay_bound_formula, omega_min_of, paper_bound, paper_bound_for_scenario,
-                           paper_weight_matrix)
+from dkfsim.analysis.bounds import (
+    delay_bound_formula,
+    omega_min_of,
+    paper_bound,
+    paper_bound_for_scenario,
+    paper_weight_matrix,
+)
 from dkfsim.core.errors import DkfsimError
-from dkfsim.experiments.maxdelay import (EXCEEDS, UNDECIDED, WITHIN, MaxDelay, Settings, make_axis,
-                             metric_value)
+from dkfsim.experiments.maxdelay import EXCEEDS, UNDECIDED, WITHIN, MaxDelay, Settings, make_axis, metric_value
 from dkfsim.experiments.maxdelay.report import _pow10
 from dkfsim.experiments.montecarlo import derive_seed
 

@@ -8,6 +8,8 @@ import numpy as np
 import pytest
 
 from dkfsim.analysis import metrics as M
+
+
 def test_t_interval_hand_worked():
     # mean 3, s^2 = 10/4 = 2.5, t_{0.975, 4} = 2.7764451..., half = t * sqrt(2.5 / 5)
     mean, lo, hi = M.t_interval([1.0, 2.0, 3.0, 4.0, 5.0])

@@ -20,15 +20,13 @@ import numpy as np
 import pytest
 import scipy.linalg
 import yaml
+from conftest import scenario
 from scipy.stats import chi2
 
-from conftest import scenario
-
 from dkfsim import load_scenario
-
+from dkfsim.analysis.metrics import nees_band, paired_lower_bound, row_columns
 from dkfsim.cli import main as cli
 from dkfsim.core.errors import DkfsimError
-from dkfsim.analysis.metrics import nees_band, paired_lower_bound, row_columns
 from dkfsim.experiments.montecarlo import derive_seed, montecarlo, run_rows
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -272,8 +270,8 @@ def test_with_delays_centralized_beats_dkf_beats_no_buffer_and_local():
 
 def test_random_topology_is_the_same_graph_in_every_run():
     """Runs redraw noise and latency, not the network (seed pinned to the base seed)."""
-    from dkfsim.experiments.montecarlo import pinned_topology
     import dkfsim
+    from dkfsim.experiments.montecarlo import pinned_topology
     d = dkfsim.load_scenario(ROOT / "scenarios" / "paper_case1.yaml").to_dict()
     d["topology"] = {"directed": False, "generator": "random_tree"}
     d["seed"] = 11

@@ -7,8 +7,8 @@ import json
 from pathlib import Path
 
 import numpy as np
-from PIL import Image
 import pytest
+from PIL import Image
 
 pytest.importorskip("matplotlib")
 import matplotlib.image as mpimg  # noqa: E402

@@ -9,11 +9,10 @@ estimates follow the window rule of docs/design.md §4 (tests/reference.py).
 from __future__ import annotations
 
 import numpy as np
-from hypothesis import HealthCheck, given, settings
-from hypothesis import strategies as st
-
 import reference as ref
 from conftest import run_scenario, scenario, tree_edges
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
 
 K = 30
 

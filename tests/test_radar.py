@@ -22,7 +22,6 @@ import numpy as np
 import pytest
 import scipy.stats
 import yaml
-
 from reference import assert_close
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -284,6 +283,7 @@ def test_fused_beats_every_single_radar():
 def test_run_npz_keeps_the_converted_measurements():
     """H_i, z_i and Rc_i reproduce the information the filters used, row by row."""
     import numpy as np
+
     import dkfsim
     from dkfsim.engine.driver import Run
     sc = dkfsim.load_scenario(RADAR, overrides=["steps=8"])

@@ -16,7 +16,6 @@ import sys
 from pathlib import Path
 
 import numpy as np
-
 from conftest import run_scenario, scenario, tree_edges
 
 SC = scenario(6, edges=tree_edges(6, 61), latency={"model": "exponential", "mean": 0.07, "offset": 0.0},
@@ -131,6 +130,7 @@ def test_overrides_act_like_editing_the_scenario():
 def test_paths_are_accepted_as_sources(tmp_path):
     """load_scenario(path) of a YAML file equals load_scenario(dict)."""
     import yaml  # pyyaml is a dependency of the package
+
     import dkfsim
 
     sc = scenario(4, edges=tree_edges(4, 63), latency={"model": "uniform_steps", "d_t": 1},

@@ -10,12 +10,12 @@ import numpy as np
 import pytest
 import yaml
 
-from dkfsim.core.errors import ScenarioError
-from dkfsim.core.registry import ESTIMATORS
 from dkfsim.components.estimators import EstimatorParams
 from dkfsim.components.latency import Constant, Exponential, Uniform, UniformSteps
 from dkfsim.config.load import load_scenario, scenario_hash
 from dkfsim.config.schema import Scenario
+from dkfsim.core.errors import ScenarioError
+from dkfsim.core.registry import ESTIMATORS
 
 SCENARIOS = Path(__file__).resolve().parents[1] / "scenarios"
 

@@ -319,6 +319,7 @@ def test_a_database_of_an_earlier_format_is_refused_by_name(tmp_path):
     is not resumed into: the message names the format and the way out."""
     import json as _json
     import sqlite3
+
     from dkfsim.experiments.sweep import run_sweep
     path = write_sweep(tmp_path, grid={}, runs=1, steps=20, output="res.sqlite")
     assert run_sweep(path, jobs=1, progress=False).computed == 1

@@ -11,7 +11,8 @@ from pathlib import Path
 
 import pytest
 import yaml
-from scipy.stats import chi2, t as student_t
+from scipy.stats import chi2
+from scipy.stats import t as student_t
 
 from dkfsim.cli.main import main
 

@@ -11,12 +11,19 @@ import networkx as nx
 import numpy as np
 import pytest
 
+from dkfsim.components.topology import (
+    GraphSpecError,
+    bfs_spanning_tree,
+    build_graph,
+    check_connected,
+    is_tree,
+    make_exchange,
+    paper_weights,
+    pruefer_decode,
+    random_tree_edges,
+)
 from dkfsim.config.load import load_scenario
-from dkfsim.components.topology import (GraphSpecError, bfs_spanning_tree, build_graph, check_connected,
-                                        is_tree, make_exchange, paper_weights,
-                                        pruefer_decode, random_tree_edges)
 from dkfsim.engine.driver import Run
-
 
 SCENARIOS = Path(__file__).resolve().parents[1] / "scenarios"
 

@@ -7,7 +7,6 @@ Zenodo DOI 10.5281/zenodo.17475688) and the errors.
 
 from __future__ import annotations
 
-import copy
 import os
 from pathlib import Path
 

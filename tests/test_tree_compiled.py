@@ -12,9 +12,9 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from conftest import scenario, tree_edges
 
 import dkfsim
-from conftest import scenario, tree_edges
 from dkfsim.core.streams import keyed_uniform
 from dkfsim.protocols import tree_compiled, tree_compiled_kernels
 

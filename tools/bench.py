@@ -147,7 +147,7 @@ def threads_under_load(ticks: int) -> tuple[float, float, int]:
     each with a busy process beside it; and the default thread count."""
     from threadpoolctl import threadpool_info, threadpool_limits
 
-    from dkfsim.engine.driver import Run               # the engine, below the API's thread pin
+    from dkfsim.engine.driver import Run  # the engine, below the API's thread pin
     sc = tree_scenario(50, ticks, "matrix")
     default = max((i["num_threads"] for i in threadpool_info()), default=1)
     times = []

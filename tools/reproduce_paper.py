@@ -43,8 +43,8 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from dkfsim.report import plots  # noqa: E402
 from dkfsim.core.errors import DkfsimError  # noqa: E402
+from dkfsim.report import plots  # noqa: E402
 
 CASE1 = ROOT / "scenarios" / "paper_case1.yaml"
 CASE2 = ROOT / "scenarios" / "paper_case2.yaml"

@@ -4,10 +4,17 @@ from __future__ import annotations
 
 import sys
 
-from dkfsim.cli.common import (add_executor_args, add_scenario_args, add_yes_arg, executor_from_args,
-                               load_from_args, progress_bar)
+from dkfsim.cli.common import (
+    add_executor_args,
+    add_scenario_args,
+    add_yes_arg,
+    executor_from_args,
+    load_from_args,
+    progress_bar,
+)
 from dkfsim.core.folders import check_target
 from dkfsim.experiments.maxdelay import METRICS, Candidate, MaxDelay, Settings
+
 
 def add_command(subparsers) -> None:
     p = subparsers.add_parser(

@@ -2,12 +2,20 @@
 
 from __future__ import annotations
 
-from dkfsim.cli.common import (add_executor_args, add_scenario_args, add_yes_arg, executor_from_args,
-                               load_from_args, progress_bar, workers_from_args)
+from dkfsim.cli.common import (
+    add_executor_args,
+    add_scenario_args,
+    add_yes_arg,
+    executor_from_args,
+    load_from_args,
+    progress_bar,
+    workers_from_args,
+)
 from dkfsim.core.errors import DkfsimError
 from dkfsim.core.folders import check_target
 from dkfsim.experiments import executors
 from dkfsim.experiments.montecarlo import _check_burn_in, check_montecarlo, montecarlo
+
 
 def add_command(subparsers) -> None:
     p = subparsers.add_parser(

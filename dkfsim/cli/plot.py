@@ -8,9 +8,8 @@ from pathlib import Path
 from dkfsim.core.errors import DkfsimError
 from dkfsim.core.files import clip
 from dkfsim.experiments.sweep import is_database
+from dkfsim.report.plots import DEFAULT_FORMATS, FORMATS, _check_formats, load_folder, plot_compare, plot_folder
 from dkfsim.report.sweep_plot import plot_sweep
-from dkfsim.report.plots import (DEFAULT_FORMATS, FORMATS, _check_formats, load_folder, plot_compare,
-                                 plot_folder)
 
 EPILOG = """\
 examples:

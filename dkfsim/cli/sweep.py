@@ -9,9 +9,8 @@ from pathlib import Path
 from dkfsim.cli.common import add_executor_args, add_yes_arg, executor_from_args, workers_from_args
 from dkfsim.core.errors import DkfsimError
 from dkfsim.core.extras import optional
+from dkfsim.experiments.sweep import Sweep, export, is_database, load_sweep, run_sweep, tasks_done
 from dkfsim.experiments.sweep_summary import write_summary
-from dkfsim.experiments.sweep import (Sweep, export, is_database, load_sweep, run_sweep,
-                                      tasks_done)
 
 HELP = """\
 Run a parameter sweep: every parameter set of the grid (the cartesian product of the

@@ -6,5 +6,4 @@ and recorded tracks: everything a scenario key can name, validated here,
 below the configuration stage that reads them.
 """
 
-from dkfsim.components import (estimators, faults, latency, sensors, topology,  # noqa: F401
-                               truth)
+from dkfsim.components import estimators, faults, latency, sensors, topology, truth  # noqa: F401

@@ -52,8 +52,19 @@ import scipy.special
 from pydantic import Field, PrivateAttr, TypeAdapter, ValidationInfo, model_validator
 
 from dkfsim.core.datafiles import DataFileError, locate, read_table
-from dkfsim.core.params import (MAX_NS, NS_PER_S, NonNegSeconds, PosReal, PosSeconds, Probability,
-                                StrictModel, custom_error, registered, round_ns, seconds_to_ns)
+from dkfsim.core.params import (
+    MAX_NS,
+    NS_PER_S,
+    NonNegSeconds,
+    PosReal,
+    PosSeconds,
+    Probability,
+    StrictModel,
+    custom_error,
+    registered,
+    round_ns,
+    seconds_to_ns,
+)
 from dkfsim.core.registry import LATENCY_MODELS
 from dkfsim.core.streams import key64, keyed_uniform, stream
 

@@ -16,8 +16,7 @@ from typing import Annotated, Any, Literal
 import numpy as np
 from pydantic import BeforeValidator, Field, model_validator
 
-from dkfsim.core.params import (MAX_MAGNITUDE, Matrix, Name, StrictInt, StrictModel, Vector, check_spd,
-                                custom_error)
+from dkfsim.core.params import MAX_MAGNITUDE, Matrix, Name, StrictInt, StrictModel, Vector, check_spd, custom_error
 from dkfsim.core.registry import SENSOR_KINDS
 
 

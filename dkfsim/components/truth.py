@@ -22,7 +22,6 @@ from dkfsim.components.latency import located
 from dkfsim.core.datafiles import DataFileError, read_table
 from dkfsim.core.params import MAX_SECONDS, StrictModel, custom_error
 
-
 #: Seconds per unit of the time column.
 TIME_UNITS = {"s": 1.0, "ms": 1e-3, "us": 1e-6, "ns": 1e-9}
 

@@ -13,9 +13,16 @@ from typing import Annotated, Literal
 import numpy as np
 from pydantic import Field, model_validator
 
-from dkfsim.core.params import (MAX_MAGNITUDE, MAX_SECONDS, Matrix, StrictModel, Vector, check_spd,
-                                check_square, custom_error)
-
+from dkfsim.core.params import (
+    MAX_MAGNITUDE,
+    MAX_SECONDS,
+    Matrix,
+    StrictModel,
+    Vector,
+    check_spd,
+    check_square,
+    custom_error,
+)
 
 #: Units of the constant-acceleration model's components (matplotlib mathtext), for axis labels.
 CA_UNITS = {"position": "m", "velocity": "m/s", "acceleration": "m/s$^2$"}

@@ -56,11 +56,21 @@ from dkfsim.components.faults import Faults, LinkSpec, Schedule, Window
 from dkfsim.components.latency import Constant, LatencyModel
 from dkfsim.components.sensors import SensorParams
 from dkfsim.components.truth import TruthParams
+from dkfsim.config.dynamics import Model, Prior
 from dkfsim.core.errors import ScenarioError
 from dkfsim.core.files import clip
-from dkfsim.config.dynamics import Model, Prior
-from dkfsim.core.params import (MAX_NS, MAX_SECONDS, Name, Probability, StrictBool, StrictInt, StrictModel,
-                                custom_error, registered, suggest)
+from dkfsim.core.params import (
+    MAX_NS,
+    MAX_SECONDS,
+    Name,
+    Probability,
+    StrictBool,
+    StrictInt,
+    StrictModel,
+    custom_error,
+    registered,
+    suggest,
+)
 from dkfsim.core.registry import ESTIMATORS, GENERATORS, PROTOCOLS, SENSOR_KINDS
 from dkfsim.core.resources import CHEAP_VISITS
 

@@ -8,7 +8,6 @@ keeps its traceback.
 
 from __future__ import annotations
 
-
 #: Longest message an error carries; longer ones (hostile input echoed back) are cut.
 MAX_MESSAGE = 2000
 

@@ -21,16 +21,15 @@ import numpy as np
 import scipy
 import simpy
 
-from dkfsim.core.version import __version__
 from dkfsim.analysis.frames import rows_frame, run_dataset
-from dkfsim.analysis.metrics import (default_burn_in, mse_per_component, row_columns, score_scored,
-                                     scored)
-from dkfsim.config.load import load_scenario, scenario_hash
+from dkfsim.analysis.metrics import default_burn_in, mse_per_component, row_columns, score_scored, scored
 from dkfsim.config.dynamics import component_names
+from dkfsim.config.load import load_scenario, scenario_hash
 from dkfsim.core.encoding import from_json
 from dkfsim.core.errors import DkfsimError
 from dkfsim.core.files import MAX_YAML_BYTES, check_regular_file, read_text
 from dkfsim.core.folders import staged, write_csv, write_json
+from dkfsim.core.version import __version__
 
 SAVE_MODES = ("auto", "full", "estimates", "summary")
 

@@ -4,5 +4,14 @@ Each is an :class:`~dkfsim.estimators.base.Estimator` in a module of its
 own; importing this package registers the built-in ones.
 """
 
-from dkfsim.estimators import (anti_delay, centralized, centralized_delayed, ci_consensus,  # noqa: F401
-                               diffusion_kf, hcmci, icf, kcf, local_only)
+from dkfsim.estimators import (  # noqa: F401
+                               anti_delay,
+                               centralized,
+                               centralized_delayed,
+                               ci_consensus,
+                               diffusion_kf,
+                               hcmci,
+                               icf,
+                               kcf,
+                               local_only,
+)

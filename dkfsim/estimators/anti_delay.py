@@ -24,18 +24,27 @@ from __future__ import annotations
 import numpy as np
 
 from dkfsim.components.estimators import AntiDelayParams, NoBufferParams
+from dkfsim.components.topology import paper_weights
 from dkfsim.config.schema import FUSION_MEMORY_LIMIT
 from dkfsim.core.errors import ScenarioError
 from dkfsim.core.registry import ESTIMATORS, PROTOCOLS
-from dkfsim.core.resources import (B_FLOAT, C_CONTRIBUTION, C_FLOP, C_FUSION_ROW, C_NODE_ROW, C_PACKET,
-                                   C_ROW, C_TICK, Cost)
+from dkfsim.core.resources import (
+    B_FLOAT,
+    C_CONTRIBUTION,
+    C_FLOP,
+    C_FUSION_ROW,
+    C_NODE_ROW,
+    C_PACKET,
+    C_ROW,
+    C_TICK,
+    Cost,
+)
 from dkfsim.estimators.base import Estimate, Estimator, EstimatorResult
 from dkfsim.estimators.fusion import FUSERS, CrossCovariance
 from dkfsim.estimators.window import WindowFilter
 from dkfsim.protocols.tree import TreeExchange
 from dkfsim.protocols.tree_compiled import CompiledTreeExchange
 from dkfsim.protocols.tree_compiled import usable as compiled_tree_usable
-from dkfsim.components.topology import paper_weights
 
 #: Largest P_local (entries) kept: 400 MB.
 P_LOCAL_LIMIT = 50_000_000

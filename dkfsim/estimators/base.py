@@ -24,6 +24,7 @@ from dataclasses import dataclass, field
 from typing import Any, ClassVar
 
 import numpy as np
+
 from dkfsim.components.estimators import EstimatorParams
 from dkfsim.core.resources import Cost
 

@@ -8,9 +8,9 @@ is not applicable (``None``), not zero.
 
 from __future__ import annotations
 
+from dkfsim.components.estimators import CentralizedParams
 from dkfsim.core.registry import ESTIMATORS
 from dkfsim.core.resources import B_FLOAT, C_TICK, Cost
-from dkfsim.components.estimators import CentralizedParams
 from dkfsim.estimators.base import Estimate, Estimator, EstimatorResult
 from dkfsim.estimators.window import centralized_filter
 

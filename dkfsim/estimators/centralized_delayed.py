@@ -15,9 +15,9 @@ from __future__ import annotations
 
 import numpy as np
 
+from dkfsim.components.estimators import CentralizedDelayedParams
 from dkfsim.core.registry import ESTIMATORS
 from dkfsim.core.resources import B_FLOAT, C_NODE_ROW, C_PACKET, C_ROW, C_TICK, Cost
-from dkfsim.components.estimators import CentralizedDelayedParams
 from dkfsim.estimators.base import Estimate, Estimator, EstimatorResult
 from dkfsim.estimators.window import WindowFilter
 

@@ -107,11 +107,13 @@ from __future__ import annotations
 
 import numpy as np
 
+from dkfsim.components.estimators import CIParams
 from dkfsim.core.registry import ESTIMATORS
 from dkfsim.core.resources import B_FLOAT, C_NODE_ROW, C_PACKET, C_ROW, C_TICK, Cost
-from dkfsim.components.estimators import CIParams
 from dkfsim.estimators.base import Estimate, EstimatorResult
-from dkfsim.estimators.rounds import Powers as _Powers, RoundBased, metropolis_weights, solve_pair as _solve_pair
+from dkfsim.estimators.rounds import Powers as _Powers
+from dkfsim.estimators.rounds import RoundBased, metropolis_weights
+from dkfsim.estimators.rounds import solve_pair as _solve_pair
 
 __all__ = ["CIConsensus", "metropolis_weights"]
 

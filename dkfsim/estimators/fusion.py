@@ -25,6 +25,7 @@ Two pieces:
 from __future__ import annotations
 
 import numpy as np
+
 from dkfsim.core.linalg import solve_posdef, solve_symmetric
 from dkfsim.model.system import psd_factor
 

@@ -7,9 +7,9 @@ still accepted in a ``baselines:`` list.)
 
 from __future__ import annotations
 
+from dkfsim.components.estimators import LocalOnlyParams
 from dkfsim.core.registry import ESTIMATORS
 from dkfsim.core.resources import B_FLOAT, C_NODE_ROW, C_ROW, Cost
-from dkfsim.components.estimators import LocalOnlyParams
 from dkfsim.estimators.base import Estimate, Estimator, EstimatorResult
 from dkfsim.estimators.window import batched_filter
 

@@ -31,10 +31,10 @@ from __future__ import annotations
 
 import logging
 import os
-from collections import deque
 import signal
 import threading
 import time
+from collections import deque
 from collections.abc import Callable, Iterable, Iterator
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from concurrent.futures.process import BrokenProcessPool

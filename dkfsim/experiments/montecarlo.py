@@ -39,11 +39,18 @@ from pathlib import Path
 import numpy as np
 
 from dkfsim.analysis.frames import curves_dataset, rows_frame
-from dkfsim.analysis.metrics import (anees_summary, default_burn_in, nees_band, row_columns,
-                                     squared_error, t_interval, t_interval_from_moments)
+from dkfsim.analysis.metrics import (
+    anees_summary,
+    default_burn_in,
+    nees_band,
+    row_columns,
+    squared_error,
+    t_interval,
+    t_interval_from_moments,
+)
 from dkfsim.components.topology import GENERATOR_PARAMS
-from dkfsim.config.load import load_scenario, scenario_hash
 from dkfsim.config.dynamics import component_names
+from dkfsim.config.load import load_scenario, scenario_hash
 from dkfsim.config.schema import Scenario
 from dkfsim.core.errors import DkfsimError
 from dkfsim.core.folders import staged, write_json
@@ -53,8 +60,9 @@ from dkfsim.core.threads import single_thread
 from dkfsim.engine.driver import Run
 from dkfsim.engine.estimate import estimate_run
 from dkfsim.engine.results import versions, write_rows
-from dkfsim.model.system import build_system
 from dkfsim.experiments import executors
+from dkfsim.model.system import build_system
+
 
 #: Columns of ``runs.csv``, in order.
 # =========================================================================== seeds, names

@@ -30,7 +30,6 @@ import numpy as np
 from dkfsim.core.bits import mask_words, set_bits
 from dkfsim.network.links import PRIORITY_FLUSH, Scheduled
 
-
 #: Bytes of a packet's header (sequence number, sender, receiver, length).
 PACKET_HEADER = 16
 

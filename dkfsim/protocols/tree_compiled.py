@@ -28,7 +28,6 @@ from dkfsim.protocols import tree_compiled_kernels as tk
 from dkfsim.protocols.base import PACKET_HEADER
 from dkfsim.protocols.tree import TreeExchange
 
-
 #: Environment variable: ``python`` runs the Python protocol where the compiled one would run.
 EXCHANGE_ENV = "DKFSIM_EXCHANGE"
 

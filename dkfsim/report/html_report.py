@@ -28,8 +28,8 @@ import networkx as nx
 import yaml
 
 from dkfsim.analysis.grid import grid_columns, summarize
-from dkfsim.config.load import load_scenario
 from dkfsim.config.dynamics import component_names
+from dkfsim.config.load import load_scenario
 from dkfsim.core.errors import DkfsimError
 from dkfsim.core.extras import pyplot
 from dkfsim.core.folders import write_text

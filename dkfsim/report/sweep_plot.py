@@ -24,8 +24,16 @@ from dkfsim.core.params import suggest
 from dkfsim.core.registry import METRICS
 from dkfsim.experiments.sweep_summary import read_table
 from dkfsim.report.plots.folders import _units
-from dkfsim.report.plots.style import (_unit_label, DEFAULT_FORMATS, _check_formats, _order, _plain_log_ticks, _save,
-                                       color_of, label_of)
+from dkfsim.report.plots.style import (
+    DEFAULT_FORMATS,
+    _check_formats,
+    _order,
+    _plain_log_ticks,
+    _save,
+    _unit_label,
+    color_of,
+    label_of,
+)
 
 #: y-axis label per metric (the README's metric vocabulary).
 METRIC_LABELS = {"mse": "MSE", "anees": "ANEES", "disagreement": "disagreement",

@@ -46,16 +46,34 @@ bisection and the worst-case scan), :mod:`.run` (:class:`MaxDelay`, the three an
 
 from __future__ import annotations
 
-from dkfsim.experiments.maxdelay.axis import (RANDOM_GENERATORS, DelayAxis, latencies_deterministic,
-                                              make_axis, scalable_models)
+from dkfsim.experiments.maxdelay.axis import (
+                                              RANDOM_GENERATORS,
+                                              DelayAxis,
+                                              latencies_deterministic,
+                                              make_axis,
+                                              scalable_models,
+)
 from dkfsim.experiments.maxdelay.report import MaxDelayResult
-from dkfsim.experiments.maxdelay.run import (MaxDelay, Settings, check_settings, maxdelay,
-                                             resolve_component)
-from dkfsim.experiments.maxdelay.search import (COVARIANCE_METRICS, EXCEEDS, FUSED_METRICS, METRICS,
-                                                UNDECIDED, WITHIN, Candidate, Runner, SearchResult,
-                                                classify, covariance_value, empirical_search,
-                                                gallop_bisect, interval, metric_value, summarise,
-                                                worst_case_scan)
+from dkfsim.experiments.maxdelay.run import MaxDelay, Settings, check_settings, maxdelay, resolve_component
+from dkfsim.experiments.maxdelay.search import (
+                                              COVARIANCE_METRICS,
+                                              EXCEEDS,
+                                              FUSED_METRICS,
+                                              METRICS,
+                                              UNDECIDED,
+                                              WITHIN,
+                                              Candidate,
+                                              Runner,
+                                              SearchResult,
+                                              classify,
+                                              covariance_value,
+                                              empirical_search,
+                                              gallop_bisect,
+                                              interval,
+                                              metric_value,
+                                              summarise,
+                                              worst_case_scan,
+)
 
 __all__ = ["COVARIANCE_METRICS", "EXCEEDS", "FUSED_METRICS", "METRICS", "RANDOM_GENERATORS",
            "UNDECIDED", "WITHIN", "Candidate", "DelayAxis", "MaxDelay", "MaxDelayResult", "Runner",

@@ -16,7 +16,6 @@ from dkfsim.config.load import load_scenario
 from dkfsim.core.errors import DkfsimError
 from dkfsim.core.registry import LATENCY_MODELS
 
-
 #: Random topology generators; maxdelay pins their seed so the graph is the same in every run.
 RANDOM_GENERATORS = ("random_tree", "random_regular", "erdos_renyi")
 

@@ -15,9 +15,7 @@ from dkfsim.config.load import scenario_hash
 from dkfsim.core.extras import optional, pyplot
 from dkfsim.core.folders import staged, write_json
 from dkfsim.engine.results import versions
-from dkfsim.experiments.maxdelay.search import (EXCEEDS, METRICS, UNDECIDED, WITHIN, SearchResult,
-                                                _num, interval)
-
+from dkfsim.experiments.maxdelay.search import EXCEEDS, METRICS, UNDECIDED, WITHIN, SearchResult, _num, interval
 
 #: Units of the constant-acceleration model's components (other models have none).
 

@@ -22,9 +22,18 @@ from dkfsim.engine.estimate import estimate_run
 from dkfsim.experiments import executors
 from dkfsim.experiments.maxdelay.axis import latencies_deterministic, make_axis
 from dkfsim.experiments.maxdelay.report import MaxDelayResult
-from dkfsim.experiments.maxdelay.search import (COVARIANCE_METRICS, FUSED_METRICS, METRICS, UNDECIDED,
-                                                Candidate, Runner, _Evaluator, classify,
-                                                empirical_search, worst_case_scan)
+from dkfsim.experiments.maxdelay.search import (
+    COVARIANCE_METRICS,
+    FUSED_METRICS,
+    METRICS,
+    UNDECIDED,
+    Candidate,
+    Runner,
+    _Evaluator,
+    classify,
+    empirical_search,
+    worst_case_scan,
+)
 from dkfsim.experiments.montecarlo import components_of, derive_seed
 
 

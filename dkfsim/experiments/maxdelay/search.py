@@ -16,7 +16,6 @@ from dkfsim.analysis.metrics import mse_per_component, t_interval
 from dkfsim.config.load import load_scenario
 from dkfsim.engine.driver import Run
 
-
 #: Metric name -> description (help text and JSON).
 METRICS = {
     "mse": "squared error of the estimate --estimate (default fused), component --component (sum "

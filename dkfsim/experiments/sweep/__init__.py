@@ -50,8 +50,15 @@ Decisions:
 
 from __future__ import annotations
 
-from dkfsim.experiments.sweep.definition import (DB_FORMAT, KEY_COLUMNS, SWEEP_KEYS, ParameterSet,
-                                                 Sweep, is_database, load_sweep)
+from dkfsim.experiments.sweep.definition import (
+                                                 DB_FORMAT,
+                                                 KEY_COLUMNS,
+                                                 SWEEP_KEYS,
+                                                 ParameterSet,
+                                                 Sweep,
+                                                 is_database,
+                                                 load_sweep,
+)
 from dkfsim.experiments.sweep.results import export, read_results
 from dkfsim.experiments.sweep.run import SweepReport, estimate_tasks, run_sweep, run_task
 from dkfsim.experiments.sweep.store import SCHEMA, SweepDB, tasks_done

@@ -20,13 +20,12 @@ from typing import Any, Iterator, Mapping
 
 import yaml
 
-from dkfsim.core.errors import DkfsimError, ScenarioError
 from dkfsim.config.load import load_scenario, scenario_hash
-from dkfsim.core.resources import C_VALIDATE, Cost, check
 from dkfsim.config.yaml import parse_yaml, yaml_error_text
-from dkfsim.core.params import suggest
+from dkfsim.core.errors import DkfsimError, ScenarioError
 from dkfsim.core.files import MAX_YAML_BYTES, check_plain_data, read_text
-
+from dkfsim.core.params import suggest
+from dkfsim.core.resources import C_VALIDATE, Cost, check
 
 #: Version of the database layout (``meta.format``).
 DB_FORMAT = 2

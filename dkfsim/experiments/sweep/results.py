@@ -12,9 +12,9 @@ import os
 from pathlib import Path
 
 from dkfsim.core.errors import DkfsimError
-from dkfsim.core.registry import METRICS
 from dkfsim.core.extras import optional
 from dkfsim.core.folders import write_csv
+from dkfsim.core.registry import METRICS
 from dkfsim.experiments.sweep.definition import KEY_COLUMNS, _canonical
 from dkfsim.experiments.sweep.store import SweepDB, _q
 

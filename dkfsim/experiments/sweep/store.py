@@ -21,8 +21,7 @@ except ImportError:  # pragma: no cover  (Windows)
 
 from dkfsim.core.errors import DkfsimError
 from dkfsim.core.version import __version__
-from dkfsim.experiments.sweep.definition import (DB_FORMAT, KEY_COLUMNS, Sweep, _canonical, _short,
-                                                 is_database)
+from dkfsim.experiments.sweep.definition import DB_FORMAT, KEY_COLUMNS, Sweep, _canonical, _short, is_database
 
 
 def _sql_value(v: Any) -> Any:

@@ -35,9 +35,18 @@ from pathlib import Path
 from dkfsim.report.plots.accuracy import plot_mse, plot_nees
 from dkfsim.report.plots.compare import check_comparable, plot_compare
 from dkfsim.report.plots.folders import Folder, component_names, load_folder
-from dkfsim.report.plots.style import (DEFAULT_FORMATS, ESTIMATES, FORMATS, _check_formats, color_of,
-                                       default_smooth, label_of, moving_average, mse_note,
-                                       select_components)
+from dkfsim.report.plots.style import (
+    DEFAULT_FORMATS,
+    ESTIMATES,
+    FORMATS,
+    _check_formats,
+    color_of,
+    default_smooth,
+    label_of,
+    moving_average,
+    mse_note,
+    select_components,
+)
 from dkfsim.report.plots.tracking import plot_tracking, zoom_window
 
 __all__ = ["DEFAULT_FORMATS", "ESTIMATES", "FORMATS", "Folder", "check_comparable", "color_of",

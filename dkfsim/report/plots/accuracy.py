@@ -12,11 +12,25 @@ import numpy as np
 from dkfsim.core.errors import DkfsimError
 from dkfsim.core.extras import pyplot
 from dkfsim.report.plots.folders import Folder
-from dkfsim.report.plots.style import (DEFAULT_FORMATS, _averages, _avg_text, _band,
-                                       _check_formats, color_of, default_smooth, label_of,
-                                       _legend_below, _log_limits, moving_average, mse_note,
-                                       _mse_ylabel, _order, _positive, _save, select_components)
-
+from dkfsim.report.plots.style import (
+    DEFAULT_FORMATS,
+    _averages,
+    _avg_text,
+    _band,
+    _check_formats,
+    _legend_below,
+    _log_limits,
+    _mse_ylabel,
+    _order,
+    _positive,
+    _save,
+    color_of,
+    default_smooth,
+    label_of,
+    moving_average,
+    mse_note,
+    select_components,
+)
 
 #: A ratio panel is added when the worst estimate's MSE exceeds the best one's by this factor.
 RATIO_PANEL_ABOVE = 10.0

@@ -12,10 +12,23 @@ import numpy as np
 from dkfsim.core.errors import DkfsimError
 from dkfsim.core.extras import pyplot
 from dkfsim.report.plots.folders import Folder
-from dkfsim.report.plots.style import (DEFAULT_FORMATS, _averages, _avg_text, _band,
-                                       _check_formats, default_smooth, label_of, _legend_below,
-                                       _log_limits, moving_average, mse_note, _mse_ylabel,
-                                       _positive, _save, select_components)
+from dkfsim.report.plots.style import (
+    DEFAULT_FORMATS,
+    _averages,
+    _avg_text,
+    _band,
+    _check_formats,
+    _legend_below,
+    _log_limits,
+    _mse_ylabel,
+    _positive,
+    _save,
+    default_smooth,
+    label_of,
+    moving_average,
+    mse_note,
+    select_components,
+)
 
 
 def check_comparable(folders: list[Folder]) -> None:

@@ -15,11 +15,11 @@ from pathlib import Path
 
 import numpy as np
 
-from dkfsim.core.errors import DkfsimError
-from dkfsim.config.dynamics import CA_UNITS, component_names as names_of
+from dkfsim.config.dynamics import CA_UNITS
+from dkfsim.config.dynamics import component_names as names_of
 from dkfsim.core.encoding import from_json
+from dkfsim.core.errors import DkfsimError
 from dkfsim.core.files import MAX_YAML_BYTES, read_text
-
 
 #: Names folders written by earlier versions used (read as the current ones).
 #: Estimate names of folders written before the one vocabulary (``algorithms`` in

@@ -6,7 +6,6 @@ See :mod:`dkfsim.report.plots`.
 from __future__ import annotations
 
 import contextlib
-
 import io
 import os
 from pathlib import Path
@@ -16,7 +15,6 @@ import numpy as np
 from dkfsim.core.errors import DkfsimError
 from dkfsim.core.extras import available, optional, pyplot
 from dkfsim.report.plots.folders import Folder
-
 
 FORMATS = ("png", "pdf", "svg")
 DEFAULT_FORMATS = ("png", "pdf")

@@ -7,13 +7,19 @@ from __future__ import annotations
 
 from pathlib import Path
 
-
 from dkfsim.core.errors import DkfsimError
 from dkfsim.core.extras import pyplot
 from dkfsim.report.plots.folders import Folder
-from dkfsim.report.plots.style import (DEFAULT_FORMATS, _check_formats, color_of, label_of,
-                                       _legend_below, _save, select_components, _unit_label)
-
+from dkfsim.report.plots.style import (
+    DEFAULT_FORMATS,
+    _check_formats,
+    _legend_below,
+    _save,
+    _unit_label,
+    color_of,
+    label_of,
+    select_components,
+)
 
 # ----------------------------------------------------------------------------
 # figures
