@@ -10,7 +10,15 @@ import sys
 from tqdm import tqdm
 
 from dkfsim.config.load import load_scenario
+from dkfsim.core.files import printable
 from dkfsim.experiments import executors
+
+
+def say(text, file=None, **kw) -> None:
+    """Print a line (or a multi-line table) for the user, every control character but the
+    newline and tab escaped: names read from files never reach a terminal raw (a
+    scenario named ``"\\e]0;PWNED\\a"`` would retitle it)."""
+    print(printable(text, keep="\n\t"), file=sys.stdout if file is None else file, **kw)
 
 
 def add_scenario_args(p: argparse.ArgumentParser) -> None:
@@ -84,5 +92,5 @@ def progress_bar(args, total: int | None, desc: str, unit: str = "run"):
     terminal and ``--quiet`` is not given; else None."""
     if args.quiet or not sys.stderr.isatty():
         return None
-    return tqdm(total=total, unit=unit, desc=desc, leave=False, file=sys.stderr,
+    return tqdm(total=total, unit=unit, desc=printable(desc), leave=False, file=sys.stderr,
                 dynamic_ncols=True)

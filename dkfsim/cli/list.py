@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from pydantic_core import PydanticUndefined
 
+from dkfsim.cli.common import say
 from dkfsim.core.datafiles import datasets
 from dkfsim.core.registry import REGISTRIES
 
@@ -64,6 +65,6 @@ def cmd_list(args) -> int:
     families = [args.what] if args.what else list(REGISTRIES) + ["datasets"]
     for i, family in enumerate(families):
         if i:
-            print()
-        print("\n".join(describe(family)))
+            say()
+        say("\n".join(describe(family)))
     return 0

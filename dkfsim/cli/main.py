@@ -14,6 +14,7 @@ import sys
 from dkfsim.cli import list as list_cmd
 from dkfsim.cli import maxdelay, montecarlo, plot, report, run, sweep
 from dkfsim.core.errors import DkfsimError
+from dkfsim.core.files import printable
 from dkfsim.core.threads import pin_process
 from dkfsim.core.version import __version__
 
@@ -55,7 +56,7 @@ def main(argv=None) -> int:
         sys.stdout.flush()            # a closed pipe shows here, inside the try
         return status
     except DkfsimError as exc:
-        print(f"dkfsim {args.command}: error: {exc}", file=sys.stderr)
+        print(printable(f"dkfsim {args.command}: error: {exc}"), file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         print("dkfsim: interrupted", file=sys.stderr)

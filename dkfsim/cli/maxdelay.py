@@ -11,7 +11,9 @@ from dkfsim.cli.common import (
     executor_from_args,
     load_from_args,
     progress_bar,
+    say,
 )
+from dkfsim.core.files import printable
 from dkfsim.core.folders import check_target
 from dkfsim.experiments.maxdelay import METRICS, Candidate, MaxDelay, Settings
 
@@ -86,13 +88,13 @@ class _Progress:
             return
         if self.bar is not None:
             if label:
-                self.bar.set_description(label)
+                self.bar.set_description(printable(label))
             if runs:
                 self.bar.update(runs)
             if done is not None:
-                self.bar.write(_done_line(label, done), file=sys.stderr)
+                self.bar.write(printable(_done_line(label, done)), file=sys.stderr)
         elif done is not None:
-            print(_done_line(label, done), file=sys.stderr, flush=True)
+            say(_done_line(label, done), file=sys.stderr, flush=True)
 
     def close(self):
         if self.bar is not None:
@@ -119,6 +121,6 @@ def cmd_maxdelay(args) -> int:
         prog.close()
     out = res.save(args.out)
     if not args.quiet:
-        print(res.table())
-        print(f"wrote {out / 'maxdelay.json'}, {out / 'maxdelay.png'} and {out / 'maxdelay.pdf'}")
+        say(res.table())
+        say(f"wrote {out / 'maxdelay.json'}, {out / 'maxdelay.png'} and {out / 'maxdelay.pdf'}")
     return 0

@@ -9,6 +9,7 @@ from dkfsim.cli.common import (
     executor_from_args,
     load_from_args,
     progress_bar,
+    say,
     workers_from_args,
 )
 from dkfsim.core.errors import DkfsimError
@@ -62,6 +63,6 @@ def cmd_montecarlo(args) -> int:
             bar.close()
     out = res.save(args.out)
     if not args.quiet:
-        print(res.table())
-        print(f"wrote {out / 'runs.csv'}, {out / 'curves.npz'} and {out / 'summary.json'}")
+        say(res.table())
+        say(f"wrote {out / 'runs.csv'}, {out / 'curves.npz'} and {out / 'summary.json'}")
     return 0

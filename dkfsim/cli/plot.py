@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from dkfsim.cli.common import say
 from dkfsim.core.errors import DkfsimError
 from dkfsim.core.files import clip
 from dkfsim.experiments.sweep import is_database
@@ -96,7 +97,7 @@ def cmd_plot_sweep(args, formats) -> int:
     written = plot_sweep(path, out / stem, x=args.x, hue=args.hue, metric=args.metric,
                          estimate=args.estimate, where=args.where, formats=formats, title=args.title)
     for f in written:
-        print(f"wrote {f}")
+        say(f"wrote {f}")
     return 0
 
 
@@ -142,5 +143,5 @@ def cmd_plot(args) -> int:
                 out = Path(args.out) / f.path.resolve().name
             written += plot_folder(f, out, formats, args.components, args.smooth)
     for path in written:
-        print(f"wrote {path}")
+        say(f"wrote {path}")
     return 0

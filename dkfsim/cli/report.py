@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 
+from dkfsim.cli.common import say
 from dkfsim.report.html_report import write_report
 
 EPILOG = """\
@@ -33,5 +34,5 @@ def add_command(sub) -> None:
 
 def cmd_report(args) -> int:
     path = write_report(args.dir, args.out)
-    print(f"wrote {path}")
+    say(f"wrote {path}")
     return 0

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from dkfsim.cli.common import add_scenario_args, add_yes_arg, load_from_args, progress_bar
+from dkfsim.cli.common import add_scenario_args, add_yes_arg, load_from_args, progress_bar, say
 from dkfsim.core.errors import DkfsimError
 from dkfsim.core.folders import check_target
 from dkfsim.core.resources import human_bytes, human_seconds
@@ -49,7 +49,7 @@ def cmd_validate(args) -> int:
         xg = sc.exchange()
         shape = (f"{len(xg.arcs)} directed links (d_g = {xg.d_g}), buffer length "
                  f"L = {sc.resolved_buffer_length()}")
-    print(f"{args.scenario}: ok — {sc.name}: {len(sc.sensors)} sensors, nx = {sc.nx}, "
+    say(f"{args.scenario}: ok — {sc.name}: {len(sc.sensors)} sensors, nx = {sc.nx}, "
           f"{sc.steps} ticks of {sc.model.T} s, protocol {sc.protocol} on {shape} "
           f"(d_t = {sc.resolved_d_t()}), fusion {sc.fusion}; a run needs about "
           f"{human_bytes(est.bytes)} and {human_seconds(est.seconds)} (rough estimate)")
@@ -71,6 +71,6 @@ def cmd_run(args) -> int:
             bar.close()
     out = res.save(args.out, burn_in=args.burn_in)
     if not args.quiet:
-        print(run_table(res, args.burn_in))
-        print(f"wrote {out / 'summary.json'}" + ("" if res.info["save"] == "summary" else f" and {out / 'run.npz'}"))
+        say(run_table(res, args.burn_in))
+        say(f"wrote {out / 'summary.json'}" + ("" if res.info["save"] == "summary" else f" and {out / 'run.npz'}"))
     return 0

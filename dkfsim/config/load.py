@@ -2,7 +2,8 @@
 
 :func:`load_scenario` reads YAML safely (:mod:`dkfsim.config.yaml`), applies
 ``--set`` overrides (:mod:`dkfsim.config.overrides`), imports the plugins the
-scenario names, and validates everything in one pass
+scenario names (only when asked to: a scenario read back from a result is data,
+``import_plugins=False``; docs/security.md), and validates everything in one pass
 (:class:`~dkfsim.config.schema.Scenario`); any problem is a
 :class:`~dkfsim.core.errors.ScenarioError` naming the file and the key.
 """
@@ -22,7 +23,7 @@ from dkfsim.config.overrides import apply_override
 from dkfsim.config.schema import Scenario, scenario_hash  # noqa: F401  (re-exported)
 from dkfsim.config.yaml import parse_yaml, yaml_error_text
 from dkfsim.core.errors import DkfsimError, ScenarioError
-from dkfsim.core.files import MAX_YAML_BYTES, check_plain_data, read_text
+from dkfsim.core.files import MAX_YAML_BYTES, check_plain_data, clip, read_text
 from dkfsim.core.registry import load_plugin
 
 
@@ -50,7 +51,8 @@ def _load_plugins(data: dict, label: str, base_dir) -> None:
 
 
 def load_scenario(source: str | os.PathLike | Mapping | Scenario,
-                  overrides: Sequence[str] = (), *, base_dir: str | os.PathLike | None = None) -> Scenario:
+                  overrides: Sequence[str] = (), *, base_dir: str | os.PathLike | None = None,
+                  import_plugins: bool = True) -> Scenario:
     """Load, override and validate a scenario.
 
     ``source`` is a path to a YAML file, a mapping, or a Scenario (re-validated
@@ -60,6 +62,11 @@ def load_scenario(source: str | os.PathLike | Mapping | Scenario,
     ``base_dir`` is where the relative ``file:`` paths of a mapping resolve
     (default: the working directory); a file's own folder is used for a
     path, and a Scenario keeps the folder it was loaded with.
+    ``import_plugins``: import the modules and files of the ``plugins:`` key
+    before validating (what running a scenario does).  False for a scenario
+    read back from a result folder or sweep database: the key is kept as a
+    value, and only the components already registered in this process (entry
+    points included) are known -- reading results never imports anything.
     Raises :class:`ScenarioError` on any problem.
     """
     if isinstance(overrides, str):
@@ -105,7 +112,8 @@ def load_scenario(source: str | os.PathLike | Mapping | Scenario,
         # Relative data files (traces, tracks) resolve against the file's folder.
         base_dir = Path(path).resolve().parent
     base_dir = None if base_dir is None else str(base_dir)
-    _load_plugins(data, label, base_dir)
+    if import_plugins:
+        _load_plugins(data, label, base_dir)
     try:
         scenario = Scenario.model_validate(data, context={"base_dir": base_dir})
     except ValidationError as exc:
@@ -113,3 +121,37 @@ def load_scenario(source: str | os.PathLike | Mapping | Scenario,
     scenario._source = path
     scenario._base_dir = base_dir
     return scenario
+
+
+def stored_scenario(config: Any, *, source: Any = None, label: str) -> Scenario:
+    """A scenario read back from a result (``summary.json``, a sweep database), validated as data.
+
+    Its ``plugins:`` key is never acted on (reading results never imports anything,
+    docs/security.md): only the components already registered in this process count,
+    those of installed entry-point plugins included.  Relative data files resolve
+    against the folder of ``source``, the scenario file the result names.  ``label``
+    names the file the scenario was read from in messages.  Raises :class:`ScenarioError`;
+    when a kind is unknown and the stored scenario lists plugins, the message says that
+    they were not imported and how to read the result anyway.
+    """
+    if not isinstance(config, dict):
+        raise ScenarioError(f"the stored scenario must be a mapping, got {type(config).__name__}",
+                            source=label, path="scenario_config")
+    base_dir = None
+    if isinstance(source, str) and source.strip():
+        try:
+            base_dir = str(Path(source).resolve().parent)
+        except (OSError, ValueError, RuntimeError):
+            base_dir = None
+    try:
+        return load_scenario(config, base_dir=base_dir, import_plugins=False)
+    except ScenarioError as err:
+        plugins = config.get("plugins")
+        if isinstance(plugins, (list, tuple)) and plugins:
+            names = ", ".join(clip(p, 60) for p in plugins[:5]) + (", ..." if len(plugins) > 5 else "")
+            raise ScenarioError(
+                f"the stored scenario cannot be validated with the components loaded in this process "
+                f"({err.reason}); it names plugins ({names}), which reading a result never imports: "
+                "import the ones you trust yourself, then read it again", source=label) from None
+        raise ScenarioError(f"the stored scenario is not valid here: {err.reason}"
+                            + (f" (at {err.path})" if err.path else ""), source=label) from None

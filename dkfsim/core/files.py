@@ -12,6 +12,7 @@ The limits (:data:`MAX_DEPTH`, :data:`MAX_NODES`) are the YAML loader's too
 from __future__ import annotations
 
 import os
+import re
 import stat
 from pathlib import Path
 from typing import Any
@@ -36,6 +37,22 @@ def clip(value: Any, limit: int = 80) -> str:
         text = f"<{type(value).__name__}>"
     text = " ".join(text.split())
     return text if len(text) <= limit else text[: limit - 4] + " ..."
+
+
+#: Characters never written to a terminal as they are: C0 and C1 controls (escape
+#: sequences retitle windows, clear screens, forge lines), DEL, the line and paragraph
+#: separators and the bidirectional overrides and isolates (text that reads backwards).
+_UNPRINTABLE = re.compile("[\x00-\x1f\x7f-\x9f\u2028\u2029\u202a-\u202e\u2066-\u2069]")
+
+
+def printable(text: Any, keep: str = "") -> str:
+    """``str(text)`` with control characters escaped as Python does (``\\x1b``,
+    ``\\u202e``), except those in ``keep`` (``"\\n"`` for a multi-line table).
+    Every name read from a file goes through it before it reaches a terminal."""
+    def escape(m: re.Match) -> str:
+        ch = m.group()
+        return ch if ch in keep else ascii(ch)[1:-1]
+    return _UNPRINTABLE.sub(escape, str(text))
 
 
 def check_plain_data(data: Any) -> None:

@@ -13,6 +13,8 @@ import contextlib
 
 from tqdm.auto import tqdm
 
+from dkfsim.core.files import printable
+
 
 @contextlib.contextmanager
 def progress_callback(progress, total: int, desc: str, unit: str):
@@ -23,7 +25,7 @@ def progress_callback(progress, total: int, desc: str, unit: str):
     if callable(progress):
         yield progress
         return
-    bar = tqdm(total=total, desc=desc, unit=unit, leave=False)
+    bar = tqdm(total=total, desc=printable(desc), unit=unit, leave=False)
     try:
         yield lambda done, _total: bar.update(done - bar.n)
     finally:

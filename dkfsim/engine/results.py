@@ -24,11 +24,12 @@ import simpy
 from dkfsim.analysis.frames import rows_frame, run_dataset
 from dkfsim.analysis.metrics import default_burn_in, mse_per_component, row_columns, score_scored, scored
 from dkfsim.config.dynamics import component_names
-from dkfsim.config.load import load_scenario, scenario_hash
+from dkfsim.config.load import scenario_hash, stored_scenario
 from dkfsim.core.encoding import from_json
 from dkfsim.core.errors import DkfsimError
-from dkfsim.core.files import MAX_YAML_BYTES, check_regular_file, read_text
+from dkfsim.core.files import MAX_YAML_BYTES, read_text
 from dkfsim.core.folders import staged, write_csv, write_json
+from dkfsim.core.npzfile import read_npz
 from dkfsim.core.version import __version__
 
 SAVE_MODES = ("auto", "full", "estimates", "summary")
@@ -219,8 +220,9 @@ INFO_KEYS = ("buffer_length", "d_t", "d_g", "n_links", "wall_time_s", "save", "k
 def load_run(folder) -> RunResult:
     """Read a folder written by ``dkfsim run`` (or :meth:`RunResult.save`) back into a RunResult.
 
-    The scenario is re-validated from the copy in ``summary.json`` (relative
-    data files resolve against the original scenario file's folder); the
+    The scenario is re-validated from the copy in ``summary.json`` as data
+    (:func:`dkfsim.config.load.stored_scenario`: its ``plugins:`` key is never
+    imported; relative data files resolve against the original scenario file's folder); the
     arrays are those of ``run.npz`` (none when the run was saved with
     ``--save summary``).
     """
@@ -234,15 +236,12 @@ def load_run(folder) -> RunResult:
         raise DkfsimError(f"{path}: not a summary written by dkfsim run (a Monte Carlo or maxdelay "
                           "folder? those are read by dkfsim plot)")
     source = summary.get("source")
-    base = str(Path(source).resolve().parent) if source else None
-    scenario = load_scenario(summary["scenario_config"], base_dir=base)
-    scenario._source = source
+    scenario = stored_scenario(summary["scenario_config"], source=source, label=str(path))
+    scenario._source = source if isinstance(source, str) else None
     arrays: dict = {}
     npz = folder / "run.npz"
     if npz.exists():
-        check_regular_file(npz, limit=1 << 40, what="run.npz")
-        with np.load(npz, allow_pickle=False) as z:
-            arrays = {key: z[key] for key in z.files}
+        arrays = read_npz(npz, what="run.npz")
     counts = dict(summary["packets"])
     counts["per_link"] = [{**d, "link": tuple(d["link"])} for d in summary.get("per_link", [])]
     info = {key: summary[key] for key in INFO_KEYS if key in summary}

@@ -29,7 +29,7 @@ import yaml
 
 from dkfsim.analysis.grid import grid_columns, summarize
 from dkfsim.config.dynamics import component_names
-from dkfsim.config.load import load_scenario
+from dkfsim.config.load import stored_scenario
 from dkfsim.core.errors import DkfsimError
 from dkfsim.core.extras import pyplot
 from dkfsim.core.folders import write_text
@@ -37,7 +37,7 @@ from dkfsim.core.version import __version__
 from dkfsim.experiments.sweep import is_database, read_results
 from dkfsim.report.network import draw_network
 from dkfsim.report.plots import load_folder, plot_mse, plot_nees, plot_tracking
-from dkfsim.report.plots.folders import _read_json
+from dkfsim.report.plots.folders import NothingToPlot, _read_json
 from dkfsim.report.plots.style import png_resolution
 from dkfsim.report.sweep_plot import plot_sweep
 
@@ -113,16 +113,25 @@ def _fig_b64(fig) -> str:
 
 
 # =========================================================================== sections
-def _scenario(config: dict, base_dir: str | None):
+class Unvalidated:
+    """A stored scenario that could not be validated here (its kinds unknown in this process, a
+    data file moved): the page shows its stored values only, and says why."""
+
+    def __init__(self, reason: str):
+        self.reason = reason
+
+
+def _scenario(config, source, label: str):
+    """The stored scenario validated as data (never importing its plugins), or :class:`Unvalidated`."""
     try:
-        return load_scenario(config, base_dir=base_dir)
-    except DkfsimError:
-        return None
+        return stored_scenario(config, source=source, label=label)
+    except DkfsimError as exc:
+        return Unvalidated(str(exc))
 
 
 def _facts(sc, extra: list) -> str:
     rows = list(extra)
-    if sc is not None:
+    if not isinstance(sc, Unvalidated):
         lat = sc.links.default.latency
         rows += [("nodes", sc.n), ("state", ", ".join(component_names(sc.model.kind, sc.nx))),
                  ("model", f"{sc.model.kind}, T = {sc.model.T:g} s"), ("steps", sc.steps),
@@ -136,8 +145,9 @@ def _facts(sc, extra: list) -> str:
 
 
 def _network(sc, note: str = "") -> str:
-    if sc is None:
-        return "<p class='note'>The scenario could not be loaded again (a data file moved?): no drawing.</p>"
+    if isinstance(sc, Unvalidated):
+        return (f"<p class='note'>No drawing: the stored scenario is shown as stored, not validated "
+                f"({html.escape(sc.reason)}).</p>")
     try:
         graph, xg = sc.graph(), sc.exchange()
     except DkfsimError as exc:
@@ -169,7 +179,7 @@ def _figures(folder_path: Path, kinds) -> list[str]:
     out = []
     try:
         folder = load_folder(folder_path)
-    except DkfsimError as exc:
+    except NothingToPlot as exc:         # a damaged or hostile file is an error of the report
         return [f"<p class='note'>No figures: {html.escape(str(exc))}</p>"]
     with tempfile.TemporaryDirectory(prefix="dkfsim-report-") as tmp, png_resolution(SCREEN_DPI):
         tmp = Path(tmp)
@@ -200,7 +210,7 @@ def _page(title: str, subtitle: str, sections: list[tuple[str, str]]) -> str:
 def run_page(folder: Path) -> str:
     s = _read_json(folder / "summary.json")
     cfg = s.get("scenario_config") or {}
-    sc = _scenario(cfg, str(Path(s["source"]).resolve().parent) if s.get("source") else None)
+    sc = _scenario(cfg, s.get("source"), str(folder / "summary.json"))
     burn = (s.get("metrics") or {}).get("burn_in")
     rows = s.get("rows") or []
     comps = []
@@ -241,7 +251,7 @@ def run_page(folder: Path) -> str:
 def montecarlo_page(folder: Path) -> str:
     s = _read_json(folder / "summary.json")
     cfg = s.get("scenario_config") or {}
-    sc = _scenario(cfg, str(Path(s["source"]).resolve().parent) if s.get("source") else None)
+    sc = _scenario(cfg, s.get("source"), str(folder / "summary.json"))
     comps = s.get("components") or []
     est = s.get("estimates") or {}
     mse_rows = [(name, *(Interval((e["mse"][c], *e["mse_ci95"][c])) for c in comps))
@@ -293,7 +303,7 @@ def sweep_page(db: Path) -> str:
                               "ORDER BY idx").fetchall()
     definition = json.loads(meta.get("definition", "{}"))
     cfg = json.loads(params[0][3]) if params else {}
-    sc = _scenario(cfg, str(Path(definition.get("scenario_file", ".")).resolve().parent))
+    sc = _scenario(cfg, definition.get("scenario_file"), f"{db} (params.scenario_json)")
     ix = {c: i for i, c in enumerate(scols)}
     comps = []
     for r in srows:

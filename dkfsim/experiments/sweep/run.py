@@ -20,6 +20,7 @@ from tqdm.auto import tqdm
 from dkfsim.analysis.frames import rows_frame
 from dkfsim.analysis.grid import summarize
 from dkfsim.config.load import load_scenario
+from dkfsim.core.files import printable
 from dkfsim.core.resources import Cost, check
 from dkfsim.core.threads import single_thread
 from dkfsim.engine.estimate import estimate_run
@@ -145,7 +146,7 @@ def run_sweep(sweep: Sweep | str | os.PathLike, *, executor=None, jobs: int | No
         computed = 0
         bar = None
         if progress and todo:
-            bar = tqdm(total=sweep.n_tasks, initial=skipped, unit="run", desc=sweep.name,
+            bar = tqdm(total=sweep.n_tasks, initial=skipped, unit="run", desc=printable(sweep.name),
                        file=sys.stderr, dynamic_ncols=True, smoothing=0.1)
         try:
             if todo:

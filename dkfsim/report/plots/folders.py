@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import csv
 import json
-import zipfile
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -20,6 +19,7 @@ from dkfsim.config.dynamics import component_names as names_of
 from dkfsim.core.encoding import from_json
 from dkfsim.core.errors import DkfsimError
 from dkfsim.core.files import MAX_YAML_BYTES, read_text
+from dkfsim.core.npzfile import NpzFile
 
 #: Names folders written by earlier versions used (read as the current ones).
 #: Estimate names of folders written before the one vocabulary (``algorithms`` in
@@ -28,6 +28,10 @@ OLD_NAMES = {"anti_delay_dkf": "fused", "anti_delay_dkf_local": "local", "local"
 NOT_ESTIMATES = {"x_final", "x0_mean"}
 
 CA_COMPONENTS = ("position", "velocity", "acceleration")
+
+
+class NothingToPlot(DkfsimError):
+    """A folder dkfsim wrote without arrays to draw (``--save summary``): not a damaged one."""
 
 
 
@@ -111,26 +115,11 @@ def _read_json(path: Path) -> dict:
     return data
 
 
-def _read_npz(path: Path) -> dict:
-    """All arrays of an npz file; object arrays (e.g. string lists) are read too."""
-    out = {}
-    try:
-        with np.load(path, allow_pickle=False) as z:
-            names = list(z.files)
-            pickled = []
-            for k in names:
-                try:
-                    out[k] = z[k]
-                except ValueError:
-                    pickled.append(k)
-        if pickled:
-            # Our own files may store string lists as object arrays.
-            with np.load(path, allow_pickle=True) as z:
-                for k in pickled:
-                    out[k] = z[k]
-    except (OSError, ValueError, zipfile.BadZipFile, EOFError) as exc:
-        raise DkfsimError(f"{path}: not a readable .npz file ({exc})") from None
-    return out
+def _read_npz(path: Path, wanted=None) -> dict:
+    """The arrays of an npz file that a figure needs (``wanted(name)``; default: all), read
+    safely: headers first, never a pickle (:mod:`dkfsim.core.npzfile`)."""
+    with NpzFile(path, path.name) as z:
+        return z.read([k for k in z.files if wanted is None or wanted(k)])
 
 
 def _model_kind(summary: dict) -> str | None:
@@ -182,16 +171,17 @@ def load_folder(path) -> Folder:
     if (p / "curves.npz").is_file():
         return _load_montecarlo(p)
     if (p / "summary.json").is_file() and (p / "runs.csv").is_file():
-        raise DkfsimError(f"{path}: Monte Carlo folder without curves.npz; nothing to plot")
+        raise NothingToPlot(f"{path}: Monte Carlo folder without curves.npz; nothing to plot")
     if (p / "summary.json").is_file():
-        raise DkfsimError(f"{path}: has summary.json but no run.npz (was it run with --save summary?); "
+        raise NothingToPlot(f"{path}: has summary.json but no run.npz (was it run with --save summary?); "
                           f"rerun with --save estimates to plot it")
     raise DkfsimError(f"{path}: neither a run folder (run.npz + summary.json, written by dkfsim run) "
                       f"nor a Monte Carlo folder (curves.npz + summary.json, written by dkfsim montecarlo)")
 
 
 def _load_run(p: Path) -> Folder:
-    arrays = _read_npz(p / "run.npz")
+    arrays = _read_npz(p / "run.npz", lambda k: k in ("t", "truth") or (k.startswith("x_")
+                                                                       and k not in NOT_ESTIMATES))
     summary = _read_json(p / "summary.json") if (p / "summary.json").is_file() else {}
     truth = _need(arrays, "truth", p / "run.npz", (None, None))
     K, nx = truth.shape

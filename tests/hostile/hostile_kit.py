@@ -1,0 +1,117 @@
+"""What the hostile tests share: legitimate result folders to tamper with, and the CLI run as a
+user runs it (a real process) with its CPU time and peak memory measured.
+
+Time and memory bounds are on the child's own CPU seconds and peak resident set size
+(``os.wait4``), never wall time: the machine is shared.
+"""
+
+from __future__ import annotations
+
+import os
+import shutil
+import subprocess
+import sys
+import tempfile
+import threading
+from dataclasses import dataclass
+from pathlib import Path
+
+import pytest
+import yaml
+
+import dkfsim
+
+ROOT = Path(__file__).resolve().parents[2]
+CASE1 = ROOT / "scenarios" / "paper_case1.yaml"
+
+#: Bounds of a clean refusal: CPU seconds (starting Python, dkfsim, numpy and matplotlib takes
+#: 2-3 s of CPU) and peak resident memory (a report of a legitimate small folder: ~250 MB).
+CPU_LIMIT = 30.0
+MEMORY_LIMIT_MB = 800
+
+
+@dataclass
+class Child:
+    """A finished ``dkfsim`` process: its exit status, output and the resources it used."""
+
+    returncode: int
+    stdout: str
+    stderr: str
+    cpu: float            # user + system seconds of the child (and the children it waited for)
+    maxrss_mb: float      # peak resident set size
+
+    def clean_error(self, *words, cpu: float = CPU_LIMIT, memory_mb: float = MEMORY_LIMIT_MB) -> str:
+        """Exit 2, no traceback, one paragraph naming every word, within the bounds."""
+        err = self.stderr.strip()
+        assert self.returncode == 2, (self.returncode, self.stdout[-2000:], self.stderr[-4000:])
+        assert "Traceback" not in self.stderr and "\n" not in err, self.stderr[-4000:]
+        for w in words:
+            assert w in err, (w, err)
+        self.within(cpu, memory_mb)
+        return err
+
+    def ok(self, cpu: float = CPU_LIMIT, memory_mb: float = MEMORY_LIMIT_MB) -> str:
+        assert self.returncode == 0, (self.returncode, self.stdout[-2000:], self.stderr[-4000:])
+        assert "Traceback" not in self.stderr, self.stderr[-4000:]
+        self.within(cpu, memory_mb)
+        return self.stdout
+
+    def within(self, cpu: float, memory_mb: float) -> None:
+        assert self.cpu < cpu, f"{self.cpu:.1f} s of CPU (bound {cpu} s)"
+        assert self.maxrss_mb < memory_mb, f"{self.maxrss_mb:.0f} MB peak memory (bound {memory_mb} MB)"
+
+
+def dkfsim_cli(*args, cwd=None, env=None, timeout: float = 300, stdin=subprocess.DEVNULL,
+               stdout=None) -> Child:
+    """``python -m dkfsim ARGS`` in a child process; its resources are read with ``wait4``.
+
+    ``stdout``: a file object to write the child's stdout to instead of capturing it.
+    """
+    full_env = {**os.environ, **(env or {})}
+    with tempfile.TemporaryFile() as out, tempfile.TemporaryFile() as err:
+        p = subprocess.Popen([sys.executable, "-m", "dkfsim", *map(str, args)], cwd=cwd, env=full_env,
+                             stdin=stdin, stdout=out if stdout is None else stdout, stderr=err)
+        timer = threading.Timer(timeout, p.kill)
+        timer.start()
+        try:
+            _, status, usage = os.wait4(p.pid, 0)
+        finally:
+            timer.cancel()
+        p.returncode = os.waitstatus_to_exitcode(status)
+        out.seek(0)
+        err.seek(0)
+        return Child(p.returncode, out.read().decode("utf-8", "replace"),
+                     err.read().decode("utf-8", "replace"), usage.ru_utime + usage.ru_stime,
+                     usage.ru_maxrss / 1024)
+
+
+def small_scenario() -> dkfsim.Scenario:
+    return dkfsim.load_scenario(CASE1, overrides=["steps=40"])
+
+
+@pytest.fixture(scope="module")
+def legit(tmp_path_factory) -> dict[str, Path]:
+    """A run folder, a Monte Carlo folder and a sweep database (with its files), all small and
+    untouched: tests copy them (:func:`copy_of`) before tampering."""
+    d = tmp_path_factory.mktemp("legit")
+    sc = small_scenario()
+    dkfsim.run(sc).save(d / "run")
+    dkfsim.montecarlo(sc, runs=2).save(d / "mc")
+    sweep_dir = d / "sweep"
+    sweep_dir.mkdir()
+    (sweep_dir / "s.yaml").write_text(yaml.safe_dump({
+        "scenario": str(CASE1), "grid": {"links.default.latency.d_t": [0, 2]},
+        "set": ["steps=30", "estimators=[{kind: centralized}]"], "runs": 2}))
+    dkfsim.sweep(sweep_dir / "s.yaml", jobs=1, progress=False)
+    return {"run": d / "run", "mc": d / "mc", "sweep": sweep_dir / "s.sqlite"}
+
+
+def copy_of(src: Path, dst_dir: Path, name: str | None = None) -> Path:
+    """A copy of a legitimate folder (or a sweep database file) inside ``dst_dir``."""
+    dst = dst_dir / (name or src.name)
+    if src.is_dir():
+        shutil.copytree(src, dst)
+    else:
+        dst_dir.mkdir(parents=True, exist_ok=True)
+        shutil.copy2(src, dst)
+    return dst
