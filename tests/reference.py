@@ -405,7 +405,8 @@ def cross_covariances(arrays):
 # ----------------------------------------------------------------------------
 
 def fusion_delta(Xi, n, nx):
-    return 1e-8 * np.trace(Xi) / (n * nx)
+    delta = 1e-8 * np.trace(Xi) / (n * nx)
+    return 1.0 if delta == 0.0 else delta          # tr(Xi) = 0: exact estimates (design §7)
 
 
 def fuse(Xi, xs, nx, kind="matrix"):

@@ -202,6 +202,10 @@ class Scenario(StrictModel):
         data = dict(data)
         names = data.pop("baselines", None)
         rounds = data.pop("consensus_rounds", None)
+        if rounds is not None and (not isinstance(rounds, int) or isinstance(rounds, bool) or rounds < 0):
+            # Checked even when no ci_consensus runs: a key that applies to nothing is still read.
+            raise custom_error(f"must be an integer >= 0 (consensus rounds per tick), got {clip(rounds)}",
+                               "consensus_rounds")
         if names is None:
             names = [] if "estimators" in data else ["centralized"]
         if not isinstance(names, (list, tuple)):

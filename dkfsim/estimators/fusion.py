@@ -30,13 +30,19 @@ from dkfsim.core.linalg import solve_posdef, solve_symmetric
 from dkfsim.model.system import psd_factor
 
 
+#: The regularisation when ``tr(Xi) = 0`` (every estimate exact, e.g. ``Phi = 0, Q = 0``): the
+#: relative ``delta`` would be 0 and ``X`` singular (NaN weights); any positive value gives the
+#: mean of the estimates, exact here.
+EXACT_DELTA = 1.0
+
+
 def kkt_weights(Xi: np.ndarray, n: int, nx: int) -> np.ndarray:
     """Weights ``Gamma`` (n*nx, nx) minimising ``tr(Gamma' Xi Gamma)`` s.t. ``sum_i Gamma_i = I``.
 
     ``Xi`` is singular whenever two nodes hold the same information (always
     at zero latency), so we solve the KKT system with the reproducible
     regularisation ``X = Xi + delta I``, ``delta = 1e-8 tr(Xi) / (n nx)``
-    (docs/design.md §7).  ``X`` is positive definite, so the KKT system is
+    (docs/design.md §7), or :data:`EXACT_DELTA` when that is 0 (``Xi = 0``: exact estimates).  ``X`` is positive definite, so the KKT system is
     solved by eliminating the constraint: ``Z = X^-1 E`` (Cholesky),
     ``Gamma = Z (E' Z)^-1``, the same solution at half the cost of a solve
     of the whole indefinite system; that solve (LAPACK ``dsysv``) remains
@@ -47,6 +53,10 @@ def kkt_weights(Xi: np.ndarray, n: int, nx: int) -> np.ndarray:
     X = np.array(Xi, dtype=float, order="C")
     diag = X.reshape(-1)[::N + 1]
     delta = 1e-8 * diag.sum() / N
+    if delta == 0.0:
+        # tr Xi = 0: every local estimate is exact (Phi = 0, Q = 0); any delta gives the
+        # mean of them, and 1 keeps X = I well scaled.  Only here: other runs are unchanged.
+        delta = EXACT_DELTA
     diag += delta
     E = _stacked_identities(n, nx)
     Z = solve_posdef(X.T, E, overwrite_a=True)       # X symmetric: X.T is its Fortran view

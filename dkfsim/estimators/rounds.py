@@ -23,6 +23,8 @@ module holds what they share:
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import scipy.sparse
 
@@ -254,7 +256,7 @@ class RoundBased(Estimator):
         that is down keeps ``own``."""
         shape = own.shape
         self_w = 1.0 - self.S @ have.astype(float)
-        nbm = nb.reshape(self.E, -1) * have[:, None]
+        nbm = nb.reshape(self.E, math.prod(nb.shape[1:])) * have[:, None]   # (E may be 0)
         out = self_w.reshape((-1,) + (1,) * (own.ndim - 1)) * own + (self.S @ nbm).reshape(shape)
         down = self._down()
         if down.size:
@@ -263,7 +265,7 @@ class RoundBased(Estimator):
 
     def nsum(self, nb: np.ndarray, have: np.ndarray) -> np.ndarray:
         """``sum_j nb_j`` over each node's in-arcs in ``have`` (n, ...)."""
-        nbm = nb.reshape(self.E, -1) * have[:, None]
+        nbm = nb.reshape(self.E, math.prod(nb.shape[1:])) * have[:, None]   # (E may be 0)
         return (self.A @ nbm).reshape((self.n,) + nb.shape[1:])
 
     def _send(self, g: int) -> None:
