@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import os
 from pathlib import Path
 
 from dkfsim.cli.common import say
@@ -93,7 +94,7 @@ def cmd_plot_sweep(args, formats) -> int:
     curves_x = (args.x or "x").removeprefix("param:").replace(".", "_")
     stem = args.name or f"{args.metric}_vs_{curves_x}" + (f"_by_{args.hue.replace('.', '_')}"
                                                          if args.hue else "")
-    out = Path(args.out) if args.out else path.with_name(path.stem + "_figures")
+    out = Path(args.out) if args.out else _default_out(path.parent, path.stem + "_figures")
     written = plot_sweep(path, out / stem, x=args.x, hue=args.hue, metric=args.metric,
                          estimate=args.estimate, where=args.where, formats=formats, title=args.title)
     for f in written:
@@ -101,8 +102,36 @@ def cmd_plot_sweep(args, formats) -> int:
     return 0
 
 
+#: Longest ``--name`` (bytes): the figure file name, its extension and the temporary suffix must
+#: fit the 255 bytes a file name may have.
+MAX_NAME_BYTES = 200
+
+
+def _check_name(name: str | None) -> None:
+    """``--name`` is a file name: no folder part, not absolute, not too long (for every kind of DIR)."""
+    if name is None:
+        return
+    if not name.strip() or name != Path(name).name or name in (".", "..") or "\0" in name:
+        raise DkfsimError(f"--name {clip(name)}: a file name without folders (use --out for the folder)")
+    if len(os.fsencode(name)) > MAX_NAME_BYTES:
+        raise DkfsimError(f"--name: {len(os.fsencode(name))} bytes, more than the {MAX_NAME_BYTES} a "
+                          "figure's file name may have")
+
+
+def _default_out(folder: Path, name: str) -> Path:
+    """``folder/name`` where figures go by default; refused when it is a symbolic link (a folder
+    someone sent could point it anywhere: dkfsim never writes through it)."""
+    out = folder / name
+    if out.is_symlink():
+        raise DkfsimError(f"{out}: is a symbolic link (to {clip(os.readlink(out))}); dkfsim plot does "
+                          "not write figures through a link in a folder it reads: remove it, or give "
+                          "--out FIGDIR")
+    return out
+
+
 def cmd_plot(args) -> int:
     formats = _check_formats(args.formats)
+    _check_name(args.name)
     if len(args.dirs) == 1 and _is_sweep(args.dirs[0]):
         return cmd_plot_sweep(args, formats)
     for flag in SWEEP_FLAGS + ("metric",):
@@ -122,21 +151,17 @@ def cmd_plot(args) -> int:
         raise DkfsimError("--relative: only used with --compare")
     if args.compare and len(args.dirs) < 2:
         raise DkfsimError("--compare: give at least two folders")
-    if args.name is not None and (not args.name.strip() or args.name != Path(args.name).name
-                                  or args.name in (".", "..")):
-        raise DkfsimError(f"--name {clip(args.name)}: a file name without folders (use --out for "
-                          "the folder)")
     folders = [load_folder(d) for d in args.dirs]
     written = []
     if args.compare:
-        out = Path(args.out) if args.out else folders[0].path / "figures"
+        out = Path(args.out) if args.out else _default_out(folders[0].path, "figures")
         written = plot_compare(folders, out / (args.name or "compare_mse"), labels=args.labels,
                                formats=formats, components=args.components, smooth=args.smooth,
                                title=args.title, relative=args.relative)
     else:
         for f in folders:
             if args.out is None:
-                out = f.path / "figures"
+                out = _default_out(f.path, "figures")
             elif len(folders) == 1:
                 out = Path(args.out)
             else:

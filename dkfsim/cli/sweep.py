@@ -4,9 +4,11 @@ from __future__ import annotations
 
 import argparse
 import sys
+from collections import Counter
 from pathlib import Path
 
 from dkfsim.cli.common import add_executor_args, add_yes_arg, executor_from_args, workers_from_args
+from dkfsim.cli.common import say as say_line
 from dkfsim.core.errors import DkfsimError
 from dkfsim.core.extras import optional
 from dkfsim.experiments.sweep import Sweep, export, is_database, load_sweep, run_sweep, tasks_done
@@ -70,7 +72,7 @@ def add_command(subparsers) -> None:
 
 
 def cmd_sweep(args) -> int:
-    say = (lambda *a: None) if args.quiet else print
+    say = (lambda *a: None) if args.quiet else say_line
     if is_database(args.file):
         if args.export is None:
             raise DkfsimError(f"{args.file} is a sweep database: give --export PATH to export "
@@ -115,8 +117,9 @@ def _dry_run(sweep: Sweep, say) -> int:
     done = tasks_done(sweep.output, sweep)
     say(f"{sweep.source}: scenario {sweep.scenario_path}, {len(sweep.parameter_sets)} parameter "
         f"set(s) x {sweep.runs} run(s) = {sweep.n_tasks} tasks; results in {sweep.output}")
+    per_set = Counter(h for h, r in done if r < sweep.runs)      # (never a loop over the runs)
     for p in sweep.parameter_sets:
-        n = sum((p.param_hash, r) in done for r in range(sweep.runs))
+        n = per_set[p.param_hash]
         say(f"  [{p.index}] {p.param_hash}  {n}/{sweep.runs} done  {p.describe()}")
     return 0
 

@@ -87,6 +87,8 @@ def _reason(err: dict, path: list[str]) -> tuple[str, list[str]]:
         return f"must be a list, got {type(inp).__name__} {clip(inp)}", path
     if etype in ("string_type",):
         return f"must be a string, got {clip(inp)}", path
+    if etype == "string_too_long":
+        return f"must be at most {ctx.get('max_length')} characters long, got {clip(inp)}", path
     if etype == "finite_number":
         return f"must be a finite number, got {clip(inp)}", path
     if etype in ("too_short", "too_long") and field == "sensors":

@@ -11,12 +11,14 @@ The limits (:data:`MAX_DEPTH`, :data:`MAX_NODES`) are the YAML loader's too
 
 from __future__ import annotations
 
+import json
 import os
 import re
 import stat
 from pathlib import Path
 from typing import Any
 
+from dkfsim.core.encoding import from_json
 from dkfsim.core.errors import DkfsimError
 
 #: Deepest nesting of lists and mappings a file may have.
@@ -27,6 +29,10 @@ MAX_NODES = 2_000_000
 MAX_YAML_BYTES = 8 << 20
 #: Largest data file (latency trace, track) read (bytes).
 MAX_DATA_BYTES = 64 << 20
+#: Largest JSON file of a result folder read (bytes).
+MAX_JSON_BYTES = 64 << 20
+#: Deepest nesting of a result's JSON file: a scenario's, within the result's own keys.
+MAX_JSON_DEPTH = MAX_DEPTH + 8
 
 
 def clip(value: Any, limit: int = 80) -> str:
@@ -55,27 +61,28 @@ def printable(text: Any, keep: str = "") -> str:
     return _UNPRINTABLE.sub(escape, str(text))
 
 
-def check_plain_data(data: Any) -> None:
+def check_plain_data(data: Any, what: str = "the scenario data", max_depth: int = MAX_DEPTH) -> None:
     """Refuse a mapping handed to the Python API that YAML could not have produced
     safely: nesting deeper than :data:`MAX_DEPTH`, more than :data:`MAX_NODES`
-    nodes, or a container inside itself.  Raises :class:`DkfsimError`."""
+    nodes, or a container inside itself.  Raises :class:`DkfsimError` (``what`` names
+    the data in its message)."""
     count = 0
     stack = [(data, 0, ())]
     while stack:
         node, depth, path = stack.pop()
         count += 1
         if count > MAX_NODES:
-            raise DkfsimError(f"the scenario data holds more than {MAX_NODES:,} values")
+            raise DkfsimError(f"{what} holds more than {MAX_NODES:,} values")
         if isinstance(node, dict):
             children = node.values()
         elif isinstance(node, (list, tuple)):
             children = node
         else:
             continue
-        if depth >= MAX_DEPTH:
-            raise DkfsimError(f"the scenario data is nested deeper than {MAX_DEPTH} levels")
+        if depth >= max_depth:
+            raise DkfsimError(f"{what} is nested deeper than {max_depth} levels")
         if id(node) in path:
-            raise DkfsimError("the scenario data contains itself (a recursive structure)")
+            raise DkfsimError(f"{what} contains itself (a recursive structure)")
         inner = path + (id(node),)
         stack.extend((child, depth + 1, inner) for child in children)
 
@@ -130,3 +137,45 @@ def check_regular_file(path: Path, *, limit: int, what: str) -> None:
         raise DkfsimError(f"{label}: not a regular file; give a {what}")
     if st.st_size > limit:
         raise DkfsimError(f"{label}: {st.st_size:,} bytes, more than the {limit:,} a {what} may have")
+
+
+def read_json(path: str | os.PathLike, *, what: str, limit: int = MAX_JSON_BYTES) -> Any:
+    """The data of a JSON file someone may have tampered with, non-finite numbers read back
+    (:func:`dkfsim.core.encoding.from_json`).
+
+    Refused with a :class:`DkfsimError` naming the file: what :func:`read_text` refuses,
+    text that is not JSON, nesting deeper than :data:`MAX_JSON_DEPTH` (checked on the text
+    before parsing, so a thousand-level file cannot exhaust the parser's stack) or more
+    than :data:`MAX_NODES` values.
+    """
+    return parse_json(read_text(path, limit=limit, what=what), os.fspath(path), what)
+
+
+def parse_json(text: Any, label: str, what: str) -> Any:
+    """JSON ``text`` read from a file or a database cell someone may have tampered with, with
+    :func:`read_json`'s checks; ``label`` names where it was read in messages."""
+    if not isinstance(text, str):
+        raise DkfsimError(f"{label}: expected JSON text, got {type(text).__name__} {clip(text)}")
+    if _json_depth(text) > MAX_JSON_DEPTH:
+        raise DkfsimError(f"{label}: nested deeper than {MAX_JSON_DEPTH} levels; not a {what} dkfsim "
+                          "wrote")
+    try:
+        data = json.loads(text)
+    except (ValueError, RecursionError) as exc:
+        raise DkfsimError(f"{label}: not valid JSON ({clip(str(exc), 120)})") from None
+    check_plain_data(data, f"{label}: the {what}", MAX_JSON_DEPTH)
+    return from_json(data)
+
+
+def _json_depth(text: str) -> int:
+    """The deepest bracket nesting of JSON ``text`` (brackets inside strings skipped)."""
+    stripped = _JSON_STRING.sub('""', text)
+    depth = best = 0
+    for m in _JSON_BRACKET.finditer(stripped):
+        depth += 1 if m.group() in "[{" else -1
+        best = max(best, depth)
+    return best
+
+
+_JSON_STRING = re.compile(r'"(?:[^"\\]|\\.)*"')
+_JSON_BRACKET = re.compile(r"[\[\]{}]")

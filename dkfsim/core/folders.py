@@ -52,31 +52,37 @@ def write_json(path, obj) -> None:
     write_text(path, json_text(obj))
 
 
+@contextlib.contextmanager
+def _replacing(path: Path, newline: str | None = None):
+    """A text file opened for writing beside ``path`` and renamed over it when the block ends
+    without an error: readers see the old file or the whole new one.  The temporary file is
+    created exclusively (``mkstemp``), so a link planted under its name is never written through."""
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name[:100]}.", suffix=".tmp", dir=path.parent)
+    try:
+        with os.fdopen(fd, "w", newline=newline, encoding="utf-8") as fh:
+            yield fh
+        os.chmod(tmp, 0o666 & ~_umask())
+        os.replace(tmp, path)
+    except BaseException:
+        with contextlib.suppress(OSError):
+            os.unlink(tmp)
+        raise
+
+
 def write_csv(path, columns, rows) -> None:
     """Write a CSV table atomically: a header, then ``rows`` (sequences of cells, encoded by
     :func:`dkfsim.core.encoding.csv_cell`)."""
-    path = Path(path)
-    tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
-    try:
-        with open(tmp, "w", newline="", encoding="utf-8") as fh:
-            w = csv.writer(fh, lineterminator="\n")
-            w.writerow(columns)
-            for row in rows:
-                w.writerow([csv_cell(v) for v in row])
-        os.replace(tmp, path)
-    finally:
-        tmp.unlink(missing_ok=True)
+    with _replacing(Path(path), newline="") as fh:
+        w = csv.writer(fh, lineterminator="\n")
+        w.writerow(columns)
+        for row in rows:
+            w.writerow([csv_cell(v) for v in row])
 
 
 def write_text(path, text: str) -> None:
     """Write a text file atomically."""
-    path = Path(path)
-    tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
-    try:
-        tmp.write_text(text, encoding="utf-8")
-        os.replace(tmp, path)
-    finally:
-        tmp.unlink(missing_ok=True)
+    with _replacing(Path(path)) as fh:
+        fh.write(text)
 
 
 # =========================================================================== folders

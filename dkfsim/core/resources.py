@@ -20,6 +20,11 @@ from __future__ import annotations
 
 import math
 import os
+
+try:
+    import resource
+except ImportError:  # pragma: no cover  (not a Unix)
+    resource = None
 from dataclasses import dataclass, field
 
 from dkfsim.core.errors import ResourceError
@@ -85,7 +90,24 @@ def available_memory() -> int:
             avail = min(avail, int(limit) - used)
     except (OSError, ValueError):
         pass
+    avail = min(avail, _address_space_left())
     return max(int(avail), 0)
+
+
+def _address_space_left() -> float:
+    """Address space this process may still map under ``RLIMIT_AS`` (``ulimit -v``); inf if
+    unlimited or unknown."""
+    if resource is None:  # pragma: no cover  (not a Unix)
+        return math.inf
+    try:
+        soft, _hard = resource.getrlimit(resource.RLIMIT_AS)
+        if soft == resource.RLIM_INFINITY:
+            return math.inf
+        with open("/proc/self/statm") as fh:
+            size = int(fh.read().split()[0]) * os.sysconf("SC_PAGE_SIZE")
+        return max(soft - size, 0)
+    except (OSError, ValueError, IndexError):
+        return math.inf
 
 
 @dataclass

@@ -11,7 +11,6 @@ same numbers, the counts, the scenario, versions and the wall time).
 
 from __future__ import annotations
 
-import json
 import platform
 from collections.abc import Mapping
 from pathlib import Path
@@ -25,11 +24,11 @@ from dkfsim.analysis.frames import rows_frame, run_dataset
 from dkfsim.analysis.metrics import default_burn_in, mse_per_component, row_columns, score_scored, scored
 from dkfsim.config.dynamics import component_names
 from dkfsim.config.load import scenario_hash, stored_scenario
-from dkfsim.core.encoding import from_json
+from dkfsim.config.results import RunSummary, validate
 from dkfsim.core.errors import DkfsimError
-from dkfsim.core.files import MAX_YAML_BYTES, read_text
+from dkfsim.core.files import clip, read_json
 from dkfsim.core.folders import staged, write_csv, write_json
-from dkfsim.core.npzfile import read_npz
+from dkfsim.core.npzfile import NpzFile
 from dkfsim.core.version import __version__
 
 SAVE_MODES = ("auto", "full", "estimates", "summary")
@@ -220,30 +219,63 @@ INFO_KEYS = ("buffer_length", "d_t", "d_g", "n_links", "wall_time_s", "save", "k
 def load_run(folder) -> RunResult:
     """Read a folder written by ``dkfsim run`` (or :meth:`RunResult.save`) back into a RunResult.
 
-    The scenario is re-validated from the copy in ``summary.json`` as data
+    Everything read is checked first (docs/security.md): ``summary.json`` against
+    :class:`dkfsim.config.results.RunSummary`, every array's header of ``run.npz``
+    (numbers only, ``steps`` rows, within the memory budget) before its data.  The
+    scenario is re-validated from the copy in ``summary.json`` as data
     (:func:`dkfsim.config.load.stored_scenario`: its ``plugins:`` key is never
     imported; relative data files resolve against the original scenario file's folder); the
     arrays are those of ``run.npz`` (none when the run was saved with
-    ``--save summary``).
+    ``--save summary``).  Raises :class:`DkfsimError`.
     """
     folder = Path(folder)
+    if not folder.is_dir():
+        raise DkfsimError(f"{folder}: no such folder (give the folder dkfsim run wrote)")
     path = folder / "summary.json"
-    try:
-        summary = from_json(json.loads(read_text(path, limit=MAX_YAML_BYTES, what="summary.json")))
-    except ValueError as exc:
-        raise DkfsimError(f"{path}: not a summary written by dkfsim run ({exc})") from None
-    if not isinstance(summary, dict) or "scenario_config" not in summary or "packets" not in summary:
+    data = read_json(path, what="summary.json")
+    if not isinstance(data, dict) or "scenario_config" not in data or "packets" not in data:
         raise DkfsimError(f"{path}: not a summary written by dkfsim run (a Monte Carlo or maxdelay "
                           "folder? those are read by dkfsim plot)")
+    summary = validate(RunSummary, data, str(path)).model_dump()
     source = summary.get("source")
     scenario = stored_scenario(summary["scenario_config"], source=source, label=str(path))
-    scenario._source = source if isinstance(source, str) else None
+    scenario._source = source
+    if scenario.steps != summary["steps"]:
+        raise DkfsimError(f"{path}: steps is {summary['steps']} but its scenario_config says "
+                          f"{scenario.steps}")
     arrays: dict = {}
     npz = folder / "run.npz"
-    if npz.exists():
-        arrays = read_npz(npz, what="run.npz")
+    if npz.exists() or npz.is_symlink():
+        with NpzFile(npz, "run.npz") as z:
+            _check_arrays(z, scenario, summary["estimates"])
+            arrays = z.read()
     counts = dict(summary["packets"])
-    counts["per_link"] = [{**d, "link": tuple(d["link"])} for d in summary.get("per_link", [])]
+    counts["per_link"] = [{**d, "link": tuple(d["link"])} for d in summary["per_link"]]
     info = {key: summary[key] for key in INFO_KEYS if key in summary}
-    return RunResult(scenario, arrays, counts, info, estimates=summary.get("estimates"),
-                     traffic=summary.get("traffic"), facts=summary.get("facts"))
+    return RunResult(scenario, arrays, counts, info, estimates=summary["estimates"],
+                     traffic=summary["traffic"], facts=summary["facts"])
+
+
+#: ``run.npz`` arrays with one row per tick (their first axis is ``steps``).
+PER_TICK = ("t", "truth", "x_", "P_", "y_", "z_", "Rc_")
+
+
+def _check_arrays(z: NpzFile, scenario, estimates) -> None:
+    """The headers of ``run.npz`` fit its scenario: numbers only, ``steps`` rows where an array
+    has one per tick, the truth ``(steps, nx)``, an ``x_<name>`` for every estimate."""
+    K, nx = scenario.steps, scenario.nx
+    for key, h in z.headers.items():
+        if not h.numeric:
+            raise DkfsimError(f"{z.path}: array {clip(key)} holds {h.dtype} values, expected numbers")
+        per_tick = key in ("t", "truth") or (key.startswith(PER_TICK[2:]) and key not in NOT_ESTIMATES)
+        if per_tick and (not h.shape or h.shape[0] != K):
+            raise DkfsimError(f"{z.path}: array {clip(key)} has shape {h.shape}; the run has "
+                              f"{K} ticks (steps in summary.json)")
+    z.check_size(z.files)
+    if "truth" in z and z.headers["truth"].shape != (K, nx):
+        raise DkfsimError(f"{z.path}: array 'truth' has shape {z.headers['truth'].shape}, "
+                          f"expected ({K}, {nx})")
+    for name in estimates:
+        if f"x_{name}" not in z:
+            raise DkfsimError(f"{z.path}: no array x_{name} for the estimate {clip(name)} that "
+                              "summary.json lists")

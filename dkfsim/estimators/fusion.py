@@ -29,7 +29,6 @@ import numpy as np
 from dkfsim.core.linalg import solve_posdef, solve_symmetric
 from dkfsim.model.system import psd_factor
 
-
 #: The regularisation when ``tr(Xi) = 0`` (every estimate exact, e.g. ``Phi = 0, Q = 0``): the
 #: relative ``delta`` would be 0 and ``X`` singular (NaN weights); any positive value gives the
 #: mean of the estimates, exact here.

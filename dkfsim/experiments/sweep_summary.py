@@ -14,12 +14,15 @@ import json
 from pathlib import Path
 
 from dkfsim.analysis.grid import summarize
+from dkfsim.config.results import sweep_row_model, validate
 from dkfsim.core.errors import DkfsimError
 from dkfsim.core.extras import optional
 from dkfsim.core.files import check_regular_file
 from dkfsim.core.folders import write_csv
 from dkfsim.experiments.sweep import KEY_COLUMNS, is_database, read_results
 
+#: Columns of an export that are text whatever they look like.
+TEXT_COLUMNS = ("param_hash", "estimate", "component")
 #: An export (or summary) is at most this big when read back for a plot (bytes).
 MAX_TABLE_BYTES = 1 << 31
 
@@ -64,8 +67,10 @@ def read_table(path) -> tuple[list[str], list[list]]:
         try:
             with open(p, newline="", encoding="utf-8") as fh:
                 reader = csv.reader(fh)
-                columns = next(reader, None)
-                rows = [[_cell(c) for c in row] for row in reader]
+                columns = next(reader, None) or []
+                text = [c in TEXT_COLUMNS for c in columns]      # (a hash of digits stays text)
+                rows = [[c if t else _cell(c) for c, t in zip(row, text)] + [_cell(c) for c in row[len(text):]]
+                        for row in reader]
         except (OSError, UnicodeDecodeError, csv.Error) as exc:
             raise DkfsimError(f"{path}: cannot read as CSV ({exc})") from None
     elif suffix in (".parquet", ".pq"):
@@ -82,7 +87,18 @@ def read_table(path) -> tuple[list[str], list[list]]:
     if not columns or any(c not in columns for c in KEY_COLUMNS):
         raise DkfsimError(f"{path}: not a sweep export (the columns "
                           f"{', '.join(KEY_COLUMNS)} are missing)")
-    return list(columns), rows
+    columns = list(columns)
+    if len(set(columns)) != len(columns):
+        raise DkfsimError(f"{path}: a column name appears twice")
+    for i, row in enumerate(rows):
+        if len(row) != len(columns):
+            raise DkfsimError(f"{path}: row {i + 1} has {len(row)} cells for {len(columns)} columns")
+    # The rows as a database's (an export may have been edited): names, run and seed, numbers.
+    start = columns.index("param_hash")
+    metrics = tuple(c for c in columns[start:] if c not in KEY_COLUMNS)
+    validate(list[sweep_row_model(metrics)], [dict(zip(columns[start:], r[start:])) for r in rows],
+             f"{path} (row)")
+    return columns, rows
 
 
 def write_summary(db, to=None) -> tuple[Path, int]:

@@ -14,12 +14,9 @@ and can be mailed.  Every number in a table is read from the folder's files
 from __future__ import annotations
 
 import base64
-import csv
 import html
 import io
-import json
 import math
-import sqlite3
 import tempfile
 import time
 from pathlib import Path
@@ -30,14 +27,21 @@ import yaml
 from dkfsim.analysis.grid import grid_columns, summarize
 from dkfsim.config.dynamics import component_names
 from dkfsim.config.load import stored_scenario
+from dkfsim.config.results import (
+    MonteCarloSummary,
+    RunSummary,
+    components_of,
+    read_record,
+    read_run_seeds,
+)
 from dkfsim.core.errors import DkfsimError
 from dkfsim.core.extras import pyplot
 from dkfsim.core.folders import write_text
 from dkfsim.core.version import __version__
-from dkfsim.experiments.sweep import is_database, read_results
+from dkfsim.experiments.sweep import SweepDB, is_database, read_results
 from dkfsim.report.network import draw_network
 from dkfsim.report.plots import load_folder, plot_mse, plot_nees, plot_tracking
-from dkfsim.report.plots.folders import NothingToPlot, _read_json
+from dkfsim.report.plots.folders import NothingToPlot
 from dkfsim.report.plots.style import png_resolution
 from dkfsim.report.sweep_plot import plot_sweep
 
@@ -208,15 +212,12 @@ def _page(title: str, subtitle: str, sections: list[tuple[str, str]]) -> str:
 
 # =========================================================================== per kind
 def run_page(folder: Path) -> str:
-    s = _read_json(folder / "summary.json")
-    cfg = s.get("scenario_config") or {}
+    s = read_record(folder / "summary.json", RunSummary, "summary.json")
+    cfg = s["scenario_config"]
     sc = _scenario(cfg, s.get("source"), str(folder / "summary.json"))
-    burn = (s.get("metrics") or {}).get("burn_in")
-    rows = s.get("rows") or []
-    comps = []
-    for r in rows:
-        if r["component"] not in comps:
-            comps.append(r["component"])
+    burn = s["metrics"]["burn_in"]
+    rows = s["rows"]
+    comps = components_of(rows)
     by = {(r["estimate"], r["component"]): r for r in rows}
     mse_rows = [(e, *(by[(e, c)]["mse"] for c in comps)) for e in s.get("estimates", [])]
     nees_rows = [(e, by[(e, comps[0])]["anees"], by[(e, comps[0])]["disagreement"])
@@ -249,8 +250,8 @@ def run_page(folder: Path) -> str:
 
 
 def montecarlo_page(folder: Path) -> str:
-    s = _read_json(folder / "summary.json")
-    cfg = s.get("scenario_config") or {}
+    s = read_record(folder / "summary.json", MonteCarloSummary, "summary.json")
+    cfg = s["scenario_config"]
     sc = _scenario(cfg, s.get("source"), str(folder / "summary.json"))
     comps = s.get("components") or []
     est = s.get("estimates") or {}
@@ -284,25 +285,19 @@ def montecarlo_page(folder: Path) -> str:
 
 
 def _runs_seeds(path: Path) -> list[tuple[int, int]]:
-    if not path.is_file():
-        return []
-    seen = {}
-    with open(path, newline="") as fh:
-        for row in csv.DictReader(fh):
-            seen.setdefault(int(row["run"]), int(row["seed"]))
-    return sorted(seen.items())
+    return sorted(read_run_seeds(path).items()) if path.is_file() else []
 
 
 def sweep_page(db: Path) -> str:
     columns, rows = read_results(db)
     scols, srows = summarize(columns, rows)
     grid = grid_columns(columns)
-    with sqlite3.connect(f"file:{db}?mode=ro", uri=True) as conn:
-        meta = dict(conn.execute("SELECT key, value FROM meta").fetchall())
-        params = conn.execute("SELECT idx, param_hash, base_seed, scenario_json FROM params "
-                              "ORDER BY idx").fetchall()
-    definition = json.loads(meta.get("definition", "{}"))
-    cfg = json.loads(params[0][3]) if params else {}
+    store = SweepDB(db, readonly=True)
+    try:
+        meta, params, definition = store.meta(), store.params(), store.definition
+    finally:
+        store.close()
+    cfg = params[0]["scenario"] if params else {}
     sc = _scenario(cfg, definition.get("scenario_file"), f"{db} (params.scenario_json)")
     ix = {c: i for i, c in enumerate(scols)}
     comps = []
@@ -368,7 +363,7 @@ def sweep_page(db: Path) -> str:
         ("Versions and seeds", _versions({"dkfsim (database)": meta.get("dkfsim_version")},
                                          [("created", meta.get("created", ""))])
          + table("seeds", ("parameter set", "param_hash", "base seed"),
-                 [(i, h, s) for i, h, s, _ in params],
+                 [(p["idx"], p["param_hash"], p["base_seed"]) for p in params],
                  "run r of a parameter set uses derive_seed(base seed, r)")),
     ]
     return _page(f"dkfsim report: {Path(meta.get('sweep_file', db.stem)).stem}",

@@ -14,6 +14,7 @@ from __future__ import annotations
 import networkx as nx
 
 from dkfsim.core.extras import pyplot
+from dkfsim.report.plots.style import plain
 
 #: At most this many nodes are drawn; a larger network is cut, and the caption says so.
 MAX_NODES = 60
@@ -67,11 +68,12 @@ def draw_network(graph, exchange_graph, is_tree: bool, labels=None, title: str =
     size = 420 if len(keep) <= 20 else (260 if len(keep) <= 40 else 120)
     nx.draw_networkx_nodes(g, pos, ax=ax, node_color="#cfe2f3", edgecolors="#2a6fb0", node_size=size)
     if len(keep) <= 40:
-        text = {v: str(v) if labels is None or len(keep) > 20 else f"{v}\n{labels[v]}" for v in keep}
+        text = {v: str(v) if labels is None or len(keep) > 20 else f"{v}\n{plain(labels[v], 30)}"
+                for v in keep}
         nx.draw_networkx_labels(g, pos, labels=text, ax=ax, font_size=7 if len(keep) <= 20 else 6)
     ax.set_axis_off()
     if title:
-        ax.set_title(title, fontsize=10)
+        ax.set_title(plain(title), fontsize=10)
     fig.tight_layout()
     caption = (f"{n} nodes, {graph.number_of_edges()} links; dark: the links the protocol uses"
                + (" (a tree, drawn from its root, node " + str(root) + ")" if is_tree else "")

@@ -33,6 +33,7 @@ from dkfsim.report.plots.style import (
     _unit_label,
     color_of,
     label_of,
+    plain,
 )
 
 #: y-axis label per metric (the README's metric vocabulary).
@@ -194,7 +195,7 @@ def plot_sweep(path, stem, x=None, hue=None, metric="mse", estimate=None, where=
                 col, lab = color_of(label, j), label_of(label)
             else:
                 col = f"C{j}" if n_lines <= 8 else cmap(0.9 * j / (n_lines - 1))
-                lab = f"{cur['hue']} = {label}"
+                lab = f"{plain(cur['hue'])} = {plain(label)}"
             if np.isnan(m).all():
                 continue                      # not applicable to this estimate: no legend entry
             means.append(m)
@@ -214,18 +215,18 @@ def plot_sweep(path, stem, x=None, hue=None, metric="mse", estimate=None, where=
             _plain_log_ticks(ax)
         name = METRIC_LABELS.get(metric, metric)
         unit = _unit_label(units[comps.index(comp)], squared=True) if metric == "mse" else ""
-        ax.set_ylabel(f"{comp} {name}{unit}" if len(comps) > 1 or metric == "mse" else name)
+        ax.set_ylabel(f"{plain(comp)} {plain(name)}{unit}" if len(comps) > 1 or metric == "mse" else plain(name))
         ax.grid(True, which="both", alpha=0.25)
     last = axes[-1, 0]
     xname = cur["x"].removeprefix("param:")
     unit = KEY_UNITS.get(xname.rsplit(".", 1)[-1])
-    last.set_xlabel(f"{xname} [{unit}]" if unit else xname)
+    last.set_xlabel(f"{plain(xname)} [{unit}]" if unit else plain(xname))
     if numeric:
         last.set_xticks([float(v) for v in xs])
-        last.set_xticklabels([f"{v:g}" if isinstance(v, float) else str(v) for v in xs])
+        last.set_xticklabels([f"{v:g}" if isinstance(v, float) else plain(v, 40) for v in xs])
     else:
         last.set_xticks(range(len(xs)))
-        last.set_xticklabels([str(v) for v in xs])
+        last.set_xticklabels([plain(v, 40) for v in xs])
     r = sorted(runs)
     per = f"{r[0]} runs" if len(r) == 1 else f"{r[0]}-{r[-1]} runs"
     what = METRIC_LABELS.get(metric, metric)
@@ -233,8 +234,10 @@ def plot_sweep(path, stem, x=None, hue=None, metric="mse", estimate=None, where=
     if cur["estimate"]:
         sub = f"{label_of(cur['estimate'])}; " + sub
     if cur["fixed"]:
-        sub += "; " + ", ".join(f"{k.removeprefix('param:')} = {v}" for k, v in cur["fixed"].items())
-    fig.suptitle((title or f"{what} against {xname}") + f"\n({sub})", fontsize=10.5)
+        sub += "; " + ", ".join(f"{plain(k.removeprefix('param:'))} = {plain(v, 40)}"
+                                for k, v in cur["fixed"].items())
+    fig.suptitle((plain(title) if title else f"{plain(what)} against {plain(xname)}") + f"\n({sub})",
+                 fontsize=10.5)
     handles, labels = axes[0, 0].get_legend_handles_labels()
     fig.tight_layout()
     fig.legend(handles, labels, loc="upper center", bbox_to_anchor=(0.5, 0.0),

@@ -103,6 +103,13 @@ def legit(tmp_path_factory) -> dict[str, Path]:
         "scenario": str(CASE1), "grid": {"links.default.latency.d_t": [0, 2]},
         "set": ["steps=30", "estimators=[{kind: centralized}]"], "runs": 2}))
     dkfsim.sweep(sweep_dir / "s.yaml", jobs=1, progress=False)
+    # What a user had made of them before: a report and PNG figures (tests check they survive).
+    from dkfsim.report.html_report import write_report
+    from dkfsim.report.plots import load_folder, plot_folder
+    for kind in ("run", "mc"):
+        write_report(d / kind)
+        plot_folder(load_folder(d / kind), d / kind / "figures", ("png",))
+    write_report(sweep_dir / "s.sqlite")
     return {"run": d / "run", "mc": d / "mc", "sweep": sweep_dir / "s.sqlite"}
 
 

@@ -7,16 +7,16 @@ See :mod:`dkfsim.experiments.sweep` and docs/design.md.
 
 from __future__ import annotations
 
-import json
 import os
 from pathlib import Path
 
+from dkfsim.config.results import sweep_row_model, validate
 from dkfsim.core.errors import DkfsimError
 from dkfsim.core.extras import optional
 from dkfsim.core.folders import write_csv
 from dkfsim.core.registry import METRICS
 from dkfsim.experiments.sweep.definition import KEY_COLUMNS, _canonical
-from dkfsim.experiments.sweep.store import SweepDB, _q
+from dkfsim.experiments.sweep.store import SweepDB, _q, damaged
 
 
 # =========================================================================== reading, export
@@ -24,25 +24,29 @@ def read_results(db: str | os.PathLike) -> tuple[list[str], list[list]]:
     """``(columns, rows)`` of a sweep database, sorted by (parameter set in grid order,
     run, estimate in output order, component in state order): the grid values first
     (one column per grid key), then ``param_hash, run, seed, estimate, component`` and
-    the metrics in registry order -- the tidy schema of every output."""
+    the metrics in registry order -- the tidy schema of every output.  Every row is
+    checked (:func:`dkfsim.config.results.sweep_row_model`): a database may come from anyone."""
     store = SweepDB(db, readonly=True)
     try:
         definition = store.definition
         grid_keys = [k for k, _ in definition["grid"]]
-        stored = [c for c in store.columns() if c not in KEY_COLUMNS]
-        order = list(METRICS.names())
-        metric_cols = sorted(stored, key=lambda c: (order.index(c) if c in order else len(order), c))
-        select = ", ".join(["p.values_json"] + [f"r.{_q(c)}" for c in KEY_COLUMNS + tuple(metric_cols)])
-        # rowid: the order the task's rows were written in (estimates, then components).
-        cur = store.conn.execute(
-            f"SELECT {select} FROM results r JOIN params p ON p.param_hash = r.param_hash "
-            "ORDER BY p.idx, r.run, r.rowid")
-        rows = []
-        for values_json, *rest in cur:
-            values = json.loads(values_json)
-            rows.append([values.get(k) for k in grid_keys] + rest)
+        values = {p["param_hash"]: p["values"] for p in store.params()}
+        with damaged(store.path):
+            stored = [c for c in store.columns() if c not in KEY_COLUMNS]
+            order = list(METRICS.names())
+            metric_cols = sorted(stored, key=lambda c: (order.index(c) if c in order else len(order), c))
+            select = ", ".join(f"r.{_q(c)}" for c in KEY_COLUMNS + tuple(metric_cols))
+            # rowid: the order the task's rows were written in (estimates, then components).
+            cur = store.conn.execute(
+                f"SELECT {select} FROM results r JOIN params p ON p.param_hash = r.param_hash "
+                "ORDER BY p.idx, r.run, r.rowid")
+            raw = cur.fetchall()
     finally:
         store.close()
+    names = list(KEY_COLUMNS) + metric_cols
+    validate(list[sweep_row_model(tuple(metric_cols))], [dict(zip(names, r)) for r in raw],
+             f"{db} (table results, row)")
+    rows = [[values[r[0]].get(k) for k in grid_keys] + list(r) for r in raw]
     taken = set(KEY_COLUMNS) | set(metric_cols)
     names = [k if k not in taken else f"param:{k}" for k in grid_keys]
     return names + list(KEY_COLUMNS) + metric_cols, rows

@@ -7,6 +7,7 @@ at a time writes it.  See :mod:`dkfsim.experiments.sweep` and docs/design.md.
 
 from __future__ import annotations
 
+import contextlib
 import json
 import math
 import sqlite3
@@ -19,7 +20,9 @@ try:
 except ImportError:  # pragma: no cover  (Windows)
     fcntl = None
 
+from dkfsim.config.results import SweepDefinition, SweepParams, validate
 from dkfsim.core.errors import DkfsimError
+from dkfsim.core.files import parse_json
 from dkfsim.core.version import __version__
 from dkfsim.experiments.sweep.definition import DB_FORMAT, KEY_COLUMNS, Sweep, _canonical, _short, is_database
 
@@ -32,6 +35,16 @@ def _sql_value(v: Any) -> Any:
 
 
 # =========================================================================== the database
+@contextlib.contextmanager
+def damaged(path):
+    """Turn an SQLite error met while reading ``path`` (a dropped table, a malformed file, a
+    full disk) into a :class:`DkfsimError` naming the file and SQLite's reason."""
+    try:
+        yield
+    except sqlite3.Error as exc:
+        raise DkfsimError(f"{path}: cannot read the sweep database ({exc}); is it damaged?") from None
+
+
 def _q(name: str) -> str:
     return '"' + name.replace('"', '""') + '"'
 
@@ -82,10 +95,15 @@ class SweepDB:
             if not is_database(self.path):
                 raise DkfsimError(f"{label}: not an SQLite file (a sweep database was expected)")
             # A plain connection (a read-only one cannot recover a WAL left by kill -9).
-            self.conn = sqlite3.connect(self.path, isolation_level=None, timeout=30)
-            self.definition = self._stored_definition()
-            if self.definition is None:
-                raise DkfsimError(f"{label}: not a dkfsim sweep database (no sweep definition)")
+            with damaged(self.path):
+                self.conn = sqlite3.connect(self.path, isolation_level=None, timeout=30)
+            try:
+                self.definition = self._stored_definition()
+                if self.definition is None:
+                    raise DkfsimError(f"{label}: not a dkfsim sweep database (no sweep definition)")
+            except BaseException:
+                self.close()
+                raise
             return
         if self.path.exists() and self.path.stat().st_size > 0 and not is_database(self.path):
             raise DkfsimError(f"{label}: exists and is not an SQLite file; refusing to "
@@ -121,11 +139,45 @@ class SweepDB:
         self._lock_fh = fh
 
     def _stored_definition(self) -> dict | None:
+        """The stored sweep definition (checked: a database may come from anyone), or None
+        when the file has no ``meta`` table or no definition in it (not a sweep database)."""
         try:
             row = self.conn.execute("SELECT value FROM meta WHERE key='definition'").fetchone()
-        except sqlite3.DatabaseError:
+        except sqlite3.OperationalError as exc:
+            if str(exc).startswith("no such table"):
+                return None
+            raise DkfsimError(f"{self.path}: cannot read the sweep database ({exc})") from None
+        except sqlite3.DatabaseError as exc:
+            raise DkfsimError(f"{self.path}: a damaged SQLite file ({exc})") from None
+        if not row:
             return None
-        return json.loads(row[0]) if row else None
+        label = f"{self.path} (meta.definition)"
+        data = parse_json(row[0], label, "sweep definition")
+        validate(SweepDefinition, data, label)
+        return data
+
+    # -- reading what a result holds -------------------------------------------------
+    def meta(self) -> dict[str, str]:
+        """The ``meta`` table: ``definition``, ``sweep_file``, ``dkfsim_version``, ``created``."""
+        with damaged(self.path):
+            rows = self.conn.execute("SELECT key, value FROM meta").fetchall()
+        return {str(k): v if isinstance(v, str) else str(v) for k, v in rows}
+
+    def params(self) -> list[dict]:
+        """The parameter sets, by ``idx``: ``idx, param_hash, base_seed, values, scenario``
+        (the JSON columns parsed and checked)."""
+        with damaged(self.path):
+            rows = self.conn.execute("SELECT idx, param_hash, base_seed, values_json, scenario_json "
+                                     "FROM params ORDER BY idx").fetchall()
+        out = []
+        for i, (idx, h, seed, values, scenario) in enumerate(rows):
+            label = f"{self.path} (params row {i + 1})"
+            item = {"idx": idx, "param_hash": h, "base_seed": seed,
+                    "values": parse_json(values, f"{label}: values_json", "grid values"),
+                    "scenario": parse_json(scenario, f"{label}: scenario_json", "stored scenario")}
+            validate(SweepParams, item, label)
+            out.append(item)
+        return out
 
     def _setup(self, sweep: Sweep | None) -> None:
         label = str(self.path)

@@ -29,6 +29,7 @@ from dkfsim.report.plots.style import (
     label_of,
     moving_average,
     mse_note,
+    plain,
     select_components,
 )
 
@@ -107,7 +108,8 @@ def plot_mse(folder: Folder, stem, formats=DEFAULT_FORMATS, components=None, smo
     for c in range(ncols):
         axes[-1, c].set_xlabel("time [s]")
     cond = folder.condition()
-    fig.suptitle((title or f"MSE per tick{', ' + cond if cond else ''}") + f"\n({mse_note(folder, w)})",
+    fig.suptitle((plain(title) if title else f"MSE per tick{', ' + cond if cond else ''}")
+                 + f"\n({mse_note(folder, w)})",
                  fontsize=11)
     _legend_below(fig, axes[0, 0], ncol=3 if ref and len(names) > 4 else 2)
     return _save(fig, stem, formats)
@@ -123,12 +125,12 @@ def _ratio_panel(ar, folder: Folder, names, ref: str, i: int, wr: int, first: bo
         if a == ref:
             continue
         if not np.isfinite(factor) or factor > RATIO_SHOWN_WITHIN:
-            off.append(f"{a} ×{factor:.3g}" if np.isfinite(factor) else a)
+            off.append(f"{plain(a)} ×{factor:.3g}" if np.isfinite(factor) else plain(a))
             continue
         with np.errstate(divide="ignore", invalid="ignore"):
             ar.plot(folder.t, moving_average(folder.mse[a][:, i], wr) / den, color=color_of(a, j), lw=1.2)
     ar.axhline(1.0, color="k", lw=1.0, ls="--")
-    ar.set_ylabel(f"{folder.components[i]} MSE / {ref}")
+    ar.set_ylabel(f"{plain(folder.components[i])} MSE / {plain(ref)}")
     ar.grid(True, alpha=0.3)
     ar.margins(x=0)
     if off:
@@ -136,7 +138,7 @@ def _ratio_panel(ar, folder: Folder, names, ref: str, i: int, wr: int, first: bo
         ar.text(0.02, 0.97, "off this scale:\n" + ",\n".join(lines), transform=ar.transAxes, va="top",
                 fontsize=7, color="0.3", bbox=dict(fc="white", ec="none", alpha=0.8, pad=1.5))
     if first:
-        ar.set_title(f"relative to {ref} (estimates within ×{RATIO_SHOWN_WITHIN:g}; {wr}-tick "
+        ar.set_title(f"relative to {plain(ref)} (estimates within ×{RATIO_SHOWN_WITHIN:g}; {wr}-tick "
                      "moving averages)", fontsize=9)
 
 
@@ -154,7 +156,8 @@ def plot_nees(folder: Folder, stem, formats=DEFAULT_FORMATS, title=None) -> list
         raise DkfsimError(f"{folder.path}: no finite NEES curve (no estimate has a covariance)")
     n = f"{folder.n_runs} runs" if folder.n_runs else "Monte Carlo runs"
     cond = folder.condition()
-    head = title or f"Consistency{', ' + cond if cond else ''}: mean NEES over {n} (expected {folder.nx})"
+    head = plain(title) if title else \
+        f"Consistency{', ' + cond if cond else ''}: mean NEES over {n} (expected {folder.nx})"
     if len(names) > NEES_SMALL_MULTIPLES_ABOVE:
         return _nees_small_multiples(folder, names, stem, formats, head)
     plt = pyplot()

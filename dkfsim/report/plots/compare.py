@@ -27,6 +27,7 @@ from dkfsim.report.plots.style import (
     label_of,
     moving_average,
     mse_note,
+    plain,
     select_components,
 )
 
@@ -60,7 +61,7 @@ def plot_compare(folders: list[Folder], stem, labels=None, formats=DEFAULT_FORMA
         raise DkfsimError("--compare: give at least two folders")
     if labels is None:
         labels = [f.path.name or str(f.path) for f in folders]
-    labels = list(labels)
+    labels = [plain(lab) for lab in labels]
     if len(labels) != len(folders):
         raise DkfsimError(f"--labels: {len(labels)} labels for {len(folders)} folders; give one label per folder")
     check_comparable(folders)
@@ -116,7 +117,7 @@ def plot_compare(folders: list[Folder], stem, labels=None, formats=DEFAULT_FORMA
             for f, col in zip(folders, colors):
                 ar.plot(f.t, moving_average(f.mse[estimate][:, i], wr) / den, color=col, lw=1.2)
             ar.axhline(1.0, color="k", lw=1.0, ls="--")
-            ar.set_ylabel(f"{first.components[i]} MSE / centralized")
+            ar.set_ylabel(f"{plain(first.components[i])} MSE / centralized")
             ar.grid(True, alpha=0.3)
             ar.margins(x=0)
             if row == 0:
@@ -130,7 +131,8 @@ def plot_compare(folders: list[Folder], stem, labels=None, formats=DEFAULT_FORMA
     if not bands and any(f.ci for f in folders):
         note = note.replace(", 95 % CI shaded", "")
     what = "fused anti-delay DKF" if estimate == "fused" else label_of(estimate)
-    fig.suptitle((title or f"MSE of the {what}") + f"\n({note})", fontsize=11)   # labels: in the legend
+    # (the labels are in the legend)
+    fig.suptitle((plain(title) if title else f"MSE of the {what}") + f"\n({note})", fontsize=11)
     _legend_below(fig, axes[0, 0], ncol=3 if n + 1 > 4 else 2)
     return _save(fig, stem, formats)
 

@@ -7,8 +7,6 @@ See :mod:`dkfsim.report.plots` and docs/design.md.
 
 from __future__ import annotations
 
-import csv
-import json
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -16,15 +14,18 @@ import numpy as np
 
 from dkfsim.config.dynamics import CA_UNITS
 from dkfsim.config.dynamics import component_names as names_of
-from dkfsim.core.encoding import from_json
+from dkfsim.config.results import (
+    NAME_LIMIT,
+    OLD_NAMES,
+    MonteCarloSummary,
+    RunSummary,
+    read_record,
+    read_run_seeds,
+)
 from dkfsim.core.errors import DkfsimError
-from dkfsim.core.files import MAX_YAML_BYTES, read_text
+from dkfsim.core.files import clip
 from dkfsim.core.npzfile import NpzFile
 
-#: Names folders written by earlier versions used (read as the current ones).
-#: Estimate names of folders written before the one vocabulary (``algorithms`` in
-#: Monte Carlo output), mapped to today's names.
-OLD_NAMES = {"anti_delay_dkf": "fused", "anti_delay_dkf_local": "local", "local": "local_only"}
 NOT_ESTIMATES = {"x_final", "x0_mean"}
 
 CA_COMPONENTS = ("position", "velocity", "acceleration")
@@ -105,27 +106,11 @@ def _units(components, model_kind) -> list[str]:
     return [""] * len(components)
 
 
-def _read_json(path: Path) -> dict:
-    try:
-        data = from_json(json.loads(read_text(path, limit=MAX_YAML_BYTES, what="JSON file")))
-    except ValueError as exc:
-        raise DkfsimError(f"{path}: cannot read ({exc})") from None
-    if not isinstance(data, dict):
-        raise DkfsimError(f"{path}: expected a JSON object")
-    return data
-
-
-def _read_npz(path: Path, wanted=None) -> dict:
-    """The arrays of an npz file that a figure needs (``wanted(name)``; default: all), read
-    safely: headers first, never a pickle (:mod:`dkfsim.core.npzfile`)."""
-    with NpzFile(path, path.name) as z:
-        return z.read([k for k in z.files if wanted is None or wanted(k)])
-
-
 def _model_kind(summary: dict) -> str | None:
     cfg = summary.get("scenario_config")
     if isinstance(cfg, dict) and isinstance(cfg.get("model"), dict):
-        return cfg["model"].get("kind")
+        kind = cfg["model"].get("kind")
+        return kind if isinstance(kind, str) else None
     return None
 
 
@@ -136,26 +121,43 @@ def _d_t(summary: dict) -> int | None:
             val = summary["scenario_config"]["links"]["default"]["latency"]["d_t"]
         except (KeyError, TypeError):
             return None
-    try:
-        return int(val)
-    except (TypeError, ValueError):
-        return None
+    return val if isinstance(val, int) and not isinstance(val, bool) else None
 
 
-def _int_or_none(v) -> int | None:
-    return v if isinstance(v, int) and not isinstance(v, bool) else None
+# ----------------------------------------------------------------------------
+# arrays: every header checked before any data is read
+# ----------------------------------------------------------------------------
 
-
-def _need(arrays: dict, key: str, path: Path, shape=None):
-    if key not in arrays:
-        raise DkfsimError(f"{path}: no array {key!r}")
-    a = np.asarray(arrays[key])
+def _header(z: NpzFile, key: str, shape=None, kind: str = "number"):
+    """The header of array ``key``: present, of ``kind`` ("number": bool, integer or float;
+    "name": strings of at most NAME_LIMIT characters) and of ``shape`` (None: any size;
+    every size at least 1)."""
+    if key not in z:
+        raise DkfsimError(f"{z.path}: no array {key!r}")
+    h = z.headers[key]
+    if kind == "number" and not h.numeric:
+        raise DkfsimError(f"{z.path}: array {clip(key)} holds {h.dtype} values, expected numbers")
+    if kind == "name" and (h.dtype.kind != "U" or h.dtype.itemsize > 4 * NAME_LIMIT):
+        raise DkfsimError(f"{z.path}: array {clip(key)} holds {h.dtype} values, expected names "
+                          f"(text of at most {NAME_LIMIT} characters)")
     if shape is not None:
-        ok = a.ndim == len(shape) and all(s is None or s == d for s, d in zip(shape, a.shape))
+        ok = len(h.shape) == len(shape) and all(s is None or s == d for s, d in zip(shape, h.shape))
         if not ok:
             want = "(" + ", ".join("?" if s is None else str(s) for s in shape) + ")"
-            raise DkfsimError(f"{path}: array {key!r} has shape {a.shape}, expected {want}")
-    return a
+            raise DkfsimError(f"{z.path}: array {clip(key)} has shape {h.shape}, expected {want}")
+    if 0 in h.shape:
+        raise DkfsimError(f"{z.path}: array {clip(key)} is empty (shape {h.shape})")
+    return h
+
+
+def _names(z: NpzFile, arrays: dict, key: str) -> list[str]:
+    names = [str(v) for v in arrays[key]]
+    for v in names:
+        if not v.strip():
+            raise DkfsimError(f"{z.path}: array {key!r} holds an empty name")
+    if len(set(names)) != len(names):
+        raise DkfsimError(f"{z.path}: array {key!r} names one thing twice ({clip(names)})")
+    return names
 
 
 def load_folder(path) -> Folder:
@@ -174,108 +176,109 @@ def load_folder(path) -> Folder:
         raise NothingToPlot(f"{path}: Monte Carlo folder without curves.npz; nothing to plot")
     if (p / "summary.json").is_file():
         raise NothingToPlot(f"{path}: has summary.json but no run.npz (was it run with --save summary?); "
-                          f"rerun with --save estimates to plot it")
+                            f"rerun with --save estimates to plot it")
     raise DkfsimError(f"{path}: neither a run folder (run.npz + summary.json, written by dkfsim run) "
                       f"nor a Monte Carlo folder (curves.npz + summary.json, written by dkfsim montecarlo)")
 
 
 def _load_run(p: Path) -> Folder:
-    arrays = _read_npz(p / "run.npz", lambda k: k in ("t", "truth") or (k.startswith("x_")
-                                                                       and k not in NOT_ESTIMATES))
-    summary = _read_json(p / "summary.json") if (p / "summary.json").is_file() else {}
-    truth = _need(arrays, "truth", p / "run.npz", (None, None))
-    K, nx = truth.shape
-    t = _need(arrays, "t", p / "run.npz", (K,)).astype(float)
+    f = p / "run.npz"
+    summary = read_record(p / "summary.json", RunSummary, "summary.json") \
+        if (p / "summary.json").is_file() else {}
+    with NpzFile(f, "run.npz") as z:
+        truth = _header(z, "truth", (summary.get("steps"), None))
+        K, nx = truth.shape
+        _header(z, "t", (K,))
+        keys = [k for k in z.files if k.startswith("x_") and k not in NOT_ESTIMATES]
+        for key in keys:
+            h = _header(z, key)
+            if not (h.shape == (K, nx) or (len(h.shape) == 3 and h.shape[0] == K and h.shape[2] == nx)):
+                raise DkfsimError(f"{f}: array {clip(key)} has shape {h.shape}, expected ({K}, {nx}) "
+                                  f"or ({K}, n, {nx})")
+            if len(key) - 2 > NAME_LIMIT:
+                raise DkfsimError(f"{f}: array name {clip(key)} is longer than {NAME_LIMIT} characters")
+        arrays = z.read(["t", "truth", *keys])
+    truth = arrays["truth"].astype(float)
+    t = arrays["t"].astype(float)
     kind = _model_kind(summary)
     comps = component_names(nx, kind)
     mse, examples = {}, {}
     node0 = None
-    keys = [k for k in arrays if k.startswith("x_") and k not in NOT_ESTIMATES]
-    for key in keys:
-        x = np.asarray(arrays[key], dtype=float)
-        name = key[2:]
-        if x.ndim == 2 and x.shape == (K, nx):
-            err = (x - truth) ** 2
-            examples[name] = x
-        elif x.ndim == 3 and x.shape[0] == K and x.shape[2] == nx:
-            err = np.mean((x - truth[:, None, :]) ** 2, axis=1)
-            examples[name] = x[:, 0, :]          # node 0
-            if key == "x_local":
-                node0 = x[:, 0, :]
-        else:
-            raise DkfsimError(f"{p / 'run.npz'}: array {key!r} has shape {x.shape}, "
-                              f"expected ({K}, {nx}) or ({K}, n, {nx})")
-        mse[name] = err
+    with np.errstate(all="ignore"):           # a diverged estimate's error is inf / nan: drawn as such
+        for key in keys:
+            x = np.asarray(arrays[key], dtype=float)
+            name = key[2:]
+            if x.ndim == 2:
+                err = (x - truth) ** 2
+                examples[name] = x
+            else:
+                err = np.mean((x - truth[:, None, :]) ** 2, axis=1)
+                examples[name] = x[:, 0, :]          # node 0
+                if key == "x_local":
+                    node0 = x[:, 0, :]
+            mse[name] = err
     if "fused" not in mse and "local" not in mse:
-        raise DkfsimError(f"{p / 'run.npz'}: no estimates (x_fused or x_local) to plot")
+        raise DkfsimError(f"{f}: no estimates (x_fused or x_local) to plot")
     return Folder(path=p, kind="run", scenario=str(summary.get("scenario", p.name)), t=t,
                   components=comps, units=_units(comps, kind), mse=mse, truth=truth,
                   examples=examples, node0=node0, n_runs=1, d_t=_d_t(summary),
-                  burn_in=_int_or_none((summary.get("metrics") or {}).get("burn_in")))
-
-
-def _count_runs(p: Path) -> int | None:
-    f = p / "runs.csv"
-    if not f.is_file():
-        return None
-    try:
-        with open(f, newline="") as fh:
-            return len({row.get("run") for row in csv.DictReader(fh)}) or None
-    except (OSError, csv.Error):
-        return None
+                  burn_in=(summary.get("metrics") or {}).get("burn_in"))
 
 
 def _load_montecarlo(p: Path) -> Folder:
     f = p / "curves.npz"
-    arrays = _read_npz(f)
-    summary = _read_json(p / "summary.json") if (p / "summary.json").is_file() else {}
-    t = _need(arrays, "t", f, (None,)).astype(float)
-    K = t.shape[0]
-    comps = [str(c) for c in _need(arrays, "components", f, (None,))]
-    nx = len(comps)
-    key = "estimates" if "estimates" in arrays else "algorithms"      # (older folders)
-    algs = [OLD_NAMES.get(str(a), str(a)) if key == "algorithms" else str(a)
-            for a in _need(arrays, key, f, (None,))]
-    A = len(algs)
-    mse_all = _need(arrays, "mse", f, (A, K, nx)).astype(float)
+    summary = read_record(p / "summary.json", MonteCarloSummary, "summary.json") \
+        if (p / "summary.json").is_file() else {}
+    with NpzFile(f, "curves.npz") as z:
+        K = _header(z, "t", (summary.get("steps"),)).shape[0]
+        nx = _header(z, "components", (None,), kind="name").shape[0]
+        key = "estimates" if "estimates" in z else "algorithms"      # (older folders)
+        A = _header(z, key, (None,), kind="name").shape[0]
+        wanted = ["t", "components", key]
+        _header(z, "mse", (A, K, nx))
+        wanted.append("mse")
+        optional = {"mse_ci_lo": (A, K, nx), "mse_ci_hi": (A, K, nx), "example_truth": (K, nx),
+                    "example_x": (A, K, nx), "example_node0": (K, nx), "nees": (A, K), "nees_band": (2,)}
+        for k, shape in optional.items():
+            if k in z:
+                _header(z, k, shape)
+                wanted.append(k)
+        arrays = z.read(wanted)
+        comps = _names(z, arrays, "components")
+        algs = [OLD_NAMES.get(a, a) if key == "algorithms" else a for a in _names(z, arrays, key)]
+    if summary.get("components") not in (None, comps):
+        raise DkfsimError(f"{f}: its components {clip(comps)} are not those of summary.json "
+                          f"({clip(summary['components'])})")
+    t = arrays["t"].astype(float)
+    mse_all = arrays["mse"].astype(float)
     mse = {a: mse_all[i] for i, a in enumerate(algs)}
     ci = {}
     if "mse_ci_lo" in arrays and "mse_ci_hi" in arrays:
-        lo = _need(arrays, "mse_ci_lo", f, (A, K, nx)).astype(float)
-        hi = _need(arrays, "mse_ci_hi", f, (A, K, nx)).astype(float)
+        lo, hi = arrays["mse_ci_lo"].astype(float), arrays["mse_ci_hi"].astype(float)
         ci = {a: (lo[i], hi[i]) for i, a in enumerate(algs)}
     examples, truth, node0 = {}, None, None
     if "example_truth" in arrays:
-        truth = _need(arrays, "example_truth", f, (K, nx)).astype(float)
+        truth = arrays["example_truth"].astype(float)
         if "example_x" in arrays:
-            ex = _need(arrays, "example_x", f, (A, K, nx)).astype(float)
+            ex = arrays["example_x"].astype(float)
             examples = {a: ex[i] for i, a in enumerate(algs)}
         if "example_node0" in arrays:
-            node0 = _need(arrays, "example_node0", f, (K, nx)).astype(float)
+            node0 = arrays["example_node0"].astype(float)
     nees, band = {}, None
     if "nees" in arrays:
-        ne = _need(arrays, "nees", f, (A, K)).astype(float)
+        ne = arrays["nees"].astype(float)
         nees = {a: ne[i] for i, a in enumerate(algs)}
         if "nees_band" in arrays:
-            b = _need(arrays, "nees_band", f, (2,)).astype(float)
+            b = arrays["nees_band"].astype(float)
             band = (float(b[0]), float(b[1]))
     kind = _model_kind(summary)
-    n_runs = _count_runs(p)
-    if n_runs is None:
-        for key in ("runs", "n_runs"):
-            if isinstance(summary.get(key), int):
-                n_runs = summary[key]
-                break
-    name = summary.get("scenario", p.name)
-    if isinstance(name, dict):
-        name = name.get("name", p.name)
-    ci95 = {}
-    per_estimate = summary.get("estimates", summary.get("algorithms"))
-    if isinstance(per_estimate, dict):
-        ci95 = {OLD_NAMES.get(a, a) if "algorithms" in summary else a: v["mse_ci95"]
-                for a, v in per_estimate.items() if isinstance(v, dict) and "mse_ci95" in v}
-    return Folder(path=p, kind="montecarlo", scenario=str(name), t=t, components=comps,
-                  units=_units(comps, kind), mse=mse, ci=ci, truth=truth, examples=examples,
-                  node0=node0, n_runs=n_runs or 0, d_t=_d_t(summary), nees=nees, nees_band=band,
-                  burn_in=_int_or_none(summary.get("burn_in")), mse_ci95=ci95)
-
+    n_runs = None
+    if (p / "runs.csv").is_file():
+        n_runs = len(read_run_seeds(p / "runs.csv")) or None
+    if n_runs is None and summary:
+        n_runs = summary["runs"]
+    ci95 = {a: e["mse_ci95"] for a, e in (summary.get("estimates") or {}).items()}
+    return Folder(path=p, kind="montecarlo", scenario=str(summary.get("scenario", p.name)), t=t,
+                  components=comps, units=_units(comps, kind), mse=mse, ci=ci, truth=truth,
+                  examples=examples, node0=node0, n_runs=n_runs or 0, d_t=_d_t(summary), nees=nees,
+                  nees_band=band, burn_in=summary.get("burn_in"), mse_ci95=ci95)

@@ -8,6 +8,7 @@ from __future__ import annotations
 import contextlib
 import io
 import os
+import tempfile
 from pathlib import Path
 
 import numpy as np
@@ -42,8 +43,25 @@ OTHER_COLORS = ("#393b79", "#637939", "#8c6d31", "#843c39", "#7b4173",
 
 
 
+#: Longest name drawn in a figure (longer ones are cut with "…").
+LABEL_LIMIT = 120
+
+
+def plain(text, limit: int = LABEL_LIMIT) -> str:
+    """A name read from a file or given on the command line (an estimate, a component, a
+    sensor, a grid value, ``--labels``, ``--title``) as matplotlib must draw it: plain text.
+    Every ``$`` is escaped, so ``$\\nosuch$`` is not parsed as mathtext (a ParseException),
+    and the text is cut at ``limit`` characters."""
+    s = str(text)
+    if len(s) > limit:
+        s = s[:limit - 1] + "…"
+    return s.replace("$", "\\$")
+
+
 def label_of(name: str) -> str:
-    return ESTIMATES.get(name, (name, None))[0]
+    """The legend label of an estimate: its description when known, else its name (plain)."""
+    known = ESTIMATES.get(name)
+    return known[0] if known is not None else plain(name)
 
 
 def color_of(name: str, fallback_index: int = 0):
@@ -108,7 +126,7 @@ def _unit_label(unit: str, squared: bool = False) -> str:
 
 def _mse_ylabel(folder: Folder, i: int, smooth: int) -> str:
     comp, unit = folder.components[i], folder.units[i]
-    return f"{comp} MSE{_unit_label(unit, squared=True)}"
+    return f"{plain(comp)} MSE{_unit_label(unit, squared=True)}"
 
 
 def mse_note(folder: Folder, smooth: int) -> str:
@@ -157,22 +175,29 @@ def _save(fig, stem: Path, formats) -> list[Path]:
     except OSError as exc:
         raise DkfsimError(f"{stem.parent}: cannot create the figure folder ({exc.strerror})") from None
     out = []
-    for fmt in formats:
-        path = stem.with_name(f"{stem.name}.{fmt}")
-        tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
-        try:                       # written beside, then renamed: never half a figure
-            if fmt == "png":
-                _save_png(fig, tmp)
-            else:
-                fig.savefig(tmp, bbox_inches="tight", format=fmt)
-            os.replace(tmp, path)
-        except OSError as exc:
-            raise DkfsimError(f"{path}: cannot write the figure ({exc.strerror})") from None
-        finally:
-            tmp.unlink(missing_ok=True)
-        out.append(path)
-    fig.clf()
-    pyplot().close(fig)
+    try:
+        for fmt in formats:
+            path = stem.with_name(f"{stem.name}.{fmt}")
+            tmp = None
+            try:                       # written beside (a new file, never through a link), then renamed
+                fd, tmp = tempfile.mkstemp(prefix=".fig-", suffix=f".{fmt}.tmp", dir=path.parent)
+                os.close(fd)
+                if fmt == "png":
+                    _save_png(fig, tmp)
+                else:
+                    fig.savefig(tmp, bbox_inches="tight", format=fmt)
+                os.replace(tmp, path)
+                tmp = None
+            except OSError as exc:
+                raise DkfsimError(f"{path}: cannot write the figure ({exc.strerror or exc})") from None
+            finally:
+                if tmp is not None:
+                    with contextlib.suppress(OSError):
+                        os.unlink(tmp)
+            out.append(path)
+    finally:
+        fig.clf()
+        pyplot().close(fig)
     return out
 
 

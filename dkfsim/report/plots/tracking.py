@@ -18,6 +18,7 @@ from dkfsim.report.plots.style import (
     _unit_label,
     color_of,
     label_of,
+    plain,
     select_components,
 )
 
@@ -69,7 +70,7 @@ def plot_tracking(folder: Folder, stem, formats=DEFAULT_FORMATS, components=None
         ax = axes[row, 0]
         for lab, x, style in lines:
             ax.plot(t, x[:, i], label=lab, **style)
-        ax.set_ylabel(folder.components[i] + _unit_label(folder.units[i]))
+        ax.set_ylabel(plain(folder.components[i]) + _unit_label(folder.units[i]))
         ax.grid(True, alpha=0.3)
         ax.margins(x=0)
         if ncols == 2:
@@ -86,7 +87,7 @@ def plot_tracking(folder: Folder, stem, formats=DEFAULT_FORMATS, components=None
         axes[0, 1].set_title("zoom on the shaded window", fontsize=9)
     sub = "" if folder.kind == "run" else " (one example run)"
     cond = folder.condition()
-    fig.suptitle(title or f"Tracking{', ' + cond if cond else ''}{sub}", fontsize=11)
+    fig.suptitle(plain(title) if title else f"Tracking{', ' + cond if cond else ''}{sub}", fontsize=11)
     _legend_below(fig, axes[0, 0], ncol=3 if len(lines) > 4 else 2)
     return _save(fig, stem, formats)
 

@@ -1,0 +1,278 @@
+"""The schema of what dkfsim reads back: result folders and sweep databases, validated as scenarios are.
+
+A result may come from anyone (docs/security.md), so every reader validates what it
+read with these pydantic models before using it, and a wrong type, a missing key, a
+name of megabytes or rows that do not fit together is one message in the scenario
+style (:func:`dkfsim.config.messages.convert`): ``<file>: <dotted.key>: <what is wrong>``.
+
+* :class:`RunSummary` -- ``summary.json`` of ``dkfsim run``, its ``rows`` (:class:`Row`);
+* :class:`MonteCarloSummary` -- ``summary.json`` of ``dkfsim montecarlo``;
+* :class:`Row` -- one tidy row (``rows.csv``, ``runs.csv``, a sweep's ``results`` table);
+* :class:`SweepDefinition` -- a sweep database's ``meta.definition``.
+
+Models accept keys they do not know (older and newer folders carry other facts), and check
+the types and the consistency of those the readers use.  Names (estimates, components,
+scenarios) are at most :data:`NAME_LIMIT` characters: they become table cells and figure labels.
+"""
+
+from __future__ import annotations
+
+import csv
+import functools
+from pathlib import Path
+from typing import Annotated, Any
+
+from pydantic import BaseModel, ConfigDict, Field, TypeAdapter, ValidationError, create_model, model_validator
+
+from dkfsim.config.messages import convert
+from dkfsim.core.errors import DkfsimError, ScenarioError
+from dkfsim.core.files import check_regular_file, clip, read_json
+from dkfsim.core.params import custom_error
+
+#: Longest estimate, component or scenario name read back.
+NAME_LIMIT = 200
+#: Longest other text read back (a source path, a note).
+TEXT_LIMIT = 10_000
+
+#: Estimate names of folders written before the one vocabulary (``algorithms`` in Monte Carlo
+#: output), mapped to today's names.
+OLD_NAMES = {"anti_delay_dkf": "fused", "anti_delay_dkf_local": "local", "local": "local_only"}
+
+Name = Annotated[str, Field(strict=True, min_length=1, max_length=NAME_LIMIT)]
+Text = Annotated[str, Field(strict=True, max_length=TEXT_LIMIT)]
+Number = Annotated[float, Field(strict=True)]        # an int is read as a float; bool and text are not
+MaybeNumber = Number | None
+Count = Annotated[int, Field(strict=True, ge=0)]
+Positive = Annotated[int, Field(strict=True, ge=1)]
+Pair = tuple[MaybeNumber, MaybeNumber]
+
+
+class Model(BaseModel):
+    """A record read back: other keys are allowed (and kept), the known ones are checked."""
+
+    model_config = ConfigDict(extra="allow", frozen=True)
+
+
+class Row(Model):
+    """One tidy row: one estimate and state component of one run (docs/design.md §8)."""
+
+    run: Count
+    seed: Count
+    estimate: Name
+    component: Name
+    mse: MaybeNumber = None
+    anees: MaybeNumber = None
+    disagreement: MaybeNumber = None
+    messages_per_tick: MaybeNumber = None
+    bytes_per_tick: MaybeNumber = None
+    lost: MaybeNumber = None
+    late: MaybeNumber = None
+
+
+class Metrics(Model):
+    burn_in: Count | None = None
+
+
+class LinkCounts(Model):
+    link: tuple[Count, Count]
+
+
+def components_of(rows) -> list[str]:
+    """The state components of tidy rows, in their order of appearance."""
+    out: list[str] = []
+    for r in rows:
+        c = r.component if isinstance(r, Row) else r["component"]
+        if c not in out:
+            out.append(c)
+    return out
+
+
+class RunSummary(Model):
+    """``summary.json`` of ``dkfsim run``: what ``load_run``, ``plot`` and ``report`` use of it."""
+
+    scenario: Text
+    source: Text | None = None
+    seed: Count
+    steps: Positive
+    estimates: Annotated[list[Name], Field(min_length=1)]
+    metrics: Metrics = Field(default_factory=Metrics)
+    rows: list[Row]
+    packets: dict[str, Any]
+    per_link: list[LinkCounts] = []
+    traffic: dict[str, dict[str, Any] | None] = {}
+    facts: dict[str, Any] = {}
+    diverged: list[Text] = []
+    scenario_config: dict[str, Any]
+    versions: dict[str, Any] = {}
+    buffer_length: Count | None = None
+    d_t: Count | None = None
+    d_g: Count | None = None
+
+    @model_validator(mode="after")
+    def _rows_cover_the_estimates(self):
+        have = {(r.estimate, r.component) for r in self.rows}
+        for e in self.estimates:
+            for c in components_of(self.rows) or ["?"]:
+                if (e, c) not in have:
+                    raise custom_error(f"no row for estimate {clip(e)}, component {clip(c)} (the "
+                                       "rows do not match the estimates)", "rows")
+        return self
+
+
+class EstimateStats(Model):
+    """One estimate's pooled numbers in a Monte Carlo ``summary.json``."""
+
+    mse: dict[Name, MaybeNumber]
+    mse_ci95: dict[Name, Pair]
+    anees: MaybeNumber = None
+    anees_band95: Pair | None = None
+    anees_fraction_in_band: MaybeNumber = None
+    disagreement: MaybeNumber = None
+    messages_per_tick: MaybeNumber = None
+    bytes_per_tick: MaybeNumber = None
+    lost: MaybeNumber = None
+    late: MaybeNumber = None
+
+
+class MonteCarloSummary(Model):
+    """``summary.json`` of ``dkfsim montecarlo``: what ``plot`` and ``report`` use of it."""
+
+    scenario: Text
+    source: Text | None = None
+    runs: Positive
+    base_seed: Count | None = None
+    steps: Positive | None = None
+    components: Annotated[list[Name], Field(min_length=1)] | None = None
+    estimates: Annotated[dict[Name, EstimateStats], Field(min_length=1)]
+    burn_in: Count | None = None
+    scenario_config: dict[str, Any] = {}
+    versions: dict[str, Any] = {}
+    seed_rule: Text = ""
+    buffer_length: Count | None = None
+    d_t: Count | None = None
+    d_g: Count | None = None
+
+    @model_validator(mode="before")
+    @classmethod
+    def _older_spellings(cls, data: Any) -> Any:
+        """Folders of earlier versions: ``algorithms`` (old names) for ``estimates``, a
+        ``scenario`` mapping with a ``name``."""
+        if not isinstance(data, dict):
+            return data
+        data = dict(data)
+        if "estimates" not in data and isinstance(data.get("algorithms"), dict):
+            data["estimates"] = {OLD_NAMES.get(k, k): v for k, v in data.pop("algorithms").items()}
+        if "runs" not in data and "n_runs" in data:
+            data["runs"] = data["n_runs"]
+        if isinstance(data.get("scenario"), dict) and isinstance(data["scenario"].get("name"), str):
+            data["scenario"] = data["scenario"]["name"]
+        return data
+
+    @model_validator(mode="after")
+    def _every_component(self):
+        components = self.components or list(next(iter(self.estimates.values())).mse)
+        for name, e in self.estimates.items():
+            for field in ("mse", "mse_ci95"):
+                missing = [c for c in components if c not in getattr(e, field)]
+                if missing:
+                    raise custom_error(f"no value for component {clip(missing[0])}",
+                                       f"estimates.{name}.{field}")
+        return self
+
+
+class SweepDefinition(Model):
+    """A sweep database's ``meta.definition`` (what the readers use of it)."""
+
+    grid: list[tuple[Annotated[str, Field(strict=True, min_length=1, max_length=TEXT_LIMIT)], list[Any]]]
+    runs: Positive
+    set: list[Text] = []
+    scenario_file: Text | None = None
+    burn_in: Count | None = None
+
+
+@functools.lru_cache(maxsize=16)
+def sweep_row_model(metrics: tuple[str, ...]) -> type[BaseModel]:
+    """The model of one row of a sweep database's ``results`` table with these metric columns."""
+    return create_model("SweepRow", __base__=Model, param_hash=(Name, ...), run=(Count, ...),
+                        seed=(Count, ...), estimate=(Name, ...), component=(Name, ...),
+                        **{m: (MaybeNumber, None) for m in metrics})
+
+
+class SweepParams(Model):
+    """A row of a sweep database's ``params`` table (its JSON columns parsed)."""
+
+    idx: Annotated[int, Field(strict=True)]
+    param_hash: Name
+    base_seed: Count
+    values: dict[str, Any]
+    scenario: dict[str, Any]
+
+
+def validate(model, data: Any, label: str):
+    """``data`` validated with ``model`` (a pydantic class or a type); :class:`ScenarioError`
+    ``"<label>: <dotted.key>: <reason>"`` otherwise."""
+    try:
+        if isinstance(model, type) and issubclass(model, BaseModel):
+            return model.model_validate(data)
+        return _adapter(model).validate_python(data)
+    except ValidationError as exc:
+        raise convert(exc, data, label, {}) from None
+    except (RecursionError, MemoryError):
+        raise ScenarioError("too deeply nested or too large to check", source=label) from None
+
+
+_ADAPTERS: dict[Any, TypeAdapter] = {}
+
+
+def _adapter(tp) -> TypeAdapter:
+    got = _ADAPTERS.get(tp)
+    if got is None:
+        got = _ADAPTERS[tp] = TypeAdapter(tp)
+    return got
+
+
+# =========================================================================== reading files
+#: Largest ``runs.csv`` read back (bytes): a 10 000-run Monte Carlo of a few estimates is ~20 MB.
+MAX_CSV_BYTES = 256 << 20
+
+
+def read_record(path, model, what: str) -> dict:
+    """A JSON file of a result (``summary.json``) validated with ``model``, as plain data
+    (the model's keys normalised, other keys kept).  Raises :class:`DkfsimError`."""
+    data = read_json(path, what=what)
+    if not isinstance(data, dict):
+        raise ScenarioError(f"must be a JSON object (a mapping of keys), got {type(data).__name__}",
+                            source=str(path))
+    return validate(model, data, str(path)).model_dump()
+
+
+def read_run_seeds(path) -> dict[int, int]:
+    """``{run: seed}`` of a Monte Carlo ``runs.csv``, read as a stream (the file is only
+    needed for its first two columns).  Raises :class:`DkfsimError`."""
+    label = str(path)
+    check_regular_file(Path(path), limit=MAX_CSV_BYTES, what="runs.csv")
+    seeds: dict[int, int] = {}
+    try:
+        with open(path, newline="", encoding="utf-8") as fh:
+            reader = csv.reader(fh)
+            head = next(reader, None)
+            if not head or head[:2] != ["run", "seed"]:
+                raise DkfsimError(f"{label}: not a runs.csv written by dkfsim montecarlo (its header "
+                                  f"is {clip(head)}, expected run, seed, ...)")
+            for line, row in enumerate(reader, 2):
+                if not row:
+                    continue
+                try:
+                    run, seed = int(row[0]), int(row[1])
+                    if run < 0 or seed < 0:
+                        raise ValueError
+                except (ValueError, IndexError):
+                    raise DkfsimError(f"{label}: line {line}: run and seed must be integers >= 0, got "
+                                      f"{clip(row[:2])}") from None
+                if seeds.setdefault(run, seed) != seed:
+                    raise DkfsimError(f"{label}: line {line}: run {run} has two seeds")
+    except UnicodeDecodeError as exc:
+        raise DkfsimError(f"{label}: not a UTF-8 text file ({exc.reason} at byte {exc.start})") from None
+    except (csv.Error, OSError) as exc:
+        raise DkfsimError(f"{label}: cannot read as CSV ({clip(str(exc), 120)})") from None
+    return seeds
