@@ -25,7 +25,7 @@ import yaml
 from conftest import scenario
 
 import dkfsim
-from dkfsim.core.errors import ScenarioError
+from dkfsim.core.errors import DkfsimError, ScenarioError
 from dkfsim.core.resources import ResourceError
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -316,7 +316,7 @@ def test_a_failed_save_leaves_the_previous_output(tmp_path, monkeypatch):
     def boom(*a, **k):
         raise OSError(28, "No space left on device")
     monkeypatch.setattr(np, "savez", boom)
-    with pytest.raises(OSError):
+    with pytest.raises(DkfsimError, match="No space left on device.*holds what it held before"):
         dkfsim.run(CASE1, steps=12).save(out)
     assert {p.name: p.read_bytes() for p in out.iterdir()} == before
     assert [p.name for p in tmp_path.iterdir()] == ["out"]          # no staging folder left

@@ -10,15 +10,28 @@ import sys
 from tqdm import tqdm
 
 from dkfsim.config.load import load_scenario
+from dkfsim.core.errors import DkfsimError
 from dkfsim.core.files import printable
 from dkfsim.experiments import executors
+
+
+class OutputError(DkfsimError):
+    """Standard output cannot be written (``> /dev/full``, a full disk): the command's files are
+    written, but what it would print is lost."""
 
 
 def say(text, file=None, **kw) -> None:
     """Print a line (or a multi-line table) for the user, every control character but the
     newline and tab escaped: names read from files never reach a terminal raw (a
     scenario named ``"\\e]0;PWNED\\a"`` would retitle it)."""
-    print(printable(text, keep="\n\t"), file=sys.stdout if file is None else file, **kw)
+    stream = sys.stdout if file is None else file
+    try:
+        print(printable(text, keep="\n\t"), file=stream, **kw)
+    except BrokenPipeError:
+        raise
+    except OSError as exc:
+        raise OutputError(f"cannot write to standard {'error' if stream is sys.stderr else 'output'} "
+                          f"({exc.strerror or exc})") from None
 
 
 def add_scenario_args(p: argparse.ArgumentParser) -> None:

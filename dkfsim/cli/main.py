@@ -8,11 +8,14 @@ one-paragraph message on stderr and exit status 2, never a traceback.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import os
+import signal
 import sys
 
 from dkfsim.cli import list as list_cmd
 from dkfsim.cli import maxdelay, montecarlo, plot, report, run, sweep
+from dkfsim.cli.common import OutputError
 from dkfsim.core.errors import DkfsimError
 from dkfsim.core.files import printable
 from dkfsim.core.threads import pin_process
@@ -44,8 +47,44 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+class Terminated(KeyboardInterrupt):
+    """SIGTERM, raised where the process is, so that it ends as Ctrl-C does: output being
+    staged is removed, a sweep keeps the tasks it saved (docs/decisions.md #108)."""
+
+
+def _on_sigterm(_signum, _frame):
+    raise Terminated
+
+
+def _usable_streams() -> None:
+    """stdout and stderr that never make a command fail after its work is done: a closed one
+    (``>&-``: Python sets it to None) writes to /dev/null, and text an ASCII-only stream cannot
+    encode (``PYTHONIOENCODING=ascii``, a C locale) is written as backslash escapes."""
+    for name in ("stdout", "stderr"):
+        stream = getattr(sys, name)
+        if stream is None:
+            setattr(sys, name, open(os.devnull, "w", encoding="utf-8"))
+        else:
+            with contextlib.suppress(AttributeError, ValueError, OSError):
+                stream.reconfigure(errors="backslashreplace")
+
+
+def _discard_stdout() -> None:
+    """Point stdout at /dev/null (its reader is gone or it cannot take more), so that the
+    interpreter's final flush cannot fail after the command ended."""
+    with contextlib.suppress(OSError, ValueError):
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+
+
+def _error(text: str) -> None:
+    with contextlib.suppress(OSError, ValueError):
+        print(printable(text), file=sys.stderr)
+
+
 def main(argv=None) -> int:
     pin_process()                     # one BLAS thread here and in every worker we start
+    signal.signal(signal.SIGTERM, _on_sigterm)
+    _usable_streams()
     parser = build_parser()
     args = parser.parse_args(argv)
     if not getattr(args, "command", None):
@@ -53,18 +92,29 @@ def main(argv=None) -> int:
         return 2
     try:
         status = args.func(args)
-        sys.stdout.flush()            # a closed pipe shows here, inside the try
+        try:
+            sys.stdout.flush()        # a closed pipe or a full device shows here, inside the try
+        except BrokenPipeError:
+            raise
+        except OSError as exc:
+            raise OutputError(f"cannot write to standard output ({exc.strerror or exc})") from None
         return status
-    except DkfsimError as exc:
-        print(printable(f"dkfsim {args.command}: error: {exc}"), file=sys.stderr)
+    except OutputError as exc:
+        _discard_stdout()
+        _error(f"dkfsim {args.command}: error: {exc}")
         return 2
-    except KeyboardInterrupt:
-        print("dkfsim: interrupted", file=sys.stderr)
+    except DkfsimError as exc:
+        _error(f"dkfsim {args.command}: error: {exc}")
+        return 2
+    except KeyboardInterrupt as exc:
+        if isinstance(exc, Terminated):
+            _error("dkfsim: terminated")
+            return 143                # 128 + SIGTERM
+        _error("dkfsim: interrupted")
         return 130
     except BrokenPipeError:
-        # The reader went away (``dkfsim ... | head``): end quietly, as Unix tools do,
-        # with stdout pointed at /dev/null so the interpreter's final flush cannot fail.
-        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        # The reader went away (``dkfsim ... | head``): end quietly, as Unix tools do.
+        _discard_stdout()
         return 141
 
 

@@ -86,6 +86,79 @@ def write_text(path, text: str) -> None:
 
 
 # =========================================================================== folders
+# =========================================================================== staging folders
+#: The file inside a staging folder that says which process writes it (to prove it dead later).
+OWNER = ".dkfsim-staging"
+
+
+def _process_identity(pid: int) -> dict | None:
+    """What identifies process ``pid`` on this machine since boot (Linux ``/proc``), or None."""
+    try:
+        with open(f"/proc/{pid}/stat", "rb") as fh:
+            start = int(fh.read().rsplit(b")", 1)[1].split()[19])      # field 22: start time
+        with open("/proc/sys/kernel/random/boot_id") as fh:
+            boot = fh.read().strip()
+    except (OSError, ValueError, IndexError):
+        return None
+    return {"pid": pid, "start": start, "boot": boot, "host": os.uname().nodename}
+
+
+def _stage_dir(target: Path, kind: str) -> Path:
+    """A new staging folder beside ``target`` (``.NAME.new-PID-XXXX``), marked with its owner."""
+    stage = Path(tempfile.mkdtemp(prefix=f".{target.name}.{kind}-{os.getpid()}-", dir=target.absolute().parent))
+    _mark_owner(stage)
+    return stage
+
+
+def _mark_owner(folder: Path) -> None:
+    me = _process_identity(os.getpid())
+    if me is not None:
+        (folder / OWNER).write_text(json.dumps(me))
+
+
+def _provably_dead(stage: Path) -> bool:
+    """True when the process that made ``stage`` cannot be running any more: it ran on this
+    machine (same host name) and either the machine rebooted since, or no process with its pid
+    and start time exists.  Anything else -- no owner file, another host -- is left alone."""
+    try:
+        owner = json.loads((stage / OWNER).read_text())
+        pid, host, boot, start = int(owner["pid"]), owner["host"], owner["boot"], owner["start"]
+    except (OSError, ValueError, KeyError, TypeError):
+        return False
+    me = _process_identity(os.getpid())
+    if me is None or host != me["host"]:
+        return False
+    if boot != me["boot"]:
+        return True
+    now = _process_identity(pid)
+    return now is None or now["start"] != start
+
+
+def remove_dead_staging(target: Path) -> list[Path]:
+    """Remove the staging folders of ``target`` (``.NAME.new-*``, ``.NAME.old-*``) left by a
+    process killed while writing (``kill -9``, a power cut) that :func:`_provably_dead` shows
+    dead.  A dead ``.old`` folder is the previous output of an interrupted two-rename swap: it
+    is put back when ``target`` is missing.  Returns what was removed or restored."""
+    parent = target.absolute().parent
+    done = []
+    try:
+        entries = list(parent.iterdir())
+    except OSError:
+        return done
+    for e in entries:
+        for kind in ("new", "old"):
+            if e.name.startswith(f".{target.name}.{kind}-") and e.is_dir() and not e.is_symlink() \
+                    and _provably_dead(e):
+                with contextlib.suppress(OSError):
+                    if kind == "old" and not target.exists() and not target.is_symlink():
+                        (e / OWNER).unlink(missing_ok=True)
+                        os.rename(e, target)
+                    else:
+                        shutil.rmtree(e)
+                    done.append(e)
+    return done
+
+
 def _owned(folder: Path, entries: list[str]) -> bool:
     return MARKER in entries or all(e in KNOWN_OUTPUTS for e in entries)
 
@@ -101,6 +174,7 @@ def check_target(out_dir, flag: str = "--out") -> Path:
     if not str(text).strip():
         raise DkfsimError(f"{flag}: empty path; give the folder to write into")
     out = Path(text)
+    remove_dead_staging(out)
     if out.exists() or out.is_symlink():
         if not out.is_dir():
             raise DkfsimError(f"{flag} {text}: exists and is not a folder; give a folder name")
@@ -147,9 +221,10 @@ def _swap_in(stage: Path, target: Path) -> None:
     if _exchange(stage, target):
         shutil.rmtree(stage, ignore_errors=True)          # now holds the previous output
         return
-    old = Path(tempfile.mkdtemp(prefix=f".{target.name}.old-", dir=target.parent))
-    os.rmdir(old)
+    old = _stage_dir(target, "old")
+    shutil.rmtree(old)
     os.rename(target, old)
+    _mark_owner(old)                # (a kill now leaves it to remove_dead_staging to put back)
     os.rename(stage, target)
     shutil.rmtree(old, ignore_errors=True)
 
@@ -162,13 +237,20 @@ def staged(out_dir, what: str, flag: str = "--out"):
     kill) ``DIR`` is untouched and the staging folder is removed.
     """
     target = check_target(out_dir, flag)
-    stage = Path(tempfile.mkdtemp(prefix=f".{target.name}.new-", dir=target.absolute().parent))
+    existed = target.exists()
+    stage = _stage_dir(target, "new")
     try:
-        yield stage
-        (stage / MARKER).write_text(f"written by dkfsim {what}; the folder is replaced as a whole "
-                                    "by the next command that writes here\n")
-        os.chmod(stage, 0o777 & ~_umask())
-        _swap_in(stage, target)
+        try:
+            yield stage
+            (stage / OWNER).unlink(missing_ok=True)
+            (stage / MARKER).write_text(f"written by dkfsim {what}; the folder is replaced as a whole "
+                                        "by the next command that writes here\n")
+            os.chmod(stage, 0o777 & ~_umask())
+            _swap_in(stage, target)
+        except OSError as exc:          # a full disk (ENOSPC), a file-size limit (EFBIG), ...
+            kept = f"{out_dir} holds what it held before" if existed else "nothing was written"
+            raise DkfsimError(f"{flag} {out_dir}: cannot write the results ({exc.strerror or exc}"
+                              f"{': ' + Path(exc.filename).name if exc.filename else ''}); {kept}") from None
     except BaseException:
         shutil.rmtree(stage, ignore_errors=True)
         raise

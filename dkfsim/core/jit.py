@@ -14,7 +14,9 @@ import os
 import sys
 import threading
 
+from dkfsim.core.errors import DkfsimError
 from dkfsim.core.extras import optional
+from dkfsim.core.files import clip
 
 #: Environment variable that selects the kernel path: ``numba`` (default) or ``numpy``.
 KERNELS_ENV = "DKFSIM_KERNELS"
@@ -27,9 +29,58 @@ def kernel_path() -> str:
     filter (validation, ``list``, ``--help``) do not pay numba's import.
     """
     want = os.environ.get(KERNELS_ENV, "").strip().lower()
+    if want not in ("", "numba", "numpy"):
+        raise DkfsimError(f"{KERNELS_ENV}={clip(os.environ[KERNELS_ENV])}: not a known value; use numba "
+                          "(the default: compiled kernels) or numpy (the pure-numpy path)")
     if want == "numpy" or importlib.util.find_spec("numba") is None:
         return "numpy"
     return "numba"
+
+
+def import_numba():
+    """numba, imported; a :class:`DkfsimError` (not a traceback) when its import fails on a bad
+    setting of its own (``NUMBA_NUM_THREADS=0``, a malformed ``NUMBA_*`` variable)."""
+    try:
+        numba = optional("numba")
+    except DkfsimError:
+        raise
+    except Exception as exc:  # noqa: BLE001  (numba validates its environment at import)
+        bad = ", ".join(f"{k}={clip(v, 20)}" for k, v in sorted(os.environ.items()) if k.startswith("NUMBA_"))
+        raise DkfsimError(f"numba cannot start ({type(exc).__name__}: {clip(str(exc), 120)})"
+                          + (f"; check {bad}" if bad else "") + f", or set {KERNELS_ENV}=numpy") from None
+    _tolerate_cache_write_errors(optional("numba.core.caching"))
+    return numba
+
+
+class _CacheGuard:
+    """Whether numba's cache writes are guarded yet, and whether the warning was printed."""
+
+    installed = False
+    warned = False
+
+
+def _tolerate_cache_write_errors(caching) -> None:
+    """A kernel cache that cannot be written (a full disk, a file-size limit, a read-only
+    folder found late) is not an error: the kernel was compiled in memory and is used as it
+    is; one warning on stderr says the next process compiles again."""
+    cls = getattr(caching, "Cache", None)
+    save = getattr(cls, "save_overload", None)
+    if _CacheGuard.installed or save is None:
+        return
+
+    def save_overload(self, sig, data):
+        try:
+            return save(self, sig, data)
+        except OSError as exc:
+            if not _CacheGuard.warned:
+                _CacheGuard.warned = True
+                print(f"dkfsim: warning: cannot write numba's kernel cache ({exc.strerror or exc}); "
+                      "the kernels are compiled in memory, and compiled again by the next process",
+                      file=sys.stderr)
+            return None
+
+    cls.save_overload = save_overload
+    _CacheGuard.installed = True
 
 
 class LazyKernels:
@@ -52,7 +103,7 @@ class LazyKernels:
         if not self._done:
             with self._lock:
                 if not self._done:
-                    numba = optional("numba")
+                    numba = import_numba()
                     mod = sys.modules[self.module]
                     for name in self.names:
                         setattr(mod, name, numba.njit(cache=True, fastmath=False, nogil=True)(getattr(mod, name)))

@@ -113,8 +113,10 @@ def _watch_parent(parent_pid: int) -> None:
 
 def _init_local_worker(parent_pid: int) -> None:
     pin_process()                     # one BLAS thread: the parallelism is the processes
-    # Ctrl-C reaches the whole process group; only the parent handles it.
+    # Ctrl-C reaches the whole process group; only the parent handles it.  SIGTERM (the CLI
+    # turns it into an interruption, docs/decisions.md #108) ends a worker as before.
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGTERM, signal.SIG_DFL)
     threading.Thread(target=_watch_parent, args=(parent_pid,), daemon=True).start()
 
 

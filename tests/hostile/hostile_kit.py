@@ -8,10 +8,11 @@ Time and memory bounds are on the child's own CPU seconds and peak resident set 
 from __future__ import annotations
 
 import os
+import resource
 import shutil
+import signal
 import subprocess
 import sys
-import tempfile
 import threading
 from dataclasses import dataclass
 from pathlib import Path
@@ -61,28 +62,50 @@ class Child:
         assert self.maxrss_mb < memory_mb, f"{self.maxrss_mb:.0f} MB peak memory (bound {memory_mb} MB)"
 
 
+def file_size_limit(limit: int):
+    """A ``preexec`` for :func:`dkfsim_cli`: files of at most ``limit`` bytes (``ulimit -f``), the
+    write beyond it failing with EFBIG as on a full disk (SIGXFSZ ignored, as a shell's
+    ``trap '' XFSZ`` does)."""
+    def apply():
+        signal.signal(signal.SIGXFSZ, signal.SIG_IGN)
+        resource.setrlimit(resource.RLIMIT_FSIZE, (limit, resource.getrlimit(resource.RLIMIT_FSIZE)[1]))
+    return apply
+
+
 def dkfsim_cli(*args, cwd=None, env=None, timeout: float = 300, stdin=subprocess.DEVNULL,
-               stdout=None) -> Child:
+               stdout=None, preexec=None, python=None) -> Child:
     """``python -m dkfsim ARGS`` in a child process; its resources are read with ``wait4``.
 
-    ``stdout``: a file object to write the child's stdout to instead of capturing it.
+    ``stdout``: a file object to write the child's stdout to instead of capturing it;
+    ``preexec``: run in the child before it starts (limits); ``python``: code run with ``-c``
+    instead of ``-m dkfsim`` (``sys.argv[1:]`` are ARGS).
     """
     full_env = {**os.environ, **(env or {})}
-    with tempfile.TemporaryFile() as out, tempfile.TemporaryFile() as err:
-        p = subprocess.Popen([sys.executable, "-m", "dkfsim", *map(str, args)], cwd=cwd, env=full_env,
-                             stdin=stdin, stdout=out if stdout is None else stdout, stderr=err)
-        timer = threading.Timer(timeout, p.kill)
-        timer.start()
-        try:
-            _, status, usage = os.wait4(p.pid, 0)
-        finally:
-            timer.cancel()
-        p.returncode = os.waitstatus_to_exitcode(status)
-        out.seek(0)
-        err.seek(0)
-        return Child(p.returncode, out.read().decode("utf-8", "replace"),
-                     err.read().decode("utf-8", "replace"), usage.ru_utime + usage.ru_stime,
-                     usage.ru_maxrss / 1024)
+    head = ["-m", "dkfsim"] if python is None else ["-c", python]
+    # Pipes, not files: a file-size limit set for the child must not cut its own messages.
+    p = subprocess.Popen([sys.executable, *head, *map(str, args)], cwd=cwd, env=full_env, stdin=stdin,
+                         stdout=subprocess.PIPE if stdout is None else stdout, stderr=subprocess.PIPE,
+                         preexec_fn=preexec)
+    chunks: dict[str, list[bytes]] = {"out": [], "err": []}
+    readers = [threading.Thread(target=lambda f=f, k=k: chunks[k].append(f.read()))
+               for f, k in ((p.stdout, "out"), (p.stderr, "err")) if f is not None]
+    for r in readers:
+        r.start()
+    timer = threading.Timer(timeout, p.kill)
+    timer.start()
+    try:
+        _, status, usage = os.wait4(p.pid, 0)
+    finally:
+        timer.cancel()
+    p.returncode = os.waitstatus_to_exitcode(status)
+    for r in readers:
+        r.join()
+    for f in (p.stdout, p.stderr):
+        if f is not None:
+            f.close()
+    return Child(p.returncode, b"".join(chunks["out"]).decode("utf-8", "replace"),
+                 b"".join(chunks["err"]).decode("utf-8", "replace"), usage.ru_utime + usage.ru_stime,
+                 usage.ru_maxrss / 1024)
 
 
 def small_scenario() -> dkfsim.Scenario:

@@ -10,8 +10,11 @@ from __future__ import annotations
 import contextlib
 import json
 import math
+import os
 import sqlite3
+import tempfile
 import time
+import urllib.parse
 from pathlib import Path
 from typing import Any
 
@@ -35,6 +38,35 @@ def _sql_value(v: Any) -> Any:
 
 
 # =========================================================================== the database
+def _rollback(conn) -> None:
+    """Roll back the open transaction, if SQLite has not already (a full disk ends it)."""
+    if conn.in_transaction:
+        with contextlib.suppress(sqlite3.Error):
+            conn.execute("ROLLBACK")
+
+
+def _write_new(conn, sweep: Sweep) -> None:
+    """Schema, definition and parameter sets of a new database, in one transaction."""
+    conn.execute("BEGIN IMMEDIATE")
+    try:
+        for stmt in SCHEMA.split(";"):
+            if stmt.strip():
+                conn.execute(stmt)
+        meta = {"format": str(DB_FORMAT), "definition": _canonical(sweep.definition()),
+                "sweep_file": sweep.source, "dkfsim_version": __version__,
+                "created": time.strftime("%Y-%m-%dT%H:%M:%S%z")}
+        conn.executemany("INSERT INTO meta(key, value) VALUES (?, ?)", meta.items())
+        conn.executemany(
+            "INSERT INTO params(param_hash, idx, values_json, scenario_hash, base_seed, "
+            "scenario_json) VALUES (?, ?, ?, ?, ?, ?)",
+            [(p.param_hash, p.index, _canonical(p.values), p.scenario_hash, p.base_seed,
+              _canonical(p.scenario.to_dict())) for p in sweep.parameter_sets])
+        conn.execute("COMMIT")
+    except BaseException:
+        _rollback(conn)
+        raise
+
+
 @contextlib.contextmanager
 def damaged(path):
     """Turn an SQLite error met while reading ``path`` (a dropped table, a malformed file, a
@@ -98,7 +130,12 @@ class SweepDB:
             with damaged(self.path):
                 self.conn = sqlite3.connect(self.path, isolation_level=None, timeout=30)
             try:
-                self.definition = self._stored_definition()
+                try:
+                    self.definition = self._stored_definition()
+                except DkfsimError:
+                    if not self._reopen_immutable():
+                        raise
+                    self.definition = self._stored_definition()
                 if self.definition is None:
                     raise DkfsimError(f"{label}: not a dkfsim sweep database (no sweep definition)")
             except BaseException:
@@ -110,13 +147,17 @@ class SweepDB:
                               "overwrite it (choose another output)")
         try:
             self.path.parent.mkdir(parents=True, exist_ok=True)
+            if sweep is not None and (not self.path.exists() or self.path.stat().st_size == 0):
+                self._create(sweep)
             self._lock()
             self.conn = sqlite3.connect(self.path, isolation_level=None, timeout=30)
             self.conn.execute("PRAGMA journal_mode=WAL")
             self.conn.execute("PRAGMA synchronous=FULL")
         except sqlite3.Error as exc:
+            self.close()
             raise DkfsimError(f"{label}: cannot open the sweep database ({exc})") from None
         except OSError as exc:
+            self.close()
             raise DkfsimError(f"{label}: cannot create the sweep database "
                               f"({exc.strerror})") from None
         try:
@@ -126,10 +167,35 @@ class SweepDB:
             raise
 
     # -- opening -----------------------------------------------------------------
+    def _create(self, sweep: Sweep) -> None:
+        """Make the database whole (schema, definition, parameter sets) in a file beside it and
+        link it into place in one step: no process, and no later sweep, ever sees an empty or
+        header-only database, whatever stops this one (a full disk, a kill).  A database
+        another process linked first is kept (the lock then decides who writes)."""
+        fd, tmp = tempfile.mkstemp(prefix=f".{self.path.name}.new-", suffix=".sqlite", dir=self.path.parent)
+        os.close(fd)
+        try:
+            conn = sqlite3.connect(tmp, isolation_level=None)
+            try:
+                _write_new(conn, sweep)
+            except sqlite3.Error as exc:
+                raise DkfsimError(f"{self.path}: cannot create the sweep database ({exc}; a full "
+                                  "disk?); nothing was written") from None
+            finally:
+                conn.close()
+            try:
+                os.link(tmp, self.path)
+            except FileExistsError:
+                if self.path.stat().st_size == 0:           # an empty file (an older lock): ours
+                    os.replace(tmp, self.path)
+        finally:
+            with contextlib.suppress(OSError):
+                os.unlink(tmp)
+
     def _lock(self) -> None:
         if fcntl is None:  # pragma: no cover  (no advisory locks: trust the user)
             return
-        fh = open(self.path, "ab")
+        fh = open(self.path, "rb")                 # (exists: never creates an empty database)
         try:
             fcntl.flock(fh.fileno(), fcntl.LOCK_EX | fcntl.LOCK_NB)
         except OSError:
@@ -137,6 +203,19 @@ class SweepDB:
             raise DkfsimError(f"{self.path}: another dkfsim sweep is writing this database; "
                               "wait for it to finish (or stop it) and re-run") from None
         self._lock_fh = fh
+
+    def _reopen_immutable(self) -> bool:
+        """Read a database that was closed cleanly (no write-ahead log left) without writing
+        anything next to it: on a full disk, SQLite cannot make the ``-shm`` file a normal
+        reader needs.  False when there is a log to recover (only a normal open can)."""
+        wal = self.path.with_name(self.path.name + "-wal")
+        if wal.exists() and wal.stat().st_size > 0:
+            return False
+        self.conn.close()
+        uri = "file:" + urllib.parse.quote(str(self.path.absolute())) + "?immutable=1"
+        with damaged(self.path):
+            self.conn = sqlite3.connect(uri, uri=True, isolation_level=None)
+        return True
 
     def _stored_definition(self) -> dict | None:
         """The stored sweep definition (checked: a database may come from anyone), or None
@@ -146,7 +225,7 @@ class SweepDB:
         except sqlite3.OperationalError as exc:
             if str(exc).startswith("no such table"):
                 return None
-            raise DkfsimError(f"{self.path}: cannot read the sweep database ({exc})") from None
+            raise DkfsimError(f"{self.path}: cannot read the sweep database ({exc}; a full disk?)") from None
         except sqlite3.DatabaseError as exc:
             raise DkfsimError(f"{self.path}: a damaged SQLite file ({exc})") from None
         if not row:
@@ -204,24 +283,7 @@ class SweepDB:
                 self._grow(sweep, new)
             self.definition = new
             return
-        self.conn.execute("BEGIN IMMEDIATE")
-        try:
-            for stmt in SCHEMA.split(";"):
-                if stmt.strip():
-                    self.conn.execute(stmt)
-            meta = {"format": str(DB_FORMAT), "definition": _canonical(new),
-                    "sweep_file": sweep.source, "dkfsim_version": __version__,
-                    "created": time.strftime("%Y-%m-%dT%H:%M:%S%z")}
-            self.conn.executemany("INSERT INTO meta(key, value) VALUES (?, ?)", meta.items())
-            self.conn.executemany(
-                "INSERT INTO params(param_hash, idx, values_json, scenario_hash, base_seed, "
-                "scenario_json) VALUES (?, ?, ?, ?, ?, ?)",
-                [(p.param_hash, p.index, _canonical(p.values), p.scenario_hash, p.base_seed,
-                  _canonical(p.scenario.to_dict())) for p in sweep.parameter_sets])
-            self.conn.execute("COMMIT")
-        except BaseException:
-            self.conn.execute("ROLLBACK")
-            raise
+        _write_new(self.conn, sweep)         # (an empty SQLite file made by someone else)
         self.definition = new
 
     def _grow(self, sweep: Sweep, new: dict) -> None:
@@ -244,7 +306,7 @@ class SweepDB:
                      _canonical(p.scenario.to_dict())))
             conn.execute("COMMIT")
         except BaseException:
-            conn.execute("ROLLBACK")
+            _rollback(conn)
             raise
 
     # -- reading -------------------------------------------------------------------
@@ -292,8 +354,13 @@ class SweepDB:
                              [param_hash, run, seed, row["estimate"], row["component"],
                               *(_sql_value(row.get(m)) for m in metrics)])
             conn.execute("COMMIT")
+        except (sqlite3.OperationalError, OSError) as exc:      # a full disk, an I/O error
+            _rollback(conn)
+            raise DkfsimError(f"{self.path}: cannot save the results of task ({param_hash}, run {run}) "
+                              f"({exc}; a full disk?): the tasks saved before it are kept, re-run "
+                              "the same command to resume") from None
         except BaseException:
-            conn.execute("ROLLBACK")
+            _rollback(conn)
             raise
 
     def close(self) -> None:
