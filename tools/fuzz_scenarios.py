@@ -541,7 +541,7 @@ def _on_alarm(_signum, _frame) -> None:
     raise Overrun
 
 
-def _worker_main(conn, dump_path: str, timeout: float) -> None:
+def _worker_main(conn, dump_path: str, timeout: float, check: Callable = None) -> None:
     """Check the mutants sent over ``conn`` one at a time until it sends None.
 
     Limits: the address space is capped at ``MEMORY_LIMIT``; after
@@ -549,8 +549,11 @@ def _worker_main(conn, dump_path: str, timeout: float) -> None:
     (its traceback says where it was).  Code stuck in one C call never sees
     the alarm: the parent then sends SIGUSR1, which makes faulthandler write
     the stack to ``dump_path`` (as a fatal signal does), and kills the worker.
-    Warnings are silenced: they are not part of the contract.
+    Warnings are silenced: they are not part of the contract.  ``check`` (default
+    :func:`check_mutant`) turns a spec into an :class:`Outcome` (tools/fuzz_results.py
+    passes its own).
     """
+    check = check or check_mutant
     _soft, hard = resource.getrlimit(resource.RLIMIT_AS)
     cap = MEMORY_LIMIT if hard == resource.RLIM_INFINITY else min(MEMORY_LIMIT, hard)
     resource.setrlimit(resource.RLIMIT_AS, (cap, hard))
@@ -563,7 +566,7 @@ def _worker_main(conn, dump_path: str, timeout: float) -> None:
         while (spec := conn.recv()) is not None:
             signal.setitimer(signal.ITIMER_REAL, timeout)
             try:
-                reply = ("outcome", check_mutant(spec))
+                reply = ("outcome", check(spec))
             except Exception:  # a bug of the fuzzer itself: stop the parent loudly
                 reply = ("harness_error", traceback.format_exc())
             finally:
@@ -574,8 +577,8 @@ def _worker_main(conn, dump_path: str, timeout: float) -> None:
 class _Worker:
     """One worker process, its pipe, and the mutant it is checking."""
 
-    def __init__(self, context, timeout: float):
-        self._context, self._timeout = context, timeout
+    def __init__(self, context, timeout: float, check: Callable | None = None):
+        self._context, self._timeout, self._check = context, timeout, check
         fd, self.dump_path = tempfile.mkstemp(prefix="fuzz_scenarios_", suffix=".stack")
         os.close(fd)
         self._spawn()
@@ -586,7 +589,7 @@ class _Worker:
     def _spawn(self) -> None:
         self.conn, child = self._context.Pipe()
         self.process = self._context.Process(target=_worker_main, daemon=True,
-                                             args=(child, self.dump_path, self._timeout))
+                                             args=(child, self.dump_path, self._timeout, self._check))
         self.process.start()
         child.close()
 
@@ -652,12 +655,12 @@ class MutantChecker:
 
     Workers are forked, so they start at once with dkfsim already imported
     (and the fuzzer module need not be importable by name: the tests load it
-    by path).
+    by path).  ``check``: what a worker does with a spec (default :func:`check_mutant`).
     """
 
-    def __init__(self, jobs: int = MAX_JOBS, timeout: float = DEFAULT_TIMEOUT):
+    def __init__(self, jobs: int = MAX_JOBS, timeout: float = DEFAULT_TIMEOUT, check: Callable | None = None):
         context = multiprocessing.get_context("fork")
-        self._workers = [_Worker(context, timeout) for _ in range(max(1, min(jobs, MAX_JOBS)))]
+        self._workers = [_Worker(context, timeout, check) for _ in range(max(1, min(jobs, MAX_JOBS)))]
 
     def __enter__(self) -> MutantChecker:
         return self

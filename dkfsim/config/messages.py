@@ -100,9 +100,13 @@ def _reason(err: dict, path: list[str]) -> tuple[str, list[str]]:
 
 
 def convert(exc: ValidationError, data: Any, source: str,
-             override_keys: Mapping[str, str]) -> ScenarioError:
+             override_keys: Mapping[str, str], max_items: int | None = None) -> ScenarioError:
+    """One message for every problem ``exc`` lists (the first ``max_items`` of them, and how
+    many more, when given: a tampered table can have a problem per row)."""
     items = []
-    for err in exc.errors():
+    errors = exc.errors()
+    more = len(errors) - max_items if max_items is not None and len(errors) > max_items else 0
+    for err in errors[:len(errors) - more]:
         loc = tuple(err["loc"])
         extra = (err.get("ctx") or {}).get("key") if err["type"] in ("dkfsim", "unknown_key") \
             else None
@@ -125,6 +129,8 @@ def convert(exc: ValidationError, data: Any, source: str,
     message = first_reason
     for dotted, reason in items[1:]:
         message += f"; {dotted}: {reason}" if dotted else f"; {reason}"
+    if more:
+        message += f"; and {more} more problem{'s' * (more > 1)} of the same kind or others"
     return ScenarioError(message, source=source, path=first_path or None)
 
 

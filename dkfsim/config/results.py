@@ -216,7 +216,7 @@ def validate(model, data: Any, label: str):
             return model.model_validate(data)
         return _adapter(model).validate_python(data)
     except ValidationError as exc:
-        raise convert(exc, data, label, {}) from None
+        raise convert(exc, data, label, {}, max_items=3) from None
     except (RecursionError, MemoryError):
         raise ScenarioError("too deeply nested or too large to check", source=label) from None
 

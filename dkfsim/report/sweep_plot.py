@@ -239,7 +239,12 @@ def plot_sweep(path, stem, x=None, hue=None, metric="mse", estimate=None, where=
     fig.suptitle((plain(title) if title else f"{plain(what)} against {plain(xname)}") + f"\n({sub})",
                  fontsize=10.5)
     handles, labels = axes[0, 0].get_legend_handles_labels()
+    if not any(ax.get_lines() for ax in axes[:, 0]):
+        plt.close(fig)
+        raise DkfsimError(f"--metric {metric}: nothing to draw, no value of {metric} is known in the "
+                          "selected rows (every one is empty: not applicable)")
     fig.tight_layout()
-    fig.legend(handles, labels, loc="upper center", bbox_to_anchor=(0.5, 0.0),
-               ncol=2 if len(labels) > 2 else len(labels), fontsize=8.5, frameon=False)
+    if labels:
+        fig.legend(handles, labels, loc="upper center", bbox_to_anchor=(0.5, 0.0),
+                   ncol=2 if len(labels) > 2 else len(labels), fontsize=8.5, frameon=False)
     return _save(fig, stem, formats)
