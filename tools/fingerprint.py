@@ -224,10 +224,11 @@ def compare(a: dict, b: dict) -> list[str]:
     if a.get("steps") != b.get("steps"):
         out.append(f"steps: {a.get('steps')} vs {b.get('steps')}")
     ra, rb = a["runs"], b["runs"]
-    for run in sorted(set(ra) | set(rb)):
-        if run not in ra or run not in rb:
-            out.append(f"{run}: only in {'B' if run not in ra else 'A'}")
-            continue
+    for side, mine, other in (("A", ra, rb), ("B", rb, ra)):
+        alone = sorted(set(mine) - set(other))
+        if alone:
+            out.append(f"{len(alone)} run(s) only in {side}: {', '.join(alone)}")
+    for run in sorted(set(ra) & set(rb)):
         x, y = ra[run], rb[run]
         if x["command"] != y["command"] or x["env"] != y["env"]:
             out.append(f"{run}: not the same command (fingerprints of different matrices)")
