@@ -211,7 +211,9 @@ def kernel_workloads(ticks: int, scale_ticks: int, big_nodes: int, big_ticks: in
 
 def probe(args) -> int:
     """One pass over :func:`kernel_workloads` in this process; CPU seconds as JSON on stdout."""
+    from dkfsim.core.threads import pin_process
     from dkfsim.engine.driver import Run  # the engine: the run without the API's result building
+    pin_process()                         # one BLAS thread, as dkfsim.run (the engine alone does not pin)
     out = {"file": dkfsim.__file__}
     for name, (sc, save, env) in kernel_workloads(args.ticks, args.scale_ticks, args.big_nodes,
                                                   args.big_ticks).items():

@@ -11,7 +11,7 @@ grouped in the module-level namedtuples :class:`Model`, :class:`Ring` and
 :class:`Cross` (numba loads kernels taking namedtuples from its disk cache
 like any other; the types must be importable by name for that), and a kernel
 is split into named steps in this module (numba's cache does not notice an
-edit to a jitted function of another file).
+edit to a jitted function of another file), inlined into it (``_INLINE``).
 
 Which path runs: numba when it is installed, unless the environment variable
 ``DKFSIM_KERNELS=numpy`` forces the pure-numpy path (the fallback on
@@ -33,7 +33,12 @@ from dkfsim.core.jit import KERNELS_ENV, LazyKernels, kernel_path  # noqa: F401 
 _KERNELS = ("_predict", "_eliminate", "_back_substitute", "_posterior", "_nan", "_step", "window_rows", "filter_rows",
             "xi_blocks", "_xi_work", "_active", "_held_columns", "_node_terms", "_column_terms", "_missed_terms",
             "_row_terms", "_mirror", "xi_rows")
-_lazy = LazyKernels(__name__, _KERNELS)
+#: The steps, inlined into the kernels that call them (numba's ``inline="always"``): as calls,
+#: one node's predict/update in five steps cost the window filter half again its time
+#: (docs/decisions.md 120).  They bind a namedtuple's fields to locals once, at their top.
+_INLINE = ("_predict", "_eliminate", "_back_substitute", "_posterior", "_nan", "_step", "xi_blocks", "_xi_work", "_active",
+           "_held_columns", "_node_terms", "_column_terms", "_missed_terms", "_row_terms", "_mirror")
+_lazy = LazyKernels(__name__, _KERNELS, inline=_INLINE)
 
 #: The filters' model: ``Phi``, ``Q`` and the prior of each filter, ``x0`` (b, nx), ``P0`` (b, nx, nx).
 Model = namedtuple("Model", "Phi Q x0 P0")
@@ -48,7 +53,7 @@ Ring = namedtuple("Ring", "x P G Omega Theta held")
 Cross = namedtuple("Cross", "Xi Xi0 A unit column_sensor factor varying Phi Lq")
 #: Scratch of one predict/update: ``Pp``, ``M`` (nx, nx) and the right-hand side (nx, nx + 1).
 _Work = namedtuple("_Work", "Pp M rhs")
-#: Scratch of :func:`xi_rows` (see there).
+#: Scratch of :func:`xi_rows` (allocated by :func:`_xi_work`, which says what each holds).
 _XiWork = namedtuple("_XiWork", "Ft PU Y2 Y1 sel R Out F_i Ot active comp wj MO hc cnt need_c need_d act")
 
 
@@ -59,10 +64,9 @@ def compiled():
     return _lazy.get()
 
 
-def _predict(Phi, Q, xprev, Pprev, Om, Th, w):
-    """``Pp = Phi Pprev Phi' + Q`` and the system ``M [G | x] = [I | Pp Theta + Phi xprev]``,
-    ``M = I + Pp Omega``, into ``w`` (see window.information_step)."""
-    Pp, M, rhs = w.Pp, w.M, w.rhs
+def _predict(Phi, Q, xprev, Pprev, Om, Th, Pp, M, rhs):
+    """``Pp = Phi Pprev Phi' + Q`` and the system ``M [G | x] = rhs = [I | Pp Theta + Phi xprev]``,
+    ``M = I + Pp Omega`` (see window.information_step)."""
     nx = Phi.shape[0]
     # Pp = Phi Pprev Phi' + Q  (M used as scratch for Phi Pprev)
     for a in range(nx):
@@ -94,10 +98,9 @@ def _predict(Phi, Q, xprev, Pprev, Om, Th, w):
             M[a, b] = u + (1.0 if a == b else 0.0)
 
 
-def _eliminate(w):
-    """Gaussian elimination of ``w.M`` with partial pivoting (LAPACK getrf's pivot rule),
-    applied to ``w.rhs``; False when ``M`` is singular (or NaN)."""
-    M, rhs = w.M, w.rhs
+def _eliminate(M, rhs):
+    """Gaussian elimination of ``M`` with partial pivoting (LAPACK getrf's pivot rule),
+    applied to ``rhs``; False when ``M`` is singular (or NaN)."""
     nx = M.shape[0]
     for c in range(nx):
         p = c
@@ -125,9 +128,8 @@ def _eliminate(w):
     return True
 
 
-def _back_substitute(w):
-    """``w.rhs := U^-1 w.rhs`` with ``U`` the eliminated ``w.M``: ``[G | x]``."""
-    M, rhs = w.M, w.rhs
+def _back_substitute(M, rhs):
+    """``rhs := U^-1 rhs`` with ``U`` the eliminated ``M``: ``[G | x]``."""
     nx = M.shape[0]
     for c in range(nx - 1, -1, -1):
         piv = M[c, c]
@@ -138,9 +140,8 @@ def _back_substitute(w):
             rhs[c, b] = s / piv
 
 
-def _posterior(w, x_out, P_out, G_out):
-    """``x``, ``G`` from the solved ``w.rhs`` and ``P = G Pp``, symmetrized."""
-    Pp, M, rhs = w.Pp, w.M, w.rhs
+def _posterior(Pp, M, rhs, x_out, P_out, G_out):
+    """``x``, ``G`` from the solved ``rhs`` and ``P = G Pp``, symmetrized (``M`` scratch)."""
     nx = Pp.shape[0]
     for a in range(nx):
         x_out[a] = rhs[a, nx]
@@ -168,13 +169,15 @@ def _nan(x_out, P_out, G_out):
 
 
 def _step(Phi, Q, xprev, Pprev, Om, Th, x_out, P_out, G_out, w):
-    """One information-form predict/update of one node (see window.information_step)."""
-    _predict(Phi, Q, xprev, Pprev, Om, Th, w)
-    if not _eliminate(w):
+    """One information-form predict/update of one node (see window.information_step), with
+    the scratch ``w`` (:class:`_Work`)."""
+    Pp, M, rhs = w.Pp, w.M, w.rhs
+    _predict(Phi, Q, xprev, Pprev, Om, Th, Pp, M, rhs)
+    if not _eliminate(M, rhs):
         _nan(x_out, P_out, G_out)
         return
-    _back_substitute(w)
-    _posterior(w, x_out, P_out, G_out)
+    _back_substitute(M, rhs)
+    _posterior(Pp, M, rhs, x_out, P_out, G_out)
 
 
 def window_rows(m, ring, starts, first, last):

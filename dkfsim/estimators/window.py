@@ -28,6 +28,13 @@ from dkfsim.estimators import kernels
 from dkfsim.protocols import tree_compiled_kernels
 
 
+def predict(Phi, Q, x, P):
+    """The prediction of a batch of filters: ``(Phi x, Phi P Phi' + Q)`` for ``x`` (b, nx) and
+    ``P`` (b, nx, nx), not symmetrized (the window, ``ci_consensus`` and the other round-based
+    estimators predict with these exact operations; each symmetrizes or not as before)."""
+    return x @ Phi.T, Phi @ P @ Phi.T + Q
+
+
 def information_step(Phi, Q, x_prev, P_prev, Omega, Theta):
     """One predict/update for a batch of filters.
 
@@ -38,9 +45,7 @@ def information_step(Phi, Q, x_prev, P_prev, Omega, Theta):
     """
     nx = Phi.shape[0]
     eye = _eye(nx)
-    xp = x_prev @ Phi.T
-    Pp = Phi @ P_prev @ Phi.T
-    Pp += Q
+    xp, Pp = predict(Phi, Q, x_prev, P_prev)
     M = Pp @ Omega
     M += eye
     rhs = np.empty(Pp.shape[:-1] + (nx + 1,))
@@ -277,7 +282,6 @@ class WindowFilter:
             np.maximum(starts, lo, out=starts)
         first = int(starts.min())
         self.node_rows += int((last + 1 - starts).sum())
-        st = self.state
         if self.kernels == "numba":
             self._k.window_rows(self._model, self.ring, starts, first, last)
         else:
