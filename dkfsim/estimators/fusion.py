@@ -42,8 +42,9 @@ def kkt_weights(Xi: np.ndarray, n: int, nx: int) -> np.ndarray:
     ``Xi`` is singular whenever two nodes hold the same information (always
     at zero latency), so we solve the KKT system with the reproducible
     regularisation ``X = Xi + delta I``, ``delta = 1e-8 tr(Xi) / (n nx)``
-    (docs/design.md §7), or :data:`EXACT_DELTA` when that is 0 (``Xi = 0``: exact estimates).  ``X`` is positive definite, so the KKT system is
-    solved by eliminating the constraint: ``Z = X^-1 E`` (Cholesky),
+    (docs/design.md §7), or :data:`EXACT_DELTA` when that is 0 (``Xi = 0``: exact
+    estimates).  ``X`` is positive definite, so the KKT system is solved by eliminating
+    the constraint: ``Z = X^-1 E`` (Cholesky),
     ``Gamma = Z (E' Z)^-1``, the same solution at half the cost of a solve
     of the whole indefinite system; that solve (LAPACK ``dsysv``) remains
     for an ``X`` that Cholesky refuses (non-finite, or an ``Xi`` too
