@@ -76,7 +76,7 @@ def test_a_mutant_is_read_cleanly(checker, spec):
 
 
 @pytest.mark.slow
-@settings(max_examples=150, **COMMON)
+@settings(max_examples=80, **COMMON)
 @given(spec=MUTANTS)
 def test_many_mutants_are_read_cleanly(checker, spec):
     assert_contract(checker, spec)

@@ -230,8 +230,8 @@ def _npz(path: Path, member: str, mutation: str) -> None:
             "as_object": lambda: np.array([None, "x"], dtype=object),
             "as_int": lambda: a.astype(np.int64) if a.dtype.kind in "biuf" else np.arange(a.size),
             "as_bool": lambda: a.astype(bool) if a.dtype.kind in "biuf" else np.ones(a.size, bool),
-            "no_rows": lambda: a[:0] if a.ndim else a.reshape(0),
-            "no_columns": lambda: a.reshape(a.shape[0], -1)[:, :0] if a.ndim else a.reshape(1, 0),
+            "no_rows": lambda: a[:0] if a.ndim else np.zeros(0, a.dtype),
+            "no_columns": lambda: a.reshape(a.shape[0], -1)[:, :0] if a.ndim else np.zeros((1, 0), a.dtype),
             "extra_axis": lambda: a[..., None],
         }[mutation]()
     _savez(path, arrays)
