@@ -21,6 +21,9 @@ TOOLS = Path(__file__).resolve().parents[1] / "tools"
 
 
 def _load(name: str):
+    loaded = sys.modules.get(name)     # (tests/test_fuzz_scenarios.py may have loaded it)
+    if loaded is not None and Path(loaded.__file__).resolve() == TOOLS / f"{name}.py":
+        return loaded
     spec = importlib.util.spec_from_file_location(name, TOOLS / f"{name}.py")
     module = importlib.util.module_from_spec(spec)
     sys.modules[spec.name] = module

@@ -34,6 +34,9 @@ import dkfsim
 def _load_fuzzer():
     """tools/fuzz_scenarios.py, imported by path (tools/ is not a package)."""
     path = Path(__file__).resolve().parents[1] / "tools" / "fuzz_scenarios.py"
+    loaded = sys.modules.get("fuzz_scenarios")     # (tools/fuzz_results.py imports it too)
+    if loaded is not None and Path(loaded.__file__).resolve() == path:
+        return loaded      # one module object: its classes must pickle by name across workers
     spec = importlib.util.spec_from_file_location("fuzz_scenarios", path)
     module = importlib.util.module_from_spec(spec)
     sys.modules[spec.name] = module    # dataclasses and unpickling look the module up by name
