@@ -53,7 +53,18 @@ class Model(BaseModel):
     model_config = ConfigDict(extra="allow", frozen=True)
 
 
-class Row(Model):
+class Measures(Model):
+    """The metrics a tidy row and a Monte Carlo estimate share (None: not applicable)."""
+
+    anees: MaybeNumber = None
+    disagreement: MaybeNumber = None
+    messages_per_tick: MaybeNumber = None
+    bytes_per_tick: MaybeNumber = None
+    lost: MaybeNumber = None
+    late: MaybeNumber = None
+
+
+class Row(Measures):
     """One tidy row: one estimate and state component of one run (docs/design.md §8)."""
 
     run: Count
@@ -61,12 +72,6 @@ class Row(Model):
     estimate: Name
     component: Name
     mse: MaybeNumber = None
-    anees: MaybeNumber = None
-    disagreement: MaybeNumber = None
-    messages_per_tick: MaybeNumber = None
-    bytes_per_tick: MaybeNumber = None
-    lost: MaybeNumber = None
-    late: MaybeNumber = None
 
 
 class Metrics(Model):
@@ -119,19 +124,13 @@ class RunSummary(Model):
         return self
 
 
-class EstimateStats(Model):
+class EstimateStats(Measures):
     """One estimate's pooled numbers in a Monte Carlo ``summary.json``."""
 
     mse: dict[Name, MaybeNumber]
     mse_ci95: dict[Name, Pair]
-    anees: MaybeNumber = None
     anees_band95: Pair | None = None
     anees_fraction_in_band: MaybeNumber = None
-    disagreement: MaybeNumber = None
-    messages_per_tick: MaybeNumber = None
-    bytes_per_tick: MaybeNumber = None
-    lost: MaybeNumber = None
-    late: MaybeNumber = None
 
 
 class MonteCarloSummary(Model):
