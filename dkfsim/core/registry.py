@@ -143,21 +143,35 @@ REGISTRIES: dict[str, Registry] = {
     "estimators": ESTIMATORS, "sensors": SENSOR_KINDS, "metrics": METRICS,
 }
 
-_PLUGINS_LOADED = False
-
-
 #: Entry-point groups whose modules are imported as plugins: ``dkfsim.plugins``
 #: (any component) and ``dkfsim.estimators`` (the name an estimator package may
 #: expect); both are the same mechanism.
 PLUGIN_GROUPS = ("dkfsim.plugins", "dkfsim.estimators")
 
+#: True once ``import dkfsim`` has registered every built-in component (:func:`builtins_registered`).
+_BUILTINS_REGISTERED = False
+#: True once the entry-point plugins were imported (or tried: a broken one is reported once).
+_PLUGINS_LOADED = False
+
+
+def builtins_registered() -> None:
+    """Say that every built-in component is registered (the last line of ``dkfsim/__init__.py``).
+
+    Until then a registry read loads no entry-point plugin: a plugin imports dkfsim's
+    modules, and while ``import dkfsim`` is under way they are half initialised.
+    """
+    global _BUILTINS_REGISTERED
+    _BUILTINS_REGISTERED = True
+
 
 def load_entry_point_plugins() -> None:
-    """Import the modules of the :data:`PLUGIN_GROUPS` entry-point groups, once."""
+    """Import the modules of the :data:`PLUGIN_GROUPS` entry-point groups, once per process,
+    at the first registry read after ``import dkfsim`` completed.  A plugin that fails to
+    import is reported on stderr (once) and left out; dkfsim itself keeps working."""
     global _PLUGINS_LOADED
-    if _PLUGINS_LOADED:
+    if _PLUGINS_LOADED or not _BUILTINS_REGISTERED:
         return
-    _PLUGINS_LOADED = True
+    _PLUGINS_LOADED = True           # (a plugin that reads a registry while loading does not recurse)
     for ep in (ep for group in PLUGIN_GROUPS for ep in entry_points(group=group)):
         try:
             ep.load()

@@ -15,6 +15,7 @@ import json
 import platform
 from collections.abc import Mapping
 from pathlib import Path
+from typing import cast
 
 import networkx
 import numpy as np
@@ -29,6 +30,7 @@ from dkfsim.core.encoding import from_json
 from dkfsim.core.errors import DkfsimError
 from dkfsim.core.files import MAX_YAML_BYTES, check_regular_file, read_text
 from dkfsim.core.folders import staged, write_csv, write_json
+from dkfsim.core.resources import SaveMode
 from dkfsim.core.version import __version__
 
 SAVE_MODES = ("auto", "full", "estimates", "summary")
@@ -41,12 +43,13 @@ FULL_LOG_LIMIT = 20_000_000
 NOT_ESTIMATES = ("x_final", "x0_mean")
 
 
-def resolve_save_mode(save: str, n: int, K: int) -> str:
-    if save not in SAVE_MODES:
-        raise DkfsimError(f"--save: unknown mode {save!r}; choose one of {', '.join(SAVE_MODES)}")
+def resolve_save_mode(save: str, n: int, K: int) -> SaveMode:
+    """The mode a run of ``n`` nodes and ``K`` ticks keeps (``auto`` resolved)."""
     if save == "auto":
         return "full" if n * n * K <= FULL_LOG_LIMIT else "estimates"
-    return save
+    if save in ("full", "estimates", "summary"):
+        return cast(SaveMode, save)
+    raise DkfsimError(f"--save: unknown mode {save!r}; choose one of {', '.join(SAVE_MODES)}")
 
 
 def versions() -> dict:

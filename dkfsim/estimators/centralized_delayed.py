@@ -16,16 +16,13 @@ from __future__ import annotations
 import numpy as np
 
 from dkfsim.components.estimators import CentralizedDelayedParams
-from dkfsim.core.registry import ESTIMATORS
 from dkfsim.core.resources import B_FLOAT, C_NODE_ROW, C_PACKET, C_ROW, C_TICK, Cost
 from dkfsim.estimators.base import Estimate, Estimator, EstimatorResult
 from dkfsim.estimators.window import WindowFilter
 
 
-class CentralizedDelayed(Estimator):
+class CentralizedDelayed(Estimator, params=CentralizedDelayedParams):
     """The window filter of a fusion centre that receives every sensor over its own link."""
-
-    Params = CentralizedDelayedParams
 
     @classmethod
     def cost(cls, params, scenario, *, L: int, arcs: int, save: str = "estimates") -> Cost:
@@ -84,6 +81,3 @@ class CentralizedDelayed(Estimator):
                    "in_flight": counts["sent"] - counts["lost"] - delivered,
                    "bytes": counts["sent"] * (16 + 8 * (s.nx + s.nx * (s.nx + 1) // 2))}
         return EstimatorResult({self.name: Estimate(x, P)}, traffic=traffic)
-
-
-ESTIMATORS.add("centralized_delayed", implementation=CentralizedDelayed)

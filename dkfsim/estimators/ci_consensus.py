@@ -108,9 +108,7 @@ from __future__ import annotations
 import numpy as np
 
 from dkfsim.components.estimators import CIParams
-from dkfsim.core.registry import ESTIMATORS
 from dkfsim.core.resources import B_FLOAT, C_NODE_ROW, C_PACKET, C_ROW, C_TICK, Cost
-from dkfsim.estimators.base import Estimate, EstimatorResult
 from dkfsim.estimators.rounds import Powers as _Powers
 from dkfsim.estimators.rounds import RoundBased, metropolis_weights
 from dkfsim.estimators.rounds import solve_pair as _solve_pair
@@ -118,7 +116,7 @@ from dkfsim.estimators.rounds import solve_pair as _solve_pair
 __all__ = ["CIConsensus", "metropolis_weights"]
 
 
-class CIConsensus(RoundBased):
+class CIConsensus(RoundBased, params=CIParams):
     """Every node's CI filter and its exchange, on the run's network.
 
     The filter steps are batched over nodes; rounds are events at
@@ -126,7 +124,6 @@ class CIConsensus(RoundBased):
     estimator's own port over the exchange graph's links.
     """
 
-    Params = CIParams
     DROP_LATE = False           # older pairs are predicted forward, never dropped
 
     @classmethod
@@ -139,8 +136,7 @@ class CIConsensus(RoundBased):
 
     def start(self) -> None:
         self.rounds = int(self.params.rounds)
-        arcs = self.ctx.scenario.exchange().arcs if self.rounds > 0 else []
-        self.start_rounds(arcs, self.rounds)
+        self.start_rounds(self.ctx.exchange_links() if self.rounds > 0 else [], self.rounds)
 
     def setup(self) -> None:
         s = self.ctx.system
@@ -185,6 +181,7 @@ class CIConsensus(RoundBased):
             Om_nb[old], q_nb[old] = Om_old, q_old
         self.used += int(have.sum())
         self.stale += int(old.size)
+        self.port.count_late(old.size)        # its ``late``: neighbour pairs used a tick late or more
         n, nx = self.n, self.nx
         # Arcs with nothing received hold zeros; their weight goes to pi_ii.
         self_w = 1.0 - self.S @ have.astype(float)
@@ -214,12 +211,5 @@ class CIConsensus(RoundBased):
         return "pair", {"Om": self.Om, "q": self.q, "x": self.x, "P": self.P}, self.nbytes
 
     # -- the result -------------------------------------------------------------
-    def finish(self) -> EstimatorResult:
-        traffic = self.port.counts()
-        traffic["late"] = self.stale        # neighbour pairs used after arriving a tick late
-        facts = {"rounds": self.rounds, "used": self.used, "stale": self.stale}
-        return EstimatorResult({self.name: Estimate(self.x_out, self.P_out)}, traffic=traffic,
-                               facts=facts)
-
-
-ESTIMATORS.add("ci_consensus", implementation=CIConsensus)
+    def facts(self) -> dict:
+        return {"rounds": self.rounds, "used": self.used, "stale": self.stale}

@@ -31,21 +31,18 @@ import numpy as np
 import scipy.sparse
 
 from dkfsim.components.estimators import DiffusionParams
-from dkfsim.core.registry import ESTIMATORS
 from dkfsim.estimators.rounds import RoundBased, solve_pair
 
 
-class DiffusionKF(RoundBased):
+class DiffusionKF(RoundBased, params=DiffusionParams):
     """Cattivelli & Sayed's diffusion KF at every node, batched over nodes."""
-
-    Params = DiffusionParams
 
     @classmethod
     def slots_of(cls, params) -> int:
         return 2
 
     def start(self) -> None:
-        self.start_rounds(self.topology_arcs(), 2)
+        self.start_rounds(self.ctx.topology_links(), 2)
 
     def setup(self) -> None:
         super().setup()
@@ -87,7 +84,4 @@ class DiffusionKF(RoundBased):
         self.record(k, self.x, self.P)
 
     def facts(self) -> dict:
-        return {"weights": self.params.weights, "diffusion": bool(self.params.diffusion)}
-
-
-ESTIMATORS.add("diffusion_kf", implementation=DiffusionKF)
+        return {**super().facts(), "weights": self.params.weights, "diffusion": bool(self.params.diffusion)}

@@ -27,19 +27,16 @@ dropped and counted late.  Runs on the scenario's full topology.
 from __future__ import annotations
 
 from dkfsim.components.estimators import HCMCIParams
-from dkfsim.core.registry import ESTIMATORS
 from dkfsim.estimators.rounds import RoundBased, solve_pair, sym
 
 
-class HCMCI(RoundBased):
+class HCMCI(RoundBased, params=HCMCIParams):
     """Battistelli et al.'s HCMCI at every node, batched over nodes."""
-
-    Params = HCMCIParams
 
     WORK = 4
 
     def start(self) -> None:
-        self.start_rounds(self.topology_arcs(), int(self.params.rounds))
+        self.start_rounds(self.ctx.topology_links(), int(self.params.rounds))
         w = self.params.omega
         self.w = float(self.n if w == "n" else w)
 
@@ -71,7 +68,4 @@ class HCMCI(RoundBased):
         self.record(k, self.x, self.P)
 
     def facts(self) -> dict:
-        return {"rounds": self.slots, "omega": self.w}
-
-
-ESTIMATORS.add("hcmci", implementation=HCMCI)
+        return {**super().facts(), "rounds": self.slots, "omega": self.w}

@@ -25,17 +25,14 @@ full topology (:mod:`dkfsim.estimators.rounds`).
 from __future__ import annotations
 
 from dkfsim.components.estimators import ICFParams
-from dkfsim.core.registry import ESTIMATORS
 from dkfsim.estimators.rounds import RoundBased, solve_pair, sym
 
 
-class ICF(RoundBased):
+class ICF(RoundBased, params=ICFParams):
     """Kamal et al.'s ICF at every node, batched over nodes."""
 
-    Params = ICFParams
-
     def start(self) -> None:
-        self.start_rounds(self.topology_arcs(), int(self.params.rounds))
+        self.start_rounds(self.ctx.topology_links(), int(self.params.rounds))
 
     def boxes(self):
         nx = self.nx
@@ -66,7 +63,4 @@ class ICF(RoundBased):
         self.record(k, self.x, self.P)
 
     def facts(self) -> dict:
-        return {"rounds": self.slots}
-
-
-ESTIMATORS.add("icf", implementation=ICF)
+        return {**super().facts(), "rounds": self.slots}

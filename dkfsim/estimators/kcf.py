@@ -26,14 +26,11 @@ from __future__ import annotations
 import numpy as np
 
 from dkfsim.components.estimators import KCFParams
-from dkfsim.core.registry import ESTIMATORS
 from dkfsim.estimators.rounds import RoundBased, solve_pair
 
 
-class KCF(RoundBased):
+class KCF(RoundBased, params=KCFParams):
     """Olfati-Saber's Kalman-consensus filter at every node, batched over nodes."""
-
-    Params = KCFParams
 
     WORK = 3
 
@@ -42,7 +39,7 @@ class KCF(RoundBased):
         return 1
 
     def start(self) -> None:
-        self.start_rounds(self.topology_arcs(), 1)
+        self.start_rounds(self.ctx.topology_links(), 1)
 
     def boxes(self):
         nx = self.nx
@@ -73,7 +70,4 @@ class KCF(RoundBased):
         self.record(k, self.x, self.P)
 
     def facts(self) -> dict:
-        return {"eps": float(self.params.eps)}
-
-
-ESTIMATORS.add("kcf", implementation=KCF)
+        return {**super().facts(), "eps": float(self.params.eps)}

@@ -8,16 +8,13 @@ still accepted in a ``baselines:`` list.)
 from __future__ import annotations
 
 from dkfsim.components.estimators import LocalOnlyParams
-from dkfsim.core.registry import ESTIMATORS
 from dkfsim.core.resources import B_FLOAT, C_NODE_ROW, C_ROW, Cost
-from dkfsim.estimators.base import Estimate, Estimator, EstimatorResult
+from dkfsim.estimators.base import Estimate, Estimator
 from dkfsim.estimators.window import batched_filter
 
 
-class LocalOnly(Estimator):
+class LocalOnly(Estimator, params=LocalOnlyParams):
     """Each node's Kalman filter of its own measurements, batched over nodes."""
-
-    Params = LocalOnlyParams
 
     @classmethod
     def cost(cls, params, scenario, *, L: int, arcs: int, save: str = "estimates") -> Cost:
@@ -25,12 +22,8 @@ class LocalOnly(Estimator):
         return Cost(params.label, memory={"local_only": K * n * (nx + nx * nx) * B_FLOAT},
                     seconds=K * (C_ROW + n * C_NODE_ROW))
 
-    def finish(self) -> EstimatorResult:
+    def estimate(self) -> Estimate:
         s = self.ctx.system
         omega, theta = self.ctx.existing_information()
         x, P = batched_filter(s.Phi, s.Q, s.x0_mean, s.P0, omega, theta)
-        zero = {"sent": 0, "delivered": 0, "lost": 0, "bytes": 0, "in_flight": 0, "late": 0}
-        return EstimatorResult({self.name: Estimate(x, P)}, traffic=zero)
-
-
-ESTIMATORS.add("local_only", implementation=LocalOnly)
+        return Estimate(x, P)                 # traffic: zero (no port)

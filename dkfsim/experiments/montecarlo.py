@@ -48,7 +48,7 @@ from dkfsim.analysis.metrics import (
     t_interval,
     t_interval_from_moments,
 )
-from dkfsim.components.topology import GENERATOR_PARAMS
+from dkfsim.components.topology import generator_params
 from dkfsim.config.dynamics import component_names
 from dkfsim.config.load import load_scenario, scenario_hash
 from dkfsim.config.schema import Scenario
@@ -104,7 +104,7 @@ def pinned_topology(scenario) -> list[str]:
     """
     sc = scenario if isinstance(scenario, Scenario) else load_scenario(scenario)
     topo = sc.topology
-    if "seed" in GENERATOR_PARAMS[topo.generator][1] and "seed" not in (topo.params or {}):
+    if "seed" in (generator_params(topo.generator) or ((), ()))[1] and "seed" not in (topo.params or {}):
         return [f"topology.params.seed={int(sc.seed)}"]
     return []
 

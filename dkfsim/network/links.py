@@ -23,6 +23,10 @@ Counting identity, per port, per link and in total::
 
     sent + copies = delivered + lost + crash_dropped + in_flight
 
+Beside these a port keeps ``late``, which only its estimator can decide (a packet
+delivered after its last usable instant, a stale pair, ...): the estimator counts it
+with :meth:`Port.count_late`, and ``counts()`` reports it.
+
 Event priorities at one instant (SimPy pops ``(time, priority, id)``):
 deliveries (``NORMAL``) first, then the protocols' flushes
 (:data:`PRIORITY_FLUSH`), then the filters' tick update
@@ -196,6 +200,7 @@ class Port:
         self._receive = receive
         self._links = None if links is None else [l.id for l in links]
         self._count: dict[str, list[int]] = {k: [] for k in COUNTERS}
+        self._late = 0
         self._grow()
         self._instant = -1
         self._seq: dict[int, int] = {}
@@ -270,8 +275,14 @@ class Port:
             delivered[link.id] += 1
             receive(link, due[k + 1])
 
+    def count_late(self, n: int = 1) -> None:
+        """Count ``n`` late items: what is late is the estimator's to decide (e.g. a message
+        delivered after its last usable instant, dropped unused); ``counts()["late"]``."""
+        self._late += int(n)
+
     def counts(self) -> dict:
-        """Totals and ``per_link`` (links this port used); ``in_flight`` by the identity."""
+        """Totals, ``per_link`` (links this port used) and ``late`` (:meth:`count_late`);
+        ``in_flight`` by the identity."""
         self._grow()
         count = self._count
         totals = {k: sum(count[k]) for k in COUNTERS}
@@ -287,4 +298,5 @@ class Port:
                                 - row["crash_dropped"])
             per_link.append(row)
         totals["per_link"] = per_link
+        totals["late"] = self._late
         return totals

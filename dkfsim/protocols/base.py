@@ -21,6 +21,15 @@ contribution counts once (docs/design.md §3); ``counts()["late_unit"]`` says wh
 forwarded for a final row: every node finalises a row at the same tick.
 The protocols themselves are :mod:`dkfsim.protocols.tree` and
 :mod:`dkfsim.protocols.flood`.
+
+A protocol is a subclass of :class:`Exchange` that implements three hooks:
+:meth:`~Exchange.measure` (every measuring node gains its own contribution),
+:meth:`~Exchange.accept` (a delivered aggregate for a live row) and
+:meth:`~Exchange.flush` (what a node sends); from them it calls the public
+helpers :meth:`~Exchange.measuring_nodes`, :meth:`~Exchange.gain`,
+:meth:`~Exchange.schedule_flush` and :meth:`~Exchange.send`.  Overriding
+:meth:`~Exchange.schedule_flush` (with :meth:`~Exchange.flush_later`)
+changes *when* a node sends (docs/examples/tick_flood.py).
 """
 
 from __future__ import annotations
@@ -40,8 +49,10 @@ def row_bytes(nx: int, n: int) -> int:
     return 8 + 8 * (nx + nx * (nx + 1) // 2) + -(-n // 8)
 
 
-class _Row:
-    """Per-row exchange state of all nodes (lives while the row is in the window)."""
+class RowState:
+    """Per-row exchange state of all nodes (lives while the row is in the window): ``held[i]``
+    the origins node ``i`` holds (a bitmask); for ``tree``, per link the last message stored
+    (``inbox``), its number (``inseq``) and the last one sent (``sent``)."""
 
     __slots__ = ("held", "inbox", "inseq", "sent")
 
@@ -87,7 +98,7 @@ class Exchange:
         #: (:meth:`write_log`); each cell is written at most once, so order does not matter.
         self._log: list | None = [] if arrival is not None else None
         self.late_horizon = late_horizon
-        self.rows: dict[int, _Row] = {}
+        self.rows: dict[int, RowState] = {}
         self.final: dict[int, list[int]] = {}
         self.late = 0
         self.late_per_node = [0] * n
@@ -96,8 +107,7 @@ class Exchange:
         self._flush_due = [False] * n
         #: nodes whose flush is due at this instant, in the order they became due
         self._flush_queue: list[int] = []
-        #: per node, an event callback that flushes it (for protocols that flush later,
-        #: e.g. docs/examples/tick_flood.py)
+        #: per node, an event callback that flushes it (:meth:`flush_later`)
         self._flush_cb = [self._make_flush(j) for j in range(n)]
 
     # -- wiring ----------------------------------------------------------------
@@ -121,8 +131,9 @@ class Exchange:
         by_arc = {(l.src, l.dst): i for i, l in enumerate(self.links)}
         self.reverse = [by_arc.get((l.dst, l.src)) for l in self.links]
 
-    def _send(self, link, items) -> None:
-        """One packet on ``link`` carrying ``items`` ((row, origin mask) pairs)."""
+    def send(self, link, items) -> None:
+        """Send one packet on ``link`` carrying ``items``, ``(row, origin mask)`` pairs (numbered
+        per link, sized ``PACKET_HEADER + len(items) * row_bytes``)."""
         i = self.lid[link.id]
         self.seq[i] += 1
         self.port.send(link, (self.seq[i], items), PACKET_HEADER + len(items) * self.row_bytes)
@@ -133,12 +144,22 @@ class Exchange:
             self.flush(j)
         return cb
 
-    def _schedule_flush(self, j: int) -> None:
-        if not self._flush_due[j]:
-            self._flush_due[j] = True
-            self._flush_queue.append(j)
+    def schedule_flush(self, node: int) -> None:
+        """Hook: ``node`` has something new to send.  Default: flush it at this instant, after
+        every delivery of the instant (once, however often it is asked).  A protocol that
+        sends at other times overrides it, usually with :meth:`flush_later`."""
+        if not self._flush_due[node]:
+            self._flush_due[node] = True
+            self._flush_queue.append(node)
             if len(self._flush_queue) == 1:
                 Scheduled(self.env, self._flush_all, PRIORITY_FLUSH)
+
+    def flush_later(self, node: int, delay: int) -> None:
+        """Flush ``node`` ``delay`` ns from now (after that instant's deliveries), unless a flush
+        of it is already due."""
+        if not self._flush_due[node]:
+            self._flush_due[node] = True
+            Scheduled(self.env, self._flush_cb[node], PRIORITY_FLUSH, delay)
 
     def _flush_all(self, _event) -> None:
         """Flush every due node, first due first; what a flush sends with zero latency is
@@ -157,7 +178,7 @@ class Exchange:
 
     # -- rows ------------------------------------------------------------------
     def open_row(self, row: int) -> None:
-        self.rows[row] = _Row(self.n, self.n_links, self.tree)
+        self.rows[row] = RowState(self.n, self.n_links, self.tree)
 
     def close_row(self, row: int) -> None:
         """``row`` became final: keep only its holdings, for late accounting per contribution
@@ -183,13 +204,17 @@ class Exchange:
         self.arrival[nodes[k], o, rows[k]] = np.array(log[3::4], dtype=np.int64)[k] / 1e9
 
     # -- holdings --------------------------------------------------------------
-    def _gain(self, node: int, row: int, st: _Row, bits: int) -> None:
+    def gain(self, node: int, row: int, st: RowState, bits: int) -> None:
+        """``node`` now holds the contributions ``bits`` (origin mask) of live ``row``, whose
+        state is ``st``; the bits must be new to it (``bits & st.held[node] == 0``)."""
         st.held[node] |= bits
         self.window.add_mask(node, bits, row)
         if self._log is not None:            # the arrival log (--save full) only
             self._log.extend((node, bits, row, self.env.now))
 
-    def _late(self, node: int, row: int, mask: int) -> None:
+    def count_late(self, node: int, row: int, mask: int) -> None:
+        """Contributions ``mask`` for ``row`` reached ``node`` after the row became final: count
+        them (per packet row, or per new contribution with the arrival log) and log them."""
         if self.arrival is None:          # no log: one late (packet, row) pair
             self.late += 1
             self.late_per_node[node] += 1
@@ -215,7 +240,7 @@ class Exchange:
     #: it, so it never has anything to send while down.
     crashes = None
 
-    def _measuring(self):
+    def measuring_nodes(self):
         """The nodes that measure now: all but those in a crash window."""
         if not self.crashes:
             return range(self.n)
@@ -223,26 +248,31 @@ class Exchange:
         return [i for i in range(self.n) if not self.crashes.down(i, now)]
 
     def measure(self, row: int) -> None:
+        """Hook: at ``row``'s tick every measuring node gains its own contribution (and
+        schedules what it sends)."""
         raise NotImplementedError
 
     def receive(self, link, payload) -> None:
-        """Deliver a packet: late rows are counted, live ones go to :meth:`_accept`."""
+        """Deliver a packet: late rows are counted, live ones go to :meth:`accept`."""
         seq, items = payload
         late = False
         for row, mask in items:
             st = self.rows.get(row)
             if st is None:
-                self._late(link.dst, row, mask)
+                self.count_late(link.dst, row, mask)
                 late = True
             else:
-                self._accept(link, seq, row, st, mask)
+                self.accept(link, seq, row, st, mask)
         if late:
             self.late_packets[self.lid[link.id]] += 1
 
-    def _accept(self, link, seq: int, row: int, st: _Row, mask: int) -> None:
+    def accept(self, link, seq: int, row: int, st: RowState, mask: int) -> None:
+        """Hook: packet number ``seq`` on ``link`` carries the aggregate ``mask`` (origins) for
+        live ``row`` (state ``st``): gain what is new to ``link.dst`` and relay it."""
         raise NotImplementedError
 
     def flush(self, node: int) -> None:
+        """Hook: ``node``'s flush is due: :meth:`send` what it has for its out-links."""
         raise NotImplementedError
 
     def counts(self) -> dict:
