@@ -468,13 +468,6 @@ class ExchangeGraph:
     def d_g(self) -> int:
         return diameter(self.graph)
 
-    @functools.cached_property
-    def d_g_bounds(self) -> tuple[int, int]:
-        """Cheap (lower, upper) bounds of ``d_g``."""
-        if "d_g" in self.__dict__:
-            return self.d_g, self.d_g
-        return diameter_bounds(self.graph)
-
 
 def protocol_graph(protocol: str) -> str:
     """``"tree"`` or ``"digraph"``: the kind of graph a registered protocol runs on."""

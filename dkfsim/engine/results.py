@@ -5,7 +5,7 @@ the names of its estimates, its packet counts and each estimator's traffic,
 and writes a result folder: ``run.npz`` (the arrays; a pure function of the
 scenario and its seed, bit-identical across runs and worker counts),
 ``rows.csv`` (the tidy rows every output shares, one per estimate and state
-component: :func:`dkfsim.analysis.metrics.score`) and ``summary.json`` (the
+component: :func:`dkfsim.analysis.metrics.score_scored`) and ``summary.json`` (the
 same numbers, the counts, the scenario, versions and the wall time).
 """
 

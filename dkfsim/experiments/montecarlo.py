@@ -23,7 +23,7 @@ estimator the scenario lists under its name (``centralized``,
 are scored by the mean over nodes (squared error, NEES) and have a
 ``disagreement`` (:func:`dkfsim.analysis.metrics.disagreement`); the others
 have ``disagreement = NaN``.  Every per-run number is a tidy row
-(:func:`dkfsim.analysis.metrics.score`): ``runs.csv`` has the columns of a
+(:func:`dkfsim.analysis.metrics.score_scored`): ``runs.csv`` has the columns of a
 run's ``rows.csv`` and a sweep's export.  Traffic comes from each
 estimator's own port on the run's network (messages, nominal bytes, lost
 packets, late information); the idealised ``centralized`` filter has none

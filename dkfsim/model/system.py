@@ -93,9 +93,6 @@ class Information:
         """``omega`` of each (row, origin) pair, shape (len, nx, nx)."""
         return self.omega[rows, origins] if self.varying else self.omega[origins]
 
-    def omega_row(self, row: int) -> np.ndarray:
-        return self.omega[row] if self.varying else self.omega
-
     def factor_row(self, row: int) -> np.ndarray:
         return self.factor[row] if self.varying else self.factor
 
