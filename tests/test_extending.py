@@ -27,7 +27,6 @@ from reference import node_estimates
 from scipy import stats
 
 import dkfsim
-from dkfsim.core import registry
 
 ROOT = Path(__file__).resolve().parents[1]
 EXAMPLES = ROOT / "docs" / "examples"
@@ -35,16 +34,8 @@ CASE1 = ROOT / "scenarios" / "paper_case1.yaml"
 
 
 @pytest.fixture(autouse=True)
-def isolated_registries():
-    """Snapshot every registry and the loaded plugin modules; restore after the test."""
-    saved = {name: (dict(reg._entries), dict(reg._aliases)) for name, reg in registry.REGISTRIES.items()}
-    modules = set(sys.modules)
-    yield
-    for name, reg in registry.REGISTRIES.items():
-        reg._entries, reg._aliases = saved[name]
-    for m in set(sys.modules) - modules:
-        if m.startswith("dkfsim_plugin_") or m.startswith("dkfsim_test_entry"):
-            del sys.modules[m]
+def _isolated(isolated_registries):
+    """Every test here registers components: undo it afterwards (conftest.isolated_registries)."""
 
 
 def case1_with(tmp_path, steps=40, **keys) -> Path:

@@ -33,11 +33,11 @@ from dkfsim.components.faults import CrashSchedule
 from dkfsim.components.topology import topology_arcs
 from dkfsim.config.schema import Scenario
 from dkfsim.core.registry import ESTIMATORS
-from dkfsim.core.resources import Cost, SaveMode
+from dkfsim.core.resources import B_FLOAT, Cost, SaveMode
 from dkfsim.model.system import Information, LinearGaussianSystem
 from dkfsim.network.links import Link, Network, Port
 
-__all__ = ["Estimate", "Estimator", "EstimatorResult", "RunContext", "SaveMode"]
+__all__ = ["Estimate", "Estimator", "EstimatorResult", "RunContext", "SaveMode", "existing_information_bytes"]
 
 
 @dataclass
@@ -120,6 +120,7 @@ class RunContext:
         m = self.measured()
         if m is None:
             return self.info.omega, self.info.theta
+        m = np.ascontiguousarray(m)         # (a transposed mask would make the products non-contiguous)
         return self.info.omega_per_row() * m[:, :, None, None], self.info.theta * m[:, :, None]
 
     def topology_links(self) -> list[Link]:
@@ -132,6 +133,16 @@ class RunContext:
         the tree, or a spanning tree of the topology, for ``tree``; every arc for ``flood``):
         what the anti-delay DKF and ``ci_consensus`` talk over."""
         return [self.network.link(u, v) for u, v in self.scenario.exchange().arcs]
+
+
+def existing_information_bytes(scenario: Scenario) -> int:
+    """Memory :meth:`RunContext.existing_information` allocates, for an estimator's :meth:`~Estimator.cost`:
+    with crash windows the masked copies, ``omega`` per row and ``theta`` (``K n nx (nx + 1)``
+    floats); without, nothing (it returns the run's own arrays)."""
+    if scenario.faults is None or not scenario.faults.crashes:
+        return 0
+    K, n, nx = int(scenario.steps), scenario.n, scenario.nx
+    return K * n * nx * (nx + 1) * B_FLOAT
 
 
 class Estimator:

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 from dkfsim.components.estimators import CentralizedParams
 from dkfsim.core.resources import B_FLOAT, C_TICK, Cost
-from dkfsim.estimators.base import Estimate, Estimator
+from dkfsim.estimators.base import Estimate, Estimator, existing_information_bytes
 from dkfsim.estimators.window import centralized_filter
 
 
@@ -21,7 +21,11 @@ class Centralized(Estimator, params=CentralizedParams):
     @classmethod
     def cost(cls, params, scenario, *, L: int, arcs: int, save: str = "estimates") -> Cost:
         K, nx = int(scenario.steps), scenario.nx
-        return Cost(params.label, memory={"centralized": K * (nx + nx * nx) * B_FLOAT}, seconds=K * C_TICK)
+        copy = existing_information_bytes(scenario)
+        per_row = copy > 0 or any(s.kind != "linear" for s in scenario.sensors)     # omega per row
+        sums = K * (nx + (nx * nx if per_row else 0)) * B_FLOAT                      # over the sensors
+        return Cost(params.label, memory={"centralized": K * (nx + nx * nx) * B_FLOAT + sums + copy},
+                    seconds=K * C_TICK)
 
     def estimate(self) -> Estimate:
         s = self.ctx.system

@@ -28,7 +28,8 @@ class CentralizedDelayed(Estimator, params=CentralizedDelayedParams):
     def cost(cls, params, scenario, *, L: int, arcs: int, save: str = "estimates") -> Cost:
         K, n, nx = int(scenario.steps), scenario.n, scenario.nx
         L = min(L, K)
-        return Cost(params.label, memory={"centralized_delayed": K * n * (8 + 2 * nx * B_FLOAT)
+        # per (sensor, row): its arrival tick, and the indices that order the usable ones (6 ints)
+        return Cost(params.label, memory={"centralized_delayed": K * n * (7 * 8 + 2 * nx * B_FLOAT)
                                           + (L + 1) * (2 * nx + 3 * nx * nx) * B_FLOAT},
                     seconds=K * (C_TICK + L * (C_ROW + C_NODE_ROW) + n * C_PACKET))
 

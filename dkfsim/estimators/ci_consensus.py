@@ -109,6 +109,7 @@ import numpy as np
 
 from dkfsim.components.estimators import CIParams
 from dkfsim.core.resources import B_FLOAT, C_NODE_ROW, C_PACKET, C_ROW, C_TICK, Cost
+from dkfsim.estimators.base import existing_information_bytes
 from dkfsim.estimators.rounds import Powers as _Powers
 from dkfsim.estimators.rounds import RoundBased, metropolis_weights
 from dkfsim.estimators.rounds import solve_pair as _solve_pair
@@ -130,7 +131,8 @@ class CIConsensus(RoundBased, params=CIParams):
     def cost(cls, params, scenario, *, L: int, arcs: int, save: str = "estimates") -> Cost:
         K, n, nx = int(scenario.steps), scenario.n, scenario.nx
         return Cost(params.label,
-                    memory={"ci_consensus": K * n * (nx + nx * nx) * B_FLOAT + arcs * (nx + nx * nx) * 2 * B_FLOAT},
+                    memory={"ci_consensus": K * n * (nx + nx * nx) * B_FLOAT + arcs * (nx + nx * nx) * 2 * B_FLOAT
+                            + existing_information_bytes(scenario)},
                     seconds=K * (C_ROW + n * C_NODE_ROW) + K * params.rounds * (
                         C_TICK + 3 * C_ROW + arcs * C_PACKET + n * 2 * C_NODE_ROW))
 

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 from dkfsim.components.estimators import LocalOnlyParams
 from dkfsim.core.resources import B_FLOAT, C_NODE_ROW, C_ROW, Cost
-from dkfsim.estimators.base import Estimate, Estimator
+from dkfsim.estimators.base import Estimate, Estimator, existing_information_bytes
 from dkfsim.estimators.window import batched_filter
 
 
@@ -19,7 +19,8 @@ class LocalOnly(Estimator, params=LocalOnlyParams):
     @classmethod
     def cost(cls, params, scenario, *, L: int, arcs: int, save: str = "estimates") -> Cost:
         K, n, nx = int(scenario.steps), scenario.n, scenario.nx
-        return Cost(params.label, memory={"local_only": K * n * (nx + nx * nx) * B_FLOAT},
+        return Cost(params.label, memory={"local_only": K * n * (nx + nx * nx) * B_FLOAT
+                                          + existing_information_bytes(scenario)},
                     seconds=K * (C_ROW + n * C_NODE_ROW))
 
     def estimate(self) -> Estimate:

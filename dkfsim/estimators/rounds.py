@@ -30,7 +30,7 @@ import scipy.sparse
 
 from dkfsim.core.linalg import solve
 from dkfsim.core.resources import B_FLOAT, C_NODE_ROW, C_PACKET, C_ROW, C_TICK, Cost
-from dkfsim.estimators.base import Estimate, Estimator
+from dkfsim.estimators.base import Estimate, Estimator, existing_information_bytes
 from dkfsim.network.links import PRIORITY_UPDATE, Link, Scheduled
 
 
@@ -117,7 +117,8 @@ class RoundBased(Estimator):
     @classmethod
     def cost(cls, params, scenario, *, L: int, arcs: int, save: str = "estimates") -> Cost:
         K, n, nx = int(scenario.steps), scenario.n, scenario.nx
-        return Cost(params.label, memory={params.label: K * n * (nx + nx * nx) * B_FLOAT},
+        return Cost(params.label, memory={params.label: K * n * (nx + nx * nx) * B_FLOAT
+                                          + existing_information_bytes(scenario)},
                     seconds=K * (C_ROW + n * C_NODE_ROW) + K * cls.slots_of(params) * (
                         C_TICK + 3 * C_ROW + arcs * C_PACKET + n * cls.WORK * C_NODE_ROW))
 

@@ -22,8 +22,8 @@ import numpy as np
 from pydantic import Field
 
 from dkfsim.components.estimators import EstimatorParams
-from dkfsim.core.resources import C_PACKET, C_TICK, Cost
-from dkfsim.estimators.base import Estimate, Estimator
+from dkfsim.core.resources import B_FLOAT, C_PACKET, C_TICK, Cost
+from dkfsim.estimators.base import Estimate, Estimator, existing_information_bytes
 from dkfsim.estimators.window import batched_filter
 
 
@@ -39,9 +39,11 @@ class NeighbourMean(Estimator, params=NeighbourMeanParams):
 
     @classmethod
     def cost(cls, params, scenario, *, L, arcs, save="estimates") -> Cost:
-        K, n, nx = int(scenario.steps), scenario.n, scenario.nx      # (L, save: not needed here)
-        return Cost(params.label, memory={params.label: 3 * K * n * nx * 8},
-                    seconds=K * (C_TICK + arcs * C_PACKET))
+        """Its own filter's ``x`` and ``P``, the reported ``x``, and what ``existing_information()``
+        copies (``L`` and ``save`` do not matter to it)."""
+        K, n, nx = int(scenario.steps), scenario.n, scenario.nx
+        memory = K * n * (2 * nx + nx * nx) * B_FLOAT + existing_information_bytes(scenario)
+        return Cost(params.label, memory={params.label: memory}, seconds=K * (C_TICK + arcs * C_PACKET))
 
     def start(self) -> None:
         ctx = self.ctx
