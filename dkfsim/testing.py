@@ -30,7 +30,7 @@ import numpy as np
 
 from dkfsim.config.load import load_scenario
 from dkfsim.config.schema import Scenario
-from dkfsim.core.registry import ESTIMATORS
+from dkfsim.core.registry import ESTIMATORS, Entry
 from dkfsim.engine.driver import run
 from dkfsim.engine.estimate import exchange_shape
 from dkfsim.engine.results import RunResult, load_run
@@ -137,7 +137,7 @@ def _assert(ok: bool, kind: str, what: str) -> None:
         raise AssertionError(f"check_estimator({kind!r}): {what}")
 
 
-def _registered(kind: str):
+def _registered(kind: str) -> Entry:
     _assert(kind in ESTIMATORS.names(), kind, "registration: no such estimator is registered "
                                               f"(registered: {', '.join(ESTIMATORS.names())})")
     entry = ESTIMATORS.get(kind)
@@ -187,7 +187,7 @@ def _check_shapes(kind: str, res: RunResult, names: list[str]) -> None:
                 f"shapes: P of '{name}' has shape {P.shape}; expected {x.shape + (nx,)}")
         _assert(bool(np.isfinite(P).all()), kind, f"shapes: P of '{name}' has non-finite entries")
         scale = max(1.0, float(np.abs(P).max()))
-        _assert(np.abs(P - np.swapaxes(P, -1, -2)).max() <= 1e-9 * scale, kind,
+        _assert(bool(np.abs(P - np.swapaxes(P, -1, -2)).max() <= 1e-9 * scale), kind,
                 f"shapes: P of '{name}' is not symmetric")
         _assert(bool((np.diagonal(P, axis1=-2, axis2=-1) >= 0).all()), kind,
                 f"shapes: P of '{name}' has a negative variance")
@@ -209,7 +209,7 @@ def _check_traffic(kind: str, res: RunResult, names: list[str]) -> None:
                 if key in ("link", "per_link", "late_unit", "late_per_node"):
                     continue
                 if isinstance(v, (int, np.integer)) and not isinstance(v, bool):
-                    _assert(v >= 0, kind, f"{what}: {key} = {v} {where} is negative")
+                    _assert(bool(v >= 0), kind, f"{what}: {key} = {v} {where} is negative")
             c = {k: counts.get(k, 0) for k in _IDENTITY}
             ok = all(isinstance(v, (int, np.integer)) and not isinstance(v, bool) for v in c.values())
             _assert(ok, kind, f"{what}: counts {where} are not all integers: {c}")
@@ -289,8 +289,9 @@ def _check_divergence(kind: str, names: list[str]) -> None:
     K, n, nx = 20, res.scenario.n, res.scenario.nx
     for name in names:
         x = res.arrays.get(f"x_{name}")
-        _assert(x is not None and x.shape in ((K, nx), (K, n, nx)), kind,
-                f"{what} '{name}' lost its shape: {None if x is None else x.shape}")
+        if x is None or x.shape not in ((K, nx), (K, n, nx)):
+            raise AssertionError(f"check_estimator({kind!r}): {what} '{name}' lost its shape: "
+                                 f"{None if x is None else x.shape}")
         finite = bool(np.isfinite(x).all())
         _assert(finite == (f"x_{name}" not in res.diverged), kind,
                 f"{what} 'diverged' does not say whether x_{name} holds non-finite numbers")

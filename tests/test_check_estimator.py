@@ -12,6 +12,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from typing_extensions import override
 
 import dkfsim  # noqa: F401  (registers the built-in estimators)
 from dkfsim.components.estimators import EstimatorParams
@@ -35,7 +36,8 @@ def test_every_built_in_estimator_passes(kind):
     assert check_estimator(kind) is None
 
 
-def test_the_docs_example_passes(isolated_registries):
+@pytest.mark.usefixtures("isolated_registries")
+def test_the_docs_example_passes():
     load_plugin(str(EXAMPLES / "neighbour_mean.py"))
     assert check_estimator("neighbour_mean") is None
 
@@ -48,7 +50,8 @@ def fails(kind: str, check: str) -> str:
     return message
 
 
-def test_an_unknown_kind_or_a_model_without_implementation_fails_registration(isolated_registries):
+@pytest.mark.usefixtures("isolated_registries")
+def test_an_unknown_kind_or_a_model_without_implementation_fails_registration():
     fails("no_such_estimator", "registration: no such estimator")
 
     class OnlyParams(EstimatorParams, kind="only_params"):
@@ -57,7 +60,8 @@ def test_an_unknown_kind_or_a_model_without_implementation_fails_registration(is
     fails("only_params", "registration: no Estimator implementation")
 
 
-def test_a_wrong_shape_fails(isolated_registries):
+@pytest.mark.usefixtures("isolated_registries")
+def test_a_wrong_shape_fails():
     class WrongShapeParams(EstimatorParams, kind="wrong_shape"):
         """Per-node estimates with the node and state axes swapped."""
 
@@ -70,7 +74,8 @@ def test_a_wrong_shape_fails(isolated_registries):
     assert "(K, n, nx) = (150, 6, 3)" in message
 
 
-def test_nondeterministic_draws_fail(isolated_registries):
+@pytest.mark.usefixtures("isolated_registries")
+def test_nondeterministic_draws_fail():
     class DiceParams(EstimatorParams, kind="dice"):
         """Adds noise from an unseeded generator: a different estimate every run."""
 
@@ -82,7 +87,8 @@ def test_nondeterministic_draws_fail(isolated_registries):
     fails("dice", "determinism: a second run with the same seed gave a different x_dice")
 
 
-def test_an_estimator_that_changes_the_shared_draws_fails(isolated_registries):
+@pytest.mark.usefixtures("isolated_registries")
+def test_an_estimator_that_changes_the_shared_draws_fails():
     class ScribbleParams(EstimatorParams, kind="scribble"):
         """Writes into the run's measurements, which the DKF reads too."""
 
@@ -93,7 +99,8 @@ def test_an_estimator_that_changes_the_shared_draws_fails(isolated_registries):
     fails("scribble", "the same draws as the DKF: listing it changed")
 
 
-def test_an_estimator_blind_to_the_run_fails(isolated_registries):
+@pytest.mark.usefixtures("isolated_registries")
+def test_an_estimator_blind_to_the_run_fails():
     class PriorParams(EstimatorParams, kind="prior_only"):
         """Reports the prior mean, whatever the run measured."""
 
@@ -105,7 +112,8 @@ def test_an_estimator_blind_to_the_run_fails(isolated_registries):
     fails("prior_only", "the same draws as the DKF: another seed gives the same estimates")
 
 
-def test_a_miscounted_traffic_fails_the_counting_identity(isolated_registries):
+@pytest.mark.usefixtures("isolated_registries")
+def test_a_miscounted_traffic_fails_the_counting_identity():
     load_plugin(str(EXAMPLES / "neighbour_mean.py"))
     NeighbourMean = ESTIMATORS.get("neighbour_mean").implementation
 
@@ -121,19 +129,22 @@ def test_a_miscounted_traffic_fails_the_counting_identity(isolated_registries):
     fails("miscount", "counting identity: traffic of 'miscount': sent + copies != delivered")
 
 
-def test_a_cost_below_what_the_run_allocates_fails(isolated_registries):
+@pytest.mark.usefixtures("isolated_registries")
+def test_a_cost_below_what_the_run_allocates_fails():
     class CheapParams(EstimatorParams, kind="cheap"):
         """local_only with the default cost: next to nothing."""
 
     class Cheap(LocalOnly, params=CheapParams):
         @classmethod
+        @override
         def cost(cls, params, scenario, *, L, arcs, save="estimates") -> Cost:
             return Cost(params.label)
 
     fails("cheap", "cost >= measured allocation")
 
 
-def test_a_cost_that_misses_one_array_per_node_fails(isolated_registries):
+@pytest.mark.usefixtures("isolated_registries")
+def test_a_cost_that_misses_one_array_per_node_fails():
     """The check's resolution: a covariance per node and tick left out of the cost is found."""
     class HoarderParams(EstimatorParams, kind="hoarder"):
         """local_only keeping one more (K, n, nx, nx) array than its cost says."""
@@ -145,7 +156,8 @@ def test_a_cost_that_misses_one_array_per_node_fails(isolated_registries):
     fails("hoarder", "cost >= measured allocation")
 
 
-def test_an_estimator_that_raises_on_overflow_fails_nan_handling(isolated_registries):
+@pytest.mark.usefixtures("isolated_registries")
+def test_an_estimator_that_raises_on_overflow_fails_nan_handling():
     class StrictParams(EstimatorParams, kind="strict"):
         """Refuses non-finite numbers instead of reporting them."""
 

@@ -147,7 +147,7 @@ def test_the_example_latency_model_draws_its_law(tmp_path):
         dkfsim.load_scenario(path, ["links.default.latency.mode=0.5"])
 
 
-def test_the_example_protocol_keeps_the_dkf_exact(tmp_path):
+def test_the_example_protocol_keeps_the_dkf_exact():
     from dkfsim.core.registry import load_plugin
     load_plugin(str(EXAMPLES / "tick_flood.py"))
     d = scenario(6, steps=30, protocol="tick_flood", latency={"model": "uniform", "low": 0.0, "high": 0.25},

@@ -313,7 +313,7 @@ def test_a_failed_save_leaves_the_previous_output(tmp_path, monkeypatch):
     dkfsim.run(CASE1, steps=10).save(out)
     before = {p.name: p.read_bytes() for p in out.iterdir()}
 
-    def boom(*a, **k):
+    def boom(*_, **__):
         raise OSError(28, "No space left on device")
     monkeypatch.setattr(np, "savez", boom)
     with pytest.raises(OSError):

@@ -232,7 +232,7 @@ def test_empty_file(tmp_path):
     assert "empty file" in load_error(path)
 
 
-def test_dict_source_is_named(tmp_path):
+def test_dict_source_is_named():
     msg = load_error(put(base(), "steps", 0))
     assert msg.startswith("<dict>: steps: ")
 
@@ -651,9 +651,9 @@ def test_source_not_in_hash_or_equality(tmp_path):
 
 def test_scenario_is_frozen():
     sc = load_scenario(base())
-    with pytest.raises(Exception):
+    with pytest.raises(ValidationError, match="frozen"):
         sc.seed = 5
-    with pytest.raises(Exception):
+    with pytest.raises(ValidationError, match="frozen"):
         sc.model.T = 0.1
     with pytest.raises(TypeError):
         sc.sensors[0].R[0] = (3.0,)

@@ -30,7 +30,7 @@ class EstimatorParams(StrictModel):
     keeps its parent's kind and registers nothing.
     """
 
-    kind: str
+    kind: str = ""                       # (each subclass: its literal kind)
     name: Annotated[str, Field(strict=True, min_length=1, pattern=r"^[A-Za-z][A-Za-z0-9_]*$")] | None = None
 
     def __init_subclass__(cls, kind: str | None = None, aliases: tuple[str, ...] = (), **kwargs: Any):

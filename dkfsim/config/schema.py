@@ -44,7 +44,7 @@ from __future__ import annotations
 
 import hashlib
 import json
-from typing import Annotated, Any, Literal
+from typing import TYPE_CHECKING, Annotated, Any, Literal
 
 import networkx
 from pydantic import AfterValidator, BaseModel, BeforeValidator, Field, PrivateAttr, field_validator, model_validator
@@ -78,9 +78,14 @@ from dkfsim.core.resources import CHEAP_VISITS
 FUSION_MEMORY_LIMIT = 2 << 30
 
 
-#: A sensor (any registered kind; ``linear`` when ``kind`` is absent) and an estimator entry.
-SensorField = registered(SensorParams, SENSOR_KINDS, "linear")
-EstimatorField = registered(EstimatorParams, ESTIMATORS)
+#: A sensor (any registered kind; ``linear`` when ``kind`` is absent) and an estimator entry
+#: (to a type checker: the base models, which every registered one subclasses).
+if TYPE_CHECKING:
+    SensorField = SensorParams
+    EstimatorField = EstimatorParams
+else:
+    SensorField = registered(SensorParams, SENSOR_KINDS, "linear")
+    EstimatorField = registered(EstimatorParams, ESTIMATORS)
 
 
 def _registered(registry):

@@ -23,6 +23,7 @@ import importlib.util
 import sys
 from dataclasses import dataclass
 from importlib.metadata import entry_points
+from os import PathLike
 from pathlib import Path
 from typing import Any, Callable, Iterator
 
@@ -41,7 +42,7 @@ class Entry:
     implementation: Any = None          # class or function that does the work
 
 
-def _first_line(obj) -> str:
+def _first_line(obj: Any) -> str:
     doc = (getattr(obj, "__doc__", None) or "").strip()
     return doc.splitlines()[0].strip().rstrip(".").replace("``", "") if doc else ""
 
@@ -82,11 +83,11 @@ class Registry:
             self._aliases[alias] = name
         return entry
 
-    def register(self, name: str | None = None, **kw) -> Callable:
+    def register(self, name: str | None = None, **kw: Any) -> Callable[[type], type]:
         """Class decorator: ``@REGISTRY.register("name", params=...)`` registers the
         decorated class as the implementation (and as the parameter model when it is
         one: a class with ``model_fields``)."""
-        def deco(cls):
+        def deco(cls: type) -> type:
             key = name or cls.__name__
             if hasattr(cls, "model_fields") and "params" not in kw:
                 self.add(key, params=cls, implementation=kw.get("implementation", cls),
@@ -179,7 +180,7 @@ def load_entry_point_plugins() -> None:
             print(f"dkfsim: plugin {ep.name!r} ({ep.value}) failed to load: {exc}", file=sys.stderr)
 
 
-def load_plugin(spec: str, base_dir: str | None = None) -> None:
+def load_plugin(spec: str, base_dir: str | PathLike | None = None) -> None:
     """Import a plugin: a module name (``my_pkg.my_estimator``) or a ``.py`` file
     (relative paths resolve against ``base_dir``).  Raises :class:`DkfsimError`."""
     if spec.endswith(".py"):
@@ -192,6 +193,8 @@ def load_plugin(spec: str, base_dir: str | None = None) -> None:
         if name in sys.modules:
             return
         module_spec = importlib.util.spec_from_file_location(name, path)
+        if module_spec is None or module_spec.loader is None:
+            raise DkfsimError(f"plugin {path} cannot be imported (not a Python file?)")
         module = importlib.util.module_from_spec(module_spec)
         sys.modules[name] = module
         try:

@@ -42,6 +42,7 @@ from dkfsim.core.resources import (
 from dkfsim.estimators.base import Estimate, Estimator, EstimatorResult
 from dkfsim.estimators.fusion import FUSERS, CrossCovariance
 from dkfsim.estimators.window import WindowFilter
+from dkfsim.network.links import Port
 from dkfsim.protocols.tree import TreeExchange
 from dkfsim.protocols.tree_compiled import CompiledTreeExchange
 from dkfsim.protocols.tree_compiled import usable as compiled_tree_usable
@@ -67,6 +68,9 @@ def late_horizon(scenario, n: int, L: int) -> int:
 
 class AntiDelayDKF(Estimator, params=AntiDelayParams):
     """The anti-delay distributed Kalman filter with optimal matrix-weighted fusion."""
+
+    params: AntiDelayParams
+    port: Port                  # (opened by start)
 
     def __init__(self, params: AntiDelayParams, ctx, main: bool = False):
         super().__init__(params, ctx)

@@ -170,7 +170,7 @@ class Estimator:
         if params is None:
             return
         kind = params.model_fields["kind"].default
-        if not isinstance(kind, str):
+        if not isinstance(kind, str) or not kind:
             raise TypeError(f"{cls.__name__}: params={params.__name__} declares no kind; declare it with "
                             f"class {params.__name__}(EstimatorParams, kind='...')")
         cls.Params = params

@@ -8,6 +8,8 @@ is not applicable (``None``), not zero.
 
 from __future__ import annotations
 
+from typing_extensions import override
+
 from dkfsim.components.estimators import CentralizedParams
 from dkfsim.core.resources import B_FLOAT, C_TICK, Cost
 from dkfsim.estimators.base import Estimate, Estimator, existing_information_bytes
@@ -19,6 +21,7 @@ class Centralized(Estimator, params=CentralizedParams):
 
     network_model = False
     @classmethod
+    @override
     def cost(cls, params, scenario, *, L: int, arcs: int, save: str = "estimates") -> Cost:
         K, nx = int(scenario.steps), scenario.nx
         copy = existing_information_bytes(scenario)

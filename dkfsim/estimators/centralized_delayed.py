@@ -14,6 +14,7 @@ by its first copy).
 from __future__ import annotations
 
 import numpy as np
+from typing_extensions import override
 
 from dkfsim.components.estimators import CentralizedDelayedParams
 from dkfsim.core.resources import B_FLOAT, C_NODE_ROW, C_PACKET, C_ROW, C_TICK, Cost
@@ -25,6 +26,7 @@ class CentralizedDelayed(Estimator, params=CentralizedDelayedParams):
     """The window filter of a fusion centre that receives every sensor over its own link."""
 
     @classmethod
+    @override
     def cost(cls, params, scenario, *, L: int, arcs: int, save: str = "estimates") -> Cost:
         K, n, nx = int(scenario.steps), scenario.n, scenario.nx
         L = min(L, K)

@@ -106,6 +106,7 @@ from an older tick (``stale``).
 from __future__ import annotations
 
 import numpy as np
+from typing_extensions import override
 
 from dkfsim.components.estimators import CIParams
 from dkfsim.core.resources import B_FLOAT, C_NODE_ROW, C_PACKET, C_ROW, C_TICK, Cost
@@ -125,9 +126,11 @@ class CIConsensus(RoundBased, params=CIParams):
     estimator's own port over the exchange graph's links.
     """
 
+    params: CIParams
     DROP_LATE = False           # older pairs are predicted forward, never dropped
 
     @classmethod
+    @override
     def cost(cls, params, scenario, *, L: int, arcs: int, save: str = "estimates") -> Cost:
         K, n, nx = int(scenario.steps), scenario.n, scenario.nx
         return Cost(params.label,
@@ -202,6 +205,7 @@ class CIConsensus(RoundBased, params=CIParams):
     def begin_tick(self, k: int) -> None:
         self._predict_correct(k)
 
+    @override
     def step(self, k: int, l: int) -> None:
         self._average(k)
 
@@ -209,6 +213,7 @@ class CIConsensus(RoundBased, params=CIParams):
         self._average(k)
         self.record(k, self.x, self.P)
 
+    @override
     def message(self, g: int):
         return "pair", {"Om": self.Om, "q": self.q, "x": self.x, "P": self.P}, self.nbytes
 

@@ -29,6 +29,7 @@ from __future__ import annotations
 
 import numpy as np
 import scipy.sparse
+from typing_extensions import override
 
 from dkfsim.components.estimators import DiffusionParams
 from dkfsim.estimators.rounds import RoundBased, solve_pair
@@ -37,7 +38,10 @@ from dkfsim.estimators.rounds import RoundBased, solve_pair
 class DiffusionKF(RoundBased, params=DiffusionParams):
     """Cattivelli & Sayed's diffusion KF at every node, batched over nodes."""
 
+    params: DiffusionParams
+
     @classmethod
+    @override
     def slots_of(cls, params) -> int:
         return 2
 
@@ -62,6 +66,7 @@ class DiffusionKF(RoundBased, params=DiffusionParams):
         self.xbar, self.Pbar = self.predict()
         self.msg = {"u": self.theta[k - 1], "U": self.omega_at(k)}
 
+    @override
     def step(self, k: int, l: int) -> None:
         g0 = (k - 1) * 2
         box = self.box["meas"]

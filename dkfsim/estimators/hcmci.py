@@ -26,12 +26,16 @@ dropped and counted late.  Runs on the scenario's full topology.
 
 from __future__ import annotations
 
+from typing_extensions import override
+
 from dkfsim.components.estimators import HCMCIParams
 from dkfsim.estimators.rounds import RoundBased, solve_pair, sym
 
 
 class HCMCI(RoundBased, params=HCMCIParams):
     """Battistelli et al.'s HCMCI at every node, batched over nodes."""
+
+    params: HCMCIParams
 
     WORK = 4
 
@@ -55,9 +59,11 @@ class HCMCI(RoundBased, params=HCMCIParams):
         self.s = {key: self.mix(own, box.f[key], have) for key, own in self.s.items()}
         self.s["Om"], self.s["dOm"] = sym(self.s["Om"]), sym(self.s["dOm"])
 
+    @override
     def step(self, k: int, l: int) -> None:
         self._average(k)
 
+    @override
     def message(self, g: int):
         return "h", self.s, self.info_bytes(2, 2)
 

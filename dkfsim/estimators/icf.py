@@ -24,12 +24,16 @@ full topology (:mod:`dkfsim.estimators.rounds`).
 
 from __future__ import annotations
 
+from typing_extensions import override
+
 from dkfsim.components.estimators import ICFParams
 from dkfsim.estimators.rounds import RoundBased, solve_pair, sym
 
 
 class ICF(RoundBased, params=ICFParams):
     """Kamal et al.'s ICF at every node, batched over nodes."""
+
+    params: ICFParams
 
     def start(self) -> None:
         self.start_rounds(self.ctx.topology_links(), int(self.params.rounds))
@@ -50,9 +54,11 @@ class ICF(RoundBased, params=ICFParams):
         self.V = sym(self.mix(self.V, box.f["V"], have))
         self.v = self.mix(self.v, box.f["v"], have)
 
+    @override
     def step(self, k: int, l: int) -> None:
         self._iterate(k)
 
+    @override
     def message(self, g: int):
         return "iv", {"V": self.V, "v": self.v}, self.info_bytes(1, 1)
 

@@ -24,6 +24,7 @@ scenario's full topology (:mod:`dkfsim.estimators.rounds`).
 from __future__ import annotations
 
 import numpy as np
+from typing_extensions import override
 
 from dkfsim.components.estimators import KCFParams
 from dkfsim.estimators.rounds import RoundBased, solve_pair
@@ -32,9 +33,12 @@ from dkfsim.estimators.rounds import RoundBased, solve_pair
 class KCF(RoundBased, params=KCFParams):
     """Olfati-Saber's Kalman-consensus filter at every node, batched over nodes."""
 
+    params: KCFParams
+
     WORK = 3
 
     @classmethod
+    @override
     def slots_of(cls, params) -> int:
         return 1
 
@@ -49,6 +53,7 @@ class KCF(RoundBased, params=KCFParams):
         self.xbar, self.Pbar = self.predict()
         self.msg = {"u": self.theta[k - 1], "U": self.omega_at(k), "xbar": self.xbar}
 
+    @override
     def message(self, g: int):
         return "m", self.msg, self.info_bytes(2, 1)
 

@@ -7,6 +7,8 @@ still accepted in a ``baselines:`` list.)
 
 from __future__ import annotations
 
+from typing_extensions import override
+
 from dkfsim.components.estimators import LocalOnlyParams
 from dkfsim.core.resources import B_FLOAT, C_NODE_ROW, C_ROW, Cost
 from dkfsim.estimators.base import Estimate, Estimator, existing_information_bytes
@@ -17,6 +19,7 @@ class LocalOnly(Estimator, params=LocalOnlyParams):
     """Each node's Kalman filter of its own measurements, batched over nodes."""
 
     @classmethod
+    @override
     def cost(cls, params, scenario, *, L: int, arcs: int, save: str = "estimates") -> Cost:
         K, n, nx = int(scenario.steps), scenario.n, scenario.nx
         return Cost(params.label, memory={"local_only": K * n * (nx + nx * nx) * B_FLOAT

@@ -27,11 +27,12 @@ from typing import Any
 
 import numpy as np
 import scipy.sparse
+from typing_extensions import override
 
 from dkfsim.core.linalg import solve
 from dkfsim.core.resources import B_FLOAT, C_NODE_ROW, C_PACKET, C_ROW, C_TICK, Cost
 from dkfsim.estimators.base import Estimate, Estimator, existing_information_bytes
-from dkfsim.network.links import PRIORITY_UPDATE, Link, Scheduled
+from dkfsim.network.links import PRIORITY_UPDATE, Link, Port, Scheduled
 
 
 # --------------------------------------------------------------------------- helpers
@@ -104,6 +105,7 @@ class RoundBased(Estimator):
     runs for every tick at start.
     """
 
+    port: Port                  # (opened by start_rounds)
     #: Drop (and count ``late``) a message once its last usable instant has passed.
     DROP_LATE = True
     #: Batched per-node matrix operations of one sub-slot (for :meth:`cost`).
@@ -115,6 +117,7 @@ class RoundBased(Estimator):
         return int(params.rounds)
 
     @classmethod
+    @override
     def cost(cls, params, scenario, *, L: int, arcs: int, save: str = "estimates") -> Cost:
         K, n, nx = int(scenario.steps), scenario.n, scenario.nx
         return Cost(params.label, memory={params.label: K * n * (nx + nx * nx) * B_FLOAT

@@ -34,10 +34,15 @@ changes *when* a node sends (docs/examples/tick_flood.py).
 
 from __future__ import annotations
 
-import numpy as np
+from collections.abc import Callable, Sequence
+from typing import Any
 
+import numpy as np
+from simpy.events import Event
+
+from dkfsim.components.faults import CrashSchedule
 from dkfsim.core.bits import mask_words, set_bits
-from dkfsim.network.links import PRIORITY_FLUSH, Scheduled
+from dkfsim.network.links import PRIORITY_FLUSH, Clock, Link, Port, Scheduled
 
 #: Bytes of a packet's header (sequence number, sender, receiver, length).
 PACKET_HEADER = 16
@@ -86,7 +91,8 @@ class Exchange:
     #: (every arc of the topology; undirected edges both ways).
     graph = "digraph"
 
-    def __init__(self, env, n, window, arrival=None, late_horizon=4096, nx=1, T_ns=1):
+    def __init__(self, env: Clock, n: int, window: Any, arrival: np.ndarray | None = None,
+                 late_horizon: int = 4096, nx: int = 1, T_ns: int = 1):
         self.env = env
         self.T_ns = int(T_ns)
         self.row_bytes = row_bytes(nx, n)
@@ -96,7 +102,7 @@ class Exchange:
         #: with the arrival log: node, origin mask, row, ns (flat, four entries per item) of
         #: every newly held or late contribution, written into ``arrival`` in bulk
         #: (:meth:`write_log`); each cell is written at most once, so order does not matter.
-        self._log: list | None = [] if arrival is not None else None
+        self._log: list[int] | None = [] if arrival is not None else None
         self.late_horizon = late_horizon
         self.rows: dict[int, RowState] = {}
         self.final: dict[int, list[int]] = {}
@@ -111,7 +117,7 @@ class Exchange:
         self._flush_cb = [self._make_flush(j) for j in range(n)]
 
     # -- wiring ----------------------------------------------------------------
-    def attach(self, port, links) -> None:
+    def attach(self, port: Port, links: Sequence[Link]) -> None:
         """Send through ``port`` over ``links`` (the exchange graph's arcs, in order).
 
         Links are indexed locally, ``0 .. len(links) - 1`` (``self.lid[link.id]``).
@@ -125,21 +131,21 @@ class Exchange:
         self.late_packets = [0] * self.n_links
         #: per link: the number of the last packet sent (links reorder: receivers keep the newest)
         self.seq = [0] * self.n_links
-        self.out_links = [[] for _ in range(self.n)]
+        self.out_links: list[list[Link]] = [[] for _ in range(self.n)]
         for link in self.links:
             self.out_links[link.src].append(link)
         by_arc = {(l.src, l.dst): i for i, l in enumerate(self.links)}
         self.reverse = [by_arc.get((l.dst, l.src)) for l in self.links]
 
-    def send(self, link, items) -> None:
+    def send(self, link: Link, items: Sequence[tuple[int, int]]) -> None:
         """Send one packet on ``link`` carrying ``items``, ``(row, origin mask)`` pairs (numbered
         per link, sized ``PACKET_HEADER + len(items) * row_bytes``)."""
         i = self.lid[link.id]
         self.seq[i] += 1
         self.port.send(link, (self.seq[i], items), PACKET_HEADER + len(items) * self.row_bytes)
 
-    def _make_flush(self, j):
-        def cb(_event, j=j):
+    def _make_flush(self, j: int) -> Callable[[Event], None]:
+        def cb(_event: Event, j: int = j) -> None:
             self._flush_due[j] = False
             self.flush(j)
         return cb
@@ -161,7 +167,7 @@ class Exchange:
             self._flush_due[node] = True
             Scheduled(self.env, self._flush_cb[node], PRIORITY_FLUSH, delay)
 
-    def _flush_all(self, _event) -> None:
+    def _flush_all(self, _event: Event) -> None:
         """Flush every due node, first due first; what a flush sends with zero latency is
         delivered before the next node flushes (as separate events of higher priority
         would be), so a zero-latency chain joins the flushes of the same instant."""
@@ -187,7 +193,7 @@ class Exchange:
         if st is not None and self.arrival is not None:
             self.final[row] = st.held
             self.final.pop(row - self.late_horizon, None)
-            if len(self._log) > 400_000:          # 100 000 entries: bound the log's memory
+            if self._log is not None and len(self._log) > 400_000:    # 100 000 entries: bound its memory
                 self.write_log()
 
     def finish(self) -> None:
@@ -196,7 +202,7 @@ class Exchange:
 
     def write_log(self) -> None:
         """Write the logged arrivals into the arrival array (seconds)."""
-        if not self._log:
+        if not self._log or self.arrival is None:
             return
         log, self._log = self._log, []
         k, o = set_bits(mask_words(log[1::4], -(-self.n // 64)))
@@ -232,15 +238,16 @@ class Exchange:
         c = new.bit_count()
         self.late += c
         self.late_per_node[node] += c
-        self._log.extend((node, new, row, self.env.now))
+        if self._log is not None:
+            self._log.extend((node, new, row, self.env.now))
 
     # -- protocol hooks ----------------------------------------------------------
     #: :class:`dkfsim.components.faults.CrashSchedule` (set by the estimator) or None.  A
     #: node that is down does not measure; the network drops what arrives at
     #: it, so it never has anything to send while down.
-    crashes = None
+    crashes: CrashSchedule | None = None
 
-    def measuring_nodes(self):
+    def measuring_nodes(self) -> Sequence[int]:
         """The nodes that measure now: all but those in a crash window."""
         if not self.crashes:
             return range(self.n)
@@ -252,7 +259,7 @@ class Exchange:
         schedules what it sends)."""
         raise NotImplementedError
 
-    def receive(self, link, payload) -> None:
+    def receive(self, link: Link, payload: Any) -> None:
         """Deliver a packet: late rows are counted, live ones go to :meth:`accept`."""
         seq, items = payload
         late = False
@@ -266,7 +273,7 @@ class Exchange:
         if late:
             self.late_packets[self.lid[link.id]] += 1
 
-    def accept(self, link, seq: int, row: int, st: RowState, mask: int) -> None:
+    def accept(self, link: Link, seq: int, row: int, st: RowState, mask: int) -> None:
         """Hook: packet number ``seq`` on ``link`` carries the aggregate ``mask`` (origins) for
         live ``row`` (state ``st``): gain what is new to ``link.dst`` and relay it."""
         raise NotImplementedError
@@ -275,7 +282,8 @@ class Exchange:
         """Hook: ``node``'s flush is due: :meth:`send` what it has for its out-links."""
         raise NotImplementedError
 
-    def counts(self) -> dict:
+    def counts(self) -> dict[str, Any]:
+        """The exchange's own counts: ``late`` (in ``late_unit``), per node, duplicates, stale."""
         return {"late": self.late, "late_per_node": list(self.late_per_node),
                 "late_unit": "contributions" if self.arrival is not None else "packet_rows",
                 "duplicates": self.duplicates, "stale": self.stale}

@@ -8,6 +8,8 @@ strongly connected digraph: the directed-graph case of the paper
 
 from __future__ import annotations
 
+from typing_extensions import override
+
 from dkfsim.core.registry import PROTOCOLS
 from dkfsim.protocols.base import Exchange
 
@@ -33,6 +35,7 @@ class FloodExchange(Exchange):
             self.gain(i, row, st, 1 << i)
             self._queue(i, row, 1 << i, -1)
 
+    @override
     def accept(self, link, seq, row, st, mask) -> None:
         j = link.dst
         new = mask & ~st.held[j]

@@ -21,6 +21,7 @@ import os
 
 import numpy as np
 from simpy.events import NORMAL
+from typing_extensions import override
 
 from dkfsim.core.jit import entry_point
 from dkfsim.network.links import PRIORITY_FLUSH, Scheduled
@@ -183,6 +184,7 @@ class CompiledTreeExchange(TreeExchange):
             self._flush_pending = True
             Scheduled(self.env, self._on_flush, PRIORITY_FLUSH)
 
+    @override
     def receive(self, link, payload) -> None:
         raise RuntimeError("the compiled tree exchange receives nothing through its port")
 

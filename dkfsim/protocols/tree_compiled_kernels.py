@@ -144,7 +144,6 @@ def _receive(p, now, CT, G, rowid, held, inbox, inseq, dirty, due, queue, pk, pk
     A row already final is late: one per (packet, row), or with the arrival log (``logf``) one
     per contribution the receiver did not hold when the row became final (``fheld``: the
     holdings of the last final rows, ``frow`` which), logged; older rows count every origin."""
-    n = held.shape[1]
     S = rowid.shape[0]
     W = held.shape[2]
     e = pk[p, 0]
@@ -262,7 +261,6 @@ def flush_all(now, until, header, row_bytes, T_ns, CT, G, out_ptr, out_idx, lkin
     delivered (they may make more nodes due).  Packets with a latency go on the heap and a
     new arrival instant is listed in ``newt``.  Returns :data:`NEED_ROOM` if the pool has
     fewer free packets than the next node has out-links (nothing of that node done yet)."""
-    n = held.shape[1]
     S = rowid.shape[0]
     W = held.shape[2]
     while CT[QLEN] > 0:

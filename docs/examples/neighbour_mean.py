@@ -20,6 +20,7 @@ from typing import Annotated
 
 import numpy as np
 from pydantic import Field
+from typing_extensions import override
 
 from dkfsim.components.estimators import EstimatorParams
 from dkfsim.core.resources import B_FLOAT, C_PACKET, C_TICK, Cost
@@ -38,6 +39,7 @@ class NeighbourMean(Estimator, params=NeighbourMeanParams):
     """Own Kalman filter, then the mean with the neighbours' latest estimates."""
 
     @classmethod
+    @override
     def cost(cls, params, scenario, *, L, arcs, save="estimates") -> Cost:
         """Its own filter's ``x`` and ``P``, the reported ``x``, and what ``existing_information()``
         copies (``L`` and ``save`` do not matter to it)."""
