@@ -70,8 +70,8 @@ def test_a_wrong_shape_fails():
             e = super().estimate()
             return Estimate(np.swapaxes(e.x, 1, 2).copy(), None)         # (K, nx, n), not (K, n, nx)
 
-    message = fails("wrong_shape", "shapes: x of 'wrong_shape' has shape (150, 3, 6)")
-    assert "(K, n, nx) = (150, 6, 3)" in message
+    message = fails("wrong_shape", "shapes: x of 'wrong_shape' has shape (100, 3, 6)")
+    assert "(K, n, nx) = (100, 6, 3)" in message
 
 
 @pytest.mark.usefixtures("isolated_registries")

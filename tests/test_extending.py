@@ -103,6 +103,7 @@ def test_two_estimators_sending_together_see_the_same_delays():
     assert second != first[:len(second)]                       # a second packet draws anew
 
 
+@pytest.mark.slow
 def test_the_example_estimator_runs_everywhere(tmp_path):
     path = case1_with(tmp_path, steps=30, plugins=[str(EXAMPLES / "neighbour_mean.py")],
                       estimators=[{"kind": "neighbour_mean"}, {"kind": "centralized"}])
@@ -196,6 +197,7 @@ def dkfsim_command(*args: str, site: Path) -> subprocess.CompletedProcess:
     return subprocess.run(cmd + list(args), env=env, capture_output=True, text=True, timeout=300)
 
 
+@pytest.mark.slow
 def test_an_installed_estimator_plugin_runs_in_a_fresh_process(tmp_path):
     """Issue 18: the ``dkfsim.plugins`` entry point of an installed package declaring
     docs/examples/neighbour_mean.py.  A fresh process lists it and runs a scenario that names
@@ -219,6 +221,7 @@ def test_an_installed_estimator_plugin_runs_in_a_fresh_process(tmp_path):
     np.testing.assert_array_equal(installed, as_file["x_neighbour_mean"])
 
 
+@pytest.mark.slow
 def test_the_estimators_entry_point_group_is_the_same_mechanism(tmp_path):
     site = tmp_path / "site"
     throwaway_package(site, "dkfsim.estimators")
@@ -227,6 +230,7 @@ def test_the_estimators_entry_point_group_is_the_same_mechanism(tmp_path):
     assert "neighbour_mean" in listed.stdout
 
 
+@pytest.mark.slow
 def test_a_broken_plugin_is_reported_once_and_dkfsim_works_on(tmp_path):
     site = tmp_path / "site"
     throwaway_package(site, "dkfsim.plugins", module="broken")

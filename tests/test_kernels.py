@@ -106,6 +106,7 @@ def test_kernels_switch_is_recorded_in_the_summary(monkeypatch, tmp_path):
     assert json.loads((tmp_path / "out" / "summary.json").read_text())["kernels"] == "numpy"
 
 
+@pytest.mark.slow
 def test_threads_starting_together_compile_the_kernels_once():
     """Runs in threads (a Dask worker with threads, a notebook) may reach the first filter at
     the same instant; each must get the compiled kernels, none may jit a jitted function."""
