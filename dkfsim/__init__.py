@@ -12,9 +12,10 @@ Python API (mirrors the CLI; each call runs BLAS on one thread)::
     dkfsim.sweep("scenarios/sweep_delay_bound.yaml", jobs=2)
     dkfsim.maxdelay("scenarios/paper_case1.yaml", relative=1.5, steps=300)
 
-The package's folders are its stages, in the order data flows (README, "How
-it works"); importing it registers every built-in component, after which the first
-registry read imports the installed entry-point plugins (docs/extending.md).
+The package's folders are its stages, in the order data flows
+(docs/architecture.md); importing it registers every built-in component, after
+which the first registry read imports the installed entry-point plugins
+(docs/extending.md).
 """
 
 from dkfsim import components, estimators, model, protocols  # noqa: F401  (registration)

@@ -1,6 +1,6 @@
 """Shared scenario builders for the dkfsim correctness tests.
 
-Scenarios are built as plain dicts (the schema of the README's "Scenario files") with
+Scenarios are built as plain dicts (the schema of docs/scenarios.md) with
 explicit edge lists where a test needs to know the graph (diameters, paths),
 so that the expected values never depend on the engine's graph generators.
 The engine is imported lazily: the reference self-tests run without it.

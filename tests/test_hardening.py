@@ -445,3 +445,7 @@ def test_a_regular_install_runs_copies_of_the_data_scenarios_anywhere(tmp_path):
         assert p.returncode == 0 and int(p.stdout) > 0, p.stderr
     meta = next(site.glob("dkfsim-*.dist-info")) / "METADATA"
     assert "License-Expression: MIT AND CC-BY-4.0" in meta.read_text()
+    # the version from its one place, and the type information for the installing project's checker
+    from dkfsim.core.version import __version__
+    assert f"\nVersion: {__version__}\n" in meta.read_text()
+    assert (site / "dkfsim" / "py.typed").is_file()

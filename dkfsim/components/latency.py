@@ -27,7 +27,7 @@ unless a key says otherwise (``d_t`` counts sampling periods).
     a two-state Markov channel per link, stepped once per tick: latency and
     loss depend on the state at the send instant.
 
-Draws are keyed (the common-random-numbers rule, docs/design.md §9): the
+Draws are keyed (the common-random-numbers rule, docs/design.md §3): the
 latency of a packet is ``from_uniform(u)`` with ``u =
 keyed_uniform(key(link, "latency"), send instant, seq)``, ``seq`` the
 packet's number among those its sender put on the link at that instant.

@@ -1,6 +1,6 @@
 """The scenario schema: every key of a scenario file, validated in one place.
 
-A scenario is a YAML mapping (the README's "Scenario files");
+A scenario is a YAML mapping (docs/scenarios.md, "The keys");
 :func:`dkfsim.config.load.load_scenario` reads it and validates it into a
 frozen :class:`Scenario`.  Field checks live in the parameter models,
 cross-field checks (shapes, graph, protocol, buffer, time range, each

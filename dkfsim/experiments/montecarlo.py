@@ -9,13 +9,13 @@ all runs).
 
 What the runs share is validated and built once (:class:`Template`: the
 pinned scenario, its graphs and its system; run ``r`` is a copy with its
-seed, docs/design.md §10).  Each run is scored where it ran
+seed, docs/design.md §9).  Each run is scored where it ran
 (:func:`run_rows`) and sends back only small data: per estimate the squared error per tick and component ``(K, nx)``
 (averaged over nodes for per-node estimates), the NEES per tick ``(K,)``
 and per-run scalars.  The parent folds the runs in run order, whatever order
 they finish in, so every output is identical for any ``J``.
 
-Estimates of a run (the one vocabulary: docs/design.md and the README's name table):
+Estimates of a run (the one vocabulary: docs/design.md and docs/estimators.md):
 ``fused`` (the anti-delay DKF's fused estimate, absent with ``fusion: none``),
 ``local`` (each DKF node's own real-time estimate, per node), then every
 estimator the scenario lists under its name (``centralized``,

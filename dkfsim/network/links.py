@@ -6,7 +6,7 @@ exact integer comparison.  Every estimator of a run talks through its own
 :class:`Port` of one :class:`Network`: a port sends packets over the links
 and receives its own packets back; it counts them (per link and in total).
 
-Draws are keyed, the common-random-numbers rule of docs/design.md §9: a
+Draws are keyed, the common-random-numbers rule of docs/design.md §3: a
 packet's latency, loss, duplication and jitter are pure functions of (the
 link, the send instant, the packet's number among those its port put on the
 link at that instant), drawn by :func:`dkfsim.core.streams.keyed_uniform`
