@@ -32,7 +32,7 @@ import numpy as np
 from dkfsim.config.load import load_scenario
 from dkfsim.config.schema import Scenario
 from dkfsim.core.registry import ESTIMATORS, Entry
-from dkfsim.engine.driver import run
+from dkfsim.engine.driver import Run, run
 from dkfsim.engine.estimate import exchange_shape
 from dkfsim.engine.results import RunResult, load_run
 from dkfsim.estimators.base import Estimator
@@ -247,15 +247,19 @@ def _peak_without_it(steps: int) -> int:
 
 
 def _peak(base: dict, estimators: list[dict], steps: int) -> int:
-    """tracemalloc's peak (bytes) during a run: every Python and numpy allocation.  A full
-    collection first, so that the cyclic collector runs at the same moments in every run
-    whatever the process did before (else the peak moves by tens of kB)."""
+    """tracemalloc's peak (bytes) while one run is set up and simulated: every Python and numpy
+    allocation.  The run is driven by :class:`~dkfsim.engine.driver.Run` itself, without
+    :func:`~dkfsim.engine.driver.run`'s thread pinning, whose scan of the loaded libraries
+    allocates more the more the process has imported and would decide a small run's peak; and
+    after a full collection, so that the cyclic collector runs at the same moments whatever the
+    process ran before."""
     scenario = load_scenario({**copy.deepcopy(base), "estimators": estimators, "steps": steps})
     gc.collect()
     tracemalloc.start()
     try:
         tracemalloc.reset_peak()
-        run(scenario, save="estimates")
+        with np.errstate(all="ignore"):
+            Run(scenario, save="estimates").run()
         return tracemalloc.get_traced_memory()[1]
     finally:
         tracemalloc.stop()
