@@ -295,6 +295,13 @@ class Port:
             delivered[link.id] += 1
             receive(link, due[k + 1])
 
+    def set_counts(self, link: Link, **counts: int) -> None:
+        """Set counters of ``link`` (names of :data:`COUNTERS`): for a protocol whose packets
+        travel outside the port (the compiled ``tree``, whose kernels count them)."""
+        self._grow()
+        for key, value in counts.items():
+            self._count[key][link.id] = value
+
     def count_late(self, n: int = 1) -> None:
         """Count ``n`` late items: what is late is the estimator's to decide (e.g. a message
         delivered after its last usable instant, dropped unused); ``counts()["late"]``."""

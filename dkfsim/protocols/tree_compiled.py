@@ -192,11 +192,9 @@ class CompiledTreeExchange(TreeExchange):
     def finish(self) -> None:
         """Write the kernels' per-link counts into the port (what ``port.counts()`` reports);
         the arrival log is already written."""
-        count = self.port._count
-        self.port._grow()
-        for k, key in ((0, "sent"), (1, "delivered"), (3, "bytes")):
-            for link, v in zip(self.links, self.counts_[k].tolist()):
-                count[key][link.id] = v
+        sent, delivered, _, nbytes = (row.tolist() for row in self.counts_)
+        for i, link in enumerate(self.links):
+            self.port.set_counts(link, sent=sent[i], delivered=delivered[i], bytes=nbytes[i])
 
     @property
     def late_packets(self) -> list[int]:
