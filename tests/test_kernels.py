@@ -17,9 +17,11 @@ depend on the kernel path.
 
 from __future__ import annotations
 
+import json
 import os
 import subprocess
 import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -100,7 +102,6 @@ def test_numba_path_is_bit_identical_run_to_run(monkeypatch):
 
 
 def test_kernels_switch_is_recorded_in_the_summary(monkeypatch, tmp_path):
-    import json
     res = _run(scenario(4, steps=5), "numpy", monkeypatch, save="summary")
     res.save(tmp_path / "out")
     assert json.loads((tmp_path / "out" / "summary.json").read_text())["kernels"] == "numpy"
@@ -153,3 +154,36 @@ def test_batched_filter_paths_agree(monkeypatch):
         xb, Pb = out["numpy" + suffix]
         assert rowwise_rel_err(xa, xb) <= 1e-10
         assert rowwise_rel_err(Pa, Pb) <= 1e-10
+
+
+@pytest.mark.slow
+def test_kernels_taking_namedtuples_load_from_the_disk_cache_in_a_new_process():
+    """The kernels take module-level namedtuples of arrays; numba must still load them from its
+    disk cache in a new process (a local namedtuple type, or a step from another module,
+    would compile them again in every process).  A first process compiles or loads them; a
+    second one must compile nothing: every kernel a run of paper_case1 calls (window,
+    fusion, baseline filter, compiled tree, the Python exchange's fold) hit the cache."""
+    code = """
+import json, os, sys
+import dkfsim
+from dkfsim.estimators import kernels
+from dkfsim.protocols import tree_compiled_kernels as tk
+sc = dkfsim.load_scenario(sys.argv[1], overrides=["steps=30"])
+dkfsim.run(sc, save="full")
+os.environ["DKFSIM_EXCHANGE"] = "python"
+dkfsim.run(sc, save="estimates")
+stats = {}
+for mod, names in ((kernels, ("window_rows", "xi_rows", "filter_rows")),
+                   (tk, ("deliver", "flush_all", "measure", "fold_masks"))):
+    for name in names:
+        d = getattr(mod, name)
+        stats[name] = [sum(d.stats.cache_hits.values()), sum(d.stats.cache_misses.values())]
+print(json.dumps(stats))
+"""
+    env = {k: v for k, v in os.environ.items() if not k.startswith("DKFSIM_")}
+    case = str(Path(__file__).resolve().parents[1] / "scenarios" / "paper_case1.yaml")
+    for _attempt in ("first", "second"):
+        p = subprocess.run([sys.executable, "-c", code, case], capture_output=True, text=True, timeout=600, env=env)
+        assert p.returncode == 0, p.stderr[-2000:]
+    stats = json.loads(p.stdout.strip().splitlines()[-1])
+    assert all(hits > 0 and misses == 0 for hits, misses in stats.values()), stats

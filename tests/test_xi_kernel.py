@@ -93,9 +93,12 @@ def _stale(c, want, starts):
 
 def _compiled(c, starts):
     Xi = c["old"].copy()
-    kernels.compiled().xi_rows(Xi, c["Xi0"], c["G"], c["P"], c["held"], c["A"], bool((c["A"] == 1.0).all()),
-                               c["column_sensor"], c["U"][None], False, c["Phi"], c["Lq"], starts,
-                               int(starts.min()), c["rows"] - 1, (0,) * c["nx"])
+    cross = kernels.Cross(Xi, c["Xi0"], c["A"], bool((c["A"] == 1.0).all()), c["column_sensor"], c["U"][None], False,
+                          c["Phi"], c["Lq"])
+    rows, n, nx = c["P"].shape[:3]
+    ring = kernels.Ring(np.zeros((rows, n, nx)), c["P"], c["G"], np.zeros_like(c["P"]), np.zeros((rows, n, nx)),
+                        c["held"])                   # x, Omega, Theta are not read
+    kernels.compiled().xi_rows(cross, ring, starts, int(starts.min()), c["rows"] - 1, (0,) * c["nx"])
     return Xi
 
 

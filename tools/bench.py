@@ -23,18 +23,28 @@
    LocalCluster of 2 worker processes (start-up included), runs per minute and
    whether the rows are identical.
 
+Before/after (``--base REF``): the runs of sections 1, 2 and 4 that exercise the kernels
+(paper_case1 on the three kernel paths, a 50-node tree with matrix fusion, a 200-node tree
+without, the 1000-node tree), each in a fresh process, alternating the commit ``REF``
+(``git archive``, unpacked in a temporary folder) and this checkout ``--repeats`` times;
+prints the CPU seconds of each (min over the repeats, each run after a short warm-up run of
+the same kind) and the ratio this / base.  Nothing else runs in that mode.
+
 Usage: ``python tools/bench.py [--ticks 1000] [--sizes 12 50 200] [--fit-sizes 12 50 200 1000]
-[--skip-sweep] [--big-ticks 200] [--skip-threads] [--skip-executors]``.
+[--skip-sweep] [--big-ticks 200] [--skip-threads] [--skip-executors]``, or
+``python tools/bench.py --base REF [--repeats 3]``.
 Timing lives here, never in the tests.
 """
 
 from __future__ import annotations
 
 import argparse
+import json
 import math
 import multiprocessing
 import os
 import resource
+import subprocess
 import sys
 import tempfile
 import time
@@ -43,7 +53,9 @@ from pathlib import Path
 import simpy
 
 ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
+#: Which dkfsim the measurements import: this checkout, or (the probes of ``--base``) another tree.
+TREE_ENV = "DKFSIM_BENCH_TREE"
+sys.path.insert(0, os.environ.get(TREE_ENV) or str(ROOT))
 
 import dkfsim  # noqa: E402
 from dkfsim.estimators.kernels import KERNELS_ENV  # noqa: E402
@@ -182,6 +194,78 @@ def executors_compared(steps: int, runs: int) -> list[tuple[str, float, bool]]:
     return out
 
 
+def kernel_workloads(ticks: int, scale_ticks: int, big_nodes: int, big_ticks: int) -> dict:
+    """The kernel-heavy runs of ``--base``: name -> (scenario, save, environment variable or None)."""
+    case1 = dkfsim.load_scenario(ROOT / "scenarios" / "paper_case1.yaml", overrides=[f"steps={ticks}"])
+    big = dkfsim.load_scenario(tree_scenario(big_nodes, big_ticks, "none"),
+                               overrides=["links.default.latency.d_t=1", "estimators=[]"])
+    return {
+        "paper_case1 (compiled tree)": (case1, "estimates", None),
+        "paper_case1 (Python exchange)": (case1, "estimates", (EXCHANGE_ENV, "python")),
+        "paper_case1 (numpy kernels)": (case1, "estimates", (KERNELS_ENV, "numpy")),
+        f"50-node tree, matrix fusion, {scale_ticks} ticks": (tree_scenario(50, scale_ticks, "matrix"), "summary", None),
+        f"200-node tree, no fusion, {scale_ticks} ticks": (tree_scenario(200, scale_ticks, "none"), "summary", None),
+        f"{big_nodes}-node tree, d_t = 1, {big_ticks} ticks": (big, "summary", None),
+    }
+
+
+def probe(args) -> int:
+    """One pass over :func:`kernel_workloads` in this process; CPU seconds as JSON on stdout."""
+    from dkfsim.core.threads import pin_process
+    from dkfsim.engine.driver import Run  # the engine: the run without the API's result building
+    pin_process()                         # one BLAS thread, as dkfsim.run (the engine alone does not pin)
+    out = {"file": dkfsim.__file__}
+    for name, (sc, save, env) in kernel_workloads(args.ticks, args.scale_ticks, args.big_nodes,
+                                                  args.big_ticks).items():
+        if env:
+            os.environ[env[0]] = env[1]
+        try:
+            warm = dkfsim.load_scenario(sc, overrides=[f"steps={min(20, int(sc.steps))}"])
+            Run(warm, save=save).run()              # kernels of this kind loaded (or compiled)
+            c0 = time.process_time()
+            Run(sc, save=save).run()
+            out[name] = time.process_time() - c0
+        finally:
+            if env:
+                del os.environ[env[0]]
+    print(json.dumps(out))
+    return 0
+
+
+def before_after(args) -> int:
+    """``--base``: :func:`probe` alternated between the commit ``args.base`` and this checkout."""
+    with tempfile.TemporaryDirectory(prefix="dkfsim-bench-base-") as tmp:
+        base = Path(tmp) / "base"
+        base.mkdir()
+        archive = subprocess.run(["git", "-C", str(ROOT), "archive", args.base], check=True,
+                                 capture_output=True).stdout
+        subprocess.run(["tar", "-x", "-C", str(base)], input=archive, check=True)
+        trees = {"base": base, "this": ROOT}
+        flags = ["--ticks", str(args.ticks), "--scale-ticks", str(args.scale_ticks), "--big-nodes",
+                 str(args.big_nodes), "--big-ticks", str(args.big_ticks)]
+        got: dict[str, list[dict]] = {name: [] for name in trees}
+        for rep in range(args.repeats + 1):           # the first round compiles or loads: not counted
+            for name, tree in trees.items():
+                env = {**os.environ, TREE_ENV: str(tree)}
+                env.pop(KERNELS_ENV, None)
+                env.pop(EXCHANGE_ENV, None)
+                done = subprocess.run([sys.executable, str(Path(__file__).resolve()), "--probe", *flags],
+                                      env=env, check=True, capture_output=True, text=True)
+                res = json.loads(done.stdout.strip().splitlines()[-1])
+                if not res.pop("file").startswith(str(tree)):
+                    raise SystemExit(f"the probe did not import the dkfsim of {tree}")
+                if rep:
+                    got[name].append(res)
+    print(f"kernels before/after: {args.base} (base) against this checkout, CPU seconds of one run, "
+          f"min of {args.repeats} runs alternated in fresh processes")
+    print(f"  {'run':48s} {'base':>8s} {'this':>8s} {'this/base':>10s}")
+    for key in got["this"][0]:
+        b = min(r[key] for r in got["base"])
+        t = min(r[key] for r in got["this"])
+        print(f"  {key:48s} {b:8.3f} {t:8.3f} {t / b:10.3f}")
+    return 0
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--ticks", type=int, default=1000)
@@ -196,7 +280,15 @@ def main(argv=None) -> int:
     ap.add_argument("--thread-ticks", type=int, default=100, help="ticks of the BLAS-threads runs")
     ap.add_argument("--skip-executors", action="store_true",
                     help="skip the Monte Carlo comparison of the executors")
+    ap.add_argument("--base", metavar="REF", help="before/after: the kernel-heavy runs of this commit against "
+                    "this checkout, alternated (see the module's docstring); nothing else runs")
+    ap.add_argument("--repeats", type=int, default=3, help="alternations of --base (default 3)")
+    ap.add_argument("--probe", action="store_true", help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
+    if args.probe:
+        return probe(args)
+    if args.base:
+        return before_after(args)
 
     sc = dkfsim.load_scenario(ROOT / "scenarios" / "paper_case1.yaml", overrides=[f"steps={args.ticks}"])
     t0 = time.perf_counter()

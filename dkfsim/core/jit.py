@@ -37,14 +37,17 @@ class LazyKernels:
     """The functions ``names`` of module ``module``, replaced by their ``numba.njit(cache=True)``
     versions (no fastmath, no parallel, nogil) on the first :meth:`get`.
 
-    ``names`` lists callees before callers: numba resolves a callee by its module global.  Runs
-    in threads (a Dask worker with threads, a notebook) may call :meth:`get` together: one
-    compiles, under a lock, and none jits an already jitted function.
+    ``names`` lists callees before callers: numba resolves a callee by its module global; those
+    also in ``inline`` are inlined into their callers by numba (``inline="always"``: a small
+    step a kernel calls per node or packet costs no call).  Runs in threads (a Dask worker
+    with threads, a notebook) may call :meth:`get` together: one compiles, under a lock, and
+    none jits an already jitted function.
     """
 
-    def __init__(self, module: str, names: tuple[str, ...]):
+    def __init__(self, module: str, names: tuple[str, ...], inline: tuple[str, ...] = ()):
         self.module = module
         self.names = tuple(names)
+        self.inline = frozenset(inline)
         self._done = False
         self._lock = threading.Lock()
 
@@ -56,7 +59,9 @@ class LazyKernels:
                     numba = optional("numba")
                     mod = sys.modules[self.module]
                     for name in self.names:
-                        setattr(mod, name, numba.njit(cache=True, fastmath=False, nogil=True)(getattr(mod, name)))
+                        inline = "always" if name in self.inline else "never"
+                        setattr(mod, name, numba.njit(cache=True, fastmath=False, nogil=True,
+                                                      inline=inline)(getattr(mod, name)))
                     self._done = True
         return sys.modules[self.module]
 

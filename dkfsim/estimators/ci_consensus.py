@@ -114,6 +114,7 @@ from dkfsim.estimators.base import existing_information_bytes
 from dkfsim.estimators.rounds import Powers as _Powers
 from dkfsim.estimators.rounds import RoundBased, metropolis_weights
 from dkfsim.estimators.rounds import solve_pair as _solve_pair
+from dkfsim.estimators.window import predict
 
 __all__ = ["CIConsensus", "metropolis_weights"]
 
@@ -159,8 +160,7 @@ class CIConsensus(RoundBased, params=CIParams):
 
     # -- the filter steps (batched over nodes) -----------------------------
     def _predict_correct(self, k: int) -> None:
-        xp = self.x @ self.Phi.T
-        Pp = self.Phi @ self.P @ self.Phi.T + self.Q
+        xp, Pp = predict(self.Phi, self.Q, self.x, self.P)
         Omp, qp = _solve_pair(Pp, xp)
         self._set_pair(Omp + self.omega_at(k), qp + self.theta[k - 1])
 

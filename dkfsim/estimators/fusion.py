@@ -27,6 +27,7 @@ from __future__ import annotations
 import numpy as np
 
 from dkfsim.core.linalg import solve_posdef, solve_symmetric
+from dkfsim.estimators import kernels
 from dkfsim.model.system import psd_factor
 
 
@@ -151,6 +152,10 @@ class CrossCovariance:
         #: all weights one: the compiled path may sum the shared-measurement term over
         #: the columns a node misses (kernels.xi_rows)
         self._unit = bool((window.A == 1.0).all())
+        info = self.info
+        self._cross = kernels.Cross(self.Xi, self.Xi0, window.A, self._unit, self._column_sensor,
+                                    info.factor if info.varying else info.factor[None], bool(info.varying),
+                                    window.Phi, self.Lq)
 
     def on_rows(self, first: int, last: int, starts: np.ndarray) -> None:
         """Recompute ``Xi`` of rows ``first .. last``; node ``i``'s blocks from row ``starts[i]``.
@@ -161,10 +166,7 @@ class CrossCovariance:
         """
         w = self.w
         if w.kernels == "numba":
-            st, info = w.state, self.info
-            factor = info.factor if info.varying else info.factor[None]
-            w._k.xi_rows(self.Xi, self.Xi0, st.G, st.P, st.held, w.A, self._unit, self._column_sensor,
-                         factor, info.varying, w.Phi, self.Lq, starts, first, last, (0,) * self.nx)
+            w._k.xi_rows(self._cross, w.ring, starts, first, last, (0,) * self.nx)
             return
         order = np.sort(starts)
         for row in range(first, last + 1):

@@ -6,7 +6,12 @@ a call per row for those; these kernels run a whole tick's rows in one call.
 They compute exactly what :func:`dkfsim.estimators.window.information_step`
 and :class:`dkfsim.estimators.fusion.CrossCovariance` compute in numpy (the
 same formulas, only the summation order differs), without ``fastmath`` and
-single-threaded, so each path is bit-identical run to run.
+single-threaded, so each path is bit-identical run to run.  Their arrays come
+grouped in the module-level namedtuples :class:`Model`, :class:`Ring` and
+:class:`Cross` (numba loads kernels taking namedtuples from its disk cache
+like any other; the types must be importable by name for that), and a kernel
+is split into named steps in this module (numba's cache does not notice an
+edit to a jitted function of another file), inlined into it (``_INLINE``).
 
 Which path runs: numba when it is installed, unless the environment variable
 ``DKFSIM_KERNELS=numpy`` forces the pure-numpy path (the fallback on
@@ -18,13 +23,38 @@ docs/design.md §4 ("Kernel paths").
 
 from __future__ import annotations
 
+from collections import namedtuple
+
 import numpy as np
 
 from dkfsim.core.jit import KERNELS_ENV, LazyKernels, kernel_path  # noqa: F401  (re-exported)
 
 #: The kernels, callees before callers (numba resolves a callee by its module global).
-_KERNELS = ("_step", "xi_blocks", "window_rows", "xi_rows", "filter_rows")
-_lazy = LazyKernels(__name__, _KERNELS)
+_KERNELS = ("_predict", "_eliminate", "_back_substitute", "_posterior", "_nan", "_step", "window_rows", "filter_rows",
+            "xi_blocks", "_xi_work", "_active", "_held_columns", "_node_terms", "_column_terms", "_missed_terms",
+            "_row_terms", "_mirror", "xi_rows")
+#: The steps, inlined into the kernels that call them (numba's ``inline="always"``): as calls,
+#: one node's predict/update in five steps cost the window filter half again its time
+#: (docs/decisions.md 120).  They bind a namedtuple's fields to locals once, at their top.
+_INLINE = ("_predict", "_eliminate", "_back_substitute", "_posterior", "_nan", "_step", "xi_blocks", "_xi_work", "_active",
+           "_held_columns", "_node_terms", "_column_terms", "_missed_terms", "_row_terms", "_mirror")
+_lazy = LazyKernels(__name__, _KERNELS, inline=_INLINE)
+
+#: The filters' model: ``Phi``, ``Q`` and the prior of each filter, ``x0`` (b, nx), ``P0`` (b, nx, nx).
+Model = namedtuple("Model", "Phi Q x0 P0")
+#: The window filter's ring, slot ``row % S`` (:class:`~dkfsim.estimators.window.WindowState`):
+#: per node the estimates ``x``, ``P``, the gain ``G = P Pp^-1``, the information sums
+#: ``Omega``, ``Theta`` and the origins held (``held``, no origin axis without the fusion).
+Ring = namedtuple("Ring", "x P G Omega Theta held")
+#: The cross-covariance recursion (:class:`~dkfsim.estimators.fusion.CrossCovariance`): its
+#: ring ``Xi`` (S, N, N) and the prior's ``Xi0``, the weights ``A`` (node x origin; ``unit``:
+#: all one), the origin of each measurement column, the measurement factor ``U`` (1, nx, M),
+#: or (K, nx, M) when ``varying``, ``Phi``, and ``Lq`` with ``Lq Lq' = Q``.
+Cross = namedtuple("Cross", "Xi Xi0 A unit column_sensor factor varying Phi Lq")
+#: Scratch of one predict/update: ``Pp``, ``M`` (nx, nx) and the right-hand side (nx, nx + 1).
+_Work = namedtuple("_Work", "Pp M rhs")
+#: Scratch of :func:`xi_rows` (allocated by :func:`_xi_work`, which says what each holds).
+_XiWork = namedtuple("_XiWork", "Ft PU Y2 Y1 sel R Out F_i Ot active comp wj MO hc cnt need_c need_d act")
 
 
 def compiled():
@@ -34,8 +64,9 @@ def compiled():
     return _lazy.get()
 
 
-def _step(Phi, Q, xprev, Pprev, Om, Th, x_out, P_out, G_out, Pp, M, rhs):
-    """One information-form predict/update of one node (see window.information_step)."""
+def _predict(Phi, Q, xprev, Pprev, Om, Th, Pp, M, rhs):
+    """``Pp = Phi Pprev Phi' + Q`` and the system ``M [G | x] = rhs = [I | Pp Theta + Phi xprev]``,
+    ``M = I + Pp Omega`` (see window.information_step)."""
     nx = Phi.shape[0]
     # Pp = Phi Pprev Phi' + Q  (M used as scratch for Phi Pprev)
     for a in range(nx):
@@ -65,8 +96,12 @@ def _step(Phi, Q, xprev, Pprev, Om, Th, x_out, P_out, G_out, Pp, M, rhs):
             for c in range(nx):
                 u += Pp[a, c] * Om[c, b]
             M[a, b] = u + (1.0 if a == b else 0.0)
-    # Gaussian elimination with partial pivoting (LAPACK getrf's pivot rule).
-    ok = True
+
+
+def _eliminate(M, rhs):
+    """Gaussian elimination of ``M`` with partial pivoting (LAPACK getrf's pivot rule),
+    applied to ``rhs``; False when ``M`` is singular (or NaN)."""
+    nx = M.shape[0]
     for c in range(nx):
         p = c
         best = abs(M[c, c])
@@ -75,9 +110,8 @@ def _step(Phi, Q, xprev, Pprev, Om, Th, x_out, P_out, G_out, Pp, M, rhs):
             if v > best:
                 best = v
                 p = r
-        if not best > 0.0:             # singular (or NaN): this node's row is NaN
-            ok = False
-            break
+        if not best > 0.0:
+            return False
         if p != c:
             for b in range(nx):
                 M[c, b], M[p, b] = M[p, b], M[c, b]
@@ -91,13 +125,12 @@ def _step(Phi, Q, xprev, Pprev, Om, Th, x_out, P_out, G_out, Pp, M, rhs):
                     M[r, b] -= f * M[c, b]
                 for b in range(nx + 1):
                     rhs[r, b] -= f * rhs[c, b]
-    if not ok:
-        for a in range(nx):
-            x_out[a] = np.nan
-            for b in range(nx):
-                P_out[a, b] = np.nan
-                G_out[a, b] = np.nan
-        return
+    return True
+
+
+def _back_substitute(M, rhs):
+    """``rhs := U^-1 rhs`` with ``U`` the eliminated ``M``: ``[G | x]``."""
+    nx = M.shape[0]
     for c in range(nx - 1, -1, -1):
         piv = M[c, c]
         for b in range(nx + 1):
@@ -105,11 +138,15 @@ def _step(Phi, Q, xprev, Pprev, Om, Th, x_out, P_out, G_out, Pp, M, rhs):
             for r in range(c + 1, nx):
                 s -= M[c, r] * rhs[r, b]
             rhs[c, b] = s / piv
+
+
+def _posterior(Pp, M, rhs, x_out, P_out, G_out):
+    """``x``, ``G`` from the solved ``rhs`` and ``P = G Pp``, symmetrized (``M`` scratch)."""
+    nx = Pp.shape[0]
     for a in range(nx):
         x_out[a] = rhs[a, nx]
         for b in range(nx):
             G_out[a, b] = rhs[a, b]
-    # P = G Pp, symmetrized
     for a in range(nx):
         for b in range(nx):
             s = 0.0
@@ -121,17 +158,37 @@ def _step(Phi, Q, xprev, Pprev, Om, Th, x_out, P_out, G_out, Pp, M, rhs):
             P_out[a, b] = 0.5 * (M[a, b] + M[b, a])
 
 
-def window_rows(Phi, Q, x0, P0, X, P, G, Omega, Theta, starts, first, last):
-    """Re-run rows ``first .. last`` of the ring; node ``i`` from row ``starts[i]`` on.
+def _nan(x_out, P_out, G_out):
+    """A node whose update is singular: its row is NaN."""
+    nx = x_out.shape[0]
+    for a in range(nx):
+        x_out[a] = np.nan
+        for b in range(nx):
+            P_out[a, b] = np.nan
+            G_out[a, b] = np.nan
 
-    ``X, P, G, Omega, Theta`` are the ring arrays of
-    :class:`~dkfsim.estimators.window.WindowState` (slot ``row % S``); row 0
-    starts from ``x0, P0`` (per node).
+
+def _step(Phi, Q, xprev, Pprev, Om, Th, x_out, P_out, G_out, w):
+    """One information-form predict/update of one node (see window.information_step), with
+    the scratch ``w`` (:class:`_Work`)."""
+    Pp, M, rhs = w.Pp, w.M, w.rhs
+    _predict(Phi, Q, xprev, Pprev, Om, Th, Pp, M, rhs)
+    if not _eliminate(M, rhs):
+        _nan(x_out, P_out, G_out)
+        return
+    _back_substitute(M, rhs)
+    _posterior(Pp, M, rhs, x_out, P_out, G_out)
+
+
+def window_rows(m, ring, starts, first, last):
+    """Re-run rows ``first .. last`` of the :class:`Ring`; node ``i`` from row ``starts[i]`` on.
+
+    Row 0 starts from the prior of :class:`Model` ``m`` (per node).
     """
+    X, P, G, Omega, Theta = ring.x, ring.P, ring.G, ring.Omega, ring.Theta
+    Phi, Q, x0, P0 = m.Phi, m.Q, m.x0, m.P0
     S, n, nx = X.shape
-    Pp = np.empty((nx, nx))
-    M = np.empty((nx, nx))
-    rhs = np.empty((nx, nx + 1))
+    w = _Work(np.empty((nx, nx)), np.empty((nx, nx)), np.empty((nx, nx + 1)))
     for row in range(first, last + 1):
         slot = row % S
         prev = (row - 1) % S
@@ -139,14 +196,30 @@ def window_rows(Phi, Q, x0, P0, X, P, G, Omega, Theta, starts, first, last):
             if starts[i] > row:
                 continue
             if row == 0:
-                _step(Phi, Q, x0[i], P0[i], Omega[slot, i], Theta[slot, i],
-                      X[slot, i], P[slot, i], G[slot, i], Pp, M, rhs)
+                _step(Phi, Q, x0[i], P0[i], Omega[slot, i], Theta[slot, i], X[slot, i], P[slot, i], G[slot, i], w)
             else:
-                _step(Phi, Q, X[prev, i], P[prev, i], Omega[slot, i], Theta[slot, i],
-                      X[slot, i], P[slot, i], G[slot, i], Pp, M, rhs)
+                _step(Phi, Q, X[prev, i], P[prev, i], Omega[slot, i], Theta[slot, i], X[slot, i], P[slot, i],
+                      G[slot, i], w)
 
 
-def xi_blocks(Xi_prev, Xi, i, F_i, Ft, Y1, sel, E, Y2, R, Out, T):
+def filter_rows(m, Omega, per_row, Theta, xs, Ps):
+    """``b`` independent information filters of :class:`Model` ``m`` over ``K`` rows (see
+    window.batched_filter): ``Omega`` (1 or K, b, nx, nx), ``Theta`` (K, b, nx); results into
+    ``xs``, ``Ps``."""
+    Phi, Q, x0, P0 = m.Phi, m.Q, m.x0, m.P0
+    K, b, nx = Theta.shape
+    w = _Work(np.empty((nx, nx)), np.empty((nx, nx)), np.empty((nx, nx + 1)))
+    G = np.empty((nx, nx))
+    for r in range(K):
+        Om = Omega[r] if per_row else Omega[0]
+        for i in range(b):
+            if r == 0:
+                _step(Phi, Q, x0[i], P0[i], Om[i], Theta[r, i], xs[r, i], Ps[r, i], G, w)
+            else:
+                _step(Phi, Q, xs[r - 1, i], Ps[r - 1, i], Om[i], Theta[r, i], xs[r, i], Ps[r, i], G, w)
+
+
+def xi_blocks(Xi_prev, Xi, i, E, w, T):
     """Block row ``i`` of one row's ``Xi`` (node ``i`` re-ran the row).
 
     ``C_ij = F_i C_ij(prev) F_j' + sum_e Y1[e, a] Y2[sel[e], b n + j]`` for
@@ -158,6 +231,7 @@ def xi_blocks(Xi_prev, Xi, i, F_i, Ft, Y1, sel, E, Y2, R, Out, T):
     is symmetrized; :func:`xi_rows` makes the whole matrix symmetric once all
     active nodes are done.
     """
+    F_i, Ft, Y1, sel, Y2, R, Out = w.F_i, w.Ft, w.Y1, w.sel, w.Y2, w.R, w.Out
     nx, n = len(T), Ft.shape[2]
     i0 = i * nx
     # R[a, d, j] = (F_i C_ij(prev))[a, d]
@@ -195,15 +269,241 @@ def xi_blocks(Xi_prev, Xi, i, F_i, Ft, Y1, sel, E, Y2, R, Out, T):
             Xi[i0 + a, i0 + b] = 0.5 * (Out[a, b, i] + Out[b, a, i])
 
 
-def xi_rows(Xi, Xi0, G, P, held, A, unit, column_sensor, factor, varying, Phi, Lq, starts, first, last, T):
+def _xi_work(n, M, T):
+    """The scratch arrays of :func:`xi_rows` for ``n`` nodes and ``M`` measurement columns."""
+    nx = len(T)
+    N = n * nx
+    return _XiWork(
+        np.empty((nx, nx, n)),                 # Ft[a, b, j] = (G_j Phi)[a, b]
+        np.empty((M, N)),                      # PU: (P_j u_m)[b] at [m, b n + j]
+        np.empty((3 * nx + 2 * M, N)),         # Y2: the terms' rows over (b, j), see xi_rows
+        np.empty((3 * nx + M, nx)),            # Y1: node i's coefficients of the Y2 rows ...
+        np.empty(3 * nx + M, dtype=np.int64),  # sel: ... and which rows
+        np.empty((nx, nx, n)),                 # R, Out: xi_blocks' scratch
+        np.empty((nx, nx, n)),
+        np.empty((nx, nx)),                    # F_i = G_i Phi
+        np.empty((nx, nx)),                    # Ot = U U'
+        np.empty(n, dtype=np.bool_),           # active: the node re-runs this row
+        np.empty(n, dtype=np.bool_),           # comp: the node sums over the columns it misses
+        np.empty(n),                           # wj: a per-node weight
+        np.empty((nx, nx, n)),                 # MO[a, c, j]: the information node j misses
+        np.empty((M, n)),                      # hc[m, j]: node j holds column m (0/1)
+        np.empty(n),                           # cnt[j]: the columns node j holds
+        np.empty(M, dtype=np.bool_),           # need_c: some complement node misses column m
+        np.empty(M, dtype=np.bool_),           # need_d: some direct node holds column m
+        np.empty(n, dtype=np.int64))           # act: the active nodes, ascending
+
+
+def _active(starts, row, w):
+    """Mark the nodes that re-run ``row`` (``w.active``, listed in ``w.act``); how many."""
+    active, act = w.active, w.act
+    na = 0
+    for i in range(starts.shape[0]):
+        active[i] = starts[i] <= row
+        if active[i]:
+            act[na] = i
+            na += 1
+    return na
+
+
+def _held_columns(hs, column_sensor, unit, na, w, T):
+    """Which columns each node holds (``w.hc``, ``w.cnt``) and which sum each active node
+    takes (``w.comp``: the complement when weights are one and it is shorter); how many take
+    the complement."""
+    hc, cnt, comp, act = w.hc, w.cnt, w.comp, w.act
+    nx = len(T)
+    M, n = hc.shape
+    for m in range(M):
+        o = column_sensor[m]
+        for j in range(n):
+            hc[m, j] = 1.0 if hs[j, o] else 0.0
+    for j in range(n):
+        cnt[j] = 0.0
+    for m in range(M):
+        for j in range(n):
+            cnt[j] += hc[m, j]
+    n_comp = 0
+    for k in range(na):
+        i = act[k]
+        comp[i] = unit and M - cnt[i] + 2 * nx < cnt[i]
+        if comp[i]:
+            n_comp += 1
+    return n_comp
+
+
+def _node_terms(Gs, Ps, Phi, Lq, w, T):
+    """Per node ``j``: ``F_j = G_j Phi`` (``w.Ft``) and the ``Y2`` rows of ``G_j Lq``
+    (rows ``0..nx``) and ``P_j`` (rows ``nx..2nx``)."""
+    Ft, Y2 = w.Ft, w.Y2
+    nx, n = len(T), Gs.shape[0]
+    P2 = nx
+    for j in range(n):
+        for a in range(nx):
+            for b in range(nx):
+                s = 0.0
+                t = 0.0
+                for c in range(nx):
+                    s += Gs[j, a, c] * Phi[c, b]
+                    t += Gs[j, a, c] * Lq[c, b]
+                Ft[a, b, j] = s
+                Y2[b, a * n + j] = t
+                Y2[P2 + a, b * n + j] = Ps[j, a, b]
+
+
+def _column_terms(U, A, column_sensor, na, w, T):
+    """The ``Y2`` rows of the columns the active nodes' sums need: ``(P_j u_m)`` (``w.PU``)
+    times ``missed_jm`` for a column a complement node misses (rows ``ZC + m``), times
+    ``a_jm h_jm`` for a column a direct node holds (rows ``ZD + m``)."""
+    PU, Y2, hc, comp, act, wj, need_c, need_d = w.PU, w.Y2, w.hc, w.comp, w.act, w.wj, w.need_c, w.need_d
+    nx = len(T)
+    M, n = hc.shape
+    N = n * nx
+    P2, ZC, ZD = nx, 3 * nx, 3 * nx + M
+    for m in range(M):
+        need_c[m] = False
+        need_d[m] = False
+        for k in range(na):
+            i = act[k]
+            if comp[i]:
+                if hc[m, i] == 0.0:
+                    need_c[m] = True
+            elif hc[m, i] != 0.0:
+                need_d[m] = True
+    # PU[m, b n + j] = sum_d P_j[d, b] U[d, m]
+    for m in range(M):
+        if not (need_c[m] or need_d[m]):
+            continue
+        u = U[0, m]
+        for q in range(N):
+            PU[m, q] = Y2[P2, q] * u
+        for d in range(1, nx):
+            u = U[d, m]
+            for q in range(N):
+                PU[m, q] += Y2[P2 + d, q] * u
+        o = column_sensor[m]
+        if need_c[m]:
+            for j in range(n):
+                wj[j] = 1.0 - hc[m, j]
+            for b in range(nx):
+                for j in range(n):
+                    Y2[ZC + m, b * n + j] = wj[j] * PU[m, b * n + j]
+        if need_d[m]:
+            for j in range(n):
+                wj[j] = A[j, o] * hc[m, j]
+            for b in range(nx):
+                for j in range(n):
+                    Y2[ZD + m, b * n + j] = wj[j] * PU[m, b * n + j]
+
+
+def _missed_terms(U, w, T):
+    """For the complement sums: ``Ot = U U'`` and the ``Y2`` rows ``2nx..3nx`` of
+    ``(MO_j P_j)[d, b]``, ``MO_j`` the information of the columns node ``j`` misses."""
+    Ot, MO, Y2, hc, wj = w.Ot, w.MO, w.Y2, w.hc, w.wj
+    nx = len(T)
+    M, n = hc.shape
+    P2, D2 = nx, 2 * nx
+    for a in range(nx):
+        for b in range(nx):
+            s = 0.0
+            for m in range(M):
+                s += U[a, m] * U[b, m]
+            Ot[a, b] = s
+    # MO[a, c, j] = sum over the columns j misses of U[a, m] U[c, m]
+    for a in range(nx):
+        for c in range(nx):
+            for j in range(n):
+                MO[a, c, j] = 0.0
+    for m in range(M):
+        for j in range(n):
+            wj[j] = 1.0 - hc[m, j]
+        for a in range(nx):
+            for c in range(nx):
+                uu = U[a, m] * U[c, m]
+                if uu != 0.0:
+                    for j in range(n):
+                        MO[a, c, j] += uu * wj[j]
+    for d in range(nx):
+        for b in range(nx):
+            q = b * n
+            for j in range(n):
+                Y2[D2 + d, q + j] = MO[d, 0, j] * Y2[P2, q + j]
+            for c in range(1, nx):
+                for j in range(n):
+                    Y2[D2 + d, q + j] += MO[d, c, j] * Y2[P2 + c, q + j]
+
+
+def _row_terms(i, Ps, A, column_sensor, w, T):
+    """Node ``i``'s block row as terms: ``w.F_i``, and coefficients ``w.Y1`` of the ``Y2``
+    rows ``w.sel``; returns how many terms."""
+    F_i, Ft, Y1, Y2, sel, PU, Ot, hc = w.F_i, w.Ft, w.Y1, w.Y2, w.sel, w.PU, w.Ot, w.hc
+    nx = len(T)
+    M, n = hc.shape
+    P2, D2, ZC, ZD = nx, 2 * nx, 3 * nx, 3 * nx + M
+    for a in range(nx):
+        for c in range(nx):
+            F_i[a, c] = Ft[a, c, i]
+    # (G_i Lq)(G_j Lq)'
+    E = 0
+    for d in range(nx):
+        for a in range(nx):
+            Y1[E, a] = Y2[d, a * n + i]
+        sel[E] = d
+        E += 1
+    if w.comp[i]:
+        # (P_i Omega_tot - (MO_i P_i)') P_j - P_i (MO_j P_j) + sum_{m missed by i} (P_i u_m) Z_m'
+        for d in range(nx):
+            for a in range(nx):
+                s = 0.0
+                for c in range(nx):
+                    s += Ps[i, a, c] * Ot[c, d]
+                Y1[E, a] = s - Y2[D2 + d, a * n + i]
+                Y1[E + 1, a] = -Ps[i, a, d]
+            sel[E] = P2 + d
+            sel[E + 1] = D2 + d
+            E += 2
+        for m in range(M):
+            if hc[m, i] == 0.0:
+                for a in range(nx):
+                    Y1[E, a] = PU[m, a * n + i]
+                sel[E] = ZC + m
+                E += 1
+    else:
+        for m in range(M):
+            wgt = A[i, column_sensor[m]] * hc[m, i]
+            if wgt != 0.0:
+                for a in range(nx):
+                    Y1[E, a] = wgt * PU[m, a * n + i]
+                sel[E] = ZD + m
+                E += 1
+    return E
+
+
+def _mirror(Xs, na, w, T):
+    """Symmetry: block ``(j, i)`` := block ``(i, j)'`` for each active ``i``, from the smaller
+    index's block row when both are active.  Row by row, so the writes stay within one row."""
+    active, act = w.active, w.act
+    nx = len(T)
+    n = active.shape[0]
+    for j in range(n):
+        j0 = j * nx
+        for b in range(nx):
+            q = j0 + b
+            for k in range(na):
+                i = act[k]
+                if i < j or not active[j]:
+                    i0 = i * nx
+                    for a in range(nx):
+                        Xs[q, i0 + a] = Xs[i0 + a, q]
+
+
+def xi_rows(c, ring, starts, first, last, T):
     """The cross-covariance recursion for rows ``first .. last`` (see fusion.CrossCovariance).
 
-    ``Xi`` is the ring (S, N, N), ``G, P, held`` the window filter's ring
-    arrays, ``factor`` the measurement factor ``U`` (1, nx, M), or (K, nx, M)
-    when ``varying``.  Node ``i``'s block row and column change from row
-    ``starts[i]`` on; the rest of each row's ``Xi`` is left as it is.  ``T``
-    is a tuple of ``nx`` zeros: its length is a compile-time constant, so the
-    loops over the state's components unroll (each ``nx`` compiles once).
+    ``c`` is the :class:`Cross` (the ``Xi`` ring and the recursion's inputs), ``ring`` the
+    window filter's :class:`Ring` (its ``G``, ``P`` and ``held``).  Node ``i``'s block row
+    and column change from row ``starts[i]`` on; the rest of each row's ``Xi`` is left as it
+    is.  ``T`` is a tuple of ``nx`` zeros: its length is a compile-time constant, so the loops
+    over the state's components unroll (each ``nx`` compiles once).
 
     The shared-measurement term ``P_i S_ij P_j``, ``S_ij = sum_m a_im a_jm
     h_im h_jm u_m u_m'`` (``h`` the held flags, ``u_m`` column ``m`` of ``U``),
@@ -220,210 +520,29 @@ def xi_rows(Xi, Xi0, G, P, held, A, unit, column_sensor, factor, varying, Phi, L
     ``(b, j)`` (index ``b n + j``): rows ``0..nx``: ``(G_j Lq)[b, d]``;
     ``nx..2nx``: ``P_j[d, b]``; ``2nx..3nx``: ``(MO_j P_j)[d, b]``; then
     ``(P_j u_m)[b]`` times ``missed_jm`` (``M`` rows) and times ``a_jm h_jm``
-    (``M`` rows).
+    (``M`` rows).  Per row, in steps: the active nodes, the columns each holds
+    and the sum it takes, the per-node and per-column ``Y2`` rows, the
+    complement's, then each active node's block row and the mirror.
     """
-    S, n, nx = G.shape[0], G.shape[1], len(T)
-    N = n * nx
-    M = factor.shape[2]
-    Ft = np.empty((nx, nx, n))
-    PU = np.empty((M, N))              # (P_j u_m)[b] at [m, b n + j]
-    Y2 = np.empty((3 * nx + 2 * M, N))
-    Y1 = np.empty((3 * nx + M, nx))
-    sel = np.empty(3 * nx + M, dtype=np.int64)
-    R = np.empty((nx, nx, n))
-    Out = np.empty((nx, nx, n))
-    F_i = np.empty((nx, nx))
-    Ot = np.empty((nx, nx))
-    active = np.empty(n, dtype=np.bool_)
-    comp = np.empty(n, dtype=np.bool_)
-    wj = np.empty(n)
-    MO = np.empty((nx, nx, n))
-    hc = np.empty((M, n))
-    cnt = np.empty(n)
-    need_c = np.empty(M, dtype=np.bool_)
-    need_d = np.empty(M, dtype=np.bool_)
-    act = np.empty(n, dtype=np.int64)
-    P2, D2, ZC, ZD = nx, 2 * nx, 3 * nx, 3 * nx + M
+    G, P, held, Xi = ring.G, ring.P, ring.held, c.Xi
+    S, n = G.shape[0], G.shape[1]
+    w = _xi_work(n, c.factor.shape[2], T)
     for row in range(first, last + 1):
+        na = _active(starts, row, w)
+        if na == 0:
+            continue
         slot = row % S
-        U = factor[row if varying else 0]
-        hs = held[slot]
-        na = 0
-        for i in range(n):
-            active[i] = starts[i] <= row
-            if active[i]:
-                act[na] = i
-                na += 1
-        if na == 0:
-            continue
-        # hc[m, j]: node j holds column m (its origin), as 0/1; its count per node
-        for m in range(M):
-            o = column_sensor[m]
-            for j in range(n):
-                hc[m, j] = 1.0 if hs[j, o] else 0.0
-        for j in range(n):
-            cnt[j] = 0.0
-        for m in range(M):
-            for j in range(n):
-                cnt[j] += hc[m, j]
-        n_direct = 0
-        n_comp = 0
-        for k in range(na):
-            i = act[k]
-            comp[i] = unit and M - cnt[i] + 2 * nx < cnt[i]
-            if comp[i]:
-                n_comp += 1
-            else:
-                n_direct += 1
-        if na == 0:
-            continue
-        Gs = G[slot]
+        U = c.factor[row if c.varying else 0]
+        n_comp = _held_columns(held[slot], c.column_sensor, c.unit, na, w, T)
         Ps = P[slot]
-        for j in range(n):
-            for a in range(nx):
-                for b in range(nx):
-                    s = 0.0
-                    t = 0.0
-                    for c in range(nx):
-                        s += Gs[j, a, c] * Phi[c, b]
-                        t += Gs[j, a, c] * Lq[c, b]
-                    Ft[a, b, j] = s
-                    Y2[b, a * n + j] = t
-                    Y2[P2 + a, b * n + j] = Ps[j, a, b]
-        # Which columns m the active nodes' sums need: missed by a complement node
-        # (rows ZC), held by a direct one (rows ZD).
-        for m in range(M):
-            need_c[m] = False
-            need_d[m] = False
-            for k in range(na):
-                i = act[k]
-                if comp[i]:
-                    if hc[m, i] == 0.0:
-                        need_c[m] = True
-                elif hc[m, i] != 0.0:
-                    need_d[m] = True
-        # PU[m, b n + j] = sum_d P_j[d, b] U[d, m]
-        for m in range(M):
-            if not (need_c[m] or need_d[m]):
-                continue
-            u = U[0, m]
-            for q in range(N):
-                PU[m, q] = Y2[P2, q] * u
-            for d in range(1, nx):
-                u = U[d, m]
-                for q in range(N):
-                    PU[m, q] += Y2[P2 + d, q] * u
-            o = column_sensor[m]
-            if need_c[m]:
-                for j in range(n):
-                    wj[j] = 1.0 - hc[m, j]
-                for b in range(nx):
-                    for j in range(n):
-                        Y2[ZC + m, b * n + j] = wj[j] * PU[m, b * n + j]
-            if need_d[m]:
-                for j in range(n):
-                    wj[j] = A[j, o] * hc[m, j]
-                for b in range(nx):
-                    for j in range(n):
-                        Y2[ZD + m, b * n + j] = wj[j] * PU[m, b * n + j]
+        _node_terms(G[slot], Ps, c.Phi, c.Lq, w, T)
+        _column_terms(U, c.A, c.column_sensor, na, w, T)
         if n_comp > 0:
-            # Ot = U U';  (MO_j P_j)[d, b] at Y2[D2 + d, b n + j]
-            for a in range(nx):
-                for b in range(nx):
-                    s = 0.0
-                    for m in range(M):
-                        s += U[a, m] * U[b, m]
-                    Ot[a, b] = s
-            # MO[a, c, j] = sum over the columns j misses of U[a, m] U[c, m]
-            for a in range(nx):
-                for c in range(nx):
-                    for j in range(n):
-                        MO[a, c, j] = 0.0
-            for m in range(M):
-                for j in range(n):
-                    wj[j] = 1.0 - hc[m, j]
-                for a in range(nx):
-                    for c in range(nx):
-                        uu = U[a, m] * U[c, m]
-                        if uu != 0.0:
-                            for j in range(n):
-                                MO[a, c, j] += uu * wj[j]
-            for d in range(nx):
-                for b in range(nx):
-                    q = b * n
-                    for j in range(n):
-                        Y2[D2 + d, q + j] = MO[d, 0, j] * Y2[P2, q + j]
-                    for c in range(1, nx):
-                        for j in range(n):
-                            Y2[D2 + d, q + j] += MO[d, c, j] * Y2[P2 + c, q + j]
-        Xi_prev = Xi0 if row == 0 else Xi[(row - 1) % S]
+            _missed_terms(U, w, T)
+        Xi_prev = c.Xi0 if row == 0 else Xi[(row - 1) % S]
         Xs = Xi[slot]
         for i in range(n):
-            if not active[i]:
-                continue
-            for a in range(nx):
-                for c in range(nx):
-                    F_i[a, c] = Ft[a, c, i]
-            # (G_i Lq)(G_j Lq)'
-            E = 0
-            for d in range(nx):
-                for a in range(nx):
-                    Y1[E, a] = Y2[d, a * n + i]
-                sel[E] = d
-                E += 1
-            if comp[i]:
-                # (P_i Omega_tot - (MO_i P_i)') P_j - P_i (MO_j P_j) + sum_{m missed by i} (P_i u_m) Z_m'
-                for d in range(nx):
-                    for a in range(nx):
-                        s = 0.0
-                        for c in range(nx):
-                            s += Ps[i, a, c] * Ot[c, d]
-                        Y1[E, a] = s - Y2[D2 + d, a * n + i]
-                        Y1[E + 1, a] = -Ps[i, a, d]
-                    sel[E] = P2 + d
-                    sel[E + 1] = D2 + d
-                    E += 2
-                for m in range(M):
-                    if hc[m, i] == 0.0:
-                        for a in range(nx):
-                            Y1[E, a] = PU[m, a * n + i]
-                        sel[E] = ZC + m
-                        E += 1
-            else:
-                for m in range(M):
-                    w = A[i, column_sensor[m]] * hc[m, i]
-                    if w != 0.0:
-                        for a in range(nx):
-                            Y1[E, a] = w * PU[m, a * n + i]
-                        sel[E] = ZD + m
-                        E += 1
-            xi_blocks(Xi_prev, Xs, i, F_i, Ft, Y1, sel, E, Y2, R, Out, T)
-        # Symmetry: block (j, i) := block (i, j)' for each active i, from the smaller index's
-        # block row when both are active.  Row by row, so the writes stay within one row.
-        for j in range(n):
-            j0 = j * nx
-            for b in range(nx):
-                q = j0 + b
-                for k in range(na):
-                    i = act[k]
-                    if i < j or not active[j]:
-                        i0 = i * nx
-                        for a in range(nx):
-                            Xs[q, i0 + a] = Xs[i0 + a, q]
-
-
-def filter_rows(Phi, Q, x0, P0, Omega, per_row, Theta, xs, Ps):
-    """``b`` independent information filters over ``K`` rows (see window.batched_filter):
-    ``Omega`` (1 or K, b, nx, nx), ``Theta`` (K, b, nx); results into ``xs``, ``Ps``."""
-    K, b, nx = Theta.shape
-    Pp = np.empty((nx, nx))
-    M = np.empty((nx, nx))
-    G = np.empty((nx, nx))
-    rhs = np.empty((nx, nx + 1))
-    for r in range(K):
-        Om = Omega[r] if per_row else Omega[0]
-        for i in range(b):
-            if r == 0:
-                _step(Phi, Q, x0[i], P0[i], Om[i], Theta[r, i], xs[r, i], Ps[r, i], G, Pp, M, rhs)
-            else:
-                _step(Phi, Q, xs[r - 1, i], Ps[r - 1, i], Om[i], Theta[r, i], xs[r, i], Ps[r, i], G, Pp, M, rhs)
+            if w.active[i]:
+                E = _row_terms(i, Ps, c.A, c.column_sensor, w, T)
+                xi_blocks(Xi_prev, Xs, i, E, w, T)
+        _mirror(Xs, na, w, T)

@@ -32,6 +32,7 @@ from typing_extensions import override
 from dkfsim.core.linalg import solve
 from dkfsim.core.resources import B_FLOAT, C_NODE_ROW, C_PACKET, C_ROW, C_TICK, Cost
 from dkfsim.estimators.base import Estimate, Estimator, existing_information_bytes
+from dkfsim.estimators.window import predict
 from dkfsim.network.links import PRIORITY_UPDATE, Link, Port, Scheduled
 
 
@@ -135,8 +136,10 @@ class RoundBased(Estimator):
         self.P = np.broadcast_to(np.asarray(s.P0, float), (n, nx, nx)).copy()
 
     def predict(self) -> tuple[np.ndarray, np.ndarray]:
-        """Every node's predicted ``(x, P)`` from its posterior ``self.x``, ``self.P``."""
-        return self.x @ self.Phi.T, sym(self.Phi @ self.P @ self.Phi.T + self.Q)
+        """Every node's predicted ``(x, P)`` from its posterior ``self.x``, ``self.P``, ``P``
+        symmetrized."""
+        xp, Pp = predict(self.Phi, self.Q, self.x, self.P)
+        return xp, sym(Pp)
 
     def info_bytes(self, vectors: int, matrices: int) -> int:
         """Nominal size of a message of ``vectors`` nx-vectors and ``matrices`` symmetric

@@ -28,6 +28,13 @@ from dkfsim.estimators import kernels
 from dkfsim.protocols import tree_compiled_kernels
 
 
+def predict(Phi, Q, x, P):
+    """The prediction of a batch of filters: ``(Phi x, Phi P Phi' + Q)`` for ``x`` (b, nx) and
+    ``P`` (b, nx, nx), not symmetrized (the window, ``ci_consensus`` and the other round-based
+    estimators predict with these exact operations; each symmetrizes or not as before)."""
+    return x @ Phi.T, Phi @ P @ Phi.T + Q
+
+
 def information_step(Phi, Q, x_prev, P_prev, Omega, Theta):
     """One predict/update for a batch of filters.
 
@@ -38,9 +45,7 @@ def information_step(Phi, Q, x_prev, P_prev, Omega, Theta):
     """
     nx = Phi.shape[0]
     eye = _eye(nx)
-    xp = x_prev @ Phi.T
-    Pp = Phi @ P_prev @ Phi.T
-    Pp += Q
+    xp, Pp = predict(Phi, Q, x_prev, P_prev)
     M = Pp @ Omega
     M += eye
     rhs = np.empty(Pp.shape[:-1] + (nx + 1,))
@@ -84,8 +89,9 @@ def batched_filter(Phi, Q, x0, P0, Omega, Theta):
     P = np.broadcast_to(np.asarray(P0, float), (b, nx, nx))
     per_row = Omega.ndim == 4
     if kernels.kernel_path() == "numba":         # one compiled call instead of K numpy steps
-        kernels.compiled().filter_rows(np.asarray(Phi, float), np.asarray(Q, float), np.ascontiguousarray(x),
-                                       np.ascontiguousarray(P), np.ascontiguousarray(Omega if per_row else Omega[None], float),
+        model = kernels.Model(np.asarray(Phi, float), np.asarray(Q, float), np.ascontiguousarray(x),
+                              np.ascontiguousarray(P))
+        kernels.compiled().filter_rows(model, np.ascontiguousarray(Omega if per_row else Omega[None], float),
                                        per_row, np.ascontiguousarray(Theta, float), xs, Ps)
         return xs, Ps
     for r in range(K):
@@ -181,13 +187,20 @@ class WindowFilter:
         self.P0 = np.broadcast_to(np.asarray(P0, float), (n, nx, nx)).copy()
         #: contributions reported since the last update: node, origin bitmask, row (flat)
         self._pend: list[int] = []
-        #: each node's earliest row changed since the last update by an exchange that folds
-        #: contributions into the ring itself (:mod:`dkfsim.protocols.tree_compiled`)
+        #: each node's earliest row changed since the last update, written by the folds: this
+        #: filter's own and an exchange's that folds into the ring itself (:mod:`dkfsim.protocols.tree_compiled`)
         self.starts_in = np.full(n, NO_ROW, dtype=np.int64)
         self._mask_words = -(-self.theta.shape[1] // 64)
         #: ``"numba"`` or ``"numpy"`` (:func:`dkfsim.estimators.kernels.kernel_path`)
         self.kernels = kernels.kernel_path()
         self._k = kernels.compiled() if self.kernels == "numba" else None
+        st = self.state
+        #: the ring as the kernels take it (:class:`dkfsim.estimators.kernels.Ring`)
+        self.ring = kernels.Ring(st.x, st.P, st.G, st.Omega, st.Theta, st.held)
+        self._model = kernels.Model(self.Phi, self.Q, self.x0, self.P0)
+        omega = info.omega if info.varying else info.omega[None]
+        self._fold = tree_compiled_kernels.Fold(self.A, omega, bool(info.varying), self.theta, st.Omega, st.Theta,
+                                                st.held, self.starts_in)
         #: node-rows recomputed so far (the filtering work; tools/bench.py fits its cost)
         self.node_rows = 0
 
@@ -218,19 +231,20 @@ class WindowFilter:
     def _apply_pending(self) -> np.ndarray | None:
         """Fold pending contributions into the ring; each node's earliest changed row
         (``n`` ints, a huge number for nodes without news), or None."""
+        if self._pend:
+            if self.kernels == "numba":
+                # The bit walk lives with the compiled tree protocol, which folds the same way.
+                i, r, words = self._pending_arrays()
+                tree_compiled_kernels.compiled().fold_masks(i, r, words, self._fold)
+            else:
+                self._fold_numpy()
         starts = self.starts_in.copy()
         self.starts_in.fill(NO_ROW)           # in place: an exchange may hold a reference
-        if not self._pend:
-            return None if starts.min() == NO_ROW else starts
+        return None if starts.min() == NO_ROW else starts
+
+    def _fold_numpy(self) -> None:
+        """The pending contributions added to the ring in numpy (the order of :meth:`_unpack`)."""
         st = self.state
-        if self.kernels == "numba":
-            i, r, words = self._pending_arrays()
-            info = self.info
-            omega = info.omega if info.varying else info.omega[None]
-            # The bit walk lives with the compiled tree protocol, which folds the same way.
-            tree_compiled_kernels.compiled().fold_masks(i, r, words, self.A, omega, info.varying, self.theta,
-                                                        st.Omega, st.Theta, st.held, starts)
-            return starts
         i, o, r = self._unpack()
         slot = r % self.S
         a = self.A[i, o]
@@ -238,8 +252,7 @@ class WindowFilter:
             st.held[slot, i, o] = True
         np.add.at(st.Omega, (slot, i), a[:, None, None] * self.info.omega_of(r, o))
         np.add.at(st.Theta, (slot, i), a[:, None] * self.theta[r, o])
-        np.minimum.at(starts, i, r)
-        return starts
+        np.minimum.at(self.starts_in, i, r)
 
     # -- the tick ------------------------------------------------------------
     def begin_row(self, row: int) -> None:
@@ -269,10 +282,8 @@ class WindowFilter:
             np.maximum(starts, lo, out=starts)
         first = int(starts.min())
         self.node_rows += int((last + 1 - starts).sum())
-        st = self.state
         if self.kernels == "numba":
-            self._k.window_rows(self.Phi, self.Q, self.x0, self.P0, st.x, st.P, st.G, st.Omega, st.Theta,
-                        starts, first, last)
+            self._k.window_rows(self._model, self.ring, starts, first, last)
         else:
             for row in range(first, last + 1):
                 self._row_numpy(row, np.flatnonzero(starts <= row))

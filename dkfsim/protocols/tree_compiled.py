@@ -92,15 +92,21 @@ class CompiledTreeExchange(TreeExchange):
         H = min(self.late_horizon, w.theta.shape[0] + 1) if logf else 1     # never more than the rows
         self.fheld = np.zeros((H, n if logf else 1, W), dtype=np.uint64)
         self.frow = np.full(H, -1, dtype=np.int64)
-        self._fold_args = (w.A, info.omega if info.varying else info.omega[None], bool(info.varying),
-                           w.theta, w.state.Omega, w.state.Theta, w.state.held, w.starts_in, self.new,
-                           self.arrival if logf else np.empty((1, 1, 1)), logf, self.fheld, self.frow)
+        # The kernels' arguments (tree_compiled_kernels: Rows, Links, Pool, Fold, Log).
+        self._k_rows = tk.Rows(self.CT, self.rowid, self.held, self.inbox, self.inseq, self.sent, self.dirty,
+                               self.due, self.queue, self.new, self.out)
+        self._k_links = tk.Links(self.G, self.out_ptr, self.out_idx, self.lkind, self.lkey, self.lpar, self.dinst,
+                                 self.dcnt, self.lseq, self.counts_, self.late_node, PACKET_HEADER, self.row_bytes,
+                                 self.T_ns)
+        self._k_fold = tk.Fold(w.A, info.omega if info.varying else info.omega[None], bool(info.varying), w.theta,
+                               w.state.Omega, w.state.Theta, w.state.held, w.starts_in)
+        self._k_log = tk.Log(logf, self.arrival if logf else np.empty((1, 1, 1)), self.fheld, self.frow)
         self._bind()
         # Compiled entry points of exactly these argument types (numba's per-call type
         # dispatch skipped); each kernel called once with nothing to do (empty heap and queue).
         k = self._k
-        self._deliver = entry_point(k.deliver, -1, *self._dargs)
-        self._flush_k = entry_point(k.flush_all, -1, -1, *self._fargs)
+        self._deliver = entry_point(k.deliver, -1, *self._args)
+        self._flush_k = entry_point(k.flush_all, -1, -1, *self._args)
         self._measure_k = k.measure
 
     def _pool(self, P: int) -> None:
@@ -131,18 +137,10 @@ class CompiledTreeExchange(TreeExchange):
             setattr(self, name, a)
 
     def _bind(self) -> None:
-        """The kernels' argument tuples (rebuilt when the pool grows)."""
-        state = (self.CT, self.G, self.rowid, self.held, self.inbox, self.inseq, self.dirty, self.due,
-                 self.queue, *self.heap, self.free, self.pk, self.pk_rows, self.pk_masks, self.counts_,
-                 self.late_node, self.times)
-        self._dargs = state + self._fold_args
-        self._margs = (self.CT, self.rowid, self.held, self.inbox, self.inseq, self.sent, self.dirty,
-                       self.due, self.queue) + self._fold_args
-        self._fargs = (PACKET_HEADER, self.row_bytes, self.T_ns, self.CT, self.G, self.out_ptr,
-                       self.out_idx, self.lkind, self.lkey, self.lpar, self.dinst, self.dcnt, self.lseq,
-                       self.rowid, self.held, self.inbox, self.inseq, self.sent, self.dirty, self.due,
-                       self.queue, *self.heap, self.free, self.pk, self.pk_rows, self.pk_masks,
-                       self.counts_, self.late_node, self.times, self.newt, self.outp, self.out) + self._fold_args
+        """The kernels' arguments (rebuilt when the pool grows)."""
+        self._k_pool = tk.Pool(*self.heap, self.free, self.pk, self.pk_rows, self.pk_masks, self.times, self.newt,
+                               self.outp)
+        self._args = (self._k_rows, self._k_links, self._k_pool, self._k_fold, self._k_log)
 
     # -- rows ------------------------------------------------------------------
     def open_row(self, row: int) -> None:
@@ -160,17 +158,17 @@ class CompiledTreeExchange(TreeExchange):
 
     # -- events ----------------------------------------------------------------
     def measure(self, row: int) -> None:
-        self._measure_k(row, self.env.now, *self._margs)
+        self._measure_k(row, self.env.now, self._k_rows, self._k_fold, self._k_log)
         self._after()
 
     def _on_deliver(self, _event) -> None:
-        self._deliver(self.env.now, *self._dargs)
+        self._deliver(self.env.now, *self._args)
         self._after()
 
     def _on_flush(self, _event) -> None:
         self._flush_pending = False
         now, until = self.env.now, self.port.until
-        while self._flush_k(now, until, *self._fargs) == tk.NEED_ROOM:
+        while self._flush_k(now, until, *self._args) == tk.NEED_ROOM:
             self._pool(2 * self.pk.shape[0])
             self._bind()
         CT, env = self.CT, self.env

@@ -9,24 +9,63 @@ keyed draws (:func:`dkfsim.core.streams.keyed_uniform`, bit for bit) for ``const
 ``uniform_steps`` links.  New contributions are folded straight into the window filter's
 ring, in the order the Python protocol reports them, so the sums are the same numbers.
 
-The scalar state lives in one int64 array ``CT`` (indices below); origin sets are rows
-of little-endian uint64 words.
+The kernels' arrays are grouped in the module-level namedtuples below (:class:`Rows` the
+exchange's window rows, :class:`Links` the out-links, :class:`Pool` the packets in flight,
+:class:`Fold` the window filter they fold into, :class:`Log` the arrival log): numba loads a
+kernel taking namedtuples from its disk cache like one taking arrays, and a namedtuple type
+must be importable by name for that.  The steps a kernel runs per packet or contribution
+are inlined into it (``_INLINE``) and read the namedtuples' fields in place (``X.held[...]``):
+bound to locals at the top of a step, the fields left reference counting in the packet loop
+that numba could not remove (docs/decisions.md 120).  The scalar state lives in one int64
+array ``Rows.CT`` (indices below); origin sets are rows of little-endian uint64 words.
 """
 
 from __future__ import annotations
+
+from collections import namedtuple
 
 import numpy as np
 
 from dkfsim.core.jit import LazyKernels
 
-_KERNELS = ("keyed_uniform", "_bit", "_fold", "fold_masks", "_push", "_pop", "_enqueue", "_receive", "deliver", "measure",
-            "flush_all")
-_lazy = LazyKernels(__name__, _KERNELS)
+_KERNELS = ("keyed_uniform", "_bit", "_fold", "fold_masks", "_push", "_pop", "_enqueue", "_receive", "deliver",
+            "measure", "_pack", "_send", "flush_all")
+#: Steps inlined into the kernels that call them per packet or contribution.
+_INLINE = ("_bit", "_fold", "_push", "_pop", "_enqueue", "_receive", "_pack", "_send")
+_lazy = LazyKernels(__name__, _KERNELS, inline=_INLINE)
 
 # CT indices
 HEAP, NFREE, QHEAD, QLEN, LO, HI, ORDER, LATE, STALE, NEWT, NTIMES = range(11)
 #: Flag returned by :func:`flush_all` when the packet pool is full (grow it and call again).
 NEED_ROOM = -2
+
+#: The exchange's window rows (slot ``row % S``): which row a slot holds (``rowid``, -1 once
+#: final), the origins each node holds (``held``, slot x node x word), the last message and
+#: sequence number received on each link (``inbox``, ``inseq``), what each link last carried
+#: (``sent``), the node-slots changed since the node's last flush (``dirty``), the nodes whose
+#: flush is due and their order (``due``, ``queue``), the scalar counters ``CT``, and one
+#: origin set of scratch each for folding (``new``) and sending (``out``).
+Rows = namedtuple("Rows", "CT rowid held inbox inseq sent dirty due queue new out")
+#: The links: ``G`` (source, destination, reverse link or -1, 0) per link, each node's out-links
+#: (``out_idx[out_ptr[j]:out_ptr[j + 1]]``), the latency as ``kind`` (0: a constant ``par`` ns;
+#: 1: uniform_steps, ``d_t = par``, drawn from ``key``), per link the last send instant, the
+#: sends at it and the last sequence number (``dinst``, ``dcnt``, ``seq``), the counts (sent,
+#: delivered, late packets, bytes) per link and the late contributions per node; a packet's
+#: ``header`` and per-row bytes, and the tick ``T_ns``.
+Links = namedtuple("Links", "G out_ptr out_idx kind key par dinst dcnt seq counts late_node header row_bytes T_ns")
+#: The packets in flight: the heap (arrival instant, send order, packet), the free packet slots,
+#: per packet (link, sequence number, rows) in ``pk`` and its rows and origin sets; the future
+#: arrival instants that have an event (``times``), those new since the flush began (``newt``),
+#: and the packet being filled per out-link of the flushing node (``outp``, -1: none).
+Pool = namedtuple("Pool", "heap_t heap_o heap_p free pk rows masks times newt outp")
+#: Where contributions are folded: the window filter's weights ``A`` (node x origin), the
+#: information ``omega`` (1 or K, origin, nx, nx; per row when ``varying``) and ``theta``, and its
+#: ring: ``Omega``, ``Theta``, ``held`` (slot x node x origin; no origin axis when the fusion
+#: does not need it) and ``starts`` (each node's earliest changed row).
+Fold = namedtuple("Fold", "A omega varying theta Omega Theta held starts")
+#: The arrival log (``on``: kept): ``arrival`` (node, origin, row) in seconds, and the holdings
+#: ``fheld`` of the last final rows ``frow``, so that a late contribution counts once.
+Log = namedtuple("Log", "on arrival fheld frow")
 
 _GOLDEN = np.uint64(0x9E3779B97F4A7C15)
 _M1 = np.uint64(0xBF58476D1CE4E5B9)
@@ -66,41 +105,41 @@ def _bit(low):
     return _BIT_INDEX[(low * _DB) >> _S58]
 
 
-def _fold(node, row, bits, A, omega, varying, theta, Omega, Theta, held, starts, t_s, arrival, logf):
-    """Add origins ``bits`` (words) of ``row`` to ``node``'s sums, origins ascending; with
-    ``logf``, log each origin's arrival at ``t_s`` seconds."""
-    S = Omega.shape[0]
-    nx = Omega.shape[2]
+def _fold(node, row, bits, F, t_s, log):
+    """Add origins ``bits`` (words) of ``row`` to ``node``'s sums, origins ascending; with the
+    log on, log each origin's arrival at ``t_s`` seconds."""
+    S = F.Omega.shape[0]
+    nx = F.Omega.shape[2]
     slot = row % S
-    r_om = row if varying else 0
+    r_om = row if F.varying else 0
     for w in range(bits.shape[0]):
         m = bits[w]
         while m != _ZERO:
             low = m & (~m + _ONE)
             m ^= low
             org = w * 64 + _bit(low)
-            a = A[node, org]
-            if held.shape[2]:                      # only kept when the fusion needs it
-                held[slot, node, org] = True
-            if logf:
-                arrival[node, org, row] = t_s
+            a = F.A[node, org]
+            if F.held.shape[2]:                    # only kept when the fusion needs it
+                F.held[slot, node, org] = True
+            if log.on:
+                log.arrival[node, org, row] = t_s
             for p in range(nx):
                 for q in range(nx):
-                    Omega[slot, node, p, q] += a * omega[r_om, org, p, q]
-                Theta[slot, node, p] += a * theta[row, org, p]
-    if row < starts[node]:
-        starts[node] = row
+                    F.Omega[slot, node, p, q] += a * F.omega[r_om, org, p, q]
+                F.Theta[slot, node, p] += a * F.theta[row, org, p]
+    if row < F.starts[node]:
+        F.starts[node] = row
 
 
-def fold_masks(i, r, words, A, omega, varying, theta, Omega, Theta, held, starts):
+def fold_masks(i, r, words, F):
     """:func:`_fold` for many contributions, in order: ``words[k]`` holds the origins of node
     ``i[k]`` for row ``r[k]`` (the window filter's fold of what a Python protocol reported)."""
-    nolog = np.empty((1, 1, 1))
+    nolog = Log(False, np.empty((1, 1, 1)), np.empty((1, 1, 1), dtype=np.uint64), np.empty(1, dtype=np.int64))
     for k in range(i.shape[0]):
-        _fold(i[k], r[k], words[k], A, omega, varying, theta, Omega, Theta, held, starts, 0.0, nolog, False)
+        _fold(i[k], r[k], words[k], F, 0.0, nolog)
 
 
-def _push(CT, heap_t, heap_o, heap_p, t, p):
+def _push(CT, P, t, p):
     """Put packet ``p`` due at ``t`` on the heap (ties: send order)."""
     k = CT[HEAP]
     CT[HEAP] = k + 1
@@ -108,233 +147,236 @@ def _push(CT, heap_t, heap_o, heap_p, t, p):
     CT[ORDER] = o + 1
     while k > 0:
         up = (k - 1) // 2
-        if heap_t[up] < t or (heap_t[up] == t and heap_o[up] < o):
+        if P.heap_t[up] < t or (P.heap_t[up] == t and P.heap_o[up] < o):
             break
-        heap_t[k], heap_o[k], heap_p[k] = heap_t[up], heap_o[up], heap_p[up]
+        P.heap_t[k], P.heap_o[k], P.heap_p[k] = P.heap_t[up], P.heap_o[up], P.heap_p[up]
         k = up
-    heap_t[k], heap_o[k], heap_p[k] = t, o, p
+    P.heap_t[k], P.heap_o[k], P.heap_p[k] = t, o, p
 
 
-def _pop(CT, heap_t, heap_o, heap_p):
+def _pop(CT, P):
     """Remove the heap's first packet and return it."""
-    top = heap_p[0]
+    top = P.heap_p[0]
     n = CT[HEAP] - 1
     CT[HEAP] = n
-    t, o, p = heap_t[n], heap_o[n], heap_p[n]
+    t, o, p = P.heap_t[n], P.heap_o[n], P.heap_p[n]
     k = 0
     while True:
         c = 2 * k + 1
         if c >= n:
             break
-        if c + 1 < n and (heap_t[c + 1] < heap_t[c] or (heap_t[c + 1] == heap_t[c] and heap_o[c + 1] < heap_o[c])):
+        if c + 1 < n and (P.heap_t[c + 1] < P.heap_t[c]
+                          or (P.heap_t[c + 1] == P.heap_t[c] and P.heap_o[c + 1] < P.heap_o[c])):
             c += 1
-        if t < heap_t[c] or (t == heap_t[c] and o < heap_o[c]):
+        if t < P.heap_t[c] or (t == P.heap_t[c] and o < P.heap_o[c]):
             break
-        heap_t[k], heap_o[k], heap_p[k] = heap_t[c], heap_o[c], heap_p[c]
+        P.heap_t[k], P.heap_o[k], P.heap_p[k] = P.heap_t[c], P.heap_o[c], P.heap_p[c]
         k = c
-    heap_t[k], heap_o[k], heap_p[k] = t, o, p
+    P.heap_t[k], P.heap_o[k], P.heap_p[k] = t, o, p
     return top
 
 
-def _receive(p, now, CT, G, rowid, held, inbox, inseq, dirty, due, queue, pk, pk_rows, pk_masks, counts,
-             late_node, A, omega, varying, theta, Omega, Theta, wheld, starts, new, arrival, logf, fheld,
-             frow):
+def _receive(p, now, X, L, P, F, log):
     """The Python protocol's ``receive`` for pooled packet ``p`` (then its slot is free).
 
-    A row already final is late: one per (packet, row), or with the arrival log (``logf``) one
-    per contribution the receiver did not hold when the row became final (``fheld``: the
-    holdings of the last final rows, ``frow`` which), logged; older rows count every origin."""
-    S = rowid.shape[0]
-    W = held.shape[2]
-    e = pk[p, 0]
-    seq = pk[p, 1]
-    j = G[e, 1]
-    counts[1, e] += 1                              # delivered
+    A row already final is late: one per (packet, row), or with the arrival log one per
+    contribution the receiver did not hold when the row became final (``log.fheld``: the
+    holdings of the last final rows, ``log.frow`` which), logged; older rows count every origin."""
+    S = X.rowid.shape[0]
+    W = X.held.shape[2]
+    e = P.pk[p, 0]
+    seq = P.pk[p, 1]
+    j = L.G[e, 1]
+    L.counts[1, e] += 1                            # delivered
     late = 0
     any_late = False
     gained = False
     t_s = now / 1e9
-    for q in range(pk[p, 2]):
-        row = pk_rows[p, q]
+    for q in range(P.pk[p, 2]):
+        row = P.rows[p, q]
         slot = row % S
-        if rowid[slot] != row:
+        if X.rowid[slot] != row:
             any_late = True
-            if not logf:
+            if not log.on:
                 late += 1
                 continue
-            h = row % frow.shape[0]
+            h = row % log.frow.shape[0]
             for w in range(W):
-                m = pk_masks[p, q, w]
-                if frow[h] == row:
-                    m &= ~fheld[h, j, w]
-                    fheld[h, j, w] |= m
+                m = P.masks[p, q, w]
+                if log.frow[h] == row:
+                    m &= ~log.fheld[h, j, w]
+                    log.fheld[h, j, w] |= m
                 while m != _ZERO:
                     low = m & (~m + _ONE)
                     m ^= low
                     late += 1
-                    if frow[h] == row:
-                        arrival[j, w * 64 + _bit(low), row] = t_s
+                    if log.frow[h] == row:
+                        log.arrival[j, w * 64 + _bit(low), row] = t_s
             continue
-        if seq <= inseq[slot, e]:
-            CT[STALE] += 1
+        if seq <= X.inseq[slot, e]:
+            X.CT[STALE] += 1
             continue
-        inseq[slot, e] = seq
+        X.inseq[slot, e] = seq
         some = False
         for w in range(W):
-            m = pk_masks[p, q, w]
-            inbox[slot, e, w] = m
-            new[w] = m & ~held[slot, j, w]
-            if new[w] != _ZERO:
+            m = P.masks[p, q, w]
+            X.inbox[slot, e, w] = m
+            X.new[w] = m & ~X.held[slot, j, w]
+            if X.new[w] != _ZERO:
                 some = True
         if some:
             for w in range(W):
-                held[slot, j, w] |= new[w]
-            _fold(j, row, new, A, omega, varying, theta, Omega, Theta, wheld, starts, t_s, arrival, logf)
-            dirty[j, slot] = 1
+                X.held[slot, j, w] |= X.new[w]
+            _fold(j, row, X.new, F, t_s, log)
+            X.dirty[j, slot] = 1
             gained = True
     if any_late:
-        CT[LATE] += late
-        late_node[j] += late
-        counts[2, e] += 1                          # late packets
+        X.CT[LATE] += late
+        L.late_node[j] += late
+        L.counts[2, e] += 1                        # late packets
     if gained:
-        _enqueue(j, CT, due, queue)
+        _enqueue(j, X)
 
 
-def _enqueue(j, CT, due, queue):
+def _enqueue(j, X):
     """Node ``j``'s flush is due (once until it runs), after those due before it."""
-    if not due[j]:
-        due[j] = 1
-        queue[(CT[QHEAD] + CT[QLEN]) % queue.shape[0]] = j
-        CT[QLEN] += 1
+    if not X.due[j]:
+        X.due[j] = 1
+        X.queue[(X.CT[QHEAD] + X.CT[QLEN]) % X.queue.shape[0]] = j
+        X.CT[QLEN] += 1
 
 
-def deliver(now, CT, G, rowid, held, inbox, inseq, dirty, due, queue, heap_t, heap_o, heap_p, free,
-            pk, pk_rows, pk_masks, counts, late_node, times, A, omega, varying, theta, Omega, Theta,
-            wheld, starts, new, arrival, logf, fheld, frow):
+def deliver(now, X, L, P, F, log):
     """Deliver every packet due at ``now`` (send order).  Returns the heap's next instant or -1.
 
-    ``times[:CT[NTIMES]]`` are the future arrival instants that have an event: ``now`` leaves."""
+    ``P.times[:CT[NTIMES]]`` are the future arrival instants that have an event: ``now`` leaves."""
     k = 0
-    for h in range(CT[NTIMES]):
-        if times[h] > now:
-            times[k] = times[h]
+    for h in range(X.CT[NTIMES]):
+        if P.times[h] > now:
+            P.times[k] = P.times[h]
             k += 1
-    CT[NTIMES] = k
-    while CT[HEAP] > 0 and heap_t[0] <= now:
-        p = _pop(CT, heap_t, heap_o, heap_p)
-        _receive(p, now, CT, G, rowid, held, inbox, inseq, dirty, due, queue, pk, pk_rows, pk_masks, counts,
-                 late_node, A, omega, varying, theta, Omega, Theta, wheld, starts, new, arrival, logf, fheld,
-                 frow)
-        free[CT[NFREE]] = p
-        CT[NFREE] += 1
-    return heap_t[0] if CT[HEAP] > 0 else -1
+    X.CT[NTIMES] = k
+    while X.CT[HEAP] > 0 and P.heap_t[0] <= now:
+        p = _pop(X.CT, P)
+        _receive(p, now, X, L, P, F, log)
+        P.free[X.CT[NFREE]] = p
+        X.CT[NFREE] += 1
+    return P.heap_t[0] if X.CT[HEAP] > 0 else -1
 
 
-def measure(row, now, CT, rowid, held, inbox, inseq, sent, dirty, due, queue, A, omega, varying, theta,
-            Omega, Theta, wheld, starts, new, arrival, logf, fheld, frow):
+def measure(row, now, X, F, log):
     """Open ``row`` and give every node its own contribution (the Python ``measure``)."""
-    n = held.shape[1]
-    S = rowid.shape[0]
+    n = X.held.shape[1]
+    S = X.rowid.shape[0]
     slot = row % S
-    rowid[slot] = row
-    held[slot] = _ZERO
-    inbox[slot] = _ZERO
-    inseq[slot] = 0
-    sent[slot] = _ZERO
+    X.rowid[slot] = row
+    X.held[slot] = _ZERO
+    X.inbox[slot] = _ZERO
+    X.inseq[slot] = 0
+    X.sent[slot] = _ZERO
     for i in range(n):
-        dirty[i, slot] = 0
-    CT[HI] = row
+        X.dirty[i, slot] = 0
+    X.CT[HI] = row
     for i in range(n):
-        new[:] = _ZERO
-        new[i // 64] = _ONE << np.uint64(i % 64)
-        held[slot, i, i // 64] |= new[i // 64]
-        _fold(i, row, new, A, omega, varying, theta, Omega, Theta, wheld, starts, now / 1e9, arrival, logf)
-        dirty[i, slot] = 1
-        _enqueue(i, CT, due, queue)
+        X.new[:] = _ZERO
+        X.new[i // 64] = _ONE << np.uint64(i % 64)
+        X.held[slot, i, i // 64] |= X.new[i // 64]
+        _fold(i, row, X.new, F, now / 1e9, log)
+        X.dirty[i, slot] = 1
+        _enqueue(i, X)
 
 
-def flush_all(now, until, header, row_bytes, T_ns, CT, G, out_ptr, out_idx, lkind, lkey, lpar, dinst, dcnt, lseq,
-              rowid, held, inbox, inseq, sent, dirty, due, queue, heap_t, heap_o, heap_p, free, pk,
-              pk_rows, pk_masks, counts, late_node, times, newt, outp, out, A, omega, varying, theta,
-              Omega, Theta, wheld, starts, new, arrival, logf, fheld, frow):
+def _pack(j, deg, X, L, P):
+    """Node ``j``'s flush: for each open row it changed, each out-link whose message would
+    differ from the last one sent gets the row (what ``j`` holds minus what that neighbour
+    sent it) in its packet ``P.outp[k]``, taken from the pool when the link has none yet."""
+    S = X.rowid.shape[0]
+    W = X.held.shape[2]
+    lo = max(X.CT[LO], X.CT[HI] - S + 1)
+    for row in range(lo, X.CT[HI] + 1):
+        s = row % S
+        if X.rowid[s] != row or not X.dirty[j, s]:
+            continue
+        X.dirty[j, s] = 0
+        for k in range(deg):
+            e = L.out_idx[L.out_ptr[j] + k]
+            r = L.G[e, 2]
+            changed = False
+            for w in range(W):
+                X.out[w] = X.held[s, j, w] & ~X.inbox[s, r, w]
+                if X.out[w] != X.sent[s, e, w]:
+                    changed = True
+            if not changed:
+                continue
+            p = P.outp[k]
+            if p < 0:
+                X.CT[NFREE] -= 1
+                p = P.free[X.CT[NFREE]]
+                P.outp[k] = p
+                P.pk[p, 2] = 0
+            q = P.pk[p, 2]
+            P.pk[p, 2] = q + 1
+            P.rows[p, q] = row
+            for w in range(W):
+                X.sent[s, e, w] = X.out[w]
+                P.masks[p, q, w] = X.out[w]
+
+
+def _send(j, deg, now, X, L, P):
+    """Send node ``j``'s filled packets: stamp link and sequence number, draw the latency
+    (the link's keyed draw), count, and put each on the heap; a new arrival instant with a
+    latency is listed in ``P.newt`` (it needs an event)."""
+    for k in range(deg):
+        p = P.outp[k]
+        if p < 0:
+            continue
+        P.outp[k] = -1
+        e = L.out_idx[L.out_ptr[j] + k]
+        L.seq[e] += 1
+        P.pk[p, 0] = e
+        P.pk[p, 1] = L.seq[e]
+        if L.dinst[e] != now:
+            L.dinst[e] = now
+            L.dcnt[e] = 0
+        d = L.dcnt[e]
+        L.dcnt[e] = d + 1
+        if L.kind[e] == 0:
+            lat = L.par[e]
+        else:
+            v = int(keyed_uniform(L.key[e], now, d) * (L.par[e] + 1))
+            lat = min(v, L.par[e]) * L.T_ns
+        L.counts[0, e] += 1
+        L.counts[3, e] += L.header + P.pk[p, 2] * L.row_bytes
+        t = now + lat
+        if lat > 0:                            # a new arrival instant needs an event
+            fresh = True
+            for h in range(X.CT[NTIMES]):
+                if P.times[h] == t:
+                    fresh = False
+                    break
+            if fresh:
+                P.times[X.CT[NTIMES]] = t
+                X.CT[NTIMES] += 1
+                P.newt[X.CT[NEWT]] = t
+                X.CT[NEWT] += 1
+        _push(X.CT, P, t, p)
+
+
+def flush_all(now, until, X, L, P, F, log):
     """Flush the due nodes, first due first; after each flush the zero-latency packets are
     delivered (they may make more nodes due).  Packets with a latency go on the heap and a
-    new arrival instant is listed in ``newt``.  Returns :data:`NEED_ROOM` if the pool has
+    new arrival instant is listed in ``P.newt``.  Returns :data:`NEED_ROOM` if the pool has
     fewer free packets than the next node has out-links (nothing of that node done yet)."""
-    S = rowid.shape[0]
-    W = held.shape[2]
-    while CT[QLEN] > 0:
-        j = queue[CT[QHEAD]]
-        deg = out_ptr[j + 1] - out_ptr[j]
-        if CT[NFREE] < deg:
+    while X.CT[QLEN] > 0:
+        j = X.queue[X.CT[QHEAD]]
+        deg = L.out_ptr[j + 1] - L.out_ptr[j]
+        if X.CT[NFREE] < deg:
             return NEED_ROOM
-        CT[QHEAD] = (CT[QHEAD] + 1) % queue.shape[0]
-        CT[QLEN] -= 1
-        due[j] = 0
-        lo = max(CT[LO], CT[HI] - S + 1)
-        for row in range(lo, CT[HI] + 1):
-            s = row % S
-            if rowid[s] != row or not dirty[j, s]:
-                continue
-            dirty[j, s] = 0
-            for k in range(deg):
-                e = out_idx[out_ptr[j] + k]
-                r = G[e, 2]
-                changed = False
-                for w in range(W):
-                    out[w] = held[s, j, w] & ~inbox[s, r, w]
-                    if out[w] != sent[s, e, w]:
-                        changed = True
-                if not changed:
-                    continue
-                p = outp[k]
-                if p < 0:
-                    CT[NFREE] -= 1
-                    p = free[CT[NFREE]]
-                    outp[k] = p
-                    pk[p, 2] = 0
-                q = pk[p, 2]
-                pk[p, 2] = q + 1
-                pk_rows[p, q] = row
-                for w in range(W):
-                    sent[s, e, w] = out[w]
-                    pk_masks[p, q, w] = out[w]
-        for k in range(deg):
-            p = outp[k]
-            if p < 0:
-                continue
-            outp[k] = -1
-            e = out_idx[out_ptr[j] + k]
-            lseq[e] += 1
-            pk[p, 0] = e
-            pk[p, 1] = lseq[e]
-            if dinst[e] != now:
-                dinst[e] = now
-                dcnt[e] = 0
-            d = dcnt[e]
-            dcnt[e] = d + 1
-            if lkind[e] == 0:
-                lat = lpar[e]
-            else:
-                v = int(keyed_uniform(lkey[e], now, d) * (lpar[e] + 1))
-                lat = min(v, lpar[e]) * T_ns
-            counts[0, e] += 1
-            counts[3, e] += header + pk[p, 2] * row_bytes
-            t = now + lat
-            if lat > 0:                            # a new arrival instant needs an event
-                fresh = True
-                for h in range(CT[NTIMES]):
-                    if times[h] == t:
-                        fresh = False
-                        break
-                if fresh:
-                    times[CT[NTIMES]] = t
-                    CT[NTIMES] += 1
-                    newt[CT[NEWT]] = t
-                    CT[NEWT] += 1
-            _push(CT, heap_t, heap_o, heap_p, t, p)
+        X.CT[QHEAD] = (X.CT[QHEAD] + 1) % X.queue.shape[0]
+        X.CT[QLEN] -= 1
+        X.due[j] = 0
+        _pack(j, deg, X, L, P)
+        _send(j, deg, now, X, L, P)
         if now <= until:
-            deliver(now, CT, G, rowid, held, inbox, inseq, dirty, due, queue, heap_t, heap_o, heap_p, free,
-                    pk, pk_rows, pk_masks, counts, late_node, times, A, omega, varying, theta, Omega, Theta,
-                    wheld, starts, new, arrival, logf, fheld, frow)
+            deliver(now, X, L, P, F, log)
     return 0
