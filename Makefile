@@ -1,5 +1,6 @@
 # Two commands a new user needs: `make run` and `make test`.
 # Both create the virtual environment .venv on first use (Python >= 3.11 + pip only).
+# Developers: `make lint` (ruff, mypy), `make test-fast` (the suite without the slow tier).
 
 PYTHON ?= python3
 VENV   := .venv
@@ -7,7 +8,7 @@ BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.installed-stamp
 OUT    ?= out/paper_case1
 
-.PHONY: run test bench venv clean
+.PHONY: run test test-fast lint bench venv clean
 
 venv: $(STAMP)
 
@@ -20,12 +21,24 @@ $(STAMP): pyproject.toml
 run: $(STAMP)
 	$(BIN)/dkfsim run scenarios/paper_case1.yaml --out $(OUT)
 
-# One test process per CPU (pytest-xdist): the suite is many independent small simulations.
-test: $(STAMP)
+# ruff (pyflakes, import order, bugbear, unused arguments) and mypy against its baseline
+# (pyproject.toml, [tool.ruff] and [tool.mypy]); the pre-commit hooks run the same.
+lint: $(STAMP)
+	$(BIN)/ruff check .
+	$(BIN)/python tools/mypy_baseline.py
+
+# Lint first, then every test, one test process per CPU (pytest-xdist): the suite is many
+# independent small simulations.  .ci/run runs this.
+test: lint
 	$(BIN)/python -m pytest -n auto
+
+# Everything but the tests marked slow (end-to-end commands, Dask, the notebook, fuzzing,
+# killed processes, scale): under 90 s on 2 cores.
+test-fast: $(STAMP)
+	$(BIN)/python -m pytest -n auto -m "not slow"
 
 bench: $(STAMP)
 	$(BIN)/python tools/bench.py
 
 clean:
-	rm -rf out .pytest_cache .hypothesis
+	rm -rf out .pytest_cache .hypothesis .mypy_cache .ruff_cache

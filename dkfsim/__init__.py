@@ -12,13 +12,16 @@ Python API (mirrors the CLI; each call runs BLAS on one thread)::
     dkfsim.sweep("scenarios/sweep_delay_bound.yaml", jobs=2)
     dkfsim.maxdelay("scenarios/paper_case1.yaml", relative=1.5, steps=300)
 
-The package's folders are its stages, in the order data flows (README, "How
-it works"); importing it registers every built-in component.
+The package's folders are its stages, in the order data flows
+(docs/architecture.md); importing it registers every built-in component, after
+which the first registry read imports the installed entry-point plugins
+(docs/extending.md).
 """
 
 from dkfsim import components, estimators, model, protocols  # noqa: F401  (registration)
 from dkfsim.config.load import load_scenario
 from dkfsim.config.schema import Scenario
+from dkfsim.core import registry as _registry
 from dkfsim.core.errors import DkfsimError, ScenarioError
 from dkfsim.core.version import __version__
 from dkfsim.engine.driver import run
@@ -29,3 +32,5 @@ from dkfsim.experiments.sweep import run_sweep as sweep
 
 __all__ = ["DkfsimError", "RunResult", "Scenario", "ScenarioError", "load_run", "load_scenario",
            "maxdelay", "montecarlo", "run", "sweep", "__version__"]
+
+_registry.builtins_registered()          # last: plugins may now import a complete dkfsim

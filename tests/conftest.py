@@ -1,6 +1,6 @@
 """Shared scenario builders for the dkfsim correctness tests.
 
-Scenarios are built as plain dicts (the schema of the README's "Scenario files") with
+Scenarios are built as plain dicts (the schema of docs/scenarios.md) with
 explicit edge lists where a test needs to know the graph (diameters, paths),
 so that the expected values never depend on the engine's graph generators.
 The engine is imported lazily: the reference self-tests run without it.
@@ -220,3 +220,20 @@ def run_scenario(sc, overrides=()):
 @pytest.fixture(scope="session")
 def dkfsim():
     return import_dkfsim()
+
+
+@pytest.fixture
+def isolated_registries():
+    """Snapshot every registry and the loaded plugin modules; restore them after the test, so
+    what a test registers (a plugin, a deliberately broken estimator) is never seen by others."""
+    import sys
+
+    from dkfsim.core import registry
+    saved = {name: (dict(reg._entries), dict(reg._aliases)) for name, reg in registry.REGISTRIES.items()}
+    modules = set(sys.modules)
+    yield
+    for name, reg in registry.REGISTRIES.items():
+        reg._entries, reg._aliases = saved[name]
+    for m in set(sys.modules) - modules:
+        if m.startswith("dkfsim_plugin_") or m.startswith("dkfsim_test_entry"):
+            del sys.modules[m]

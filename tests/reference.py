@@ -166,7 +166,7 @@ class NoiseLayout:
             off += K * m
         self.D = off
         blocks = [np.asarray(P0)] + [np.asarray(Q)] * K
-        for o, m in enumerate(self.ms):
+        for o in range(len(self.ms)):
             blocks += [np.asarray(Rs[o])] * K
         self.Sigma = _block_diag(blocks)
 

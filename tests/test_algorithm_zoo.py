@@ -198,7 +198,7 @@ def test_kcf_eps_zero_is_each_nodes_neighbourhood_filter():
     x, P = xP(res, "kcf")
     for i, nbi in enumerate(neighbours(n, KCF_EDGES)):
         use = [(o, 1.0) for o in [i] + nbi]
-        xr, Pr = ref.kalman_filter(Phi, Q, x0, P0, Hs, Rs, ys, lambda r: use)
+        xr, Pr = ref.kalman_filter(Phi, Q, x0, P0, Hs, Rs, ys, lambda _r, use=use: use)
         ref.assert_close(x[:, i], xr, f"node {i} x vs its neighbourhood KF", TOL)
         ref.assert_close(P[:, i], Pr, f"node {i} P vs its neighbourhood KF", TOL)
 

@@ -10,6 +10,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+#: The slow tier (`make test-fast` leaves it out): every test here runs dkfsim as a process (end-to-end).
+pytestmark = pytest.mark.slow
+
 ROOT = Path(__file__).resolve().parents[1]
 CASE1 = ROOT / "scenarios" / "paper_case1.yaml"
 CASE2 = ROOT / "scenarios" / "paper_case2.yaml"

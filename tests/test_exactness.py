@@ -68,7 +68,7 @@ def test_ref_node_estimates_own_only_is_local_kf():
     m = ref.model_from_arrays(arrays)
     est = ref.node_estimates(arrays)
     for i in range(4):
-        xs, Ps = ref.kalman_filter(m.Phi, m.Q, m.x0, m.P0, m.Hs, m.Rs, m.ys, lambda r: [(i, 1.0)])
+        xs, Ps = ref.kalman_filter(m.Phi, m.Q, m.x0, m.P0, m.Hs, m.Rs, m.ys, lambda _r, i=i: [(i, 1.0)])
         ref.assert_close(est["x_local"][:, i], xs, f"x_local node {i}", 1e-11)
         ref.assert_close(est["P_local"][:, i], Ps, f"P_local node {i}", 1e-11)
 

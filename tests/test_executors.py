@@ -78,6 +78,7 @@ MAXDELAY = dict(metric="fused_mse", relative=1.5, batch=2, max_runs=4, max_delay
 
 
 # --------------------------------------------------------------------------- the executor itself
+@pytest.mark.slow
 def test_a_killed_worker_loses_and_duplicates_no_task(tmp_path):
     marker = tmp_path / "died"
     with LocalExecutor(2) as ex:
@@ -87,6 +88,7 @@ def test_a_killed_worker_loses_and_duplicates_no_task(tmp_path):
     assert dict(got) == {x: x * x for x in range(12)}
 
 
+@pytest.mark.slow
 def test_a_task_that_always_kills_its_worker_is_reported_after_bounded_retries():
     with LocalExecutor(2) as ex, pytest.raises(DkfsimError, match=r"died 3 times while running task 7"):
         list(ex.imap_unordered(_always_die, [(7, (7,))]))
@@ -103,6 +105,7 @@ def test_in_order_gives_task_order_and_the_first_error_in_that_order():
 
 
 # --------------------------------------------------------------------------- the three commands
+@pytest.mark.slow
 def test_montecarlo_survives_a_killed_worker_with_the_same_result(tmp_path, monkeypatch):
     sc = dkfsim.load_scenario(CASE1, overrides=["steps=20"])
     clean = dkfsim.montecarlo(sc, 4, jobs=1)
@@ -114,6 +117,7 @@ def test_montecarlo_survives_a_killed_worker_with_the_same_result(tmp_path, monk
     _same_montecarlo(clean, crashed)
 
 
+@pytest.mark.slow
 def test_sweep_survives_a_killed_worker_with_every_task_once(tmp_path, monkeypatch):
     from dkfsim.experiments.sweep import load_sweep, read_results, run_sweep
     spec = {"scenario": str(CASE1), "grid": {"protocol": ["tree", "flood"]},
@@ -130,6 +134,7 @@ def test_sweep_survives_a_killed_worker_with_every_task_once(tmp_path, monkeypat
     assert read_results(tmp_path / "clean.sqlite") == read_results(tmp_path / "crash.sqlite")
 
 
+@pytest.mark.slow
 def test_maxdelay_survives_a_killed_worker_with_the_same_answer(tmp_path, monkeypatch):
     sc = dkfsim.load_scenario(_rw())
     clean = dkfsim.maxdelay(sc, jobs=1, **MAXDELAY)
@@ -140,6 +145,7 @@ def test_maxdelay_survives_a_killed_worker_with_the_same_answer(tmp_path, monkey
     assert _maxdelay_dict(clean) == _maxdelay_dict(crashed)
 
 
+@pytest.mark.slow
 def test_montecarlo_and_maxdelay_agree_on_a_local_pool_and_a_dask_local_cluster():
     pytest.importorskip("distributed")
     mc_sc = dkfsim.load_scenario(CASE1, overrides=["steps=20"])
@@ -155,6 +161,7 @@ def test_montecarlo_and_maxdelay_agree_on_a_local_pool_and_a_dask_local_cluster(
     assert pool_md.runs_total == dask_md.runs_total > 4
 
 
+@pytest.mark.slow
 def test_the_three_commands_share_the_executor_flags():
     from dkfsim.cli.main import build_parser
     parser = build_parser()

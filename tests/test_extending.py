@@ -13,6 +13,9 @@ sees them.
 
 from __future__ import annotations
 
+import os
+import shutil
+import subprocess
 import sys
 from pathlib import Path
 
@@ -24,7 +27,6 @@ from reference import node_estimates
 from scipy import stats
 
 import dkfsim
-from dkfsim.core import registry
 
 ROOT = Path(__file__).resolve().parents[1]
 EXAMPLES = ROOT / "docs" / "examples"
@@ -32,16 +34,8 @@ CASE1 = ROOT / "scenarios" / "paper_case1.yaml"
 
 
 @pytest.fixture(autouse=True)
-def isolated_registries():
-    """Snapshot every registry and the loaded plugin modules; restore after the test."""
-    saved = {name: (dict(reg._entries), dict(reg._aliases)) for name, reg in registry.REGISTRIES.items()}
-    modules = set(sys.modules)
-    yield
-    for name, reg in registry.REGISTRIES.items():
-        reg._entries, reg._aliases = saved[name]
-    for m in set(sys.modules) - modules:
-        if m.startswith("dkfsim_plugin_") or m.startswith("dkfsim_test_entry"):
-            del sys.modules[m]
+def _isolated(isolated_registries):
+    """Every test here registers components: undo it afterwards (conftest.isolated_registries)."""
 
 
 def case1_with(tmp_path, steps=40, **keys) -> Path:
@@ -109,6 +103,7 @@ def test_two_estimators_sending_together_see_the_same_delays():
     assert second != first[:len(second)]                       # a second packet draws anew
 
 
+@pytest.mark.slow
 def test_the_example_estimator_runs_everywhere(tmp_path):
     path = case1_with(tmp_path, steps=30, plugins=[str(EXAMPLES / "neighbour_mean.py")],
                       estimators=[{"kind": "neighbour_mean"}, {"kind": "centralized"}])
@@ -153,7 +148,7 @@ def test_the_example_latency_model_draws_its_law(tmp_path):
         dkfsim.load_scenario(path, ["links.default.latency.mode=0.5"])
 
 
-def test_the_example_protocol_keeps_the_dkf_exact(tmp_path):
+def test_the_example_protocol_keeps_the_dkf_exact():
     from dkfsim.core.registry import load_plugin
     load_plugin(str(EXAMPLES / "tick_flood.py"))
     d = scenario(6, steps=30, protocol="tick_flood", latency={"model": "uniform", "low": 0.0, "high": 0.25},
@@ -182,24 +177,64 @@ def test_the_example_metric_is_a_column_everywhere(tmp_path):
     assert row_columns()[-1] == "peak_error"
 
 
-@pytest.mark.parametrize("group", ["dkfsim.plugins", "dkfsim.estimators"])
-def test_an_entry_point_plugin_is_loaded(tmp_path, monkeypatch, group):
-    """The ``dkfsim.plugins`` (or ``dkfsim.estimators``) entry-point group of an installed
-    package (here a dist-info on sys.path) is imported the first time a registry is read."""
-    metric = "peak_error_" + group.split(".")[1]                # a name no other test registers
-    module = "dkfsim_test_entry_" + group.split(".")[1]
-    site = tmp_path / "site"
-    site.mkdir()
-    (site / f"{module}.py").write_text((EXAMPLES / "peak_error.py").read_text()
-                                       .replace('METRICS.add("peak_error"', f'METRICS.add("{metric}"'))
-    dist = site / f"{module}-1.0.dist-info"
+def throwaway_package(site: Path, group: str, module: str = "neighbour_mean") -> None:
+    """An installed package as pip leaves one: the module in ``nm_plugin/`` and a ``.dist-info``
+    whose ``entry_points.txt`` declares it in ``group``."""
+    (site / "nm_plugin").mkdir(parents=True)
+    (site / "nm_plugin" / "__init__.py").write_text("")
+    shutil.copy(EXAMPLES / "neighbour_mean.py", site / "nm_plugin" / f"{module}.py")
+    dist = site / "nm_plugin-1.0.dist-info"
     dist.mkdir()
-    (dist / "METADATA").write_text(f"Metadata-Version: 2.1\nName: {module}\nVersion: 1.0\n")
-    (dist / "entry_points.txt").write_text(f"[{group}]\npeak = {module}\n")
-    assert metric not in registry.METRICS.names()
-    monkeypatch.syspath_prepend(str(site))
-    monkeypatch.setattr(registry, "_PLUGINS_LOADED", False)
-    try:
-        assert metric in registry.METRICS.names()
-    finally:
-        registry.METRICS._entries.pop(metric, None)
+    (dist / "METADATA").write_text("Metadata-Version: 2.1\nName: nm-plugin\nVersion: 1.0\n")
+    (dist / "entry_points.txt").write_text(f"[{group}]\nneighbour_mean = nm_plugin.{module}\n")
+
+
+def dkfsim_command(*args: str, site: Path) -> subprocess.CompletedProcess:
+    """``dkfsim ARGS`` in a fresh process whose sys.path holds ``site``, as a user's shell runs it."""
+    script = Path(sys.executable).with_name("dkfsim")
+    cmd = [str(script)] if script.exists() else [sys.executable, "-m", "dkfsim"]
+    env = {**os.environ, "PYTHONPATH": str(site)}
+    return subprocess.run(cmd + list(args), env=env, capture_output=True, text=True, timeout=300)
+
+
+@pytest.mark.slow
+def test_an_installed_estimator_plugin_runs_in_a_fresh_process(tmp_path):
+    """Issue 18: the ``dkfsim.plugins`` entry point of an installed package declaring
+    docs/examples/neighbour_mean.py.  A fresh process lists it and runs a scenario that names
+    its kind (no ``plugins:`` key), with the estimates the same file gives as a ``plugins:``
+    file; nothing on stderr says a plugin failed (before the fix: a circular import, because a
+    registry read during ``import dkfsim`` loaded the plugin while dkfsim was half imported)."""
+    site = tmp_path / "site"
+    throwaway_package(site, "dkfsim.plugins")
+    listed = dkfsim_command("list", "estimators", site=site)
+    assert listed.returncode == 0 and "failed" not in listed.stderr, listed.stderr
+    assert "neighbour_mean" in listed.stdout and "neighbours' latest estimates" in listed.stdout
+    path = case1_with(tmp_path, steps=20, estimators=[{"kind": "neighbour_mean"}])
+    ran = dkfsim_command("run", str(path), "--out", str(tmp_path / "out"), "--save", "estimates", site=site)
+    assert ran.returncode == 0 and "failed" not in ran.stderr, ran.stderr
+    assert "neighbour_mean" in ran.stdout
+    with np.load(tmp_path / "out" / "run.npz") as npz:
+        installed = npz["x_neighbour_mean"]
+    as_file = dkfsim.run(case1_with(tmp_path, steps=20, estimators=[{"kind": "neighbour_mean"}],
+                                    plugins=[str(EXAMPLES / "neighbour_mean.py")]), save="estimates")
+    assert installed.shape == (20, 12, 3)
+    np.testing.assert_array_equal(installed, as_file["x_neighbour_mean"])
+
+
+@pytest.mark.slow
+def test_the_estimators_entry_point_group_is_the_same_mechanism(tmp_path):
+    site = tmp_path / "site"
+    throwaway_package(site, "dkfsim.estimators")
+    listed = dkfsim_command("list", "estimators", site=site)
+    assert listed.returncode == 0 and "failed" not in listed.stderr, listed.stderr
+    assert "neighbour_mean" in listed.stdout
+
+
+@pytest.mark.slow
+def test_a_broken_plugin_is_reported_once_and_dkfsim_works_on(tmp_path):
+    site = tmp_path / "site"
+    throwaway_package(site, "dkfsim.plugins", module="broken")
+    (site / "nm_plugin" / "broken.py").write_text("raise RuntimeError('the plugin is broken')\n")
+    listed = dkfsim_command("list", "estimators", site=site)
+    assert listed.returncode == 0 and "centralized" in listed.stdout
+    assert listed.stderr.count("plugin 'neighbour_mean' (nm_plugin.broken) failed to load: the plugin is broken") == 1

@@ -268,7 +268,7 @@ def test_ports_sending_at_one_instant_share_the_link_draws():
     got: dict[str, dict] = {"a": {}, "b": {}, "c": {}}
 
     def receiver(name):
-        def receive(link, payload):
+        def receive(_link, payload):
             got[name].setdefault(payload, []).append(env.now)
         return receive
 
@@ -553,7 +553,7 @@ def test_baselines_do_without_the_measurements_a_crash_prevented():
     d["baselines"] = ["centralized", "local"]
     res = dkfsim.run(dkfsim.load_scenario(d))
     a = res.arrays
-    n, K = 3, 30
+    n = 3
     down = a["crashed"]
     assert down[1].sum() == 6 and not down[[0, 2]].any()
     Hs = [a[f"H_{i}"] for i in range(n)]

@@ -30,6 +30,9 @@ from hypothesis import strategies as st
 
 import dkfsim
 
+#: The slow tier (`make test-fast` leaves it out): fuzzing.
+pytestmark = pytest.mark.slow
+
 
 def _load_fuzzer():
     """tools/fuzz_scenarios.py, imported by path (tools/ is not a package)."""

@@ -72,6 +72,7 @@ def one_paragraph(p, *words):
      ["alias bomb", "line 7"]),
     ("seed: &s [*s]\n", ["refers to a node that contains it"]),
 ])
+@pytest.mark.slow
 def test_hostile_yaml_is_refused_quickly(tmp_path, text, words):
     path = tmp_path / "bad.yaml"
     path.write_text(text)
@@ -82,6 +83,7 @@ def test_hostile_yaml_is_refused_quickly(tmp_path, text, words):
     assert len(p.stderr) < 2000
 
 
+@pytest.mark.slow
 def test_alias_bomb_in_a_field_gives_a_short_message(tmp_path):
     """A value that expands to megabytes is not echoed back whole."""
     d = yaml.safe_load(CASE1.read_text())
@@ -120,6 +122,7 @@ def test_deep_mapping_from_python_is_a_clean_error():
 
 
 # =========================================================================== special files
+@pytest.mark.slow
 @pytest.mark.skipif(not hasattr(os, "mkfifo"), reason="no FIFOs on this platform")
 def test_a_fifo_does_not_block(tmp_path):
     fifo = tmp_path / "pipe.yaml"
@@ -129,6 +132,7 @@ def test_a_fifo_does_not_block(tmp_path):
     assert c.seconds < 20
 
 
+@pytest.mark.slow
 def test_special_files_are_refused(tmp_path):
     zero = tmp_path / "zero.yaml"
     zero.symlink_to("/dev/zero")
@@ -145,6 +149,7 @@ def test_special_files_are_refused(tmp_path):
         dkfsim.load_scenario(d, base_dir=tmp_path)
 
 
+@pytest.mark.slow
 def test_a_sweep_file_that_is_a_fifo_does_not_block(tmp_path):
     fifo = tmp_path / "sweep.yaml"
     os.mkfifo(fifo)
@@ -191,6 +196,7 @@ def test_unbounded_latency_scaled_without_end_still_runs():
     assert np.isfinite(res["x_fused"]).all() and res.diverged == []
 
 
+@pytest.mark.slow
 def test_an_exploding_model_finishes_and_says_it_diverged(tmp_path):
     sc = dkfsim.load_scenario(CASE1, ["model.kind=linear", "model.Phi=[[1e50,0,0],[0,1,0],[0,0,1]]",
                                       "steps=20", "baselines=[centralized,local,ci_consensus]"])
@@ -209,6 +215,7 @@ def test_an_exploding_model_finishes_and_says_it_diverged(tmp_path):
 
 
 # =========================================================================== resources
+@pytest.mark.slow
 def test_a_run_that_cannot_fit_is_refused_before_it_starts(tmp_path):
     with cpu_clock() as c:
         p = cli("run", CASE1, "--out", tmp_path / "o", "--set", "model.T=1e-6", "--steps", 10**12)
@@ -218,6 +225,7 @@ def test_a_run_that_cannot_fit_is_refused_before_it_starts(tmp_path):
         dkfsim.run(dkfsim.load_scenario(CASE1, ["model.T=1e-6", "steps=1000000000000"]))
 
 
+@pytest.mark.slow
 def test_hours_of_consensus_rounds_ask_for_yes(tmp_path):
     p = cli("run", CASE1, "--out", tmp_path / "o", "--set", "consensus_rounds=10000000",
             "--set", "baselines=[ci_consensus]")
@@ -226,6 +234,7 @@ def test_hours_of_consensus_rounds_ask_for_yes(tmp_path):
         dkfsim.run(dkfsim.load_scenario(CASE1, ["consensus_rounds=10000000", "baselines=[ci_consensus]"]))
 
 
+@pytest.mark.slow
 def test_a_20000_node_graph_is_answered_in_seconds(tmp_path):
     d = yaml.safe_load(CASE1.read_text())
     d["sensors"] = [{"name": f"s{i}", "H": [[1, 0, 0]], "R": [[1.0]]} for i in range(20000)]
@@ -252,6 +261,7 @@ def write_sweep(tmp_path, **kw):
     return path
 
 
+@pytest.mark.slow
 def test_huge_sweeps_are_refused_or_need_yes(tmp_path):
     p = cli("sweep", write_sweep(tmp_path, runs=10**9), timeout=60)
     one_paragraph(p, "tasks left", "memory")
@@ -268,6 +278,7 @@ def test_huge_sweeps_are_refused_or_need_yes(tmp_path):
     (["--max-scale", "inf"], ["--max-scale", "finite"]),
     (["--scale-step", "1e-12"], ["candidates", "memory"]),
 ])
+@pytest.mark.slow
 def test_maxdelay_settings_that_never_end(tmp_path, flags, words):
     d = yaml.safe_load(CASE1.read_text())
     d["links"]["default"]["latency"] = {"model": "constant", "value": 0.02}
@@ -277,6 +288,7 @@ def test_maxdelay_settings_that_never_end(tmp_path, flags, words):
 
 
 # =========================================================================== output
+@pytest.mark.slow
 def test_out_problems_are_found_before_the_run(tmp_path):
     (tmp_path / "file").write_text("x")
     (tmp_path / "theirs").mkdir()
@@ -297,6 +309,7 @@ def test_out_problems_are_found_before_the_run(tmp_path):
         one_paragraph(cli(*cmd, "--out", tmp_path / "theirs"), "did not write")
 
 
+@pytest.mark.slow
 def test_plot_name_cannot_leave_the_figures_folder(tmp_path):
     dkfsim.run(CASE1, steps=20).save(tmp_path / "r")
     one_paragraph(cli("plot", tmp_path / "r", tmp_path / "r", "--compare", "--name", "../../x"),
@@ -313,7 +326,7 @@ def test_a_failed_save_leaves_the_previous_output(tmp_path, monkeypatch):
     dkfsim.run(CASE1, steps=10).save(out)
     before = {p.name: p.read_bytes() for p in out.iterdir()}
 
-    def boom(*a, **k):
+    def boom(*_, **__):
         raise OSError(28, "No space left on device")
     monkeypatch.setattr(np, "savez", boom)
     with pytest.raises(DkfsimError, match="No space left on device.*holds what it held before"):
@@ -322,6 +335,7 @@ def test_a_failed_save_leaves_the_previous_output(tmp_path, monkeypatch):
     assert [p.name for p in tmp_path.iterdir()] == ["out"]          # no staging folder left
 
 
+@pytest.mark.slow
 def test_a_run_killed_at_any_moment_leaves_old_or_new_output(tmp_path):
     """kill -9 at several moments of a second run into the same folder: the folder
     holds either the first run's complete output or the second's, never a mix."""
@@ -347,6 +361,7 @@ def test_a_run_killed_at_any_moment_leaves_old_or_new_output(tmp_path):
     assert seen <= {first, 400}
 
 
+@pytest.mark.slow
 def test_make_run_twice_replaces_the_folder(tmp_path):
     out = tmp_path / "case1"
     for steps in (30, 40):
@@ -369,6 +384,7 @@ def test_run_takes_a_path_and_the_package_exports_the_entry_points(tmp_path):
     assert mc.runs == 2 and "fused" in mc.estimates
 
 
+@pytest.mark.slow
 def test_a_closed_pipe_ends_quietly():
     p = subprocess.run(f"{sys.executable} -m dkfsim sweep {ROOT / 'scenarios' / 'sweep_delay_bound.yaml'} "
                        "--dry-run | head -1", shell=True, capture_output=True, text=True, timeout=60)
@@ -391,6 +407,7 @@ def test_blas_runs_on_one_thread_inside_api_calls_only(monkeypatch):
     assert [i["num_threads"] for i in threadpool_info()] == before
 
 
+@pytest.mark.slow
 def test_cli_workers_run_one_blas_thread():
     code = ("import sys; from dkfsim.core.threads import pin_process; pin_process(); "
             "from threadpoolctl import threadpool_info; import os; "
@@ -428,3 +445,7 @@ def test_a_regular_install_runs_copies_of_the_data_scenarios_anywhere(tmp_path):
         assert p.returncode == 0 and int(p.stdout) > 0, p.stderr
     meta = next(site.glob("dkfsim-*.dist-info")) / "METADATA"
     assert "License-Expression: MIT AND CC-BY-4.0" in meta.read_text()
+    # the version from its one place, and the type information for the installing project's checker
+    from dkfsim.core.version import __version__
+    assert f"\nVersion: {__version__}\n" in meta.read_text()
+    assert (site / "dkfsim" / "py.typed").is_file()

@@ -107,6 +107,7 @@ def test_kernels_switch_is_recorded_in_the_summary(monkeypatch, tmp_path):
     assert json.loads((tmp_path / "out" / "summary.json").read_text())["kernels"] == "numpy"
 
 
+@pytest.mark.slow
 def test_threads_starting_together_compile_the_kernels_once():
     """Runs in threads (a Dask worker with threads, a notebook) may reach the first filter at
     the same instant; each must get the compiled kernels, none may jit a jitted function."""
@@ -155,6 +156,7 @@ def test_batched_filter_paths_agree(monkeypatch):
         assert rowwise_rel_err(Pa, Pb) <= 1e-10
 
 
+@pytest.mark.slow
 def test_kernels_taking_namedtuples_load_from_the_disk_cache_in_a_new_process():
     """The kernels take module-level namedtuples of arrays; numba must still load them from its
     disk cache in a new process (a local namedtuple type, or a step from another module,
@@ -180,7 +182,7 @@ print(json.dumps(stats))
 """
     env = {k: v for k, v in os.environ.items() if not k.startswith("DKFSIM_")}
     case = str(Path(__file__).resolve().parents[1] / "scenarios" / "paper_case1.yaml")
-    for attempt in ("first", "second"):
+    for _attempt in ("first", "second"):
         p = subprocess.run([sys.executable, "-c", code, case], capture_output=True, text=True, timeout=600, env=env)
         assert p.returncode == 0, p.stderr[-2000:]
     stats = json.loads(p.stdout.strip().splitlines()[-1])

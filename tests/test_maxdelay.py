@@ -294,6 +294,7 @@ def dkfsim_cli(*args):
                           text=True, cwd=ROOT)
 
 
+@pytest.mark.slow
 def test_cli_end_to_end_writes_json_and_plots(tmp_path):
     f = tmp_path / "rw.yaml"
     f.write_text(yaml.safe_dump(rw_scenario(const_latency(1.0), q=0.05)))
@@ -328,6 +329,7 @@ def test_cli_end_to_end_writes_json_and_plots(tmp_path):
     (["--tolerance", "1"], "mixed", "mix uniform_steps"),
     (["--tolerance", "1"], "nofusion", "fusion: none"),
 ])
+@pytest.mark.slow
 def test_cli_bad_input_is_one_paragraph(tmp_path, args, data_change, expected):
     data = rw_scenario(steps_latency(1), steps=20)
     if data_change == "mixed":

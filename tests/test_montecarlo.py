@@ -66,6 +66,7 @@ def test_run_r_is_the_same_whatever_the_number_of_runs():
 
 
 # --------------------------------------------------------------------------- CLI
+@pytest.mark.slow
 def test_help_explains_every_option():
     p = dkfsim("montecarlo", "--help")
     assert p.returncode == 0
@@ -121,6 +122,7 @@ def test_a_failing_run_is_reported_by_run_and_seed_whatever_the_jobs(tmp_path, c
     assert str(spec) in errs[0]
 
 
+@pytest.mark.slow
 def test_jobs_1_and_2_write_identical_results(tmp_path):
     outs = {}
     for jobs in (1, 2):

@@ -95,6 +95,7 @@ def test_a_callable_progress_sees_every_run():
     assert seen == [(1, 2), (2, 2)]
 
 
+@pytest.mark.slow
 def test_the_example_notebook_executes(tmp_path):
     env = {**os.environ, "MPLBACKEND": "Agg", "DKFSIM_EXAMPLE_OUT": str(tmp_path),
            "DKFSIM_EXAMPLE_STEPS": "30", "DKFSIM_EXAMPLE_RUNS": "2"}

@@ -8,10 +8,10 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from PIL import Image
 
-pytest.importorskip("matplotlib")
+pytest.importorskip("matplotlib")        # the `plots` extra; Pillow comes with matplotlib
 import matplotlib.image as mpimg  # noqa: E402
+from PIL import Image  # noqa: E402
 
 from dkfsim.cli.main import main  # noqa: E402
 from dkfsim.core.errors import DkfsimError  # noqa: E402

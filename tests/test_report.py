@@ -132,7 +132,7 @@ def test_montecarlo_report_tables_hold_summary_json(folders, tmp_path):
             assert close(lo, e["mse_ci95"][comp][0], 6e-5) and close(hi, e["mse_ci95"][comp][1], 6e-5)
     for name, anees, blo, bhi, frac in page.tables["nees"][1:]:
         e = s["estimates"][name]
-        assert close(anees, e["anees"]) and close(blo, e["anees_band95"][0])
+        assert close(anees, e["anees"]) and close(blo, e["anees_band95"][0]) and close(bhi, e["anees_band95"][1])
         assert close(frac, e["anees_fraction_in_band"])
     with open(folders / "mc" / "runs.csv", newline="") as fh:
         seeds = {int(r["run"]): int(r["seed"]) for r in csv.DictReader(fh)}

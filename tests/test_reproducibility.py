@@ -16,6 +16,7 @@ import sys
 from pathlib import Path
 
 import numpy as np
+import pytest
 from conftest import run_scenario, scenario, tree_edges
 
 SC = scenario(6, edges=tree_edges(6, 61), latency={"model": "exponential", "mean": 0.07, "offset": 0.0},
@@ -68,6 +69,7 @@ dkfsim.run(dkfsim.load_scenario(sc)).save(sys.argv[2])
 """
 
 
+@pytest.mark.slow
 def test_same_seed_is_bit_identical_across_processes_and_hash_seeds(tmp_path):
     spec = tmp_path / "sc.json"
     spec.write_text(json.dumps(SC))

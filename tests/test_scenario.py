@@ -4,11 +4,11 @@ from __future__ import annotations
 
 import copy
 from pathlib import Path
-from typing import Literal
 
 import numpy as np
 import pytest
 import yaml
+from pydantic import ValidationError
 
 from dkfsim.components.estimators import EstimatorParams
 from dkfsim.components.latency import Constant, Exponential, Uniform, UniformSteps
@@ -232,7 +232,7 @@ def test_empty_file(tmp_path):
     assert "empty file" in load_error(path)
 
 
-def test_dict_source_is_named(tmp_path):
+def test_dict_source_is_named():
     msg = load_error(put(base(), "steps", 0))
     assert msg.startswith("<dict>: steps: ")
 
@@ -651,9 +651,9 @@ def test_source_not_in_hash_or_equality(tmp_path):
 
 def test_scenario_is_frozen():
     sc = load_scenario(base())
-    with pytest.raises(Exception):
+    with pytest.raises(ValidationError, match="frozen"):
         sc.seed = 5
-    with pytest.raises(Exception):
+    with pytest.raises(ValidationError, match="frozen"):
         sc.model.T = 0.1
     with pytest.raises(TypeError):
         sc.sensors[0].R[0] = (3.0,)
@@ -681,17 +681,20 @@ def test_estimator_registry_is_the_one_extension_point():
     e = put(base(), "estimators", [{"kind": "centralized"}, {"kind": "kalman_oracle"}])
     assert "unknown estimator 'kalman_oracle'" in load_error(e)
 
-    class KalmanOracleParams(EstimatorParams):
-        """A test-only estimator."""
-
-        kind: Literal["kalman_oracle"] = "kalman_oracle"
-
-    class KalmanOracle(Centralized):
-        Params = KalmanOracleParams
-
     try:
-        ESTIMATORS.add("kalman_oracle", params=KalmanOracleParams, implementation=KalmanOracle)
-        assert "kalman_oracle" in ESTIMATORS
+        # One declaration: the kind once, as a class keyword; the implementation names its model.
+        class KalmanOracleParams(EstimatorParams, kind="kalman_oracle"):
+            """A test-only estimator."""
+
+        class KalmanOracle(Centralized, params=KalmanOracleParams):
+            pass
+
+        entry = ESTIMATORS.get("kalman_oracle")
+        assert (entry.params, entry.implementation) == (KalmanOracleParams, KalmanOracle)
+        assert entry.description == "A test-only estimator"
+        assert KalmanOracleParams().kind == "kalman_oracle" and KalmanOracle.Params is KalmanOracleParams
+        with pytest.raises(ValidationError):
+            KalmanOracleParams(kind="centralized")           # the kind is a literal
         for sc in (load_scenario(d), load_scenario(e)):
             assert tuple(p.kind for p in sc.estimators) == ("centralized", "kalman_oracle")
             assert isinstance(sc.estimators[1], KalmanOracleParams)

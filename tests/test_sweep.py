@@ -122,6 +122,7 @@ def test_a_task_is_written_entirely_or_not_at_all(tmp_path):
 
 
 # --------------------------------------------------------------------------- kill -9 and resume
+@pytest.mark.slow
 def test_killed_sweep_resumes_without_losing_or_repeating_a_task(tmp_path):
     psutil = pytest.importorskip("psutil")
     grid = {"links.default.latency.d_t": [0, 1, 2]}
@@ -178,6 +179,7 @@ def test_killed_sweep_resumes_without_losing_or_repeating_a_task(tmp_path):
 
 
 # --------------------------------------------------------------------------- executors agree
+@pytest.mark.slow
 def test_dask_local_cluster_and_local_pool_give_identical_rows(tmp_path):
     pytest.importorskip("distributed")
     from dkfsim.experiments.executors import DaskExecutor
@@ -206,6 +208,7 @@ def test_dask_local_cluster_and_local_pool_give_identical_rows(tmp_path):
     assert t.column("component").to_pylist()[:NC] == COMPONENTS
 
 
+@pytest.mark.slow
 def test_cli_dask_local_processes(tmp_path):
     pytest.importorskip("distributed")
     path = write_sweep(tmp_path, runs=1, steps=20, grid={"protocol": ["tree", "flood"]})
@@ -271,6 +274,7 @@ def test_added_grid_values_and_estimators_compute_only_what_is_new(tmp_path, mon
 
 
 # --------------------------------------------------------------------------- definition checks
+@pytest.mark.slow
 def test_changes_that_alter_stored_tasks_are_refused(tmp_path):
     from dkfsim.experiments.sweep import run_sweep
     scen = tmp_path / "case.yaml"
@@ -314,6 +318,7 @@ def test_changes_that_alter_stored_tasks_are_refused(tmp_path):
     assert "Traceback" not in p.stderr and len(p.stderr.strip().splitlines()) == 1
 
 
+@pytest.mark.slow
 def test_a_database_of_an_earlier_format_is_refused_by_name(tmp_path):
     """A database written by an earlier dkfsim (format 1: wide rows, old names)
     is not resumed into: the message names the format and the way out."""
@@ -385,6 +390,7 @@ def cli(capsys, *args):
     return rc, out, err
 
 
+@pytest.mark.slow
 def test_cli_bad_input_exits_2_with_one_paragraph(tmp_path, capsys):
     rc, _, err = cli(capsys, "sweep", tmp_path / "nope.yaml")
     assert rc == 2 and "sweep file not found" in err
@@ -409,6 +415,7 @@ def test_cli_bad_input_exits_2_with_one_paragraph(tmp_path, capsys):
     assert not_db.read_text() == "hello"
 
 
+@pytest.mark.slow
 def test_export_only_from_a_database_and_help(tmp_path, capsys):
     path = write_sweep(tmp_path, grid={"protocol": ["tree"]}, runs=1, steps=20)
     assert cli(capsys, "sweep", path, "--jobs", "1", "--quiet")[0] == 0

@@ -101,7 +101,7 @@ def test_the_arrival_log_is_the_python_protocols(case, monkeypatch):
         assert a.counts["late"] > a.counts["per_link"][0]["late_packets"] > 0
 
 
-def test_the_compiled_draws_are_the_keyed_uniforms(monkeypatch):
+def test_the_compiled_draws_are_the_keyed_uniforms():
     k = tree_compiled_kernels.compiled()
     rng = np.random.default_rng(5)
     for _ in range(2000):

@@ -5,7 +5,7 @@ arrays a run writes (docs/design.md §8) and of the traffic it counted, so
 the same code scores a fresh run and a ``run.npz`` read back from disk.
 
 The named metrics (:data:`~dkfsim.core.registry.METRICS`) give the tidy rows
-every output shares (:func:`score`): one row per estimate and state
+every output shares (:func:`score_scored`): one row per estimate and state
 component with ``mse`` (per component; per-node estimates averaged over the
 nodes), ``anees``, ``disagreement`` (per-node estimates only),
 ``messages_per_tick``, ``bytes_per_tick``, ``lost`` and ``late`` (``NaN``
@@ -164,22 +164,17 @@ def row_columns() -> tuple[str, ...]:
     return KEY_COLUMNS + tuple(METRICS.names())
 
 
-def score(name: str, x, P, truth, traffic, burn_in: int, components) -> list[dict]:
-    """The tidy rows of one estimate of one run: one per state component, every metric.
-
-    ``run`` and ``seed`` are left to the caller.  Non-applicable metrics are NaN.
-    """
-    return score_scored(name, scored(x, P, truth, traffic, burn_in), components)
-
-
 def scored(x, P, truth, traffic, burn_in: int) -> Scored:
     """What the metrics see of one estimate (:class:`Scored`), arrays as numpy arrays."""
     return Scored(np.asarray(x), None if P is None else np.asarray(P), truth, traffic, int(burn_in))
 
 
 def score_scored(name: str, s: Scored, components) -> list[dict]:
-    """:func:`score` of an estimate already wrapped by :func:`scored` (whose NEES a
-    caller may reuse: :attr:`Scored.nees`)."""
+    """The tidy rows of one estimate of one run, already wrapped by :func:`scored` (whose
+    NEES a caller may reuse: :attr:`Scored.nees`): one per state component, every metric.
+
+    ``run`` and ``seed`` are left to the caller.  Non-applicable metrics are NaN.
+    """
     values = {}
     with np.errstate(all="ignore"):          # diverged estimates: inf / nan, reported as such
         for entry in METRICS.entries():

@@ -35,7 +35,7 @@ def say(text, file=None, **kw) -> None:
 
 
 def add_scenario_args(p: argparse.ArgumentParser) -> None:
-    p.add_argument("scenario", metavar="FILE", help="scenario YAML file (see README: 'Scenario files')")
+    p.add_argument("scenario", metavar="FILE", help="scenario YAML file (see docs/scenarios.md)")
     p.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
                    help="override a scenario key by its dotted path, value parsed as YAML; "
                         "repeatable (e.g. --set links.default.latency.d_t=2 --set protocol=flood)")

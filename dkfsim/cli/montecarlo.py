@@ -54,7 +54,7 @@ def cmd_montecarlo(args) -> int:
     check_montecarlo(sc, args.runs, workers_from_args(args, args.runs), yes=args.yes)
     make = executor_from_args(args, args.runs)
     bar = progress_bar(args, args.runs, sc.name)
-    progress = None if bar is None else (lambda done, total: bar.update(done - bar.n))
+    progress = None if bar is None else (lambda done, _total: bar.update(done - bar.n))
     try:
         res = montecarlo(sc, args.runs, jobs=args.jobs, burn_in=args.burn_in, progress=progress,
                          yes=True, executor=make)                  # checked above

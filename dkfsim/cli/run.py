@@ -63,7 +63,7 @@ def cmd_run(args) -> int:
     check_target(args.out)                 # before the run: a bad --out costs nothing
     check_run(sc, save=args.save, yes=args.yes)
     bar = progress_bar(args, sc.steps, sc.name, unit="tick")
-    progress = None if bar is None else (lambda k, K: bar.update(k - bar.n))
+    progress = None if bar is None else (lambda k, _K: bar.update(k - bar.n))
     try:
         res = run(sc, save=args.save, progress=progress, yes=True)   # checked above
     finally:

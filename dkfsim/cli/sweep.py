@@ -72,7 +72,7 @@ def add_command(subparsers) -> None:
 
 
 def cmd_sweep(args) -> int:
-    say = (lambda *a: None) if args.quiet else say_line
+    say = (lambda *_: None) if args.quiet else say_line
     if is_database(args.file):
         if args.export is None:
             raise DkfsimError(f"{args.file} is a sweep database: give --export PATH to export "

@@ -1,9 +1,12 @@
 """The parameters of every built-in estimator (the keys of an ``estimators:`` entry).
 
-Each model is registered in :data:`~dkfsim.core.registry.ESTIMATORS` under
-its ``kind``; the algorithm itself (:mod:`dkfsim.estimators`) registers its
-implementation under the same name.  An estimator written as a plugin
-declares both in its own file (docs/extending.md).
+An estimator's kind is declared once, by its parameter model:
+``class KCFParams(EstimatorParams, kind="kcf")`` makes ``kind`` the literal
+``"kcf"`` and registers the model in :data:`~dkfsim.core.registry.ESTIMATORS`
+under it; the algorithm (:mod:`dkfsim.estimators`) names its model,
+``class KCF(RoundBased, params=KCFParams)``, which registers it as the
+implementation.  An estimator written as a plugin does both in its own file
+(docs/extending.md).
 """
 
 from __future__ import annotations
@@ -18,10 +21,33 @@ from dkfsim.core.registry import ESTIMATORS
 
 class EstimatorParams(StrictModel):
     """The keys every ``estimators:`` entry has: ``kind`` (which algorithm) and ``name``
-    (how its estimates are called in every output; default: the kind)."""
+    (how its estimates are called in every output; default: the kind).
 
-    kind: str
+    A subclass declares its kind as a class keyword, ``class MyParams(EstimatorParams,
+    kind="my_kind", aliases=("old_name",))``: the ``kind`` field becomes that literal (its
+    default) and the model is registered under it, with the first line of its docstring
+    as the description ``dkfsim list estimators`` prints.  A subclass without ``kind=``
+    keeps its parent's kind and registers nothing.
+    """
+
+    kind: str = ""                       # (each subclass: its literal kind)
     name: Annotated[str, Field(strict=True, min_length=1, pattern=r"^[A-Za-z][A-Za-z0-9_]*$")] | None = None
+
+    def __init_subclass__(cls, kind: str | None = None, aliases: tuple[str, ...] = (), **kwargs: Any):
+        if kind is not None:
+            # Before pydantic collects the fields: ``kind`` becomes Literal[kind] = kind.
+            annotations = dict(cls.__dict__.get("__annotations__", {}))
+            annotations["kind"] = Literal[kind]
+            cls.__annotations__ = annotations
+            cls.kind = kind
+        super().__init_subclass__(**kwargs)
+
+    @classmethod
+    def __pydantic_init_subclass__(cls, kind: str | None = None, aliases: tuple[str, ...] = (),
+                                   **kwargs: Any) -> None:
+        super().__pydantic_init_subclass__(**kwargs)
+        if kind is not None:           # the model is complete: register it
+            ESTIMATORS.add(kind, params=cls, aliases=aliases)
 
     @property
     def label(self) -> str:
@@ -32,28 +58,24 @@ class EstimatorParams(StrictModel):
         """Cross-checks against the whole scenario (raise ``custom_error``); none by default."""
 
 
-class CentralizedParams(EstimatorParams):
+class CentralizedParams(EstimatorParams, kind="centralized"):
     """Every measurement on time: the centralized Kalman filter (the lower bound)."""
 
-    kind: Literal["centralized"] = "centralized"
 
 
-class CentralizedDelayedParams(EstimatorParams):
+class CentralizedDelayedParams(EstimatorParams, kind="centralized_delayed"):
     """A fusion centre fed over direct links with the default link settings, same buffer."""
 
-    kind: Literal["centralized_delayed"] = "centralized_delayed"
 
 
-class LocalOnlyParams(EstimatorParams):
+class LocalOnlyParams(EstimatorParams, kind="local_only", aliases=("local",)):
     """Each node alone: a Kalman filter of its own measurements (no communication)."""
 
-    kind: Literal["local_only"] = "local_only"
 
 
-class NoBufferParams(EstimatorParams):
+class NoBufferParams(EstimatorParams, kind="no_buffer"):
     """The anti-delay exchange with no buffer (L = 1): information for a past tick is dropped."""
 
-    kind: Literal["no_buffer"] = "no_buffer"
 
 
 def _buffer_length(value: Any) -> Any:
@@ -64,10 +86,9 @@ def _buffer_length(value: Any) -> Any:
     raise custom_error(f"must be 'auto', 'paper' or an integer >= 1, got {value!r}")
 
 
-class AntiDelayParams(EstimatorParams):
+class AntiDelayParams(EstimatorParams, kind="anti_delay_dkf"):
     """Another instance of the anti-delay DKF; unset keys take the scenario's values."""
 
-    kind: Literal["anti_delay_dkf"] = "anti_delay_dkf"
     buffer_length: Annotated[Literal["auto", "paper"] | int | None, BeforeValidator(_buffer_length)] = None
     fusion: Literal["matrix", "diagonal", "none"] | None = None
     weights: Literal["unit", "paper"] | None = None
@@ -88,43 +109,39 @@ def check_rounds(kind: str, rounds: int, scenario, key: str = "rounds", note: st
 Rounds = Annotated[int, Field(strict=True, ge=1)]
 
 
-class CIParams(EstimatorParams):
+class CIParams(EstimatorParams, kind="ci_consensus"):
     """Consensus on information (Battistelli & Chisci 2014) with Metropolis weights."""
 
-    kind: Literal["ci_consensus"] = "ci_consensus"
     #: Consensus rounds per tick (0 = each node's local filter); T / rounds must be whole ns.
     rounds: Annotated[int, Field(strict=True, ge=0)] = 1
 
     def check(self, scenario) -> None:
-        check_rounds("ci_consensus", self.rounds, scenario, note=" (consensus_rounds in older files)")
+        check_rounds(self.kind, self.rounds, scenario, note=" (consensus_rounds in older files)")
 
 
-class KCFParams(EstimatorParams):
+class KCFParams(EstimatorParams, kind="kcf"):
     """Kalman-consensus filter (Olfati-Saber, CDC 2009): one exchange per tick."""
 
-    kind: Literal["kcf"] = "kcf"
     #: Consensus gain scale: gamma_i = eps / (1 + ||M_i||_F).  0 = neighbourhood filters only.
     #: Default 0.1: the paper leaves eps free; 0.1 keeps gamma_i ||M_i|| < 0.1, so the consensus
     #: term stays a contraction for up to 10 neighbours (docs/consensus.md).
     eps: NonNegReal = 0.1
 
 
-class ICFParams(EstimatorParams):
+class ICFParams(EstimatorParams, kind="icf"):
     """Information-weighted consensus filter (Kamal, Farrell, Roy-Chowdhury, TAC 2013)."""
 
-    kind: Literal["icf"] = "icf"
     #: Consensus iterations per tick (>= 1); T / rounds must be whole ns.  Default 1: one
     #: message per link per tick, the budget of kcf and ci_consensus's default.
     rounds: Rounds = 1
 
     def check(self, scenario) -> None:
-        check_rounds("icf", self.rounds, scenario)
+        check_rounds(self.kind, self.rounds, scenario)
 
 
-class DiffusionParams(EstimatorParams):
+class DiffusionParams(EstimatorParams, kind="diffusion_kf"):
     """Diffusion Kalman filter (Cattivelli & Sayed, TAC 2010): incremental update, then diffusion."""
 
-    kind: Literal["diffusion_kf"] = "diffusion_kf"
     #: Diffusion (combination) weights c_ij: ``metropolis`` (doubly stochastic on an undirected
     #: graph) or ``uniform`` (1 / (|N_i| + 1) over the closed neighbourhood, as the paper's example).
     weights: Literal["metropolis", "uniform"] = "metropolis"
@@ -132,7 +149,7 @@ class DiffusionParams(EstimatorParams):
     diffusion: StrictBool = True
 
     def check(self, scenario) -> None:
-        check_rounds("diffusion_kf", 2, scenario, key="kind", note=" (its two exchanges)")
+        check_rounds(self.kind, 2, scenario, key="kind", note=" (its two exchanges)")
 
 
 def _omega(value: Any) -> Any:
@@ -143,10 +160,9 @@ def _omega(value: Any) -> Any:
     raise custom_error(f"must be a number >= 1 or 'n' (the number of nodes), got {value!r}")
 
 
-class HCMCIParams(EstimatorParams):
+class HCMCIParams(EstimatorParams, kind="hcmci"):
     """Hybrid consensus on measurements and information (Battistelli et al., TAC 2015)."""
 
-    kind: Literal["hcmci"] = "hcmci"
     #: Consensus rounds per tick (>= 1); T / rounds must be whole ns.
     rounds: Rounds = 1
     #: Scale of the averaged novel information: 1 (default; consistent whatever arrived) or up
@@ -154,13 +170,8 @@ class HCMCIParams(EstimatorParams):
     omega: Annotated[float | Literal["n"], BeforeValidator(_omega)] = 1.0
 
     def check(self, scenario) -> None:
-        check_rounds("hcmci", self.rounds, scenario)
+        check_rounds(self.kind, self.rounds, scenario)
         if self.omega != "n" and self.omega > scenario.n:
             raise custom_error(f"omega = {self.omega} exceeds the number of nodes n = {scenario.n} "
                                "(the stability range of Battistelli et al. is 1 <= omega <= n)", "omega")
 
-
-for _params in (CentralizedParams, CentralizedDelayedParams, LocalOnlyParams, NoBufferParams,
-                AntiDelayParams, CIParams, KCFParams, ICFParams, DiffusionParams, HCMCIParams):
-    ESTIMATORS.add(_params.model_fields["kind"].default, params=_params)
-ESTIMATORS.add("local_only", aliases=("local",))

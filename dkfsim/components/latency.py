@@ -27,7 +27,7 @@ unless a key says otherwise (``d_t`` counts sampling periods).
     a two-state Markov channel per link, stepped once per tick: latency and
     loss depend on the state at the send instant.
 
-Draws are keyed (the common-random-numbers rule, docs/design.md §9): the
+Draws are keyed (the common-random-numbers rule, docs/design.md §3): the
 latency of a packet is ``from_uniform(u)`` with ``u =
 keyed_uniform(key(link, "latency"), send instant, seq)``, ``seq`` the
 packet's number among those its sender put on the link at that instant.
@@ -50,6 +50,7 @@ from typing import Annotated, ClassVar, Literal
 import numpy as np
 import scipy.special
 from pydantic import Field, PrivateAttr, TypeAdapter, ValidationInfo, model_validator
+from typing_extensions import override
 
 from dkfsim.core.datafiles import DataFileError, locate, read_table
 from dkfsim.core.params import (
@@ -165,12 +166,15 @@ class Constant(LatencyParams):
     scale_keys: ClassVar = ("value",)
     deterministic: ClassVar[bool] = True
 
+    @override
     def from_uniform(self, u, T_ns):
         return np.full(np.shape(u), min(seconds_to_ns(self.value), MAX_NS), dtype=np.int64)
 
+    @override
     def sup_ns(self, T_ns):
         return seconds_to_ns(self.value)
 
+    @override
     def sampler(self, prefix, seed, T_ns):
         return _Fixed(min(seconds_to_ns(self.value), MAX_NS))
 
@@ -181,6 +185,7 @@ class _Fixed(Sampler):
     def __init__(self, ns):
         self.ns = ns
 
+    @override
     def draw(self, t_ns, seq):
         return self.ns, False
 
@@ -206,6 +211,7 @@ class UniformSteps(LatencyParams):
     def sup_ns(self, T_ns):
         return self.d_t * int(T_ns)
 
+    @override
     def bound_steps(self, T_ns):
         return self.d_t
 
@@ -247,10 +253,12 @@ class Uniform(LatencyParams):
             raise custom_error(f"must be >= low ({self.low!r}), got {self.high!r}", "high")
         return self
 
+    @override
     def from_uniform(self, u, T_ns):
         lo, hi = seconds_to_ns(self.low), seconds_to_ns(self.high)
         return np.clip(_clamped((self.low + np.asarray(u, float) * (self.high - self.low)) * NS_PER_S), lo, hi)
 
+    @override
     def sup_ns(self, T_ns):
         return seconds_to_ns(self.high)
 
@@ -266,10 +274,12 @@ class ShiftedLaw(LatencyParams):
         """The law's quantile function in seconds, before the offset."""
         raise NotImplementedError
 
+    @override
     def from_uniform(self, u, T_ns):
         with np.errstate(over="ignore"):
             return _clamped((self.offset + self.quantile_s(np.asarray(u, float))) * NS_PER_S)
 
+    @override
     def sup_ns(self, T_ns):
         return None
 
@@ -302,6 +312,7 @@ class Lognormal(ShiftedLaw):
     def quantile_s(self, u):
         return self.median * np.exp(self.sigma * scipy.special.ndtri(u))
 
+    @override
     def sup_ns(self, T_ns):
         if self.sigma == 0:
             return int(round_ns(self.median)) + seconds_to_ns(self.offset)
@@ -422,6 +433,7 @@ class Empirical(LatencyParams):
             _COLUMNS[key] = out
         return out
 
+    @override
     def from_uniform(self, u, T_ns):
         vals = self.values_ns()
         return vals[np.minimum((np.asarray(u, float) * len(vals)).astype(np.int64), len(vals) - 1)]
@@ -434,6 +446,7 @@ class Empirical(LatencyParams):
             min(int(keyed_uniform(key64(seed, *prefix, "start"), 0, 0) * len(vals)), len(vals) - 1)
         return _Replay(vals, start, int(T_ns))
 
+    @override
     def sup_ns(self, T_ns):
         return int(self.values_ns().max())
 
@@ -446,6 +459,7 @@ class _Replay(Sampler):
     def __init__(self, values, start, T_ns):
         self.values, self.start, self.T_ns = values, start, T_ns
 
+    @override
     def draw(self, t_ns, seq):
         return int(self.values[(self.start + t_ns // self.T_ns) % len(self.values)]), False
 
@@ -486,6 +500,7 @@ class GilbertElliott(LatencyParams):
     def sampler(self, prefix, seed, T_ns):
         return _GESampler(self, tuple(prefix), int(seed), int(T_ns))
 
+    @override
     def from_uniform(self, u, T_ns):
         raise TypeError("gilbert_elliott is a Markov chain: draw through sampler() or sample_ns()")
 

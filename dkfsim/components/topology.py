@@ -88,9 +88,17 @@ for _name, _gen, _doc in (
         ("edges", Generator(), "topology.edges exactly as listed")):
     GENERATORS.add(_name, implementation=_gen, description=_doc)
 
-#: generator -> (required params, optional params), from the registry.
-GENERATOR_PARAMS = {e.name: (e.implementation.required, e.implementation.optional)
-                    for e in GENERATORS.entries()}
+
+def generator_params(generator: str) -> tuple[tuple[str, ...], tuple[str, ...]] | None:
+    """``(required, optional)`` parameter names of ``generator``, None when it is not registered.
+
+    Read from the registry when asked, never at import: a registry read may load the
+    installed plugins, which import dkfsim themselves (docs/decisions.md, #72).
+    """
+    if generator not in GENERATORS:
+        return None
+    gen = GENERATORS.get(generator).implementation
+    return gen.required, gen.optional
 
 
 #: Largest number of edges a random generator may produce (expected count, checked before).
@@ -133,9 +141,10 @@ def balanced_tree_size(r: int, h: int) -> int:
 
 def check_params(generator: str, params: dict, n: int) -> None:
     """Check ``params`` for ``generator`` on ``n`` nodes; raise :class:`GraphSpecError`."""
-    if generator not in GENERATOR_PARAMS:
+    names = generator_params(generator)
+    if names is None:
         raise GraphSpecError(GENERATORS.unknown(generator), "generator")
-    required, optional = GENERATOR_PARAMS[generator]
+    required, optional = names
     allowed = required + optional
     for key in params:
         if key not in allowed:
@@ -266,7 +275,7 @@ def _explicit_edges(edges, n: int, directed: bool) -> list[tuple[int, int]]:
 def graph_seed(topology, seed: int):
     """The seed :func:`build_graph` draws ``topology`` from: ``params.seed``, else the
     scenario's ``seed``; None for a generator that draws nothing (``edges``, ``ring``...)."""
-    optional = GENERATOR_PARAMS.get(topology.generator, ((), ("seed",)))[1]
+    optional = (generator_params(topology.generator) or ((), ("seed",)))[1]
     return (topology.params or {}).get("seed", seed) if "seed" in optional else None
 
 
@@ -458,13 +467,6 @@ class ExchangeGraph:
     @functools.cached_property
     def d_g(self) -> int:
         return diameter(self.graph)
-
-    @functools.cached_property
-    def d_g_bounds(self) -> tuple[int, int]:
-        """Cheap (lower, upper) bounds of ``d_g``."""
-        if "d_g" in self.__dict__:
-            return self.d_g, self.d_g
-        return diameter_bounds(self.graph)
 
 
 def protocol_graph(protocol: str) -> str:

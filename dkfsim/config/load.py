@@ -34,7 +34,7 @@ def _parse_yaml(text: str, source: str) -> Any:
         raise ScenarioError(yaml_error_text(err), source=source) from None
 
 
-def _load_plugins(data: dict, label: str, base_dir) -> None:
+def _load_plugins(data: dict, label: str, base_dir: str | os.PathLike | None) -> None:
     """Import the modules and files a scenario's ``plugins:`` key names (they register
     components the rest of the file may use)."""
     plugins = data.get("plugins") or []

@@ -1,6 +1,6 @@
 """The scenario schema: every key of a scenario file, validated in one place.
 
-A scenario is a YAML mapping (the README's "Scenario files");
+A scenario is a YAML mapping (docs/scenarios.md, "The keys");
 :func:`dkfsim.config.load.load_scenario` reads it and validates it into a
 frozen :class:`Scenario`.  Field checks live in the parameter models,
 cross-field checks (shapes, graph, protocol, buffer, time range, each
@@ -44,7 +44,7 @@ from __future__ import annotations
 
 import hashlib
 import json
-from typing import Annotated, Any, Literal
+from typing import TYPE_CHECKING, Annotated, Any, Literal
 
 import networkx
 from pydantic import AfterValidator, BaseModel, BeforeValidator, Field, PrivateAttr, field_validator, model_validator
@@ -78,9 +78,14 @@ from dkfsim.core.resources import CHEAP_VISITS
 FUSION_MEMORY_LIMIT = 2 << 30
 
 
-#: A sensor (any registered kind; ``linear`` when ``kind`` is absent) and an estimator entry.
-SensorField = registered(SensorParams, SENSOR_KINDS, "linear")
-EstimatorField = registered(EstimatorParams, ESTIMATORS)
+#: A sensor (any registered kind; ``linear`` when ``kind`` is absent) and an estimator entry
+#: (to a type checker: the base models, which every registered one subclasses).
+if TYPE_CHECKING:
+    SensorField = SensorParams
+    EstimatorField = EstimatorParams
+else:
+    SensorField = registered(SensorParams, SENSOR_KINDS, "linear")
+    EstimatorField = registered(EstimatorParams, ESTIMATORS)
 
 
 def _registered(registry):

@@ -159,7 +159,7 @@ def remove_dead_staging(target: Path) -> list[Path]:
     return done
 
 
-def _owned(folder: Path, entries: list[str]) -> bool:
+def _owned(entries: list[str]) -> bool:
     return MARKER in entries or all(e in KNOWN_OUTPUTS for e in entries)
 
 
@@ -182,7 +182,7 @@ def check_target(out_dir, flag: str = "--out") -> Path:
             entries = sorted(os.listdir(out))
         except OSError as exc:
             raise DkfsimError(f"{flag} {text}: cannot read the folder ({exc.strerror})") from None
-        if entries and not _owned(out, entries):
+        if entries and not _owned(entries):
             shown = ", ".join(entries[:5]) + (", ..." if len(entries) > 5 else "")
             raise DkfsimError(f"{flag} {text}: the folder holds files dkfsim did not write ({shown}); "
                               "it would be replaced as a whole: choose a new or empty folder")

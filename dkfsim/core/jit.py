@@ -2,8 +2,9 @@
 kernels lazily, once, under a lock.
 
 Kernels live in the layer that uses them (:mod:`dkfsim.estimators.kernels` for the window
-filter and the cross-covariance recursion, :mod:`dkfsim.protocols.tree_kernels` for the tree
-exchange's per-link sums); this module only holds what they share, low enough in the layers
+filter, the contribution fold and the cross-covariance recursion,
+:mod:`dkfsim.protocols.tree_compiled_kernels` for the compiled ``tree`` protocol's instants:
+deliveries, flushes and keyed latency draws); this module only holds what they share, low enough in the layers
 for both.  See docs/design.md §4 ("Kernel paths").
 """
 

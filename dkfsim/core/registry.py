@@ -23,6 +23,7 @@ import importlib.util
 import sys
 from dataclasses import dataclass
 from importlib.metadata import entry_points
+from os import PathLike
 from pathlib import Path
 from typing import Any, Callable, Iterator
 
@@ -41,7 +42,7 @@ class Entry:
     implementation: Any = None          # class or function that does the work
 
 
-def _first_line(obj) -> str:
+def _first_line(obj: Any) -> str:
     doc = (getattr(obj, "__doc__", None) or "").strip()
     return doc.splitlines()[0].strip().rstrip(".").replace("``", "") if doc else ""
 
@@ -82,11 +83,11 @@ class Registry:
             self._aliases[alias] = name
         return entry
 
-    def register(self, name: str | None = None, **kw) -> Callable:
+    def register(self, name: str | None = None, **kw: Any) -> Callable[[type], type]:
         """Class decorator: ``@REGISTRY.register("name", params=...)`` registers the
         decorated class as the implementation (and as the parameter model when it is
         one: a class with ``model_fields``)."""
-        def deco(cls):
+        def deco(cls: type) -> type:
             key = name or cls.__name__
             if hasattr(cls, "model_fields") and "params" not in kw:
                 self.add(key, params=cls, implementation=kw.get("implementation", cls),
@@ -143,21 +144,35 @@ REGISTRIES: dict[str, Registry] = {
     "estimators": ESTIMATORS, "sensors": SENSOR_KINDS, "metrics": METRICS,
 }
 
-_PLUGINS_LOADED = False
-
-
 #: Entry-point groups whose modules are imported as plugins: ``dkfsim.plugins``
 #: (any component) and ``dkfsim.estimators`` (the name an estimator package may
 #: expect); both are the same mechanism.
 PLUGIN_GROUPS = ("dkfsim.plugins", "dkfsim.estimators")
 
+#: True once ``import dkfsim`` has registered every built-in component (:func:`builtins_registered`).
+_BUILTINS_REGISTERED = False
+#: True once the entry-point plugins were imported (or tried: a broken one is reported once).
+_PLUGINS_LOADED = False
+
+
+def builtins_registered() -> None:
+    """Say that every built-in component is registered (the last line of ``dkfsim/__init__.py``).
+
+    Until then a registry read loads no entry-point plugin: a plugin imports dkfsim's
+    modules, and while ``import dkfsim`` is under way they are half initialised.
+    """
+    global _BUILTINS_REGISTERED
+    _BUILTINS_REGISTERED = True
+
 
 def load_entry_point_plugins() -> None:
-    """Import the modules of the :data:`PLUGIN_GROUPS` entry-point groups, once."""
+    """Import the modules of the :data:`PLUGIN_GROUPS` entry-point groups, once per process,
+    at the first registry read after ``import dkfsim`` completed.  A plugin that fails to
+    import is reported on stderr (once) and left out; dkfsim itself keeps working."""
     global _PLUGINS_LOADED
-    if _PLUGINS_LOADED:
+    if _PLUGINS_LOADED or not _BUILTINS_REGISTERED:
         return
-    _PLUGINS_LOADED = True
+    _PLUGINS_LOADED = True           # (a plugin that reads a registry while loading does not recurse)
     for ep in (ep for group in PLUGIN_GROUPS for ep in entry_points(group=group)):
         try:
             ep.load()
@@ -165,7 +180,7 @@ def load_entry_point_plugins() -> None:
             print(f"dkfsim: plugin {ep.name!r} ({ep.value}) failed to load: {exc}", file=sys.stderr)
 
 
-def load_plugin(spec: str, base_dir: str | None = None) -> None:
+def load_plugin(spec: str, base_dir: str | PathLike | None = None) -> None:
     """Import a plugin: a module name (``my_pkg.my_estimator``) or a ``.py`` file
     (relative paths resolve against ``base_dir``).  Raises :class:`DkfsimError`."""
     if spec.endswith(".py"):
@@ -178,6 +193,8 @@ def load_plugin(spec: str, base_dir: str | None = None) -> None:
         if name in sys.modules:
             return
         module_spec = importlib.util.spec_from_file_location(name, path)
+        if module_spec is None or module_spec.loader is None:
+            raise DkfsimError(f"plugin {path} cannot be imported (not a Python file?)")
         module = importlib.util.module_from_spec(module_spec)
         sys.modules[name] = module
         try:

@@ -26,6 +26,7 @@ try:
 except ImportError:  # pragma: no cover  (not a Unix)
     resource = None
 from dataclasses import dataclass, field
+from typing import Literal
 
 from dkfsim.core.errors import ResourceError
 
@@ -47,6 +48,9 @@ C_VISIT = 1.0e-6        # per node or edge visited by a breadth-first search (ne
 #: Below this many visits an exact all-pairs search is cheap enough to just do.
 CHEAP_VISITS = 2_000_000
 B_FLOAT = 8
+
+#: What a run keeps (``--save``, resolved): everything, no arrival log, summary.json only.
+SaveMode = Literal["full", "estimates", "summary"]
 
 
 def human_bytes(n: float) -> str:

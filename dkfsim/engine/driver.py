@@ -14,10 +14,13 @@ relay at ``t_k``, every estimator's ``on_update``.
 from __future__ import annotations
 
 import time
+from collections.abc import Callable, Mapping, Sequence
+from os import PathLike
+from typing import Any
 
 import numpy as np
 import simpy
-from simpy.events import NORMAL
+from simpy.events import NORMAL, Event
 
 from dkfsim.components.faults import CrashSchedule
 from dkfsim.components.topology import topology_arcs
@@ -29,8 +32,8 @@ from dkfsim.core.threads import single_thread
 from dkfsim.engine.estimate import check_run
 from dkfsim.engine.results import RunResult, resolve_save_mode
 from dkfsim.estimators.anti_delay import AntiDelayDKF, AntiDelayParams
-from dkfsim.estimators.base import RunContext
-from dkfsim.model.system import build_system
+from dkfsim.estimators.base import Estimator, EstimatorResult, RunContext
+from dkfsim.model.system import LinearGaussianSystem, build_system
 from dkfsim.model.trajectory import track_truth
 from dkfsim.network.links import PRIORITY_UPDATE, Network, Scheduled
 
@@ -38,7 +41,8 @@ from dkfsim.network.links import PRIORITY_UPDATE, Network, Scheduled
 class Run:
     """The runtime state of one run (configuration stays in the scenario)."""
 
-    def __init__(self, scenario, *, save: str = "auto", progress=None, system=None):
+    def __init__(self, scenario: Scenario, *, save: str = "auto",
+                 progress: Callable[[int, int], None] | None = None, system: LinearGaussianSystem | None = None):
         """``system``: the scenario's :func:`~dkfsim.model.system.build_system`, when the
         caller already has it (the runs of a Monte Carlo differ only by their seed and
         share one; it is read, never changed, by a run)."""
@@ -63,13 +67,13 @@ class Run:
         self.k = 0
 
     # -- the clock -------------------------------------------------------------------
-    def _measure(self, _event) -> None:
+    def _measure(self, _event: Event) -> None:
         self.k += 1
         for est in self.estimators:
             est.on_measure(self.k - 1)
         Scheduled(self.ctx.env, self._update, PRIORITY_UPDATE)
 
-    def _update(self, _event) -> None:
+    def _update(self, _event: Event) -> None:
         k = self.k
         for est in self.estimators:
             est.on_update(k)
@@ -90,11 +94,11 @@ class Run:
                 if port.until is None:
                     port.until = end
             Scheduled(ctx.env, self._measure, NORMAL, ctx.T_ns)
-            ctx.env.run(until=max([end] + [p.until for p in ctx.network.ports]) + 1)
+            ctx.env.run(until=max([end] + [p.until for p in ctx.network.ports if p.until is not None]) + 1)
             results = [(est, est.finish()) for est in self.estimators]
         return self._result(results, time.perf_counter() - t0)
 
-    def _result(self, results, wall: float) -> RunResult:
+    def _result(self, results: Sequence[tuple[Estimator, EstimatorResult]], wall: float) -> RunResult:
         ctx, sc = self.ctx, self.scenario
         sys_, K = ctx.system, self.K
         arrays = {"t": sys_.times(K), "truth": ctx.truth,
@@ -123,7 +127,7 @@ class Run:
                 traffic[name] = res.traffic
             if res.facts and est is not self.dkf:
                 facts[est.name] = res.facts
-        counts = dict(results[0][1].traffic)          # the scenario's DKF: the run's packets
+        counts = dict(results[0][1].traffic or {})    # the scenario's DKF: the run's packets
         info = {
             "buffer_length": self.dkf.L,
             "d_t": sc.resolved_d_t(),
@@ -140,8 +144,9 @@ class Run:
 
 
 @single_thread
-def run(scenario, *, seed: int | None = None, steps: int | None = None,
-        save: str = "auto", progress=None, yes: bool = False) -> RunResult:
+def run(scenario: Scenario | str | PathLike | Mapping[str, Any], *, seed: int | None = None,
+        steps: int | None = None, save: str = "auto", progress: bool | Callable[[int, int], None] | None = None,
+        yes: bool = False) -> RunResult:
     """Simulate one scenario and return its :class:`~dkfsim.engine.results.RunResult`.
 
     ``scenario`` is a :class:`~dkfsim.config.schema.Scenario`, a path to a

@@ -5,7 +5,7 @@ the names of its estimates, its packet counts and each estimator's traffic,
 and writes a result folder: ``run.npz`` (the arrays; a pure function of the
 scenario and its seed, bit-identical across runs and worker counts),
 ``rows.csv`` (the tidy rows every output shares, one per estimate and state
-component: :func:`dkfsim.analysis.metrics.score`) and ``summary.json`` (the
+component: :func:`dkfsim.analysis.metrics.score_scored`) and ``summary.json`` (the
 same numbers, the counts, the scenario, versions and the wall time).
 """
 
@@ -14,6 +14,7 @@ from __future__ import annotations
 import platform
 from collections.abc import Mapping
 from pathlib import Path
+from typing import cast
 
 import networkx
 import numpy as np
@@ -29,6 +30,7 @@ from dkfsim.core.errors import DkfsimError
 from dkfsim.core.files import clip, read_json
 from dkfsim.core.folders import staged, write_csv, write_json
 from dkfsim.core.npzfile import NpzFile
+from dkfsim.core.resources import SaveMode
 from dkfsim.core.version import __version__
 
 SAVE_MODES = ("auto", "full", "estimates", "summary")
@@ -41,12 +43,13 @@ FULL_LOG_LIMIT = 20_000_000
 NOT_ESTIMATES = ("x_final", "x0_mean")
 
 
-def resolve_save_mode(save: str, n: int, K: int) -> str:
-    if save not in SAVE_MODES:
-        raise DkfsimError(f"--save: unknown mode {save!r}; choose one of {', '.join(SAVE_MODES)}")
+def resolve_save_mode(save: str, n: int, K: int) -> SaveMode:
+    """The mode a run of ``n`` nodes and ``K`` ticks keeps (``auto`` resolved)."""
     if save == "auto":
         return "full" if n * n * K <= FULL_LOG_LIMIT else "estimates"
-    return save
+    if save in ("full", "estimates", "summary"):
+        return cast(SaveMode, save)
+    raise DkfsimError(f"--save: unknown mode {save!r}; choose one of {', '.join(SAVE_MODES)}")
 
 
 def versions() -> dict:

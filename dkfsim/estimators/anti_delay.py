@@ -27,7 +27,7 @@ from dkfsim.components.estimators import AntiDelayParams, NoBufferParams
 from dkfsim.components.topology import paper_weights
 from dkfsim.config.schema import FUSION_MEMORY_LIMIT
 from dkfsim.core.errors import ScenarioError
-from dkfsim.core.registry import ESTIMATORS, PROTOCOLS
+from dkfsim.core.registry import PROTOCOLS
 from dkfsim.core.resources import (
     B_FLOAT,
     C_CONTRIBUTION,
@@ -42,6 +42,7 @@ from dkfsim.core.resources import (
 from dkfsim.estimators.base import Estimate, Estimator, EstimatorResult
 from dkfsim.estimators.fusion import FUSERS, CrossCovariance
 from dkfsim.estimators.window import WindowFilter
+from dkfsim.network.links import Port
 from dkfsim.protocols.tree import TreeExchange
 from dkfsim.protocols.tree_compiled import CompiledTreeExchange
 from dkfsim.protocols.tree_compiled import usable as compiled_tree_usable
@@ -65,10 +66,11 @@ def late_horizon(scenario, n: int, L: int) -> int:
     return int(max(L + 2, min(4096, (64 << 20) // per_row)))
 
 
-class AntiDelayDKF(Estimator):
+class AntiDelayDKF(Estimator, params=AntiDelayParams):
     """The anti-delay distributed Kalman filter with optimal matrix-weighted fusion."""
 
-    Params = AntiDelayParams
+    params: AntiDelayParams
+    port: Port                  # (opened by start)
 
     def __init__(self, params: AntiDelayParams, ctx, main: bool = False):
         super().__init__(params, ctx)
@@ -137,15 +139,14 @@ class AntiDelayDKF(Estimator):
                                    per_origin=self.fusion != "none")
         self.xcov = CrossCovariance(self.window, sys_.P0) if self.fusion != "none" else None
         self.arrival = np.full((n, n, K), np.inf) if (self.main and ctx.save == "full") else None
-        links = [ctx.network.link(u, v) for u, v in xg.arcs]
+        links = ctx.exchange_links()
         protocol = PROTOCOLS.get(sc.protocol).implementation
         if protocol is TreeExchange and compiled_tree_usable(links, self.window.kernels, ctx.crashes):
             protocol = CompiledTreeExchange
         self.exchange = protocol(ctx.env, n, self.window, arrival=self.arrival,
                                  late_horizon=late_horizon(sc, n, self.L), nx=nx, T_ns=ctx.T_ns)
         self.exchange.crashes = ctx.crashes
-        self.port = ctx.network.port(self.name, self.exchange.receive, links)
-        self.exchange.attach(self.port, links)
+        self.exchange.attach(self.open_port(self.exchange.receive, links), links)
         self.x_local = np.empty((K, n, nx))
         # P_local is the one (K, n, nx, nx) array: skip it when nothing will save it
         # or when it alone would take more than a few hundred megabytes.
@@ -202,13 +203,9 @@ class AntiDelayDKF(Estimator):
                                {"buffer_length": self.L, "exchange": self.exchange.bookkeeping})
 
 
-ESTIMATORS.add("anti_delay_dkf", implementation=AntiDelayDKF)
 
-
-class NoBuffer(AntiDelayDKF):
+class NoBuffer(AntiDelayDKF, params=NoBufferParams):
     """The anti-delay DKF without its buffer: ``L = 1`` (late information is dropped)."""
-
-    Params = NoBufferParams
 
     def __init__(self, params, ctx):
         super().__init__(AntiDelayParams(name=params.label, buffer_length=1), ctx)
@@ -216,6 +213,3 @@ class NoBuffer(AntiDelayDKF):
     @classmethod
     def cost(cls, params, scenario, **shape):
         return AntiDelayDKF.cost(AntiDelayParams(name=params.label, buffer_length=1), scenario, **shape)
-
-
-ESTIMATORS.add("no_buffer", implementation=NoBuffer)

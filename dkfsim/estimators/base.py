@@ -9,24 +9,35 @@ that instant, :meth:`Estimator.on_update` after them) and to the packets of
 its own :class:`~dkfsim.network.links.Port`, may schedule events of its own
 on ``ctx.env`` (consensus rounds), and returns an :class:`EstimatorResult`:
 named estimates (``x`` of shape ``(K, nx)``, or ``(K, n, nx)`` per node,
-with covariances when it has them), extra arrays for ``run.npz`` and its
-traffic.  Before a run, :meth:`Estimator.cost` says what it needs, so a
-command can refuse work that cannot fit (:mod:`dkfsim.core.resources`).
+with covariances when it has them), extra arrays for ``run.npz``, its
+traffic and side facts.  Before a run, :meth:`Estimator.cost` says what it
+needs, so a command can refuse work that cannot fit (:mod:`dkfsim.core.resources`).
 
-Adding an algorithm is one file: a parameter model, an :class:`Estimator`
-subclass, and ``ESTIMATORS.add(kind, params=..., implementation=...)``;
-docs/extending.md walks through an example the tests run.
+Adding an algorithm is one file: a parameter model that declares the kind
+(``class MyParams(EstimatorParams, kind="my_kind")``) and an :class:`Estimator`
+subclass that names it (``class Mine(Estimator, params=MyParams)``); both
+register themselves.  docs/extending.md walks through an example the tests
+run, and :func:`dkfsim.testing.check_estimator` checks one.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Any, ClassVar
+from typing import Any, Callable, ClassVar
 
 import numpy as np
+import simpy
 
 from dkfsim.components.estimators import EstimatorParams
-from dkfsim.core.resources import Cost
+from dkfsim.components.faults import CrashSchedule
+from dkfsim.components.topology import topology_arcs
+from dkfsim.config.schema import Scenario
+from dkfsim.core.registry import ESTIMATORS
+from dkfsim.core.resources import B_FLOAT, Cost, SaveMode
+from dkfsim.model.system import Information, LinearGaussianSystem
+from dkfsim.network.links import Link, Network, Port
+
+__all__ = ["Estimate", "Estimator", "EstimatorResult", "RunContext", "SaveMode", "existing_information_bytes"]
 
 
 @dataclass
@@ -35,10 +46,6 @@ class Estimate:
 
     x: np.ndarray
     P: np.ndarray | None = None
-
-    @property
-    def per_node(self) -> bool:
-        return self.x.ndim == 3
 
 
 @dataclass
@@ -49,28 +56,41 @@ class EstimatorResult:
     arrays: dict[str, np.ndarray] = field(default_factory=dict)
     #: Port counts (``sent``, ``delivered``, ``lost``, ``bytes``, ... and ``late``); None when
     #: the algorithm has no network model (the idealised centralized filter).
-    traffic: dict | None = None
+    traffic: dict[str, Any] | None = None
     #: Side facts for summary.json (protocol counters, rounds, ...).
-    facts: dict = field(default_factory=dict)
+    facts: dict[str, Any] = field(default_factory=dict)
 
 
 @dataclass
 class RunContext:
-    """What a run offers every estimator: the model, the draws, the network and the clock."""
+    """What a run offers every estimator: the model, the draws, the network and the clock.
 
-    scenario: Any                 # dkfsim.config.schema.Scenario
-    system: Any                   # dkfsim.model.system.LinearGaussianSystem
-    truth: np.ndarray             # (K, nx)
-    ys: list                      # y_i, (K, m_i) each
-    info: Any                     # dkfsim.model.system.Information: every contribution
-    crashes: Any                  # dkfsim.components.faults.CrashSchedule or None
-    env: Any                      # simpy.Environment
-    network: Any                  # dkfsim.network.links.Network
-    save: str                     # "full" | "estimates" | "summary"
+    Read ``system`` (and its sensors), ``truth``, ``ys`` and ``info``; never change them:
+    every estimator of the run, and the runs of a Monte Carlo, share them.
+    """
+
+    #: The validated scenario.
+    scenario: Scenario
+    #: The model as simulated: ``Phi``, ``Q``, ``x0_mean``, ``P0``, the sensors (``H``, ``R``).
+    system: LinearGaussianSystem
+    #: The true state, ``(K, nx)``.
+    truth: np.ndarray
+    #: Sensor ``i``'s measurements ``ys[i]``, ``(K, m_i)``.
+    ys: list[np.ndarray]
+    #: Every sensor's information contribution per row: ``theta`` (K, n, nx), ``omega``.
+    info: Information
+    #: The sensors' crash windows, or None when no sensor crashes.
+    crashes: CrashSchedule | None
+    #: The run's SimPy clock (integer nanoseconds).
+    env: simpy.Environment
+    #: The links of the run, shared by every estimator (open a port with ``network.port``).
+    network: Network
+    #: What the run keeps: ``"full"``, ``"estimates"`` or ``"summary"``.
+    save: SaveMode
 
     @property
     def K(self) -> int:
-        return self.truth.shape[0]
+        return int(self.truth.shape[0])
 
     @property
     def n(self) -> int:
@@ -82,7 +102,7 @@ class RunContext:
 
     @property
     def T_ns(self) -> int:
-        return self.system.T_ns
+        return int(self.system.T_ns)
 
     @property
     def seed(self) -> int:
@@ -100,19 +120,61 @@ class RunContext:
         m = self.measured()
         if m is None:
             return self.info.omega, self.info.theta
+        m = np.ascontiguousarray(m)         # (a transposed mask would make the products non-contiguous)
         return self.info.omega_per_row() * m[:, :, None, None], self.info.theta * m[:, :, None]
+
+    def topology_links(self) -> list[Link]:
+        """Every directed link of the scenario's topology, the full graph (an undirected edge
+        both ways), in the network's order: what the consensus filters talk over."""
+        return [self.network.link(u, v) for u, v in topology_arcs(self.scenario.graph())]
+
+    def exchange_links(self) -> list[Link]:
+        """The links of the graph the scenario's ``protocol`` runs on (``scenario.exchange()``:
+        the tree, or a spanning tree of the topology, for ``tree``; every arc for ``flood``):
+        what the anti-delay DKF and ``ci_consensus`` talk over."""
+        return [self.network.link(u, v) for u, v in self.scenario.exchange().arcs]
+
+
+def existing_information_bytes(scenario: Scenario) -> int:
+    """Memory :meth:`RunContext.existing_information` allocates, for an estimator's :meth:`~Estimator.cost`:
+    with crash windows the masked copies, ``omega`` per row and ``theta`` (``K n nx (nx + 1)``
+    floats); without, nothing (it returns the run's own arrays)."""
+    if scenario.faults is None or not scenario.faults.crashes:
+        return 0
+    K, n, nx = int(scenario.steps), scenario.n, scenario.nx
+    return K * n * nx * (nx + 1) * B_FLOAT
 
 
 class Estimator:
     """Base class of every algorithm (see the module docstring).
 
-    Subclasses set :attr:`Params`, implement :meth:`finish`, and hook into the
-    clock or the network as they need.  Constructors store; :meth:`start` is
-    where an estimator opens its port and schedules its own events.
+    A subclass names its parameter model as a class keyword, ``class Mine(Estimator,
+    params=MyParams)``, which registers it in :data:`~dkfsim.core.registry.ESTIMATORS`
+    under the model's kind (and sets :attr:`Params`).  It hooks into the clock or the
+    network as it needs and returns its estimate from :meth:`estimate` (or overrides
+    :meth:`finish` when it returns more).  Constructors store; :meth:`start` is where an
+    estimator opens its port and schedules its own events.
     """
 
-    #: The parameter model of its ``estimators:`` entry.
+    #: The parameter model of its ``estimators:`` entry (set by the ``params=`` class keyword).
     Params: ClassVar[type[EstimatorParams]] = EstimatorParams
+    #: False for an idealised estimator with no network model (the centralized filter): its
+    #: traffic is "not applicable" (None, ``null`` in summary.json), not zero.
+    network_model: ClassVar[bool] = True
+    #: The estimator's port, when :meth:`start` opened one (:meth:`open_port`): the default
+    #: :meth:`finish` reports its counts.
+    port: Port | None = None
+
+    def __init_subclass__(cls, params: type[EstimatorParams] | None = None, **kwargs: Any):
+        super().__init_subclass__(**kwargs)
+        if params is None:
+            return
+        kind = params.model_fields["kind"].default
+        if not isinstance(kind, str) or not kind:
+            raise TypeError(f"{cls.__name__}: params={params.__name__} declares no kind; declare it with "
+                            f"class {params.__name__}(EstimatorParams, kind='...')")
+        cls.Params = params
+        ESTIMATORS.add(kind, implementation=cls)
 
     def __init__(self, params: EstimatorParams, ctx: RunContext):
         self.params = params
@@ -120,7 +182,8 @@ class Estimator:
         self.name = params.label
 
     @classmethod
-    def cost(cls, params: EstimatorParams, scenario, *, L: int, arcs: int, save: str = "estimates") -> Cost:
+    def cost(cls, params: EstimatorParams, scenario: Scenario, *, L: int, arcs: int,
+             save: SaveMode = "estimates") -> Cost:
         """Memory and CPU time of one run (default: next to nothing).  ``L`` and ``arcs``
         are the scenario's buffer length and exchange links, ``save`` the save mode."""
         return Cost(params.label)
@@ -135,6 +198,35 @@ class Estimator:
     def on_update(self, k: int) -> None:
         """Tick ``k``: every packet due by ``t_k`` has been delivered."""
 
+    # -- helpers ---------------------------------------------------------------------
+    def open_port(self, receive: Callable[[Link, Any], None], links: list[Link],
+                  until: int | None = None) -> Port:
+        """Open this estimator's port (named after it) on ``links``: ``receive(link, payload)``
+        gets its deliveries; deliveries after ``until`` ns (default: the run's last tick) stay
+        in flight.  Sets :attr:`port`, whose counts the default :meth:`finish` reports."""
+        self.port = self.ctx.network.port(self.name, receive, links, until=until)
+        return self.port
+
+    # -- the result --------------------------------------------------------------------
+    def estimate(self) -> Estimate:
+        """The run's estimate, named :attr:`name`, once the run is over (what the default
+        :meth:`finish` reports)."""
+        raise NotImplementedError(f"{type(self).__name__} implements neither estimate() nor finish()")
+
+    def traffic(self) -> dict[str, Any] | None:
+        """The port's counts (``late`` included: :meth:`~dkfsim.network.links.Port.count_late`);
+        zero counts without a port; None without a network model (:attr:`network_model`)."""
+        if not self.network_model:
+            return None
+        if self.port is None:
+            return {"sent": 0, "delivered": 0, "lost": 0, "bytes": 0, "in_flight": 0, "late": 0}
+        return self.port.counts()
+
+    def facts(self) -> dict[str, Any]:
+        """Side facts for summary.json (default: none)."""
+        return {}
+
     def finish(self) -> EstimatorResult:
-        """The estimates, once the run is over."""
-        raise NotImplementedError
+        """The result, once the run is over: :meth:`estimate` under :attr:`name`, :meth:`traffic`
+        and :meth:`facts`.  Override it to return several estimates or extra arrays."""
+        return EstimatorResult({self.name: self.estimate()}, traffic=self.traffic(), facts=self.facts())

@@ -8,28 +8,30 @@ is not applicable (``None``), not zero.
 
 from __future__ import annotations
 
+from typing_extensions import override
+
 from dkfsim.components.estimators import CentralizedParams
-from dkfsim.core.registry import ESTIMATORS
 from dkfsim.core.resources import B_FLOAT, C_TICK, Cost
-from dkfsim.estimators.base import Estimate, Estimator, EstimatorResult
+from dkfsim.estimators.base import Estimate, Estimator, existing_information_bytes
 from dkfsim.estimators.window import centralized_filter
 
 
-class Centralized(Estimator):
+class Centralized(Estimator, params=CentralizedParams):
     """The centralized information filter with every measurement on time."""
 
-    Params = CentralizedParams
-
+    network_model = False
     @classmethod
+    @override
     def cost(cls, params, scenario, *, L: int, arcs: int, save: str = "estimates") -> Cost:
         K, nx = int(scenario.steps), scenario.nx
-        return Cost(params.label, memory={"centralized": K * (nx + nx * nx) * B_FLOAT}, seconds=K * C_TICK)
+        copy = existing_information_bytes(scenario)
+        per_row = copy > 0 or any(s.kind != "linear" for s in scenario.sensors)     # omega per row
+        sums = K * (nx + (nx * nx if per_row else 0)) * B_FLOAT                      # over the sensors
+        return Cost(params.label, memory={"centralized": K * (nx + nx * nx) * B_FLOAT + sums + copy},
+                    seconds=K * C_TICK)
 
-    def finish(self) -> EstimatorResult:
+    def estimate(self) -> Estimate:
         s = self.ctx.system
         omega, theta = self.ctx.existing_information()
         x, P = centralized_filter(s.Phi, s.Q, s.x0_mean, s.P0, omega.sum(axis=-3), theta.sum(axis=1))
-        return EstimatorResult({self.name: Estimate(x, P)})
-
-
-ESTIMATORS.add("centralized", implementation=Centralized)
+        return Estimate(x, P)

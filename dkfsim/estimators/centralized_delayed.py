@@ -14,24 +14,24 @@ by its first copy).
 from __future__ import annotations
 
 import numpy as np
+from typing_extensions import override
 
 from dkfsim.components.estimators import CentralizedDelayedParams
-from dkfsim.core.registry import ESTIMATORS
 from dkfsim.core.resources import B_FLOAT, C_NODE_ROW, C_PACKET, C_ROW, C_TICK, Cost
 from dkfsim.estimators.base import Estimate, Estimator, EstimatorResult
 from dkfsim.estimators.window import WindowFilter
 
 
-class CentralizedDelayed(Estimator):
+class CentralizedDelayed(Estimator, params=CentralizedDelayedParams):
     """The window filter of a fusion centre that receives every sensor over its own link."""
 
-    Params = CentralizedDelayedParams
-
     @classmethod
+    @override
     def cost(cls, params, scenario, *, L: int, arcs: int, save: str = "estimates") -> Cost:
         K, n, nx = int(scenario.steps), scenario.n, scenario.nx
         L = min(L, K)
-        return Cost(params.label, memory={"centralized_delayed": K * n * (8 + 2 * nx * B_FLOAT)
+        # per (sensor, row): its arrival tick, and the indices that order the usable ones (6 ints)
+        return Cost(params.label, memory={"centralized_delayed": K * n * (7 * 8 + 2 * nx * B_FLOAT)
                                           + (L + 1) * (2 * nx + 3 * nx * nx) * B_FLOAT},
                     seconds=K * (C_TICK + L * (C_ROW + C_NODE_ROW) + n * C_PACKET))
 
@@ -84,6 +84,3 @@ class CentralizedDelayed(Estimator):
                    "in_flight": counts["sent"] - counts["lost"] - delivered,
                    "bytes": counts["sent"] * (16 + 8 * (s.nx + s.nx * (s.nx + 1) // 2))}
         return EstimatorResult({self.name: Estimate(x, P)}, traffic=traffic)
-
-
-ESTIMATORS.add("centralized_delayed", implementation=CentralizedDelayed)

@@ -106,11 +106,11 @@ from an older tick (``stale``).
 from __future__ import annotations
 
 import numpy as np
+from typing_extensions import override
 
 from dkfsim.components.estimators import CIParams
-from dkfsim.core.registry import ESTIMATORS
 from dkfsim.core.resources import B_FLOAT, C_NODE_ROW, C_PACKET, C_ROW, C_TICK, Cost
-from dkfsim.estimators.base import Estimate, EstimatorResult
+from dkfsim.estimators.base import existing_information_bytes
 from dkfsim.estimators.rounds import Powers as _Powers
 from dkfsim.estimators.rounds import RoundBased, metropolis_weights
 from dkfsim.estimators.rounds import solve_pair as _solve_pair
@@ -119,7 +119,7 @@ from dkfsim.estimators.window import predict
 __all__ = ["CIConsensus", "metropolis_weights"]
 
 
-class CIConsensus(RoundBased):
+class CIConsensus(RoundBased, params=CIParams):
     """Every node's CI filter and its exchange, on the run's network.
 
     The filter steps are batched over nodes; rounds are events at
@@ -127,21 +127,22 @@ class CIConsensus(RoundBased):
     estimator's own port over the exchange graph's links.
     """
 
-    Params = CIParams
+    params: CIParams
     DROP_LATE = False           # older pairs are predicted forward, never dropped
 
     @classmethod
+    @override
     def cost(cls, params, scenario, *, L: int, arcs: int, save: str = "estimates") -> Cost:
         K, n, nx = int(scenario.steps), scenario.n, scenario.nx
         return Cost(params.label,
-                    memory={"ci_consensus": K * n * (nx + nx * nx) * B_FLOAT + arcs * (nx + nx * nx) * 2 * B_FLOAT},
+                    memory={"ci_consensus": K * n * (nx + nx * nx) * B_FLOAT + arcs * (nx + nx * nx) * 2 * B_FLOAT
+                            + existing_information_bytes(scenario)},
                     seconds=K * (C_ROW + n * C_NODE_ROW) + K * params.rounds * (
                         C_TICK + 3 * C_ROW + arcs * C_PACKET + n * 2 * C_NODE_ROW))
 
     def start(self) -> None:
         self.rounds = int(self.params.rounds)
-        arcs = self.ctx.scenario.exchange().arcs if self.rounds > 0 else []
-        self.start_rounds(arcs, self.rounds)
+        self.start_rounds(self.ctx.exchange_links() if self.rounds > 0 else [], self.rounds)
 
     def setup(self) -> None:
         s = self.ctx.system
@@ -185,6 +186,7 @@ class CIConsensus(RoundBased):
             Om_nb[old], q_nb[old] = Om_old, q_old
         self.used += int(have.sum())
         self.stale += int(old.size)
+        self.port.count_late(old.size)        # its ``late``: neighbour pairs used a tick late or more
         n, nx = self.n, self.nx
         # Arcs with nothing received hold zeros; their weight goes to pi_ii.
         self_w = 1.0 - self.S @ have.astype(float)
@@ -203,6 +205,7 @@ class CIConsensus(RoundBased):
     def begin_tick(self, k: int) -> None:
         self._predict_correct(k)
 
+    @override
     def step(self, k: int, l: int) -> None:
         self._average(k)
 
@@ -210,16 +213,10 @@ class CIConsensus(RoundBased):
         self._average(k)
         self.record(k, self.x, self.P)
 
+    @override
     def message(self, g: int):
         return "pair", {"Om": self.Om, "q": self.q, "x": self.x, "P": self.P}, self.nbytes
 
     # -- the result -------------------------------------------------------------
-    def finish(self) -> EstimatorResult:
-        traffic = self.port.counts()
-        traffic["late"] = self.stale        # neighbour pairs used after arriving a tick late
-        facts = {"rounds": self.rounds, "used": self.used, "stale": self.stale}
-        return EstimatorResult({self.name: Estimate(self.x_out, self.P_out)}, traffic=traffic,
-                               facts=facts)
-
-
-ESTIMATORS.add("ci_consensus", implementation=CIConsensus)
+    def facts(self) -> dict:
+        return {"rounds": self.rounds, "used": self.used, "stale": self.stale}

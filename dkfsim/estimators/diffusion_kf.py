@@ -29,23 +29,24 @@ from __future__ import annotations
 
 import numpy as np
 import scipy.sparse
+from typing_extensions import override
 
 from dkfsim.components.estimators import DiffusionParams
-from dkfsim.core.registry import ESTIMATORS
 from dkfsim.estimators.rounds import RoundBased, solve_pair
 
 
-class DiffusionKF(RoundBased):
+class DiffusionKF(RoundBased, params=DiffusionParams):
     """Cattivelli & Sayed's diffusion KF at every node, batched over nodes."""
 
-    Params = DiffusionParams
+    params: DiffusionParams
 
     @classmethod
+    @override
     def slots_of(cls, params) -> int:
         return 2
 
     def start(self) -> None:
-        self.start_rounds(self.topology_arcs(), 2)
+        self.start_rounds(self.ctx.topology_links(), 2)
 
     def setup(self) -> None:
         super().setup()
@@ -65,6 +66,7 @@ class DiffusionKF(RoundBased):
         self.xbar, self.Pbar = self.predict()
         self.msg = {"u": self.theta[k - 1], "U": self.omega_at(k)}
 
+    @override
     def step(self, k: int, l: int) -> None:
         g0 = (k - 1) * 2
         box = self.box["meas"]
@@ -87,7 +89,4 @@ class DiffusionKF(RoundBased):
         self.record(k, self.x, self.P)
 
     def facts(self) -> dict:
-        return {"weights": self.params.weights, "diffusion": bool(self.params.diffusion)}
-
-
-ESTIMATORS.add("diffusion_kf", implementation=DiffusionKF)
+        return {**super().facts(), "weights": self.params.weights, "diffusion": bool(self.params.diffusion)}

@@ -26,20 +26,21 @@ dropped and counted late.  Runs on the scenario's full topology.
 
 from __future__ import annotations
 
+from typing_extensions import override
+
 from dkfsim.components.estimators import HCMCIParams
-from dkfsim.core.registry import ESTIMATORS
 from dkfsim.estimators.rounds import RoundBased, solve_pair, sym
 
 
-class HCMCI(RoundBased):
+class HCMCI(RoundBased, params=HCMCIParams):
     """Battistelli et al.'s HCMCI at every node, batched over nodes."""
 
-    Params = HCMCIParams
+    params: HCMCIParams
 
     WORK = 4
 
     def start(self) -> None:
-        self.start_rounds(self.topology_arcs(), int(self.params.rounds))
+        self.start_rounds(self.ctx.topology_links(), int(self.params.rounds))
         w = self.params.omega
         self.w = float(self.n if w == "n" else w)
 
@@ -58,9 +59,11 @@ class HCMCI(RoundBased):
         self.s = {key: self.mix(own, box.f[key], have) for key, own in self.s.items()}
         self.s["Om"], self.s["dOm"] = sym(self.s["Om"]), sym(self.s["dOm"])
 
+    @override
     def step(self, k: int, l: int) -> None:
         self._average(k)
 
+    @override
     def message(self, g: int):
         return "h", self.s, self.info_bytes(2, 2)
 
@@ -71,7 +74,4 @@ class HCMCI(RoundBased):
         self.record(k, self.x, self.P)
 
     def facts(self) -> dict:
-        return {"rounds": self.slots, "omega": self.w}
-
-
-ESTIMATORS.add("hcmci", implementation=HCMCI)
+        return {**super().facts(), "rounds": self.slots, "omega": self.w}

@@ -24,18 +24,19 @@ full topology (:mod:`dkfsim.estimators.rounds`).
 
 from __future__ import annotations
 
+from typing_extensions import override
+
 from dkfsim.components.estimators import ICFParams
-from dkfsim.core.registry import ESTIMATORS
 from dkfsim.estimators.rounds import RoundBased, solve_pair, sym
 
 
-class ICF(RoundBased):
+class ICF(RoundBased, params=ICFParams):
     """Kamal et al.'s ICF at every node, batched over nodes."""
 
-    Params = ICFParams
+    params: ICFParams
 
     def start(self) -> None:
-        self.start_rounds(self.topology_arcs(), int(self.params.rounds))
+        self.start_rounds(self.ctx.topology_links(), int(self.params.rounds))
 
     def boxes(self):
         nx = self.nx
@@ -53,9 +54,11 @@ class ICF(RoundBased):
         self.V = sym(self.mix(self.V, box.f["V"], have))
         self.v = self.mix(self.v, box.f["v"], have)
 
+    @override
     def step(self, k: int, l: int) -> None:
         self._iterate(k)
 
+    @override
     def message(self, g: int):
         return "iv", {"V": self.V, "v": self.v}, self.info_bytes(1, 1)
 
@@ -66,7 +69,4 @@ class ICF(RoundBased):
         self.record(k, self.x, self.P)
 
     def facts(self) -> dict:
-        return {"rounds": self.slots}
-
-
-ESTIMATORS.add("icf", implementation=ICF)
+        return {**super().facts(), "rounds": self.slots}

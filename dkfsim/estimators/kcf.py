@@ -24,25 +24,26 @@ scenario's full topology (:mod:`dkfsim.estimators.rounds`).
 from __future__ import annotations
 
 import numpy as np
+from typing_extensions import override
 
 from dkfsim.components.estimators import KCFParams
-from dkfsim.core.registry import ESTIMATORS
 from dkfsim.estimators.rounds import RoundBased, solve_pair
 
 
-class KCF(RoundBased):
+class KCF(RoundBased, params=KCFParams):
     """Olfati-Saber's Kalman-consensus filter at every node, batched over nodes."""
 
-    Params = KCFParams
+    params: KCFParams
 
     WORK = 3
 
     @classmethod
+    @override
     def slots_of(cls, params) -> int:
         return 1
 
     def start(self) -> None:
-        self.start_rounds(self.topology_arcs(), 1)
+        self.start_rounds(self.ctx.topology_links(), 1)
 
     def boxes(self):
         nx = self.nx
@@ -52,6 +53,7 @@ class KCF(RoundBased):
         self.xbar, self.Pbar = self.predict()
         self.msg = {"u": self.theta[k - 1], "U": self.omega_at(k), "xbar": self.xbar}
 
+    @override
     def message(self, g: int):
         return "m", self.msg, self.info_bytes(2, 1)
 
@@ -73,7 +75,4 @@ class KCF(RoundBased):
         self.record(k, self.x, self.P)
 
     def facts(self) -> dict:
-        return {"eps": float(self.params.eps)}
-
-
-ESTIMATORS.add("kcf", implementation=KCF)
+        return {**super().facts(), "eps": float(self.params.eps)}

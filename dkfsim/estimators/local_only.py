@@ -7,30 +7,27 @@ still accepted in a ``baselines:`` list.)
 
 from __future__ import annotations
 
+from typing_extensions import override
+
 from dkfsim.components.estimators import LocalOnlyParams
-from dkfsim.core.registry import ESTIMATORS
 from dkfsim.core.resources import B_FLOAT, C_NODE_ROW, C_ROW, Cost
-from dkfsim.estimators.base import Estimate, Estimator, EstimatorResult
+from dkfsim.estimators.base import Estimate, Estimator, existing_information_bytes
 from dkfsim.estimators.window import batched_filter
 
 
-class LocalOnly(Estimator):
+class LocalOnly(Estimator, params=LocalOnlyParams):
     """Each node's Kalman filter of its own measurements, batched over nodes."""
 
-    Params = LocalOnlyParams
-
     @classmethod
+    @override
     def cost(cls, params, scenario, *, L: int, arcs: int, save: str = "estimates") -> Cost:
         K, n, nx = int(scenario.steps), scenario.n, scenario.nx
-        return Cost(params.label, memory={"local_only": K * n * (nx + nx * nx) * B_FLOAT},
+        return Cost(params.label, memory={"local_only": K * n * (nx + nx * nx) * B_FLOAT
+                                          + existing_information_bytes(scenario)},
                     seconds=K * (C_ROW + n * C_NODE_ROW))
 
-    def finish(self) -> EstimatorResult:
+    def estimate(self) -> Estimate:
         s = self.ctx.system
         omega, theta = self.ctx.existing_information()
         x, P = batched_filter(s.Phi, s.Q, s.x0_mean, s.P0, omega, theta)
-        zero = {"sent": 0, "delivered": 0, "lost": 0, "bytes": 0, "in_flight": 0, "late": 0}
-        return EstimatorResult({self.name: Estimate(x, P)}, traffic=zero)
-
-
-ESTIMATORS.add("local_only", implementation=LocalOnly)
+        return Estimate(x, P)                 # traffic: zero (no port)

@@ -24,16 +24,17 @@ module holds what they share:
 from __future__ import annotations
 
 import math
+from typing import Any
 
 import numpy as np
 import scipy.sparse
+from typing_extensions import override
 
-from dkfsim.components.topology import topology_arcs
 from dkfsim.core.linalg import solve
 from dkfsim.core.resources import B_FLOAT, C_NODE_ROW, C_PACKET, C_ROW, C_TICK, Cost
-from dkfsim.estimators.base import Estimate, Estimator, EstimatorResult
+from dkfsim.estimators.base import Estimate, Estimator, existing_information_bytes
 from dkfsim.estimators.window import predict
-from dkfsim.network.links import PRIORITY_UPDATE, Scheduled
+from dkfsim.network.links import PRIORITY_UPDATE, Link, Port, Scheduled
 
 
 # --------------------------------------------------------------------------- helpers
@@ -61,14 +62,6 @@ def solve_pair(A: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 def sym(A: np.ndarray) -> np.ndarray:
     """``(A + A') / 2`` over the last two axes."""
     return 0.5 * (A + np.swapaxes(A, -1, -2))
-
-
-def predict_info(Phi, Q, Om, q) -> tuple[np.ndarray, np.ndarray]:
-    """Prediction in information form, batched: ``(Omega, q)`` of ``x -> Phi x``,
-    ``P -> Phi P Phi' + Q`` (two batched solves)."""
-    P, x = solve_pair(Om, q)
-    Pp = Phi @ P @ Phi.T + Q
-    return solve_pair(Pp, x @ Phi.T)
 
 
 class Powers:
@@ -114,6 +107,7 @@ class RoundBased(Estimator):
     runs for every tick at start.
     """
 
+    port: Port                  # (opened by start_rounds)
     #: Drop (and count ``late``) a message once its last usable instant has passed.
     DROP_LATE = True
     #: Batched per-node matrix operations of one sub-slot (for :meth:`cost`).
@@ -125,9 +119,11 @@ class RoundBased(Estimator):
         return int(params.rounds)
 
     @classmethod
+    @override
     def cost(cls, params, scenario, *, L: int, arcs: int, save: str = "estimates") -> Cost:
         K, n, nx = int(scenario.steps), scenario.n, scenario.nx
-        return Cost(params.label, memory={params.label: K * n * (nx + nx * nx) * B_FLOAT},
+        return Cost(params.label, memory={params.label: K * n * (nx + nx * nx) * B_FLOAT
+                                          + existing_information_bytes(scenario)},
                     seconds=K * (C_ROW + n * C_NODE_ROW) + K * cls.slots_of(params) * (
                         C_TICK + 3 * C_ROW + arcs * C_PACKET + n * cls.WORK * C_NODE_ROW))
 
@@ -146,11 +142,6 @@ class RoundBased(Estimator):
         xp, Pp = predict(self.Phi, self.Q, self.x, self.P)
         return xp, sym(Pp)
 
-    def topology_arcs(self) -> list[tuple[int, int]]:
-        """Every directed link of the scenario's topology (the full graph, not the protocol's
-        spanning tree)."""
-        return topology_arcs(self.ctx.scenario.graph())
-
     def info_bytes(self, vectors: int, matrices: int) -> int:
         """Nominal size of a message of ``vectors`` nx-vectors and ``matrices`` symmetric
         nx x nx matrices: a 16-byte header (stamp, sender) and 8-byte floats."""
@@ -160,10 +151,6 @@ class RoundBased(Estimator):
     def boxes(self) -> dict[str, dict[str, tuple]]:
         """Message kinds: name -> {field: shape of one node's value}."""
         return {}
-
-    def box_of(self, l: int) -> str:
-        """The box a message sent at sub-slot ``l`` goes to (default: the only one)."""
-        return next(iter(self.box))
 
     def deadline(self, g: int) -> int:
         """Last instant (ns) at which a message stamped ``g`` can be used: default the
@@ -188,12 +175,10 @@ class RoundBased(Estimator):
         """Tick ``k`` without any exchange (``slots = 0``)."""
         raise NotImplementedError
 
-    def facts(self) -> dict:
-        return {}
-
     # -- the machinery -------------------------------------------------------------
-    def start_rounds(self, arcs, slots: int) -> None:
-        """Open the port on ``arcs`` and schedule the sub-slot instants (call from ``start``)."""
+    def start_rounds(self, links: list[Link], slots: int) -> None:
+        """Open the port on ``links`` (e.g. ``ctx.topology_links()``) and schedule the sub-slot
+        instants (call from ``start``)."""
         ctx = self.ctx
         s = ctx.system
         self.Phi, self.Q = np.asarray(s.Phi, float), np.asarray(s.Q, float)
@@ -206,9 +191,9 @@ class RoundBased(Estimator):
         self.dt = self.T_ns // slots if slots > 0 else self.T_ns
         self.crashes = ctx.crashes
         self.env = ctx.env
-        self.late = self.superseded = 0
-        arcs = list(arcs) if slots > 0 else []
-        self.links = [ctx.network.link(u, v) for u, v in arcs]
+        self.superseded = 0
+        self.links = list(links) if slots > 0 else []
+        arcs = [(link.src, link.dst) for link in self.links]
         self.lid = {link.id: a for a, link in enumerate(self.links)}
         E = self.E = len(self.links)
         n = self.n
@@ -224,13 +209,12 @@ class RoundBased(Estimator):
         self.x_out = np.empty((self.K, n, self.nx))
         self.P_out = np.empty((self.K, n, self.nx, self.nx))
         # The last tick is finished at t_{K+1}: deliveries count until then.
-        self.port = ctx.network.port(self.name, self._receive, self.links, until=(self.K + 1) * self.T_ns)
+        self.open_port(self._receive, self.links, until=(self.K + 1) * self.T_ns)
         if slots == 0:
             for k in range(1, self.K + 1):
                 self.local_tick(k)
         else:
             self._g = 0
-            self._tick = 0
             Scheduled(self.env, self._instant, PRIORITY_UPDATE, self.T_ns)
 
     def omega_at(self, k: int) -> np.ndarray:
@@ -283,7 +267,7 @@ class RoundBased(Estimator):
     def _receive(self, link, payload) -> None:
         g, box, fields = payload
         if self.DROP_LATE and self.env.now > self.deadline(g):
-            self.late += 1
+            self.port.count_late()
             return
         a = self.lid[link.id]
         b = self.box[box]
@@ -302,15 +286,17 @@ class RoundBased(Estimator):
                 self.end_tick(k - 1)
             if k > self.K:
                 return
-            self._tick = k
             self.begin_tick(k)
         else:
             self.step(k, l)
         self._send(g)
         Scheduled(self.env, self._instant, PRIORITY_UPDATE, self.dt)
 
-    def finish(self) -> EstimatorResult:
-        traffic = self.port.counts()
-        traffic["late"] = self.late
-        facts = {"slots": self.slots, "late": self.late, "superseded": self.superseded, **self.facts()}
-        return EstimatorResult({self.name: Estimate(self.x_out, self.P_out)}, traffic=traffic, facts=facts)
+    # -- the result ---------------------------------------------------------------
+    def estimate(self) -> Estimate:
+        return Estimate(self.x_out, self.P_out)
+
+    def facts(self) -> dict[str, Any]:
+        """Sub-slots per tick, messages dropped late, messages superseded by a newer one (a
+        subclass adds its own: ``{**super().facts(), ...}``)."""
+        return {"slots": self.slots, "late": self.port.counts()["late"], "superseded": self.superseded}

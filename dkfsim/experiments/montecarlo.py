@@ -9,13 +9,13 @@ all runs).
 
 What the runs share is validated and built once (:class:`Template`: the
 pinned scenario, its graphs and its system; run ``r`` is a copy with its
-seed, docs/design.md §10).  Each run is scored where it ran
+seed, docs/design.md §9).  Each run is scored where it ran
 (:func:`run_rows`) and sends back only small data: per estimate the squared error per tick and component ``(K, nx)``
 (averaged over nodes for per-node estimates), the NEES per tick ``(K,)``
 and per-run scalars.  The parent folds the runs in run order, whatever order
 they finish in, so every output is identical for any ``J``.
 
-Estimates of a run (the one vocabulary: docs/design.md and the README's name table):
+Estimates of a run (the one vocabulary: docs/design.md and docs/estimators.md):
 ``fused`` (the anti-delay DKF's fused estimate, absent with ``fusion: none``),
 ``local`` (each DKF node's own real-time estimate, per node), then every
 estimator the scenario lists under its name (``centralized``,
@@ -23,7 +23,7 @@ estimator the scenario lists under its name (``centralized``,
 are scored by the mean over nodes (squared error, NEES) and have a
 ``disagreement`` (:func:`dkfsim.analysis.metrics.disagreement`); the others
 have ``disagreement = NaN``.  Every per-run number is a tidy row
-(:func:`dkfsim.analysis.metrics.score`): ``runs.csv`` has the columns of a
+(:func:`dkfsim.analysis.metrics.score_scored`): ``runs.csv`` has the columns of a
 run's ``rows.csv`` and a sweep's export.  Traffic comes from each
 estimator's own port on the run's network (messages, nominal bytes, lost
 packets, late information); the idealised ``centralized`` filter has none
@@ -48,7 +48,7 @@ from dkfsim.analysis.metrics import (
     t_interval,
     t_interval_from_moments,
 )
-from dkfsim.components.topology import GENERATOR_PARAMS
+from dkfsim.components.topology import generator_params
 from dkfsim.config.dynamics import component_names
 from dkfsim.config.load import load_scenario, scenario_hash
 from dkfsim.config.schema import Scenario
@@ -104,7 +104,7 @@ def pinned_topology(scenario) -> list[str]:
     """
     sc = scenario if isinstance(scenario, Scenario) else load_scenario(scenario)
     topo = sc.topology
-    if "seed" in GENERATOR_PARAMS[topo.generator][1] and "seed" not in (topo.params or {}):
+    if "seed" in (generator_params(topo.generator) or ((), ()))[1] and "seed" not in (topo.params or {}):
         return [f"topology.params.seed={int(sc.seed)}"]
     return []
 

@@ -43,7 +43,7 @@ class LinearSensor:
     kind = "linear"
 
     @classmethod
-    def from_params(cls, params, nx: int) -> "LinearSensor":
+    def from_params(cls, params, nx: int) -> "LinearSensor":  # noqa: ARG003  (every sensor kind's signature)
         return cls(params.H_matrix(), params.R_matrix())
 
     def __init__(self, H: np.ndarray, R: np.ndarray):
@@ -92,9 +92,6 @@ class Information:
     def omega_of(self, rows: np.ndarray, origins: np.ndarray) -> np.ndarray:
         """``omega`` of each (row, origin) pair, shape (len, nx, nx)."""
         return self.omega[rows, origins] if self.varying else self.omega[origins]
-
-    def omega_row(self, row: int) -> np.ndarray:
-        return self.omega[row] if self.varying else self.omega
 
     def factor_row(self, row: int) -> np.ndarray:
         return self.factor[row] if self.varying else self.factor

@@ -6,7 +6,7 @@ exact integer comparison.  Every estimator of a run talks through its own
 :class:`Port` of one :class:`Network`: a port sends packets over the links
 and receives its own packets back; it counts them (per link and in total).
 
-Draws are keyed, the common-random-numbers rule of docs/design.md §9: a
+Draws are keyed, the common-random-numbers rule of docs/design.md §3: a
 packet's latency, loss, duplication and jitter are pure functions of (the
 link, the send instant, the packet's number among those its port put on the
 link at that instant), drawn by :func:`dkfsim.core.streams.keyed_uniform`
@@ -23,6 +23,10 @@ Counting identity, per port, per link and in total::
 
     sent + copies = delivered + lost + crash_dropped + in_flight
 
+Beside these a port keeps ``late``, which only its estimator can decide (a packet
+delivered after its last usable instant, a stale pair, ...): the estimator counts it
+with :meth:`Port.count_late`, and ``counts()`` reports it.
+
 Event priorities at one instant (SimPy pops ``(time, priority, id)``):
 deliveries (``NORMAL``) first, then the protocols' flushes
 (:data:`PRIORITY_FLUSH`), then the filters' tick update
@@ -32,10 +36,12 @@ chain of zero-latency relays it starts, counts for tick ``k``.
 
 from __future__ import annotations
 
+from typing import Any, Callable, Protocol, cast
+
 import simpy
 from simpy.events import NORMAL, Event
 
-from dkfsim.components.faults import LinkSpec, ScaleSchedule, Windows
+from dkfsim.components.faults import CrashSchedule, LinkSpec, ScaleSchedule, Windows
 from dkfsim.core.params import MAX_NS
 from dkfsim.core.streams import key64, keyed_uniform
 
@@ -46,11 +52,23 @@ PRIORITY_UPDATE = NORMAL + 2
 #: Counters of a port, per link: ``sent + copies = delivered + lost + crash_dropped + in_flight``.
 COUNTERS = ("sent", "delivered", "lost", "copies", "crash_dropped", "outage_lost", "bytes")
 
+#: What a port hands its estimator: ``receive(link, payload)``.
+Receive = Callable[["Link", Any], None]
+
+
+class Clock(Protocol):
+    """The run's SimPy environment as this module uses it: time in integer nanoseconds."""
+
+    @property
+    def now(self) -> int: ...
+
+    def schedule(self, event: Event, priority: int = ..., delay: int = ...) -> None: ...
+
 
 class Scheduled(Event):
     """An event that fires at ``now + delay`` with a given priority and callback."""
 
-    def __init__(self, env, callback, priority, delay=0):
+    def __init__(self, env: Any, callback: Callable[[Event], None], priority: int, delay: int = 0):
         super().__init__(env)
         self._ok = True
         self._value = None
@@ -58,7 +76,7 @@ class Scheduled(Event):
         env.schedule(self, priority, delay)
 
 
-def _as_spec(spec) -> LinkSpec:
+def _as_spec(spec: Any) -> LinkSpec:
     """A :class:`LinkSpec` from anything with ``.latency`` and ``.loss``."""
     if isinstance(spec, LinkSpec):
         return spec
@@ -104,7 +122,8 @@ class Link:
     __slots__ = ("id", "src", "dst", "spec", "loss", "duplicate", "plain", "_main", "_copy",
                  "_loss_key", "_dup_key", "_outages")
 
-    def __init__(self, link_id, src, dst, spec, seed, T_ns, key=None):
+    def __init__(self, link_id: int, src: int, dst: int, spec: Any, seed: int, T_ns: int,
+                 key: tuple | None = None):
         spec = _as_spec(spec)
         self.id, self.src, self.dst, self.spec = link_id, src, dst, spec
         self.loss = float(spec.loss)
@@ -138,7 +157,8 @@ class Link:
             return (), "outage"
         if lost:
             return (), "lost"
-        if self._dup_key is not None and keyed_uniform(self._dup_key, t_ns, seq) < self.duplicate:
+        if self._dup_key is not None and self._copy is not None \
+                and keyed_uniform(self._dup_key, t_ns, seq) < self.duplicate:
             return (lat, self._copy.draw(t_ns, seq)[0]), None
         return (lat,), None
 
@@ -152,8 +172,10 @@ class Network:
         arriving at a node that is down is dropped (``crash_dropped``).
     """
 
-    def __init__(self, env: simpy.Environment, arcs, link_spec, seed, T_ns, crashes=None):
-        self.env = env
+    def __init__(self, env: simpy.Environment, arcs: list[tuple[int, int]],
+                 link_spec: Callable[[int, int], Any], seed: int, T_ns: int,
+                 crashes: CrashSchedule | None = None):
+        self.env = cast(Clock, env)         # (SimPy types time as int | float; here it is ns)
         self.seed, self.T_ns = int(seed), int(T_ns)
         self.links = [Link(i, u, v, link_spec(u, v), seed, T_ns) for i, (u, v) in enumerate(arcs)]
         self.index = {(l.src, l.dst): l for l in self.links}
@@ -163,14 +185,15 @@ class Network:
     def link(self, u: int, v: int) -> Link:
         return self.index[(u, v)]
 
-    def extra_link(self, key: tuple, spec, src: int, dst: int) -> Link:
+    def extra_link(self, key: tuple, spec: Any, src: int, dst: int) -> Link:
         """A link outside the graph (e.g. a sensor's direct link to a fusion centre),
         its draws named ``key``; it joins the network's link list."""
         link = Link(len(self.links), src, dst, spec, self.seed, self.T_ns, key=key)
         self.links.append(link)
         return link
 
-    def port(self, name: str, receive, links=None, until: int | None = None) -> "Port":
+    def port(self, name: str, receive: Receive, links: list[Link] | None = None,
+             until: int | None = None) -> Port:
         """A new port for an estimator: ``receive(link, payload)`` gets its deliveries;
         ``links`` are the links it reports on (default: those it uses); deliveries
         after ``until`` ns (default: the run's last tick) stay in flight."""
@@ -188,7 +211,8 @@ class Port:
     order of a port's deliveries is all that matters, and that is kept.
     """
 
-    def __init__(self, network: Network, name: str, receive, links=None, until=None):
+    def __init__(self, network: Network, name: str, receive: Receive, links: list[Link] | None = None,
+                 until: int | None = None):
         self.net = network
         self.env = network.env
         self.name = name
@@ -196,11 +220,12 @@ class Port:
         self._receive = receive
         self._links = None if links is None else [l.id for l in links]
         self._count: dict[str, list[int]] = {k: [] for k in COUNTERS}
+        self._late = 0
         self._grow()
         self._instant = -1
         self._seq: dict[int, int] = {}
         #: arrival instant (ns) -> [link, payload, link, payload, ...] still to deliver
-        self._due: dict[int, list] = {}
+        self._due: dict[int, list[Any]] = {}
 
     def _grow(self) -> None:
         """One counter slot per link of the network (links may be added after the port)."""
@@ -208,7 +233,7 @@ class Port:
         for c in self._count.values():
             c.extend([0] * (size - len(c)))
 
-    def send(self, link: Link, payload, nbytes: int = 0) -> None:
+    def send(self, link: Link, payload: Any, nbytes: int = 0) -> None:
         """Hand ``payload`` to ``link`` now (``nbytes``: its nominal size, for traffic)."""
         now = self.env.now
         if now != self._instant:
@@ -240,7 +265,7 @@ class Port:
         for lat in arrivals:
             self._enqueue(now, lat, link, payload)
 
-    def _enqueue(self, now: int, lat: int, link: Link, payload) -> None:
+    def _enqueue(self, now: int, lat: int, link: Link, payload: Any) -> None:
         due = self._due.get(now + lat)
         if due is None:
             due = self._due[now + lat] = []
@@ -248,7 +273,7 @@ class Port:
         due.append(link)
         due.append(payload)
 
-    def _deliver(self, _event) -> None:
+    def _deliver(self, _event: Event) -> None:
         self.deliver_now()
 
     def deliver_now(self) -> None:
@@ -270,11 +295,24 @@ class Port:
             delivered[link.id] += 1
             receive(link, due[k + 1])
 
-    def counts(self) -> dict:
-        """Totals and ``per_link`` (links this port used); ``in_flight`` by the identity."""
+    def set_counts(self, link: Link, **counts: int) -> None:
+        """Set counters of ``link`` (names of :data:`COUNTERS`): for a protocol whose packets
+        travel outside the port (the compiled ``tree``, whose kernels count them)."""
+        self._grow()
+        for key, value in counts.items():
+            self._count[key][link.id] = value
+
+    def count_late(self, n: int = 1) -> None:
+        """Count ``n`` late items: what is late is the estimator's to decide (e.g. a message
+        delivered after its last usable instant, dropped unused); ``counts()["late"]``."""
+        self._late += int(n)
+
+    def counts(self) -> dict[str, Any]:
+        """Totals, ``per_link`` (links this port used) and ``late`` (:meth:`count_late`);
+        ``in_flight`` by the identity."""
         self._grow()
         count = self._count
-        totals = {k: sum(count[k]) for k in COUNTERS}
+        totals: dict[str, Any] = {k: sum(count[k]) for k in COUNTERS}
         totals["in_flight"] = (totals["sent"] + totals["copies"] - totals["delivered"]
                                - totals["lost"] - totals["crash_dropped"])
         used = self._links if self._links is not None else \
@@ -282,9 +320,10 @@ class Port:
         per_link = []
         for i in used:
             link = self.net.links[i]
-            row = {"link": (link.src, link.dst), **{k: count[k][i] for k in COUNTERS}}
+            row: dict[str, Any] = {"link": (link.src, link.dst), **{k: count[k][i] for k in COUNTERS}}
             row["in_flight"] = (row["sent"] + row["copies"] - row["delivered"] - row["lost"]
                                 - row["crash_dropped"])
             per_link.append(row)
         totals["per_link"] = per_link
+        totals["late"] = self._late
         return totals

@@ -21,14 +21,28 @@ contribution counts once (docs/design.md §3); ``counts()["late_unit"]`` says wh
 forwarded for a final row: every node finalises a row at the same tick.
 The protocols themselves are :mod:`dkfsim.protocols.tree` and
 :mod:`dkfsim.protocols.flood`.
+
+A protocol is a subclass of :class:`Exchange` that implements three hooks:
+:meth:`~Exchange.measure` (every measuring node gains its own contribution),
+:meth:`~Exchange.accept` (a delivered aggregate for a live row) and
+:meth:`~Exchange.flush` (what a node sends); from them it calls the public
+helpers :meth:`~Exchange.measuring_nodes`, :meth:`~Exchange.gain`,
+:meth:`~Exchange.schedule_flush` and :meth:`~Exchange.send`.  Overriding
+:meth:`~Exchange.schedule_flush` (with :meth:`~Exchange.flush_later`)
+changes *when* a node sends (docs/examples/tick_flood.py).
 """
 
 from __future__ import annotations
 
-import numpy as np
+from collections.abc import Callable, Sequence
+from typing import Any
 
+import numpy as np
+from simpy.events import Event
+
+from dkfsim.components.faults import CrashSchedule
 from dkfsim.core.bits import mask_words, set_bits
-from dkfsim.network.links import PRIORITY_FLUSH, Scheduled
+from dkfsim.network.links import PRIORITY_FLUSH, Clock, Link, Port, Scheduled
 
 #: Bytes of a packet's header (sequence number, sender, receiver, length).
 PACKET_HEADER = 16
@@ -40,8 +54,10 @@ def row_bytes(nx: int, n: int) -> int:
     return 8 + 8 * (nx + nx * (nx + 1) // 2) + -(-n // 8)
 
 
-class _Row:
-    """Per-row exchange state of all nodes (lives while the row is in the window)."""
+class RowState:
+    """Per-row exchange state of all nodes (lives while the row is in the window): ``held[i]``
+    the origins node ``i`` holds (a bitmask); for ``tree``, per link the last message stored
+    (``inbox``), its number (``inseq``) and the last one sent (``sent``)."""
 
     __slots__ = ("held", "inbox", "inseq", "sent")
 
@@ -75,7 +91,8 @@ class Exchange:
     #: (every arc of the topology; undirected edges both ways).
     graph = "digraph"
 
-    def __init__(self, env, n, window, arrival=None, late_horizon=4096, nx=1, T_ns=1):
+    def __init__(self, env: Clock, n: int, window: Any, arrival: np.ndarray | None = None,
+                 late_horizon: int = 4096, nx: int = 1, T_ns: int = 1):
         self.env = env
         self.T_ns = int(T_ns)
         self.row_bytes = row_bytes(nx, n)
@@ -85,9 +102,9 @@ class Exchange:
         #: with the arrival log: node, origin mask, row, ns (flat, four entries per item) of
         #: every newly held or late contribution, written into ``arrival`` in bulk
         #: (:meth:`write_log`); each cell is written at most once, so order does not matter.
-        self._log: list | None = [] if arrival is not None else None
+        self._log: list[int] | None = [] if arrival is not None else None
         self.late_horizon = late_horizon
-        self.rows: dict[int, _Row] = {}
+        self.rows: dict[int, RowState] = {}
         self.final: dict[int, list[int]] = {}
         self.late = 0
         self.late_per_node = [0] * n
@@ -96,12 +113,11 @@ class Exchange:
         self._flush_due = [False] * n
         #: nodes whose flush is due at this instant, in the order they became due
         self._flush_queue: list[int] = []
-        #: per node, an event callback that flushes it (for protocols that flush later,
-        #: e.g. docs/examples/tick_flood.py)
+        #: per node, an event callback that flushes it (:meth:`flush_later`)
         self._flush_cb = [self._make_flush(j) for j in range(n)]
 
     # -- wiring ----------------------------------------------------------------
-    def attach(self, port, links) -> None:
+    def attach(self, port: Port, links: Sequence[Link]) -> None:
         """Send through ``port`` over ``links`` (the exchange graph's arcs, in order).
 
         Links are indexed locally, ``0 .. len(links) - 1`` (``self.lid[link.id]``).
@@ -115,32 +131,43 @@ class Exchange:
         self.late_packets = [0] * self.n_links
         #: per link: the number of the last packet sent (links reorder: receivers keep the newest)
         self.seq = [0] * self.n_links
-        self.out_links = [[] for _ in range(self.n)]
+        self.out_links: list[list[Link]] = [[] for _ in range(self.n)]
         for link in self.links:
             self.out_links[link.src].append(link)
         by_arc = {(l.src, l.dst): i for i, l in enumerate(self.links)}
         self.reverse = [by_arc.get((l.dst, l.src)) for l in self.links]
 
-    def _send(self, link, items) -> None:
-        """One packet on ``link`` carrying ``items`` ((row, origin mask) pairs)."""
+    def send(self, link: Link, items: Sequence[tuple[int, int]]) -> None:
+        """Send one packet on ``link`` carrying ``items``, ``(row, origin mask)`` pairs (numbered
+        per link, sized ``PACKET_HEADER + len(items) * row_bytes``)."""
         i = self.lid[link.id]
         self.seq[i] += 1
         self.port.send(link, (self.seq[i], items), PACKET_HEADER + len(items) * self.row_bytes)
 
-    def _make_flush(self, j):
-        def cb(_event, j=j):
+    def _make_flush(self, j: int) -> Callable[[Event], None]:
+        def cb(_event: Event, j: int = j) -> None:
             self._flush_due[j] = False
             self.flush(j)
         return cb
 
-    def _schedule_flush(self, j: int) -> None:
-        if not self._flush_due[j]:
-            self._flush_due[j] = True
-            self._flush_queue.append(j)
+    def schedule_flush(self, node: int) -> None:
+        """Hook: ``node`` has something new to send.  Default: flush it at this instant, after
+        every delivery of the instant (once, however often it is asked).  A protocol that
+        sends at other times overrides it, usually with :meth:`flush_later`."""
+        if not self._flush_due[node]:
+            self._flush_due[node] = True
+            self._flush_queue.append(node)
             if len(self._flush_queue) == 1:
                 Scheduled(self.env, self._flush_all, PRIORITY_FLUSH)
 
-    def _flush_all(self, _event) -> None:
+    def flush_later(self, node: int, delay: int) -> None:
+        """Flush ``node`` ``delay`` ns from now (after that instant's deliveries), unless a flush
+        of it is already due."""
+        if not self._flush_due[node]:
+            self._flush_due[node] = True
+            Scheduled(self.env, self._flush_cb[node], PRIORITY_FLUSH, delay)
+
+    def _flush_all(self, _event: Event) -> None:
         """Flush every due node, first due first; what a flush sends with zero latency is
         delivered before the next node flushes (as separate events of higher priority
         would be), so a zero-latency chain joins the flushes of the same instant."""
@@ -157,7 +184,7 @@ class Exchange:
 
     # -- rows ------------------------------------------------------------------
     def open_row(self, row: int) -> None:
-        self.rows[row] = _Row(self.n, self.n_links, self.tree)
+        self.rows[row] = RowState(self.n, self.n_links, self.tree)
 
     def close_row(self, row: int) -> None:
         """``row`` became final: keep only its holdings, for late accounting per contribution
@@ -166,7 +193,7 @@ class Exchange:
         if st is not None and self.arrival is not None:
             self.final[row] = st.held
             self.final.pop(row - self.late_horizon, None)
-            if len(self._log) > 400_000:          # 100 000 entries: bound the log's memory
+            if self._log is not None and len(self._log) > 400_000:    # 100 000 entries: bound its memory
                 self.write_log()
 
     def finish(self) -> None:
@@ -175,7 +202,7 @@ class Exchange:
 
     def write_log(self) -> None:
         """Write the logged arrivals into the arrival array (seconds)."""
-        if not self._log:
+        if not self._log or self.arrival is None:
             return
         log, self._log = self._log, []
         k, o = set_bits(mask_words(log[1::4], -(-self.n // 64)))
@@ -183,13 +210,17 @@ class Exchange:
         self.arrival[nodes[k], o, rows[k]] = np.array(log[3::4], dtype=np.int64)[k] / 1e9
 
     # -- holdings --------------------------------------------------------------
-    def _gain(self, node: int, row: int, st: _Row, bits: int) -> None:
+    def gain(self, node: int, row: int, st: RowState, bits: int) -> None:
+        """``node`` now holds the contributions ``bits`` (origin mask) of live ``row``, whose
+        state is ``st``; the bits must be new to it (``bits & st.held[node] == 0``)."""
         st.held[node] |= bits
         self.window.add_mask(node, bits, row)
         if self._log is not None:            # the arrival log (--save full) only
             self._log.extend((node, bits, row, self.env.now))
 
-    def _late(self, node: int, row: int, mask: int) -> None:
+    def count_late(self, node: int, row: int, mask: int) -> None:
+        """Contributions ``mask`` for ``row`` reached ``node`` after the row became final: count
+        them (per packet row, or per new contribution with the arrival log) and log them."""
         if self.arrival is None:          # no log: one late (packet, row) pair
             self.late += 1
             self.late_per_node[node] += 1
@@ -207,15 +238,16 @@ class Exchange:
         c = new.bit_count()
         self.late += c
         self.late_per_node[node] += c
-        self._log.extend((node, new, row, self.env.now))
+        if self._log is not None:
+            self._log.extend((node, new, row, self.env.now))
 
     # -- protocol hooks ----------------------------------------------------------
     #: :class:`dkfsim.components.faults.CrashSchedule` (set by the estimator) or None.  A
     #: node that is down does not measure; the network drops what arrives at
     #: it, so it never has anything to send while down.
-    crashes = None
+    crashes: CrashSchedule | None = None
 
-    def _measuring(self):
+    def measuring_nodes(self) -> Sequence[int]:
         """The nodes that measure now: all but those in a crash window."""
         if not self.crashes:
             return range(self.n)
@@ -223,29 +255,35 @@ class Exchange:
         return [i for i in range(self.n) if not self.crashes.down(i, now)]
 
     def measure(self, row: int) -> None:
+        """Hook: at ``row``'s tick every measuring node gains its own contribution (and
+        schedules what it sends)."""
         raise NotImplementedError
 
-    def receive(self, link, payload) -> None:
-        """Deliver a packet: late rows are counted, live ones go to :meth:`_accept`."""
+    def receive(self, link: Link, payload: Any) -> None:
+        """Deliver a packet: late rows are counted, live ones go to :meth:`accept`."""
         seq, items = payload
         late = False
         for row, mask in items:
             st = self.rows.get(row)
             if st is None:
-                self._late(link.dst, row, mask)
+                self.count_late(link.dst, row, mask)
                 late = True
             else:
-                self._accept(link, seq, row, st, mask)
+                self.accept(link, seq, row, st, mask)
         if late:
             self.late_packets[self.lid[link.id]] += 1
 
-    def _accept(self, link, seq: int, row: int, st: _Row, mask: int) -> None:
+    def accept(self, link: Link, seq: int, row: int, st: RowState, mask: int) -> None:
+        """Hook: packet number ``seq`` on ``link`` carries the aggregate ``mask`` (origins) for
+        live ``row`` (state ``st``): gain what is new to ``link.dst`` and relay it."""
         raise NotImplementedError
 
     def flush(self, node: int) -> None:
+        """Hook: ``node``'s flush is due: :meth:`send` what it has for its out-links."""
         raise NotImplementedError
 
-    def counts(self) -> dict:
+    def counts(self) -> dict[str, Any]:
+        """The exchange's own counts: ``late`` (in ``late_unit``), per node, duplicates, stale."""
         return {"late": self.late, "late_per_node": list(self.late_per_node),
                 "late_unit": "contributions" if self.arrival is not None else "packet_rows",
                 "duplicates": self.duplicates, "stale": self.stale}

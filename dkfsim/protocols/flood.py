@@ -8,6 +8,8 @@ strongly connected digraph: the directed-graph case of the paper
 
 from __future__ import annotations
 
+from typing_extensions import override
+
 from dkfsim.core.registry import PROTOCOLS
 from dkfsim.protocols.base import Exchange
 
@@ -25,21 +27,22 @@ class FloodExchange(Exchange):
             if link.dst != exclude:
                 p = self._pending[self.lid[link.id]]
                 p[row] = p.get(row, 0) | bits
-        self._schedule_flush(j)
+        self.schedule_flush(j)
 
     def measure(self, row: int) -> None:
         st = self.rows[row]
-        for i in self._measuring():
-            self._gain(i, row, st, 1 << i)
+        for i in self.measuring_nodes():
+            self.gain(i, row, st, 1 << i)
             self._queue(i, row, 1 << i, -1)
 
-    def _accept(self, link, seq, row, st, mask) -> None:
+    @override
+    def accept(self, link, seq, row, st, mask) -> None:
         j = link.dst
         new = mask & ~st.held[j]
         if new != mask:
             self.duplicates += 1
         if new:
-            self._gain(j, row, st, new)
+            self.gain(j, row, st, new)
             self._queue(j, row, new, link.src)
 
     def flush(self, j: int) -> None:
@@ -49,4 +52,4 @@ class FloodExchange(Exchange):
                 items = tuple((row, m) for row, m in sorted(p.items()) if row in self.rows)
                 p.clear()
                 if items:
-                    self._send(link, items)
+                    self.send(link, items)

@@ -37,10 +37,10 @@ class TreeExchange(Exchange):
 
     def measure(self, row: int) -> None:
         st = self.rows[row]
-        for i in self._measuring():
-            self._gain(i, row, st, 1 << i)
+        for i in self.measuring_nodes():
+            self.gain(i, row, st, 1 << i)
             self._dirty[i].add(row)
-            self._schedule_flush(i)
+            self.schedule_flush(i)
 
     def receive(self, link, payload) -> None:
         """:meth:`Exchange.receive` with the tree's acceptance in one loop (the per-packet path)."""
@@ -51,7 +51,7 @@ class TreeExchange(Exchange):
         for row, mask in items:
             st = rows.get(row)
             if st is None:
-                self._late(j, row, mask)
+                self.count_late(j, row, mask)
                 late = True
                 continue
             if seq <= st.inseq[e]:
@@ -61,11 +61,11 @@ class TreeExchange(Exchange):
             st.inbox[e] = mask
             new = mask & ~st.held[j]
             if new:
-                self._gain(j, row, st, new)
+                self.gain(j, row, st, new)
                 self._dirty[j].add(row)
                 gained = True
         if gained:
-            self._schedule_flush(j)
+            self.schedule_flush(j)
         if late:
             self.late_packets[e] += 1
 

@@ -21,6 +21,7 @@ import os
 
 import numpy as np
 from simpy.events import NORMAL
+from typing_extensions import override
 
 from dkfsim.core.jit import entry_point
 from dkfsim.network.links import PRIORITY_FLUSH, Scheduled
@@ -181,6 +182,7 @@ class CompiledTreeExchange(TreeExchange):
             self._flush_pending = True
             Scheduled(self.env, self._on_flush, PRIORITY_FLUSH)
 
+    @override
     def receive(self, link, payload) -> None:
         raise RuntimeError("the compiled tree exchange receives nothing through its port")
 
@@ -188,11 +190,9 @@ class CompiledTreeExchange(TreeExchange):
     def finish(self) -> None:
         """Write the kernels' per-link counts into the port (what ``port.counts()`` reports);
         the arrival log is already written."""
-        count = self.port._count
-        self.port._grow()
-        for k, key in ((0, "sent"), (1, "delivered"), (3, "bytes")):
-            for link, v in zip(self.links, self.counts_[k].tolist()):
-                count[key][link.id] = v
+        sent, delivered, _, nbytes = (row.tolist() for row in self.counts_)
+        for i, link in enumerate(self.links):
+            self.port.set_counts(link, sent=sent[i], delivered=delivered[i], bytes=nbytes[i])
 
     @property
     def late_packets(self) -> list[int]:

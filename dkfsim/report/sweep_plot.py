@@ -36,7 +36,7 @@ from dkfsim.report.plots.style import (
     plain,
 )
 
-#: y-axis label per metric (the README's metric vocabulary).
+#: y-axis label per metric (docs/estimators.md, "Tidy rows").
 METRIC_LABELS = {"mse": "MSE", "anees": "ANEES", "disagreement": "disagreement",
                  "messages_per_tick": "messages per tick", "bytes_per_tick": "bytes per tick",
                  "lost": "lost packets", "late": "late information"}

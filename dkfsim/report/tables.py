@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-#: One line per estimate name that is not self-explanatory (the vocabulary of the README).
+#: One line per estimate name that is not self-explanatory (the vocabulary of docs/estimators.md).
 DESCRIPTIONS = {
     "fused": "the anti-delay DKF, fused ({fusion})",
     "local": "the DKF nodes' own estimates (mean over nodes)",

@@ -6,9 +6,9 @@ to its out-neighbours (one packet per link, over the run's delayed, lossy
 links); its reported estimate is the plain mean of its own and the newest
 estimate received from each neighbour (none yet: left out).  It is not a
 good filter -- it ignores the correlations and the ages of what it averages
--- but it shows every part of the interface: a parameter model, an
-implementation that uses the run's network and clock, its cost, its
-result, and one registration.  Use it in a scenario with::
+-- but it shows every part of the interface: a parameter model that declares
+the kind, an implementation that names it and uses the run's network and
+clock, its cost and its estimate.  Use it in a scenario with::
 
     plugins: [path/to/neighbour_mean.py]
     estimators: [{kind: neighbour_mean}, {kind: neighbour_mean, name: nm_self, weight_self: 0.5}]
@@ -16,44 +16,44 @@ result, and one registration.  Use it in a scenario with::
 
 from __future__ import annotations
 
-from typing import Annotated, Literal
+from typing import Annotated
 
 import numpy as np
 from pydantic import Field
+from typing_extensions import override
 
 from dkfsim.components.estimators import EstimatorParams
-from dkfsim.core.registry import ESTIMATORS
-from dkfsim.core.resources import C_PACKET, C_TICK, Cost
-from dkfsim.estimators.base import Estimate, Estimator, EstimatorResult
+from dkfsim.core.resources import B_FLOAT, C_PACKET, C_TICK, Cost
+from dkfsim.estimators.base import Estimate, Estimator, existing_information_bytes
 from dkfsim.estimators.window import batched_filter
 
 
-class NeighbourMeanParams(EstimatorParams):
+class NeighbourMeanParams(EstimatorParams, kind="neighbour_mean"):
     """Each node averages its own Kalman filter with its neighbours' latest estimates."""
 
-    kind: Literal["neighbour_mean"] = "neighbour_mean"
     #: Weight of the node's own estimate (None: an equal share with each neighbour heard from).
     weight_self: Annotated[float, Field(strict=True, gt=0, le=1)] | None = None
 
 
-class NeighbourMean(Estimator):
+class NeighbourMean(Estimator, params=NeighbourMeanParams):
     """Own Kalman filter, then the mean with the neighbours' latest estimates."""
 
-    Params = NeighbourMeanParams
-
     @classmethod
+    @override
     def cost(cls, params, scenario, *, L, arcs, save="estimates") -> Cost:
+        """Its own filter's ``x`` and ``P``, the reported ``x``, and what ``existing_information()``
+        copies (``L`` and ``save`` do not matter to it)."""
         K, n, nx = int(scenario.steps), scenario.n, scenario.nx
-        return Cost(params.label, memory={params.label: 3 * K * n * nx * 8},
-                    seconds=K * (C_TICK + arcs * C_PACKET))
+        memory = K * n * (2 * nx + nx * nx) * B_FLOAT + existing_information_bytes(scenario)
+        return Cost(params.label, memory={params.label: memory}, seconds=K * (C_TICK + arcs * C_PACKET))
 
     def start(self) -> None:
         ctx = self.ctx
         s = ctx.system
         omega, theta = ctx.existing_information()
         self.own, _ = batched_filter(s.Phi, s.Q, s.x0_mean, s.P0, omega, theta)   # (K, n, nx)
-        self.links = [ctx.network.link(u, v) for u, v in ctx.scenario.exchange().arcs]
-        self.port = ctx.network.port(self.name, self._receive, self.links)
+        self.links = ctx.exchange_links()                # the links the scenario's protocol uses
+        self.open_port(self._receive, self.links)
         self.latest = {}                                  # (receiver, sender) -> (tick, estimate)
         self.x = np.empty_like(self.own)
 
@@ -78,10 +78,5 @@ class NeighbourMean(Estimator):
             else:
                 self.x[row, i] = w * self.own[row, i] + (1 - w) * np.mean(heard, axis=0)
 
-    def finish(self) -> EstimatorResult:
-        traffic = self.port.counts()
-        traffic["late"] = 0                               # nothing is ever too late to average
-        return EstimatorResult({self.name: Estimate(self.x)}, traffic=traffic)
-
-
-ESTIMATORS.add("neighbour_mean", params=NeighbourMeanParams, implementation=NeighbourMean)
+    def estimate(self) -> Estimate:
+        return Estimate(self.x)            # the port's counts are its traffic; nothing is ever late

@@ -13,6 +13,7 @@ from typing import ClassVar, Literal
 
 import numpy as np
 from pydantic import model_validator
+from typing_extensions import override
 
 from dkfsim.components.latency import LatencyParams
 from dkfsim.core.params import NS_PER_S, NonNegSeconds, custom_error, seconds_to_ns
@@ -36,6 +37,7 @@ class Triangular(LatencyParams):
                                "mode")
         return self
 
+    @override
     def from_uniform(self, u, T_ns):
         a, c, b = self.low, self.mode, self.high
         u = np.asarray(u, float)
@@ -43,5 +45,6 @@ class Triangular(LatencyParams):
         x = np.where(u < f, a + np.sqrt(u * (b - a) * (c - a)), b - np.sqrt((1 - u) * (b - a) * (b - c)))
         return np.rint(x * NS_PER_S).astype(np.int64)
 
+    @override
     def sup_ns(self, T_ns):
         return seconds_to_ns(self.high)

@@ -125,7 +125,7 @@ class MaxDelay:
         check(self.estimate(), yes=yes, hint="a larger --scale-step, a smaller --max-scale or "
                                              "--max-delay, fewer --max-runs or --steps")
         self.seeds = [derive_seed(int(scenario.seed), r) for r in range(settings.max_runs)]
-        self.progress = progress or (lambda *a, **k: None)
+        self.progress = progress or (lambda *_, **__: None)
         self.notes: list[str] = []
         if scenario.buffer_length != "auto":
             self.notes.append(f"buffer_length is {scenario.buffer_length!r}, not auto: it does not follow "

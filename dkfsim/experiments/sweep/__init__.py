@@ -29,7 +29,7 @@ Decisions:
 
 * **The tidy rows every output shares**: one row per (parameter set, run,
   estimate, state component), every registered metric a column
-  (:func:`dkfsim.analysis.metrics.score`), the grid values in front.  NaN
+  (:func:`dkfsim.analysis.metrics.score_scored`), the grid values in front.  NaN
   (not applicable) is stored as NULL (SQLite has no NaN) and exported as an
   empty cell / Parquet null.
 * **The file stores its sweep definition** (grid, ``set``, ``runs``,

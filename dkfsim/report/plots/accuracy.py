@@ -99,7 +99,7 @@ def plot_mse(folder: Folder, stem, formats=DEFAULT_FORMATS, components=None, smo
                                 color=col, alpha=0.2, lw=0)
         ax.set_yscale("log")
         _log_limits(ax, drawn)
-        ax.set_ylabel(_mse_ylabel(folder, i, w))
+        ax.set_ylabel(_mse_ylabel(folder, i))
         ax.grid(True, which="both", alpha=0.25)
         ax.margins(x=0)
         if ref:

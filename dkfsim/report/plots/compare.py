@@ -108,7 +108,7 @@ def plot_compare(folders: list[Folder], stem, labels=None, formats=DEFAULT_FORMA
                     label="centralized KF (all data on time)" + (f", from {labels[0]}" if len(labels[0]) < 12 else ""))
         ax.set_yscale("log")
         _log_limits(ax, drawn)
-        ax.set_ylabel(_mse_ylabel(first, i, w))
+        ax.set_ylabel(_mse_ylabel(first, i))
         ax.grid(True, which="both", alpha=0.25)
         ax.margins(x=0)
         if relative:

@@ -124,7 +124,7 @@ def _unit_label(unit: str, squared: bool = False) -> str:
     return f" [{unit}]"
 
 
-def _mse_ylabel(folder: Folder, i: int, smooth: int) -> str:
+def _mse_ylabel(folder: Folder, i: int) -> str:
     comp, unit = folder.components[i], folder.units[i]
     return f"{plain(comp)} MSE{_unit_label(unit, squared=True)}"
 

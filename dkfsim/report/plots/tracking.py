@@ -76,7 +76,7 @@ def plot_tracking(folder: Folder, stem, formats=DEFAULT_FORMATS, components=None
         if ncols == 2:
             ax.axvspan(t[lo], t[hi - 1], color="C1", alpha=0.15, lw=0)
             az = axes[row, 1]
-            for lab, x, style in lines:
+            for _lab, x, style in lines:
                 az.plot(t[lo:hi], x[lo:hi, i], **style)
             az.grid(True, alpha=0.3)
             az.margins(x=0)
