@@ -65,6 +65,6 @@ def cmd_list(args) -> int:
     families = [args.what] if args.what else list(REGISTRIES) + ["datasets"]
     for i, family in enumerate(families):
         if i:
-            say()
+            say("")
         say("\n".join(describe(family)))
     return 0

@@ -190,11 +190,13 @@ class SweepDefinition(Model):
 
 
 @functools.lru_cache(maxsize=16)
-def sweep_row_model(metrics: tuple[str, ...]) -> type[BaseModel]:
-    """The model of one row of a sweep database's ``results`` table with these metric columns."""
-    return create_model("SweepRow", __base__=Model, param_hash=(Name, ...), run=(Count, ...),
-                        seed=(Count, ...), estimate=(Name, ...), component=(Name, ...),
-                        **{m: (MaybeNumber, None) for m in metrics})
+def sweep_rows(metrics: tuple[str, ...]) -> Any:
+    """The type of the rows (mappings) of a sweep's ``results`` table with these metric columns."""
+    fields: dict[str, Any] = {"param_hash": (Name, ...), "run": (Count, ...), "seed": (Count, ...),
+                              "estimate": (Name, ...), "component": (Name, ...),
+                              **{m: (MaybeNumber, None) for m in metrics}}
+    row = create_model("SweepRow", __base__=Model, **fields)
+    return list[row]  # type: ignore[valid-type]
 
 
 class SweepParams(Model):

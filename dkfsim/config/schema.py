@@ -223,7 +223,7 @@ class Scenario(StrictModel):
                 raise custom_error(ESTIMATORS.unknown(name), f"baselines.{i}")
             if name in names[:i]:
                 raise custom_error(f"{name!r} is listed twice", f"baselines.{i}")
-            entry = {"kind": ESTIMATORS.canonical(name)}
+            entry: dict[str, Any] = {"kind": ESTIMATORS.canonical(name)}
             if entry["kind"] == "ci_consensus" and rounds is not None:
                 entry["rounds"] = rounds
             entries.append(entry)

@@ -140,7 +140,7 @@ def remove_dead_staging(target: Path) -> list[Path]:
     dead.  A dead ``.old`` folder is the previous output of an interrupted two-rename swap: it
     is put back when ``target`` is missing.  Returns what was removed or restored."""
     parent = target.absolute().parent
-    done = []
+    done: list[Path] = []
     try:
         entries = list(parent.iterdir())
     except OSError:

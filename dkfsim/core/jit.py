@@ -66,7 +66,7 @@ def _tolerate_cache_write_errors(caching) -> None:
     is; one warning on stderr says the next process compiles again."""
     cls = getattr(caching, "Cache", None)
     save = getattr(cls, "save_overload", None)
-    if _CacheGuard.installed or save is None:
+    if _CacheGuard.installed or cls is None or save is None:
         return
 
     def save_overload(self, sig, data):

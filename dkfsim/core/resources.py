@@ -24,7 +24,7 @@ import os
 try:
     import resource
 except ImportError:  # pragma: no cover  (not a Unix)
-    resource = None
+    resource = None  # type: ignore[assignment]
 from dataclasses import dataclass, field
 from typing import Literal
 
@@ -94,24 +94,26 @@ def available_memory() -> int:
             avail = min(avail, int(limit) - used)
     except (OSError, ValueError):
         pass
-    avail = min(avail, _address_space_left())
+    left = _address_space_left()
+    if left is not None:
+        avail = min(avail, left)
     return max(int(avail), 0)
 
 
-def _address_space_left() -> float:
-    """Address space this process may still map under ``RLIMIT_AS`` (``ulimit -v``); inf if
+def _address_space_left() -> int | None:
+    """Address space this process may still map under ``RLIMIT_AS`` (``ulimit -v``); None if
     unlimited or unknown."""
     if resource is None:  # pragma: no cover  (not a Unix)
-        return math.inf
+        return None
     try:
         soft, _hard = resource.getrlimit(resource.RLIMIT_AS)
         if soft == resource.RLIM_INFINITY:
-            return math.inf
+            return None
         with open("/proc/self/statm") as fh:
             size = int(fh.read().split()[0]) * os.sysconf("SC_PAGE_SIZE")
         return max(soft - size, 0)
     except (OSError, ValueError, IndexError):
-        return math.inf
+        return None
 
 
 @dataclass

@@ -14,7 +14,7 @@ import json
 from pathlib import Path
 
 from dkfsim.analysis.grid import summarize
-from dkfsim.config.results import sweep_row_model, validate
+from dkfsim.config.results import sweep_rows, validate
 from dkfsim.core.errors import DkfsimError
 from dkfsim.core.extras import optional
 from dkfsim.core.files import check_regular_file
@@ -96,8 +96,7 @@ def read_table(path) -> tuple[list[str], list[list]]:
     # The rows as a database's (an export may have been edited): names, run and seed, numbers.
     start = columns.index("param_hash")
     metrics = tuple(c for c in columns[start:] if c not in KEY_COLUMNS)
-    validate(list[sweep_row_model(metrics)], [dict(zip(columns[start:], r[start:])) for r in rows],
-             f"{path} (row)")
+    validate(sweep_rows(metrics), [dict(zip(columns[start:], r[start:])) for r in rows], f"{path} (row)")
     return columns, rows
 
 

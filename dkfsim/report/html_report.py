@@ -294,7 +294,7 @@ def sweep_page(db: Path) -> str:
     grid = grid_columns(columns)
     store = SweepDB(db, readonly=True)
     try:
-        meta, params, definition = store.meta(), store.params(), store.definition
+        meta, params, definition = store.meta(), store.params(), store.definition or {}
     finally:
         store.close()
     cfg = params[0]["scenario"] if params else {}

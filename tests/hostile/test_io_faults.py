@@ -191,7 +191,7 @@ def test_a_sweep_database_is_whole_before_anyone_can_see_it(tmp_path, monkeypatc
 
 
 # =========================================================================== standard output
-def test_an_ascii_only_stdout_gets_escapes(tmp_path):
+def test_an_ascii_only_stdout_gets_escapes():
     out = dkfsim_cli("validate", CASE1, env={"PYTHONIOENCODING": "ascii"}).ok()
     assert ": ok \\u2014 paper_case1" in out
 
@@ -204,7 +204,7 @@ def test_a_full_stdout_is_a_clean_error_after_the_files_are_written(tmp_path):
 
 
 @pytest.mark.parametrize("closed", [(1,), (1, 2)])
-def test_a_closed_stdout_is_not_an_error(tmp_path, closed):
+def test_a_closed_stdout_is_not_an_error(closed):
     def close():
         for fd in closed:
             os.close(fd)

@@ -10,7 +10,7 @@ from __future__ import annotations
 import os
 from pathlib import Path
 
-from dkfsim.config.results import sweep_row_model, validate
+from dkfsim.config.results import sweep_rows, validate
 from dkfsim.core.errors import DkfsimError
 from dkfsim.core.extras import optional
 from dkfsim.core.folders import write_csv
@@ -44,8 +44,7 @@ def read_results(db: str | os.PathLike) -> tuple[list[str], list[list]]:
     finally:
         store.close()
     names = list(KEY_COLUMNS) + metric_cols
-    validate(list[sweep_row_model(tuple(metric_cols))], [dict(zip(names, r)) for r in raw],
-             f"{db} (table results, row)")
+    validate(sweep_rows(tuple(metric_cols)), [dict(zip(names, r)) for r in raw], f"{db} (table results, row)")
     rows = [[values[r[0]].get(k) for k in grid_keys] + list(r) for r in raw]
     taken = set(KEY_COLUMNS) | set(metric_cols)
     names = [k if k not in taken else f"param:{k}" for k in grid_keys]

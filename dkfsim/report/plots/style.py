@@ -183,7 +183,7 @@ def _save(fig, stem: Path, formats) -> list[Path]:
                 fd, tmp = tempfile.mkstemp(prefix=".fig-", suffix=f".{fmt}.tmp", dir=path.parent)
                 os.close(fd)
                 if fmt == "png":
-                    _save_png(fig, tmp)
+                    _save_png(fig, Path(tmp))
                 else:
                     fig.savefig(tmp, bbox_inches="tight", format=fmt)
                 os.replace(tmp, path)
