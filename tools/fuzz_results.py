@@ -20,8 +20,8 @@ Mutations (every one deterministic):
 * whole files (every file of every base, the database included): emptied, truncated to a
   third and two thirds, bytes flipped at five seeded places, replaced by random bytes;
 * npz members (``run.npz``, ``curves.npz``): dtype swaps (text, object, integer, bool),
-  no rows, no columns, an extra axis, deleted, renamed to mathtext, and a claim of 60 M rows
-  of zeros in a few compressed megabytes;
+  no rows, no columns, an extra axis, deleted, renamed to mathtext, a corrupt deflate stream,
+  and a claim of 60 M rows of zeros in a few compressed megabytes;
 * CSV files (``rows.csv``, ``runs.csv``): a cell of text, of 1 MB, empty; a column dropped;
 * the sweep database: every column of every table set to NULL, text, a 5 MB string, -1,
   1e300 or a blob; every table dropped; the JSON of ``meta.definition``,
@@ -148,7 +148,7 @@ JSON_MUTATIONS = {m.name: m for m in fz.VOCABULARY if m.applies != fz._is_root} 
     "huge_string": fz._replace("huge_string", lambda _old: HUGE_TEXT)}
 FILE_MUTATIONS = ("empty", "truncate_1/3", "truncate_2/3", "flip_bytes", "random_bytes")
 NPZ_MUTATIONS = ("as_text", "as_object", "as_int", "as_bool", "no_rows", "no_columns", "extra_axis",
-                 "delete", "rename_mathtext", "claim_60M_rows")
+                 "delete", "rename_mathtext", "claim_60M_rows", "deflated_and_flipped")
 CSV_MUTATIONS = ("cell_text", "cell_1MB", "cell_empty", "drop_column")
 SQL_VALUES = {"NULL": None, "text": "abc", "5MB_text": HUGE_TEXT, "-1": -1, "1e300": 1e300,
               "blob": b"\x00\x01"}
@@ -219,6 +219,18 @@ def _npz(path: Path, member: str, mutation: str) -> None:
     if mutation == "claim_60M_rows":
         shape = (BOMB_ROWS,) + a.shape[1:] if member != "mse" else (a.shape[0], BOMB_ROWS, a.shape[2])
         _bomb(path, member, shape, {k: v for k, v in arrays.items() if k != member})
+        return
+    if mutation == "deflated_and_flipped":       # a corrupt deflate stream in one member
+        np.savez_compressed(path, **arrays)
+        with zipfile.ZipFile(path) as z:
+            info = z.getinfo(member + ".npy")
+        data = bytearray(path.read_bytes())
+        head = info.header_offset
+        start = head + 30 + int.from_bytes(data[head + 26:head + 28], "little") + \
+            int.from_bytes(data[head + 28:head + 30], "little")
+        for i in range(start + 2, start + info.compress_size - 1, max(1, info.compress_size // 8)):
+            data[i] ^= 0x5A
+        path.write_bytes(bytes(data))
         return
     if mutation == "delete":
         del arrays[member]

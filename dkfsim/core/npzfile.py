@@ -18,6 +18,7 @@ it (docs/security.md):
 from __future__ import annotations
 
 import zipfile
+import zlib
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Self
@@ -40,6 +41,10 @@ MAX_RATIO = 64
 SMALL_BYTES = 64 << 20
 #: Share of the memory budget the arrays read at once may take (callers compute with them).
 READ_SHARE = 0.25
+#: What reading a damaged zip member raises: a bad header or CRC, a corrupt deflate stream,
+#: an unsupported or encrypted member, a short read.
+_ZIP_ERRORS = (ValueError, OSError, EOFError, zipfile.BadZipFile, zlib.error, NotImplementedError,
+               RuntimeError, OverflowError, KeyError, TypeError, SyntaxError, RecursionError, MemoryError)
 
 
 @dataclass(frozen=True)
@@ -82,8 +87,7 @@ def _header(z: zipfile.ZipFile, info: zipfile.ZipInfo, path) -> ArrayHeader:
             else:
                 raise ValueError(f"unknown .npy format version {version}")
             offset = fh.tell()
-    except (ValueError, OSError, EOFError, zipfile.BadZipFile, SyntaxError, TypeError, KeyError,
-            RecursionError, MemoryError, OverflowError, NotImplementedError) as exc:
+    except _ZIP_ERRORS as exc:
         raise _bad(path, f"array {clip(name)}: not a valid .npy header ({clip(str(exc), 120)})") from None
     if dtype.hasobject:
         raise _bad(path, f"array {clip(name)} holds Python objects (dtype {dtype}); dkfsim never "
@@ -113,7 +117,7 @@ class NpzFile:
         check_regular_file(self.path, limit=MAX_NPZ_BYTES, what=what)
         try:
             self._zip = zipfile.ZipFile(self.path)
-        except (zipfile.BadZipFile, OSError, EOFError, ValueError, NotImplementedError) as exc:
+        except _ZIP_ERRORS as exc:
             raise _bad(self.path, f"not a readable .npz file ({clip(str(exc), 120)})") from None
         try:
             infos = self._zip.infolist()
@@ -177,7 +181,7 @@ class NpzFile:
             try:
                 with self._zip.open(info) as fh:
                     a = np.lib.format.read_array(fh, allow_pickle=False, max_header_size=MAX_HEADER)
-            except (ValueError, OSError, EOFError, zipfile.BadZipFile, MemoryError) as exc:
+            except _ZIP_ERRORS as exc:
                 raise _bad(self.path, f"array {clip(key)}: cannot read it ({clip(str(exc), 120)})") from None
             out[key] = a
         return out

@@ -1,5 +1,5 @@
-"""Ways to tamper with a legitimate result folder or sweep database, shared by the hostile tests and
-tools/fuzz_results.py.  Each function edits a copy in place."""
+"""Ways to tamper with a legitimate result folder or sweep database, for the hostile tests (the
+fuzzer, tools/fuzz_results.py, has its own vocabulary).  Each function edits a copy in place."""
 
 from __future__ import annotations
 
@@ -17,7 +17,7 @@ def npz_arrays(path: Path) -> dict[str, np.ndarray]:
         return {k: z[k] for k in z.files}
 
 
-def npz_replace(path: Path, compressed: bool = False, **arrays) -> None:
+def npz_replace(path: Path, **arrays) -> None:
     """Rewrite ``path`` with some arrays replaced (``None`` removes one)."""
     data = npz_arrays(path)
     for k, v in arrays.items():
@@ -25,14 +25,13 @@ def npz_replace(path: Path, compressed: bool = False, **arrays) -> None:
             data.pop(k, None)
         else:
             data[k] = v
-    (np.savez_compressed if compressed else np.savez)(path, **data)
+    np.savez(path, **data)
 
 
-def npz_claiming(path: Path, claims: dict[str, tuple], keep: dict[str, np.ndarray] | None = None) -> int:
+def npz_claiming(path: Path, claims: dict[str, tuple]) -> int:
     """Write ``path`` as an npz whose members ``claims`` (name -> shape) hold float64 zeros of
     that shape, deflated as they are streamed (a gigabyte of zeros becomes a megabyte): the
-    "3 MB file holding 60 M rows" of issue 20.  ``keep``: other arrays written as they are.
-    Returns the file's size."""
+    "3 MB file holding 60 M rows" of issue 20.  Returns the file's size."""
     chunk = bytes(16 << 20)
     with zipfile.ZipFile(path, "w", compression=zipfile.ZIP_DEFLATED, compresslevel=9) as z:
         for name, shape in claims.items():
@@ -46,9 +45,6 @@ def npz_claiming(path: Path, claims: dict[str, tuple], keep: dict[str, np.ndarra
                     n = min(left, len(chunk))
                     fh.write(chunk[:n])
                     left -= n
-        for name, a in (keep or {}).items():
-            with z.open(name + ".npy", "w") as fh:
-                np.lib.format.write_array(fh, np.asarray(a))
     return path.stat().st_size
 
 
@@ -62,14 +58,6 @@ def _npy_header(d: dict) -> bytes:
 def truncate(path: Path, fraction: float = 0.5) -> None:
     data = path.read_bytes()
     path.write_bytes(data[:int(len(data) * fraction)])
-
-
-def flip_byte(path: Path, where: float = 0.5) -> None:
-    """Flip the bits of one byte at relative position ``where`` (a bad CRC in an npz)."""
-    data = bytearray(path.read_bytes())
-    i = min(len(data) - 1, int(len(data) * where))
-    data[i] ^= 0xFF
-    path.write_bytes(bytes(data))
 
 
 def flip_npz_member_byte(path: Path, member: str) -> None:
@@ -109,13 +97,6 @@ def sql(db: Path, *statements, params=()) -> None:
         for s in statements:
             conn.execute(s, params)
     conn.close()
-
-
-def first_param_hash(db: Path) -> str:
-    with sqlite3.connect(db) as conn:
-        h = conn.execute("SELECT param_hash FROM params ORDER BY idx").fetchone()[0]
-    conn.close()
-    return h
 
 
 def set_values_json(db: Path, edit) -> None:

@@ -64,6 +64,17 @@ def _empty_rows(f):
     npz_replace(f / "run.npz", **{k: v[:0] for k, v in a.items() if k in ("t", "truth") or k.startswith("x_")})
 
 
+def _deflated_and_flipped(npz):
+    """run.npz recompressed, then bytes of truth's deflate stream flipped (a zlib error inside)."""
+    npz_replace(npz)
+    np.savez_compressed(npz, **npz_arrays(npz))
+    data = bytearray(npz.read_bytes())
+    start = data.index(b"truth.npy") + len(b"truth.npy") + 40
+    for i in range(start, start + 200, 7):
+        data[i] ^= 0x5A
+    npz.write_bytes(bytes(data))
+
+
 def _no_state(f):
     npz_replace(f / "run.npz", truth=np.zeros((40, 0)))
 
@@ -73,6 +84,7 @@ RUN_CASES = {
     "empty npz": (lambda f: (f / "run.npz").write_bytes(b""), ["run.npz"]),
     "bad CRC": (lambda f: flip_npz_member_byte(f / "run.npz", "truth"), ["run.npz", "truth"]),
     "garbage npz": (lambda f: (f / "run.npz").write_bytes(os.urandom(5000)), ["run.npz"]),
+    "corrupt deflate": (lambda f: _deflated_and_flipped(f / "run.npz"), ["run.npz", "truth"]),
     "string dtype": (_string_truth, ["truth", "expected numbers"]),
     "K = 0": (_empty_rows, ["run.npz"]),
     "nx = 0": (_no_state, ["truth"]),
