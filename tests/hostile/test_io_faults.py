@@ -190,6 +190,20 @@ def test_a_sweep_database_is_whole_before_anyone_can_see_it(tmp_path, monkeypatc
         dkfsim_cli("report", sweep.output).ok()
 
 
+def test_a_filesystem_without_hard_links_still_gets_a_database(tmp_path, monkeypatch):
+    """The whole database is linked into place; where links are not supported it is renamed."""
+    (tmp_path / "s.yaml").write_text(yaml.safe_dump({"scenario": str(CASE1), "runs": 1,
+                                                     "set": ["steps=10", "estimators=[]"]}))
+    sweep = load_sweep(tmp_path / "s.yaml")
+
+    def no_link(*_):
+        raise PermissionError(1, "Operation not permitted")
+    monkeypatch.setattr(os, "link", no_link)
+    with SweepDB(sweep.output, sweep) as store:
+        assert store.definition["runs"] == 1
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["s.sqlite", "s.yaml"]
+
+
 # =========================================================================== standard output
 def test_an_ascii_only_stdout_gets_escapes():
     out = dkfsim_cli("validate", CASE1, env={"PYTHONIOENCODING": "ascii"}).ok()

@@ -188,6 +188,9 @@ class SweepDB:
             except FileExistsError:
                 if self.path.stat().st_size == 0:           # an empty file (an older lock): ours
                     os.replace(tmp, self.path)
+            except OSError:               # a filesystem without hard links: a rename, if still free
+                if not self.path.exists():
+                    os.replace(tmp, self.path)
         finally:
             with contextlib.suppress(OSError):
                 os.unlink(tmp)
