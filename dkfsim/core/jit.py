@@ -10,10 +10,14 @@ for both.  See docs/design.md §4 ("Kernel paths").
 
 from __future__ import annotations
 
+import hashlib
+import importlib
 import importlib.util
 import os
 import sys
 import threading
+from collections.abc import Mapping
+from pathlib import Path
 
 from dkfsim.core.extras import optional
 
@@ -33,6 +37,12 @@ def kernel_path() -> str:
     return "numba"
 
 
+def source_sha256(module: str) -> str:
+    """The sha256 (hex) of the source file of ``module`` (imported if it is not yet)."""
+    path = importlib.import_module(module).__file__
+    return hashlib.sha256(Path(str(path)).read_bytes()).hexdigest()
+
+
 class LazyKernels:
     """The functions ``names`` of module ``module``, replaced by their ``numba.njit(cache=True)``
     versions (no fastmath, no parallel, nogil) on the first :meth:`get`.
@@ -42,14 +52,27 @@ class LazyKernels:
     step a kernel calls per node or packet costs no call).  Runs in threads (a Dask worker
     with threads, a notebook) may call :meth:`get` together: one compiles, under a lock, and
     none jits an already jitted function.
+
+    ``borrows``: kernel modules of other files whose jitted steps these kernels call (as
+    ``module.step``), each with the sha256 of its source these kernels were written against
+    (:func:`source_sha256`).  numba's disk cache keys a kernel by its own file only, so an edit
+    of a borrowed file would leave these kernels' cached code stale: while a pin does not
+    match, they are compiled without the disk cache (one warning on stderr).  The borrowed
+    modules' kernels are compiled first (their ``compiled()``).
     """
 
-    def __init__(self, module: str, names: tuple[str, ...], inline: tuple[str, ...] = ()):
+    def __init__(self, module: str, names: tuple[str, ...], inline: tuple[str, ...] = (),
+                 borrows: Mapping[str, str] | None = None):
         self.module = module
         self.names = tuple(names)
         self.inline = frozenset(inline)
+        self.borrows = dict(borrows or {})
         self._done = False
         self._lock = threading.Lock()
+
+    def stale_borrows(self) -> list[str]:
+        """The borrowed modules whose source no longer matches its pin."""
+        return [m for m, sha in self.borrows.items() if source_sha256(m) != sha]
 
     def get(self):
         """The module, its kernels compiled (loaded from numba's disk cache or compiled)."""
@@ -57,10 +80,17 @@ class LazyKernels:
             with self._lock:
                 if not self._done:
                     numba = optional("numba")
+                    for borrowed in self.borrows:
+                        importlib.import_module(borrowed).compiled()
+                    stale = self.stale_borrows()
+                    if stale:
+                        print(f"dkfsim: warning: {', '.join(stale)} changed since {self.module} pinned it "
+                              f"(BORROWS): its kernels are compiled without numba's disk cache; update the pin "
+                              "to the file's sha256 (dkfsim.core.jit.source_sha256)", file=sys.stderr)
                     mod = sys.modules[self.module]
                     for name in self.names:
                         inline = "always" if name in self.inline else "never"
-                        setattr(mod, name, numba.njit(cache=True, fastmath=False, nogil=True,
+                        setattr(mod, name, numba.njit(cache=not stale, fastmath=False, nogil=True,
                                                       inline=inline)(getattr(mod, name)))
                     self._done = True
         return sys.modules[self.module]

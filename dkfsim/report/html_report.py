@@ -30,6 +30,7 @@ import yaml
 from dkfsim.analysis.grid import grid_columns, summarize
 from dkfsim.config.dynamics import component_names
 from dkfsim.config.load import load_scenario
+from dkfsim.config.plan import RunPlan
 from dkfsim.core.errors import DkfsimError
 from dkfsim.core.extras import pyplot
 from dkfsim.core.folders import write_text
@@ -139,7 +140,8 @@ def _network(sc, note: str = "") -> str:
     if sc is None:
         return "<p class='note'>The scenario could not be loaded again (a data file moved?): no drawing.</p>"
     try:
-        graph, xg = sc.graph(), sc.exchange()
+        plan = RunPlan(sc)
+        graph, xg = plan.graph, plan.exchange
     except DkfsimError as exc:
         return f"<p class='note'>No drawing: {html.escape(str(exc))}</p>"
     is_tree = not xg.graph.is_directed() and nx_is_tree(xg.graph)

@@ -13,6 +13,7 @@ from dataclasses import dataclass
 
 from dkfsim.components.latency import parse_latency
 from dkfsim.config.load import load_scenario
+from dkfsim.config.plan import RunPlan
 from dkfsim.core.errors import DkfsimError
 from dkfsim.core.registry import LATENCY_MODELS
 
@@ -235,7 +236,7 @@ def latencies_deterministic(sc) -> bool:
     on its measurement)."""
     if any(s.kind != "linear" for s in sc.sensors):
         return False
-    for u, v in sc.exchange().arcs:
+    for u, v in RunPlan(sc).exchange.arcs:
         spec = sc.link_spec(u, v)
         if spec.loss > 0 or (getattr(spec, "duplicate", 0.0) or 0.0) > 0:
             return False
