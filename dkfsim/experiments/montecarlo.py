@@ -87,7 +87,7 @@ def components_of(scenario) -> list[str]:
     return component_names(scenario.model.kind, scenario.nx)
 
 
-def _check_burn_in(burn_in: int | None, K: int) -> int:
+def check_burn_in(burn_in: int | None, K: int) -> int:
     if burn_in is None:
         return default_burn_in(K)
     if not 0 <= int(burn_in) < K:
@@ -161,7 +161,7 @@ def run_rows(scenario, seed: int, burn_in: int | None = None, *,
     """
     tpl = scenario if isinstance(scenario, Template) else Template(scenario)
     sc = tpl.scenario_for(seed)
-    burn = _check_burn_in(burn_in, int(sc.steps))
+    burn = check_burn_in(burn_in, int(sc.steps))
     with np.errstate(all="ignore"):          # a diverging run gives inf / nan rows, no warnings
         res = Run(sc, save="estimates", system=tpl.system, plan=tpl.plan_for(sc)).run()
         scored = res.scored(burn)            # one NEES per estimate, for the rows and the curves
@@ -247,7 +247,7 @@ def montecarlo(scenario, runs: int, jobs: int | None = None, burn_in: int | None
         raise DkfsimError(f"--runs: must be an integer >= 1, got {runs!r}")
     executors.check_jobs(jobs)
     sc = scenario if isinstance(scenario, Scenario) else load_scenario(scenario)
-    burn = _check_burn_in(burn_in, int(sc.steps))
+    burn = check_burn_in(burn_in, int(sc.steps))
     workers = executor.workers if isinstance(executor, executors.Executor) else \
         min(jobs or executors.available_cpus(), runs)
     check_montecarlo(sc, runs, workers, yes=yes)
