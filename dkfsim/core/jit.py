@@ -1,11 +1,13 @@
-"""The generic part of dkfsim's compiled kernels: which path runs, and compiling a module's
-kernels lazily, once, under a lock.
+"""The generic part of dkfsim's compiled kernels: which path the environment asks for, and
+compiling a module's kernels lazily, once, under a lock.
 
 Kernels live in the layer that uses them (:mod:`dkfsim.estimators.kernels` for the window
-filter, the contribution fold and the cross-covariance recursion,
-:mod:`dkfsim.protocols.tree_compiled_kernels` for the compiled ``tree`` protocol's instants:
-deliveries, flushes and keyed latency draws); this module only holds what they share, low enough in the layers
-for both.  See docs/design.md §4 ("Kernel paths").
+filter and the cross-covariance recursion, :mod:`dkfsim.model.holdings_kernels` for the
+contribution fold, :mod:`dkfsim.protocols.tree_compiled_kernels` for the compiled ``tree``
+protocol's instants: deliveries, flushes and keyed latency draws); this module only holds what
+they share, low enough in the layers for all.  A run's path is decided once, by its
+:class:`~dkfsim.core.backend.Backend` (which reads :func:`kernel_path`).  See docs/design.md §4
+("Kernel paths").
 """
 
 from __future__ import annotations
