@@ -126,6 +126,7 @@ def test_the_backend_is_what_the_environment_asks_for(env, expect, monkeypatch):
         monkeypatch.setenv(key, value)
     b = Backend.from_environment()
     assert (b.kernels, b.exchange) == expect and b.compiled == (expect[0] == "numba")
+    assert b.compiled_exchange == (expect[1] == "compiled")
 
 
 def test_a_bad_exchange_setting_is_a_clear_error(monkeypatch):

@@ -59,6 +59,11 @@ class Backend:
         """True on the numba path: the filters run compiled kernels."""
         return self.kernels == "numba"
 
+    @property
+    def compiled_exchange(self) -> bool:
+        """True when a protocol with a compiled twin runs it (the ``tree`` protocol's kernels)."""
+        return self.exchange == "compiled"
+
     def python_exchange(self) -> Backend:
         """This backend with every protocol in Python (a run the compiled exchange cannot run)."""
         return replace(self, exchange="python")

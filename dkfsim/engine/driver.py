@@ -48,7 +48,7 @@ def run_backend(plan: RunPlan, network: Network, crashes: CrashSchedule | None) 
     with the Python exchange where the compiled one cannot run (a protocol without a compiled
     twin, a link it cannot draw, crash windows)."""
     backend = Backend.from_environment()
-    if backend.exchange == "compiled":
+    if backend.compiled_exchange:
         links = [network.link(u, v) for u, v in plan.exchange.arcs]
         if not tree_compiled.usable(plan.protocol, links, crashes):
             backend = backend.python_exchange()

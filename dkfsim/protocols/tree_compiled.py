@@ -46,7 +46,7 @@ def exchange_class(protocol: str, backend: Backend) -> type:
     """The class that runs ``protocol`` on ``backend``: its compiled twin when the backend's
     exchange is compiled and it has one (``tree``), else the registered implementation."""
     impl = PROTOCOLS.get(protocol).implementation
-    if backend.exchange == "compiled" and impl is TreeExchange:
+    if backend.compiled_exchange and impl is TreeExchange:
         return CompiledTreeExchange
     return impl
 
