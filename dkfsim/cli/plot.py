@@ -8,7 +8,7 @@ from pathlib import Path
 from dkfsim.core.errors import DkfsimError
 from dkfsim.core.files import clip
 from dkfsim.experiments.sweep import is_database
-from dkfsim.report.plots import DEFAULT_FORMATS, FORMATS, _check_formats, load_folder, plot_compare, plot_folder
+from dkfsim.report.plots import DEFAULT_FORMATS, FORMATS, check_formats, load_folder, plot_compare, plot_folder
 from dkfsim.report.sweep_plot import plot_sweep
 
 EPILOG = """\
@@ -101,7 +101,7 @@ def cmd_plot_sweep(args, formats) -> int:
 
 
 def cmd_plot(args) -> int:
-    formats = _check_formats(args.formats)
+    formats = check_formats(args.formats)
     if len(args.dirs) == 1 and _is_sweep(args.dirs[0]):
         return cmd_plot_sweep(args, formats)
     for flag in SWEEP_FLAGS + ("metric",):

@@ -38,7 +38,7 @@ from dkfsim.core.version import __version__
 from dkfsim.experiments.sweep import is_database, read_results
 from dkfsim.report.network import draw_network
 from dkfsim.report.plots import load_folder, plot_mse, plot_nees, plot_tracking
-from dkfsim.report.plots.folders import _read_json
+from dkfsim.report.plots.folders import read_json_file
 from dkfsim.report.plots.style import png_resolution
 from dkfsim.report.sweep_plot import plot_sweep
 
@@ -200,7 +200,7 @@ def _page(title: str, subtitle: str, sections: list[tuple[str, str]]) -> str:
 
 # =========================================================================== per kind
 def run_page(folder: Path) -> str:
-    s = _read_json(folder / "summary.json")
+    s = read_json_file(folder / "summary.json")
     cfg = s.get("scenario_config") or {}
     sc = _scenario(cfg, str(Path(s["source"]).resolve().parent) if s.get("source") else None)
     burn = (s.get("metrics") or {}).get("burn_in")
@@ -241,7 +241,7 @@ def run_page(folder: Path) -> str:
 
 
 def montecarlo_page(folder: Path) -> str:
-    s = _read_json(folder / "summary.json")
+    s = read_json_file(folder / "summary.json")
     cfg = s.get("scenario_config") or {}
     sc = _scenario(cfg, str(Path(s["source"]).resolve().parent) if s.get("source") else None)
     comps = s.get("components") or []

@@ -95,13 +95,13 @@ def component_names(nx: int, model_kind: str | None) -> list[str]:
     return names_of(model_kind, nx)
 
 
-def _units(components, model_kind) -> list[str]:
+def component_units(components, model_kind) -> list[str]:
     if model_kind in (None, "constant_acceleration") and list(components) == list(CA_COMPONENTS):
         return [CA_UNITS[c] for c in components]
     return [""] * len(components)
 
 
-def _read_json(path: Path) -> dict:
+def read_json_file(path: Path) -> dict:
     try:
         data = from_json(json.loads(read_text(path, limit=MAX_YAML_BYTES, what="JSON file")))
     except ValueError as exc:
@@ -192,7 +192,7 @@ def load_folder(path) -> Folder:
 
 def _load_run(p: Path) -> Folder:
     arrays = _read_npz(p / "run.npz")
-    summary = _read_json(p / "summary.json") if (p / "summary.json").is_file() else {}
+    summary = read_json_file(p / "summary.json") if (p / "summary.json").is_file() else {}
     truth = _need(arrays, "truth", p / "run.npz", (None, None))
     K, nx = truth.shape
     t = _need(arrays, "t", p / "run.npz", (K,)).astype(float)
@@ -219,7 +219,7 @@ def _load_run(p: Path) -> Folder:
     if "fused" not in mse and "local" not in mse:
         raise DkfsimError(f"{p / 'run.npz'}: no estimates (x_fused or x_local) to plot")
     return Folder(path=p, kind="run", scenario=str(summary.get("scenario", p.name)), t=t,
-                  components=comps, units=_units(comps, kind), mse=mse, truth=truth,
+                  components=comps, units=component_units(comps, kind), mse=mse, truth=truth,
                   examples=examples, node0=node0, n_runs=1, d_t=_d_t(summary),
                   burn_in=_int_or_none((summary.get("metrics") or {}).get("burn_in")))
 
@@ -238,7 +238,7 @@ def _count_runs(p: Path) -> int | None:
 def _load_montecarlo(p: Path) -> Folder:
     f = p / "curves.npz"
     arrays = _read_npz(f)
-    summary = _read_json(p / "summary.json") if (p / "summary.json").is_file() else {}
+    summary = read_json_file(p / "summary.json") if (p / "summary.json").is_file() else {}
     t = _need(arrays, "t", f, (None,)).astype(float)
     K = t.shape[0]
     comps = [str(c) for c in _need(arrays, "components", f, (None,))]
@@ -285,7 +285,7 @@ def _load_montecarlo(p: Path) -> Folder:
         ci95 = {OLD_NAMES.get(a, a) if "algorithms" in summary else a: v["mse_ci95"]
                 for a, v in per_estimate.items() if isinstance(v, dict) and "mse_ci95" in v}
     return Folder(path=p, kind="montecarlo", scenario=str(name), t=t, components=comps,
-                  units=_units(comps, kind), mse=mse, ci=ci, truth=truth, examples=examples,
+                  units=component_units(comps, kind), mse=mse, ci=ci, truth=truth, examples=examples,
                   node0=node0, n_runs=n_runs or 0, d_t=_d_t(summary), nees=nees, nees_band=band,
                   burn_in=_int_or_none(summary.get("burn_in")), mse_ci95=ci95)
 
