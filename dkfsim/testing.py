@@ -30,10 +30,10 @@ from typing import Any
 import numpy as np
 
 from dkfsim.config.load import load_scenario
+from dkfsim.config.plan import RunPlan
 from dkfsim.config.schema import Scenario
 from dkfsim.core.registry import ESTIMATORS, Entry
 from dkfsim.engine.driver import Run, run
-from dkfsim.engine.estimate import exchange_shape
 from dkfsim.engine.results import RunResult, load_run
 from dkfsim.estimators.base import Estimator
 
@@ -267,8 +267,7 @@ def _peak(base: dict, estimators: list[dict], steps: int) -> int:
 
 def _planned(impl: type[Estimator], base: dict, kind: str, steps: int) -> float:
     sc: Scenario = load_scenario({**copy.deepcopy(base), "estimators": [{"kind": kind}], "steps": steps})
-    L, arcs, _ = exchange_shape(sc)
-    return impl.cost(sc.estimators[0], sc, L=L, arcs=arcs, save="estimates").bytes
+    return impl.cost(sc.estimators[0], RunPlan(sc, "estimates")).bytes
 
 
 def _check_cost(kind: str, impl: type[Estimator], base: dict) -> None:

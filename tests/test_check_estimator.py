@@ -137,7 +137,7 @@ def test_a_cost_below_what_the_run_allocates_fails():
     class Cheap(LocalOnly, params=CheapParams):
         @classmethod
         @override
-        def cost(cls, params, scenario, *, L, arcs, save="estimates") -> Cost:
+        def cost(cls, params, plan) -> Cost:
             return Cost(params.label)
 
     fails("cheap", "cost >= measured allocation")

@@ -22,6 +22,8 @@ import pytest
 import reference as ref
 from conftest import T2, scenario
 
+from dkfsim.config.plan import RunPlan
+
 TOL = 1e-9
 T_NS = int(round(T2 * 1e9))
 
@@ -97,7 +99,7 @@ def reference_ci(sim, rounds):
     inv = np.linalg.inv
     n, nx, K = len(Hs), Phi.shape[0], sim.K
     dt = T_NS // rounds
-    arcs = list(sim.scenario.exchange().arcs)
+    arcs = list(RunPlan(sim.scenario).exchange.arcs)
     indeg = [sum(1 for _, v in arcs if v == i) for i in range(n)]
     n_instants = K * rounds                      # packets sent per arc
     time_of = lambda g: T_NS + g * dt            # noqa: E731
@@ -243,7 +245,7 @@ def test_against_the_slow_reference(case):
     ref.assert_close(out["x_ci_consensus"], xr, f"{case}: x", TOL)
     ref.assert_close(out["P_ci_consensus"], Pr, f"{case}: P", TOL)
     c = {k: out[f"_ci_consensus_{k}"] for k in ("sent", "delivered", "lost", "in_flight")}
-    assert c["sent"] == sim.K * rounds * len(sim.scenario.exchange().arcs)
+    assert c["sent"] == sim.K * rounds * len(RunPlan(sim.scenario).exchange.arcs)
     assert c["sent"] == c["delivered"] + c["lost"] + c["in_flight"]
     if kw.get("loss"):
         assert c["lost"] > 0

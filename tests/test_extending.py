@@ -27,6 +27,7 @@ from reference import node_estimates
 from scipy import stats
 
 import dkfsim
+from dkfsim.config.plan import RunPlan
 
 ROOT = Path(__file__).resolve().parents[1]
 EXAMPLES = ROOT / "docs" / "examples"
@@ -55,7 +56,7 @@ def test_the_example_estimator_is_the_mean_it_promises(tmp_path):
     res = dkfsim.run(path)
     own = res["x_local_only"]                          # each node's own Kalman filter
     x, half = res["x_neighbour_mean"], res["x_nm_half"]
-    graph = res.scenario.exchange()
+    graph = RunPlan(res.scenario).exchange
     for i in range(res.scenario.n):
         nbrs = [u for u, v in graph.arcs if v == i]
         # zero latency: every neighbour's estimate of row r has arrived by the update at t_{r+1}
@@ -141,7 +142,7 @@ def test_the_example_latency_model_draws_its_law(tmp_path):
                       links={"default": {"latency": {"model": "triangular", "low": 0.0, "mode": 0.01,
                                                      "high": 0.025}}})
     sc = dkfsim.load_scenario(path)
-    assert sc.resolved_d_t() == 3 and sc.resolved_buffer_length() == 3 * 4 + 1
+    assert RunPlan(sc).d_t == 3 and RunPlan(sc).buffer_length() == 3 * 4 + 1
     res = dkfsim.run(sc)
     assert res.counts["late"] == 0 and res.counts["delivered"] > 0
     with pytest.raises(dkfsim.ScenarioError, match="low <= mode <= high"):

@@ -21,6 +21,7 @@ from conftest import run_scenario, scc_digraph_edges, scenario, tree_edges
 from dkfsim.components.faults import CrashSchedule, Faults, LinkSpec, ScaleSchedule, Windows
 from dkfsim.components.latency import parse_latency
 from dkfsim.config.load import load_scenario, scenario_hash
+from dkfsim.config.plan import RunPlan
 from dkfsim.core.errors import ScenarioError
 from dkfsim.network.links import Link, Network
 
@@ -93,7 +94,7 @@ def test_schedule_scales_the_latency_at_the_send_time(schedule, expect):
     sc["links"]["default"]["schedule"] = schedule
     loaded = load_scenario(sc)
     # auto: d_t = ceil(0.05 * 3 / 0.1) = 2 over the whole schedule, L = 2 * 1 + 1
-    assert loaded.resolved_d_t() == 2 and loaded.resolved_buffer_length() == 3
+    assert RunPlan(loaded).d_t == 2 and RunPlan(loaded).buffer_length() == 3
     run = run_scenario(sc)
     arr = run["arrival"]
     for r, lat in expect.items():
@@ -108,7 +109,7 @@ def test_jitter_is_added_and_not_scaled_and_counts_in_the_bound():
     sc["links"]["default"]["jitter"] = {"model": "constant", "value": 0.02}
     sc["links"]["default"]["schedule"] = {"kind": "step", "at": 0.35, "factor": 2.0}
     loaded = load_scenario(sc)
-    assert loaded.resolved_d_t() == 2          # ceil((0.05 * 2 + 0.02) / 0.1)
+    assert RunPlan(loaded).d_t == 2          # ceil((0.05 * 2 + 0.02) / 0.1)
     arr = run_scenario(sc)["arrival"]
     assert arr[1, 0, 2] == t_s(3 * T_NS + 70_000_000)     # sent 0.3: 0.05 + 0.02
     assert arr[1, 0, 3] == t_s(4 * T_NS + 120_000_000)    # sent 0.4: 2 x 0.05 + 0.02
@@ -117,7 +118,7 @@ def test_jitter_is_added_and_not_scaled_and_counts_in_the_bound():
     with pytest.raises(ScenarioError, match=r"exponential \(jitter\) is unbounded"):
         load_scenario(sc)
     sc["links"]["d_t"] = 3
-    assert load_scenario(sc).resolved_buffer_length() == 4
+    assert RunPlan(load_scenario(sc)).buffer_length() == 4
 
 
 # =========================================================================== outages
@@ -515,7 +516,7 @@ def test_empirical_file_resolves_against_the_scenario_folder(tmp_path):
     import yaml
     (tmp_path / "s.yaml").write_text(yaml.safe_dump(sc))
     loaded = load_scenario(tmp_path / "s.yaml")
-    assert loaded.resolved_d_t() == 1                  # max 30 ms < T = 0.1 s
+    assert RunPlan(loaded).d_t == 1                  # max 30 ms < T = 0.1 s
     from dkfsim import run
     res = run(loaded)
     a = res["arrival"]
@@ -536,7 +537,7 @@ def test_empirical_file_resolves_against_the_scenario_folder(tmp_path):
 def test_stress_scenarios_validate_and_run(name, L):
     path = REPO / "scenarios" / f"{name}.yaml"
     sc = load_scenario(path, overrides=["steps=40"])
-    assert sc.resolved_buffer_length() == L
+    assert RunPlan(sc).buffer_length() == L
     from dkfsim import run
     res = run(sc)
     identity(res.counts)

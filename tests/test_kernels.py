@@ -28,6 +28,8 @@ import pytest
 from conftest import scc_digraph_edges, scenario, tree_edges
 
 import dkfsim
+from dkfsim.core.backend import Backend
+from dkfsim.core.errors import DkfsimError
 
 
 def rowwise_rel_err(a: np.ndarray, b: np.ndarray) -> float:
@@ -104,7 +106,48 @@ def test_numba_path_is_bit_identical_run_to_run(monkeypatch):
 def test_kernels_switch_is_recorded_in_the_summary(monkeypatch, tmp_path):
     res = _run(scenario(4, steps=5), "numpy", monkeypatch, save="summary")
     res.save(tmp_path / "out")
-    assert json.loads((tmp_path / "out" / "summary.json").read_text())["kernels"] == "numpy"
+    summary = json.loads((tmp_path / "out" / "summary.json").read_text())
+    assert summary["kernels"] == "numpy" and summary["exchange"] == "masks"
+    assert summary["backend"] == {"kernels": "numpy", "exchange": "python"}
+    assert dkfsim.load_run(tmp_path / "out").info["backend"] == summary["backend"]
+
+
+@pytest.mark.parametrize("env, expect", [
+    ({}, ("numba", "compiled")),
+    ({"DKFSIM_KERNELS": "numpy"}, ("numpy", "python")),
+    ({"DKFSIM_EXCHANGE": "python"}, ("numba", "python")),
+    ({"DKFSIM_EXCHANGE": " Compiled "}, ("numba", "compiled")),
+    ({"DKFSIM_KERNELS": "numpy", "DKFSIM_EXCHANGE": "compiled"}, ("numpy", "python")),   # no kernels to compile it
+])
+def test_the_backend_is_what_the_environment_asks_for(env, expect, monkeypatch):
+    monkeypatch.delenv("DKFSIM_KERNELS", raising=False)
+    monkeypatch.delenv("DKFSIM_EXCHANGE", raising=False)
+    for key, value in env.items():
+        monkeypatch.setenv(key, value)
+    b = Backend.from_environment()
+    assert (b.kernels, b.exchange) == expect and b.compiled == (expect[0] == "numba")
+    assert b.compiled_exchange == (expect[1] == "compiled")
+
+
+def test_a_bad_exchange_setting_is_a_clear_error(monkeypatch):
+    monkeypatch.setenv("DKFSIM_EXCHANGE", "fortran")
+    with pytest.raises(DkfsimError, match="DKFSIM_EXCHANGE=.*fortran.*compiled.*python"):
+        Backend.from_environment()
+
+
+@pytest.mark.parametrize("change, expect", [
+    (None, "compiled"),                                  # tree, plain links: the compiled twin
+    ({"protocol": "flood"}, "python"),                   # no compiled twin
+    ({"loss": 0.1}, "python"),                           # a link the kernels cannot draw
+])
+def test_the_engine_narrows_the_backend_to_what_the_run_can_use(change, expect, monkeypatch):
+    """The engine decides once which exchange runs (the DKF no longer swaps one in): the run's
+    backend, its summary record and the exchange the DKF ran agree."""
+    monkeypatch.delenv("DKFSIM_EXCHANGE", raising=False)
+    d = scenario(6, steps=8, latency={"model": "uniform_steps", "d_t": 1}, **(change or {}))
+    res = _run(d, "numba", monkeypatch, save="summary")
+    assert res.info["backend"] == {"kernels": "numba", "exchange": expect}
+    assert res.info["exchange"] == ("masks, compiled" if expect == "compiled" else "masks")
 
 
 @pytest.mark.slow
@@ -162,11 +205,13 @@ def test_kernels_taking_namedtuples_load_from_the_disk_cache_in_a_new_process():
     disk cache in a new process (a local namedtuple type, or a step from another module,
     would compile them again in every process).  A first process compiles or loads them; a
     second one must compile nothing: every kernel a run of paper_case1 calls (window,
-    fusion, baseline filter, compiled tree, the Python exchange's fold) hit the cache."""
+    fusion, baseline filter, compiled tree with the holdings' fold step it borrows, the Python
+    exchange's fold) hit the cache."""
     code = """
 import json, os, sys
 import dkfsim
 from dkfsim.estimators import kernels
+from dkfsim.model import holdings_kernels as hk
 from dkfsim.protocols import tree_compiled_kernels as tk
 sc = dkfsim.load_scenario(sys.argv[1], overrides=["steps=30"])
 dkfsim.run(sc, save="full")
@@ -174,7 +219,7 @@ os.environ["DKFSIM_EXCHANGE"] = "python"
 dkfsim.run(sc, save="estimates")
 stats = {}
 for mod, names in ((kernels, ("window_rows", "xi_rows", "filter_rows")),
-                   (tk, ("deliver", "flush_all", "measure", "fold_masks"))):
+                   (tk, ("deliver", "flush_all", "measure")), (hk, ("fold_masks",))):
     for name in names:
         d = getattr(mod, name)
         stats[name] = [sum(d.stats.cache_hits.values()), sum(d.stats.cache_misses.values())]
@@ -187,3 +232,21 @@ print(json.dumps(stats))
         assert p.returncode == 0, p.stderr[-2000:]
     stats = json.loads(p.stdout.strip().splitlines()[-1])
     assert all(hits > 0 and misses == 0 for hits, misses in stats.values()), stats
+
+
+def test_the_compiled_tree_pins_the_file_of_the_fold_step_it_inlines():
+    """numba's disk cache keys a kernel by its own file only: the compiled tree's kernels inline
+    the holdings' fold step from another file, so they pin that file's sha256.  An edit there
+    must come with a new pin (which edits the tree's kernel file, and so renews its cache)."""
+    import hashlib
+
+    from dkfsim.core.jit import LazyKernels
+    from dkfsim.protocols import tree_compiled_kernels as tk
+    root = Path(__file__).resolve().parents[1]
+    for module, pin in tk.BORROWS.items():
+        path = root / (module.replace(".", "/") + ".py")
+        assert hashlib.sha256(path.read_bytes()).hexdigest() == pin, \
+            f"{path.name} changed: set tree_compiled_kernels.BORROWS[{module!r}] to its new sha256"
+    assert LazyKernels("dkfsim.protocols.tree_compiled_kernels", (), borrows=tk.BORROWS).stale_borrows() == []
+    stale = LazyKernels("x", (), borrows={"dkfsim.model.holdings_kernels": "0" * 64})
+    assert stale.stale_borrows() == ["dkfsim.model.holdings_kernels"]      # compiled without the cache

@@ -6,6 +6,10 @@
 * no import cycles between modules, inside a stage or across;
 * no import statement inside a function anywhere in the package: optional
   heavy packages go through the one seam, :mod:`dkfsim.core.extras`;
+* no module reads or writes another module's private attributes (``obj._name`` where
+  ``_name`` is not the module's own, or ``from m import _name``; ``self._x``/``cls._x``
+  inside a class, namedtuple's ``_replace``/``_asdict``/``_fields`` and ``os._exit`` are
+  fine);
 * every stage is in docs/architecture.md's table and every module says what it is for.
 """
 
@@ -72,3 +76,81 @@ def test_every_module_says_what_it_is_for():
     missing = [str(p.relative_to(ROOT)) for p in sorted(PACKAGE.rglob("*.py"))
                if not ast.get_docstring(ast.parse(p.read_text()))]
     assert not missing, missing
+
+
+#: Private names any module may use on another module's objects: namedtuple's API.
+NAMEDTUPLE_API = {"_replace", "_asdict", "_fields"}
+
+
+def _private(name: str) -> bool:
+    return name.startswith("_") and not (name.startswith("__") and name.endswith("__"))
+
+
+def _own_names(tree: ast.AST) -> set[str]:
+    """The names a module defines itself: functions, classes, assigned names (module, class or
+    local), and attributes it assigns on ``self`` or ``cls``."""
+    own = set()
+    for node in ast.walk(tree):
+        if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef, ast.ClassDef)):
+            own.add(node.name)
+        elif isinstance(node, ast.Name) and isinstance(node.ctx, ast.Store):
+            own.add(node.id)
+        elif isinstance(node, ast.alias):
+            own.add((node.asname or node.name).split(".")[0])
+        elif (isinstance(node, ast.Attribute) and isinstance(node.ctx, ast.Store)
+              and isinstance(node.value, ast.Name) and node.value.id in ("self", "cls")):
+            own.add(node.attr)
+    return own
+
+
+def private_uses(source: str) -> list[str]:
+    """``line: code`` of each use, in ``source``, of another module's private attribute:
+    ``obj._name`` (read or written) whose ``_name`` the module does not define itself, unless
+    ``obj`` is ``self`` or ``cls`` (a class's own), ``_name`` is namedtuple API or it is
+    ``os._exit``; and ``from m import _name``.  (That a name the module defines is its own is
+    the test's reading of "another module's": an attribute this module never defines can only
+    be another module's.)"""
+    tree = ast.parse(source)
+    own = _own_names(tree)
+    found = []
+    for node in ast.walk(tree):
+        if isinstance(node, ast.ImportFrom) and node.level == 0:
+            found += [f"{node.lineno}: from {node.module} import {a.name}" for a in node.names if _private(a.name)]
+        elif isinstance(node, ast.Attribute) and _private(node.attr) and node.attr not in NAMEDTUPLE_API:
+            base = node.value
+            if isinstance(base, ast.Name) and (base.id in ("self", "cls") or (base.id, node.attr) == ("os", "_exit")):
+                continue
+            if node.attr not in own:
+                found.append(f"{node.lineno}: {ast.unparse(node)}")
+    return found
+
+
+def test_the_private_attribute_check_finds_what_it_must():
+    """The check on planted uses: each violation found, each allowed use left alone."""
+    planted = """
+import os
+from dkfsim.report.plots.style import _save
+from dkfsim.estimators import window
+class Mine:
+    def __init__(self, port, w):
+        self._own = 1
+        port._count["sent"] = 3
+        w._k.xi_rows()
+        self._log = None
+    def f(self, other, row):
+        other._own += 1
+        window._EYES.clear()
+        os._exit(0)
+        return row._replace(a=1), row._asdict(), row._fields, self._missing, cls_call(Mine._own)
+"""
+    found = private_uses(planted)
+    assert found == ["3: from dkfsim.report.plots.style import _save", "8: port._count", "9: w._k",
+                     "13: window._EYES"], found
+
+
+def test_no_module_touches_another_modules_private_attributes():
+    found = []
+    for path in sorted(PACKAGE.rglob("*.py")):
+        found += [f"{path.relative_to(ROOT)}:{use}" for use in private_uses(path.read_text())]
+    assert not found, "private attributes of other modules used (make them public, or add an interface):\n" + \
+        "\n".join(found)

@@ -8,8 +8,10 @@ import pytest
 from conftest import scenario
 
 import dkfsim
+import dkfsim.config.plan as plan_module
 import dkfsim.config.schema as schema
 import dkfsim.estimators.anti_delay as anti_delay
+from dkfsim.config.plan import RunPlan
 from dkfsim.core.errors import ScenarioError
 
 
@@ -33,10 +35,10 @@ def test_p_local_is_kept_only_when_it_will_be_saved_and_fits(monkeypatch):
 
 
 def test_late_bookkeeping_is_bounded_by_the_latency_bound():
-    bounded = dkfsim.load_scenario(scenario(4, latency={"model": "uniform_steps", "d_t": 3}))
+    bounded = RunPlan(dkfsim.load_scenario(scenario(4, latency={"model": "uniform_steps", "d_t": 3})))
     assert anti_delay.late_horizon(bounded, 4, 7) == 5
-    unbounded = dkfsim.load_scenario(scenario(4, latency={"model": "exponential", "mean": 0.1},
-                                              buffer_length=3))
+    unbounded = RunPlan(dkfsim.load_scenario(scenario(4, latency={"model": "exponential", "mean": 0.1},
+                                                      buffer_length=3)))
     assert anti_delay.late_horizon(unbounded, 4, 3) == 4096
     # 1000 nodes: the kept holdings stay near 64 MB instead of ~0.7 GB.
     assert anti_delay.late_horizon(unbounded, 1000, 3) < 500
@@ -46,7 +48,7 @@ def test_a_delay_bound_longer_than_the_run_costs_no_memory():
     """L = 10^11 + 1 (a latency of 10^9 s): the window ring is capped at the run's rows."""
     d = scenario(3, steps=6, latency={"model": "constant", "value": 1e9})
     sc = dkfsim.load_scenario(d)
-    assert sc.resolved_buffer_length() > 10**10
+    assert RunPlan(sc).buffer_length() > 10**10
     res = dkfsim.run(sc)
     a = res.arrays
     # Nothing ever arrives: every node is its own local filter, no row is ever final.
@@ -75,16 +77,40 @@ def test_montecarlo_with_one_run_writes_valid_json(tmp_path):
     assert summary["runs"] == 1
 
 
-def test_an_anti_delay_instance_with_a_huge_fusion_ring_is_refused_before_its_first_tick(monkeypatch):
-    """Validation bounds the scenario's own fusion ring; a second anti-delay DKF with
-    its own long buffer is checked exactly when it starts, before any tick."""
-    monkeypatch.setattr(anti_delay, "FUSION_MEMORY_LIMIT", 100 * 36 * 36 * 8)   # 100 rows of 12 x 3 states
+def test_an_anti_delay_instance_with_a_huge_fusion_ring_is_refused_at_validation(monkeypatch):
+    """Every anti-delay DKF's fusion ring is checked when the scenario is validated, a listed
+    instance with its own long buffer at its own key: a run never meets the error at its start."""
+    monkeypatch.setattr(schema, "FUSION_MEMORY_LIMIT", 100 * 36 * 36 * 8)   # 100 rows of 12 x 3 states
     case1 = Path(__file__).resolve().parents[1] / "scenarios" / "paper_case1.yaml"
-    sc = dkfsim.load_scenario(case1, overrides=[
-        "steps=300", "estimators=[{kind: centralized}, {kind: anti_delay_dkf, name: long, buffer_length: 150}]"])
     with pytest.raises(ScenarioError, match=r"estimators\.1: fusion: matrix .* 151 window rows") as err:
-        dkfsim.run(sc)
+        dkfsim.load_scenario(case1, overrides=[
+            "steps=300", "estimators=[{kind: centralized}, {kind: anti_delay_dkf, name: long, buffer_length: 150}]"])
     assert "paper_case1.yaml" in str(err.value)
     ok = dkfsim.load_scenario(case1, overrides=[
         "steps=300", "estimators=[{kind: anti_delay_dkf, name: short, buffer_length: 90}]"])
     assert dkfsim.run(ok).estimates[-1] == "short"
+
+
+def test_the_fusion_check_on_a_large_graph_decides_from_bounds_or_the_exact_buffer(monkeypatch):
+    """On a large graph that is not a tree the buffer length of ``auto`` is known only within
+    cheap bounds at validation: a ring that fits at the upper bound passes, one that exceeds at
+    the lower is refused with "at least", and between the two the exact L decides."""
+    d = scenario(60, steps=400, latency={"model": "uniform_steps", "d_t": 2})
+    d["protocol"] = "flood"
+    d["topology"] = {"directed": False, "generator": "ring"}
+    sc = dkfsim.load_scenario(d)
+    plan = RunPlan(sc)
+    monkeypatch.setattr(plan_module, "CHEAP_VISITS", 10)       # the ring's diameter counts as costly
+    # bounds looser than the two sweeps give on a ring, so that the exact L lies strictly between
+    monkeypatch.setattr(plan_module.topo, "diameter_bounds", lambda graph: (20, 59))
+    plan = RunPlan(sc)
+    assert plan.diameter_is_costly
+    lower, upper = plan.diameter_bounds
+    L_exact = 2 * 30 + 1                                        # the ring of 60 has diameter 30
+    assert lower * 2 + 1 < L_exact < upper * 2 + 1 and plan.buffer_length() == L_exact
+    dkf = plan.dkf()
+    fits = plan.fusion_bytes
+    assert plan.fusion_overflow(dkf, fits(upper * 2 + 1)) is None                     # fits at the upper bound
+    assert plan.fusion_overflow(dkf, fits(lower * 2 + 1) - 1) == (lower * 2 + 1, fits(lower * 2 + 1), False)
+    assert plan.fusion_overflow(dkf, fits(L_exact) - 1) == (L_exact, fits(L_exact), True)   # the exact L
+    assert plan.fusion_overflow(dkf, fits(L_exact)) is None

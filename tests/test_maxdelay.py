@@ -22,6 +22,7 @@ from dkfsim.analysis.bounds import (
     paper_bound_for_scenario,
     paper_weight_matrix,
 )
+from dkfsim.config.plan import RunPlan
 from dkfsim.core.errors import DkfsimError
 from dkfsim.experiments.maxdelay import EXCEEDS, UNDECIDED, WITHIN, MaxDelay, Settings, make_axis, metric_value
 from dkfsim.experiments.maxdelay.report import _pow10
@@ -226,7 +227,7 @@ def test_axis_scales_every_time_parameter_and_links_d_t():
     s3 = ax.scenario(3)
     assert ax.mode == "d_t" and s3.links.default.latency.d_t == 3
     assert s3.links.overrides[0].latency.d_t == 3
-    assert s3.resolved_buffer_length() == 3 * 4 + 1            # buffer follows d_t (d_g = 4)
+    assert RunPlan(s3).buffer_length() == 3 * 4 + 1            # buffer follows d_t (d_g = 4)
 
 
 def test_axis_rejects_mixed_models():

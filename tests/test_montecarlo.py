@@ -26,6 +26,7 @@ from scipy.stats import chi2
 from dkfsim import load_scenario
 from dkfsim.analysis.metrics import nees_band, paired_lower_bound, row_columns
 from dkfsim.cli import main as cli
+from dkfsim.config.plan import RunPlan
 from dkfsim.core.errors import DkfsimError
 from dkfsim.experiments.montecarlo import derive_seed, montecarlo, run_rows
 
@@ -278,8 +279,8 @@ def test_random_topology_is_the_same_graph_in_every_run():
     d["topology"] = {"directed": False, "generator": "random_tree"}
     d["seed"] = 11
     assert pinned_topology(d) == ["topology.params.seed=11"]
-    g1 = dkfsim.load_scenario(d, overrides=pinned_topology(d) + ["seed=5"]).graph()
-    g2 = dkfsim.load_scenario(d, overrides=pinned_topology(d) + ["seed=6"]).graph()
+    g1 = RunPlan(dkfsim.load_scenario(d, overrides=pinned_topology(d) + ["seed=5"])).graph
+    g2 = RunPlan(dkfsim.load_scenario(d, overrides=pinned_topology(d) + ["seed=6"])).graph
     assert sorted(g1.edges()) == sorted(g2.edges())
     # An explicit seed or a deterministic generator is left alone.
     d["topology"]["params"] = {"seed": 3}

@@ -1,8 +1,8 @@
 """The set-up a Monte Carlo shares across its runs gives the runs a fresh set-up would.
 
-A Monte Carlo validates its (topology-pinned) scenario and builds its system once
-(:class:`~dkfsim.experiments.montecarlo.Template`); run ``r`` is a copy with the seed
-replaced.  The independent truth here is the path without any sharing: the scenario
+A Monte Carlo validates its (topology-pinned) scenario and builds its run plan and system
+once (:class:`~dkfsim.experiments.montecarlo.Template`); run ``r`` is a copy with the seed
+replaced, run on the shared plan (``RunPlan.with_seed``).  The independent truth here is the path without any sharing: the scenario
 re-validated from scratch with ``--set seed=S`` (what each run did before), a fresh
 :class:`~dkfsim.engine.driver.Run`, and its rows and per-tick curves computed from the
 run's arrays with the plain metric functions.  Several runs go through one template in
@@ -17,6 +17,7 @@ import numpy as np
 
 from dkfsim import load_scenario
 from dkfsim.analysis.metrics import nees_per_tick, squared_error
+from dkfsim.config.plan import RunPlan
 from dkfsim.engine.driver import Run
 from dkfsim.experiments.montecarlo import Template, derive_seed, pinned_topology, run_rows
 
@@ -42,9 +43,12 @@ def test_a_run_of_the_template_is_the_revalidated_scenario_with_its_seed():
         copy = tpl.scenario_for(seed)
         assert copy.seed == seed
         assert copy.to_dict() == fresh.to_dict()
-        assert sorted(copy.graph().edges()) == sorted(fresh.graph().edges())
-        assert copy.exchange().arcs == fresh.exchange().arcs
-        assert copy.resolved_buffer_length() == fresh.resolved_buffer_length()
+        shared, own = tpl.plan_for(copy), RunPlan(fresh, "estimates")
+        assert shared.scenario is copy and shared.exchange is tpl.plan.exchange     # worked out once
+        assert sorted(shared.graph.edges()) == sorted(own.graph.edges())
+        assert shared.arcs == own.arcs and shared.exchange.arcs == own.exchange.arcs
+        assert shared.buffer_length() == own.buffer_length() and shared.d_t == own.d_t
+        assert shared.save == own.save == "estimates"
 
 
 def test_shared_setup_gives_the_rows_and_curves_of_a_fresh_run():
@@ -82,13 +86,16 @@ def test_run_rows_without_curves_gives_the_same_rows():
     assert repr(alone) == repr(with_curves)
 
 
-def test_a_copy_with_another_seed_redraws_an_unpinned_random_graph_only():
-    # the graph cache follows the seed the graph is drawn from: a stale graph would be wrong
+def test_a_plan_for_another_seed_redraws_an_unpinned_random_graph_only():
+    # a plan shared across seeds follows the seed the graph is drawn from: a stale graph would be wrong
     sc = _random_tree_case()                      # random_tree drawn from the scenario seed
-    before = sorted(sc.graph().edges())
+    plan = RunPlan(sc).resolve()
+    before = sorted(plan.graph.edges())
     copy = sc.model_copy(update={"seed": 8})
     fresh = load_scenario(sc, overrides=["seed=8"])
-    assert sorted(copy.graph().edges()) == sorted(fresh.graph().edges()) != before
-    assert copy.exchange().arcs == fresh.exchange().arcs
-    pinned = load_scenario(sc, overrides=pinned_topology(sc))
-    assert sorted(pinned.model_copy(update={"seed": 8}).graph().edges()) == before
+    moved = plan.with_seed(copy)
+    assert sorted(moved.graph.edges()) == sorted(RunPlan(fresh).graph.edges()) != before
+    assert moved.exchange.arcs == RunPlan(fresh).exchange.arcs
+    pinned = RunPlan(load_scenario(sc, overrides=pinned_topology(sc))).resolve()
+    kept = pinned.with_seed(pinned.scenario.model_copy(update={"seed": 8}))
+    assert kept.graph is pinned.graph and sorted(kept.graph.edges()) == before

@@ -13,6 +13,7 @@ from pydantic import ValidationError
 from dkfsim.components.estimators import EstimatorParams
 from dkfsim.components.latency import Constant, Exponential, Uniform, UniformSteps
 from dkfsim.config.load import load_scenario, scenario_hash
+from dkfsim.config.plan import RunPlan
 from dkfsim.config.schema import Scenario
 from dkfsim.core.errors import ScenarioError
 from dkfsim.core.registry import ESTIMATORS
@@ -103,7 +104,7 @@ def test_minimal_defaults():
     spec = sc.link_spec(0, 1)
     assert isinstance(spec.latency, Constant) and spec.latency.value == 0.0
     assert spec.loss == 0.0
-    assert sc.resolved_buffer_length() == 1  # d_t = 0 -> L = 0 * d_g + 1
+    assert RunPlan(sc).buffer_length() == 1  # d_t = 0 -> L = 0 * d_g + 1
 
 
 def test_name_defaults_to_file_stem(tmp_path):
@@ -187,10 +188,10 @@ def test_paper_scenarios(name):
     assert sc.weights == "unit"
     if name == "paper_case1.yaml":
         assert sc.protocol == "tree" and not sc.topology.directed
-        assert sc.resolved_buffer_length() == 4 * 4 + 1
+        assert RunPlan(sc).buffer_length() == 4 * 4 + 1
     else:
         assert sc.protocol == "flood" and sc.topology.directed
-        assert sc.resolved_buffer_length() == 4 * 5 + 1
+        assert RunPlan(sc).buffer_length() == 4 * 5 + 1
 
 
 # =========================================================================== file errors
@@ -394,14 +395,14 @@ def test_tree_on_graph_with_cycles(tmp_path):
     d = put(base(), "topology", {"generator": "ring"})
     expect(tmp_path, d, "protocol", "cycles", "spanning_tree: true", "flood")
     d["spanning_tree"] = True
-    assert load_scenario(d).exchange().d_g <= 2 * 2
+    assert RunPlan(load_scenario(d)).exchange.d_g <= 2 * 2
 
 
 def test_tree_on_directed_graph(tmp_path):
     d = put(base(), "topology", {"directed": True, "generator": "ring"})
     expect(tmp_path, d, "protocol", "undirected", "use protocol: flood")
     d["protocol"] = "flood"
-    assert load_scenario(d).exchange().d_g == 3
+    assert RunPlan(load_scenario(d)).exchange.d_g == 3
 
 
 def test_paper_weights_with_flood(tmp_path):
@@ -451,9 +452,9 @@ def test_auto_buffer_with_unbounded_latency(tmp_path):
     expect(tmp_path, d, "buffer_length", "unbounded", "links.d_t", "buffer_length")
     expect(tmp_path, put(copy.deepcopy(d), "buffer_length", "paper"), "buffer_length",
            "links.d_t")
-    assert load_scenario(put(copy.deepcopy(d), "links.d_t", 3)).resolved_buffer_length() \
+    assert RunPlan(load_scenario(put(copy.deepcopy(d), "links.d_t", 3))).buffer_length() \
         == 3 * 3 + 1
-    assert load_scenario(put(copy.deepcopy(d), "buffer_length", 7)).resolved_buffer_length() == 7
+    assert RunPlan(load_scenario(put(copy.deepcopy(d), "buffer_length", 7))).buffer_length() == 7
 
 
 def test_unbounded_override_alone_also_needs_bound(tmp_path):
@@ -552,7 +553,7 @@ def test_link_spec_last_matching_override_wins():
     assert sc.link_spec(2, 1).latency == Uniform(low=0.0, high=0.031)
     assert sc.link_spec(2, 1).loss == 0.0
     assert sc.link_spec(2, 3).latency == UniformSteps(d_t=2)
-    assert sc.resolved_d_t() == 4  # ceil(0.031 / 0.01)
+    assert RunPlan(sc).d_t == 4  # ceil(0.031 / 0.01)
 
 
 def test_link_spec_directed_matches_one_way():
@@ -566,18 +567,18 @@ def test_link_spec_directed_matches_one_way():
 
 def test_links_d_t_is_used_when_given():
     sc = load_scenario(base(), ["links.d_t=1"])
-    assert sc.resolved_d_t() == 1 and sc.resolved_buffer_length() == 1 * 3 + 1
+    assert RunPlan(sc).d_t == 1 and RunPlan(sc).buffer_length() == 1 * 3 + 1
     sc = load_scenario(base(), ["buffer_length=paper"])
-    assert sc.resolved_buffer_length() == 2
+    assert RunPlan(sc).buffer_length() == 2
     sc = load_scenario(base(), ["buffer_length=paper", "links.default.latency.d_t=0"])
-    assert sc.resolved_buffer_length() == 1
+    assert RunPlan(sc).buffer_length() == 1
 
 
 def test_exponential_scenario_with_d_t():
     sc = load_scenario(base(), ["links.default.latency={model: exponential, mean: 0.01}",
                                 "links.d_t=2"])
     assert isinstance(sc.link_spec(0, 1).latency, Exponential)
-    assert sc.resolved_buffer_length() == 2 * 3 + 1
+    assert RunPlan(sc).buffer_length() == 2 * 3 + 1
 
 
 # =========================================================================== identity

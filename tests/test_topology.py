@@ -23,6 +23,7 @@ from dkfsim.components.topology import (
     random_tree_edges,
 )
 from dkfsim.config.load import load_scenario
+from dkfsim.config.plan import RunPlan
 from dkfsim.engine.driver import Run
 
 SCENARIOS = Path(__file__).resolve().parents[1] / "scenarios"
@@ -257,7 +258,7 @@ def test_spanning_tree_of_a_tree_is_itself():
 # --------------------------------------------------------------------------- exchange graph
 def test_exchange_tree_protocol():
     sc = load_scenario(small_scenario(5, {"generator": "star"}))
-    xg = sc.exchange()
+    xg = RunPlan(sc).exchange
     assert not xg.graph.is_directed() and is_tree(xg.graph)
     assert xg.d_g == 2
     assert xg.arcs == sorted([(0, i) for i in range(1, 5)] + [(i, 0) for i in range(1, 5)])
@@ -267,7 +268,7 @@ def test_exchange_tree_protocol():
 
 def test_exchange_tree_with_spanning_tree():
     sc = load_scenario(small_scenario(8, {"generator": "ring"}, spanning_tree=True))
-    xg = sc.exchange()
+    xg = RunPlan(sc).exchange
     assert is_tree(xg.graph)
     assert xg.d_g == nx.diameter(xg.graph) <= 2 * nx.radius(nx.cycle_graph(8))
     assert len(xg.arcs) == 2 * 7
@@ -275,7 +276,7 @@ def test_exchange_tree_with_spanning_tree():
 
 def test_exchange_flood_on_undirected_is_symmetric_digraph():
     sc = load_scenario(small_scenario(6, {"generator": "ring"}, protocol="flood"))
-    xg = sc.exchange()
+    xg = RunPlan(sc).exchange
     assert xg.graph.is_directed()
     assert xg.d_g == 3
     assert len(xg.arcs) == 12 and xg.arcs == sorted(xg.arcs)
@@ -286,7 +287,7 @@ def test_exchange_flood_on_undirected_is_symmetric_digraph():
 def test_exchange_flood_directed_uses_directed_diameter():
     sc = load_scenario(small_scenario(5, {"generator": "ring", "directed": True},
                                       protocol="flood"))
-    xg = sc.exchange()
+    xg = RunPlan(sc).exchange
     assert xg.d_g == 4  # one-way ring: 0 reaches 4 in 4 hops
     assert xg.arcs == [(0, 1), (1, 2), (2, 3), (3, 4), (4, 0)]
     assert xg.neighbors == [[1], [2], [3], [4], [0]]
@@ -295,15 +296,15 @@ def test_exchange_flood_directed_uses_directed_diameter():
 def test_exchange_flood_on_spanning_tree():
     sc = load_scenario(small_scenario(6, {"generator": "ring"}, protocol="flood",
                                       spanning_tree=True))
-    xg = sc.exchange()
+    xg = RunPlan(sc).exchange
     assert xg.graph.is_directed() and len(xg.arcs) == 10
     assert is_tree(xg.graph.to_undirected())
 
 
 def test_paper_scenarios_exchange():
-    xg1 = load_scenario(SCENARIOS / "paper_case1.yaml").exchange()
+    xg1 = RunPlan(load_scenario(SCENARIOS / "paper_case1.yaml")).exchange
     assert xg1.d_g == 4 and is_tree(xg1.graph) and xg1.n == 12
-    xg2 = load_scenario(SCENARIOS / "paper_case2.yaml").exchange()
+    xg2 = RunPlan(load_scenario(SCENARIOS / "paper_case2.yaml")).exchange
     assert xg2.graph.is_directed() and xg2.d_g == 5 and len(xg2.arcs) == 18
     assert nx.is_strongly_connected(xg2.graph)
 

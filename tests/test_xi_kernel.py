@@ -106,9 +106,9 @@ def _numpy(c, starts):
     n, nx = c["n"], c["nx"]
     info = SimpleNamespace(factor=c["U"], column_sensor=c["column_sensor"], varying=False,
                            factor_row=lambda row: c["U"])
-    state = SimpleNamespace(G=c["G"], P=c["P"], held=c["held"])
-    w = SimpleNamespace(n=n, nx=nx, S=c["rows"], Q=c["Q"], info=info, A=c["A"], kernels="numpy",
-                        state=state, Phi=c["Phi"])
+    state = SimpleNamespace(G=c["G"], P=c["P"])
+    w = SimpleNamespace(n=n, nx=nx, S=c["rows"], Q=c["Q"], info=info, A=c["A"], kernels=None,
+                        state=state, holdings=SimpleNamespace(held=c["held"]), Phi=c["Phi"])
     xc = object.__new__(CrossCovariance)
     xc.w, xc.n, xc.nx, xc.N = w, n, nx, n * nx
     xc.Xi, xc.Xi0, xc.Lq, xc.info = c["old"].copy(), c["Xi0"], c["Lq"], info

@@ -98,7 +98,7 @@ PATHS: dict[str, dict[str, str]] = {
 #: summary.json keys left out of the fingerprint (they change with the machine or the clock) ...
 UNCOMPARED = {"wall_time_s", "versions", "source"}
 #: ... and recorded but not compared: which path the run took.
-PATH_KEYS = ("kernels", "exchange")
+PATH_KEYS = ("kernels", "exchange", "backend")
 
 
 def array_digest(a: np.ndarray) -> dict:

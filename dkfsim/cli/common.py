@@ -82,7 +82,7 @@ def executor_from_args(args, tasks: int | None = None):
     is reported here, before any work."""
     if args.scheduler is None and args.dask_local is None:
         return None
-    executors._distributed()
+    executors.dask_distributed()
 
     def make():
         return executors.make_executor(scheduler=args.scheduler, dask_local=args.dask_local,

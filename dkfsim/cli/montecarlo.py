@@ -15,7 +15,7 @@ from dkfsim.cli.common import (
 from dkfsim.core.errors import DkfsimError
 from dkfsim.core.folders import check_target
 from dkfsim.experiments import executors
-from dkfsim.experiments.montecarlo import _check_burn_in, check_montecarlo, montecarlo
+from dkfsim.experiments.montecarlo import check_burn_in, check_montecarlo, montecarlo
 
 
 def add_command(subparsers) -> None:
@@ -49,7 +49,7 @@ def cmd_montecarlo(args) -> int:
         raise DkfsimError(f"--runs: must be >= 1, got {args.runs}")
     executors.check_jobs(args.jobs)
     sc = load_from_args(args)
-    _check_burn_in(args.burn_in, int(sc.steps))
+    check_burn_in(args.burn_in, int(sc.steps))
     check_target(args.out)                 # before any run: a bad --out costs nothing
     check_montecarlo(sc, args.runs, workers_from_args(args, args.runs), yes=args.yes)
     make = executor_from_args(args, args.runs)

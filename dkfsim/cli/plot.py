@@ -10,7 +10,7 @@ from dkfsim.cli.common import say
 from dkfsim.core.errors import DkfsimError
 from dkfsim.core.files import clip
 from dkfsim.experiments.sweep import is_database
-from dkfsim.report.plots import DEFAULT_FORMATS, FORMATS, _check_formats, load_folder, plot_compare, plot_folder
+from dkfsim.report.plots import DEFAULT_FORMATS, FORMATS, check_formats, load_folder, plot_compare, plot_folder
 from dkfsim.report.sweep_plot import plot_sweep
 
 EPILOG = """\
@@ -130,7 +130,7 @@ def _default_out(folder: Path, name: str) -> Path:
 
 
 def cmd_plot(args) -> int:
-    formats = _check_formats(args.formats)
+    formats = check_formats(args.formats)
     _check_name(args.name)
     if len(args.dirs) == 1 and _is_sweep(args.dirs[0]):
         return cmd_plot_sweep(args, formats)

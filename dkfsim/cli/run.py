@@ -3,11 +3,12 @@
 from __future__ import annotations
 
 from dkfsim.cli.common import add_scenario_args, add_yes_arg, load_from_args, progress_bar, say
+from dkfsim.config.plan import RunPlan
 from dkfsim.core.errors import DkfsimError
 from dkfsim.core.folders import check_target
 from dkfsim.core.resources import human_bytes, human_seconds
 from dkfsim.engine.driver import run
-from dkfsim.engine.estimate import check_run, estimate_run, exchange_shape
+from dkfsim.engine.estimate import check_run, estimate_run
 from dkfsim.report.tables import run_table
 
 
@@ -41,17 +42,17 @@ def add_command(sub) -> None:
 
 def cmd_validate(args) -> int:
     sc = load_from_args(args)
-    est = estimate_run(sc)
+    plan = RunPlan(sc)
+    est = estimate_run(plan)
     if est.seconds > 60:               # a large graph: do not spend minutes on its exact diameter
-        L, arcs, _ = exchange_shape(sc)
-        shape = f"{arcs} directed links, buffer length L ~ {L}"
+        shape = f"{plan.n_exchange_links} directed links, buffer length L ~ {plan.L_estimate}"
     else:
-        xg = sc.exchange()
+        xg = plan.exchange
         shape = (f"{len(xg.arcs)} directed links (d_g = {xg.d_g}), buffer length "
-                 f"L = {sc.resolved_buffer_length()}")
+                 f"L = {plan.buffer_length()}")
     say(f"{args.scenario}: ok — {sc.name}: {len(sc.sensors)} sensors, nx = {sc.nx}, "
           f"{sc.steps} ticks of {sc.model.T} s, protocol {sc.protocol} on {shape} "
-          f"(d_t = {sc.resolved_d_t()}), fusion {sc.fusion}; a run needs about "
+          f"(d_t = {plan.d_t}), fusion {sc.fusion}; a run needs about "
           f"{human_bytes(est.bytes)} and {human_seconds(est.seconds)} (rough estimate)")
     return 0
 

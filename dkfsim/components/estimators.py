@@ -15,7 +15,9 @@ from typing import Annotated, Any, Literal
 
 from pydantic import BeforeValidator, Field
 
-from dkfsim.core.params import NonNegReal, StrictBool, StrictModel, custom_error
+from dkfsim.components.topology import protocol_graph
+from dkfsim.core.files import clip
+from dkfsim.core.params import NonNegReal, StrictBool, StrictModel, custom_error, suggest
 from dkfsim.core.registry import ESTIMATORS
 
 
@@ -78,23 +80,30 @@ class NoBufferParams(EstimatorParams, kind="no_buffer"):
 
 
 
-def _buffer_length(value: Any) -> Any:
+def buffer_length_value(value: Any) -> Any:
+    """A ``buffer_length`` (the scenario's, or an anti-delay DKF instance's; None: unset):
+    ``'auto'``, ``'paper'`` or an integer >= 1 (a ``BeforeValidator``)."""
     if value is None or (isinstance(value, str) and value in ("auto", "paper")):
         return value
     if isinstance(value, int) and not isinstance(value, bool) and value >= 1:
         return value
-    raise custom_error(f"must be 'auto', 'paper' or an integer >= 1, got {value!r}")
+    hint = suggest(value, ("auto", "paper")) if isinstance(value, str) else ""
+    raise custom_error(f"must be 'auto', 'paper' or an integer >= 1, got {clip(value)}{hint}")
+
+
+#: A ``buffer_length`` key (docs/design.md §4, "Choosing L").
+BufferLength = Annotated[Literal["auto", "paper"] | int, BeforeValidator(buffer_length_value)]
 
 
 class AntiDelayParams(EstimatorParams, kind="anti_delay_dkf"):
     """Another instance of the anti-delay DKF; unset keys take the scenario's values."""
 
-    buffer_length: Annotated[Literal["auto", "paper"] | int | None, BeforeValidator(_buffer_length)] = None
+    buffer_length: BufferLength | None = None
     fusion: Literal["matrix", "diagonal", "none"] | None = None
     weights: Literal["unit", "paper"] | None = None
 
     def check(self, scenario) -> None:
-        if self.weights == "paper" and scenario.protocol_graph != "tree":
+        if self.weights == "paper" and protocol_graph(scenario.protocol) != "tree":
             raise custom_error("'paper' weights need protocol: tree", "weights")
 
 

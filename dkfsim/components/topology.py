@@ -38,7 +38,7 @@ Directed topologies (``topology.directed: true``):
 * every other generator: both arcs of each undirected edge (a symmetric
   digraph -- a directed tree or path would never be strongly connected).
 
-Exchange graph (:func:`make_exchange`, ``Scenario.exchange()``), the graph a protocol actually uses:
+Exchange graph (:func:`make_exchange`, ``RunPlan.exchange``), the graph a protocol actually uses:
 
 * ``tree``: the undirected topology when it is a tree.  With
   ``spanning_tree: true`` on a graph with cycles, a breadth-first spanning

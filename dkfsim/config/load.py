@@ -118,8 +118,7 @@ def load_scenario(source: str | os.PathLike | Mapping | Scenario,
         scenario = Scenario.model_validate(data, context={"base_dir": base_dir})
     except ValidationError as exc:
         raise convert(exc, data, label, override_keys) from None
-    scenario._source = path
-    scenario._base_dir = base_dir
+    scenario.set_source(path, base_dir)
     return scenario
 
 

@@ -4,7 +4,11 @@ A scenario is a YAML mapping (docs/scenarios.md, "The keys");
 :func:`dkfsim.config.load.load_scenario` reads it and validates it into a
 frozen :class:`Scenario`.  Field checks live in the parameter models,
 cross-field checks (shapes, graph, protocol, buffer, time range, each
-estimator against the scenario) in ``Scenario._check_consistency``.  The
+estimator against the scenario) in ``Scenario._check_consistency``, which reads what
+the scenario implies for a run from a :class:`~dkfsim.config.plan.RunPlan` (the graph,
+the delay bound, each anti-delay DKF's buffer and fusion memory): the plan a run
+follows, so a run can meet no error its validation did not raise.  The scenario keeps
+no derived state (no cached graph).  The
 component keys -- a latency ``model``, a sensor or estimator ``kind``, a
 topology ``generator``, the ``protocol`` -- are validated with the parameter
 model the name has in its registry (:mod:`dkfsim.core.registry`), so this
@@ -46,18 +50,17 @@ import hashlib
 import json
 from typing import TYPE_CHECKING, Annotated, Any, Literal
 
-import networkx
 from pydantic import AfterValidator, BaseModel, BeforeValidator, Field, PrivateAttr, field_validator, model_validator
 from pydantic_core import PydanticCustomError
 
 from dkfsim.components import topology as topo
-from dkfsim.components.estimators import CentralizedParams, EstimatorParams
+from dkfsim.components.estimators import BufferLength, CentralizedParams, EstimatorParams
 from dkfsim.components.faults import Faults, LinkSpec, Schedule, Window
 from dkfsim.components.latency import Constant, LatencyModel
 from dkfsim.components.sensors import SensorParams
 from dkfsim.components.truth import TruthParams
 from dkfsim.config.dynamics import Model, Prior
-from dkfsim.core.errors import ScenarioError
+from dkfsim.config.plan import RunPlan
 from dkfsim.core.files import clip
 from dkfsim.core.params import (
     MAX_NS,
@@ -69,10 +72,8 @@ from dkfsim.core.params import (
     StrictModel,
     custom_error,
     registered,
-    suggest,
 )
 from dkfsim.core.registry import ESTIMATORS, GENERATORS, PROTOCOLS, SENSOR_KINDS
-from dkfsim.core.resources import CHEAP_VISITS
 
 #: Largest ring of fusion cross-covariances a scenario may ask for (bytes).
 FUSION_MEMORY_LIMIT = 2 << 30
@@ -139,15 +140,6 @@ class Links(StrictModel):
     d_t: Annotated[int, Field(strict=True, ge=0)] | None = None
 
 
-def _buffer_length(value: Any) -> Any:
-    if isinstance(value, str) and value in ("auto", "paper"):
-        return value
-    if isinstance(value, int) and not isinstance(value, bool) and value >= 1:
-        return value
-    hint = suggest(value, ("auto", "paper")) if isinstance(value, str) else ""
-    raise custom_error(f"must be 'auto', 'paper' or an integer >= 1, got {clip(value)}{hint}")
-
-
 def _fusion_none(value: Any) -> Any:
     return "none" if value is None else value
 
@@ -167,7 +159,7 @@ class Scenario(StrictModel):
     protocol: Annotated[str, AfterValidator(_registered(PROTOCOLS))] = "tree"
     weights: Literal["unit", "paper"] = "unit"
     spanning_tree: StrictBool = False
-    buffer_length: Annotated[Literal["auto", "paper"] | int, BeforeValidator(_buffer_length)] = "auto"
+    buffer_length: BufferLength = "auto"
     fusion: Annotated[Literal["matrix", "diagonal", "none"], BeforeValidator(_fusion_none)] = "matrix"
     #: The algorithms run beside the anti-delay DKF, on the same draws and network.
     estimators: tuple[EstimatorField, ...] = (CentralizedParams(),)
@@ -180,9 +172,6 @@ class Scenario(StrictModel):
 
     _source: str | None = PrivateAttr(default=None)
     _base_dir: str | None = PrivateAttr(default=None)
-    # (key, graph, exchange graph or None); the key holds every field the graph
-    # depends on, so a model_copy(update=...) never sees a stale graph.
-    _cache: Any = PrivateAttr(default=None)
 
     # ------------------------------------------------------------------ validation
     @field_validator("sensors", mode="before")
@@ -261,12 +250,13 @@ class Scenario(StrictModel):
             names[s.name] = i
         if self.truth is not None:
             self._check_truth()
-        self._check_network()
-        self._check_time_range()
-        self._check_estimators()
+        plan = RunPlan(self)            # what the run would derive: checked here, never at its start
+        self._check_network(plan)
+        self._check_time_range(plan)
+        self._check_estimators(plan)
         return self
 
-    def _check_estimators(self) -> None:
+    def _check_estimators(self, plan: RunPlan) -> None:
         taken = {"fused": "the anti-delay DKF's fused estimate", "local": "the DKF nodes' own estimates",
                  "final": "the DKF nodes' final estimates"}
         for i, p in enumerate(self.estimators):
@@ -282,16 +272,16 @@ class Scenario(StrictModel):
                     ctx = err.context or {}
                     key = f"estimators.{i}" + (f".{ctx['key']}" if ctx.get("key") else "")
                     raise custom_error(str(ctx.get("reason", err)), key) from None
-        if self.fusion != "none":
-            L, exact = self.buffer_length_bound()
-            S = min(L, self.steps) + 1
-            need = S * (self.n * self.nx) ** 2 * 8
-            if need > FUSION_MEMORY_LIMIT:
+        for dkf in plan.dkfs():
+            over = plan.fusion_overflow(dkf, FUSION_MEMORY_LIMIT)
+            if over is not None:
+                L, need, exact = over
                 least = "" if exact else "at least "
+                S = min(L, self.steps) + 1
                 raise custom_error(
-                    f"fusion: {self.fusion} keeps the cross-covariances of all {self.n} nodes for the "
+                    f"fusion: {dkf.fusion} keeps the cross-covariances of all {self.n} nodes for the "
                     f"{least}{S} window rows, {least}{need / 2**30:.1f} GiB of memory; use fusion: "
-                    f"none for a network this large (or a shorter buffer_length)", "fusion")
+                    f"none for a network this large (or a shorter buffer_length)", dkf.key or "fusion")
 
     def _check_truth(self) -> None:
         if self.model.kind != "constant_velocity" or self.model.nx != 4:
@@ -307,9 +297,9 @@ class Scenario(StrictModel):
                 f"{self.steps} steps x {self.model.T:g} s) but {named} covers {have:g} s; use at "
                 f"most {int((have - self.truth.start) / self.model.T + 1e-9)} steps", "steps")
 
-    def _check_network(self) -> None:
+    def _check_network(self, plan: RunPlan) -> None:
         top = self.topology
-        tree = topo.protocol_graph(self.protocol) == "tree"
+        tree = plan.protocol_graph == "tree"
         if self.weights == "paper" and not tree:
             raise custom_error(f"'paper' weights are not defined for protocol: {self.protocol} (the "
                                "paper weighs the messages of the tree exchange only); use weights: "
@@ -322,7 +312,7 @@ class Scenario(StrictModel):
                                "(topology.directed is true)", "spanning_tree")
         n = self.n
         try:
-            graph = topo.build_graph(top, n, self.seed)
+            graph = plan.graph
             topo.check_connected(graph)
         except topo.GraphSpecError as err:
             key = "topology." + err.key if err.key else "topology"
@@ -347,16 +337,13 @@ class Scenario(StrictModel):
                                    f"links.overrides.{i}.link")
         if self.faults is not None:
             self.faults.check(n)
-        self._cache = (self._graph_key(), graph, None)
-        if self.buffer_length in ("auto", "paper") and self.resolved_d_t() is None:
-            unbounded = sorted({name for u, v in self.exchange().arcs
-                                for name in self.link_spec(u, v).unbounded_models(self.T_ns)})
+        if self.buffer_length in ("auto", "paper") and plan.d_t is None:
             raise custom_error(
                 f"{self.buffer_length!r} needs a delay bound, but latency model "
-                f"{', '.join(unbounded)} is unbounded; set an explicit links.d_t (delay bound "
+                f"{', '.join(plan.unbounded_models())} is unbounded; set an explicit links.d_t (delay bound "
                 "in steps) or an integer buffer_length", "buffer_length")
 
-    def _check_time_range(self) -> None:
+    def _check_time_range(self, plan: RunPlan) -> None:
         """Every time the run can reach fits the int64 nanosecond clock (:data:`MAX_NS`)."""
         T_ns = self.T_ns
         limit = f"the {MAX_SECONDS:.4g} s (2^62 ns, about 146 years) an int64 nanosecond clock can hold"
@@ -374,14 +361,14 @@ class Scenario(StrictModel):
             if sup is not None and sup > MAX_NS:
                 raise custom_error(f"the largest latency it can produce, {sup / 1e9:.4g} s (after "
                                    f"schedule factors and jitter), is beyond {limit}", key)
-        d_t = self.resolved_d_t()
+        d_t = plan.d_t
         if d_t is not None and d_t * T_ns > MAX_NS:
             raise custom_error(f"a delay bound of {d_t} steps of {self.model.T:g} s is beyond {limit}",
                                "links.d_t" if self.links.d_t is not None else "links")
         # L <= d_t (n - 1) + 1 (the diameter is below n): the exact L only when that bound is too large.
         if isinstance(self.buffer_length, int) or (d_t or 0) * (self.n - 1) * T_ns > MAX_NS:
-            if self.resolved_buffer_length() * T_ns > MAX_NS:
-                raise custom_error(f"L = {self.resolved_buffer_length()} rows of {self.model.T:g} s span "
+            if plan.buffer_length() * T_ns > MAX_NS:
+                raise custom_error(f"L = {plan.buffer_length()} rows of {self.model.T:g} s span "
                                    f"more than {limit}; use a smaller delay bound or buffer_length",
                                    "buffer_length")
 
@@ -391,15 +378,17 @@ class Scenario(StrictModel):
         """The file this scenario was loaded from (None for a dict)."""
         return self._source
 
+    def set_source(self, source: str | None, base_dir: str | None = None) -> None:
+        """Remember the file this scenario was read from and the folder its relative ``file:``
+        paths resolve against (None: keep it); neither is part of its data."""
+        self._source = source
+        if base_dir is not None:
+            self._base_dir = base_dir
+
     @property
     def base_dir(self) -> str | None:
         """The folder relative ``file:`` paths resolved against (None: the working directory)."""
         return self._base_dir
-
-    @property
-    def protocol_graph(self) -> str:
-        """``"tree"`` or ``"digraph"``: what the protocol runs on."""
-        return topo.protocol_graph(self.protocol)
 
     @property
     def nx(self) -> int:
@@ -415,31 +404,6 @@ class Scenario(StrictModel):
     def T_ns(self) -> int:
         """Sampling period in integer nanoseconds."""
         return self.model.T_ns
-
-    def _graph_key(self) -> tuple:
-        # The seed the graph is drawn from, not the scenario's: the copies of one scenario
-        # with other seeds (Monte Carlo runs, topology pinned) keep its graph.
-        return (topo.graph_seed(self.topology, self.seed), self.n, self.topology.model_dump_json(),
-                self.protocol, self.spanning_tree)
-
-    def _cached(self) -> tuple:
-        key = self._graph_key()
-        if self._cache is None or self._cache[0] != key:
-            graph = topo.build_graph(self.topology, self.n, self.seed)
-            self._cache = (key, graph, None)
-        return self._cache
-
-    def graph(self) -> networkx.Graph | networkx.DiGraph:
-        """A copy of the topology graph (nodes 0..n-1)."""
-        return self._cached()[1].copy()
-
-    def exchange(self) -> topo.ExchangeGraph:
-        """The graph the protocol runs on (cached :func:`dkfsim.components.topology.exchange_graph`)."""
-        key, graph, xg = self._cached()
-        if xg is None:
-            xg = topo.make_exchange(graph, self.protocol, self.spanning_tree)
-            self._cache = (key, graph, xg)
-        return xg
 
     def link_spec(self, u: int, v: int) -> LinkSpec:
         """Settings of the directed link ``u -> v``.
@@ -459,55 +423,6 @@ class Scenario(StrictModel):
                         duplicate=float(spec["duplicate"] or 0.0), jitter=spec["jitter"],
                         schedule=tuple(spec["schedule"] or ()),
                         outages=tuple(spec["outages"] or ()))
-
-    def resolved_d_t(self) -> int | None:
-        """Delay bound in steps: ``links.d_t`` if set, else the largest
-        ``bound_steps`` over the links the protocol uses (None if unbounded)."""
-        if self.links.d_t is not None:
-            return self.links.d_t
-        return self.latency_bound_steps()
-
-    def latency_bound_steps(self) -> int | None:
-        """The largest per-hop delay in steps the links can produce (None if unbounded),
-        whatever ``links.d_t`` assumes.  Without overrides every link has the
-        default settings, so the exchange graph (which may need a costly
-        spanning tree) is not built."""
-        if not self.links.overrides:
-            return self.link_spec(-1, -1).bound_steps(self.T_ns)
-        bound = 0
-        for u, v in self.exchange().arcs:
-            b = self.link_spec(u, v).bound_steps(self.T_ns)
-            if b is None:
-                return None
-            bound = max(bound, b)
-        return bound
-
-    def resolved_buffer_length(self) -> int:
-        """The buffer length L (docs/design.md §4).
-
-        ``auto``: ``d_t * d_g + 1``; ``paper``: ``max(d_t, 1)``; an integer: itself.
-        """
-        if isinstance(self.buffer_length, int):
-            return self.buffer_length
-        d_t = self.resolved_d_t()
-        if d_t is None:  # excluded by validation
-            raise ScenarioError("no delay bound", source=self.source, path="buffer_length")
-        if self.buffer_length == "paper":
-            return max(d_t, 1)
-        return d_t * self.exchange().d_g + 1
-
-    def buffer_length_bound(self) -> tuple[int, bool]:
-        """``(L, exact)``: the buffer length, or, when ``auto`` would need the exact
-        diameter of a large graph that is not a tree (a search per node), the cheap
-        lower bound ``d_t * lower + 1`` with ``exact`` false.  For checks that must
-        answer in seconds (validation, resource estimates)."""
-        if self.buffer_length == "auto":
-            graph = self.graph()
-            costly = (self.protocol_graph == "digraph" or self.spanning_tree) and not topo.is_tree(graph)
-            if costly and topo.all_pairs_work(graph) > CHEAP_VISITS:
-                lower, _ = topo.diameter_bounds(graph)
-                return (self.resolved_d_t() or 0) * lower + 1, False
-        return self.resolved_buffer_length(), True
 
     # ------------------------------------------------------------------ identity
     def to_dict(self) -> dict:

@@ -26,9 +26,9 @@ try:
 except ImportError:  # pragma: no cover  (not a Unix)
     resource = None  # type: ignore[assignment]
 from dataclasses import dataclass, field
-from typing import Literal
+from typing import Literal, cast
 
-from dkfsim.core.errors import ResourceError
+from dkfsim.core.errors import DkfsimError, ResourceError
 
 #: Above this estimated wall time a command asks for --yes.
 TIME_LIMIT_S = 600.0
@@ -51,6 +51,20 @@ B_FLOAT = 8
 
 #: What a run keeps (``--save``, resolved): everything, no arrival log, summary.json only.
 SaveMode = Literal["full", "estimates", "summary"]
+#: What ``--save`` accepts.
+SAVE_MODES = ("auto", "full", "estimates", "summary")
+#: ``save: auto`` keeps the (n, n, K) arrival log only while it stays below this
+#: many entries (160 MB); beyond, it saves the estimates only.
+FULL_LOG_LIMIT = 20_000_000
+
+
+def resolve_save_mode(save: str, n: int, K: int) -> SaveMode:
+    """The mode a run of ``n`` nodes and ``K`` ticks keeps (``auto`` resolved)."""
+    if save == "auto":
+        return "full" if n * n * K <= FULL_LOG_LIMIT else "estimates"
+    if save in ("full", "estimates", "summary"):
+        return cast(SaveMode, save)
+    raise DkfsimError(f"--save: unknown mode {save!r}; choose one of {', '.join(SAVE_MODES)}")
 
 
 def human_bytes(n: float) -> str:

@@ -5,7 +5,10 @@ inside one SimPy environment (docs/design.md §2): the truth and every
 sensor's measurements are drawn up front from their own streams; one
 :class:`~dkfsim.network.links.Network` holds every link of the topology; the
 scenario's anti-delay DKF and every listed estimator get the same
-:class:`~dkfsim.estimators.base.RunContext`.  At ``t_k`` every estimator's
+:class:`~dkfsim.estimators.base.RunContext`, with the run's
+:class:`~dkfsim.config.plan.RunPlan` (what the scenario implies, worked out once)
+and its :class:`~dkfsim.core.backend.Backend` (how it computes, chosen here once:
+:func:`run_backend`; ``summary.json`` records it).  At ``t_k`` every estimator's
 ``on_measure`` runs (priority ``NORMAL``, with the deliveries of that
 instant); then, as an event of lower priority than every delivery and
 relay at ``t_k``, every estimator's ``on_update``.
@@ -23,32 +26,49 @@ import simpy
 from simpy.events import NORMAL, Event
 
 from dkfsim.components.faults import CrashSchedule
-from dkfsim.components.topology import topology_arcs
 from dkfsim.config.load import load_scenario
+from dkfsim.config.plan import RunPlan
 from dkfsim.config.schema import Scenario
+from dkfsim.core.backend import Backend
 from dkfsim.core.progress import progress_callback
 from dkfsim.core.registry import ESTIMATORS
 from dkfsim.core.threads import single_thread
 from dkfsim.engine.estimate import check_run
-from dkfsim.engine.results import RunResult, resolve_save_mode
+from dkfsim.engine.results import RunResult
 from dkfsim.estimators.anti_delay import AntiDelayDKF, AntiDelayParams
 from dkfsim.estimators.base import Estimator, EstimatorResult, RunContext
 from dkfsim.model.system import LinearGaussianSystem, build_system
 from dkfsim.model.trajectory import track_truth
 from dkfsim.network.links import PRIORITY_UPDATE, Network, Scheduled
+from dkfsim.protocols import tree_compiled
+
+
+def run_backend(plan: RunPlan, network: Network, crashes: CrashSchedule | None) -> Backend:
+    """The backend of a run: what the environment asks for (:meth:`Backend.from_environment`),
+    with the Python exchange where the compiled one cannot run (a protocol without a compiled
+    twin, a link it cannot draw, crash windows)."""
+    backend = Backend.from_environment()
+    if backend.compiled_exchange:
+        links = [network.link(u, v) for u, v in plan.exchange.arcs]
+        if not tree_compiled.usable(plan.protocol, links, crashes):
+            backend = backend.python_exchange()
+    return backend
 
 
 class Run:
     """The runtime state of one run (configuration stays in the scenario)."""
 
     def __init__(self, scenario: Scenario, *, save: str = "auto",
-                 progress: Callable[[int, int], None] | None = None, system: LinearGaussianSystem | None = None):
-        """``system``: the scenario's :func:`~dkfsim.model.system.build_system`, when the
-        caller already has it (the runs of a Monte Carlo differ only by their seed and
-        share one; it is read, never changed, by a run)."""
+                 progress: Callable[[int, int], None] | None = None, system: LinearGaussianSystem | None = None,
+                 plan: RunPlan | None = None):
+        """``system`` and ``plan``: the scenario's :func:`~dkfsim.model.system.build_system`
+        and :class:`~dkfsim.config.plan.RunPlan`, when the caller already has them (the runs
+        of a Monte Carlo differ only by their seed and share both, ``plan.with_seed``; a run
+        reads them, never changes them).  A ``plan`` brings its own save mode."""
         self.scenario = scenario
         self.K = K = int(scenario.steps)
         seed = int(scenario.seed)
+        self.plan = plan = RunPlan(scenario, save) if plan is None else plan
         system = build_system(scenario) if system is None else system
         self.progress = progress
         # Everything random but the network is drawn up front, from its own streams.
@@ -56,11 +76,10 @@ class Run:
         ys = system.simulate_measurements(truth, seed)
         crashes = CrashSchedule(scenario.faults, system.n) or None
         env = simpy.Environment()
-        network = Network(env, topology_arcs(scenario.graph()), scenario.link_spec, seed, system.T_ns,
-                          crashes=crashes)
-        self.ctx = RunContext(scenario=scenario, system=system, truth=truth, ys=ys,
-                              info=system.information(ys), crashes=crashes, env=env, network=network,
-                              save=resolve_save_mode(save, system.n, K))
+        network = Network(env, plan.arcs, scenario.link_spec, seed, system.T_ns, crashes=crashes)
+        self.backend = run_backend(plan, network, crashes)
+        self.ctx = RunContext(scenario=scenario, plan=plan, backend=self.backend, system=system, truth=truth, ys=ys,
+                              info=system.information(ys), crashes=crashes, env=env, network=network)
         self.dkf = AntiDelayDKF(AntiDelayParams(), self.ctx, main=True)
         self.estimators = [self.dkf] + [ESTIMATORS.get(p.kind).implementation(p, self.ctx)
                                         for p in scenario.estimators]
@@ -128,16 +147,18 @@ class Run:
             if res.facts and est is not self.dkf:
                 facts[est.name] = res.facts
         counts = dict(results[0][1].traffic or {})    # the scenario's DKF: the run's packets
+        plan = self.plan
         info = {
             "buffer_length": self.dkf.L,
-            "d_t": sc.resolved_d_t(),
-            "d_g": sc.exchange().d_g,
-            "n_links": len(sc.exchange().arcs),
+            "d_t": plan.d_t,
+            "d_g": plan.exchange.d_g,
+            "n_links": len(plan.exchange.arcs),
             "wall_time_s": wall,
             "save": ctx.save,
-            "kernels": self.dkf.window.kernels,
+            "kernels": self.backend.kernels,
             "node_rows": self.dkf.window.node_rows,
             "exchange": self.dkf.exchange.bookkeeping,
+            "backend": self.backend.record(),
         }
         return RunResult(sc, arrays, counts, info, estimates=list(estimates), traffic=traffic,
                          facts=facts)
@@ -160,8 +181,9 @@ def run(scenario: Scenario | str | PathLike | Mapping[str, Any], *, seed: int | 
     overrides = [f"{key}={int(val)}" for key, val in (("seed", seed), ("steps", steps)) if val is not None]
     if overrides or not isinstance(scenario, Scenario):   # validated exactly as --set would be
         scenario = load_scenario(scenario, overrides=overrides)
-    check_run(scenario, save=save, yes=yes)
+    plan = RunPlan(scenario, save)
+    check_run(plan, yes=yes)
     with progress_callback(progress, int(scenario.steps), scenario.name, "tick") as callback:
         with np.errstate(all="ignore"):      # an exploding truth is reported, not warned about
-            sim = Run(scenario, save=save, progress=callback)
+            sim = Run(scenario, save=save, progress=callback, plan=plan)
         return sim.run()

@@ -14,7 +14,6 @@ from __future__ import annotations
 import platform
 from collections.abc import Mapping
 from pathlib import Path
-from typing import cast
 
 import networkx
 import numpy as np
@@ -30,26 +29,11 @@ from dkfsim.core.errors import DkfsimError
 from dkfsim.core.files import clip, read_json
 from dkfsim.core.folders import staged, write_csv, write_json
 from dkfsim.core.npzfile import NpzFile
-from dkfsim.core.resources import SaveMode
+from dkfsim.core.resources import FULL_LOG_LIMIT, SAVE_MODES, SaveMode, resolve_save_mode  # noqa: F401  (re-exported)
 from dkfsim.core.version import __version__
-
-SAVE_MODES = ("auto", "full", "estimates", "summary")
-
-#: ``save: auto`` keeps the (n, n, K) arrival log only while it stays below this
-#: many entries (160 MB); beyond, it saves the estimates only.
-FULL_LOG_LIMIT = 20_000_000
 
 #: ``run.npz`` keys that start with ``x_`` but are not estimates.
 NOT_ESTIMATES = ("x_final", "x0_mean")
-
-
-def resolve_save_mode(save: str, n: int, K: int) -> SaveMode:
-    """The mode a run of ``n`` nodes and ``K`` ticks keeps (``auto`` resolved)."""
-    if save == "auto":
-        return "full" if n * n * K <= FULL_LOG_LIMIT else "estimates"
-    if save in ("full", "estimates", "summary"):
-        return cast(SaveMode, save)
-    raise DkfsimError(f"--save: unknown mode {save!r}; choose one of {', '.join(SAVE_MODES)}")
 
 
 def versions() -> dict:
@@ -216,7 +200,7 @@ def write_rows(path, rows: list[dict]) -> None:
 
 #: Keys of summary.json that are facts of the run (``RunResult.info``).
 INFO_KEYS = ("buffer_length", "d_t", "d_g", "n_links", "wall_time_s", "save", "kernels",
-             "node_rows")
+             "node_rows", "exchange", "backend")
 
 
 def load_run(folder) -> RunResult:
@@ -242,7 +226,7 @@ def load_run(folder) -> RunResult:
     summary = validate(RunSummary, data, str(path)).model_dump()
     source = summary.get("source")
     scenario = stored_scenario(summary["scenario_config"], source=source, label=str(path))
-    scenario._source = source
+    scenario.set_source(source)
     if scenario.steps != summary["steps"]:
         raise DkfsimError(f"{path}: steps is {summary['steps']} but its scenario_config says "
                           f"{scenario.steps}")

@@ -25,9 +25,7 @@ import numpy as np
 
 from dkfsim.components.estimators import AntiDelayParams, NoBufferParams
 from dkfsim.components.topology import paper_weights
-from dkfsim.config.schema import FUSION_MEMORY_LIMIT
-from dkfsim.core.errors import ScenarioError
-from dkfsim.core.registry import PROTOCOLS
+from dkfsim.config.plan import RunPlan
 from dkfsim.core.resources import (
     B_FLOAT,
     C_CONTRIBUTION,
@@ -42,16 +40,15 @@ from dkfsim.core.resources import (
 from dkfsim.estimators.base import Estimate, Estimator, EstimatorResult
 from dkfsim.estimators.fusion import FUSERS, CrossCovariance
 from dkfsim.estimators.window import WindowFilter
+from dkfsim.model.holdings import Holdings
 from dkfsim.network.links import Port
-from dkfsim.protocols.tree import TreeExchange
-from dkfsim.protocols.tree_compiled import CompiledTreeExchange
-from dkfsim.protocols.tree_compiled import usable as compiled_tree_usable
+from dkfsim.protocols.tree_compiled import exchange_class
 
 #: Largest P_local (entries) kept: 400 MB.
 P_LOCAL_LIMIT = 50_000_000
 
 
-def late_horizon(scenario, n: int, L: int) -> int:
+def late_horizon(plan: RunPlan, n: int, L: int) -> int:
     """How many final rows keep their holdings so that a late contribution counts once.
 
     Nothing is sent for a final row, so with a latency bound of ``d`` steps per
@@ -59,7 +56,7 @@ def late_horizon(scenario, n: int, L: int) -> int:
     final: keep that many.  Unbounded latency: 4096 rows, fewer on large
     networks so that the holdings (n masks of n bits per row) stay near 64 MB.
     """
-    bound = scenario.latency_bound_steps()
+    bound = plan.latency_bound
     if bound is not None:
         return bound + 2
     per_row = n * (n // 8 + 32)
@@ -74,31 +71,21 @@ class AntiDelayDKF(Estimator, params=AntiDelayParams):
 
     def __init__(self, params: AntiDelayParams, ctx, main: bool = False):
         super().__init__(params, ctx)
-        sc = ctx.scenario
         #: The scenario's own instance (writes the contract's array names).
         self.main = main
-        self.buffer_length = params.buffer_length if params.buffer_length is not None else sc.buffer_length
-        self.fusion = params.fusion if params.fusion is not None else sc.fusion
-        self.weights = params.weights if params.weights is not None else sc.weights
+        #: Its settings, unset keys resolved against the scenario's (the run plan's).
+        self.settings = ctx.plan.dkf(None if main else params)
+        self.fusion = self.settings.fusion
 
     # -- configuration ------------------------------------------------------------
-    @staticmethod
-    def resolve_L(scenario, buffer_length) -> int:
-        """``auto`` -> ``d_t d_g + 1``, ``paper`` -> ``max(d_t, 1)``, an integer -> itself."""
-        if isinstance(buffer_length, int):
-            return buffer_length
-        if buffer_length == scenario.buffer_length:
-            return scenario.resolved_buffer_length()
-        d_t = scenario.resolved_d_t()
-        return max(d_t, 1) if buffer_length == "paper" else d_t * scenario.exchange().d_g + 1
-
     @classmethod
-    def cost(cls, params, scenario, *, L: int, arcs: int, save: str = "estimates") -> Cost:
-        """``L``: the scenario's buffer length (an instance with its own uses that)."""
-        n, nx, K = scenario.n, scenario.nx, int(scenario.steps)
-        if params.buffer_length is not None:
-            L = cls.resolve_L(scenario, params.buffer_length)
-        fusion = params.fusion or scenario.fusion
+    def cost(cls, params, plan: RunPlan) -> Cost:
+        """From the plan's buffer length for this instance (exact, or the cheap bound)."""
+        sc = plan.scenario
+        n, nx, K = sc.n, sc.nx, int(sc.steps)
+        settings = plan.dkf(params)
+        L, _ = plan.buffer_length_bound(settings.buffer_length)
+        fusion, arcs, save = settings.fusion, plan.n_exchange_links, plan.save
         S, rows, N = min(L, K) + 1, min(L, K), n * nx
         c = Cost(params.label or "anti_delay_dkf")
         c.seconds = K * (C_TICK + rows * (C_ROW + n * C_NODE_ROW) + 1.5 * arcs * C_PACKET
@@ -118,33 +105,20 @@ class AntiDelayDKF(Estimator, params=AntiDelayParams):
 
     # -- running -------------------------------------------------------------------
     def start(self) -> None:
-        ctx, sc = self.ctx, self.ctx.scenario
+        """Set up the window, the holdings, the fusion and the exchange the plan and the
+        backend say (validation has checked all of it: nothing here raises)."""
+        ctx, plan, backend = self.ctx, self.ctx.plan, self.ctx.backend
         sys_, K, n, nx = ctx.system, ctx.K, ctx.n, ctx.nx
-        xg = sc.exchange()
-        self.L = self.resolve_L(sc, self.buffer_length)
-        if self.fusion != "none":
-            # Validation checks the scenario's own fusion with a cheap bound of L
-            # on large graphs; this is the exact check, for every instance.
-            need = (min(self.L, K) + 1) * (n * nx) ** 2 * B_FLOAT
-            if need > FUSION_MEMORY_LIMIT:
-                where = "fusion" if self.main else next(
-                    f"estimators.{i}" for i, p in enumerate(sc.estimators) if p.label == self.name)
-                raise ScenarioError(
-                    f"fusion: {self.fusion} keeps the cross-covariances of all {n} nodes for "
-                    f"{min(self.L, K) + 1} window rows, {need / 2**30:.1f} GiB of memory; use "
-                    "fusion: none for a network this large (or a shorter buffer_length)",
-                    source=sc.source, path=where)
-        self.A = paper_weights(xg.graph) if self.weights == "paper" else np.ones((n, n))
-        self.window = WindowFilter(sys_.Phi, sys_.Q, sys_.x0_mean, sys_.P0, ctx.info, self.A, self.L,
-                                   per_origin=self.fusion != "none")
+        self.L = plan.buffer_length(self.settings.buffer_length)
+        self.A = paper_weights(plan.exchange.graph) if self.settings.weights == "paper" else np.ones((n, n))
+        self.holdings = Holdings(ctx.info, self.A, self.L, per_origin=self.fusion != "none", backend=backend)
+        self.window = WindowFilter(sys_.Phi, sys_.Q, sys_.x0_mean, sys_.P0, self.holdings, backend)
         self.xcov = CrossCovariance(self.window, sys_.P0) if self.fusion != "none" else None
         self.arrival = np.full((n, n, K), np.inf) if (self.main and ctx.save == "full") else None
         links = ctx.exchange_links()
-        protocol = PROTOCOLS.get(sc.protocol).implementation
-        if protocol is TreeExchange and compiled_tree_usable(links, self.window.kernels, ctx.crashes):
-            protocol = CompiledTreeExchange
-        self.exchange = protocol(ctx.env, n, self.window, arrival=self.arrival,
-                                 late_horizon=late_horizon(sc, n, self.L), nx=nx, T_ns=ctx.T_ns)
+        protocol = exchange_class(plan.protocol, backend)
+        self.exchange = protocol(ctx.env, n, self.holdings, arrival=self.arrival,
+                                 late_horizon=late_horizon(plan, n, self.L), nx=nx, T_ns=ctx.T_ns)
         self.exchange.crashes = ctx.crashes
         self.exchange.attach(self.open_port(self.exchange.receive, links), links)
         self.x_local = np.empty((K, n, nx))
@@ -159,7 +133,7 @@ class AntiDelayDKF(Estimator, params=AntiDelayParams):
 
     def on_measure(self, row: int) -> None:
         self.exchange.open_row(row)
-        self.window.begin_row(row)
+        self.holdings.open_row(row)
         self.exchange.measure(row)
 
     def on_update(self, k: int) -> None:
@@ -211,5 +185,5 @@ class NoBuffer(AntiDelayDKF, params=NoBufferParams):
         super().__init__(AntiDelayParams(name=params.label, buffer_length=1), ctx)
 
     @classmethod
-    def cost(cls, params, scenario, **shape):
-        return AntiDelayDKF.cost(AntiDelayParams(name=params.label, buffer_length=1), scenario, **shape)
+    def cost(cls, params, plan):
+        return AntiDelayDKF.cost(AntiDelayParams(name=params.label, buffer_length=1), plan)

@@ -11,7 +11,9 @@ on ``ctx.env`` (consensus rounds), and returns an :class:`EstimatorResult`:
 named estimates (``x`` of shape ``(K, nx)``, or ``(K, n, nx)`` per node,
 with covariances when it has them), extra arrays for ``run.npz``, its
 traffic and side facts.  Before a run, :meth:`Estimator.cost` says what it
-needs, so a command can refuse work that cannot fit (:mod:`dkfsim.core.resources`).
+needs, from the run's :class:`~dkfsim.config.plan.RunPlan` (buffer length, links,
+save mode: what the run itself will follow), so a command can refuse work that cannot
+fit (:mod:`dkfsim.core.resources`).
 
 Adding an algorithm is one file: a parameter model that declares the kind
 (``class MyParams(EstimatorParams, kind="my_kind")``) and an :class:`Estimator`
@@ -30,8 +32,9 @@ import simpy
 
 from dkfsim.components.estimators import EstimatorParams
 from dkfsim.components.faults import CrashSchedule
-from dkfsim.components.topology import topology_arcs
+from dkfsim.config.plan import RunPlan
 from dkfsim.config.schema import Scenario
+from dkfsim.core.backend import Backend
 from dkfsim.core.registry import ESTIMATORS
 from dkfsim.core.resources import B_FLOAT, Cost, SaveMode
 from dkfsim.model.system import Information, LinearGaussianSystem
@@ -71,6 +74,12 @@ class RunContext:
 
     #: The validated scenario.
     scenario: Scenario
+    #: What the scenario implies for this run, worked out once: the graphs, the buffer length of
+    #: each anti-delay DKF, the save mode (:class:`~dkfsim.config.plan.RunPlan`).
+    plan: RunPlan
+    #: How the run computes, chosen once by the engine: numba or numpy, compiled or Python
+    #: exchange (:class:`~dkfsim.core.backend.Backend`; pass it to the filters you call).
+    backend: Backend
     #: The model as simulated: ``Phi``, ``Q``, ``x0_mean``, ``P0``, the sensors (``H``, ``R``).
     system: LinearGaussianSystem
     #: The true state, ``(K, nx)``.
@@ -85,8 +94,11 @@ class RunContext:
     env: simpy.Environment
     #: The links of the run, shared by every estimator (open a port with ``network.port``).
     network: Network
-    #: What the run keeps: ``"full"``, ``"estimates"`` or ``"summary"``.
-    save: SaveMode
+
+    @property
+    def save(self) -> SaveMode:
+        """What the run keeps: ``"full"``, ``"estimates"`` or ``"summary"``."""
+        return self.plan.save
 
     @property
     def K(self) -> int:
@@ -126,13 +138,13 @@ class RunContext:
     def topology_links(self) -> list[Link]:
         """Every directed link of the scenario's topology, the full graph (an undirected edge
         both ways), in the network's order: what the consensus filters talk over."""
-        return [self.network.link(u, v) for u, v in topology_arcs(self.scenario.graph())]
+        return [self.network.link(u, v) for u, v in self.plan.arcs]
 
     def exchange_links(self) -> list[Link]:
-        """The links of the graph the scenario's ``protocol`` runs on (``scenario.exchange()``:
-        the tree, or a spanning tree of the topology, for ``tree``; every arc for ``flood``):
+        """The links of the graph the scenario's ``protocol`` runs on (``plan.exchange``: the
+        tree, or a spanning tree of the topology, for ``tree``; every arc for ``flood``):
         what the anti-delay DKF and ``ci_consensus`` talk over."""
-        return [self.network.link(u, v) for u, v in self.scenario.exchange().arcs]
+        return [self.network.link(u, v) for u, v in self.plan.exchange.arcs]
 
 
 def existing_information_bytes(scenario: Scenario) -> int:
@@ -182,10 +194,10 @@ class Estimator:
         self.name = params.label
 
     @classmethod
-    def cost(cls, params: EstimatorParams, scenario: Scenario, *, L: int, arcs: int,
-             save: SaveMode = "estimates") -> Cost:
-        """Memory and CPU time of one run (default: next to nothing).  ``L`` and ``arcs``
-        are the scenario's buffer length and exchange links, ``save`` the save mode."""
+    def cost(cls, params: EstimatorParams, plan: RunPlan) -> Cost:
+        """Memory and CPU time of one run (default: next to nothing), from the run's ``plan``:
+        ``plan.scenario``, the buffer length ``plan.L_estimate`` (exact, or a cheap bound on a
+        large graph), the exchange links ``plan.n_exchange_links``, the save mode ``plan.save``."""
         return Cost(params.label)
 
     def start(self) -> None:
@@ -199,11 +211,13 @@ class Estimator:
         """Tick ``k``: every packet due by ``t_k`` has been delivered."""
 
     # -- helpers ---------------------------------------------------------------------
-    def open_port(self, receive: Callable[[Link, Any], None], links: list[Link],
+    def open_port(self, receive: Callable[[Link, Any], None] | None, links: list[Link],
                   until: int | None = None) -> Port:
         """Open this estimator's port (named after it) on ``links``: ``receive(link, payload)``
-        gets its deliveries; deliveries after ``until`` ns (default: the run's last tick) stay
-        in flight.  Sets :attr:`port`, whose counts the default :meth:`finish` reports."""
+        gets its deliveries (None: the estimator moves its packets itself and reports their
+        counts with :meth:`~dkfsim.network.links.Port.set_counts`); deliveries after ``until``
+        ns (default: the run's last tick) stay in flight.  Sets :attr:`port`, whose counts
+        the default :meth:`finish` reports."""
         self.port = self.ctx.network.port(self.name, receive, links, until=until)
         return self.port
 

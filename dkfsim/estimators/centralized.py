@@ -22,7 +22,8 @@ class Centralized(Estimator, params=CentralizedParams):
     network_model = False
     @classmethod
     @override
-    def cost(cls, params, scenario, *, L: int, arcs: int, save: str = "estimates") -> Cost:
+    def cost(cls, params, plan) -> Cost:
+        scenario = plan.scenario
         K, nx = int(scenario.steps), scenario.nx
         copy = existing_information_bytes(scenario)
         per_row = copy > 0 or any(s.kind != "linear" for s in scenario.sensors)     # omega per row
@@ -33,5 +34,6 @@ class Centralized(Estimator, params=CentralizedParams):
     def estimate(self) -> Estimate:
         s = self.ctx.system
         omega, theta = self.ctx.existing_information()
-        x, P = centralized_filter(s.Phi, s.Q, s.x0_mean, s.P0, omega.sum(axis=-3), theta.sum(axis=1))
+        x, P = centralized_filter(s.Phi, s.Q, s.x0_mean, s.P0, omega.sum(axis=-3), theta.sum(axis=1),
+                                  self.ctx.backend)
         return Estimate(x, P)

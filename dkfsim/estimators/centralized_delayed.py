@@ -20,6 +20,7 @@ from dkfsim.components.estimators import CentralizedDelayedParams
 from dkfsim.core.resources import B_FLOAT, C_NODE_ROW, C_PACKET, C_ROW, C_TICK, Cost
 from dkfsim.estimators.base import Estimate, Estimator, EstimatorResult
 from dkfsim.estimators.window import WindowFilter
+from dkfsim.model.holdings import Holdings
 
 
 class CentralizedDelayed(Estimator, params=CentralizedDelayedParams):
@@ -27,9 +28,10 @@ class CentralizedDelayed(Estimator, params=CentralizedDelayedParams):
 
     @classmethod
     @override
-    def cost(cls, params, scenario, *, L: int, arcs: int, save: str = "estimates") -> Cost:
+    def cost(cls, params, plan) -> Cost:
+        scenario = plan.scenario
         K, n, nx = int(scenario.steps), scenario.n, scenario.nx
-        L = min(L, K)
+        L = min(plan.L_estimate, K)
         # per (sensor, row): its arrival tick, and the indices that order the usable ones (6 ints)
         return Cost(params.label, memory={"centralized_delayed": K * n * (7 * 8 + 2 * nx * B_FLOAT)
                                           + (L + 1) * (2 * nx + 3 * nx * nx) * B_FLOAT},
@@ -60,8 +62,9 @@ class CentralizedDelayed(Estimator, params=CentralizedDelayedParams):
     def finish(self) -> EstimatorResult:
         ctx = self.ctx
         s, K = ctx.system, ctx.K
-        L = ctx.scenario.resolved_buffer_length()
-        w = WindowFilter(s.Phi, s.Q, s.x0_mean, s.P0, ctx.info, np.ones((1, s.n)), L)
+        L = ctx.plan.buffer_length()
+        held = Holdings(ctx.info, np.ones((1, s.n)), L, backend=ctx.backend)
+        w = WindowFilter(s.Phi, s.Q, s.x0_mean, s.P0, held, ctx.backend)
         ticks, counts = self.arrival_ticks()
         rows = np.arange(K)
         usable = (ticks > 0) & (ticks <= rows + L) & (ticks <= K)
@@ -72,9 +75,9 @@ class CentralizedDelayed(Estimator, params=CentralizedDelayedParams):
         x = np.empty((K, s.nx))
         P = np.empty((K, s.nx, s.nx))
         for k in range(1, K + 1):
-            w.begin_row(k - 1)
+            held.open_row(k - 1)
             for j in range(bounds[k - 1], bounds[k]):
-                w.add(0, int(sensor_idx[j]), int(row_idx[j]))
+                held.add(0, 1 << int(sensor_idx[j]), int(row_idx[j]))
             w.update(k)
             slot = (k - 1) % w.S
             x[k - 1], P[k - 1] = w.state.x[slot, 0], w.state.P[slot, 0]

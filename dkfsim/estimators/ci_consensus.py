@@ -132,7 +132,8 @@ class CIConsensus(RoundBased, params=CIParams):
 
     @classmethod
     @override
-    def cost(cls, params, scenario, *, L: int, arcs: int, save: str = "estimates") -> Cost:
+    def cost(cls, params, plan) -> Cost:
+        scenario, arcs = plan.scenario, plan.n_exchange_links
         K, n, nx = int(scenario.steps), scenario.n, scenario.nx
         return Cost(params.label,
                     memory={"ci_consensus": K * n * (nx + nx * nx) * B_FLOAT + arcs * (nx + nx * nx) * 2 * B_FLOAT

@@ -175,8 +175,8 @@ class CrossCovariance:
         filter recomputed those rows.
         """
         w = self.w
-        if w.kernels == "numba":
-            w._k.xi_rows(self._cross, w.ring, starts, first, last, (0,) * self.nx)
+        if w.kernels is not None:
+            w.kernels.xi_rows(self._cross, w.ring, starts, first, last, (0,) * self.nx)
             return
         order = np.sort(starts)
         for row in range(first, last + 1):
@@ -192,7 +192,7 @@ class CrossCovariance:
         G, P = st.G[slot], st.P[slot]
         F = G @ self.w.Phi                                   # (n, nx, nx): the blocks of F
         # Weights of each measurement column at each node: a_im if held, else 0.
-        a_held = (self.w.A * st.held[slot])[:, self.info.column_sensor]   # (n, M)
+        a_held = (self.w.A * self.w.holdings.held[slot])[:, self.info.column_sensor]   # (n, M)
         Z = P @ (self.info.factor_row(row)[None, :, :] * a_held[:, None, :])  # (n, nx, M)
         Y = np.concatenate([(G @ self.Lq).reshape(N, nx), Z.reshape(N, -1)], axis=1)
         Xi = self.Xi[slot]

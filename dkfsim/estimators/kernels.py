@@ -13,9 +13,9 @@ like any other; the types must be importable by name for that), and a kernel
 is split into named steps in this module (numba's cache does not notice an
 edit to a jitted function of another file), inlined into it (``_INLINE``).
 
-Which path runs: numba when it is installed, unless the environment variable
-``DKFSIM_KERNELS=numpy`` forces the pure-numpy path (the fallback on
-platforms without numba, tested against the compiled one).  Compiled kernels
+Which path runs is the run's :class:`~dkfsim.core.backend.Backend`: numba when it is
+installed, unless the environment variable ``DKFSIM_KERNELS=numpy`` forces the pure-numpy
+path (the fallback on platforms without numba, tested against the compiled one).  Compiled kernels
 are cached on disk (``cache=True``): the first call on a machine compiles them
 once (about 20 s of CPU with the compiled tree's); later processes load them.  See
 docs/design.md §4 ("Kernel paths").
@@ -27,7 +27,7 @@ from collections import namedtuple
 
 import numpy as np
 
-from dkfsim.core.jit import KERNELS_ENV, LazyKernels, kernel_path  # noqa: F401  (re-exported)
+from dkfsim.core.jit import KERNELS_ENV, LazyKernels  # noqa: F401  (KERNELS_ENV re-exported)
 
 #: The kernels, callees before callers (numba resolves a callee by its module global).
 _KERNELS = ("_predict", "_eliminate", "_back_substitute", "_posterior", "_nan", "_step", "window_rows", "filter_rows",
@@ -42,9 +42,10 @@ _lazy = LazyKernels(__name__, _KERNELS, inline=_INLINE)
 
 #: The filters' model: ``Phi``, ``Q`` and the prior of each filter, ``x0`` (b, nx), ``P0`` (b, nx, nx).
 Model = namedtuple("Model", "Phi Q x0 P0")
-#: The window filter's ring, slot ``row % S`` (:class:`~dkfsim.estimators.window.WindowState`):
-#: per node the estimates ``x``, ``P``, the gain ``G = P Pp^-1``, the information sums
-#: ``Omega``, ``Theta`` and the origins held (``held``, no origin axis without the fusion).
+#: The window filter's ring, slot ``row % S``: per node the estimates ``x``, ``P``, the gain
+#: ``G = P Pp^-1`` (:class:`~dkfsim.estimators.window.WindowState`), and from the
+#: :class:`~dkfsim.model.holdings.Holdings` the information sums ``Omega``, ``Theta`` and the
+#: origins held (``held``, no origin axis without the fusion).
 Ring = namedtuple("Ring", "x P G Omega Theta held")
 #: The cross-covariance recursion (:class:`~dkfsim.estimators.fusion.CrossCovariance`): its
 #: ring ``Xi`` (S, N, N) and the prior's ``Xi0``, the weights ``A`` (node x origin; ``unit``:

@@ -20,7 +20,8 @@ class LocalOnly(Estimator, params=LocalOnlyParams):
 
     @classmethod
     @override
-    def cost(cls, params, scenario, *, L: int, arcs: int, save: str = "estimates") -> Cost:
+    def cost(cls, params, plan) -> Cost:
+        scenario = plan.scenario
         K, n, nx = int(scenario.steps), scenario.n, scenario.nx
         return Cost(params.label, memory={"local_only": K * n * (nx + nx * nx) * B_FLOAT
                                           + existing_information_bytes(scenario)},
@@ -29,5 +30,5 @@ class LocalOnly(Estimator, params=LocalOnlyParams):
     def estimate(self) -> Estimate:
         s = self.ctx.system
         omega, theta = self.ctx.existing_information()
-        x, P = batched_filter(s.Phi, s.Q, s.x0_mean, s.P0, omega, theta)
+        x, P = batched_filter(s.Phi, s.Q, s.x0_mean, s.P0, omega, theta, self.ctx.backend)
         return Estimate(x, P)                 # traffic: zero (no port)

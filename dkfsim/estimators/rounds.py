@@ -120,7 +120,8 @@ class RoundBased(Estimator):
 
     @classmethod
     @override
-    def cost(cls, params, scenario, *, L: int, arcs: int, save: str = "estimates") -> Cost:
+    def cost(cls, params, plan) -> Cost:
+        scenario, arcs = plan.scenario, plan.n_exchange_links
         K, n, nx = int(scenario.steps), scenario.n, scenario.nx
         return Cost(params.label, memory={params.label: K * n * (nx + nx * nx) * B_FLOAT
                                           + existing_information_bytes(scenario)},

@@ -280,7 +280,9 @@ def in_order(executor: Executor, fn: Callable, tasks: Iterable[Task],
 
 
 # =========================================================================== Dask
-def _distributed():
+def dask_distributed():
+    """The ``distributed`` package (Dask), imported; a clear error naming how to install it
+    when it is missing (what the CLI checks before any work)."""
     return optional("distributed")
 
 
@@ -297,7 +299,7 @@ class DaskExecutor(Executor):
                  processes: bool = True, timeout: float = 10.0):
         if (address is None) == (n_workers is None):
             raise ValueError("give exactly one of address and n_workers")
-        distributed = _distributed()
+        distributed = dask_distributed()
         self._cluster = None
         self._futures: dict = {}
         if address is not None:
@@ -324,7 +326,7 @@ class DaskExecutor(Executor):
             self.label = f"Dask LocalCluster ({n_workers} worker {kind})"
 
     def imap_unordered(self, fn, tasks):
-        distributed = _distributed()
+        distributed = dask_distributed()
         client = self._client
         todo = iter(tasks)
         keys = self._futures

@@ -51,6 +51,7 @@ from dkfsim.analysis.metrics import (
 from dkfsim.components.topology import generator_params
 from dkfsim.config.dynamics import component_names
 from dkfsim.config.load import load_scenario, scenario_hash
+from dkfsim.config.plan import RunPlan
 from dkfsim.config.schema import Scenario
 from dkfsim.core.errors import DkfsimError
 from dkfsim.core.folders import staged, write_json
@@ -86,7 +87,7 @@ def components_of(scenario) -> list[str]:
     return component_names(scenario.model.kind, scenario.nx)
 
 
-def _check_burn_in(burn_in: int | None, K: int) -> int:
+def check_burn_in(burn_in: int | None, K: int) -> int:
     if burn_in is None:
         return default_burn_in(K)
     if not 0 <= int(burn_in) < K:
@@ -113,27 +114,34 @@ class Template:
     """What every run of a Monte Carlo shares, validated and built once.
 
     ``scenario``: the base scenario with its random topology pinned
-    (:func:`pinned_topology`), validated once; ``system``: its
-    :func:`~dkfsim.model.system.build_system`.  Nothing of either depends on
-    the seed, so run ``r`` is ``scenario`` with the seed replaced
-    (:meth:`scenario_for`: a copy, not a re-validation) simulated on ``system``
-    -- the same run, field for field, as ``load_scenario(scenario,
-    overrides=pinned + ["seed=S"])`` would give (tests/test_montecarlo_setup.py).
-    A scenario with ``plugins`` is re-validated per run as before: validation is
-    what imports the plugins, and a fresh worker process may not have them yet.
+    (:func:`pinned_topology`), validated once; ``plan``: its
+    :class:`~dkfsim.config.plan.RunPlan` (graphs, delay bound, buffer lengths, worked out
+    here once); ``system``: its :func:`~dkfsim.model.system.build_system`.  Nothing of
+    these depends on the seed, so run ``r`` is ``scenario`` with the seed replaced
+    (:meth:`scenario_for`: a copy, not a re-validation) simulated on ``system`` with
+    the plan (:meth:`plan_for`: the same facts, shared) -- the same run, field for field,
+    as ``load_scenario(scenario, overrides=pinned + ["seed=S"])`` would give
+    (tests/test_montecarlo_setup.py).  A scenario with ``plugins`` is re-validated and
+    planned per run as before: validation is what imports the plugins, and a fresh
+    worker process may not have them yet.
     """
 
     def __init__(self, scenario):
         sc = scenario if isinstance(scenario, Scenario) else load_scenario(scenario)
         self.scenario = load_scenario(sc, overrides=pinned_topology(sc))
-        self.scenario.exchange()             # the graph and exchange graph, kept by every copy
-        self.system = None if self.scenario.plugins else build_system(self.scenario)
+        plain = not self.scenario.plugins
+        self.plan = RunPlan(self.scenario, "estimates").resolve() if plain else None
+        self.system = build_system(self.scenario) if plain else None
 
     def scenario_for(self, seed: int) -> Scenario:
         """The scenario of the run with seed ``seed``."""
         if self.scenario.plugins:
             return load_scenario(self.scenario, overrides=[f"seed={int(seed)}"])
         return self.scenario.model_copy(update={"seed": int(seed)})
+
+    def plan_for(self, scenario: Scenario) -> RunPlan:
+        """The plan of ``scenario`` (:meth:`scenario_for`): the template's, shared."""
+        return self.plan.with_seed(scenario) if self.plan is not None else RunPlan(scenario, "estimates")
 
 
 def run_rows(scenario, seed: int, burn_in: int | None = None, *,
@@ -153,9 +161,9 @@ def run_rows(scenario, seed: int, burn_in: int | None = None, *,
     """
     tpl = scenario if isinstance(scenario, Template) else Template(scenario)
     sc = tpl.scenario_for(seed)
-    burn = _check_burn_in(burn_in, int(sc.steps))
+    burn = check_burn_in(burn_in, int(sc.steps))
     with np.errstate(all="ignore"):          # a diverging run gives inf / nan rows, no warnings
-        res = Run(sc, save="estimates", system=tpl.system).run()
+        res = Run(sc, save="estimates", system=tpl.system, plan=tpl.plan_for(sc)).run()
         scored = res.scored(burn)            # one NEES per estimate, for the rows and the curves
         rows = [{**row, "seed": int(seed)} for row in res.rows(burn, scored)]
         return rows, (_curves(res, scored) if curves else None)
@@ -239,7 +247,7 @@ def montecarlo(scenario, runs: int, jobs: int | None = None, burn_in: int | None
         raise DkfsimError(f"--runs: must be an integer >= 1, got {runs!r}")
     executors.check_jobs(jobs)
     sc = scenario if isinstance(scenario, Scenario) else load_scenario(scenario)
-    burn = _check_burn_in(burn_in, int(sc.steps))
+    burn = check_burn_in(burn_in, int(sc.steps))
     workers = executor.workers if isinstance(executor, executors.Executor) else \
         min(jobs or executors.available_cpus(), runs)
     check_montecarlo(sc, runs, workers, yes=yes)
@@ -271,7 +279,7 @@ def _montecarlo(sc, runs: int, jobs, burn: int, progress, executor) -> "MonteCar
         if own:
             ex.close()
     wall = time.perf_counter() - t0
-    return MonteCarloResult(sc, runs, ex.workers, burn, seeds, rows, fold, wall, ex.label)
+    return MonteCarloResult(sc, runs, ex.workers, burn, seeds, rows, fold, wall, ex.label, template.plan)
 
 
 def estimate_montecarlo(sc, runs: int, jobs: int) -> Cost:
@@ -300,8 +308,10 @@ class MonteCarloResult:
     """
 
     def __init__(self, scenario, runs, jobs, burn_in, seeds, rows, fold: _Fold, wall,
-                 executor: str = "this process"):
+                 executor: str = "this process", plan: RunPlan | None = None):
         self.scenario = scenario
+        #: the facts of its runs (graphs, buffer length): its Template's plan
+        self.plan = RunPlan(scenario) if plan is None else plan
         self.runs = runs
         self.jobs = jobs
         self.executor = executor
@@ -398,9 +408,9 @@ class MonteCarloResult:
             "steps": sc.steps,
             "protocol": sc.protocol,
             "fusion": sc.fusion,
-            "buffer_length": sc.resolved_buffer_length(),
-            "d_t": sc.resolved_d_t(),
-            "d_g": sc.exchange().d_g,
+            "buffer_length": self.plan.buffer_length(),
+            "d_t": self.plan.d_t,
+            "d_g": self.plan.exchange.d_g,
             "burn_in": self.burn_in,
             "jobs": self.jobs,
             "wall_time_s": self.wall_time_s,

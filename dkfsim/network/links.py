@@ -192,11 +192,12 @@ class Network:
         self.links.append(link)
         return link
 
-    def port(self, name: str, receive: Receive, links: list[Link] | None = None,
+    def port(self, name: str, receive: Receive | None, links: list[Link] | None = None,
              until: int | None = None) -> Port:
-        """A new port for an estimator: ``receive(link, payload)`` gets its deliveries;
-        ``links`` are the links it reports on (default: those it uses); deliveries
-        after ``until`` ns (default: the run's last tick) stay in flight."""
+        """A new port for an estimator: ``receive(link, payload)`` gets its deliveries (None:
+        its owner moves its packets itself and reports their counts, :meth:`Port.set_counts`);
+        ``links`` are the links it reports on (default: those it uses); deliveries after
+        ``until`` ns (default: the run's last tick) stay in flight."""
         p = Port(self, name, receive, links, until)
         self.ports.append(p)
         return p
@@ -211,7 +212,7 @@ class Port:
     order of a port's deliveries is all that matters, and that is kept.
     """
 
-    def __init__(self, network: Network, name: str, receive: Receive, links: list[Link] | None = None,
+    def __init__(self, network: Network, name: str, receive: Receive | None, links: list[Link] | None = None,
                  until: int | None = None):
         self.net = network
         self.env = network.env
@@ -287,6 +288,8 @@ class Port:
         crashes = self.net.crashes
         delivered = self._count["delivered"]
         receive = self._receive
+        if receive is None:
+            raise RuntimeError(f"port {self.name!r} has no receiver: its owner delivers its own packets")
         for k in range(0, len(due), 2):
             link = due[k]
             if crashes is not None and crashes.down(link.dst, now):

@@ -9,9 +9,9 @@ What a packet carries: for each row it mentions, an information-form
 aggregate ``(theta, omega)`` and the set of origins it includes, as a
 bitmask.  With fixed weights the aggregate is a *linear function of that
 set* (``sum_o c_o (theta_o, omega_o)``, ``c_o`` the product of the weights
-along the path from ``o``), so the bitmask stands for it on the wire and the
-receiving node's :class:`~dkfsim.estimators.window.WindowFilter`
-materialises the numbers for every node at once when it updates.  Traffic
+along the path from ``o``), so the bitmask stands for it on the wire: a protocol
+reports what a node newly holds to the run's :class:`~dkfsim.model.holdings.Holdings`,
+which materialises the numbers for every node at once when the window filter updates.  Traffic
 is counted with the nominal size of the numbers (:func:`row_bytes`).
 
 A contribution for a row that is already final at the receiver is *late*:
@@ -29,7 +29,9 @@ A protocol is a subclass of :class:`Exchange` that implements three hooks:
 helpers :meth:`~Exchange.measuring_nodes`, :meth:`~Exchange.gain`,
 :meth:`~Exchange.schedule_flush` and :meth:`~Exchange.send`.  Overriding
 :meth:`~Exchange.schedule_flush` (with :meth:`~Exchange.flush_later`)
-changes *when* a node sends (docs/examples/tick_flood.py).
+changes *when* a node sends (docs/examples/tick_flood.py).  :class:`Wiring` (the links
+indexed locally) and :func:`exchange_counts` are what a protocol that is not an
+:class:`Exchange` shares with them (the compiled twin of ``tree``).
 """
 
 from __future__ import annotations
@@ -42,6 +44,7 @@ from simpy.events import Event
 
 from dkfsim.components.faults import CrashSchedule
 from dkfsim.core.bits import mask_words, set_bits
+from dkfsim.model.holdings import Holdings
 from dkfsim.network.links import PRIORITY_FLUSH, Clock, Link, Port, Scheduled
 
 #: Bytes of a packet's header (sequence number, sender, receiver, length).
@@ -52,6 +55,31 @@ def row_bytes(nx: int, n: int) -> int:
     """Nominal bytes of one row of a packet: the row number, ``theta`` (nx floats),
     the upper triangle of ``omega`` and the origin bitmask."""
     return 8 + 8 * (nx + nx * (nx + 1) // 2) + -(-n // 8)
+
+
+class Wiring:
+    """The links an exchange runs over, indexed locally: ``links[e]`` is link ``e``
+    (``lid[link.id] == e``), ``out_links[j]`` node ``j``'s out-links in order, ``reverse[e]``
+    the local index of the link back (``None`` without one)."""
+
+    def __init__(self, links: Sequence[Link], n: int):
+        self.links = list(links)
+        self.lid = {link.id: i for i, link in enumerate(self.links)}
+        self.n_links = len(self.links)
+        self.out_links: list[list[Link]] = [[] for _ in range(n)]
+        for link in self.links:
+            self.out_links[link.src].append(link)
+        by_arc = {(l.src, l.dst): i for i, l in enumerate(self.links)}
+        self.reverse = [by_arc.get((l.dst, l.src)) for l in self.links]
+
+
+def exchange_counts(late: int, late_per_node: list[int], logged: bool, duplicates: int,
+                    stale: int) -> dict[str, Any]:
+    """An exchange's own counts as :meth:`Exchange.counts` reports them (``late`` counts
+    contributions when the arrival log is kept, ``logged``, else packet rows)."""
+    return {"late": late, "late_per_node": list(late_per_node),
+            "late_unit": "contributions" if logged else "packet_rows",
+            "duplicates": duplicates, "stale": stale}
 
 
 class RowState:
@@ -72,8 +100,8 @@ class RowState:
 class Exchange:
     """Common machinery: rows, holdings, late accounting, the arrival log, flushes.
 
-    :param window: the :class:`~dkfsim.estimators.window.WindowFilter` told of every newly
-        held contribution.
+    :param holdings: the :class:`~dkfsim.model.holdings.Holdings` told of every newly held
+        contribution (:meth:`gain`).
     :param arrival: optional (n, n, K) array filled with ``inf``: the arrival
         log of docs/design.md §8 (late arrivals are logged too).
     :param late_horizon: with the arrival log, how many final rows keep their
@@ -91,13 +119,13 @@ class Exchange:
     #: (every arc of the topology; undirected edges both ways).
     graph = "digraph"
 
-    def __init__(self, env: Clock, n: int, window: Any, arrival: np.ndarray | None = None,
+    def __init__(self, env: Clock, n: int, holdings: Holdings, arrival: np.ndarray | None = None,
                  late_horizon: int = 4096, nx: int = 1, T_ns: int = 1):
         self.env = env
         self.T_ns = int(T_ns)
         self.row_bytes = row_bytes(nx, n)
         self.n = n
-        self.window = window
+        self.holdings = holdings
         self.arrival = arrival
         #: with the arrival log: node, origin mask, row, ns (flat, four entries per item) of
         #: every newly held or late contribution, written into ``arrival`` in bulk
@@ -123,19 +151,14 @@ class Exchange:
         Links are indexed locally, ``0 .. len(links) - 1`` (``self.lid[link.id]``).
         """
         self.port = port
-        self.links = list(links)
-        self.lid = {link.id: i for i, link in enumerate(self.links)}
-        self.n_links = len(self.links)
+        wiring = Wiring(links, self.n)
+        self.links, self.lid, self.n_links = wiring.links, wiring.lid, wiring.n_links
+        self.out_links, self.reverse = wiring.out_links, wiring.reverse
         #: per link: delivered packets that carried a contribution for a row
         #: already final at the receiver.
         self.late_packets = [0] * self.n_links
         #: per link: the number of the last packet sent (links reorder: receivers keep the newest)
         self.seq = [0] * self.n_links
-        self.out_links: list[list[Link]] = [[] for _ in range(self.n)]
-        for link in self.links:
-            self.out_links[link.src].append(link)
-        by_arc = {(l.src, l.dst): i for i, l in enumerate(self.links)}
-        self.reverse = [by_arc.get((l.dst, l.src)) for l in self.links]
 
     def send(self, link: Link, items: Sequence[tuple[int, int]]) -> None:
         """Send one packet on ``link`` carrying ``items``, ``(row, origin mask)`` pairs (numbered
@@ -214,7 +237,7 @@ class Exchange:
         """``node`` now holds the contributions ``bits`` (origin mask) of live ``row``, whose
         state is ``st``; the bits must be new to it (``bits & st.held[node] == 0``)."""
         st.held[node] |= bits
-        self.window.add_mask(node, bits, row)
+        self.holdings.add(node, bits, row)
         if self._log is not None:            # the arrival log (--save full) only
             self._log.extend((node, bits, row, self.env.now))
 
@@ -284,6 +307,5 @@ class Exchange:
 
     def counts(self) -> dict[str, Any]:
         """The exchange's own counts: ``late`` (in ``late_unit``), per node, duplicates, stale."""
-        return {"late": self.late, "late_per_node": list(self.late_per_node),
-                "late_unit": "contributions" if self.arrival is not None else "packet_rows",
-                "duplicates": self.duplicates, "stale": self.stale}
+        return exchange_counts(self.late, self.late_per_node, self.arrival is not None, self.duplicates,
+                               self.stale)

@@ -1,5 +1,5 @@
-"""``tree`` with its instants compiled: the same protocol, packets and counts as
-:class:`~dkfsim.protocols.tree.TreeExchange`, a few kernel calls per instant instead of
+"""``tree`` with its instants compiled: a twin of :class:`~dkfsim.protocols.tree.TreeExchange`
+(the same protocol, packets, counts and folds), a few kernel calls per instant instead of
 Python per packet.
 
 SimPy still runs the clock: one event per arrival instant (deliveries), the tick's
@@ -7,60 +7,90 @@ measure, one event per instant that flushes the due nodes (priority after delive
 before the update), in the order the Python protocol creates them.  Inside, the kernels of
 :mod:`dkfsim.protocols.tree_compiled_kernels` keep every row's holdings, messages and
 sequence numbers as uint64 words, draw each packet's latency from its link's keys, keep
-packets in flight on a heap and fold new contributions straight into the window filter.
+packets in flight on a heap and fold new contributions straight into the run's
+:class:`~dkfsim.model.holdings.Holdings`.
 
-Used by the anti-delay DKF when it can be (:func:`usable`): numba kernels, origin bitmasks
-needed (fusion, weights or the arrival log), no crashes, and every link plain (no loss,
+A twin by composition, not a subclass: it is not an :class:`~dkfsim.protocols.base.Exchange`
+(its port delivers nothing; ``receive`` is None), and shares with one only the local
+indexing of the links (:class:`~dkfsim.protocols.base.Wiring`) and the form of the counts
+(:func:`~dkfsim.protocols.base.exchange_counts`).  The engine decides where it runs, once
+per run (:func:`exchange_class`, :func:`usable`, :class:`~dkfsim.core.backend.Backend`):
+the compiled exchange on the numba path, no crashes, and every link plain (no loss,
 duplication, outage, schedule or jitter) with a ``constant`` or ``uniform_steps`` latency.
 Anything else runs the Python protocol.  docs/design.md §5 ("Compiled tree").
 """
 
 from __future__ import annotations
 
-import os
-
 import numpy as np
 from simpy.events import NORMAL
-from typing_extensions import override
 
+from dkfsim.core.backend import EXCHANGE_ENV, Backend  # noqa: F401  (EXCHANGE_ENV re-exported)
 from dkfsim.core.jit import entry_point
+from dkfsim.core.registry import PROTOCOLS
+from dkfsim.model.holdings import Holdings
 from dkfsim.network.links import PRIORITY_FLUSH, Scheduled
 from dkfsim.protocols import tree_compiled_kernels as tk
-from dkfsim.protocols.base import PACKET_HEADER
+from dkfsim.protocols.base import PACKET_HEADER, Wiring, exchange_counts, row_bytes
 from dkfsim.protocols.tree import TreeExchange
 
-#: Environment variable: ``python`` runs the Python protocol where the compiled one would run.
-EXCHANGE_ENV = "DKFSIM_EXCHANGE"
 
-
-def usable(links, kernels: str, crashes) -> bool:
-    """Whether :class:`CompiledTreeExchange` can run these ``links`` (see the module)."""
-    if os.environ.get(EXCHANGE_ENV, "").strip().lower() == "python":
-        return False
-    return (kernels == "numba" and not crashes
+def usable(protocol: str, links, crashes) -> bool:
+    """Whether ``protocol`` has a compiled twin that can run over these ``links`` with these
+    crash windows (see the module)."""
+    return (PROTOCOLS.get(protocol).implementation is TreeExchange and not crashes
             and all(link.compiled_latency() is not None for link in links))
 
 
-class CompiledTreeExchange(TreeExchange):
-    """The ``tree`` protocol with its instants compiled (identical packets and counts)."""
+def exchange_class(protocol: str, backend: Backend) -> type:
+    """The class that runs ``protocol`` on ``backend``: its compiled twin when the backend's
+    exchange is compiled and it has one (``tree``), else the registered implementation."""
+    impl = PROTOCOLS.get(protocol).implementation
+    if backend.compiled_exchange and impl is TreeExchange:
+        return CompiledTreeExchange
+    return impl
 
+
+class CompiledTreeExchange:
+    """The ``tree`` protocol with its instants compiled (identical packets, counts and folds).
+
+    The constructor and the hooks the anti-delay DKF calls are those of an
+    :class:`~dkfsim.protocols.base.Exchange`: :meth:`attach`, :meth:`open_row`,
+    :meth:`measure`, :meth:`close_row`, :meth:`finish`, :meth:`counts`, :attr:`late_packets`.
+    """
+
+    tree = TreeExchange.tree
+    graph = TreeExchange.graph
     bookkeeping = "masks, compiled"
+    #: Its kernels deliver its packets: the port it is attached to delivers none.
+    receive = None
+    #: (Runs only without crash windows.)
+    crashes = None
     #: Packets the pool holds at first (it doubles when a flush needs more).
     initial_pool = 64
 
-    def __init__(self, env, n, window, arrival=None, late_horizon=4096, nx=1, T_ns=1):
-        super().__init__(env, n, window, arrival, late_horizon, nx, T_ns)
-        self._log = None                 # the kernels write the arrival log themselves
+    def __init__(self, env, n: int, holdings: Holdings, arrival=None, late_horizon: int = 4096, nx: int = 1,
+                 T_ns: int = 1):
+        self.env = env
+        self.n = n
+        self.holdings = holdings
+        self.arrival = arrival
+        self.late_horizon = late_horizon
+        self.T_ns = int(T_ns)
+        self.row_bytes = row_bytes(nx, n)
         self._k = tk.compiled()
-        self.W = -(-window.theta.shape[1] // 64)
+        self.W = -(-holdings.info.theta.shape[1] // 64)
         self.CT = np.zeros(11, dtype=np.int64)
         self._flush_pending = False
 
     def attach(self, port, links) -> None:
-        super().attach(port, links)
-        n, E, S, W = self.n, self.n_links, self.window.S, self.W
+        """Run over ``links`` (the exchange graph's arcs, in order), reporting the counts to ``port``."""
+        self.port = port
+        self.wiring = wiring = Wiring(links, self.n)
+        self.links, self.n_links = wiring.links, wiring.n_links
+        n, E, S, W = self.n, self.n_links, self.holdings.S, self.W
         self.G = np.array([[l.src, l.dst, -1 if r is None else r, 0]
-                           for l, r in zip(self.links, self.reverse)], dtype=np.int64).reshape(E, 4)
+                           for l, r in zip(self.links, wiring.reverse)], dtype=np.int64).reshape(E, 4)
         order = np.argsort(self.G[:, 0], kind="stable")      # out-links of a node in link order
         self.out_ptr = np.searchsorted(self.G[order, 0], np.arange(n + 1)).astype(np.int64)
         self.out_idx = order.astype(np.int64)
@@ -86,20 +116,19 @@ class CompiledTreeExchange(TreeExchange):
         self.new = np.zeros(W, dtype=np.uint64)
         self.out = np.zeros(W, dtype=np.uint64)
         self._pool(max(self.initial_pool, 4 * E) if self.initial_pool > 1 else 1)
-        w, info = self.window, self.window.info
         logf = self.arrival is not None
         # With the arrival log: the holdings of the last late_horizon final rows (late accounting).
-        H = min(self.late_horizon, w.theta.shape[0] + 1) if logf else 1     # never more than the rows
+        K = self.holdings.info.theta.shape[0]
+        H = min(self.late_horizon, K + 1) if logf else 1     # never more than the rows
         self.fheld = np.zeros((H, n if logf else 1, W), dtype=np.uint64)
         self.frow = np.full(H, -1, dtype=np.int64)
-        # The kernels' arguments (tree_compiled_kernels: Rows, Links, Pool, Fold, Log).
+        # The kernels' arguments (tree_compiled_kernels: Rows, Links, Pool, Log; the holdings' Fold).
         self._k_rows = tk.Rows(self.CT, self.rowid, self.held, self.inbox, self.inseq, self.sent, self.dirty,
                                self.due, self.queue, self.new, self.out)
         self._k_links = tk.Links(self.G, self.out_ptr, self.out_idx, self.lkind, self.lkey, self.lpar, self.dinst,
                                  self.dcnt, self.lseq, self.counts_, self.late_node, PACKET_HEADER, self.row_bytes,
                                  self.T_ns)
-        self._k_fold = tk.Fold(w.A, info.omega if info.varying else info.omega[None], bool(info.varying), w.theta,
-                               w.state.Omega, w.state.Theta, w.state.held, w.starts_in)
+        self._k_fold = self.holdings.fold_target
         self._k_log = tk.Log(logf, self.arrival if logf else np.empty((1, 1, 1)), self.fheld, self.frow)
         self._bind()
         # Compiled entry points of exactly these argument types (numba's per-call type
@@ -112,7 +141,7 @@ class CompiledTreeExchange(TreeExchange):
     def _pool(self, P: int) -> None:
         """A packet pool of ``P`` slots (the heap holds at most that many); grows, keeping
         the packets in flight."""
-        S, W = self.window.S, self.W
+        S, W = self.holdings.S, self.W
         pk = np.zeros((P, 3), dtype=np.int64)
         rows = np.zeros((P, S), dtype=np.int64)
         masks = np.zeros((P, S, W), dtype=np.uint64)
@@ -149,7 +178,7 @@ class CompiledTreeExchange(TreeExchange):
     def close_row(self, row: int) -> None:
         """``row`` became final: what arrives for it from now on is late."""
         self.CT[tk.LO] = row + 1
-        slot = row % self.window.S
+        slot = row % self.holdings.S
         if self.rowid[slot] == row:
             self.rowid[slot] = -1
             if self.arrival is not None:          # keep its holdings: late ones count once
@@ -182,10 +211,6 @@ class CompiledTreeExchange(TreeExchange):
             self._flush_pending = True
             Scheduled(self.env, self._on_flush, PRIORITY_FLUSH)
 
-    @override
-    def receive(self, link, payload) -> None:
-        raise RuntimeError("the compiled tree exchange receives nothing through its port")
-
     # -- results ---------------------------------------------------------------
     def finish(self) -> None:
         """Write the kernels' per-link counts into the port (what ``port.counts()`` reports);
@@ -196,13 +221,10 @@ class CompiledTreeExchange(TreeExchange):
 
     @property
     def late_packets(self) -> list[int]:
+        """Per link: delivered packets that carried a contribution for a row already final."""
         return self.counts_[2].tolist()
 
-    @late_packets.setter
-    def late_packets(self, _value) -> None:
-        """(The base class sets a list in ``attach``; the kernels count into an array.)"""
-
     def counts(self) -> dict:
-        return {"late": int(self.CT[tk.LATE]), "late_per_node": self.late_node.tolist(),
-                "late_unit": "contributions" if self.arrival is not None else "packet_rows",
-                "duplicates": 0, "stale": int(self.CT[tk.STALE])}
+        """The exchange's own counts, as :meth:`Exchange.counts <dkfsim.protocols.base.Exchange.counts>`."""
+        return exchange_counts(int(self.CT[tk.LATE]), self.late_node.tolist(), self.arrival is not None, 0,
+                               int(self.CT[tk.STALE]))

@@ -6,14 +6,16 @@ sent), :func:`measure` a new row, or :func:`flush_all` the nodes that gained som
 (each flush's zero-latency packets delivered before the next node flushes).  Packets wait
 in a binary heap ordered by (arrival instant, send order); their latencies are the links'
 keyed draws (:func:`dkfsim.core.streams.keyed_uniform`, bit for bit) for ``constant`` and
-``uniform_steps`` links.  New contributions are folded straight into the window filter's
-ring, in the order the Python protocol reports them, so the sums are the same numbers.
+``uniform_steps`` links.  New contributions are folded straight into the run's
+:class:`~dkfsim.model.holdings.Holdings` (:func:`dkfsim.model.holdings_kernels.fold`, inlined
+here; its file is pinned by sha256, :data:`BORROWS`), in the order the Python protocol
+reports them, so the sums are the same numbers.
 
 The kernels' arrays are grouped in the module-level namedtuples below (:class:`Rows` the
 exchange's window rows, :class:`Links` the out-links, :class:`Pool` the packets in flight,
-:class:`Fold` the window filter they fold into, :class:`Log` the arrival log): numba loads a
-kernel taking namedtuples from its disk cache like one taking arrays, and a namedtuple type
-must be importable by name for that.  The steps a kernel runs per packet or contribution
+:class:`Log` the arrival log) and the holdings' :class:`~dkfsim.model.holdings_kernels.Fold`:
+numba loads a kernel taking namedtuples from its disk cache like one taking arrays, and a
+namedtuple type must be importable by name for that.  The steps a kernel runs per packet or contribution
 are inlined into it (``_INLINE``) and read the namedtuples' fields in place (``X.held[...]``):
 bound to locals at the top of a step, the fields left reference counting in the packet loop
 that numba could not remove (docs/decisions.md 120).  The scalar state lives in one int64
@@ -27,12 +29,17 @@ from collections import namedtuple
 import numpy as np
 
 from dkfsim.core.jit import LazyKernels
+from dkfsim.model import holdings_kernels as hk
 
-_KERNELS = ("keyed_uniform", "_bit", "_fold", "fold_masks", "_push", "_pop", "_enqueue", "_receive", "deliver",
-            "measure", "_pack", "_send", "flush_all")
+_KERNELS = ("keyed_uniform", "_log_arrivals", "_push", "_pop", "_enqueue", "_receive", "deliver", "measure", "_pack",
+            "_send", "flush_all")
 #: Steps inlined into the kernels that call them per packet or contribution.
-_INLINE = ("_bit", "_fold", "_push", "_pop", "_enqueue", "_receive", "_pack", "_send")
-_lazy = LazyKernels(__name__, _KERNELS, inline=_INLINE)
+_INLINE = ("_log_arrivals", "_push", "_pop", "_enqueue", "_receive", "_pack", "_send")
+#: Kernel files of other modules whose steps these kernels inline, with the sha256 of the
+#: file they were written against: numba's cache does not see an edit there, so after one
+#: these kernels compile without the cache until the pin is updated (docs/decisions.md 131).
+BORROWS = {"dkfsim.model.holdings_kernels": "f5ba9bd99b4d6598cc258c4188fda9f3e2d0e1645766f96dd735e008fe277ffd"}
+_lazy = LazyKernels(__name__, _KERNELS, inline=_INLINE, borrows=BORROWS)
 
 # CT indices
 HEAP, NFREE, QHEAD, QLEN, LO, HI, ORDER, LATE, STALE, NEWT, NTIMES = range(11)
@@ -58,11 +65,6 @@ Links = namedtuple("Links", "G out_ptr out_idx kind key par dinst dcnt seq count
 #: arrival instants that have an event (``times``), those new since the flush began (``newt``),
 #: and the packet being filled per out-link of the flushing node (``outp``, -1: none).
 Pool = namedtuple("Pool", "heap_t heap_o heap_p free pk rows masks times newt outp")
-#: Where contributions are folded: the window filter's weights ``A`` (node x origin), the
-#: information ``omega`` (1 or K, origin, nx, nx; per row when ``varying``) and ``theta``, and its
-#: ring: ``Omega``, ``Theta``, ``held`` (slot x node x origin; no origin axis when the fusion
-#: does not need it) and ``starts`` (each node's earliest changed row).
-Fold = namedtuple("Fold", "A omega varying theta Omega Theta held starts")
 #: The arrival log (``on``: kept): ``arrival`` (node, origin, row) in seconds, and the holdings
 #: ``fheld`` of the last final rows ``frow``, so that a late contribution counts once.
 Log = namedtuple("Log", "on arrival fheld frow")
@@ -74,13 +76,6 @@ _S30, _S27, _S31, _S11 = np.uint64(30), np.uint64(27), np.uint64(31), np.uint64(
 _ONE = np.uint64(1)
 _ZERO = np.uint64(0)
 _SCALE = 1.0 / 9007199254740992.0
-#: De Bruijn multiplication: the index of a word's lowest set bit without scanning the others.
-_DEBRUIJN = 0x03F79D71B4CB0A89
-_BIT_INDEX = np.zeros(64, dtype=np.int64)
-for _i in range(64):
-    _BIT_INDEX[(((1 << _i) * _DEBRUIJN) & ((1 << 64) - 1)) >> 58] = _i
-_DB = np.uint64(_DEBRUIJN)
-_S58 = np.uint64(58)
 
 
 def compiled():
@@ -100,43 +95,15 @@ def keyed_uniform(key, t, seq):
     return (np.float64((z ^ (z >> _S31)) >> _S11) + 0.5) * _SCALE
 
 
-def _bit(low):
-    """The index of the one set bit of ``low`` (a word's lowest set bit, ``m & -m``)."""
-    return _BIT_INDEX[(low * _DB) >> _S58]
-
-
-def _fold(node, row, bits, F, t_s, log):
-    """Add origins ``bits`` (words) of ``row`` to ``node``'s sums, origins ascending; with the
-    log on, log each origin's arrival at ``t_s`` seconds."""
-    S = F.Omega.shape[0]
-    nx = F.Omega.shape[2]
-    slot = row % S
-    r_om = row if F.varying else 0
+def _log_arrivals(node, row, bits, t_s, log):
+    """With the arrival log on, log that ``node`` gained the origins ``bits`` (words) of
+    ``row`` at ``t_s`` seconds."""
     for w in range(bits.shape[0]):
         m = bits[w]
         while m != _ZERO:
             low = m & (~m + _ONE)
             m ^= low
-            org = w * 64 + _bit(low)
-            a = F.A[node, org]
-            if F.held.shape[2]:                    # only kept when the fusion needs it
-                F.held[slot, node, org] = True
-            if log.on:
-                log.arrival[node, org, row] = t_s
-            for p in range(nx):
-                for q in range(nx):
-                    F.Omega[slot, node, p, q] += a * F.omega[r_om, org, p, q]
-                F.Theta[slot, node, p] += a * F.theta[row, org, p]
-    if row < F.starts[node]:
-        F.starts[node] = row
-
-
-def fold_masks(i, r, words, F):
-    """:func:`_fold` for many contributions, in order: ``words[k]`` holds the origins of node
-    ``i[k]`` for row ``r[k]`` (the window filter's fold of what a Python protocol reported)."""
-    nolog = Log(False, np.empty((1, 1, 1)), np.empty((1, 1, 1), dtype=np.uint64), np.empty(1, dtype=np.int64))
-    for k in range(i.shape[0]):
-        _fold(i[k], r[k], words[k], F, 0.0, nolog)
+            log.arrival[node, w * 64 + hk.bit_index(low), row] = t_s
 
 
 def _push(CT, P, t, p):
@@ -211,7 +178,7 @@ def _receive(p, now, X, L, P, F, log):
                     m ^= low
                     late += 1
                     if log.frow[h] == row:
-                        log.arrival[j, w * 64 + _bit(low), row] = t_s
+                        log.arrival[j, w * 64 + hk.bit_index(low), row] = t_s
             continue
         if seq <= X.inseq[slot, e]:
             X.CT[STALE] += 1
@@ -227,7 +194,9 @@ def _receive(p, now, X, L, P, F, log):
         if some:
             for w in range(W):
                 X.held[slot, j, w] |= X.new[w]
-            _fold(j, row, X.new, F, t_s, log)
+            hk.fold(j, row, X.new, F)
+            if log.on:
+                _log_arrivals(j, row, X.new, t_s, log)
             X.dirty[j, slot] = 1
             gained = True
     if any_late:
@@ -281,7 +250,9 @@ def measure(row, now, X, F, log):
         X.new[:] = _ZERO
         X.new[i // 64] = _ONE << np.uint64(i % 64)
         X.held[slot, i, i // 64] |= X.new[i // 64]
-        _fold(i, row, X.new, F, now / 1e9, log)
+        hk.fold(i, row, X.new, F)
+        if log.on:
+            _log_arrivals(i, row, X.new, now / 1e9, log)
         X.dirty[i, slot] = 1
         _enqueue(i, X)
 

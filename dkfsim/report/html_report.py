@@ -27,6 +27,7 @@ import yaml
 from dkfsim.analysis.grid import grid_columns, summarize
 from dkfsim.config.dynamics import component_names
 from dkfsim.config.load import stored_scenario
+from dkfsim.config.plan import RunPlan
 from dkfsim.config.results import (
     MonteCarloSummary,
     RunSummary,
@@ -153,7 +154,8 @@ def _network(sc, note: str = "") -> str:
         return (f"<p class='note'>No drawing: the stored scenario is shown as stored, not validated "
                 f"({html.escape(sc.reason)}).</p>")
     try:
-        graph, xg = sc.graph(), sc.exchange()
+        plan = RunPlan(sc)
+        graph, xg = plan.graph, plan.exchange
     except DkfsimError as exc:
         return f"<p class='note'>No drawing: {html.escape(str(exc))}</p>"
     is_tree = not xg.graph.is_directed() and nx_is_tree(xg.graph)

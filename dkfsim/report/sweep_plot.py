@@ -23,17 +23,17 @@ from dkfsim.core.extras import pyplot
 from dkfsim.core.params import suggest
 from dkfsim.core.registry import METRICS
 from dkfsim.experiments.sweep_summary import read_table
-from dkfsim.report.plots.folders import _units
+from dkfsim.report.plots.folders import component_units
 from dkfsim.report.plots.style import (
     DEFAULT_FORMATS,
-    _check_formats,
-    _order,
-    _plain_log_ticks,
-    _save,
-    _unit_label,
+    check_formats,
     color_of,
+    estimate_order,
     label_of,
     plain,
+    plain_log_ticks,
+    save_figure,
+    unit_label,
 )
 
 #: y-axis label per metric (docs/estimators.md, "Tidy rows").
@@ -125,7 +125,7 @@ def sweep_curves(path, x: str | None = None, hue: str | None = None, metric: str
         if len(vals) > 1:
             raise DkfsimError(f"grid key {k} takes {len(vals)} values ({', '.join(map(str, vals))}): "
                               f"give --hue {k}, or fix it with --where {k}=VALUE")
-    names = _order({g["estimate"] for g in gs})
+    names = estimate_order({g["estimate"] for g in gs})
     if hue_key is not None:
         estimate = estimate or ("fused" if "fused" in names else names[0])
         if estimate not in names:
@@ -168,7 +168,7 @@ def sweep_curves(path, x: str | None = None, hue: str | None = None, metric: str
 def plot_sweep(path, stem, x=None, hue=None, metric="mse", estimate=None, where=(),
                formats=DEFAULT_FORMATS, title=None) -> list[Path]:
     """Draw :func:`sweep_curves` into ``stem.<format>``; return the files written."""
-    formats = _check_formats(formats)
+    formats = check_formats(formats)
     cur = sweep_curves(path, x, hue, metric, estimate, where)
     comps, xs = cur["components"], cur["xs"]
     numeric = _numeric(xs)
@@ -178,7 +178,7 @@ def plot_sweep(path, stem, x=None, hue=None, metric="mse", estimate=None, where=
                              squeeze=False)
     cmap = plt.get_cmap("viridis")
     n_lines = len(cur["lines"])
-    units = _units(comps, None) if per_component(metric) else [""] * len(comps)
+    units = component_units(comps, None) if per_component(metric) else [""] * len(comps)
     runs = set()
     for ax, comp in zip(axes[:, 0], comps):
         means = []
@@ -212,9 +212,9 @@ def plot_sweep(path, stem, x=None, hue=None, metric="mse", estimate=None, where=
         vals = vals[np.isfinite(vals) & (vals > 0)]
         if metric == "mse" and vals.size and vals.max() / vals.min() > 10:
             ax.set_yscale("log")
-            _plain_log_ticks(ax)
+            plain_log_ticks(ax)
         name = METRIC_LABELS.get(metric, metric)
-        unit = _unit_label(units[comps.index(comp)], squared=True) if metric == "mse" else ""
+        unit = unit_label(units[comps.index(comp)], squared=True) if metric == "mse" else ""
         ax.set_ylabel(f"{plain(comp)} {plain(name)}{unit}" if len(comps) > 1 or metric == "mse" else plain(name))
         ax.grid(True, which="both", alpha=0.25)
     last = axes[-1, 0]
@@ -247,4 +247,4 @@ def plot_sweep(path, stem, x=None, hue=None, metric="mse", estimate=None, where=
     if labels:
         fig.legend(handles, labels, loc="upper center", bbox_to_anchor=(0.5, 0.0),
                    ncol=2 if len(labels) > 2 else len(labels), fontsize=8.5, frameon=False)
-    return _save(fig, stem, formats)
+    return save_figure(fig, stem, formats)

@@ -40,9 +40,11 @@ class NeighbourMean(Estimator, params=NeighbourMeanParams):
 
     @classmethod
     @override
-    def cost(cls, params, scenario, *, L, arcs, save="estimates") -> Cost:
+    def cost(cls, params, plan) -> Cost:
         """Its own filter's ``x`` and ``P``, the reported ``x``, and what ``existing_information()``
-        copies (``L`` and ``save`` do not matter to it)."""
+        copies; one packet per exchange link and tick (the run plan's buffer length and save
+        mode do not matter to it)."""
+        scenario, arcs = plan.scenario, plan.n_exchange_links
         K, n, nx = int(scenario.steps), scenario.n, scenario.nx
         memory = K * n * (2 * nx + nx * nx) * B_FLOAT + existing_information_bytes(scenario)
         return Cost(params.label, memory={params.label: memory}, seconds=K * (C_TICK + arcs * C_PACKET))
@@ -51,7 +53,7 @@ class NeighbourMean(Estimator, params=NeighbourMeanParams):
         ctx = self.ctx
         s = ctx.system
         omega, theta = ctx.existing_information()
-        self.own, _ = batched_filter(s.Phi, s.Q, s.x0_mean, s.P0, omega, theta)   # (K, n, nx)
+        self.own, _ = batched_filter(s.Phi, s.Q, s.x0_mean, s.P0, omega, theta, ctx.backend)   # (K, n, nx)
         self.links = ctx.exchange_links()                # the links the scenario's protocol uses
         self.open_port(self._receive, self.links)
         self.latest = {}                                  # (receiver, sender) -> (tick, estimate)

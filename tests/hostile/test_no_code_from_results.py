@@ -208,8 +208,9 @@ BANNED_ATTRIBUTES = {"unsafe_load", "unsafe_load_all", "full_load", "full_load_a
                      "FullLoader", "read_pickle", "to_pickle", "system", "popen", "getoutput",
                      "getstatusoutput", "load_all"}
 #: Modules allowed to import code by name: plugins (explicitly asked for by a scenario that runs,
-#: or installed entry points) and the optional dependencies (fixed names).
-DYNAMIC_IMPORT_ALLOWED = {"dkfsim/core/registry.py", "dkfsim/core/extras.py"}
+#: or installed entry points), the optional dependencies (fixed names) and the kernel loader
+#: (dkfsim's own kernel modules named in code, ``BORROWS``; it refuses any other name).
+DYNAMIC_IMPORT_ALLOWED = {"dkfsim/core/registry.py", "dkfsim/core/extras.py", "dkfsim/core/jit.py"}
 DYNAMIC_IMPORTS = {"import_module", "spec_from_file_location", "exec_module", "load_module"}
 
 

@@ -13,6 +13,7 @@ from dataclasses import dataclass
 
 from dkfsim.components.latency import parse_latency
 from dkfsim.config.load import load_scenario
+from dkfsim.config.plan import RunPlan
 from dkfsim.core.errors import DkfsimError
 from dkfsim.core.registry import LATENCY_MODELS
 
@@ -123,7 +124,7 @@ class DelayAxis:
             out += [f"{path}={_const(0.0)}"] if s == 0 else _scale_overrides(path, lat, s)
         return out + self._links_d_t(j)
 
-    def _sup(self, lat: dict, s: float) -> float | None:
+    def sup_seconds(self, lat: dict, s: float) -> float | None:
         """Largest latency (s) of a model scaled by ``s``; ``None`` when unbounded."""
         sup = parse_latency(lat, self.base.base_dir).sup_ns(self.T_ns)
         return None if sup is None else s * sup / 1e9
@@ -136,14 +137,14 @@ class DelayAxis:
             if self.mode == "d_t":
                 sup = j * self.T
             else:
-                sup = self._sup(lat, self.value(j))
+                sup = self.sup_seconds(lat, self.value(j))
                 if sup is None:
                     if self.links_d_t is None:
                         return None
                     sup = self._scaled_d_t(j) * self.T
             out.append(f"{path}={_const(sup)}")
         for path, lat in self.jitters:
-            sup = self._sup(lat, 1.0 if self.mode == "d_t" else self.value(j))
+            sup = self.sup_seconds(lat, 1.0 if self.mode == "d_t" else self.value(j))
             if sup is None:
                 return None
             out.append(f"{path}={_const(sup)}")
@@ -235,7 +236,7 @@ def latencies_deterministic(sc) -> bool:
     on its measurement)."""
     if any(s.kind != "linear" for s in sc.sensors):
         return False
-    for u, v in sc.exchange().arcs:
+    for u, v in RunPlan(sc).exchange.arcs:
         spec = sc.link_spec(u, v)
         if spec.loss > 0 or (getattr(spec, "duplicate", 0.0) or 0.0) > 0:
             return False

@@ -15,7 +15,7 @@ from dkfsim.config.load import scenario_hash
 from dkfsim.core.extras import optional, pyplot
 from dkfsim.core.folders import staged, write_json
 from dkfsim.engine.results import versions
-from dkfsim.experiments.maxdelay.search import EXCEEDS, METRICS, UNDECIDED, WITHIN, SearchResult, _num, interval
+from dkfsim.experiments.maxdelay.search import EXCEEDS, METRICS, UNDECIDED, WITHIN, SearchResult, interval, json_number
 
 #: Units of the constant-acceleration model's components (other models have none).
 
@@ -62,7 +62,7 @@ class MaxDelayResult:
         st = md.st
         self.reference = None
         if st.relative is not None and md.ref:
-            det = md._candidate_scenario(0)[1]
+            det = md.candidate_scenario(0)[1]
             m, ci = interval(md.ref[:1] if det else md.ref, st.confidence)
             self.reference = {"runs": 1 if det else len(md.ref), "deterministic": det,
                               "mean": m, "ci": list(ci),
@@ -83,8 +83,8 @@ class MaxDelayResult:
             if j is None or j not in cands:
                 return None
             c = cands[j]
-            return {"delay": c.delay, "runs": c.runs, "mean": _num(c.mean), "ci": [_num(v) for v in c.ci],
-                    "excess_ci": [_num(v) for v in c.excess_ci], "decision": c.decision}
+            return {"delay": c.delay, "runs": c.runs, "mean": json_number(c.mean), "ci": [json_number(v) for v in c.ci],
+                    "excess_ci": [json_number(v) for v in c.excess_ci], "decision": c.decision}
         return {
             "status": res.status,
             "answer": None if res.answer is None else ax.value(res.answer),

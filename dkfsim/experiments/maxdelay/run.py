@@ -28,8 +28,8 @@ from dkfsim.experiments.maxdelay.search import (
     METRICS,
     UNDECIDED,
     Candidate,
+    Evaluator,
     Runner,
-    _Evaluator,
     classify,
     empirical_search,
     worst_case_scan,
@@ -154,7 +154,7 @@ class MaxDelay:
         return min(self.st.jobs or executors.available_cpus(), self.st.batch)
 
     # ------------------------------------------------------------------ helpers
-    def _candidate_scenario(self, j: int):
+    def candidate_scenario(self, j: int):
         """``(overrides, deterministic)`` of candidate ``j`` (validated once)."""
         if j not in self._scen_cache:
             ov = self.axis.overrides(j)
@@ -174,7 +174,7 @@ class MaxDelay:
     def _reference(self, upto: int, runner: Runner) -> list[float]:
         """Zero-delay values of runs ``0 .. upto-1`` (cached; the pairs of relative mode)."""
         if len(self.ref) < upto:
-            data, det = self._candidate_scenario(0)
+            data, det = self.candidate_scenario(0)
             if det:
                 if not self.ref:
                     self.ref = runner.map(self._tasks(data, [0]))
@@ -188,8 +188,8 @@ class MaxDelay:
         if j in self.cands:
             return self.cands[j]
         st = self.st
-        data, det = self._candidate_scenario(j)
-        det_ref = det and (st.relative is None or self._candidate_scenario(0)[1])
+        data, det = self.candidate_scenario(j)
+        det_ref = det and (st.relative is None or self.candidate_scenario(0)[1])
         c = Candidate(index=j, delay=self.axis.value(j), deterministic=det_ref)
         self._order += 1
         c.order = self._order
@@ -243,7 +243,7 @@ class MaxDelay:
         try:
             runner = Runner(ex, on_run=lambda k: self.progress(runs=k))
             # 1. empirical
-            emp = empirical_search(_Evaluator(self, runner), J)
+            emp = empirical_search(Evaluator(self, runner), J)
             runs_empirical = runner.runs
             # 2. deterministic worst case
             self.progress(label="worst case")
@@ -298,8 +298,8 @@ class MaxDelay:
     def _sup_at_scale_one(self) -> float | None:
         """Largest per-hop delay (s) at scale 1: latency sup plus jitter sup."""
         ax = self.axis
-        lat = [ax._sup(l, 1.0) for _, l in ax.specs]
-        jit = [ax._sup(l, 1.0) for _, l in ax.jitters]
+        lat = [ax.sup_seconds(l, 1.0) for _, l in ax.specs]
+        jit = [ax.sup_seconds(l, 1.0) for _, l in ax.jitters]
         if any(v is None for v in jit):
             return None
         if any(v is None for v in lat):

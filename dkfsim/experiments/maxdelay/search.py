@@ -133,12 +133,12 @@ class Candidate:
     def to_dict(self) -> dict:
         return {"index": self.index, "delay": self.delay, "order": self.order,
                 "runs": self.runs, "deterministic": self.deterministic,
-                "decision": self.decision, "mean": _num(self.mean), "ci": [_num(v) for v in self.ci],
-                "excess_mean": _num(self.excess_mean), "excess_ci": [_num(v) for v in self.excess_ci],
-                "values": [_num(v) for v in self.values]}
+                "decision": self.decision, "mean": json_number(self.mean), "ci": [json_number(v) for v in self.ci],
+                "excess_mean": json_number(self.excess_mean), "excess_ci": [json_number(v) for v in self.excess_ci],
+                "values": [json_number(v) for v in self.values]}
 
 
-def _num(v):
+def json_number(v):
     """A float for JSON (non-finite values are encoded by :func:`dkfsim.core.folders.to_json`)."""
     return None if v is None else float(v)
 
@@ -230,7 +230,7 @@ def summarise(cands: dict, lo, hi) -> SearchResult:
     return SearchResult(status, safe, lo, hi, non_mono, cands)
 
 
-class _Evaluator:
+class Evaluator:
     """``evaluate(j)`` of a :class:`MaxDelay` with its runner; ``cands`` its candidates."""
 
     def __init__(self, md, runner):

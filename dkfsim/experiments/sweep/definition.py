@@ -50,12 +50,12 @@ def _yaml_value(value: Any) -> str:
     return text.strip()
 
 
-def _canonical(obj: Any) -> str:
+def canonical_json(obj: Any) -> str:
     return json.dumps(obj, sort_keys=True, separators=(",", ":"), ensure_ascii=True,
                       allow_nan=False)
 
 
-def _short(value: Any) -> str:
+def short_json(value: Any) -> str:
     text = json.dumps(value, ensure_ascii=False)
     return text if len(text) <= 40 else text[:37] + "..."
 
@@ -79,7 +79,7 @@ class ParameterSet:
     def describe(self) -> str:
         if not self.values:
             return "(no grid)"
-        return ", ".join(f"{k}={_short(v)}" for k, v in self.values.items())
+        return ", ".join(f"{k}={short_json(v)}" for k, v in self.values.items())
 
 
 @dataclass(frozen=True)
@@ -190,14 +190,14 @@ def load_sweep(source, *, output: str | os.PathLike | None = None, yes: bool = F
                                              "links.default.latency.d_t")
         if not isinstance(values, list):
             raise _err(label, f"grid.{key}", f"must be a list of values (e.g. [0, 1, 2]), got "
-                                             f"{_short(values)}")
+                                             f"{short_json(values)}")
         if not values:
             raise _err(label, f"grid.{key}", "empty list: give at least one value")
         seen: dict[str, int] = {}
         for i, v in enumerate(values):
-            c = _canonical(v) if _finite_json(v) else repr(v)
+            c = canonical_json(v) if _finite_json(v) else repr(v)
             if c in seen:
-                raise _err(label, f"grid.{key}", f"value {_short(v)} is listed twice "
+                raise _err(label, f"grid.{key}", f"value {short_json(v)} is listed twice "
                                                  f"(entries {seen[c]} and {i})")
             seen[c] = i
             if not _finite_json(v):
@@ -276,13 +276,13 @@ def _parameter_sets(label, scenario_path, grid, sets, burn_in) -> list[Parameter
         try:
             sc = load_scenario(scenario_path, overrides=overrides)
         except ScenarioError as exc:
-            where = f"parameter set {index} ({', '.join(f'{k}={_short(v)}' for k, v in values.items())})" \
+            where = f"parameter set {index} ({', '.join(f'{k}={short_json(v)}' for k, v in values.items())})" \
                 if values else "the scenario with set"
             raise DkfsimError(f"{label}: {where}: {exc}") from None
         if burn_in is not None and not burn_in < sc.steps:
             raise _err(label, "burn_in", f"must be less than steps ({sc.steps}) of every "
                                          f"parameter set, got {burn_in}")
-        h = hashlib.sha256(_canonical(values).encode()).hexdigest()[:20]
+        h = hashlib.sha256(canonical_json(values).encode()).hexdigest()[:20]
         out.append(ParameterSet(index, values, h, sc, scenario_hash(sc)))
     return out
 

@@ -15,8 +15,8 @@ from dkfsim.core.errors import DkfsimError
 from dkfsim.core.extras import optional
 from dkfsim.core.folders import write_csv
 from dkfsim.core.registry import METRICS
-from dkfsim.experiments.sweep.definition import KEY_COLUMNS, _canonical
-from dkfsim.experiments.sweep.store import SweepDB, _q, damaged
+from dkfsim.experiments.sweep.definition import KEY_COLUMNS, canonical_json
+from dkfsim.experiments.sweep.store import SweepDB, damaged, quote_name
 
 
 # =========================================================================== reading, export
@@ -35,7 +35,7 @@ def read_results(db: str | os.PathLike) -> tuple[list[str], list[list]]:
             stored = [c for c in store.columns() if c not in KEY_COLUMNS]
             order = list(METRICS.names())
             metric_cols = sorted(stored, key=lambda c: (order.index(c) if c in order else len(order), c))
-            select = ", ".join(f"r.{_q(c)}" for c in KEY_COLUMNS + tuple(metric_cols))
+            select = ", ".join(f"r.{quote_name(c)}" for c in KEY_COLUMNS + tuple(metric_cols))
             # rowid: the order the task's rows were written in (estimates, then components).
             cur = store.conn.execute(
                 f"SELECT {select} FROM results r JOIN params p ON p.param_hash = r.param_hash "
@@ -77,11 +77,11 @@ def _write_parquet(path: Path, columns, rows) -> None:
     for j, _name in enumerate(columns):
         col = [row[j] for row in rows]
         if any(isinstance(v, (list, dict)) for v in col):
-            col = [None if v is None else _canonical(v) for v in col]
+            col = [None if v is None else canonical_json(v) for v in col]
         try:
             arr = pa.array(col)
         except (pa.ArrowInvalid, pa.ArrowTypeError):
-            arr = pa.array([None if v is None else _canonical(v) for v in col], type=pa.string())
+            arr = pa.array([None if v is None else canonical_json(v) for v in col], type=pa.string())
         arrays.append(arr)
     table = pa.Table.from_arrays(arrays, names=list(columns))
     tmp = path.with_name(path.name + ".tmp")

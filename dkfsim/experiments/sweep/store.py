@@ -27,7 +27,7 @@ from dkfsim.config.results import SweepDefinition, SweepParams, validate
 from dkfsim.core.errors import DkfsimError
 from dkfsim.core.files import parse_json
 from dkfsim.core.version import __version__
-from dkfsim.experiments.sweep.definition import DB_FORMAT, KEY_COLUMNS, Sweep, _canonical, _short, is_database
+from dkfsim.experiments.sweep.definition import DB_FORMAT, KEY_COLUMNS, Sweep, canonical_json, is_database, short_json
 
 
 def _sql_value(v: Any) -> Any:
@@ -52,15 +52,15 @@ def _write_new(conn, sweep: Sweep) -> None:
         for stmt in SCHEMA.split(";"):
             if stmt.strip():
                 conn.execute(stmt)
-        meta = {"format": str(DB_FORMAT), "definition": _canonical(sweep.definition()),
+        meta = {"format": str(DB_FORMAT), "definition": canonical_json(sweep.definition()),
                 "sweep_file": sweep.source, "dkfsim_version": __version__,
                 "created": time.strftime("%Y-%m-%dT%H:%M:%S%z")}
         conn.executemany("INSERT INTO meta(key, value) VALUES (?, ?)", meta.items())
         conn.executemany(
             "INSERT INTO params(param_hash, idx, values_json, scenario_hash, base_seed, "
             "scenario_json) VALUES (?, ?, ?, ?, ?, ?)",
-            [(p.param_hash, p.index, _canonical(p.values), p.scenario_hash, p.base_seed,
-              _canonical(p.scenario.to_dict())) for p in sweep.parameter_sets])
+            [(p.param_hash, p.index, canonical_json(p.values), p.scenario_hash, p.base_seed,
+              canonical_json(p.scenario.to_dict())) for p in sweep.parameter_sets])
         conn.execute("COMMIT")
     except BaseException:
         _rollback(conn)
@@ -77,7 +77,7 @@ def damaged(path):
         raise DkfsimError(f"{path}: cannot read the sweep database ({exc}); is it damaged?") from None
 
 
-def _q(name: str) -> str:
+def quote_name(name: str) -> str:
     return '"' + name.replace('"', '""') + '"'
 
 
@@ -282,7 +282,7 @@ class SweepDB:
                                   f"({problem}); refusing to mix their results. "
                                   "Write to another file (output: in the sweep file, or --db "
                                   "PATH), or delete this one to start over.")
-            if _canonical(stored) != _canonical(new):
+            if canonical_json(stored) != canonical_json(new):
                 self._grow(sweep, new)
             self.definition = new
             return
@@ -295,7 +295,7 @@ class SweepDB:
         conn = self.conn
         conn.execute("BEGIN IMMEDIATE")
         try:
-            conn.execute("UPDATE meta SET value=? WHERE key='definition'", (_canonical(new),))
+            conn.execute("UPDATE meta SET value=? WHERE key='definition'", (canonical_json(new),))
             conn.execute("INSERT OR REPLACE INTO meta(key, value) VALUES ('grown', ?)",
                          (time.strftime("%Y-%m-%dT%H:%M:%S%z"),))
             conn.execute("UPDATE params SET idx = -1 - idx")       # idx is UNIQUE: out of the way
@@ -305,8 +305,8 @@ class SweepDB:
                     "scenario_json) VALUES (?, ?, ?, ?, ?, ?) ON CONFLICT(param_hash) DO UPDATE "
                     "SET idx=excluded.idx, values_json=excluded.values_json, "
                     "scenario_hash=excluded.scenario_hash, scenario_json=excluded.scenario_json",
-                    (p.param_hash, p.index, _canonical(p.values), p.scenario_hash, p.base_seed,
-                     _canonical(p.scenario.to_dict())))
+                    (p.param_hash, p.index, canonical_json(p.values), p.scenario_hash, p.base_seed,
+                     canonical_json(p.scenario.to_dict())))
             conn.execute("COMMIT")
         except BaseException:
             _rollback(conn)
@@ -342,7 +342,7 @@ class SweepDB:
             metrics = [k for k in (rows[0] if rows else {}) if k not in KEY_COLUMNS]
             for c in metrics:
                 if c not in have:
-                    conn.execute(f"ALTER TABLE results ADD COLUMN {_q(c)}")
+                    conn.execute(f"ALTER TABLE results ADD COLUMN {quote_name(c)}")
             if whole:
                 conn.execute("INSERT INTO tasks(param_hash, run, seed, wall_s, finished) "
                              "VALUES (?, ?, ?, ?, ?)",
@@ -352,7 +352,7 @@ class SweepDB:
                 if row["seed"] != seed:
                     raise RuntimeError(f"task ({param_hash}, {run}): rows carry seed {row['seed']}, "
                                        f"expected {seed}")
-                conn.execute(f"INSERT INTO results({', '.join(map(_q, names))}) VALUES "
+                conn.execute(f"INSERT INTO results({', '.join(map(quote_name, names))}) VALUES "
                              f"({', '.join('?' * len(names))})",
                              [param_hash, run, seed, row["estimate"], row["component"],
                               *(_sql_value(row.get(m)) for m in metrics)])
@@ -411,12 +411,12 @@ def growth_problem(conn, stored: dict, sweep: Sweep) -> str | None:
     if problem:
         return problem
     if stored.get("burn_in") != new["burn_in"]:
-        return (f"burn_in: {_short(stored.get('burn_in'))} in the file, {_short(new['burn_in'])} "
+        return (f"burn_in: {short_json(stored.get('burn_in'))} in the file, {short_json(new['burn_in'])} "
                 "now (it changes every stored row)")
     keys_a = [k for k, _ in stored.get("grid", [])]
     keys_b = [k for k, _ in sweep.grid]
     if sorted(keys_a) != sorted(keys_b):
-        return (f"grid keys: {_short(keys_a)} in the file, {_short(keys_b)} now (a sweep can grow "
+        return (f"grid keys: {short_json(keys_a)} in the file, {short_json(keys_b)} now (a sweep can grow "
                 "by values of its grid keys, not by keys)")
     if new["runs"] < stored.get("runs", 0):
         return (f"runs: {stored.get('runs')} in the file, {new['runs']} now (runs can be raised, "
@@ -425,19 +425,19 @@ def growth_problem(conn, stored: dict, sweep: Sweep) -> str | None:
     scenarios = dict(conn.execute("SELECT param_hash, scenario_json FROM params"))
     for old in stored.get("parameter_sets", []):
         h = old.get("param_hash")
-        values = ", ".join(f"{k}={_short(v)}" for k, v in (old.get("values") or {}).items())
+        values = ", ".join(f"{k}={short_json(v)}" for k, v in (old.get("values") or {}).items())
         if h not in now:
             return (f"grid: the parameter set {values or '(no grid)'} has results in the file but "
                     "is no longer in the grid (values can be added, not removed)")
         if old.get("scenario_hash") == now[h].scenario_hash:
             continue
-        a, b = json.loads(scenarios.get(h, "{}")), json.loads(_canonical(now[h].scenario.to_dict()))
+        a, b = json.loads(scenarios.get(h, "{}")), json.loads(canonical_json(now[h].scenario.to_dict()))
         est_a, est_b = a.pop("estimators", []), b.pop("estimators", [])
         if a != b:
             return (f"the parameter set {values or '(no grid)'} resolves differently (the scenario "
                     "file or set changed)")
         if est_b[:len(est_a)] != est_a:
-            return (f"estimators: {_short(_labels(est_a))} in the file, {_short(_labels(est_b))} now "
+            return (f"estimators: {short_json(_labels(est_a))} in the file, {short_json(_labels(est_b))} now "
                     "(estimators can be added after the existing ones, not removed, changed or "
                     "reordered)")
     return None

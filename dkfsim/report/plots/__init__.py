@@ -39,7 +39,7 @@ from dkfsim.report.plots.style import (
     DEFAULT_FORMATS,
     ESTIMATES,
     FORMATS,
-    _check_formats,
+    check_formats,
     color_of,
     default_smooth,
     label_of,
@@ -52,7 +52,7 @@ from dkfsim.report.plots.tracking import plot_tracking, zoom_window
 __all__ = ["DEFAULT_FORMATS", "ESTIMATES", "FORMATS", "Folder", "check_comparable", "color_of",
            "component_names", "default_smooth", "label_of", "load_folder", "moving_average",
            "mse_note", "plot_compare", "plot_folder", "plot_mse", "plot_nees", "plot_tracking",
-           "select_components", "zoom_window", "_check_formats"]
+           "select_components", "zoom_window", "check_formats"]
 
 
 def plot_folder(folder: Folder, out_dir, formats=DEFAULT_FORMATS, components=None, smooth=None) -> list[Path]:

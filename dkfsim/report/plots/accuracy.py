@@ -14,22 +14,22 @@ from dkfsim.core.extras import pyplot
 from dkfsim.report.plots.folders import Folder
 from dkfsim.report.plots.style import (
     DEFAULT_FORMATS,
-    _averages,
-    _avg_text,
-    _band,
-    _check_formats,
-    _legend_below,
-    _log_limits,
-    _mse_ylabel,
-    _order,
-    _positive,
-    _save,
+    average_text,
+    check_formats,
     color_of,
     default_smooth,
+    draw_averages,
+    estimate_order,
     label_of,
+    legend_below,
+    log_band,
+    log_limits,
     moving_average,
     mse_note,
+    mse_ylabel,
     plain,
+    positive_only,
+    save_figure,
     select_components,
 )
 
@@ -68,10 +68,10 @@ def plot_mse(folder: Folder, stem, formats=DEFAULT_FORMATS, components=None, smo
     it, on a linear axis, so the best estimates are not hidden under a far worse
     one on the log scale; the others are named in the panel with their factor.
     """
-    formats = _check_formats(formats)
+    formats = check_formats(formats)
     idx = select_components(folder, components)
     w = default_smooth(folder) if smooth is None else max(1, int(smooth))
-    names = _order(folder.mse) if estimates is None else [a for a in estimates if a in folder.mse]
+    names = estimate_order(folder.mse) if estimates is None else [a for a in estimates if a in folder.mse]
     if not names:
         raise DkfsimError(f"{folder.path}: none of the estimates {', '.join(estimates or [])} is in the folder")
     ref = _ratio_reference(folder, names, idx) if ratio is None else \
@@ -87,32 +87,32 @@ def plot_mse(folder: Folder, stem, formats=DEFAULT_FORMATS, components=None, smo
         drawn, entries = [], []
         for j, a in enumerate(names):
             col = color_of(a, j)
-            entries.append((_avg_text(folder, a, i), col))
+            entries.append((average_text(folder, a, i), col))
             style = dict(color=col, lw=1.0, ls="--" if a == "centralized" else "-",
                          zorder={"fused": 5, "centralized": 6}.get(a, 3))
-            y = _positive(moving_average(folder.mse[a][:, i], w))
+            y = positive_only(moving_average(folder.mse[a][:, i], w))
             drawn.append(y)
             ax.plot(folder.t, y, label=label_of(a), **style)
             if a in folder.ci:
                 lo, hi = folder.ci[a]
-                ax.fill_between(folder.t, *_band(moving_average(lo[:, i], w), moving_average(hi[:, i], w)),
+                ax.fill_between(folder.t, *log_band(moving_average(lo[:, i], w), moving_average(hi[:, i], w)),
                                 color=col, alpha=0.2, lw=0)
         ax.set_yscale("log")
-        _log_limits(ax, drawn)
-        ax.set_ylabel(_mse_ylabel(folder, i))
+        log_limits(ax, drawn)
+        ax.set_ylabel(mse_ylabel(folder, i))
         ax.grid(True, which="both", alpha=0.25)
         ax.margins(x=0)
         if ref:
             _ratio_panel(axes[row, 1], folder, names, ref, i, wr, first=row == 0)
-        _averages(axes[row, -1], entries, folder)
+        draw_averages(axes[row, -1], entries, folder)
     for c in range(ncols):
         axes[-1, c].set_xlabel("time [s]")
     cond = folder.condition()
     fig.suptitle((plain(title) if title else f"MSE per tick{', ' + cond if cond else ''}")
                  + f"\n({mse_note(folder, w)})",
                  fontsize=11)
-    _legend_below(fig, axes[0, 0], ncol=3 if ref and len(names) > 4 else 2)
-    return _save(fig, stem, formats)
+    legend_below(fig, axes[0, 0], ncol=3 if ref and len(names) > 4 else 2)
+    return save_figure(fig, stem, formats)
 
 
 def _ratio_panel(ar, folder: Folder, names, ref: str, i: int, wr: int, first: bool) -> None:
@@ -148,10 +148,10 @@ def plot_nees(folder: Folder, stem, formats=DEFAULT_FORMATS, title=None) -> list
     Up to :data:`NEES_SMALL_MULTIPLES_ABOVE` estimates share one panel; more get one
     small panel each (same band, own y range), so a dozen estimates stay readable.
     """
-    formats = _check_formats(formats)
+    formats = check_formats(formats)
     if not folder.nees:
         raise DkfsimError(f"{folder.path}: no NEES curves")
-    names = [a for a in _order(folder.nees) if not np.all(~np.isfinite(folder.nees[a]))]
+    names = [a for a in estimate_order(folder.nees) if not np.all(~np.isfinite(folder.nees[a]))]
     if not names:
         raise DkfsimError(f"{folder.path}: no finite NEES curve (no estimate has a covariance)")
     n = f"{folder.n_runs} runs" if folder.n_runs else "Monte Carlo runs"
@@ -173,8 +173,8 @@ def plot_nees(folder: Folder, stem, formats=DEFAULT_FORMATS, title=None) -> list
     ax.grid(True, alpha=0.3)
     ax.margins(x=0)
     ax.set_title(head, fontsize=10)
-    _legend_below(fig, ax)
-    return _save(fig, stem, formats)
+    legend_below(fig, ax)
+    return save_figure(fig, stem, formats)
 
 
 def _nees_small_multiples(folder: Folder, names, stem, formats, head) -> list[Path]:
@@ -205,4 +205,4 @@ def _nees_small_multiples(folder: Folder, names, stem, formats, head) -> list[Pa
         f"; grey: 95 % consistency band [{folder.nees_band[0]:.3g}, {folder.nees_band[1]:.3g}]"
     fig.suptitle(head + band, fontsize=10)
     fig.tight_layout()
-    return _save(fig, stem, formats)
+    return save_figure(fig, stem, formats)

@@ -14,20 +14,20 @@ from dkfsim.core.extras import pyplot
 from dkfsim.report.plots.folders import Folder
 from dkfsim.report.plots.style import (
     DEFAULT_FORMATS,
-    _averages,
-    _avg_text,
-    _band,
-    _check_formats,
-    _legend_below,
-    _log_limits,
-    _mse_ylabel,
-    _positive,
-    _save,
+    average_text,
+    check_formats,
     default_smooth,
+    draw_averages,
     label_of,
+    legend_below,
+    log_band,
+    log_limits,
     moving_average,
     mse_note,
+    mse_ylabel,
     plain,
+    positive_only,
+    save_figure,
     select_components,
 )
 
@@ -56,7 +56,7 @@ def plot_compare(folders: list[Folder], stem, labels=None, formats=DEFAULT_FORMA
     on the same draws the noise common to all curves cancels, so differences
     of a few per cent, invisible on the log scale, show.
     """
-    formats = _check_formats(formats)
+    formats = check_formats(formats)
     if len(folders) < 2:
         raise DkfsimError("--compare: give at least two folders")
     if labels is None:
@@ -92,23 +92,23 @@ def plot_compare(folders: list[Folder], stem, labels=None, formats=DEFAULT_FORMA
         ax = axes[row, 0]
         drawn, entries = [], []
         for f, lab, col in zip(folders, labels, colors):
-            y = _positive(moving_average(f.mse[estimate][:, i], w))
+            y = positive_only(moving_average(f.mse[estimate][:, i], w))
             drawn.append(y)
-            entries.append((_avg_text(f, estimate, i), col))
+            entries.append((average_text(f, estimate, i), col))
             ax.plot(f.t, y, color=col, lw=1.1, label=lab)
             if bands and estimate in f.ci:
                 lo, hi = f.ci[estimate]
-                ax.fill_between(f.t, *_band(moving_average(lo[:, i], w), moving_average(hi[:, i], w)),
+                ax.fill_between(f.t, *log_band(moving_average(lo[:, i], w), moving_average(hi[:, i], w)),
                                 color=col, alpha=0.18, lw=0)
         if "centralized" in first.mse:
-            y = _positive(moving_average(first.mse["centralized"][:, i], w))
+            y = positive_only(moving_average(first.mse["centralized"][:, i], w))
             drawn.append(y)
-            entries.append((_avg_text(first, "centralized", i), "k"))
+            entries.append((average_text(first, "centralized", i), "k"))
             ax.plot(first.t, y, color="k", lw=1.0, ls="--",
                     label="centralized KF (all data on time)" + (f", from {labels[0]}" if len(labels[0]) < 12 else ""))
         ax.set_yscale("log")
-        _log_limits(ax, drawn)
-        ax.set_ylabel(_mse_ylabel(first, i))
+        log_limits(ax, drawn)
+        ax.set_ylabel(mse_ylabel(first, i))
         ax.grid(True, which="both", alpha=0.25)
         ax.margins(x=0)
         if relative:
@@ -122,7 +122,7 @@ def plot_compare(folders: list[Folder], stem, labels=None, formats=DEFAULT_FORMA
             ar.margins(x=0)
             if row == 0:
                 ar.set_title(f"relative to the centralized KF ({wr}-tick moving averages)", fontsize=9)
-        _averages(axes[row, -1], entries, first)
+        draw_averages(axes[row, -1], entries, first)
     for c in range(ncols):
         axes[-1, c].set_xlabel("time [s]")
     kinds = {f.kind for f in folders}
@@ -133,6 +133,6 @@ def plot_compare(folders: list[Folder], stem, labels=None, formats=DEFAULT_FORMA
     what = "fused anti-delay DKF" if estimate == "fused" else label_of(estimate)
     # (the labels are in the legend)
     fig.suptitle((plain(title) if title else f"MSE of the {what}") + f"\n({note})", fontsize=11)
-    _legend_below(fig, axes[0, 0], ncol=3 if n + 1 > 4 else 2)
-    return _save(fig, stem, formats)
+    legend_below(fig, axes[0, 0], ncol=3 if n + 1 > 4 else 2)
+    return save_figure(fig, stem, formats)
 

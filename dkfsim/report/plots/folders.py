@@ -100,7 +100,7 @@ def component_names(nx: int, model_kind: str | None) -> list[str]:
     return names_of(model_kind, nx)
 
 
-def _units(components, model_kind) -> list[str]:
+def component_units(components, model_kind) -> list[str]:
     if model_kind in (None, "constant_acceleration") and list(components) == list(CA_COMPONENTS):
         return [CA_UNITS[c] for c in components]
     return [""] * len(components)
@@ -220,7 +220,7 @@ def _load_run(p: Path) -> Folder:
     if "fused" not in mse and "local" not in mse:
         raise DkfsimError(f"{f}: no estimates (x_fused or x_local) to plot")
     return Folder(path=p, kind="run", scenario=str(summary.get("scenario", p.name)), t=t,
-                  components=comps, units=_units(comps, kind), mse=mse, truth=truth,
+                  components=comps, units=component_units(comps, kind), mse=mse, truth=truth,
                   examples=examples, node0=node0, n_runs=1, d_t=_d_t(summary),
                   burn_in=(summary.get("metrics") or {}).get("burn_in"))
 
@@ -279,6 +279,6 @@ def _load_montecarlo(p: Path) -> Folder:
         n_runs = summary["runs"]
     ci95 = {a: e["mse_ci95"] for a, e in (summary.get("estimates") or {}).items()}
     return Folder(path=p, kind="montecarlo", scenario=str(summary.get("scenario", p.name)), t=t,
-                  components=comps, units=_units(comps, kind), mse=mse, ci=ci, truth=truth,
+                  components=comps, units=component_units(comps, kind), mse=mse, ci=ci, truth=truth,
                   examples=examples, node0=node0, n_runs=n_runs or 0, d_t=_d_t(summary), nees=nees,
                   nees_band=band, burn_in=summary.get("burn_in"), mse_ci95=ci95)

@@ -69,7 +69,7 @@ def color_of(name: str, fallback_index: int = 0):
     return c if c is not None else OTHER_COLORS[fallback_index % len(OTHER_COLORS)]
 
 
-def _order(names) -> list[str]:
+def estimate_order(names) -> list[str]:
     known = [a for a in ESTIMATES if a in names]
     return known + sorted(a for a in names if a not in ESTIMATES)
 
@@ -116,7 +116,7 @@ def select_components(folder: Folder, wanted) -> list[int]:
     return out
 
 
-def _unit_label(unit: str, squared: bool = False) -> str:
+def unit_label(unit: str, squared: bool = False) -> str:
     if not unit:
         return ""
     if squared:
@@ -124,9 +124,9 @@ def _unit_label(unit: str, squared: bool = False) -> str:
     return f" [{unit}]"
 
 
-def _mse_ylabel(folder: Folder, i: int) -> str:
+def mse_ylabel(folder: Folder, i: int) -> str:
     comp, unit = folder.components[i], folder.units[i]
-    return f"{plain(comp)} MSE{_unit_label(unit, squared=True)}"
+    return f"{plain(comp)} MSE{unit_label(unit, squared=True)}"
 
 
 def mse_note(folder: Folder, smooth: int) -> str:
@@ -168,7 +168,7 @@ def _save_png(fig, path: Path, dpi: int | None = None) -> None:
         Path(path).write_bytes(buf.getvalue())
 
 
-def _save(fig, stem: Path, formats) -> list[Path]:
+def save_figure(fig, stem: Path, formats) -> list[Path]:
     stem = Path(stem)
     try:
         stem.parent.mkdir(parents=True, exist_ok=True)
@@ -201,7 +201,7 @@ def _save(fig, stem: Path, formats) -> list[Path]:
     return out
 
 
-def _averages(ax, entries, folder: Folder) -> None:
+def draw_averages(ax, entries, folder: Folder) -> None:
     """A column right of the panel: each curve's time-averaged MSE after the burn-in, in its colour
     (with the 95 % interval over runs when the Monte Carlo summary has it)."""
     b = folder.burn_in if folder.burn_in is not None else folder.K // 10
@@ -215,13 +215,13 @@ def _averages(ax, entries, folder: Folder) -> None:
                 fontsize=7.5, color=col, fontweight="bold")
 
 
-def _avg_text(folder: Folder, estimate: str, i: int) -> str:
+def average_text(folder: Folder, estimate: str, i: int) -> str:
     m = folder.time_average(estimate, i)
     ci = folder.ci95(estimate, i)
     return f"{m:.4g}" if ci is None else f"{m:.4g} ± {(ci[1] - ci[0]) / 2:.2g}"
 
 
-def _legend_below(fig, ax, ncol=2):
+def legend_below(fig, ax, ncol=2):
     """One legend for all panels, under them, so that it never hides a curve."""
     handles, labels = ax.get_legend_handles_labels()
     fig.tight_layout()
@@ -229,7 +229,7 @@ def _legend_below(fig, ax, ncol=2):
                fontsize=8.5, frameon=False)
 
 
-def _check_formats(formats) -> tuple[str, ...]:
+def check_formats(formats) -> tuple[str, ...]:
     formats = tuple(formats)
     if not formats:
         raise DkfsimError("--format: give at least one format")
@@ -239,19 +239,19 @@ def _check_formats(formats) -> tuple[str, ...]:
     return formats
 
 
-def _positive(a):
+def positive_only(a):
     """Zeros (exact estimates) cannot be drawn on a log axis; mask them."""
     a = np.asarray(a, dtype=float)
     return np.where(a > 0, a, np.nan)
 
 
-def _band(lo, hi):
+def log_band(lo, hi):
     """A confidence band for a log axis: a lower bound <= 0 (t-interval of few runs) goes to the floor."""
     lo = np.asarray(lo, dtype=float)
-    return np.where(lo > 0, lo, 1e-300), _positive(hi)
+    return np.where(lo > 0, lo, 1e-300), positive_only(hi)
 
 
-def _plain_log_ticks(ax) -> None:
+def plain_log_ticks(ax) -> None:
     """Tick labels 0.2, 0.05, 1e-05 instead of 2 x 10^-1 (matplotlib decides which ticks get one)."""
     class Plain(optional("matplotlib.ticker").LogFormatter):
         def __call__(self, x, pos=None):
@@ -261,9 +261,9 @@ def _plain_log_ticks(ax) -> None:
     ax.yaxis.set_minor_formatter(Plain(labelOnlyBase=False))
 
 
-def _log_limits(ax, curves) -> None:
+def log_limits(ax, curves) -> None:
     """Fit the log axis to the mean curves (not to the bands, whose lower ends can be ~0)."""
-    _plain_log_ticks(ax)
+    plain_log_ticks(ax)
     vals = np.concatenate([np.asarray(c, dtype=float).ravel() for c in curves])
     vals = vals[np.isfinite(vals) & (vals > 0)]
     if vals.size:

@@ -12,14 +12,14 @@ from dkfsim.core.extras import pyplot
 from dkfsim.report.plots.folders import Folder
 from dkfsim.report.plots.style import (
     DEFAULT_FORMATS,
-    _check_formats,
-    _legend_below,
-    _save,
-    _unit_label,
+    check_formats,
     color_of,
     label_of,
+    legend_below,
     plain,
+    save_figure,
     select_components,
+    unit_label,
 )
 
 # ----------------------------------------------------------------------------
@@ -41,7 +41,7 @@ def plot_tracking(folder: Folder, stem, formats=DEFAULT_FORMATS, components=None
     the truth, so the right column repeats a short window (shaded on the left)
     where the estimates can be told apart.
     """
-    formats = _check_formats(formats)
+    formats = check_formats(formats)
     if folder.truth is None:
         raise DkfsimError(f"{folder.path}: no example run (example_truth) to draw the tracking figure from")
     idx = select_components(folder, components)
@@ -70,7 +70,7 @@ def plot_tracking(folder: Folder, stem, formats=DEFAULT_FORMATS, components=None
         ax = axes[row, 0]
         for lab, x, style in lines:
             ax.plot(t, x[:, i], label=lab, **style)
-        ax.set_ylabel(plain(folder.components[i]) + _unit_label(folder.units[i]))
+        ax.set_ylabel(plain(folder.components[i]) + unit_label(folder.units[i]))
         ax.grid(True, alpha=0.3)
         ax.margins(x=0)
         if ncols == 2:
@@ -88,6 +88,6 @@ def plot_tracking(folder: Folder, stem, formats=DEFAULT_FORMATS, components=None
     sub = "" if folder.kind == "run" else " (one example run)"
     cond = folder.condition()
     fig.suptitle(plain(title) if title else f"Tracking{', ' + cond if cond else ''}{sub}", fontsize=11)
-    _legend_below(fig, axes[0, 0], ncol=3 if len(lines) > 4 else 2)
-    return _save(fig, stem, formats)
+    legend_below(fig, axes[0, 0], ncol=3 if len(lines) > 4 else 2)
+    return save_figure(fig, stem, formats)
 
