@@ -15,7 +15,7 @@ from dkfsim.cli.common import (
 from dkfsim.core.errors import DkfsimError
 from dkfsim.core.folders import check_target
 from dkfsim.experiments import executors
-from dkfsim.experiments.montecarlo import check_burn_in, check_montecarlo, montecarlo
+from dkfsim.experiments.montecarlo import check_burn_in, check_montecarlo, check_reference, montecarlo
 
 
 def add_command(subparsers) -> None:
@@ -24,7 +24,8 @@ def add_command(subparsers) -> None:
         description="Run a scenario N times with derived seeds (run r uses derive_seed(seed, r), "
                     "the same whatever N and --jobs) and pool the results per estimate and state "
                     "component: MSE over time with 95% confidence intervals, ANEES with its 95% "
-                    "chi-square band, disagreement between nodes, messages, bytes, lost packets and "
+                    "t-interval over runs and the consistency verdict, the paired difference and "
+                    "ratio of the MSE to a reference estimate (--relative-to), disagreement between nodes, messages, bytes, lost packets and "
                     "late information (packet rows). Writes DIR/runs.csv (one row per run x estimate x "
                     "component), DIR/curves.npz (per-tick curves and one example run) and "
                     "DIR/summary.json, and prints a table.")
@@ -39,6 +40,9 @@ def add_command(subparsers) -> None:
                    help="override the number of ticks K of every run (same as --set steps=K)")
     p.add_argument("--seed", type=int, metavar="S",
                    help="override the base seed from which every run's seed derives (same as --set seed=S)")
+    p.add_argument("--relative-to", dest="relative_to", metavar="NAME",
+                   help="reference estimate of the paired comparisons (difference and ratio of "
+                        "the MSE, run by run; default: centralized when the scenario has it)")
     add_executor_args(p)
     add_yes_arg(p)
     p.set_defaults(func=cmd_montecarlo)
@@ -50,6 +54,7 @@ def cmd_montecarlo(args) -> int:
     executors.check_jobs(args.jobs)
     sc = load_from_args(args)
     check_burn_in(args.burn_in, int(sc.steps))
+    check_reference(sc, args.relative_to)
     check_target(args.out)                 # before any run: a bad --out costs nothing
     check_montecarlo(sc, args.runs, workers_from_args(args, args.runs), yes=args.yes)
     make = executor_from_args(args, args.runs)
@@ -57,7 +62,7 @@ def cmd_montecarlo(args) -> int:
     progress = None if bar is None else (lambda done, _total: bar.update(done - bar.n))
     try:
         res = montecarlo(sc, args.runs, jobs=args.jobs, burn_in=args.burn_in, progress=progress,
-                         yes=True, executor=make)                  # checked above
+                         yes=True, executor=make, relative_to=args.relative_to)                  # checked above
     finally:
         if bar is not None:
             bar.close()

@@ -124,13 +124,27 @@ class RunSummary(Model):
         return self
 
 
+class Paired(Model):
+    """An estimate's ``paired`` block: its MSE against the reference estimate, run by run."""
+
+    reference: Name
+    runs: Count = 0
+    mse_diff: dict[Name, MaybeNumber] = {}
+    mse_diff_ci95: dict[Name, Pair] = {}
+    mse_ratio: dict[Name, MaybeNumber] = {}
+    mse_ratio_ci95: dict[Name, Pair] = {}
+
+
 class EstimateStats(Measures):
     """One estimate's pooled numbers in a Monte Carlo ``summary.json``."""
 
     mse: dict[Name, MaybeNumber]
     mse_ci95: dict[Name, Pair]
+    anees_ci95: Pair | None = None
+    anees_consistent: Annotated[bool, Field(strict=True)] | None = None
     anees_band95: Pair | None = None
     anees_fraction_in_band: MaybeNumber = None
+    paired: Paired | None = None
 
 
 class MonteCarloSummary(Model):
@@ -144,6 +158,7 @@ class MonteCarloSummary(Model):
     components: Annotated[list[Name], Field(min_length=1)] | None = None
     estimates: Annotated[dict[Name, EstimateStats], Field(min_length=1)]
     burn_in: Count | None = None
+    relative_to: Name | None = None
     scenario_config: dict[str, Any] = {}
     versions: dict[str, Any] = {}
     seed_rule: Text = ""

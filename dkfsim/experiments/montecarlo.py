@@ -39,7 +39,9 @@ from pathlib import Path
 import numpy as np
 
 from dkfsim.analysis.frames import curves_dataset, rows_frame
+from dkfsim.analysis.paired import DEFAULT_REFERENCE, paired_block
 from dkfsim.analysis.metrics import (
+    anees_consistent,
     anees_summary,
     default_burn_in,
     nees_band,
@@ -229,7 +231,8 @@ class _Fold:
 
 @single_thread
 def montecarlo(scenario, runs: int, jobs: int | None = None, burn_in: int | None = None,
-               progress=None, yes: bool = False, executor=None) -> "MonteCarloResult":
+               progress=None, yes: bool = False, executor=None,
+               relative_to: str | None = None) -> "MonteCarloResult":
     """``runs`` independent runs of ``scenario``.
 
     ``scenario``: a Scenario, a path or a mapping.  Run ``r`` uses seed
@@ -241,18 +244,22 @@ def montecarlo(scenario, runs: int, jobs: int | None = None, burn_in: int | None
     The result does not depend on where the runs happened: they are folded in run
     order, and a failing run is reported as the first one in run order.  Work that
     cannot fit in memory is refused, and work estimated above 10 minutes needs ``yes``
-    (:mod:`dkfsim.core.resources`).
+    (:mod:`dkfsim.core.resources`).  ``relative_to``: the reference estimate of the paired
+    comparisons (default ``centralized`` when the scenario has it; :func:`check_reference`).
     """
     if isinstance(runs, bool) or not isinstance(runs, int) or runs < 1:
         raise DkfsimError(f"--runs: must be an integer >= 1, got {runs!r}")
     executors.check_jobs(jobs)
     sc = scenario if isinstance(scenario, Scenario) else load_scenario(scenario)
     burn = check_burn_in(burn_in, int(sc.steps))
+    check_reference(sc, relative_to)
     workers = executor.workers if isinstance(executor, executors.Executor) else \
         min(jobs or executors.available_cpus(), runs)
     check_montecarlo(sc, runs, workers, yes=yes)
     with progress_callback(progress, runs, sc.name, "run") as callback:
-        return _montecarlo(sc, runs, jobs, burn, callback, executor)
+        res = _montecarlo(sc, runs, jobs, burn, callback, executor)
+    res.relative_to = relative_to
+    return res
 
 
 def _montecarlo(sc, runs: int, jobs, burn: int, progress, executor) -> "MonteCarloResult":
@@ -280,6 +287,22 @@ def _montecarlo(sc, runs: int, jobs, burn: int, progress, executor) -> "MonteCar
             ex.close()
     wall = time.perf_counter() - t0
     return MonteCarloResult(sc, runs, ex.workers, burn, seeds, rows, fold, wall, ex.label, template.plan)
+
+
+def scenario_estimates(sc) -> list[str]:
+    """The estimate names a run of ``sc`` gives, as far as the scenario says (the DKF's
+    ``fused`` and ``local``, then each listed estimator's name)."""
+    return ["fused", "local", *(p.label for p in sc.estimators)]
+
+
+def check_reference(sc, relative_to: str | None) -> None:
+    """``--relative-to NAME`` names an estimate of the scenario: checked before any run."""
+    if relative_to is None:
+        return
+    names = scenario_estimates(sc)
+    if not isinstance(relative_to, str) or relative_to not in names:
+        raise DkfsimError(f"--relative-to {relative_to}: not an estimate of {sc.name} "
+                          f"(estimates: {', '.join(names)})")
 
 
 def estimate_montecarlo(sc, runs: int, jobs: int) -> Cost:
@@ -329,6 +352,19 @@ class MonteCarloResult:
         self.nees_band = nees_band(runs, len(self.components))
         self.example = {"example_truth": first["example_truth"], "example_x": first["example_x"],
                         "example_node0": first["example_node0"]}
+        #: the reference estimate of the paired comparisons (None: ``centralized`` if present)
+        self.relative_to: str | None = None
+
+    @property
+    def reference(self) -> str | None:
+        """The estimate the paired blocks compare with: ``relative_to``, else ``centralized``
+        when the runs have it, else None (no paired comparison)."""
+        if self.relative_to is not None:
+            if self.relative_to not in self.estimates:
+                raise DkfsimError(f"--relative-to {self.relative_to}: not an estimate of these runs "
+                                  f"(estimates: {', '.join(self.estimates)})")
+            return self.relative_to
+        return DEFAULT_REFERENCE if DEFAULT_REFERENCE in self.estimates else None
 
     def __repr__(self) -> str:
         sc = self.scenario
@@ -390,6 +426,9 @@ class MonteCarloResult:
         out["anees_band95"] = [float(v) for v in an["band"]]
         out["anees_fraction_in_band"] = float(an["fraction_in_band"])
         out["anees_ci95"] = [float(lo), float(hi)]
+        out["anees_consistent"] = anees_consistent(out["anees_ci95"], nx)
+        ref = self.reference
+        out["paired"] = None if ref is None else paired_block(self.rows, estimate, ref, self.components)
         for key in ("disagreement", "messages_per_tick", "bytes_per_tick", "lost", "late"):
             mean = float(np.mean(self.column(estimate, key)))
             out[key] = None if math.isnan(mean) else mean      # NaN rows: not modelled for it
@@ -416,14 +455,23 @@ class MonteCarloResult:
             "wall_time_s": self.wall_time_s,
             "versions": versions(),
             "components": self.components,
+            "relative_to": self.reference,
             "notes": {
                 "mse": "mean over runs of the per-run time average after burn-in; mse_ci95: "
                        "Student-t interval over runs",
-                "anees": "time average after burn-in of the mean NEES over runs; anees_band95: "
-                         "per-tick 95% chi-square band chi2.ppf([0.025, 0.975], runs*nx)/runs; "
-                         "anees_fraction_in_band: fraction of ticks after burn-in whose mean NEES "
-                         "is inside it; anees_ci95: Student-t interval of the per-run time averages; "
-                         "per-node estimates: NEES averaged over nodes",
+                "anees": "time average after burn-in of the mean NEES over runs; anees_ci95: "
+                         "Student-t interval over runs of the per-run time averages; "
+                         "anees_consistent: anees_ci95[0] <= nx <= anees_ci95[1] (the consistency "
+                         "verdict; null for a single run); anees_band95: per-tick 95% chi-square "
+                         "band chi2.ppf([0.025, 0.975], runs*nx)/runs of the mean NEES at one tick "
+                         "(not a band for the time average), anees_fraction_in_band: fraction of "
+                         "ticks after burn-in whose mean NEES is inside it; per-node estimates: "
+                         "NEES averaged over nodes (docs/statistics.md)",
+                "paired": "per estimate against the reference estimate (relative_to), run by run "
+                          "on common random numbers: mse_diff = mean over runs of mse - reference "
+                          "mse, mse_diff_ci95 its Student-t interval over the paired runs; mse_ratio "
+                          "= exp(mean of log(mse / reference mse)), mse_ratio_ci95 the exponentiated "
+                          "t-interval of those log-ratios; null: no reference in these runs",
                 "traffic": "messages_per_tick = packets the estimator sent / K; bytes_per_tick = "
                            "nominal bytes of those packets / K (16-byte header; the DKF: per row "
                            "8 + 8*(nx + nx(nx+1)/2) + ceil(n/8)); lost = packets, late = "
@@ -448,30 +496,60 @@ class MonteCarloResult:
         return Path(out_dir)
 
     def table(self) -> str:
-        """Algorithm x component: MSE with its 95 % CI; ANEES with its per-tick band."""
-        head = ("estimate", "component", "MSE", "95% CI", "ANEES", "95% band (per tick)", "in band")
+        """Algorithm x component: MSE with its 95 % CI; ANEES with its 95 % t-interval over runs
+        and the consistency verdict; then the paired comparison with the reference estimate."""
+        head = ("estimate", "component", "MSE", "95% CI", "ANEES", "95% CI (runs)", "consistent")
+        summaries = {name: self.estimate_summary(name) for name in self.estimates}
         body = []
-        for name in self.estimates:
-            s = self.estimate_summary(name)
+        for name, s in summaries.items():
             for c, comp in enumerate(self.components):
                 lo, hi = s["mse_ci95"][comp]
                 ci = "-" if math.isnan(lo) else f"[{lo:.4g}, {hi:.4g}]"
                 if c == 0 and not math.isnan(s["anees"]):
-                    b = s["anees_band95"]
-                    extra = (f"{s['anees']:.3f}", f"[{b[0]:.3f}, {b[1]:.3f}]",
-                             f"{100 * s['anees_fraction_in_band']:.0f}%")
+                    extra = (f"{s['anees']:.3f}", _pair(s["anees_ci95"], ".3f"),
+                             {True: "yes", False: "no", None: "-"}[s["anees_consistent"]])
                 else:
                     extra = ("", "", "")
                 body.append((name if c == 0 else "", comp, f"{s['mse'][comp]:.4g}", ci, *extra))
-        rows = [head, *body]
-        widths = [max(len(r[i]) for r in rows) for i in range(len(head))]
-        left = {0, 1}
-        fmt = lambda r: "  " + "  ".join(v.ljust(w) if i in left else v.rjust(w)  # noqa: E731
-                                         for i, (v, w) in enumerate(zip(r, widths))).rstrip()
         sc = self.scenario
         lines = [f"{sc.name}: {self.runs} runs x {sc.steps} ticks (base seed {sc.seed}), "
                  f"burn-in {self.burn_in} rows, on {self.executor}, {self.wall_time_s:.1f} s; "
-                 f"ANEES expected {len(self.components)}",
-                 fmt(head), "  " + "  ".join("-" * w for w in widths)]
-        lines += [fmt(r) for r in body]
+                 f"ANEES expected {len(self.components)} (consistent: its interval covers it)",
+                 *_columns(head, body)]
+        ref = self.reference
+        if ref is not None and self.runs > 1:
+            head = ("estimate", "component", f"MSE - {ref}", "95% CI (paired)", f"MSE / {ref}",
+                    "95% CI (paired)")
+            body = []
+            for name, s in summaries.items():
+                if name == ref:
+                    continue
+                p = s["paired"]
+                for c, comp in enumerate(self.components):
+                    d, r = p["mse_diff"][comp], p["mse_ratio"][comp]
+                    body.append((name if c == 0 else "", comp, "-" if d is None else f"{d:.4g}",
+                                 _pair(p["mse_diff_ci95"][comp]), "-" if r is None else f"{r:.4g}",
+                                 _pair(p["mse_ratio_ci95"][comp])))
+            if body:
+                lines += ["", f"paired with {ref} over the {self.runs} runs (same draws; "
+                              "ratio: exponentiated t-interval of the per-run log-ratios)",
+                          *_columns(head, body)]
         return "\n".join(lines)
+
+
+def _pair(v, spec: str = ".4g") -> str:
+    """``[lo, hi]`` of an interval, ``-`` when unknown."""
+    if v is None or v[0] is None or v[1] is None or math.isnan(v[0]) or math.isnan(v[1]):
+        return "-"
+    return f"[{v[0]:{spec}}, {v[1]:{spec}}]"
+
+
+def _columns(head, body) -> list[str]:
+    """A plain-text table: the first two columns left-aligned, the others right-aligned."""
+    rows = [head, *body]
+    widths = [max(len(r[i]) for r in rows) for i in range(len(head))]
+
+    def fmt(r):
+        return "  " + "  ".join(v.ljust(w) if i < 2 else v.rjust(w)
+                                for i, (v, w) in enumerate(zip(r, widths))).rstrip()
+    return [fmt(head), "  " + "  ".join("-" * w for w in widths), *(fmt(r) for r in body)]
