@@ -3,11 +3,16 @@
 A sweep table (docs/design.md, "Sweeps") has the grid columns, then ``param_hash,
 run, seed, estimate, component`` and the metrics.  :func:`summarize` folds the
 runs of each (parameter set, estimate, component) into one row: ``runs``, ``mse``
-with its 95 % Student-t interval, ``anees`` with its t-interval and the 95 %
-chi-square band of a consistent filter (:func:`dkfsim.analysis.metrics.nees_band`
-with ``runs`` and the estimate's number of components), and the means of
-``messages_per_tick``, ``bytes_per_tick`` and ``late``.  ``None``: not applicable.
-Pure functions of the rows, so a database and its export summarize equally.
+with its 95 % Student-t interval, ``anees`` with its t-interval over runs and the
+verdict ``anees_consistent`` (that interval covers the estimate's number of
+components), the per-tick 95 % chi-square band ``anees_band95_*``
+(:func:`dkfsim.analysis.metrics.nees_band`, kept for compatibility: it is a band for
+the mean NEES at one tick, not for the time average; docs/statistics.md), the means of
+``messages_per_tick``, ``bytes_per_tick`` and ``late``, and the paired comparison with
+the reference estimate ``relative_to`` at the same grid point, run by run
+(:mod:`dkfsim.analysis.paired`): ``mse_diff`` and ``mse_ratio`` with their 95 %
+intervals.  ``None``: not applicable.  Pure functions of the rows, so a database and
+its export summarize equally.
 """
 
 from __future__ import annotations
@@ -16,12 +21,16 @@ import math
 
 import numpy as np
 
-from dkfsim.analysis.metrics import nees_band, t_interval
+from dkfsim.analysis.metrics import anees_consistent, nees_band, paired_interval, t_interval
+from dkfsim.analysis.paired import DEFAULT_REFERENCE, pair_values
+from dkfsim.core.errors import DkfsimError
 
 #: Columns of the summary after the grid columns.
 SUMMARY_COLUMNS = ("param_hash", "estimate", "component", "runs", "mse", "mse_ci95_lo",
-                   "mse_ci95_hi", "anees", "anees_ci95_lo", "anees_ci95_hi", "anees_band95_lo",
-                   "anees_band95_hi", "messages_per_tick", "bytes_per_tick", "late")
+                   "mse_ci95_hi", "anees", "anees_ci95_lo", "anees_ci95_hi", "anees_consistent",
+                   "anees_band95_lo", "anees_band95_hi", "messages_per_tick", "bytes_per_tick", "late",
+                   "relative_to", "mse_diff", "mse_diff_ci95_lo", "mse_diff_ci95_hi", "mse_ratio",
+                   "mse_ratio_ci95_lo", "mse_ratio_ci95_hi")
 
 
 def grid_columns(columns) -> list[str]:
@@ -63,10 +72,24 @@ def _mean(values) -> float | None:
     return None if a.size == 0 or np.isnan(a).all() else float(np.mean(a))
 
 
-def summarize(columns, rows) -> tuple[list[str], list[list]]:
-    """The summary table (see the module docstring) of a sweep table's ``(columns, rows)``."""
+def reference_of(names, relative_to: str | None) -> str | None:
+    """The reference estimate of the paired columns: ``relative_to`` (refused when not among
+    ``names``), else ``centralized`` when present, else None."""
+    names = list(names)
+    if relative_to is not None:
+        if relative_to not in names:
+            raise DkfsimError(f"--relative-to {relative_to}: not an estimate of the sweep "
+                              f"(estimates: {', '.join(dict.fromkeys(names))})")
+        return relative_to
+    return DEFAULT_REFERENCE if DEFAULT_REFERENCE in names else None
+
+
+def summarize(columns, rows, relative_to: str | None = None) -> tuple[list[str], list[list]]:
+    """The summary table (see the module docstring) of a sweep table's ``(columns, rows)``;
+    ``relative_to``: the reference estimate of the paired columns (default ``centralized``)."""
     grid = grid_columns(columns)
     found = groups(columns, rows)
+    ref = reference_of((est for (_h, est, _c) in found), relative_to)
     n_comp: dict = {}
     for (h, est, _c) in found:
         n_comp[(h, est)] = n_comp.get((h, est), 0) + 1
@@ -76,9 +99,18 @@ def summarize(columns, rows) -> tuple[list[str], list[list]]:
         runs = len(rs)
         mse = interval(r.get("mse") for r in rs)
         anees = interval(r.get("anees") for r in rs)
-        band = nees_band(runs, n_comp[(h, est)]) if not math.isnan(anees[0]) else (math.nan, math.nan)
+        nx = n_comp[(h, est)]
+        band = nees_band(runs, nx) if not math.isnan(anees[0]) else (math.nan, math.nan)
+        verdict = anees_consistent(anees[1:], nx)
+        other = found.get((h, ref, comp))
+        if other is None:
+            paired = [None] * 7
+        else:
+            p = paired_interval(*pair_values(rs, other["rows"], "mse"))
+            paired = [ref, p["diff"], *p["diff_ci95"], p["ratio"], *p["ratio_ci95"]]
         out.append([g["grid"][k] for k in grid] + [
-            h, est, comp, runs, *mse, *anees, float(band[0]), float(band[1]),
-            *(_mean(r.get(m) for r in rs) for m in ("messages_per_tick", "bytes_per_tick", "late"))])
+            h, est, comp, runs, *mse, *anees, verdict, float(band[0]), float(band[1]),
+            *(_mean(r.get(m) for r in rs) for m in ("messages_per_tick", "bytes_per_tick", "late")),
+            *paired])
     cells = [[None if isinstance(v, float) and math.isnan(v) else v for v in row] for row in out]
     return grid + list(SUMMARY_COLUMNS), cells

@@ -11,6 +11,7 @@ from dkfsim.cli.common import add_executor_args, add_yes_arg, executor_from_args
 from dkfsim.cli.common import say as say_line
 from dkfsim.core.errors import DkfsimError
 from dkfsim.core.extras import optional
+from dkfsim.experiments.montecarlo import check_reference
 from dkfsim.experiments.sweep import Sweep, export, is_database, load_sweep, run_sweep, tasks_done
 from dkfsim.experiments.sweep_summary import write_summary
 
@@ -38,9 +39,13 @@ disagreement, messages_per_tick, bytes_per_tick, lost, late).
 
 summary: when the sweep is complete, <database stem>.summary.csv beside the database holds
 one row per parameter set, estimate and state component: runs, mse with its 95% Student-t
-interval over runs (mse_ci95_lo, mse_ci95_hi), anees with its t-interval and the 95%
-chi-square band of a consistent filter, messages_per_tick, bytes_per_tick, late (means
-over runs). Draw it with: dkfsim plot DATABASE --x KEY [--hue KEY] [--metric mse].
+interval over runs (mse_ci95_lo, mse_ci95_hi), anees with its t-interval over runs
+(anees_ci95_lo, anees_ci95_hi) and the verdict anees_consistent (the interval covers nx),
+the per-tick chi-square band anees_band95_lo/hi (not a test of the time average),
+messages_per_tick, bytes_per_tick, late (means over runs), and the paired comparison with
+the reference estimate (relative_to: --relative-to NAME, default centralized) at the same
+grid point, run by run: mse_diff and mse_ratio with their 95% intervals.
+Draw it with: dkfsim plot DATABASE --x KEY [--hue KEY] [--metric mse] [--relative-to NAME].
 
 examples:
   dkfsim sweep scenarios/sweep_delay_bound.yaml --jobs 4
@@ -67,6 +72,9 @@ def add_command(subparsers) -> None:
     p.add_argument("--dry-run", action="store_true",
                    help="validate, list the parameter sets and how many of their runs are done; "
                         "compute nothing")
+    p.add_argument("--relative-to", dest="relative_to", metavar="NAME",
+                   help="reference estimate of the summary's paired columns (mse_diff, "
+                        "mse_ratio; default: centralized when the sweep has it)")
     add_yes_arg(p)
     p.set_defaults(func=cmd_sweep)
 
@@ -82,10 +90,13 @@ def cmd_sweep(args) -> int:
                               "(nothing is computed)")
         out, n = export(args.file, args.export)
         say(f"wrote {out} ({n} rows)")
-        out, n = write_summary(args.file)
+        out, n = write_summary(args.file, relative_to=args.relative_to)
         say(f"wrote {out} ({n} rows: mean and 95 % interval per grid point, estimate and component)")
         return 0
     sweep = load_sweep(args.file, output=args.db, yes=args.yes)
+    if args.relative_to is not None:          # refused before any work
+        for p in sweep.parameter_sets:
+            check_reference(p.scenario, args.relative_to)
     if args.dry_run:
         return _dry_run(sweep, say)
     if args.export is not None:
@@ -107,7 +118,7 @@ def cmd_sweep(args) -> int:
     if args.export is not None:
         out, n = export(rep.db, args.export)
         say(f"wrote {out} ({n} rows)")
-    out, n = write_summary(rep.db)
+    out, n = write_summary(rep.db, relative_to=args.relative_to)
     say(f"wrote {out} ({n} rows: mean and 95 % interval per grid point, estimate and component; "
         f"draw it with dkfsim plot {rep.db} --x KEY)")
     return 0

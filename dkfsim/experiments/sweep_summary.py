@@ -4,7 +4,8 @@
 draws from the same numbers: :mod:`dkfsim.analysis.grid`); this module reads a
 database or its export (``.csv``, ``.parquet``) and writes the summary: per grid
 point, estimate and component, the mean and 95 % interval over runs of the MSE,
-the ANEES with its chi-square band, and the traffic per tick.
+the ANEES with its t-interval over runs and consistency verdict, the traffic per tick, and
+the paired difference and ratio of the MSE to a reference estimate.
 """
 
 from __future__ import annotations
@@ -100,10 +101,11 @@ def read_table(path) -> tuple[list[str], list[list]]:
     return columns, rows
 
 
-def write_summary(db, to=None) -> tuple[Path, int]:
+def write_summary(db, to=None, relative_to: str | None = None) -> tuple[Path, int]:
     """Summarize the sweep database (or export) ``db`` into ``to`` (default
-    :func:`summary_path`), atomically; return ``(path, number of rows)``."""
-    columns, rows = summarize(*read_table(db))
+    :func:`summary_path`), atomically; return ``(path, number of rows)``.  ``relative_to``:
+    the reference estimate of the paired columns (default ``centralized``)."""
+    columns, rows = summarize(*read_table(db), relative_to=relative_to)
     to = Path(to) if to is not None else summary_path(db)
     try:
         write_csv(to, columns, rows)

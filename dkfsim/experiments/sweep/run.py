@@ -97,10 +97,11 @@ class SweepReport:
         columns, rows = read_results(self.db)
         return rows_frame(rows, columns)
 
-    def summary(self):
-        """Per grid point, estimate and component: mean, 95 % interval, ANEES band, traffic
+    def summary(self, relative_to: str | None = None):
+        """Per grid point, estimate and component: mean, 95 % interval, ANEES verdict, traffic,
+        paired comparison with ``relative_to`` (default ``centralized``)
         (:func:`dkfsim.analysis.grid.summarize`; the file ``dkfsim sweep`` writes)."""
-        columns, rows = summarize(*read_results(self.db))
+        columns, rows = summarize(*read_results(self.db), relative_to=relative_to)
         return rows_frame(rows, columns)
 
 
