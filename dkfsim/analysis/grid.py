@@ -104,7 +104,7 @@ def summarize(columns, rows, relative_to: str | None = None) -> tuple[list[str],
         verdict = anees_consistent(anees[1:], nx)
         other = found.get((h, ref, comp))
         if other is None:
-            paired = [None] * 7
+            paired: list = [None] * 7
         else:
             p = paired_interval(*pair_values(rs, other["rows"], "mse"))
             paired = [ref, p["diff"], *p["diff_ci95"], p["ratio"], *p["ratio_ci95"]]

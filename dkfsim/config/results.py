@@ -8,7 +8,9 @@ style (:func:`dkfsim.config.messages.convert`): ``<file>: <dotted.key>: <what is
 * :class:`RunSummary` -- ``summary.json`` of ``dkfsim run``, its ``rows`` (:class:`Row`);
 * :class:`MonteCarloSummary` -- ``summary.json`` of ``dkfsim montecarlo``;
 * :class:`Row` -- one tidy row (``rows.csv``, ``runs.csv``, a sweep's ``results`` table);
-* :class:`SweepDefinition` -- a sweep database's ``meta.definition``.
+* :class:`SweepDefinition` -- a sweep database's ``meta.definition``;
+* :func:`read_rows` -- a ``rows.csv`` / ``runs.csv`` as validated tidy rows;
+* :func:`read_curves` -- a Monte Carlo ``curves.npz``, every header checked before its data.
 
 Models accept keys they do not know (older and newer folders carry other facts), and check
 the types and the consistency of those the readers use.  Names (estimates, components,
@@ -27,6 +29,7 @@ from pydantic import BaseModel, ConfigDict, Field, TypeAdapter, ValidationError,
 from dkfsim.config.messages import convert
 from dkfsim.core.errors import DkfsimError, ScenarioError
 from dkfsim.core.files import check_regular_file, clip, read_json
+from dkfsim.core.npzfile import NpzFile
 from dkfsim.core.params import custom_error
 
 #: Longest estimate, component or scenario name read back.
@@ -292,3 +295,115 @@ def read_run_seeds(path) -> dict[int, int]:
     except (csv.Error, OSError) as exc:
         raise DkfsimError(f"{label}: cannot read as CSV ({clip(str(exc), 120)})") from None
     return seeds
+
+
+def read_rows(path, what: str = "runs.csv") -> list[dict]:
+    """The tidy rows of a ``runs.csv`` (or ``rows.csv``): ``run, seed, estimate, component``
+    then metric columns, every row checked with :class:`Row` (numbers as numbers, an empty
+    cell None).  Read as text only; raises :class:`DkfsimError`."""
+    label = str(path)
+    check_regular_file(Path(path), limit=MAX_CSV_BYTES, what=what)
+    rows: list[dict] = []
+    try:
+        with open(path, newline="", encoding="utf-8") as fh:
+            reader = csv.reader(fh)
+            head = next(reader, None)
+            if not head or head[:4] != ["run", "seed", "estimate", "component"]:
+                raise DkfsimError(f"{label}: not a {what} written by dkfsim (its header is "
+                                  f"{clip(head)}, expected run, seed, estimate, component, ...)")
+            if len(set(head)) != len(head) or any(not c or len(c) > NAME_LIMIT for c in head):
+                raise DkfsimError(f"{label}: its header {clip(head)} names a column twice, or "
+                                  "has an empty or too long name")
+            for line, cells in enumerate(reader, 2):
+                if not cells:
+                    continue
+                if len(cells) != len(head):
+                    raise DkfsimError(f"{label}: line {line}: {len(cells)} cells for {len(head)} columns")
+                rows.append(_row(head, cells, f"{label}: line {line}"))
+    except UnicodeDecodeError as exc:
+        raise DkfsimError(f"{label}: not a UTF-8 text file ({exc.reason} at byte {exc.start})") from None
+    except (csv.Error, OSError) as exc:
+        raise DkfsimError(f"{label}: cannot read as CSV ({clip(str(exc), 120)})") from None
+    return [validate(Row, r, f"{label} (row {i + 1})").model_dump() for i, r in enumerate(rows)]
+
+
+def _row(head, cells, where: str) -> dict:
+    """One CSV line as a row: ``run`` and ``seed`` integers, names as text, metrics numbers."""
+    out: dict = {}
+    for key, cell in zip(head, cells):
+        if key in ("estimate", "component"):
+            out[key] = cell
+            continue
+        try:
+            out[key] = (int(cell) if key in ("run", "seed") else
+                        None if cell == "" else float(cell))
+        except ValueError:
+            raise DkfsimError(f"{where}: {clip(key)}: expected a number, got {clip(cell)}") from None
+    return out
+
+
+#: ``curves.npz`` arrays besides ``t``, ``components``, the estimates and ``mse``, with their shapes
+#: (``A`` estimates, ``K`` ticks, ``nx`` components).
+CURVES = {"mse_ci_lo": "AKX", "mse_ci_hi": "AKX", "example_truth": "KX", "example_x": "AKX",
+          "example_node0": "KX", "nees": "AK", "nees_band": "2"}
+
+
+def read_curves(path, steps: int | None = None, components=None) -> dict:
+    """The arrays of a Monte Carlo ``curves.npz``, every header checked (numbers, names,
+    shapes) before any data is read.  ``components`` and ``estimates`` come back as lists of
+    names (older folders' ``algorithms`` under today's names); ``steps`` and ``components``
+    (from ``summary.json``), when given, must match.  Raises :class:`DkfsimError`."""
+    with NpzFile(path, "curves.npz") as z:
+        K = npz_header(z, "t", (steps,)).shape[0]
+        nx = npz_header(z, "components", (None,), kind="name").shape[0]
+        key = "estimates" if "estimates" in z else "algorithms"      # (older folders)
+        A = npz_header(z, key, (None,), kind="name").shape[0]
+        npz_header(z, "mse", (A, K, nx))
+        wanted = ["t", "components", key, "mse"]
+        size = {"A": A, "K": K, "X": nx, "2": 2}
+        for k, dims in CURVES.items():
+            if k in z:
+                npz_header(z, k, tuple(size[d] for d in dims))
+                wanted.append(k)
+        arrays: dict[str, Any] = dict(z.read(wanted))
+        arrays["components"] = npz_names(z, arrays, "components")
+        names = npz_names(z, arrays, key)
+        arrays.pop(key)
+        arrays["estimates"] = [OLD_NAMES.get(a, a) if key == "algorithms" else a for a in names]
+    if components not in (None, arrays["components"]):
+        raise DkfsimError(f"{path}: its components {clip(arrays['components'])} are not those of "
+                          f"summary.json ({clip(components)})")
+    return arrays
+
+
+# =========================================================================== npz headers
+def npz_header(z: NpzFile, key: str, shape=None, kind: str = "number"):
+    """The header of array ``key``: present, of ``kind`` ("number": bool, integer or float;
+    "name": strings of at most NAME_LIMIT characters) and of ``shape`` (None: any size;
+    every size at least 1)."""
+    if key not in z:
+        raise DkfsimError(f"{z.path}: no array {key!r}")
+    h = z.headers[key]
+    if kind == "number" and not h.numeric:
+        raise DkfsimError(f"{z.path}: array {clip(key)} holds {h.dtype} values, expected numbers")
+    if kind == "name" and (h.dtype.kind != "U" or h.dtype.itemsize > 4 * NAME_LIMIT):
+        raise DkfsimError(f"{z.path}: array {clip(key)} holds {h.dtype} values, expected names "
+                          f"(text of at most {NAME_LIMIT} characters)")
+    if shape is not None:
+        ok = len(h.shape) == len(shape) and all(s is None or s == d for s, d in zip(shape, h.shape))
+        if not ok:
+            want = "(" + ", ".join("?" if s is None else str(s) for s in shape) + ")"
+            raise DkfsimError(f"{z.path}: array {clip(key)} has shape {h.shape}, expected {want}")
+    if 0 in h.shape:
+        raise DkfsimError(f"{z.path}: array {clip(key)} is empty (shape {h.shape})")
+    return h
+
+
+def npz_names(z: NpzFile, arrays: dict, key: str) -> list[str]:
+    names = [str(v) for v in arrays[key]]
+    for v in names:
+        if not v.strip():
+            raise DkfsimError(f"{z.path}: array {key!r} holds an empty name")
+    if len(set(names)) != len(names):
+        raise DkfsimError(f"{z.path}: array {key!r} names one thing twice ({clip(names)})")
+    return names

@@ -39,7 +39,6 @@ from pathlib import Path
 import numpy as np
 
 from dkfsim.analysis.frames import curves_dataset, rows_frame
-from dkfsim.analysis.paired import DEFAULT_REFERENCE, paired_block
 from dkfsim.analysis.metrics import (
     anees_consistent,
     anees_summary,
@@ -50,10 +49,12 @@ from dkfsim.analysis.metrics import (
     t_interval,
     t_interval_from_moments,
 )
+from dkfsim.analysis.paired import DEFAULT_REFERENCE, paired_block
 from dkfsim.components.topology import generator_params
 from dkfsim.config.dynamics import component_names
-from dkfsim.config.load import load_scenario, scenario_hash
+from dkfsim.config.load import load_scenario, scenario_hash, stored_scenario
 from dkfsim.config.plan import RunPlan
+from dkfsim.config.results import MonteCarloSummary, read_curves, read_record, read_rows
 from dkfsim.config.schema import Scenario
 from dkfsim.core.errors import DkfsimError
 from dkfsim.core.folders import staged, write_json
@@ -305,6 +306,38 @@ def check_reference(sc, relative_to: str | None) -> None:
                           f"(estimates: {', '.join(names)})")
 
 
+def load_montecarlo(folder) -> "MonteCarloResult":
+    """Read a folder written by ``dkfsim montecarlo`` (or :meth:`MonteCarloResult.save`) back.
+
+    Everything is checked before use (docs/security.md): ``summary.json`` against
+    :class:`~dkfsim.config.results.MonteCarloSummary`, every row of ``runs.csv``
+    (:func:`~dkfsim.config.results.read_rows`), every header of ``curves.npz`` before its
+    data (:func:`~dkfsim.config.results.read_curves`); the scenario is re-validated from the
+    copy in ``summary.json`` as data (its ``plugins:`` are never imported).  Nothing is
+    unpickled or imported.  Raises :class:`DkfsimError`.
+    """
+    folder = Path(folder)
+    if not folder.is_dir():
+        raise DkfsimError(f"{folder}: no such folder (give the folder dkfsim montecarlo wrote)")
+    for name in ("summary.json", "runs.csv", "curves.npz"):
+        if not (folder / name).is_file():
+            raise DkfsimError(f"{folder}: no {name} (a Monte Carlo folder holds summary.json, "
+                              "runs.csv and curves.npz)")
+    path = folder / "summary.json"
+    summary = read_record(path, MonteCarloSummary, "summary.json")
+    if not summary.get("scenario_config"):
+        raise DkfsimError(f"{path}: no scenario_config (written by an older dkfsim?)")
+    source = summary.get("source")
+    scenario = stored_scenario(summary["scenario_config"], source=source, label=str(path))
+    scenario.set_source(source)
+    rows = read_rows(folder / "runs.csv")
+    curves = read_curves(folder / "curves.npz", scenario.steps, summary.get("components"))
+    try:
+        return MonteCarloResult.restored(scenario, summary, rows, curves)
+    except DkfsimError as exc:
+        raise DkfsimError(f"{folder}: {exc}") from None
+
+
 def estimate_montecarlo(sc, runs: int, jobs: int) -> Cost:
     """Memory and time of ``runs`` runs on ``jobs`` processes, rows and curves included."""
     one = estimate_run(sc, "estimates")
@@ -366,6 +399,46 @@ class MonteCarloResult:
             return self.relative_to
         return DEFAULT_REFERENCE if DEFAULT_REFERENCE in self.estimates else None
 
+    @classmethod
+    def restored(cls, scenario, summary: dict, rows: list[dict], curves: dict) -> "MonteCarloResult":
+        """A result read back from its folder (:func:`load_montecarlo`): ``summary`` (a checked
+        ``summary.json``), ``rows`` (the checked ``runs.csv``), ``curves`` (the checked
+        ``curves.npz``).  Its summary and table are recomputed from those rows and curves."""
+        self = cls.__new__(cls)
+        self.scenario = scenario
+        self.plan = RunPlan(scenario)
+        self.runs = int(summary["runs"])
+        self.jobs = summary.get("jobs")
+        self.executor = "(read back from its folder)"
+        self.burn_in = check_burn_in(summary.get("burn_in"), int(scenario.steps))
+        seeds = {int(r["run"]): int(r["seed"]) for r in rows}
+        self.seeds = [seeds[r] for r in sorted(seeds)]
+        self.rows = rows
+        self.wall_time_s = float(summary.get("wall_time_s") or 0.0)
+        self.t = np.asarray(curves["t"], dtype=float)
+        self.components = list(curves["components"])
+        self.estimates = list(curves["estimates"])
+        A, K, nx = len(self.estimates), len(self.t), len(self.components)
+        self.mse = np.asarray(curves["mse"], dtype=float)
+        nan = np.full((A, K, nx), np.nan)
+        self.mse_ci_lo = np.asarray(curves.get("mse_ci_lo", nan), dtype=float)
+        self.mse_ci_hi = np.asarray(curves.get("mse_ci_hi", nan), dtype=float)
+        self.nees = np.asarray(curves.get("nees", np.full((A, K), np.nan)), dtype=float)
+        self.nees_band = nees_band(self.runs, nx)
+        self.example = {k: np.asarray(curves[k], dtype=float) if k in curves else None
+                        for k in ("example_truth", "example_x", "example_node0")}
+        self.relative_to = summary.get("relative_to")
+        missing = [(e, c) for e in self.estimates for c in self.components
+                   if not any(r["estimate"] == e and r["component"] == c for r in rows)]
+        if missing or len(self.seeds) != self.runs:
+            raise DkfsimError("runs.csv does not match curves.npz and summary.json ("
+                              + (f"no row for estimate {missing[0][0]}, component {missing[0][1]}"
+                                 if missing else f"{len(self.seeds)} runs, summary.json says {self.runs}")
+                              + ")")
+        if self.relative_to not in (None, *self.estimates):
+            self.relative_to = None
+        return self
+
     def __repr__(self) -> str:
         sc = self.scenario
         lines = [f"MonteCarloResult {sc.name}: {self.runs} runs x {sc.steps} ticks (base seed "
@@ -414,7 +487,7 @@ class MonteCarloResult:
     def estimate_summary(self, estimate: str) -> dict:
         a = self.estimates.index(estimate)
         nx = len(self.components)
-        out = {"mse": {}, "mse_ci95": {}}
+        out: dict = {"mse": {}, "mse_ci95": {}}
         for comp in self.components:
             mean, lo, hi = t_interval(self.column(estimate, "mse", comp))
             out["mse"][comp] = float(mean)
@@ -486,21 +559,23 @@ class MonteCarloResult:
     def save(self, out_dir) -> Path:
         """Write ``runs.csv``, ``curves.npz`` and ``summary.json`` into ``out_dir``."""
         summary = self.summary()
+        examples = {k: v for k, v in self.example.items() if v is not None}
         with staged(out_dir, "montecarlo") as tmp:
             write_rows(tmp / "runs.csv", self.rows)
             np.savez(tmp / "curves.npz",
                      t=self.t, components=np.array(self.components), estimates=np.array(self.estimates),
                      mse=self.mse, mse_ci_lo=self.mse_ci_lo, mse_ci_hi=self.mse_ci_hi,
-                     nees=self.nees, nees_band=self.nees_band, **self.example)
+                     nees=self.nees, nees_band=self.nees_band, **examples)
             write_json(tmp / "summary.json", summary)
         return Path(out_dir)
 
     def table(self) -> str:
         """Algorithm x component: MSE with its 95 % CI; ANEES with its 95 % t-interval over runs
         and the consistency verdict; then the paired comparison with the reference estimate."""
-        head = ("estimate", "component", "MSE", "95% CI", "ANEES", "95% CI (runs)", "consistent")
+        head: tuple[str, ...] = ("estimate", "component", "MSE", "95% CI", "ANEES", "95% CI (runs)",
+                                 "consistent")
         summaries = {name: self.estimate_summary(name) for name in self.estimates}
-        body = []
+        body: list[tuple[str, ...]] = []
         for name, s in summaries.items():
             for c, comp in enumerate(self.components):
                 lo, hi = s["mse_ci95"][comp]

@@ -16,9 +16,10 @@ from dkfsim.config.dynamics import CA_UNITS
 from dkfsim.config.dynamics import component_names as names_of
 from dkfsim.config.results import (
     NAME_LIMIT,
-    OLD_NAMES,
     MonteCarloSummary,
     RunSummary,
+    npz_header,
+    read_curves,
     read_record,
     read_run_seeds,
 )
@@ -128,38 +129,6 @@ def _d_t(summary: dict) -> int | None:
 # arrays: every header checked before any data is read
 # ----------------------------------------------------------------------------
 
-def _header(z: NpzFile, key: str, shape=None, kind: str = "number"):
-    """The header of array ``key``: present, of ``kind`` ("number": bool, integer or float;
-    "name": strings of at most NAME_LIMIT characters) and of ``shape`` (None: any size;
-    every size at least 1)."""
-    if key not in z:
-        raise DkfsimError(f"{z.path}: no array {key!r}")
-    h = z.headers[key]
-    if kind == "number" and not h.numeric:
-        raise DkfsimError(f"{z.path}: array {clip(key)} holds {h.dtype} values, expected numbers")
-    if kind == "name" and (h.dtype.kind != "U" or h.dtype.itemsize > 4 * NAME_LIMIT):
-        raise DkfsimError(f"{z.path}: array {clip(key)} holds {h.dtype} values, expected names "
-                          f"(text of at most {NAME_LIMIT} characters)")
-    if shape is not None:
-        ok = len(h.shape) == len(shape) and all(s is None or s == d for s, d in zip(shape, h.shape))
-        if not ok:
-            want = "(" + ", ".join("?" if s is None else str(s) for s in shape) + ")"
-            raise DkfsimError(f"{z.path}: array {clip(key)} has shape {h.shape}, expected {want}")
-    if 0 in h.shape:
-        raise DkfsimError(f"{z.path}: array {clip(key)} is empty (shape {h.shape})")
-    return h
-
-
-def _names(z: NpzFile, arrays: dict, key: str) -> list[str]:
-    names = [str(v) for v in arrays[key]]
-    for v in names:
-        if not v.strip():
-            raise DkfsimError(f"{z.path}: array {key!r} holds an empty name")
-    if len(set(names)) != len(names):
-        raise DkfsimError(f"{z.path}: array {key!r} names one thing twice ({clip(names)})")
-    return names
-
-
 def load_folder(path) -> Folder:
     """Read a ``dkfsim run`` folder or a ``dkfsim montecarlo`` folder."""
     p = Path(path)
@@ -186,12 +155,12 @@ def _load_run(p: Path) -> Folder:
     summary = read_record(p / "summary.json", RunSummary, "summary.json") \
         if (p / "summary.json").is_file() else {}
     with NpzFile(f, "run.npz") as z:
-        truth = _header(z, "truth", (summary.get("steps"), None))
+        truth = npz_header(z, "truth", (summary.get("steps"), None))
         K, nx = truth.shape
-        _header(z, "t", (K,))
+        npz_header(z, "t", (K,))
         keys = [k for k in z.files if k.startswith("x_") and k not in NOT_ESTIMATES]
         for key in keys:
-            h = _header(z, key)
+            h = npz_header(z, key)
             if not (h.shape == (K, nx) or (len(h.shape) == 3 and h.shape[0] == K and h.shape[2] == nx)):
                 raise DkfsimError(f"{f}: array {clip(key)} has shape {h.shape}, expected ({K}, {nx}) "
                                   f"or ({K}, n, {nx})")
@@ -229,26 +198,8 @@ def _load_montecarlo(p: Path) -> Folder:
     f = p / "curves.npz"
     summary = read_record(p / "summary.json", MonteCarloSummary, "summary.json") \
         if (p / "summary.json").is_file() else {}
-    with NpzFile(f, "curves.npz") as z:
-        K = _header(z, "t", (summary.get("steps"),)).shape[0]
-        nx = _header(z, "components", (None,), kind="name").shape[0]
-        key = "estimates" if "estimates" in z else "algorithms"      # (older folders)
-        A = _header(z, key, (None,), kind="name").shape[0]
-        wanted = ["t", "components", key]
-        _header(z, "mse", (A, K, nx))
-        wanted.append("mse")
-        optional = {"mse_ci_lo": (A, K, nx), "mse_ci_hi": (A, K, nx), "example_truth": (K, nx),
-                    "example_x": (A, K, nx), "example_node0": (K, nx), "nees": (A, K), "nees_band": (2,)}
-        for k, shape in optional.items():
-            if k in z:
-                _header(z, k, shape)
-                wanted.append(k)
-        arrays = z.read(wanted)
-        comps = _names(z, arrays, "components")
-        algs = [OLD_NAMES.get(a, a) if key == "algorithms" else a for a in _names(z, arrays, key)]
-    if summary.get("components") not in (None, comps):
-        raise DkfsimError(f"{f}: its components {clip(comps)} are not those of summary.json "
-                          f"({clip(summary['components'])})")
+    arrays = read_curves(f, summary.get("steps"), summary.get("components"))
+    comps, algs = arrays["components"], arrays["estimates"]
     t = arrays["t"].astype(float)
     mse_all = arrays["mse"].astype(float)
     mse = {a: mse_all[i] for i, a in enumerate(algs)}
