@@ -4,13 +4,22 @@ from __future__ import annotations
 
 import argparse
 import os
+import re
 from pathlib import Path
 
 from dkfsim.cli.common import say
 from dkfsim.core.errors import DkfsimError
 from dkfsim.core.files import clip
 from dkfsim.experiments.sweep import is_database
-from dkfsim.report.plots import DEFAULT_FORMATS, FORMATS, check_formats, load_folder, plot_compare, plot_folder
+from dkfsim.report.plots import (
+    DEFAULT_FORMATS,
+    FORMATS,
+    check_formats,
+    load_folder,
+    plot_compare,
+    plot_folder,
+    relative_to,
+)
 from dkfsim.report.sweep_plot import plot_sweep
 
 EPILOG = """\
@@ -47,6 +56,11 @@ def add_command(sub) -> None:
     p.add_argument("--relative", action="store_true",
                    help="with --compare: add a column with each MSE divided by the first folder's "
                         "centralized MSE (shows differences of a few per cent)")
+    p.add_argument("--relative-to", dest="relative_to", metavar="NAME",
+                   help="paired comparison with a reference, run by run on the same draws: a Monte "
+                        "Carlo folder's paired figure against estimate NAME (default: the one its "
+                        "summary.json names); a sweep drawn as the ratio to estimate NAME, or with "
+                        "--hue to the hue key's value NAME")
     p.add_argument("--labels", nargs="+", metavar="LABEL", help="legend label per DIR (with --compare)")
     p.add_argument("--component", dest="components", nargs="+", metavar="NAME",
                    help="state components to draw, by name (position) or index (0); default: all")
@@ -93,10 +107,12 @@ def cmd_plot_sweep(args, formats) -> int:
     path = Path(args.dirs[0])
     curves_x = (args.x or "x").removeprefix("param:").replace(".", "_")
     stem = args.name or f"{args.metric}_vs_{curves_x}" + (f"_by_{args.hue.replace('.', '_')}"
-                                                         if args.hue else "")
+                                                         if args.hue else "") + \
+        (f"_relative_to_{re.sub(r'[^A-Za-z0-9_.-]', '_', args.relative_to)}" if args.relative_to else "")
     out = Path(args.out) if args.out else _default_out(path.parent, path.stem + "_figures")
     written = plot_sweep(path, out / stem, x=args.x, hue=args.hue, metric=args.metric,
-                         estimate=args.estimate, where=args.where, formats=formats, title=args.title)
+                         estimate=args.estimate, where=args.where, formats=formats, title=args.title,
+                         relative_to=args.relative_to)
     for f in written:
         say(f"wrote {f}")
     return 0
@@ -152,6 +168,10 @@ def cmd_plot(args) -> int:
     if args.compare and len(args.dirs) < 2:
         raise DkfsimError("--compare: give at least two folders")
     folders = [load_folder(d) for d in args.dirs]
+    if args.relative_to is not None:
+        if args.compare:
+            raise DkfsimError("--relative-to: not with --compare (use --relative there)")
+        folders = [relative_to(f, args.relative_to) for f in folders]
     written = []
     if args.compare:
         out = Path(args.out) if args.out else _default_out(folders[0].path, "figures")

@@ -7,7 +7,12 @@ the 95 % Student-t interval over those runs -- the numbers of the summary file
 per value of a second grid key (for one ``--estimate``).  Grid keys that are
 neither ``--x`` nor ``--hue`` must be fixed with ``--where KEY=VALUE`` when they
 take several values.  A per-component metric (``mse``) gets one panel per state
-component; ``anees`` shows the 95 % chi-square band of a consistent filter.
+component; ``anees`` shows the expected value nx (an estimate is consistent where its
+interval covers it; the per-tick chi-square band is not a band for the time average).
+With ``--relative-to NAME`` each line is the paired ratio of the metric to the
+reference at the same grid point, run by run (the exponentiated 95 % t-interval of the
+per-run log-ratios: :mod:`dkfsim.analysis.paired`): NAME is an estimate, or with
+``--hue`` a value of the hue key (runs pair by run index, so ``seed`` must not be a grid key).
 """
 
 from __future__ import annotations
@@ -17,7 +22,8 @@ from pathlib import Path
 import numpy as np
 
 from dkfsim.analysis.grid import grid_columns, groups, interval
-from dkfsim.analysis.metrics import nees_band
+from dkfsim.analysis.metrics import paired_interval
+from dkfsim.analysis.paired import pair_values
 from dkfsim.core.errors import DkfsimError
 from dkfsim.core.extras import pyplot
 from dkfsim.core.params import suggest
@@ -93,9 +99,10 @@ def per_component(metric: str) -> bool:
 
 
 def sweep_curves(path, x: str | None = None, hue: str | None = None, metric: str = "mse",
-                 estimate: str | None = None, where=()) -> dict:
+                 estimate: str | None = None, where=(), relative_to: str | None = None) -> dict:
     """The points to draw: ``{"x": key, "hue": key or None, "xs": values, "lines": {label:
-    {component: [(x, n, mean, lo, hi), ...]}}, "components": [...], "nx": {estimate: nx}}``."""
+    {component: [(x, n, mean, lo, hi), ...]}}, "components": [...], "nx": {estimate: nx}}``;
+    with ``relative_to`` the points are paired ratios to the reference (:func:`_paired`)."""
     columns, rows = read_table(path)
     if metric not in columns:
         metrics = [c for c in columns if c in METRICS]
@@ -113,8 +120,8 @@ def sweep_curves(path, x: str | None = None, hue: str | None = None, metric: str
     if hue_key == x:
         raise DkfsimError(f"--hue {hue}: the same key as --x; choose another grid key or 'estimate'")
     fixed = _parse_where(columns, where)
-    gs = [g for g in groups(columns, rows).values()
-          if all(_same(g["grid"][k], v) for k, v in fixed.items())]
+    found = groups(columns, rows)
+    gs = [g for g in found.values() if all(_same(g["grid"][k], v) for k, v in fixed.items())]
     if not gs:
         raise DkfsimError(f"--where: no rows of {path} match "
                           + ", ".join(f"{k}={v}" for k, v in fixed.items()))
@@ -126,6 +133,8 @@ def sweep_curves(path, x: str | None = None, hue: str | None = None, metric: str
             raise DkfsimError(f"grid key {k} takes {len(vals)} values ({', '.join(map(str, vals))}): "
                               f"give --hue {k}, or fix it with --where {k}=VALUE")
     names = estimate_order({g["estimate"] for g in gs})
+    if relative_to is not None:
+        _check_reference(relative_to, names, gs, hue_key, grid)
     if hue_key is not None:
         estimate = estimate or ("fused" if "fused" in names else names[0])
         if estimate not in names:
@@ -157,19 +166,64 @@ def sweep_curves(path, x: str | None = None, hue: str | None = None, metric: str
         if g["component"] not in components:
             continue
         label = g["estimate"] if hue_key is None else str(g["grid"][hue_key])
-        mean, lo, hi = interval(r.get(metric) for r in g["rows"])
-        lines[label][g["component"]].append((g["grid"][x], len(g["rows"]), mean, lo, hi))
+        if relative_to is not None:
+            if label == relative_to:
+                continue
+            point = _paired(g, found, gs, relative_to, hue_key, metric)
+        else:
+            point = interval(r.get(metric) for r in g["rows"])
+        if point is not None:
+            lines[label][g["component"]].append((g["grid"][x], len(g["rows"]), *point))
+    lines.pop(relative_to, None)
     xs = _values(gs, x)
     return {"x": x, "hue": hue_key, "estimate": estimate if hue_key else None, "xs": xs,
             "lines": lines, "components": components, "metric": metric, "fixed": fixed,
-            "nx": {e: len(c) for e, c in nx.items()}}
+            "nx": {e: len(c) for e, c in nx.items()}, "relative_to": relative_to}
+
+
+def _check_reference(ref: str, names, gs, hue_key, grid) -> None:
+    """``--relative-to``: an estimate, or with ``--hue`` a value of the hue key, and then runs
+    must pair by run index (the same seeds at every grid point: ``seed`` is not a grid key)."""
+    if hue_key is None:
+        if ref not in names:
+            raise DkfsimError(f"--relative-to {ref}: not an estimate of the sweep{suggest(ref, names)} "
+                              f"(estimates: {', '.join(names)})")
+        return
+    seeds = [k for k in grid if k.removeprefix("param:") == "seed"]
+    if seeds:
+        raise DkfsimError("--relative-to with --hue: seed is a grid key, so run r of two grid "
+                          "points is not drawn from the same seed and runs cannot be paired; "
+                          "compare estimates instead (no --hue)")
+    values = [str(v) for v in _values(gs, hue_key)]
+    if ref not in values:
+        raise DkfsimError(f"--relative-to {ref}: with --hue {hue_key.removeprefix('param:')}, a value of "
+                          f"that key{suggest(ref, values)} (values: {', '.join(values)})")
+
+
+def _paired(g, found, gs, ref: str, hue_key, metric: str):
+    """``(ratio, lo, hi)`` of group ``g``'s metric to the reference's, paired by run index;
+    None when the reference has no rows there or a ratio is undefined (a value <= 0)."""
+    if hue_key is None:
+        other = found.get((g["param_hash"], ref, g["component"]))
+    else:
+        want = {**g["grid"], hue_key: ref}
+        other = next((o for o in gs if o["estimate"] == g["estimate"] and o["component"] == g["component"]
+                      and all(_same(o["grid"][k], v) for k, v in want.items())), None)
+    if other is None:
+        return None
+    p = paired_interval(*pair_values(g["rows"], other["rows"], metric))
+    if p["ratio"] is None:
+        return None
+    lo, hi = p["ratio_ci95"]
+    return (p["ratio"], np.nan if lo is None else lo, np.nan if hi is None else hi)
 
 
 def plot_sweep(path, stem, x=None, hue=None, metric="mse", estimate=None, where=(),
-               formats=DEFAULT_FORMATS, title=None) -> list[Path]:
+               formats=DEFAULT_FORMATS, title=None, relative_to=None) -> list[Path]:
     """Draw :func:`sweep_curves` into ``stem.<format>``; return the files written."""
     formats = check_formats(formats)
-    cur = sweep_curves(path, x, hue, metric, estimate, where)
+    cur = sweep_curves(path, x, hue, metric, estimate, where, relative_to)
+    ref = cur["relative_to"]
     comps, xs = cur["components"], cur["xs"]
     numeric = _numeric(xs)
     pos = {str(v): (float(v) if numeric else i) for i, v in enumerate(xs)}
@@ -202,19 +256,22 @@ def plot_sweep(path, stem, x=None, hue=None, metric="mse", estimate=None, where=
             ax.plot(px, m, marker="o", ms=3.5, lw=1.2, color=col, label=lab)
             if not np.isnan(lo).all():
                 ax.fill_between(px, lo, hi, color=col, alpha=0.18, lw=0)
-        if metric == "anees" and len(runs) == 1 and cur["nx"]:
-            nx = max(cur["nx"].values())
-            band = nees_band(next(iter(runs)), nx)
-            ax.axhspan(*band, color="0.5", alpha=0.15, lw=0,
-                       label=f"95 % band of a consistent filter ({next(iter(runs))} runs)")
-            ax.axhline(nx, color="0.3", lw=0.8, ls=":")
+        if ref is not None:
+            ax.axhline(1.0, color="0.3", lw=0.8, ls=":")
+        elif metric == "anees" and cur["nx"] and len(set(cur["nx"].values())) == 1:
+            nx = next(iter(cur["nx"].values()))
+            ax.axhline(nx, color="0.3", lw=0.8, ls=":",
+                       label=f"nx = {nx}: consistent where the 95 % interval covers it")
         vals = np.concatenate(means) if means else np.array([])
         vals = vals[np.isfinite(vals) & (vals > 0)]
-        if metric == "mse" and vals.size and vals.max() / vals.min() > 10:
+        if (metric == "mse" or ref is not None) and vals.size and vals.max() / vals.min() > 10:
             ax.set_yscale("log")
             plain_log_ticks(ax)
         name = METRIC_LABELS.get(metric, metric)
-        unit = unit_label(units[comps.index(comp)], squared=True) if metric == "mse" else ""
+        unit = unit_label(units[comps.index(comp)], squared=True) if metric == "mse" and ref is None else ""
+        if ref is not None:
+            name = f"{name} / {'' if cur['hue'] is None else plain(cur['hue'].removeprefix('param:')) + ' = '}" \
+                   f"{plain(ref)}"
         ax.set_ylabel(f"{plain(comp)} {plain(name)}{unit}" if len(comps) > 1 or metric == "mse" else plain(name))
         ax.grid(True, which="both", alpha=0.25)
     last = axes[-1, 0]
@@ -230,7 +287,8 @@ def plot_sweep(path, stem, x=None, hue=None, metric="mse", estimate=None, where=
     r = sorted(runs)
     per = f"{r[0]} runs" if len(r) == 1 else f"{r[0]}-{r[-1]} runs"
     what = METRIC_LABELS.get(metric, metric)
-    sub = f"mean over {per} per point; band: 95 % interval (Student t)"
+    sub = f"mean over {per} per point; band: 95 % interval (Student t)" if ref is None else \
+        f"paired over {per} per point: geometric mean of the per-run ratios, band: 95 % t-interval of their logs"
     if cur["estimate"]:
         sub = f"{label_of(cur['estimate'])}; " + sub
     if cur["fixed"]:

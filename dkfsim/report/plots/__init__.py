@@ -9,8 +9,10 @@
   folder, log scale -- the paper's Fig. 4.  A Monte Carlo folder gives the mean
   over runs with its 95 % confidence band; a single run gives the squared error
   of that run, smoothed by a centred moving average (``--smooth``);
-* ``nees`` (Monte Carlo folders only): the average NEES per tick with its 95 %
-  consistency band.
+* ``nees`` (Monte Carlo folders only): the average NEES per tick with the per-tick 95 %
+  chi-square band, the fraction of ticks inside it and the ANEES verdict of each estimate;
+* ``paired`` (Monte Carlo folders with a reference estimate): each estimate's MSE relative
+  to the reference, paired over the runs (:mod:`.paired`).
 
 ``dkfsim plot DIR1 DIR2 ... --compare --labels ...`` overlays the fused MSE of
 several folders and the centralized filter of the first -- the paper's Fig. 5
@@ -35,6 +37,7 @@ from pathlib import Path
 from dkfsim.report.plots.accuracy import plot_mse, plot_nees
 from dkfsim.report.plots.compare import check_comparable, plot_compare
 from dkfsim.report.plots.folders import Folder, component_names, load_folder
+from dkfsim.report.plots.paired import paired_reference, plot_paired, relative_to
 from dkfsim.report.plots.style import (
     DEFAULT_FORMATS,
     ESTIMATES,
@@ -51,7 +54,8 @@ from dkfsim.report.plots.tracking import plot_tracking, zoom_window
 
 __all__ = ["DEFAULT_FORMATS", "ESTIMATES", "FORMATS", "Folder", "check_comparable", "color_of",
            "component_names", "default_smooth", "label_of", "load_folder", "moving_average",
-           "mse_note", "plot_compare", "plot_folder", "plot_mse", "plot_nees", "plot_tracking",
+           "mse_note", "paired_reference", "plot_compare", "plot_folder", "plot_mse", "plot_nees",
+           "plot_paired", "plot_tracking", "relative_to",
            "select_components", "zoom_window", "check_formats"]
 
 
@@ -64,5 +68,7 @@ def plot_folder(folder: Folder, out_dir, formats=DEFAULT_FORMATS, components=Non
     written += plot_mse(folder, out / "mse", formats, components, smooth)
     if folder.nees:
         written += plot_nees(folder, out / "nees", formats)
+    if paired_reference(folder) is not None:
+        written += plot_paired(folder, out / "paired", formats, components)
     return written
 

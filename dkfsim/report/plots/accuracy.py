@@ -143,10 +143,13 @@ def _ratio_panel(ar, folder: Folder, names, ref: str, i: int, wr: int, first: bo
 
 
 def plot_nees(folder: Folder, stem, formats=DEFAULT_FORMATS, title=None) -> list[Path]:
-    """Average NEES per tick with its 95 % consistency band (Monte Carlo folders).
+    """Average NEES per tick with the per-tick 95 % chi-square band (Monte Carlo folders).
 
-    Up to :data:`NEES_SMALL_MULTIPLES_ABOVE` estimates share one panel; more get one
-    small panel each (same band, own y range), so a dozen estimates stay readable.
+    The band is that of the mean NEES at one tick; each estimate's label gives the fraction
+    of ticks inside it and, from ``summary.json``, the verdict on the time average: its
+    ANEES with the 95 % t-interval over runs, consistent when the interval covers nx
+    (docs/statistics.md).  Up to :data:`NEES_SMALL_MULTIPLES_ABOVE` estimates share one
+    panel; more get one small panel each (same band, own y range).
     """
     formats = check_formats(formats)
     if not folder.nees:
@@ -163,25 +166,48 @@ def plot_nees(folder: Folder, stem, formats=DEFAULT_FORMATS, title=None) -> list
     plt = pyplot()
     fig, ax = plt.subplots(figsize=(7.5, 3.4))
     for j, a in enumerate(names):
-        ax.plot(folder.t, folder.nees[a], color=color_of(a, j), lw=1.0, label=label_of(a),
-                ls="--" if a == "centralized" else "-")
+        ax.plot(folder.t, folder.nees[a], color=color_of(a, j), lw=1.0,
+                label=f"{label_of(a)}: {nees_verdict(folder, a)}", ls="--" if a == "centralized" else "-")
     if folder.nees_band is not None:
-        ax.axhspan(*folder.nees_band, color="0.5", alpha=0.18, lw=0, label="95 % consistency band")
+        ax.axhspan(*folder.nees_band, color="0.5", alpha=0.18, lw=0, label=band_label(folder))
     ax.axhline(folder.nx, color="0.3", lw=0.8, ls=":")
     ax.set_xlabel("time [s]")
     ax.set_ylabel("average NEES")
     ax.grid(True, alpha=0.3)
     ax.margins(x=0)
     ax.set_title(head, fontsize=10)
-    legend_below(fig, ax)
+    legend_below(fig, ax, ncol=1)
     return save_figure(fig, stem, formats)
+
+
+def nees_verdict(folder: Folder, estimate: str) -> str:
+    """``x % of ticks in band; ANEES a [lo, hi]: consistent`` for one estimate (what is known)."""
+    parts = []
+    frac = folder.fraction_in_band(estimate)
+    if frac is not None:
+        parts.append(f"{100 * frac:.0f} % of ticks in band")
+    s = folder.stats.get(estimate) or {}
+    anees, ci, ok = s.get("anees"), s.get("anees_ci95"), s.get("anees_consistent")
+    if anees is not None and np.isfinite(anees):
+        text = f"ANEES {anees:.3g}"
+        if ci is not None and None not in ci and np.all(np.isfinite(ci)):
+            text += f" [{ci[0]:.3g}, {ci[1]:.3g}]"
+        if ok is not None:
+            text += ": consistent" if ok else ": inconsistent"
+        parts.append(text)
+    return "; ".join(parts)
+
+
+def band_label(folder: Folder) -> str:
+    lo, hi = folder.nees_band or (np.nan, np.nan)
+    return f"per-tick 95 % band of the mean NEES [{lo:.3g}, {hi:.3g}]"
 
 
 def _nees_small_multiples(folder: Folder, names, stem, formats, head) -> list[Path]:
     plt = pyplot()
     ncols = 3 if len(names) > 4 else 2
     nrows = -(-len(names) // ncols)
-    fig, axes = plt.subplots(nrows, ncols, figsize=(3.3 * ncols, 2.1 * nrows + 0.8), sharex=True,
+    fig, axes = plt.subplots(nrows, ncols, figsize=(3.6 * ncols, 2.3 * nrows + 0.9), sharex=True,
                              squeeze=False)
     for k, ax in enumerate(axes.flat):
         if k >= len(names):
@@ -192,7 +218,8 @@ def _nees_small_multiples(folder: Folder, names, stem, formats, head) -> list[Pa
             ax.axhspan(*folder.nees_band, color="0.5", alpha=0.18, lw=0)
         ax.axhline(folder.nx, color="0.3", lw=0.8, ls=":")
         ax.plot(folder.t, folder.nees[a], color=color_of(a, k), lw=0.9)
-        ax.set_title(label_of(a), fontsize=8.5)
+        verdict = nees_verdict(folder, a).replace("; ", "\n", 1)
+        ax.set_title(f"{label_of(a)}\n{verdict}" if verdict else label_of(a), fontsize=7.5)
         ax.grid(True, alpha=0.3)
         ax.margins(x=0)
         ax.tick_params(labelsize=7.5)
@@ -201,8 +228,7 @@ def _nees_small_multiples(folder: Folder, names, stem, formats, head) -> list[Pa
         if k >= len(names) - ncols:         # the lowest panel of its column: its own time axis
             ax.set_xlabel("time [s]", fontsize=8)
             ax.xaxis.set_tick_params(labelbottom=True)
-    band = "" if folder.nees_band is None else \
-        f"; grey: 95 % consistency band [{folder.nees_band[0]:.3g}, {folder.nees_band[1]:.3g}]"
+    band = "" if folder.nees_band is None else f"\ngrey: {band_label(folder)}"
     fig.suptitle(head + band, fontsize=10)
     fig.tight_layout()
     return save_figure(fig, stem, formats)

@@ -62,11 +62,26 @@ class Folder:
     nees_band: tuple[float, float] | None = None
     burn_in: int | None = None        # rows skipped in the time averages (default: 10 % of K)
     mse_ci95: dict[str, list] = field(default_factory=dict)   # estimate -> per component [lo, hi]
+    #: estimate -> its summary.json entry (Monte Carlo): anees, anees_ci95, anees_consistent, paired
+    stats: dict[str, dict] = field(default_factory=dict)
+
+    def fraction_in_band(self, estimate: str) -> float | None:
+        """Fraction of the ticks after the burn-in whose mean NEES lies in the per-tick band."""
+        if self.nees_band is None or estimate not in self.nees:
+            return None
+        m = self.nees[estimate][self.burn_rows():]
+        m = m[np.isfinite(m)]
+        if m.size == 0:
+            return None
+        return float(np.mean((m >= self.nees_band[0]) & (m <= self.nees_band[1])))
+
+    def burn_rows(self) -> int:
+        """Rows skipped in the time averages: ``burn_in``, else 10 % of the ticks."""
+        return self.burn_in if self.burn_in is not None and 0 <= self.burn_in < self.K else self.K // 10
 
     def time_average(self, estimate: str, i: int) -> float:
         """MSE of one component averaged over the ticks after the burn-in."""
-        b = self.burn_in if self.burn_in is not None and 0 <= self.burn_in < self.K else self.K // 10
-        return float(np.mean(self.mse[estimate][b:, i]))
+        return float(np.mean(self.mse[estimate][self.burn_rows():, i]))
 
     def ci95(self, estimate: str, i: int) -> tuple[float, float] | None:
         """95 % interval of the time-averaged MSE over runs (Monte Carlo summary.json), if known."""
@@ -229,7 +244,8 @@ def _load_montecarlo(p: Path) -> Folder:
     if n_runs is None and summary:
         n_runs = summary["runs"]
     ci95 = {a: e["mse_ci95"] for a, e in (summary.get("estimates") or {}).items()}
+    stats = dict(summary.get("estimates") or {})
     return Folder(path=p, kind="montecarlo", scenario=str(summary.get("scenario", p.name)), t=t,
                   components=comps, units=component_units(comps, kind), mse=mse, ci=ci, truth=truth,
                   examples=examples, node0=node0, n_runs=n_runs or 0, d_t=_d_t(summary), nees=nees,
-                  nees_band=band, burn_in=summary.get("burn_in"), mse_ci95=ci95)
+                  nees_band=band, burn_in=summary.get("burn_in"), mse_ci95=ci95, stats=stats)
