@@ -130,9 +130,13 @@ def test_montecarlo_report_tables_hold_summary_json(folders, tmp_path):
             mse, lo, hi = cell.replace("[", " ").replace(",", " ").replace("]", " ").split()
             assert close(mse, e["mse"][comp], 6e-5)
             assert close(lo, e["mse_ci95"][comp][0], 6e-5) and close(hi, e["mse_ci95"][comp][1], 6e-5)
-    for name, anees, blo, bhi, frac in page.tables["nees"][1:]:
+    for name, anees, verdict, frac in page.tables["nees"][1:]:
         e = s["estimates"][name]
-        assert close(anees, e["anees"]) and close(blo, e["anees_band95"][0]) and close(bhi, e["anees_band95"][1])
+        mean, lo, hi = anees.replace("[", " ").replace(",", " ").replace("]", " ").split()
+        assert close(mean, e["anees"], 6e-5) and close(lo, e["anees_ci95"][0], 6e-5) \
+            and close(hi, e["anees_ci95"][1], 6e-5)
+        nx = len(s["components"])          # the verdict, recomputed from the interval
+        assert verdict == ("yes" if e["anees_ci95"][0] <= nx <= e["anees_ci95"][1] else "no")
         assert close(frac, e["anees_fraction_in_band"])
     with open(folders / "mc" / "runs.csv", newline="") as fh:
         seeds = {int(r["run"]): int(r["seed"]) for r in csv.DictReader(fh)}

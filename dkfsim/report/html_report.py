@@ -41,7 +41,7 @@ from dkfsim.core.folders import write_text
 from dkfsim.core.version import __version__
 from dkfsim.experiments.sweep import SweepDB, is_database, read_results
 from dkfsim.report.network import draw_network
-from dkfsim.report.plots import load_folder, plot_mse, plot_nees, plot_tracking
+from dkfsim.report.plots import load_folder, paired_reference, plot_mse, plot_nees, plot_paired, plot_tracking
 from dkfsim.report.plots.folders import NothingToPlot
 from dkfsim.report.plots.style import png_resolution
 from dkfsim.report.sweep_plot import plot_sweep
@@ -197,8 +197,14 @@ def _figures(folder_path: Path, kinds) -> list[str]:
         out.append(figure(_png(tmp / "mse.png"), "MSE per tick and state component.", "mse"))
         if folder.nees:
             plot_nees(folder, tmp / "nees", ("png",))
-            out.append(figure(_png(tmp / "nees.png"), "Mean NEES per tick with the 95 % chi-square "
-                              "band of a consistent filter.", "nees"))
+            out.append(figure(_png(tmp / "nees.png"), "Mean NEES per tick with the per-tick 95 % "
+                              "chi-square band of the mean NEES (labels: the fraction of ticks in it "
+                              "and the ANEES verdict).", "nees"))
+        if paired_reference(folder) is not None:
+            plot_paired(folder, tmp / "paired", ("png",))
+            out.append(figure(_png(tmp / "paired.png"), "MSE relative to the reference estimate, "
+                              "paired over the runs (95 % t-interval of the per-run log-ratios).",
+                              "paired"))
     return out
 
 
@@ -259,8 +265,15 @@ def montecarlo_page(folder: Path) -> str:
     est = s.get("estimates") or {}
     mse_rows = [(name, *(Interval((e["mse"][c], *e["mse_ci95"][c])) for c in comps))
                  for name, e in est.items()]
-    nees_rows = [(name, e.get("anees"), *(e.get("anees_band95") or (None, None)),
-                  e.get("anees_fraction_in_band")) for name, e in est.items()]
+    nees_rows = [(name, Interval((e.get("anees"), *(e.get("anees_ci95") or (None, None)))),
+                  _verdict(e.get("anees_consistent")), e.get("anees_fraction_in_band"))
+                 for name, e in est.items()]
+    ref = next((e["paired"]["reference"] for e in est.values() if e.get("paired")), None)
+    paired_rows = [(name, *(Interval((e["paired"]["mse_ratio"].get(c),
+                                      *e["paired"]["mse_ratio_ci95"].get(c, (None, None)))) for c in comps),
+                    *(Interval((e["paired"]["mse_diff"].get(c),
+                                *e["paired"]["mse_diff_ci95"].get(c, (None, None)))) for c in comps))
+                   for name, e in est.items() if e.get("paired") and name != ref]
     pk = [(name, e.get("messages_per_tick"), e.get("bytes_per_tick"), e.get("lost"), e.get("late"))
           for name, e in est.items()]
     seeds = _runs_seeds(folder / "runs.csv")
@@ -272,9 +285,19 @@ def montecarlo_page(folder: Path) -> str:
         ("Network", _network(sc)),
         ("MSE", table("mse", ("estimate", *(f"{c} MSE [95 % CI]" for c in comps)), mse_rows,
                       "mean over runs of the time-averaged MSE and its 95 % Student-t interval over runs")),
-        ("NEES", table("nees", ("estimate", "ANEES", "band low", "band high", "fraction in band"),
-                       nees_rows, f"expected {len(comps)} when consistent; band: per-tick 95 % "
-                       "chi-square band of the mean NEES over runs")),
+        ("NEES", table("nees", ("estimate", "ANEES [95 % CI over runs]", "consistent",
+                                "ticks in per-tick band"),
+                       nees_rows, f"consistent: the 95 % t-interval over runs of the time-averaged "
+                       f"NEES covers nx = {len(comps)} (a correct filter fails it in 5 % of seeds); "
+                       "ticks in per-tick band: fraction of ticks whose mean NEES lies in the "
+                       "per-tick 95 % chi-square band (docs/statistics.md)")),
+        ("Paired", table("paired", ("estimate", *(f"{c} MSE / {ref} [95 % CI]" for c in comps),
+                                    *(f"{c} MSE − {ref} [95 % CI]" for c in comps)), paired_rows,
+                         f"run by run against {ref} on the same draws: ratio = exponentiated mean "
+                         "and t-interval of the per-run log-ratios; difference: t-interval of the "
+                         "per-run differences")
+         if paired_rows else "<p class='note'>No paired comparison (no reference estimate in "
+                             "these runs).</p>"),
         ("Packets", table("packets", ("estimate", "messages per tick", "bytes per tick", "lost", "late"),
                           pk, "means over runs; – : not modelled for that estimate")),
         ("Figures", "\n".join(_figures(folder, ("tracking",)))),
@@ -284,6 +307,11 @@ def montecarlo_page(folder: Path) -> str:
     ]
     return _page(f"dkfsim report: {s.get('scenario')}",
                  f"Monte Carlo: {s.get('runs')} runs x {s.get('steps')} ticks", sections)
+
+
+def _verdict(ok) -> str | None:
+    """``anees_consistent`` as a table cell: yes / no / – (a single run)."""
+    return None if ok is None else ("yes" if ok else "no")
 
 
 def _runs_seeds(path: Path) -> list[tuple[int, int]]:
@@ -316,8 +344,9 @@ def sweep_page(db: Path) -> str:
     first = {}
     for r in srows:
         first.setdefault((r[ix["param_hash"]], r[ix["estimate"]]), r)
-    nees_rows = [(*(r[ix[k]] for k in grid), r[ix["estimate"]], r[ix["anees"]], r[ix["anees_band95_lo"]],
-                  r[ix["anees_band95_hi"]]) for r in first.values()]
+    nees_rows = [(*(r[ix[k]] for k in grid), r[ix["estimate"]],
+                  Interval((r[ix["anees"]], r[ix["anees_ci95_lo"]], r[ix["anees_ci95_hi"]])),
+                  _verdict(r[ix["anees_consistent"]])) for r in first.values()]
     pk = [(*(r[ix[k]] for k in grid), r[ix["estimate"]], r[ix["messages_per_tick"]],
            r[ix["bytes_per_tick"]], r[ix["late"]]) for r in first.values()]
     figs = []
@@ -358,8 +387,10 @@ def sweep_page(db: Path) -> str:
                               *(f"{c} MSE [95 % CI]" for c in comps)),
                       mse_rows, "per grid point: mean over runs of the time-averaged MSE and its 95 % "
                       "Student-t interval (the sweep summary file <db>.summary.csv)")),
-        ("NEES", table("nees", (*gh, "estimate", "ANEES", "band low", "band high"), nees_rows,
-                       "mean over runs of each run's time-averaged NEES; 95 % chi-square band")),
+        ("NEES", table("nees", (*gh, "estimate", "ANEES [95 % CI over runs]", "consistent"), nees_rows,
+                       "mean over runs of each run's time-averaged NEES and its 95 % t-interval; "
+                       "consistent: the interval covers the number of state components "
+                       "(docs/statistics.md)")),
         ("Packets", table("packets", (*gh, "estimate", "messages per tick", "bytes per tick", "late"),
                           pk, "means over runs; – : not modelled for that estimate")),
         ("Versions and seeds", _versions({"dkfsim (database)": meta.get("dkfsim_version")},
