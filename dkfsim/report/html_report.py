@@ -187,8 +187,8 @@ def _figures(folder_path: Path, kinds) -> list[str]:
         folder = load_folder(folder_path)
     except NothingToPlot as exc:         # a damaged or hostile file is an error of the report
         return [f"<p class='note'>No figures: {html.escape(str(exc))}</p>"]
-    with tempfile.TemporaryDirectory(prefix="dkfsim-report-") as tmp, png_resolution(SCREEN_DPI):
-        tmp = Path(tmp)
+    with tempfile.TemporaryDirectory(prefix="dkfsim-report-") as where, png_resolution(SCREEN_DPI):
+        tmp = Path(where)
         if folder.truth is not None and "tracking" in kinds:
             plot_tracking(folder, tmp / "tracking", ("png",))
             out.append(figure(_png(tmp / "tracking.png"), "Truth and estimates (left: the whole run; "
