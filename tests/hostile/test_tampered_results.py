@@ -46,12 +46,15 @@ def earlier_output(folder: Path) -> dict[Path, bytes]:
 
 
 def refused(folder: Path, *words, load_run: bool = False, **bounds) -> None:
-    """plot and report end in a clean error naming ``words``; load_run raises DkfsimError."""
+    """plot and report end in a clean error naming ``words``; load_run and dkfsim.load raise
+    DkfsimError."""
     for cmd in (("plot", folder, "--format", "png"), ("report", folder)):
         dkfsim_cli(*cmd).clean_error(*words, **bounds)
     if load_run:
         with pytest.raises(DkfsimError):
             dkfsim.load_run(folder)
+    with pytest.raises(DkfsimError):
+        dkfsim.load(folder)
 
 
 # =========================================================================== run folders
@@ -170,6 +173,40 @@ def test_a_tampered_folder_is_refused_cleanly(legit, tmp_path, kind, case):  # n
         assert f.read_bytes() == data, f"{f} changed"
 
 
+LOAD_CASES = {
+    "text in an mse cell": (lambda f: _edit_runs_csv(f, 4, "abc"), ["runs.csv", "line 2", "mse", "number"]),
+    "a negative run": (lambda f: _edit_runs_csv(f, 0, "-1"), ["runs.csv", "run"]),
+    "a 500-character estimate name": (lambda f: _edit_runs_csv(f, 2, "e" * 500), ["runs.csv", "estimate",
+                                                                                 "at most 200 characters"]),
+    "a row short of a cell": (lambda f: _edit_runs_csv(f, None, None), ["runs.csv", "cells"]),
+}
+
+
+def _edit_runs_csv(folder: Path, column, value) -> None:
+    lines = (folder / "runs.csv").read_text().splitlines()
+    cells = lines[1].split(",")
+    if column is None:
+        cells = cells[:-1]
+    else:
+        cells[column] = value
+    lines[1] = ",".join(cells)
+    (folder / "runs.csv").write_text("\n".join(lines) + "\n")
+
+
+@pytest.mark.parametrize("case", list(LOAD_CASES))
+def test_a_tampered_runs_csv_is_refused_by_load(legit, tmp_path, case):  # noqa: F811
+    """dkfsim.load reads every row of runs.csv (plot and report read only its seeds): each cell
+    is checked, and a bad one is an error naming the file, the line and the column."""
+    folder = copy_of(legit["mc"], tmp_path)
+    tamper, words = LOAD_CASES[case]
+    tamper(folder)
+    with pytest.raises(DkfsimError) as err:
+        dkfsim.load(folder)
+    text = str(err.value)
+    assert all(w in text for w in words), text
+    assert len(text) < 2000
+
+
 # =========================================================================== sweep databases
 def _huge_estimate(db):
     sql(db, "UPDATE results SET estimate=? WHERE rowid=1", params=("e" * 5_000_000,))
@@ -201,6 +238,8 @@ def test_a_tampered_sweep_database_is_refused_cleanly(legit, tmp_path, case):  #
     tamper(db)
     for cmd in (("plot", db, "--format", "png", "--x", "d_t"), ("report", db)):
         dkfsim_cli(*cmd).clean_error(*words)
+    with pytest.raises(DkfsimError):
+        dkfsim.load(db)
     assert db.with_name("s.report.html").read_bytes() == page
 
 
