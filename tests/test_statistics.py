@@ -123,7 +123,7 @@ def test_relative_to_names_the_reference_and_is_checked_before_any_run(tmp_path,
     assert not (tmp_path / "bad").exists()
 
 
-def test_a_single_run_has_no_verdict_and_no_interval(tmp_path):
+def test_a_single_run_has_no_verdict_and_no_interval():
     res = dkfsim.montecarlo(dkfsim.load_scenario(str(CASE1), overrides=["steps=60"]), runs=1, jobs=1)
     e = res.summary()["estimates"]["fused"]
     assert e["anees_consistent"] is None
@@ -141,7 +141,7 @@ def test_a_montecarlo_folder_loads_back_with_the_same_summary_and_rows(mc):
     assert frame["mse"].to_numpy() == pytest.approx([float(r["mse"]) for r in rows], rel=0, abs=0)
 
 
-def test_load_tells_the_kinds_apart(mc, tmp_path):
+def test_load_tells_the_kinds_apart(tmp_path):
     dkfsim.run(str(CASE1), steps=40).save(tmp_path / "run")
     assert type(dkfsim.load(tmp_path / "run")).__name__ == "RunResult"
     assert len(dkfsim.load(tmp_path / "run").to_frame()) == len(read(tmp_path / "run" / "rows.csv"))
