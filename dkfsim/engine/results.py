@@ -222,7 +222,7 @@ def load_run(folder) -> RunResult:
     data = read_json(path, what="summary.json")
     if not isinstance(data, dict) or "scenario_config" not in data or "packets" not in data:
         raise DkfsimError(f"{path}: not a summary written by dkfsim run (a Monte Carlo or maxdelay "
-                          "folder? those are read by dkfsim plot)")
+                          "folder? dkfsim.load reads every kind of result)")
     summary = validate(RunSummary, data, str(path)).model_dump()
     source = summary.get("source")
     scenario = stored_scenario(summary["scenario_config"], source=source, label=str(path))
