@@ -207,6 +207,19 @@ def test_a_tampered_runs_csv_is_refused_by_load(legit, tmp_path, case):  # noqa:
     assert len(text) < 2000
 
 
+def test_a_paired_block_that_lies_is_drawn_or_refused_never_a_traceback(legit, tmp_path):  # noqa: F811
+    """summary.json's paired blocks feed the paired figure: an interval that excludes its ratio is
+    drawn (bars clipped at the point); a ratio that is text is refused naming the key."""
+    folder = copy_of(legit["mc"], tmp_path)
+    edit_json(folder / "summary.json", lambda s: s["estimates"]["fused"]["paired"].update(
+        mse_ratio_ci95={c: [5.0, 0.1] for c in s["components"]}))
+    dkfsim_cli("plot", folder, "--format", "png").ok()
+    assert (folder / "figures" / "paired.png").stat().st_size > 1000
+    edit_json(folder / "summary.json", lambda s: s["estimates"]["fused"]["paired"].update(
+        mse_ratio={c: "big" for c in s["components"]}))
+    dkfsim_cli("plot", folder, "--format", "png").clean_error("summary.json", "paired", "mse_ratio")
+
+
 # =========================================================================== sweep databases
 def _huge_estimate(db):
     sql(db, "UPDATE results SET estimate=? WHERE rowid=1", params=("e" * 5_000_000,))
