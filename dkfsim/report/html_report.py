@@ -24,7 +24,6 @@ from pathlib import Path
 import networkx as nx
 import yaml
 
-from dkfsim.analysis.grid import grid_columns, summarize
 from dkfsim.config.dynamics import component_names
 from dkfsim.config.load import stored_scenario
 from dkfsim.config.plan import RunPlan
@@ -40,11 +39,12 @@ from dkfsim.core.extras import pyplot
 from dkfsim.core.folders import write_text
 from dkfsim.core.version import __version__
 from dkfsim.experiments.sweep import SweepDB, is_database, read_results
+from dkfsim.experiments.sweep.grid import grid_columns, summarize
 from dkfsim.report.network import draw_network
 from dkfsim.report.plots import load_folder, plot_mse, plot_nees, plot_tracking
 from dkfsim.report.plots.folders import NothingToPlot
 from dkfsim.report.plots.style import png_resolution
-from dkfsim.report.sweep_plot import plot_sweep
+from dkfsim.report.sweep.plot import plot_sweep
 
 #: Resolution of the inline figures (a screen, not print: the page stays small).
 SCREEN_DPI = 110

@@ -13,13 +13,14 @@ import csv
 import json
 from pathlib import Path
 
-from dkfsim.analysis.grid import summarize
 from dkfsim.config.results import sweep_rows, validate
 from dkfsim.core.errors import DkfsimError
 from dkfsim.core.extras import optional
 from dkfsim.core.files import check_regular_file
 from dkfsim.core.folders import write_csv
-from dkfsim.experiments.sweep import KEY_COLUMNS, is_database, read_results
+from dkfsim.experiments.sweep.definition import KEY_COLUMNS, is_database
+from dkfsim.experiments.sweep.grid import summarize
+from dkfsim.experiments.sweep.results import read_results
 
 #: Columns of an export that are text whatever they look like.
 TEXT_COLUMNS = ("param_hash", "estimate", "component")

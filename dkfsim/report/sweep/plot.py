@@ -16,13 +16,13 @@ from pathlib import Path
 
 import numpy as np
 
-from dkfsim.analysis.grid import grid_columns, groups, interval
 from dkfsim.analysis.metrics import nees_band
 from dkfsim.core.errors import DkfsimError
 from dkfsim.core.extras import pyplot
 from dkfsim.core.params import suggest
 from dkfsim.core.registry import METRICS
-from dkfsim.experiments.sweep_summary import read_table
+from dkfsim.experiments.sweep.grid import grid_columns, groups, interval
+from dkfsim.experiments.sweep.summary import read_table
 from dkfsim.report.plots.folders import component_units
 from dkfsim.report.plots.style import (
     DEFAULT_FORMATS,
