@@ -99,7 +99,7 @@ class SweepReport:
 
     def summary(self):
         """Per grid point, estimate and component: mean, 95 % interval, ANEES band, traffic
-        (:func:`dkfsim.analysis.grid.summarize`; the file ``dkfsim sweep`` writes)."""
+        (:func:`dkfsim.experiments.sweep.grid.summarize`; the file ``dkfsim sweep`` writes)."""
         columns, rows = summarize(*read_results(self.db))
         return rows_frame(rows, columns)
 

@@ -1,7 +1,7 @@
 """A sweep's answer on disk: ``<database stem>.summary.csv`` beside the database.
 
 ``dkfsim sweep`` writes it when the sweep is complete (and ``dkfsim plot SWEEP``
-draws from the same numbers: :mod:`dkfsim.analysis.grid`); this module reads a
+draws from the same numbers: :mod:`.grid`); this module reads a
 database or its export (``.csv``, ``.parquet``) and writes the summary: per grid
 point, estimate and component, the mean and 95 % interval over runs of the MSE,
 the ANEES with its chi-square band, and the traffic per tick.

@@ -1,7 +1,7 @@
 """``dkfsim plot SWEEP``: a metric against one swept key, with 95 % interval bands.
 
 SWEEP is a sweep database or its export (``.csv`` / ``.parquet``).  Each point is
-the mean over the runs of one grid point (:mod:`dkfsim.analysis.grid`), its band
+the mean over the runs of one grid point (:mod:`dkfsim.experiments.sweep.grid`), its band
 the 95 % Student-t interval over those runs -- the numbers of the summary file
 ``dkfsim sweep`` writes.  One line per estimate, or with ``--hue KEY`` one line
 per value of a second grid key (for one ``--estimate``).  Grid keys that are
