@@ -222,8 +222,13 @@ def average_text(folder: Folder, estimate: str, i: int) -> str:
 
 
 def legend_below(fig, ax, ncol=2):
-    """One legend for all panels, under them, so that it never hides a curve."""
-    handles, labels = ax.get_legend_handles_labels()
+    """One legend for all panels, under them, so that it never hides a curve.  ``ax``: the
+    panel whose entries it lists, or a list of panels (their entries one after the other)."""
+    handles, labels = [], []
+    for a in (ax if isinstance(ax, (list, tuple)) else [ax]):
+        h, lab = a.get_legend_handles_labels()
+        handles += h
+        labels += lab
     fig.tight_layout()
     fig.legend(handles, labels, loc="upper center", bbox_to_anchor=(0.5, 0.0), ncol=ncol,
                fontsize=8.5, frameon=False)
