@@ -15,6 +15,7 @@ import numpy as np
 
 from dkfsim.core.errors import DkfsimError
 from dkfsim.core.extras import available, optional, pyplot
+from dkfsim.core.folders import file_mode
 from dkfsim.report.plots.folders import Folder
 
 FORMATS = ("png", "pdf", "svg")
@@ -186,6 +187,7 @@ def save_figure(fig, stem: Path, formats) -> list[Path]:
                     _save_png(fig, Path(tmp))
                 else:
                     fig.savefig(tmp, bbox_inches="tight", format=fmt)
+                os.chmod(tmp, file_mode())
                 os.replace(tmp, path)
                 tmp = None
             except OSError as exc:
