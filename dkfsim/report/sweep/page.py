@@ -15,19 +15,7 @@ from pathlib import Path
 from dkfsim.core.errors import DkfsimError
 from dkfsim.experiments.sweep import SweepDB, read_results
 from dkfsim.experiments.sweep.grid import grid_columns, summarize
-from dkfsim.report.html import (
-    SCREEN_DPI,
-    Interval,
-    facts_table,
-    figure,
-    html_page,
-    network_section,
-    png_b64,
-    scenario_text,
-    stored_or_unvalidated,
-    table,
-    versions_table,
-)
+from dkfsim.report import html as blocks
 from dkfsim.report.plots.style import png_resolution
 from dkfsim.report.sweep.plot import plot_sweep
 
@@ -42,7 +30,7 @@ def sweep_page(db: Path) -> str:
     finally:
         store.close()
     cfg = params[0]["scenario"] if params else {}
-    sc = stored_or_unvalidated(cfg, definition.get("scenario_file"), f"{db} (params.scenario_json)")
+    sc = blocks.stored_or_unvalidated(cfg, definition.get("scenario_file"), f"{db} (params.scenario_json)")
     ix = {c: i for i, c in enumerate(scols)}
     comps = []
     for r in srows:
@@ -53,7 +41,7 @@ def sweep_page(db: Path) -> str:
         key = (r[ix["param_hash"]], r[ix["estimate"]])
         if key not in wide:
             wide[key] = [*(r[ix[k]] for k in grid), r[ix["estimate"]], r[ix["runs"]]]
-        wide[key].append(Interval((r[ix["mse"]], r[ix["mse_ci95_lo"]], r[ix["mse_ci95_hi"]])))
+        wide[key].append(blocks.Interval((r[ix["mse"]], r[ix["mse_ci95_lo"]], r[ix["mse_ci95_hi"]])))
     mse_rows = list(wide.values())
     first = {}
     for r in srows:
@@ -63,7 +51,7 @@ def sweep_page(db: Path) -> str:
     pk = [(*(r[ix[k]] for k in grid), r[ix["estimate"]], r[ix["messages_per_tick"]],
            r[ix["bytes_per_tick"]], r[ix["late"]]) for r in first.values()]
     figs = []
-    with tempfile.TemporaryDirectory(prefix="dkfsim-report-") as tmp, png_resolution(SCREEN_DPI):
+    with tempfile.TemporaryDirectory(prefix="dkfsim-report-") as tmp, png_resolution(blocks.SCREEN_DPI):
         if grid:
             x = grid[0]
             hue = grid[1] if len(grid) > 1 else None
@@ -77,7 +65,7 @@ def sweep_page(db: Path) -> str:
                 for metric in ("mse", "anees"):
                     plot_sweep(db, Path(tmp) / metric, x=x, hue=hue, metric=metric, where=where,
                                formats=("png",))
-                    figs.append(figure(png_b64(Path(tmp) / f"{metric}.png"),
+                    figs.append(blocks.figure(blocks.png_b64(Path(tmp) / f"{metric}.png"),
                                        f"{metric} against {x}" + (f", one line per {hue}" if hue else "")
                                        + (f" ({', '.join(where)})" if where else "")
                                        + "; bands: 95 % intervals over runs.", metric))
@@ -91,26 +79,26 @@ def sweep_page(db: Path) -> str:
     short = [k.removeprefix("param:").rsplit(".", 1)[-1] for k in grid]
     gh = tuple(sh if short.count(sh) == 1 else k.removeprefix("param:") for sh, k in zip(short, grid))
     sections = [
-        ("Scenario", facts_table(sc, facts) + scenario_text(cfg)),
-        ("Network", network_section(sc, "Drawn for the first parameter set" + (
+        ("Scenario", blocks.facts_table(sc, facts) + blocks.scenario_text(cfg)),
+        ("Network", blocks.network_section(sc, "Drawn for the first parameter set" + (
             f" ({', '.join(f'{k} = {v}' for k, v in zip(gh, _first_values(srows, ix, grid)))})"
             if grid else ""))),
         ("Figures", "\n".join(figs)),
-        ("MSE", table("mse", (*gh, "estimate", "runs",
+        ("MSE", blocks.table("mse", (*gh, "estimate", "runs",
                               *(f"{c} MSE [95 % CI]" for c in comps)),
                       mse_rows, "per grid point: mean over runs of the time-averaged MSE and its 95 % "
                       "Student-t interval (the sweep summary file <db>.summary.csv)")),
-        ("NEES", table("nees", (*gh, "estimate", "ANEES", "band low", "band high"), nees_rows,
+        ("NEES", blocks.table("nees", (*gh, "estimate", "ANEES", "band low", "band high"), nees_rows,
                        "mean over runs of each run's time-averaged NEES; 95 % chi-square band")),
-        ("Packets", table("packets", (*gh, "estimate", "messages per tick", "bytes per tick", "late"),
+        ("Packets", blocks.table("packets", (*gh, "estimate", "messages per tick", "bytes per tick", "late"),
                           pk, "means over runs; – : not modelled for that estimate")),
-        ("Versions and seeds", versions_table({"dkfsim (database)": meta.get("dkfsim_version")},
+        ("Versions and seeds", blocks.versions_table({"dkfsim (database)": meta.get("dkfsim_version")},
                                          [("created", meta.get("created", ""))])
-         + table("seeds", ("parameter set", "param_hash", "base seed"),
+         + blocks.table("seeds", ("parameter set", "param_hash", "base seed"),
                  [(p["idx"], p["param_hash"], p["base_seed"]) for p in params],
                  "run r of a parameter set uses derive_seed(base seed, r)")),
     ]
-    return html_page(f"dkfsim report: {Path(meta.get('sweep_file', db.stem)).stem}",
+    return blocks.html_page(f"dkfsim report: {Path(meta.get('sweep_file', db.stem)).stem}",
                  f"sweep: {len(params)} parameter sets x {definition.get('runs')} runs", sections)
 
 
