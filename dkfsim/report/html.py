@@ -14,6 +14,7 @@ import io
 import math
 import time
 from pathlib import Path
+from typing import Sequence
 
 import networkx as nx
 import yaml
@@ -149,7 +150,7 @@ def nx_is_tree(g) -> bool:
         nx.is_connected(g)
 
 
-def versions_table(versions: dict, extra: list = ()) -> str:
+def versions_table(versions: dict | None, extra: Sequence = ()) -> str:
     rows = [(k, str(v)) for k, v in (versions or {}).items()] + list(extra)
     return table("versions", ("package", "version"), rows)
 

@@ -43,7 +43,7 @@ def sweep_page(db: Path) -> str:
             wide[key] = [*(r[ix[k]] for k in grid), r[ix["estimate"]], r[ix["runs"]]]
         wide[key].append(blocks.Interval((r[ix["mse"]], r[ix["mse_ci95_lo"]], r[ix["mse_ci95_hi"]])))
     mse_rows = list(wide.values())
-    first = {}
+    first: dict = {}
     for r in srows:
         first.setdefault((r[ix["param_hash"]], r[ix["estimate"]]), r)
     nees_rows = [(*(r[ix[k]] for k in grid), r[ix["estimate"]], r[ix["anees"]], r[ix["anees_band95_lo"]],
@@ -55,7 +55,7 @@ def sweep_page(db: Path) -> str:
         if grid:
             x = grid[0]
             hue = grid[1] if len(grid) > 1 else None
-            values = {k: [] for k in grid[2:]}
+            values: dict[str, list] = {k: [] for k in grid[2:]}
             for r in srows:
                 for k in grid[2:]:
                     if r[ix[k]] not in values[k]:
