@@ -20,7 +20,7 @@ from dkfsim.report.plots import (
     plot_folder,
     relative_to,
 )
-from dkfsim.report.sweep_plot import plot_sweep
+from dkfsim.report.sweep.plot import plot_sweep
 
 EPILOG = """\
 examples:

@@ -14,12 +14,12 @@ from __future__ import annotations
 from pathlib import Path
 
 from dkfsim.analysis.frames import rows_frame
-from dkfsim.analysis.grid import summarize
 from dkfsim.core.errors import DkfsimError
 from dkfsim.engine.results import load_run
 from dkfsim.experiments.montecarlo import load_montecarlo
 from dkfsim.experiments.sweep import is_database
-from dkfsim.experiments.sweep_summary import read_table
+from dkfsim.experiments.sweep.grid import summarize
+from dkfsim.experiments.sweep.summary import read_table
 
 
 class SweepResult:
@@ -45,7 +45,7 @@ class SweepResult:
         return rows_frame(self.rows, self.columns)
 
     def summary(self, relative_to: str | None = None):
-        """Per grid point, estimate and component (:func:`dkfsim.analysis.grid.summarize`)."""
+        """Per grid point, estimate and component (:func:`dkfsim.experiments.sweep.grid.summarize`)."""
         columns, rows = summarize(self.columns, self.rows, relative_to=relative_to)
         return rows_frame(rows, columns)
 

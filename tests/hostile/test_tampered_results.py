@@ -133,11 +133,10 @@ def test_a_small_file_claiming_60_million_rows_is_refused_without_reading_it(leg
     if steps != "summary says 40":
         edit_json(folder / "summary.json", lambda s: (s.update(steps=K), s["scenario_config"].update(steps=K)))
     words = ["60000000"] if steps == "summary says 40" else ["zip bomb"]
-    # The memory bound is the suite's (MEMORY_LIMIT_MB), not 600 MB: wait4's ru_maxrss of a child
-    # includes the peak RSS of the pytest worker that spawned it (exec keeps the old address
-    # space's high-water mark), so a worker grown past 600 MB by earlier tests failed this test
-    # with a child that itself used ~250 MB. Reading the bomb's data took 3.8 GB: still caught.
-    refused(folder, *words, cpu=15)
+    # Reading the arrays would take 3.4 GB (truth alone 60 M x 3 x 8 B = 1.44 GB) on top of the child's own ~580 MB
+    # (Python, numpy, matplotlib, numba imported by plot/report): 1000 MB separates the two with
+    # room for the variation of the child's baseline (600 failed at random, 571-626 MB measured).
+    refused(folder, *words, cpu=15, memory_mb=1000)
     with pytest.raises(DkfsimError, match="60000000|zip bomb"):
         dkfsim.load_run(folder)
 
