@@ -76,7 +76,8 @@ class Run:
         ys = system.simulate_measurements(truth, seed)
         crashes = CrashSchedule(scenario.faults, system.n) or None
         env = simpy.Environment()
-        network = Network(env, plan.arcs, scenario.link_spec, seed, system.T_ns, crashes=crashes)
+        network = Network(env, plan.arcs, scenario.link_spec, seed, system.T_ns, crashes=crashes,
+                          shared_queues=bool(scenario.links.shared_queues))
         self.backend = run_backend(plan, network, crashes)
         self.ctx = RunContext(scenario=scenario, plan=plan, backend=self.backend, system=system, truth=truth, ys=ys,
                               info=system.information(ys), crashes=crashes, env=env, network=network)
