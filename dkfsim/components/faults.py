@@ -60,7 +60,7 @@ under packet loss.
 
 Counting identity (per link and in total)::
 
-    sent + copies = delivered + lost + crash_dropped + in_flight
+    sent + copies = delivered + lost + queue_dropped + crash_dropped + in_flight
 
 ``sent``: packets handed to the link by a node; ``copies``: extra arrivals the
 link made; ``delivered``: arrivals handed to the receiving node's protocol

@@ -66,6 +66,9 @@ def late_horizon(plan: RunPlan, n: int, L: int) -> int:
 class AntiDelayDKF(Estimator, params=AntiDelayParams):
     """The anti-delay distributed Kalman filter with optimal matrix-weighted fusion."""
 
+    #: Its packets and their nominal sizes (bytes; docs/estimators.md, "Packet sizes").
+    packets = ("one per out-link and instant with news: 16-byte header + per row 8 (row number) + 8 (nx + nx(nx+1)/2) (theta, omega's upper triangle) + ceil(n/8) (origin mask)")
+
     params: AntiDelayParams
     port: Port                  # (opened by start)
 
