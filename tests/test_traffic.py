@@ -292,3 +292,30 @@ def test_bad_traffic_keys_are_clear_errors(links, key, words):
         load_scenario(sc)
     text = str(err.value)
     assert key in text and words in text, text
+
+
+def _twins(shared):
+    sc = scenario(6, edges=tree_edges(6, 51), steps=60, latency={"model": "constant", "value": 0.001},
+                  buffer_length=2)
+    sc["links"]["default"]["rate"] = 2e4
+    if shared:
+        sc["links"]["shared_queues"] = True
+    sc["estimators"] = [{"kind": "anti_delay_dkf", "name": "twin"}]
+    return run(load_scenario(sc))
+
+
+def _mean_delay(traffic):
+    return float(np.mean([row["queueing_delay_mean"] for row in traffic["per_link"]]))
+
+
+def test_each_estimator_has_its_own_queues_unless_shared():
+    """Two instances of the same DKF: on their own queues they see identical links (estimates
+    and traffic equal); through shared queues each waits for the other's packets too."""
+    alone, shared = _twins(False), _twins(True)
+    assert np.array_equal(alone.arrays["x_fused"], alone.arrays["x_twin"])
+    packets = [{k: v for k, v in alone.traffic[name].items() if not k.startswith("late")}
+               for name in ("fused", "twin")]          # (late: the twin counts packet rows)
+    assert packets[0] == packets[1]
+    assert _mean_delay(shared.traffic["fused"]) > _mean_delay(alone.traffic["fused"])
+    assert _mean_delay(shared.traffic["twin"]) > _mean_delay(alone.traffic["twin"])
+    assert not np.array_equal(shared.arrays["x_twin"], alone.arrays["x_twin"])
