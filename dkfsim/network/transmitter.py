@@ -66,6 +66,12 @@ class BackgroundArrivals:
         self._times, self._sizes = times, sizes.astype(np.int64)
         self._last, self._drawn, self._pos = int(times[-1]), lo + BLOCK, 0
 
+    def next_time(self) -> int:
+        """The instant of the next packet not yet taken."""
+        if self._pos >= len(self._times):
+            self._draw_block()
+        return int(self._times[self._pos])
+
     def until(self, t_ns: int) -> tuple[list[int], list[int]]:
         """The packets not yet taken whose instant is ``<= t_ns``: (instants, sizes), in order."""
         times_out: list[int] = []
@@ -110,6 +116,8 @@ class Transmitter:
         self.background_dropped = 0
         self.log: list[tuple[int, int, int]] | None = [] if record else None
         self._seen = -1          # background taken up to this instant
+        #: the instant of the next background packet not yet taken (MAX_NS: none)
+        self._next_bg = background.next_time() if background is not None else MAX_NS
 
     def _accept(self, t: int, size: int) -> tuple[int, int] | None:
         """A packet of ``size`` bytes handed over at ``t`` (not before the last one): its
@@ -140,7 +148,10 @@ class Transmitter:
         if bg is None or t_ns <= self._seen:
             return
         self._seen = t_ns
+        if t_ns < self._next_bg:
+            return
         times, sizes = bg.until(t_ns)
+        self._next_bg = bg.next_time()
         log = self.log
         for t, size in zip(times, sizes):
             got = self._accept(t, size)
