@@ -51,7 +51,7 @@ import simpy
 from simpy.events import NORMAL, Event
 
 from dkfsim.components.faults import CrashSchedule, LinkSpec, ScaleSchedule, Windows
-from dkfsim.core.params import MAX_NS
+from dkfsim.core.params import MAX_NS, NS_PER_S, seconds_to_ns
 from dkfsim.core.streams import key64, keyed_uniform
 from dkfsim.network.transmitter import BackgroundArrivals, LinkTraffic, Transmitter
 
@@ -157,8 +157,30 @@ class Link:
 
     def compiled_latency(self) -> tuple[int, int, int] | None:
         """The latency model's :meth:`~dkfsim.components.latency.Sampler.compiled_form` when
-        nothing else acts on the link, else None (a compiled protocol cannot draw it)."""
-        return self._main._model.compiled_form() if self.plain is not None else None
+        nothing else acts on the link but a transmitter with no queue or a queue counted in
+        packets, else None (a compiled protocol cannot draw it)."""
+        spec = self.spec
+        if self.loss > 0 or self.duplicate > 0 or spec.outages or spec.schedule or spec.jitter is not None:
+            return None
+        if spec.queue is not None and spec.queue.packets is None:
+            return None
+        return self._main._model.compiled_form()
+
+    def compiled_traffic(self) -> tuple | None:
+        """The transmitter as the compiled tree draws it, None without a rate: ``(rate, queue
+        packets or -1, background kind (0 none, 1 poisson, 2 periodic), arrival key, size
+        key, ns between packets, size, exponential sizes, offset ns)``."""
+        if self.rate is None:
+            return None
+        spec = self.spec
+        qcap = -1 if spec.queue is None or spec.queue.packets is None else int(spec.queue.packets)
+        bg = spec.background
+        if bg is None:
+            return (self.rate, qcap, 0, 0, 0, 0.0, 0.0, False, 0)
+        arrivals = BackgroundArrivals(bg, self._prefix, self._seed)
+        return (self.rate, qcap, 1 if bg.arrivals == "poisson" else 2, arrivals.gap_key, arrivals.size_key,
+                NS_PER_S / bg.packets_per_second, float(bg.size), bg.sizes == "exponential",
+                seconds_to_ns(bg.offset))
 
     def transmitter(self, record: bool = False) -> Transmitter:
         """A new transmitter of this rate-limited link, with its queue and background."""
@@ -260,6 +282,8 @@ class Port:
         self._tx: dict[int, Transmitter] = shared if shared is not None else {}
         #: link id -> this port's queueing delays on a rate-limited link
         self._traffic: dict[int, LinkTraffic] = {}
+        #: link id -> the link's statistics as its owner reported them (:meth:`set_link_stats`)
+        self._stats: dict[int, dict[str, Any]] = {}
 
     def _grow(self) -> None:
         """One counter slot per link of the network (links may be added after the port)."""
@@ -372,6 +396,12 @@ class Port:
         for key, value in counts.items():
             self._count[key][link.id] = value
 
+    def set_link_stats(self, link: Link, stats: dict[str, Any]) -> None:
+        """The statistics of a rate-limited ``link`` (:meth:`LinkTraffic.summary
+        <dkfsim.network.transmitter.LinkTraffic.summary>`), for a protocol whose packets
+        travel outside the port (the compiled ``tree``)."""
+        self._stats[link.id] = dict(stats)
+
     def count_late(self, n: int = 1) -> None:
         """Count ``n`` late items: what is late is the estimator's to decide (e.g. a message
         delivered after its last usable instant, dropped unused); ``counts()["late"]``."""
@@ -395,7 +425,9 @@ class Port:
             row: dict[str, Any] = {"link": (link.src, link.dst), **{k: count[k][i] for k in COUNTERS}}
             row["in_flight"] = (row["sent"] + row["copies"] - row["delivered"] - row["lost"]
                                 - row["queue_dropped"] - row["crash_dropped"])
-            if link.rate is not None:
+            if i in self._stats:
+                row.update(self._stats[i])
+            elif link.rate is not None:
                 end = self.until if self.until is not None else self.env.now
                 row.update(self._traffic.get(i, LinkTraffic()).stats(self._transmitter(link), end))
             per_link.append(row)

@@ -15,6 +15,7 @@ is its sender's to record (:class:`LinkTraffic`).
 
 from __future__ import annotations
 
+import math
 from collections import deque
 
 import numpy as np
@@ -29,6 +30,12 @@ BLOCK = 4096
 MAX_GAP_NS = 1 << 49
 
 
+def _log(u: np.ndarray) -> np.ndarray:
+    """``log`` of each entry by the C library's ``log`` (``math.log``), the function the compiled
+    tree's kernels call: numpy's vectorised ``log`` may differ in the last bit."""
+    return np.array([math.log(x) for x in u.tolist()], dtype=np.float64)
+
+
 class BackgroundArrivals:
     """The background packets of one link, in order: ``(instant ns, size bytes)``, keyed draws.
 
@@ -39,8 +46,9 @@ class BackgroundArrivals:
 
     def __init__(self, spec: Background, prefix: tuple, seed: int):
         self.spec = spec
-        self._gap_key = key64(seed, *prefix, "background", "arrival")
-        self._size_key = key64(seed, *prefix, "background", "size")
+        #: the keys of the arrival gaps (or nothing, periodic) and of the sizes
+        self.gap_key = key64(seed, *prefix, "background", "arrival")
+        self.size_key = key64(seed, *prefix, "background", "size")
         self._times = np.empty(0, dtype=np.int64)
         self._sizes = np.empty(0, dtype=np.int64)
         self._drawn = 0          # packets drawn so far
@@ -53,14 +61,14 @@ class BackgroundArrivals:
         zeros = np.zeros(BLOCK, dtype=np.int64)
         period = NS_PER_S / spec.packets_per_second
         if spec.arrivals == "poisson":
-            gaps = np.floor(-np.log(keyed_uniforms(self._gap_key, idx, zeros)) * period + 0.5)
+            gaps = np.floor(-_log(keyed_uniforms(self.gap_key, idx, zeros)) * period + 0.5)
             # a gap is at most 2^49 ns (6.5 days), so a block's sum cannot overflow
             times = self._last + np.cumsum(np.minimum(gaps, MAX_GAP_NS).astype(np.int64))
         else:
             times = seconds_to_ns(spec.offset) + np.floor(np.minimum(idx * period + 0.5, MAX_NS))
         times = np.minimum(times, MAX_NS).astype(np.int64)
         if spec.sizes == "exponential":
-            sizes = np.maximum(1, np.floor(-np.log(keyed_uniforms(self._size_key, idx, zeros)) * spec.size + 0.5))
+            sizes = np.maximum(1, np.floor(-_log(keyed_uniforms(self.size_key, idx, zeros)) * spec.size + 0.5))
         else:
             sizes = np.full(BLOCK, spec.size)
         self._times, self._sizes = times, sizes.astype(np.int64)
@@ -196,10 +204,18 @@ class LinkTraffic:
         """Utilisation of ``[0, end_ns]`` (every packet the transmitter carried, background
         included), the queueing delay's mean and 95th percentile (s, this port's packets;
         0 without any), and the background packets sent and dropped."""
-        d = np.asarray(self.delays, dtype=np.float64) / NS_PER_S
         busy = transmitter.busy_until(end_ns)
+        return self.summary(busy, transmitter.background_sent, transmitter.background_dropped, end_ns)
+
+    def summary(self, busy_ns: int, background_sent: int, background_dropped: int,
+                end_ns: int) -> dict[str, float | int]:
+        """:meth:`stats` from the transmitter's numbers (busy ns in ``[0, end_ns]``, background
+        packets sent and dropped): what the compiled tree reports."""
+        d = np.asarray(self.delays, dtype=np.float64) / NS_PER_S
+        busy = busy_ns
+        background = (background_sent, background_dropped)
         return {"utilisation": busy / end_ns if end_ns > 0 else 0.0,
                 "queueing_delay_mean": float(d.mean()) if len(d) else 0.0,
                 "queueing_delay_p95": float(np.percentile(d, 95)) if len(d) else 0.0,
-                "background_sent": transmitter.background_sent,
-                "background_dropped": transmitter.background_dropped}
+                "background_sent": background[0],
+                "background_dropped": background[1]}
