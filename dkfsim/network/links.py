@@ -315,8 +315,14 @@ class Port:
                 return
             self._enqueue(now, lat, link, payload)
             return
+        self._fly(now, 0, link, seq, payload)
+
+    def _fly(self, now: int, wait: int, link: Link, seq: int, payload: Any) -> None:
+        """A packet handed over ``now`` and leaving the sender ``wait`` ns later: its fate
+        (loss, outage, copies, latencies) drawn at ``now``, its arrivals ``wait`` later."""
+        lid, count = link.id, self._count
         arrivals, why = link.transmit(now, seq)
-        if why is not None:
+        if why is not None:                   # (lost in the air: it occupied the transmitter)
             count["lost"][lid] += 1
             if why == "outage":
                 count["outage_lost"][lid] += 1
@@ -324,7 +330,7 @@ class Port:
         if len(arrivals) > 1:
             count["copies"][lid] += 1
         for lat in arrivals:
-            self._enqueue(now, lat, link, payload)
+            self._enqueue(now, wait + lat, link, payload)
 
     def _transmitter(self, link: Link) -> Transmitter:
         tx = self._tx.get(link.id)
@@ -346,16 +352,7 @@ class Port:
         if traffic is None:
             traffic = self._traffic[lid] = LinkTraffic()
         traffic.delays.append(start - now)
-        arrivals, why = link.transmit(now, seq)
-        if why is not None:                   # lost in the air: it occupied the transmitter
-            count["lost"][lid] += 1
-            if why == "outage":
-                count["outage_lost"][lid] += 1
-            return
-        if len(arrivals) > 1:
-            count["copies"][lid] += 1
-        for lat in arrivals:
-            self._enqueue(now, end - now + lat, link, payload)
+        self._fly(now, end - now, link, seq, payload)
 
     def _enqueue(self, now: int, lat: int, link: Link, payload: Any) -> None:
         due = self._due.get(now + lat)
