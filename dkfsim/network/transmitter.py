@@ -16,6 +16,7 @@ is its sender's to record (:class:`LinkTraffic`).
 from __future__ import annotations
 
 import math
+from array import array
 from collections import deque
 
 import numpy as np
@@ -103,8 +104,8 @@ class Transmitter:
     :param rate: bits per second.
     :param queue: the waiting room (None: unbounded).
     :param background: the link's :class:`BackgroundArrivals` (None: none).
-    :param record: keep every background packet's (instant, start, end) or -1 start when
-        dropped (for the queueing-theory checks; memory grows with the run).
+    :param record: keep every background packet's (instant, start, end), start and end -1
+        when dropped (for the queueing-theory checks; 24 bytes a packet): :meth:`log`.
     """
 
     def __init__(self, rate: float, queue: Queue | None = None,
@@ -122,7 +123,7 @@ class Transmitter:
         self.busy_ns = 0
         self.background_sent = 0
         self.background_dropped = 0
-        self.log: list[tuple[int, int, int]] | None = [] if record else None
+        self._log: array | None = array("q") if record else None
         self._seen = -1          # background taken up to this instant
         #: the instant of the next background packet not yet taken (MAX_NS: none)
         self._next_bg = background.next_time() if background is not None else MAX_NS
@@ -160,17 +161,24 @@ class Transmitter:
             return
         times, sizes = bg.until(t_ns)
         self._next_bg = bg.next_time()
-        log = self.log
+        log = self._log
         for t, size in zip(times, sizes):
             got = self._accept(t, size)
             if got is None:
                 self.background_dropped += 1
                 if log is not None:
-                    log.append((t, -1, -1))
+                    log.extend((t, -1, -1))
             else:
                 self.background_sent += 1
                 if log is not None:
-                    log.append((t, got[0], got[1]))
+                    log.extend((t, got[0], got[1]))
+
+    def log(self) -> np.ndarray:
+        """(packets, 3) int64: each background packet's instant, start and end (ns; -1 when
+        dropped), with ``record``."""
+        if self._log is None:
+            raise ValueError("this transmitter keeps no log (record=False)")
+        return np.frombuffer(self._log, dtype=np.int64).reshape(-1, 3).copy()
 
     def offer(self, t_ns: int, size: int) -> tuple[int, int] | None:
         """Hand over a packet of ``size`` bytes at ``t_ns`` (after the background up to it):
