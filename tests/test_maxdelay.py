@@ -25,8 +25,9 @@ from dkfsim.analysis.bounds import (
 from dkfsim.config.plan import RunPlan
 from dkfsim.core.errors import DkfsimError
 from dkfsim.experiments.maxdelay import EXCEEDS, UNDECIDED, WITHIN, MaxDelay, Settings, make_axis, metric_value
-from dkfsim.experiments.maxdelay.report import _pow10
+from dkfsim.experiments.maxdelay.report import pow10_text
 from dkfsim.experiments.montecarlo import derive_seed
+from dkfsim.report.maxdelay import plot_maxdelay
 
 ROOT = Path(__file__).resolve().parents[1]
 SEED = 3
@@ -354,7 +355,7 @@ def test_capped_answer_names_the_option_and_the_figure_has_units_and_only_what_o
     assert res.emp.status == "capped"
     table = res.table()
     assert "capped" in table and "raise it with --max-scale" in table
-    drawn = res.plot(tmp_path)
+    drawn = plot_maxdelay(res, tmp_path / "maxdelay")
     assert "[" in drawn["xlabel"] and "latency scale" in drawn["xlabel"]
     assert drawn["ylabel"].startswith("trace of P_fused")
     assert "decided within" in drawn["legend"]
@@ -364,5 +365,5 @@ def test_capped_answer_names_the_option_and_the_figure_has_units_and_only_what_o
 
 
 def test_powers_of_ten_print_as_plain_numbers():
-    assert _pow10(-0.0549) == "0.8813"          # 10^-0.0549 = exp(-0.12641) = 0.88125
-    assert _pow10(5.5) == "3.162e+05" and _pow10(400) == "10^400"
+    assert pow10_text(-0.0549) == "0.8813"          # 10^-0.0549 = exp(-0.12641) = 0.88125
+    assert pow10_text(5.5) == "3.162e+05" and pow10_text(400) == "10^400"

@@ -244,3 +244,20 @@ def test_component_names_and_smoothing():
     np.testing.assert_allclose(plots.moving_average(a, 3), [1.5, 1.0, 1.0, 2.0, 3.0])
     np.testing.assert_allclose(plots.moving_average(a, 1), a)
     np.testing.assert_allclose(plots.moving_average(np.ones((7, 2)), 4), np.ones((7, 2)))
+
+
+def test_a_figure_file_gets_the_mode_of_the_umask_like_every_other_output(tmp_path):
+    """save_figure writes through a mkstemp file (mode 0o600): it must get 0o666 & ~umask before
+    the rename, as the JSON and CSV files of the same folder do (a maxdelay folder holds both)."""
+    import os
+
+    from dkfsim.core.extras import pyplot
+    from dkfsim.report.plots.style import save_figure
+    old = os.umask(0o022)
+    try:
+        fig = pyplot().figure()
+        paths = save_figure(fig, tmp_path / "f", ("png", "pdf"))
+    finally:
+        os.umask(old)
+    assert [p.name for p in paths] == ["f.png", "f.pdf"]
+    assert all((p.stat().st_mode & 0o777) == 0o644 for p in paths)

@@ -14,7 +14,7 @@ from pathlib import Path
 import pytest
 import yaml
 
-from dkfsim.core.errors import DkfsimError
+from dkfsim.core.errors import DkfsimError, ScenarioError
 
 ROOT = Path(__file__).resolve().parents[1]
 CASE1 = ROOT / "scenarios" / "paper_case1.yaml"
@@ -361,6 +361,8 @@ BAD = [
     ({"burn_in": 1000}, "burn_in: must be less than steps"),
     ({"rnus": 3}, "rnus: unknown key (did you mean 'runs'?)"),
     ({"set": ["steps"]}, "bad override 'steps'"),
+    ({"set": ["protocol=flood"]}, "set: protocol is both in set and in grid"),
+    ({"output": ""}, "output: must be a file name"),
 ]
 
 
@@ -377,6 +379,25 @@ def test_bad_sweep_files_give_one_clear_paragraph(tmp_path, change, message):
     assert message in str(info.value)
     assert str(path) in str(info.value)
     assert not (tmp_path / "bad.sqlite").exists()
+
+
+def test_a_sweep_file_is_checked_by_its_schema_every_problem_at_once(tmp_path):
+    """The schema (dkfsim.config.sweep.SweepFile) names every bad key of the file in one message,
+    each with its key path, and a typo first with the valid keys."""
+    from dkfsim.experiments.sweep import load_sweep
+    path = tmp_path / "bad.yaml"
+    path.write_text(yaml.safe_dump({"scenario": str(CASE1), "grid": {"protocol": []}, "runs": 0,
+                                    "burn_in": -1}))
+    with pytest.raises(ScenarioError) as info:
+        load_sweep(path)
+    assert str(info.value) == (f"{path}: grid.protocol: empty list: give at least one value; "
+                               "runs: must be >= 1, got 0; burn_in: must be null or an integer >= 0 "
+                               "(rows), got -1")
+    assert info.value.path == "grid.protocol"
+    path.write_text(yaml.safe_dump({"scenario": str(CASE1), "rnus": 2, "runs": 0}))
+    with pytest.raises(ScenarioError, match=r"rnus: unknown key \(did you mean 'runs'\?\) \(valid: "
+                                            r"scenario, grid, set, runs, burn_in, output\)$"):
+        load_sweep(path)
 
 
 def cli(capsys, *args):

@@ -67,7 +67,7 @@ def test_summary_interval_and_band_equal_those_computed_from_the_rows(swept):
 
 
 def test_summary_of_the_export_equals_that_of_the_database(swept):
-    from dkfsim.experiments.sweep_summary import write_summary
+    from dkfsim.experiments.sweep.summary import write_summary
     path, n = write_summary(swept / "s.csv", swept / "from_export.csv")
     assert n > 0 and read(path) == read(swept / "s.summary.csv")
 

@@ -16,6 +16,7 @@ from dkfsim.cli.common import (
 from dkfsim.core.files import printable
 from dkfsim.core.folders import check_target
 from dkfsim.experiments.maxdelay import METRICS, Candidate, MaxDelay, Settings
+from dkfsim.report.maxdelay import save_maxdelay
 
 
 def add_command(subparsers) -> None:
@@ -119,7 +120,7 @@ def cmd_maxdelay(args) -> int:
         res = MaxDelay(sc, st, progress=prog, yes=args.yes, executor=executor_from_args(args)).run()
     finally:
         prog.close()
-    out = res.save(args.out)
+    out = save_maxdelay(res, args.out)
     if not args.quiet:
         say(res.table())
         say(f"wrote {out / 'maxdelay.json'}, {out / 'maxdelay.png'} and {out / 'maxdelay.pdf'}")

@@ -11,7 +11,7 @@ from dkfsim.core.errors import DkfsimError
 from dkfsim.core.files import clip
 from dkfsim.experiments.sweep import is_database
 from dkfsim.report.plots import DEFAULT_FORMATS, FORMATS, check_formats, load_folder, plot_compare, plot_folder
-from dkfsim.report.sweep_plot import plot_sweep
+from dkfsim.report.sweep.plot import plot_sweep
 
 EPILOG = """\
 examples:

@@ -12,7 +12,7 @@ from dkfsim.cli.common import say as say_line
 from dkfsim.core.errors import DkfsimError
 from dkfsim.core.extras import optional
 from dkfsim.experiments.sweep import Sweep, export, is_database, load_sweep, run_sweep, tasks_done
-from dkfsim.experiments.sweep_summary import write_summary
+from dkfsim.experiments.sweep.summary import write_summary
 
 HELP = """\
 Run a parameter sweep: every parameter set of the grid (the cartesian product of the

@@ -61,7 +61,7 @@ def _replacing(path: Path, newline: str | None = None):
     try:
         with os.fdopen(fd, "w", newline=newline, encoding="utf-8") as fh:
             yield fh
-        os.chmod(tmp, 0o666 & ~_umask())
+        os.chmod(tmp, file_mode())
         os.replace(tmp, path)
     except BaseException:
         with contextlib.suppress(OSError):
@@ -260,3 +260,9 @@ def _umask() -> int:
     mask = os.umask(0)
     os.umask(mask)
     return mask
+
+
+def file_mode() -> int:
+    """The mode of a new file under this process's umask (``0o666 & ~umask``): what a file
+    made with ``mkstemp`` (always 0o600) gets before it is renamed into place."""
+    return 0o666 & ~_umask()

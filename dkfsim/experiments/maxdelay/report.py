@@ -1,4 +1,7 @@
-"""The result of ``dkfsim maxdelay``: ``maxdelay.json``, the text table and the figure.
+"""The result of ``dkfsim maxdelay``: ``maxdelay.json`` and the text table.
+
+The figure is drawn by the report stage (:mod:`dkfsim.report.maxdelay`), with the plot
+style every figure shares.
 
 See :mod:`dkfsim.experiments.maxdelay` and docs/design.md.
 """
@@ -8,19 +11,16 @@ from __future__ import annotations
 import math
 from pathlib import Path
 
-import numpy as np
-
 from dkfsim.config.dynamics import CA_UNITS
 from dkfsim.config.load import scenario_hash
-from dkfsim.core.extras import optional, pyplot
 from dkfsim.core.folders import staged, write_json
 from dkfsim.engine.results import versions
-from dkfsim.experiments.maxdelay.search import EXCEEDS, METRICS, UNDECIDED, WITHIN, SearchResult, interval, json_number
+from dkfsim.experiments.maxdelay.search import METRICS, SearchResult, interval, json_number
 
 #: Units of the constant-acceleration model's components (other models have none).
 
 
-def _pow10(x) -> str:
+def pow10_text(x) -> str:
     """``10**x`` as a plain number (``0.8812``, ``3.2e+05``), not ``10^-0.0549``."""
     try:
         x = float(x)
@@ -147,12 +147,16 @@ class MaxDelayResult:
                        f"{self.limit:.4g} <= {self.wc_tol:.4g}: no delay can break this tolerance")
         return out
 
-    def save(self, out_dir) -> Path:
-        """Write ``maxdelay.json`` and the figure; the folder is replaced atomically."""
+    def save(self, out_dir, figure=None) -> Path:
+        """Write ``maxdelay.json`` and, when ``figure`` is given, the figure it draws
+        (``figure(result, stem)``; ``dkfsim maxdelay`` passes
+        :func:`dkfsim.report.maxdelay.plot_maxdelay`, which writes ``stem.png`` and ``.pdf``);
+        the folder is replaced atomically, figure included."""
         data = self.to_dict()
         with staged(out_dir, "maxdelay") as tmp:
             write_json(tmp / "maxdelay.json", data)
-            self.plot(tmp)
+            if figure is not None:
+                figure(self, tmp / "maxdelay")
         return Path(out_dir)
 
     # ------------------------------------------------------------------ text
@@ -192,15 +196,15 @@ class MaxDelayResult:
         else:
             ds = p["d_star"]
             lines.append(
-                f"  (3) paper bound: d* = {_fmt(ds)} -> "
+                f"  (3) paper bound: d* = {number_text(ds)} -> "
                 f"{'d_t <= %d' % p['d_t_bound'] if p['meaningful'] else 'MEANINGLESS (no delay guaranteed)'}; "
                 f"terms: n = {p['n']}, "
                 f"n_bar = {p['n_bar']}, Z = {p['Z']}, alpha_bar = {p['alpha_used']:.4g}, "
                 f"eta = {p['eta']:.6g}, gamma_hat = {p['gamma_hat']:.4g}, omega_min = {p['omega_min']:.4g} "
                 f"(literal {p['omega_min_literal']:.4g}), p_tol = {p['p_tol']:.4g}")
-            lines.append(f"        guaranteed lambda_max(P) <= {_pow10(p['log10_lambda_max_bound']['0'])} at "
-                         f"d_t = 0, {_pow10(p['log10_lambda_max_bound']['1'])} at d_t = 1, "
-                         f"{_pow10(p['log10_lambda_max_bound']['4'])} at d_t = 4")
+            lines.append(f"        guaranteed lambda_max(P) <= {pow10_text(p['log10_lambda_max_bound']['0'])} at "
+                         f"d_t = 0, {pow10_text(p['log10_lambda_max_bound']['1'])} at d_t = 1, "
+                         f"{pow10_text(p['log10_lambda_max_bound']['4'])} at d_t = 4")
             if p["note"]:
                 lines.append(f"        {p['note']}")
         for n in d["notes"]:
@@ -208,115 +212,13 @@ class MaxDelayResult:
         lines.append(f"  {self.runs_total} runs in {self.wall:.1f} s")
         return "\n".join(lines)
 
-    # ------------------------------------------------------------------ plot
-    def plot(self, out: Path) -> dict:
-        """``maxdelay.png`` / ``.pdf`` (300 dpi): the metric against the delay (top) and the
-        excess over the tolerance that the decisions use (bottom).  Returns the axis labels
-        and legend entries drawn (``xlabel``, ``ylabel``, ``legend``), for tests."""
-        plt = pyplot()
-        MaxNLocator = optional("matplotlib.ticker").MaxNLocator
-        md, st, ax = self.md, self.md.st, self.md.axis
-        fig, (top, bot) = plt.subplots(2, 1, figsize=(10, 7), sharex=True,
-                                       gridspec_kw={"height_ratios": [3, 2]})
-        cs = sorted(md.cands.values(), key=lambda c: c.index)
-        x = np.array([c.delay for c in cs], float)
-        colours = {WITHIN: "C2", EXCEEDS: "C3", UNDECIDED: "0.5"}
-        seen = {c.decision for c in cs}
-        # -- top: the metric
-        top.fill_between(x, [c.ci[0] for c in cs], [c.ci[1] for c in cs], color="C0", alpha=0.25, lw=0,
-                         label=f"{100 * st.confidence:g}% confidence band (Monte Carlo)")
-        top.plot(x, [c.mean for c in cs], "-", color="C0", lw=1.2, label=f"{st.metric}, Monte Carlo mean")
-        for c in cs:
-            top.plot([c.delay], [c.mean], "o", color=colours[c.decision], ms=5, zorder=5)
-            top.annotate(str(c.runs), (c.delay, c.ci[1] if math.isfinite(c.ci[1]) else c.mean),
-                         textcoords="offset points", xytext=(0, 3), ha="center", fontsize=7, color="0.3")
-        for dec, col in colours.items():
-            if dec not in seen:              # no legend entry for what did not occur
-                continue
-            top.plot([], [], "o", color=col, ms=5,
-                     label={WITHIN: "decided within", EXCEEDS: "decided exceeds",
-                            UNDECIDED: "undecided (run cap)"}[dec])
-        if st.relative is None:
-            top.axhline(st.tolerance, color="k", ls="--", lw=1, label=f"tolerance {st.tolerance:g}")
-        elif self.reference:
-            r = self.reference
-            top.axhline(r["tolerance"], color="k", ls="--", lw=1,
-                        label=f"tolerance {st.relative:g} x zero-delay mean")
-            top.axhspan(*r["tolerance_ci"], color="k", alpha=0.08, lw=0,
-                        label=f"{st.relative:g} x its confidence interval")
-        if self.emp.answer is not None:
-            top.axvline(ax.value(self.emp.answer), color="C0", ls=":", lw=2,
-                        label=f"empirical answer {ax.value(self.emp.answer):g} ({self.emp.status})")
-        ws = sorted(md.wc.values(), key=lambda c: c.index)
-        if ws:
-            top.plot([c.delay for c in ws], [c.mean for c in ws], "s-", color="C1", ms=3.5, lw=1,
-                     label="worst case: every link at its largest latency (covariance)")
-            if st.relative is not None and self.wc_tol is not None:
-                top.axhline(self.wc_tol, color="C1", ls="--", lw=0.8, label="worst-case tolerance")
-            if self.limit is not None:
-                shown = [v for c in cs + ws for v in (c.mean, *getattr(c, "ci", ())) if math.isfinite(v)]
-                shown += [v for v in (st.tolerance, self.wc_tol,
-                                      (self.reference or {}).get("tolerance")) if v is not None]
-                top_of_data = max(shown) if shown else self.limit
-                if self.limit > 2.0 * top_of_data:    # far above: keep the axis on the data
-                    lo_y = min(min(shown), 0.0)
-                    top.set_ylim(lo_y, top_of_data + 0.15 * (top_of_data - lo_y))
-                    label = f"worst case with no exchange at all: {self.limit:.4g} (above the axis)"
-                else:
-                    label = "worst case with no exchange at all"
-                top.axhline(self.limit, color="C1", ls=(0, (1, 3)), lw=1, label=label)
-            if self.wc is not None and self.wc.answer is not None:
-                top.axvline(ax.value(self.wc.answer), color="C1", ls=":", lw=2,
-                            label=f"worst-case answer {ax.value(self.wc.answer):g} ({self.wc.status})")
-        p = self.paper
-        if "error" not in p:
-            dax = p.get("d_star_in_axis_units")
-            if p["meaningful"] and dax is not None:
-                top.axvline(dax, color="C4", ls="-.", lw=1.5, label=f"paper bound {dax:.3g}")
-            txt = (f"paper bound, eq. (delay_bound): d_t <= {_fmt(p['d_star'])}"
-                   + ("" if p["meaningful"] else " (meaningless)") +
-                   f"\nit guarantees lambda_max(P) <= {_pow10(p['log10_lambda_max_bound']['0'])} at d_t = 0, "
-                   f"{_pow10(p['log10_lambda_max_bound']['1'])} at d_t = 1")
-            top.text(0.01, 0.98, txt, transform=top.transAxes, va="top", fontsize=7.5, color="C4",
-                     bbox=dict(boxstyle="round", fc="white", ec="C4", alpha=0.85))
-        top.set_ylabel(metric_label(st.metric, md.comp_name, md.sc))
-        top.set_title(f"Largest {ax.name} within tolerance (point labels: Monte Carlo runs)", fontsize=10)
-        top.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0)
-        top.grid(alpha=0.3)
-        # -- bottom: what the decisions use
-        for c in cs:
-            lo, hi = c.excess_ci
-            top_err = [[c.excess_mean - lo], [hi - c.excess_mean]] if math.isfinite(lo) else None
-            bot.errorbar([c.delay], [c.excess_mean], yerr=top_err, fmt="o", color=colours[c.decision],
-                         ms=4, capsize=3)
-        if ws and self.wc_tol is not None:
-            bot.plot([c.delay for c in ws], [c.mean - self.wc_tol for c in ws], "s-", color="C1", ms=3,
-                     lw=0.8, label="worst case minus its tolerance")
-        bot.axhline(0.0, color="k", lw=1)
-        bot.plot([], [], "o", color="0.3", label="Monte Carlo: mean and CI of " +
-                 ("metric - tolerance" if st.relative is None else
-                  f"metric_d[r] - {st.relative:g} metric_0[r] (paired runs)"))
-        bot.set_ylabel("excess over tolerance\n(units of the metric)")
-        bot.set_xlabel(axis_label(ax))
-        bot.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0)
-        bot.grid(alpha=0.3)
-        if ax.mode == "d_t":
-            bot.xaxis.set_major_locator(MaxNLocator(integer=True))
-        fig.tight_layout()
-        for ext in ("png", "pdf"):
-            fig.savefig(out / f"maxdelay.{ext}", dpi=300)
-        drawn = {"xlabel": bot.get_xlabel(), "ylabel": top.get_ylabel(),
-                 "legend": [t.get_text() for a in (top, bot) for t in a.get_legend().get_texts()],
-                 "texts": [t.get_text() for t in top.texts]}
-        plt.close(fig)
-        return drawn
-
 
 def _double(v) -> str:
     return f"{2 * v:g}" if v else "8"
 
 
-def _fmt(v) -> str:
+def number_text(v) -> str:
+    """A number of the table and the figure: 4 significant digits; None: "n/a"."""
     if v is None:
         return "n/a"
     if isinstance(v, float) and math.isinf(v):

@@ -22,8 +22,12 @@ file, one transaction per task, so a task's rows are there entirely or not
 at all.  Re-running the same command after an interruption (Ctrl-C,
 ``kill -9``, a lost cluster) skips the tasks already in the file.
 
-The code: :mod:`.definition` (the sweep file and its parameter sets), :mod:`.store`
-(the database), :mod:`.run` (running what is left), :mod:`.results` (reading it back, exporting).
+Every part of a sweep but its figures and its report page is here (those draw, so they are in
+:mod:`dkfsim.report.sweep`): :mod:`.definition` (the sweep file, validated by the schema
+:class:`dkfsim.config.sweep.SweepFile`, and its parameter sets), :mod:`.store` (the database),
+:mod:`.run` (running what is left), :mod:`.results` (reading it back, exporting), :mod:`.grid`
+(the summary's numbers: mean and interval per grid point) and :mod:`.summary` (the summary
+file, and reading a database or its export as one table).
 
 Decisions:
 
@@ -59,10 +63,13 @@ from dkfsim.experiments.sweep.definition import (
                                                  is_database,
                                                  load_sweep,
 )
+from dkfsim.experiments.sweep.grid import summarize
 from dkfsim.experiments.sweep.results import export, read_results
 from dkfsim.experiments.sweep.run import SweepReport, estimate_tasks, run_sweep, run_task
 from dkfsim.experiments.sweep.store import SCHEMA, SweepDB, tasks_done
+from dkfsim.experiments.sweep.summary import read_table, summary_path, write_summary
 
 __all__ = ["DB_FORMAT", "KEY_COLUMNS", "SCHEMA", "SWEEP_KEYS", "ParameterSet", "Sweep", "SweepDB",
            "SweepReport", "estimate_tasks", "export", "is_database", "load_sweep",
-           "read_results", "run_sweep", "run_task", "tasks_done"]
+           "read_results", "read_table", "run_sweep", "run_task", "summarize", "summary_path", "tasks_done",
+           "write_summary"]

@@ -18,7 +18,6 @@ import numpy as np
 from tqdm.auto import tqdm
 
 from dkfsim.analysis.frames import rows_frame
-from dkfsim.analysis.grid import summarize
 from dkfsim.config.load import load_scenario
 from dkfsim.core.files import printable
 from dkfsim.core.resources import Cost, check
@@ -27,6 +26,7 @@ from dkfsim.engine.estimate import estimate_run
 from dkfsim.experiments import executors
 from dkfsim.experiments.montecarlo import derive_seed, run_rows
 from dkfsim.experiments.sweep.definition import Sweep, load_sweep
+from dkfsim.experiments.sweep.grid import summarize
 from dkfsim.experiments.sweep.results import read_results
 from dkfsim.experiments.sweep.store import SweepDB, missing_estimates, tasks_done
 
@@ -99,7 +99,7 @@ class SweepReport:
 
     def summary(self):
         """Per grid point, estimate and component: mean, 95 % interval, ANEES band, traffic
-        (:func:`dkfsim.analysis.grid.summarize`; the file ``dkfsim sweep`` writes)."""
+        (:func:`dkfsim.experiments.sweep.grid.summarize`; the file ``dkfsim sweep`` writes)."""
         columns, rows = summarize(*read_results(self.db))
         return rows_frame(rows, columns)
 

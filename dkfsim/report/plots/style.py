@@ -15,6 +15,7 @@ import numpy as np
 
 from dkfsim.core.errors import DkfsimError
 from dkfsim.core.extras import available, optional, pyplot
+from dkfsim.core.folders import file_mode
 from dkfsim.report.plots.folders import Folder
 
 FORMATS = ("png", "pdf", "svg")
@@ -186,6 +187,7 @@ def save_figure(fig, stem: Path, formats) -> list[Path]:
                     _save_png(fig, Path(tmp))
                 else:
                     fig.savefig(tmp, bbox_inches="tight", format=fmt)
+                os.chmod(tmp, file_mode())
                 os.replace(tmp, path)
                 tmp = None
             except OSError as exc:
@@ -222,8 +224,13 @@ def average_text(folder: Folder, estimate: str, i: int) -> str:
 
 
 def legend_below(fig, ax, ncol=2):
-    """One legend for all panels, under them, so that it never hides a curve."""
-    handles, labels = ax.get_legend_handles_labels()
+    """One legend for all panels, under them, so that it never hides a curve.  ``ax``: the
+    panel whose entries it lists, or a list of panels (their entries one after the other)."""
+    handles, labels = [], []
+    for a in (ax if isinstance(ax, (list, tuple)) else [ax]):
+        h, lab = a.get_legend_handles_labels()
+        handles += h
+        labels += lab
     fig.tight_layout()
     fig.legend(handles, labels, loc="upper center", bbox_to_anchor=(0.5, 0.0), ncol=ncol,
                fontsize=8.5, frameon=False)

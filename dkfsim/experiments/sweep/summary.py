@@ -1,7 +1,7 @@
 """A sweep's answer on disk: ``<database stem>.summary.csv`` beside the database.
 
 ``dkfsim sweep`` writes it when the sweep is complete (and ``dkfsim plot SWEEP``
-draws from the same numbers: :mod:`dkfsim.analysis.grid`); this module reads a
+draws from the same numbers: :mod:`.grid`); this module reads a
 database or its export (``.csv``, ``.parquet``) and writes the summary: per grid
 point, estimate and component, the mean and 95 % interval over runs of the MSE,
 the ANEES with its chi-square band, and the traffic per tick.
@@ -13,13 +13,14 @@ import csv
 import json
 from pathlib import Path
 
-from dkfsim.analysis.grid import summarize
 from dkfsim.config.results import sweep_rows, validate
 from dkfsim.core.errors import DkfsimError
 from dkfsim.core.extras import optional
 from dkfsim.core.files import check_regular_file
 from dkfsim.core.folders import write_csv
-from dkfsim.experiments.sweep import KEY_COLUMNS, is_database, read_results
+from dkfsim.experiments.sweep.definition import KEY_COLUMNS, is_database
+from dkfsim.experiments.sweep.grid import summarize
+from dkfsim.experiments.sweep.results import read_results
 
 #: Columns of an export that are text whatever they look like.
 TEXT_COLUMNS = ("param_hash", "estimate", "component")

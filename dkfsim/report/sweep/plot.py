@@ -1,7 +1,7 @@
 """``dkfsim plot SWEEP``: a metric against one swept key, with 95 % interval bands.
 
 SWEEP is a sweep database or its export (``.csv`` / ``.parquet``).  Each point is
-the mean over the runs of one grid point (:mod:`dkfsim.analysis.grid`), its band
+the mean over the runs of one grid point (:mod:`dkfsim.experiments.sweep.grid`), its band
 the 95 % Student-t interval over those runs -- the numbers of the summary file
 ``dkfsim sweep`` writes.  One line per estimate, or with ``--hue KEY`` one line
 per value of a second grid key (for one ``--estimate``).  Grid keys that are
@@ -16,13 +16,13 @@ from pathlib import Path
 
 import numpy as np
 
-from dkfsim.analysis.grid import grid_columns, groups, interval
 from dkfsim.analysis.metrics import nees_band
 from dkfsim.core.errors import DkfsimError
 from dkfsim.core.extras import pyplot
 from dkfsim.core.params import suggest
 from dkfsim.core.registry import METRICS
-from dkfsim.experiments.sweep_summary import read_table
+from dkfsim.experiments.sweep.grid import grid_columns, groups, interval
+from dkfsim.experiments.sweep.summary import read_table
 from dkfsim.report.plots.folders import component_units
 from dkfsim.report.plots.style import (
     DEFAULT_FORMATS,
