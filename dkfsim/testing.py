@@ -87,7 +87,7 @@ def check_estimator(kind: str) -> None:
     * **determinism**: the same scenario and seed give bit-identical estimates, traffic
       and facts;
     * **counting identity**: every count is a non-negative integer and ``sent + copies
-      = delivered + lost + crash_dropped + in_flight``, in total and per link
+      = delivered + lost + queue_dropped + crash_dropped + in_flight``, in total and per link
       (``traffic`` None means "no network model");
     * **the same draws as the DKF**: listing the estimator changes nothing of the DKF,
       the truth or the measurements; a second instance beside it (sending on the same
@@ -194,7 +194,7 @@ def _check_shapes(kind: str, res: RunResult, names: list[str]) -> None:
                 f"shapes: P of '{name}' has a negative variance")
 
 
-_IDENTITY = ("sent", "copies", "delivered", "lost", "crash_dropped", "in_flight")
+_IDENTITY = ("sent", "copies", "delivered", "lost", "queue_dropped", "crash_dropped", "in_flight")
 
 
 def _check_traffic(kind: str, res: RunResult, names: list[str]) -> None:
@@ -214,8 +214,10 @@ def _check_traffic(kind: str, res: RunResult, names: list[str]) -> None:
             c = {k: counts.get(k, 0) for k in _IDENTITY}
             ok = all(isinstance(v, (int, np.integer)) and not isinstance(v, bool) for v in c.values())
             _assert(ok, kind, f"{what}: counts {where} are not all integers: {c}")
-            _assert(c["sent"] + c["copies"] == c["delivered"] + c["lost"] + c["crash_dropped"] + c["in_flight"],
-                    kind, f"{what}: sent + copies != delivered + lost + crash_dropped + in_flight {where}: {c}")
+            _assert(c["sent"] + c["copies"] == (c["delivered"] + c["lost"] + c["queue_dropped"] + c["crash_dropped"]
+                                                + c["in_flight"]),
+                    kind, f"{what}: sent + copies != delivered + lost + queue_dropped + crash_dropped + in_flight "
+                    f"{where}: {c}")
 
 
 def _dump(obj: Any) -> str:

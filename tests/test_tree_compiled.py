@@ -119,3 +119,59 @@ def test_zero_latency_compiled_dkf_is_the_centralized_filter(monkeypatch):
     xc = res.arrays["x_centralized"]
     err = np.abs(res.arrays["x_local"] - xc[:, None, :]).max() / np.abs(xc).max()
     assert err < 1e-9
+
+
+RATE_CASES = {
+    # packets queue behind each other (1 Mbit/s), unbounded room; more delays than the first array holds
+    "rate": (dict(n=9, nx=3, steps=80, edges=tree_edges(9, 11), latency={"model": "uniform_steps", "d_t": 2}),
+             {"rate": 2e5}),
+    # a room of 2 packets that overflows, Poisson background
+    "queue_background": (dict(n=8, edges=tree_edges(8, 4), latency={"model": "constant", "value": 0.013}),
+                         {"rate": 3e4, "queue": {"packets": 2},
+                          "background": {"packets_per_second": 40.0, "size": 60}}),
+    # periodic background with an offset, zero latency, no room at all
+    "periodic_no_room": (dict(n=8, edges=tree_edges(8, 6)),
+                         {"rate": 1e5, "queue": {"packets": 0},
+                          "background": {"arrivals": "periodic", "packets_per_second": 33.0, "size": 100,
+                                         "offset": 0.003}}),
+    # exponential background sizes, a short buffer: late and stale packets
+    "exponential_short_buffer": (dict(n=8, edges=tree_edges(8, 2), buffer_length=2,
+                                      latency={"model": "uniform_steps", "d_t": 1}),
+                                 {"rate": 5e4, "background": {"packets_per_second": 20.0, "size": 200,
+                                                              "sizes": "exponential"}}),
+}
+
+
+@pytest.mark.parametrize("case", list(RATE_CASES))
+def test_compiled_transmitters_are_the_python_ones(case, monkeypatch):
+    """A rate-limited tree runs compiled, with the same counts (queue drops, per-link
+    utilisation, queueing delays, background) and estimates as the Python transmitters."""
+    kw, traffic = RATE_CASES[case]
+    d = scenario(**{"steps": 40, **kw})
+    d["links"]["default"].update(traffic)
+    a, b = _run(d, "", monkeypatch), _run(d, "python", monkeypatch)
+    assert a.info["backend"]["exchange"] == "compiled" and b.info["backend"]["exchange"] == "python"
+    _same(a, b)
+    rows = a.counts["per_link"]
+    if case != "periodic_no_room":                   # (no room: nothing ever waits)
+        assert max(r["queueing_delay_mean"] for r in rows) > 0
+    if "queue" in traffic:
+        assert a.counts["queue_dropped"] > 0
+    if "background" in traffic:
+        assert sum(r["background_sent"] for r in rows) > 0
+
+
+def test_a_growing_pool_with_transmitters(monkeypatch):
+    kw, traffic = RATE_CASES["queue_background"]
+    d = scenario(**{"steps": 30, **kw})
+    d["links"]["default"].update(traffic)
+    monkeypatch.setattr(tree_compiled.CompiledTreeExchange, "initial_pool", 1)
+    a = _run(d, "", monkeypatch)
+    monkeypatch.undo()
+    _same(a, _run(d, "python", monkeypatch))
+
+
+def test_a_queue_in_bytes_runs_the_python_exchange(monkeypatch):
+    d = scenario(n=6, edges=tree_edges(6, 3), steps=20)
+    d["links"]["default"].update({"rate": 1e5, "queue": {"bytes": 500}})
+    assert _run(d, "", monkeypatch).info["backend"]["exchange"] == "python"

@@ -55,6 +55,9 @@ def describe(family: str) -> list[str]:
         params = _params(entry)
         if params:
             lines.append(f"  {'':<22}   parameters: {params}")
+        packets = getattr(entry.implementation, "packets", "")
+        if family == "estimators" and packets:
+            lines.append(f"  {'':<22}   packets: {packets}")
     aliases = reg.aliases()
     if aliases:
         lines.append("  also accepted: " + ", ".join(f"{a} (= {n})" for a, n in aliases.items()))

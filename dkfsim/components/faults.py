@@ -60,7 +60,7 @@ under packet loss.
 
 Counting identity (per link and in total)::
 
-    sent + copies = delivered + lost + crash_dropped + in_flight
+    sent + copies = delivered + lost + queue_dropped + crash_dropped + in_flight
 
 ``sent``: packets handed to the link by a node; ``copies``: extra arrivals the
 link made; ``delivered``: arrivals handed to the receiving node's protocol
@@ -79,6 +79,7 @@ import numpy as np
 from pydantic import AfterValidator, BeforeValidator, ConfigDict, Discriminator, Field, Tag, model_validator
 
 from dkfsim.components.latency import LatencyParams
+from dkfsim.components.traffic import Background, Queue
 from dkfsim.core.files import clip
 from dkfsim.core.params import MAX_MAGNITUDE, MAX_SECONDS, StrictModel, custom_error, seconds_to_ns
 
@@ -244,10 +245,16 @@ class LinkSpec:
     jitter: LatencyParams | None = None
     schedule: tuple = ()
     outages: tuple = ()
+    #: bits per second (None: infinitely fast), the waiting room and the background load
+    #: (:mod:`dkfsim.components.traffic`)
+    rate: float | None = None
+    queue: Queue | None = None
+    background: Background | None = None
 
     @property
     def plain(self) -> bool:
-        """True when only the latency model and ``loss`` matter."""
+        """True when only the latency model and ``loss`` matter to the latency (``rate`` is not
+        part of it: ``buffer_length: auto`` ignores transmission and queueing)."""
         return not (self.duplicate or self.jitter is not None or self.schedule or self.outages)
 
     def sup_ns(self, T_ns: int) -> int | None:

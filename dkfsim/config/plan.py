@@ -107,6 +107,15 @@ class RunPlan:
         return bound
 
     @functools.cached_property
+    def rate_limited(self) -> bool:
+        """True when a link the protocol uses has a ``rate``: its packets queue, so an arrival
+        has no bound however bounded the latency models are (``d_t`` ignores it)."""
+        sc = self.scenario
+        if not sc.links.overrides:
+            return sc.link_spec(-1, -1).rate is not None
+        return any(sc.link_spec(u, v).rate is not None for u, v in self.exchange.arcs)
+
+    @functools.cached_property
     def d_t(self) -> int | None:
         """The delay bound in steps the buffer is sized for: ``links.d_t`` if set, else
         :attr:`latency_bound` (None if unbounded)."""

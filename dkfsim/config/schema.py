@@ -58,6 +58,7 @@ from dkfsim.components.estimators import BufferLength, CentralizedParams, Estima
 from dkfsim.components.faults import Faults, LinkSpec, Schedule, Window
 from dkfsim.components.latency import Constant, LatencyModel
 from dkfsim.components.sensors import SensorParams
+from dkfsim.components.traffic import Background, Queue, Rate
 from dkfsim.components.truth import TruthParams
 from dkfsim.config.dynamics import Model, Prior
 from dkfsim.config.plan import RunPlan
@@ -122,6 +123,9 @@ class LinkSettings(StrictModel):
     jitter: LatencyModel | None = None
     schedule: Schedule | None = None
     outages: tuple[Window, ...] | None = None
+    rate: Rate | None = None
+    queue: Queue | None = None
+    background: Background | None = None
 
 
 class LinkOverride(StrictModel):
@@ -132,12 +136,18 @@ class LinkOverride(StrictModel):
     jitter: LatencyModel | None = None
     schedule: Schedule | None = None
     outages: tuple[Window, ...] | None = None
+    rate: Rate | None = None
+    queue: Queue | None = None
+    background: Background | None = None
 
 
 class Links(StrictModel):
     default: LinkSettings = Field(default_factory=LinkSettings)
     overrides: tuple[LinkOverride, ...] = ()
     d_t: Annotated[int, Field(strict=True, ge=0)] | None = None
+    #: every estimator's packets through the same transmitters and queues (default: each
+    #: estimator's own, as if it ran alone; docs/design.md §3)
+    shared_queues: StrictBool | None = None
 
 
 def _fusion_none(value: Any) -> Any:
@@ -335,6 +345,7 @@ class Scenario(StrictModel):
                 what = "an arc" if graph.is_directed() else "an edge"
                 raise custom_error(f"[{u}, {v}] is not {what} of the topology",
                                    f"links.overrides.{i}.link")
+        self._check_traffic()
         if self.faults is not None:
             self.faults.check(n)
         if self.buffer_length in ("auto", "paper") and plan.d_t is None:
@@ -342,6 +353,19 @@ class Scenario(StrictModel):
                 f"{self.buffer_length!r} needs a delay bound, but latency model "
                 f"{', '.join(plan.unbounded_models())} is unbounded; set an explicit links.d_t (delay bound "
                 "in steps) or an integer buffer_length", "buffer_length")
+
+    def _check_traffic(self) -> None:
+        """A queue limit or background load acts through the transmitter: it needs a rate."""
+        places = [("links.default", None)] + [(f"links.overrides.{i}", tuple(ov.link))
+                                              for i, ov in enumerate(self.links.overrides)]
+        for key, link in places:
+            spec = self.link_spec(*link) if link is not None else self.link_spec(-1, -1)
+            if spec.rate is None:
+                for what in ("queue", "background"):
+                    if getattr(spec, what) is not None:
+                        raise custom_error(f"a {what} acts through the link's transmitter, but the link "
+                                           "has no rate (bits per second); give rate here or in "
+                                           "links.default", f"{key}.{what}")
 
     def _check_time_range(self, plan: RunPlan) -> None:
         """Every time the run can reach fits the int64 nanosecond clock (:data:`MAX_NS`)."""
@@ -411,9 +435,10 @@ class Scenario(StrictModel):
         The default merged with the last matching override; ``link: [u, v]``
         matches ``u -> v``, and also ``v -> u`` on an undirected topology.
         An override replaces the whole latency model, the loss, and each
-        fault key it gives (duplicate, jitter, schedule, outages).
+        fault or traffic key it gives (duplicate, jitter, schedule, outages, rate, queue,
+        background; a ``background`` replaces the default's whole).
         """
-        keys = ("latency", "loss", "duplicate", "jitter", "schedule", "outages")
+        keys = ("latency", "loss", "duplicate", "jitter", "schedule", "outages", "rate", "queue", "background")
         spec = {k: getattr(self.links.default, k) for k in keys}
         for ov in self.links.overrides:
             a, b = ov.link
@@ -422,7 +447,8 @@ class Scenario(StrictModel):
         return LinkSpec(latency=spec["latency"], loss=float(spec["loss"]),
                         duplicate=float(spec["duplicate"] or 0.0), jitter=spec["jitter"],
                         schedule=tuple(spec["schedule"] or ()),
-                        outages=tuple(spec["outages"] or ()))
+                        outages=tuple(spec["outages"] or ()), rate=spec["rate"], queue=spec["queue"],
+                        background=spec["background"])
 
     # ------------------------------------------------------------------ identity
     def to_dict(self) -> dict:

@@ -46,11 +46,12 @@ from dkfsim.protocols import tree_compiled
 def run_backend(plan: RunPlan, network: Network, crashes: CrashSchedule | None) -> Backend:
     """The backend of a run: what the environment asks for (:meth:`Backend.from_environment`),
     with the Python exchange where the compiled one cannot run (a protocol without a compiled
-    twin, a link it cannot draw, crash windows)."""
+    twin, a link it cannot draw, crash windows, transmitters shared between estimators)."""
     backend = Backend.from_environment()
     if backend.compiled_exchange:
         links = [network.link(u, v) for u, v in plan.exchange.arcs]
-        if not tree_compiled.usable(plan.protocol, links, crashes):
+        shared = network.shared_transmitters is not None and plan.rate_limited
+        if shared or not tree_compiled.usable(plan.protocol, links, crashes):
             backend = backend.python_exchange()
     return backend
 
@@ -76,7 +77,8 @@ class Run:
         ys = system.simulate_measurements(truth, seed)
         crashes = CrashSchedule(scenario.faults, system.n) or None
         env = simpy.Environment()
-        network = Network(env, plan.arcs, scenario.link_spec, seed, system.T_ns, crashes=crashes)
+        network = Network(env, plan.arcs, scenario.link_spec, seed, system.T_ns, crashes=crashes,
+                          shared_queues=bool(scenario.links.shared_queues))
         self.backend = run_backend(plan, network, crashes)
         self.ctx = RunContext(scenario=scenario, plan=plan, backend=self.backend, system=system, truth=truth, ys=ys,
                               info=system.information(ys), crashes=crashes, env=env, network=network)

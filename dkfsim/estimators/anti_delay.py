@@ -53,10 +53,11 @@ def late_horizon(plan: RunPlan, n: int, L: int) -> int:
 
     Nothing is sent for a final row, so with a latency bound of ``d`` steps per
     hop a late packet arrives at most ``d + 1`` rows after its row became
-    final: keep that many.  Unbounded latency: 4096 rows, fewer on large
-    networks so that the holdings (n masks of n bits per row) stay near 64 MB.
+    final: keep that many.  Unbounded latency, or a rate-limited link (queueing has no
+    bound): 4096 rows, fewer on large networks so that the holdings (n masks of n bits per
+    row) stay near 64 MB.
     """
-    bound = plan.latency_bound
+    bound = None if plan.rate_limited else plan.latency_bound
     if bound is not None:
         return bound + 2
     per_row = n * (n // 8 + 32)
@@ -65,6 +66,9 @@ def late_horizon(plan: RunPlan, n: int, L: int) -> int:
 
 class AntiDelayDKF(Estimator, params=AntiDelayParams):
     """The anti-delay distributed Kalman filter with optimal matrix-weighted fusion."""
+
+    #: Its packets and their nominal sizes (bytes; docs/estimators.md, "Packet sizes").
+    packets = ("one per out-link and instant with news: 16-byte header + per row 8 (row number) + 8 (nx + nx(nx+1)/2) (theta, omega's upper triangle) + ceil(n/8) (origin mask)")
 
     params: AntiDelayParams
     port: Port                  # (opened by start)

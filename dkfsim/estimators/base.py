@@ -173,6 +173,9 @@ class Estimator:
     #: False for an idealised estimator with no network model (the centralized filter): its
     #: traffic is "not applicable" (None, ``null`` in summary.json), not zero.
     network_model: ClassVar[bool] = True
+    #: What it sends and the nominal size of each packet kind (``dkfsim list estimators``,
+    #: docs/estimators.md "Packet sizes"); a link's ``rate`` transmits these bytes.
+    packets: ClassVar[str] = ""
     #: The estimator's port, when :meth:`start` opened one (:meth:`open_port`): the default
     #: :meth:`finish` reports its counts.
     port: Port | None = None

@@ -19,6 +19,9 @@ from dkfsim.estimators.window import centralized_filter
 class Centralized(Estimator, params=CentralizedParams):
     """The centralized information filter with every measurement on time."""
 
+    #: Its packets and their nominal sizes (bytes; docs/estimators.md, "Packet sizes").
+    packets = ("none (no network model)")
+
     network_model = False
     @classmethod
     @override

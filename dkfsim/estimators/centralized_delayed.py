@@ -26,6 +26,9 @@ from dkfsim.model.holdings import Holdings
 class CentralizedDelayed(Estimator, params=CentralizedDelayedParams):
     """The window filter of a fusion centre that receives every sensor over its own link."""
 
+    #: Its packets and their nominal sizes (bytes; docs/estimators.md, "Packet sizes").
+    packets = ("one per sensor and tick on its direct link (latency and loss only: rate, queue and background are not applied yet)")
+
     @classmethod
     @override
     def cost(cls, params, plan) -> Cost:

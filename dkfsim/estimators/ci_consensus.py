@@ -127,6 +127,9 @@ class CIConsensus(RoundBased, params=CIParams):
     estimator's own port over the exchange graph's links.
     """
 
+    #: Its packets and their nominal sizes (bytes; docs/estimators.md, "Packet sizes").
+    packets = ("one per out-link and round: 16-byte header + 8 (nx + nx(nx+1)/2) (q, Omega)")
+
     params: CIParams
     DROP_LATE = False           # older pairs are predicted forward, never dropped
 

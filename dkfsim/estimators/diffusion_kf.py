@@ -38,6 +38,9 @@ from dkfsim.estimators.rounds import RoundBased, solve_pair
 class DiffusionKF(RoundBased, params=DiffusionParams):
     """Cattivelli & Sayed's diffusion KF at every node, batched over nodes."""
 
+    #: Its packets and their nominal sizes (bytes; docs/estimators.md, "Packet sizes").
+    packets = ("two per out-link and tick: 16-byte header + 8 (nx + nx(nx+1)/2) (measurement information), then 16-byte header + 8 nx (psi)")
+
     params: DiffusionParams
 
     @classmethod

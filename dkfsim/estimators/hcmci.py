@@ -35,6 +35,9 @@ from dkfsim.estimators.rounds import RoundBased, solve_pair, sym
 class HCMCI(RoundBased, params=HCMCIParams):
     """Battistelli et al.'s HCMCI at every node, batched over nodes."""
 
+    #: Its packets and their nominal sizes (bytes; docs/estimators.md, "Packet sizes").
+    packets = ("one per out-link and round: 16-byte header + 8 (2 nx + 2 nx(nx+1)/2) (q, dq, Omega, dOmega)")
+
     params: HCMCIParams
 
     WORK = 4

@@ -33,6 +33,9 @@ from dkfsim.estimators.rounds import RoundBased, solve_pair, sym
 class ICF(RoundBased, params=ICFParams):
     """Kamal et al.'s ICF at every node, batched over nodes."""
 
+    #: Its packets and their nominal sizes (bytes; docs/estimators.md, "Packet sizes").
+    packets = ("one per out-link and round: 16-byte header + 8 (nx + nx(nx+1)/2) (v, V)")
+
     params: ICFParams
 
     def start(self) -> None:

@@ -33,6 +33,9 @@ from dkfsim.estimators.rounds import RoundBased, solve_pair
 class KCF(RoundBased, params=KCFParams):
     """Olfati-Saber's Kalman-consensus filter at every node, batched over nodes."""
 
+    #: Its packets and their nominal sizes (bytes; docs/estimators.md, "Packet sizes").
+    packets = ("one per out-link and tick: 16-byte header + 8 (2 nx + nx(nx+1)/2) (u, xbar, U)")
+
     params: KCFParams
 
     WORK = 3

@@ -18,6 +18,9 @@ from dkfsim.estimators.window import batched_filter
 class LocalOnly(Estimator, params=LocalOnlyParams):
     """Each node's Kalman filter of its own measurements, batched over nodes."""
 
+    #: Its packets and their nominal sizes (bytes; docs/estimators.md, "Packet sizes").
+    packets = ("none (no communication)")
+
     @classmethod
     @override
     def cost(cls, params, plan) -> Cost:

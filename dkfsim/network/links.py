@@ -19,9 +19,18 @@ what is sent during it; a crash window drops what arrives at a node that
 is down (``crash_dropped``).  Packets on one link overtake each other when a
 later draw is shorter: links reorder.
 
+A link with a ``rate`` (bits per second) has a first-in-first-out transmitter
+(:mod:`dkfsim.network.transmitter`): a packet handed over at ``t`` waits for the packets
+before it and the link's background load, is dropped when the waiting room (``queue``) is
+full (``queue_dropped``), and otherwise arrives at the end of its transmission plus its
+latency draw, still keyed by the hand-over instant ``t``; loss, outage and duplication are
+decided at ``t`` too, and a lost packet occupies the transmitter.  Each port has its own
+transmitters (an estimator sees the links as if it ran alone) unless the network shares
+them (``links.shared_queues``).
+
 Counting identity, per port, per link and in total::
 
-    sent + copies = delivered + lost + crash_dropped + in_flight
+    sent + copies = delivered + lost + queue_dropped + crash_dropped + in_flight
 
 Beside these a port keeps ``late``, which only its estimator can decide (a packet
 delivered after its last usable instant, a stale pair, ...): the estimator counts it
@@ -42,15 +51,17 @@ import simpy
 from simpy.events import NORMAL, Event
 
 from dkfsim.components.faults import CrashSchedule, LinkSpec, ScaleSchedule, Windows
-from dkfsim.core.params import MAX_NS
+from dkfsim.core.params import MAX_NS, NS_PER_S, seconds_to_ns
 from dkfsim.core.streams import key64, keyed_uniform
+from dkfsim.network.transmitter import BackgroundArrivals, LinkTraffic, Transmitter
 
 PRIORITY_DELIVER = NORMAL
 PRIORITY_FLUSH = NORMAL + 1
 PRIORITY_UPDATE = NORMAL + 2
 
-#: Counters of a port, per link: ``sent + copies = delivered + lost + crash_dropped + in_flight``.
-COUNTERS = ("sent", "delivered", "lost", "copies", "crash_dropped", "outage_lost", "bytes")
+#: Counters of a port, per link:
+#: ``sent + copies = delivered + lost + queue_dropped + crash_dropped + in_flight``.
+COUNTERS = ("sent", "delivered", "lost", "copies", "crash_dropped", "outage_lost", "bytes", "queue_dropped")
 
 #: What a port hands its estimator: ``receive(link, payload)``.
 Receive = Callable[["Link", Any], None]
@@ -119,8 +130,8 @@ class Link:
     :param key: the prefix of the link's draw names, ``("link", src, dst)`` by default.
     """
 
-    __slots__ = ("id", "src", "dst", "spec", "loss", "duplicate", "plain", "_main", "_copy",
-                 "_loss_key", "_dup_key", "_outages")
+    __slots__ = ("id", "src", "dst", "spec", "loss", "duplicate", "plain", "rate", "_main", "_copy",
+                 "_loss_key", "_dup_key", "_outages", "_prefix", "_seed")
 
     def __init__(self, link_id: int, src: int, dst: int, spec: Any, seed: int, T_ns: int,
                  key: tuple | None = None):
@@ -129,6 +140,9 @@ class Link:
         self.loss = float(spec.loss)
         self.duplicate = float(spec.duplicate)
         prefix = ("link", src, dst) if key is None else tuple(key)
+        self._prefix, self._seed = prefix, int(seed)
+        #: bits per second (None: no transmitter, a packet leaves when handed over)
+        self.rate = None if spec.rate is None else float(spec.rate)
         self._main = Recipe(spec, prefix, seed, T_ns)
         self._loss_key = key64(seed, *prefix, "loss") if self.loss > 0 else None
         self._dup_key = key64(seed, *prefix, "duplicate") if self.duplicate > 0 else None
@@ -138,13 +152,44 @@ class Link:
         #: on the link (no loss, duplication, outage, schedule or jitter): the per-packet
         #: fast path of :meth:`Port.send`, equal to :meth:`transmit`.  None otherwise.
         plain = not (self.loss > 0 or self.duplicate > 0 or spec.outages or spec.schedule
-                     or spec.jitter is not None)
+                     or spec.jitter is not None or self.rate is not None)
         self.plain = self._main._model.draw if plain else None
 
     def compiled_latency(self) -> tuple[int, int, int] | None:
         """The latency model's :meth:`~dkfsim.components.latency.Sampler.compiled_form` when
-        nothing else acts on the link, else None (a compiled protocol cannot draw it)."""
-        return self._main._model.compiled_form() if self.plain is not None else None
+        nothing else acts on the link but a transmitter with no queue or a queue counted in
+        packets, else None (a compiled protocol cannot draw it)."""
+        spec = self.spec
+        if self.loss > 0 or self.duplicate > 0 or spec.outages or spec.schedule or spec.jitter is not None:
+            return None
+        if spec.queue is not None and spec.queue.packets is None:
+            return None
+        return self._main._model.compiled_form()
+
+    def compiled_traffic(self) -> tuple | None:
+        """The transmitter as the compiled tree draws it, None without a rate: ``(rate, queue
+        packets or -1, background kind (0 none, 1 poisson, 2 periodic), arrival key, size
+        key, ns between packets, size, exponential sizes, offset ns)``."""
+        if self.rate is None:
+            return None
+        spec = self.spec
+        qcap = -1 if spec.queue is None or spec.queue.packets is None else int(spec.queue.packets)
+        bg = spec.background
+        if bg is None:
+            return (self.rate, qcap, 0, 0, 0, 0.0, 0.0, False, 0)
+        arrivals = BackgroundArrivals(bg, self._prefix, self._seed)
+        return (self.rate, qcap, 1 if bg.arrivals == "poisson" else 2, arrivals.gap_key, arrivals.size_key,
+                NS_PER_S / bg.packets_per_second, float(bg.size), bg.sizes == "exponential",
+                seconds_to_ns(bg.offset))
+
+    def transmitter(self, record: bool = False) -> Transmitter:
+        """A new transmitter of this rate-limited link, with its queue and background."""
+        if self.rate is None:
+            raise ValueError(f"link {self.src} -> {self.dst} has no rate: no transmitter")
+        spec = self.spec
+        bg = BackgroundArrivals(spec.background, self._prefix, self._seed) \
+            if spec.background is not None else None
+        return Transmitter(self.rate, spec.queue, bg, record=record)
 
     def transmit(self, t_ns: int, seq: int = 0) -> tuple[tuple[int, ...], str | None]:
         """The arrivals of a packet sent at ``t_ns`` as number ``seq`` of its sender at
@@ -170,12 +215,17 @@ class Network:
     :param link_spec: ``link_spec(u, v)`` -> a :class:`~dkfsim.components.faults.LinkSpec`.
     :param crashes: optional :class:`~dkfsim.components.faults.CrashSchedule`; a packet
         arriving at a node that is down is dropped (``crash_dropped``).
+    :param shared_queues: every port's packets through the same transmitter of a
+        rate-limited link (default: each port its own, the same background in each).
     """
 
     def __init__(self, env: simpy.Environment, arcs: list[tuple[int, int]],
                  link_spec: Callable[[int, int], Any], seed: int, T_ns: int,
-                 crashes: CrashSchedule | None = None):
+                 crashes: CrashSchedule | None = None, shared_queues: bool = False):
         self.env = cast(Clock, env)         # (SimPy types time as int | float; here it is ns)
+        #: link id -> the transmitter every port uses, when queues are shared (else each port
+        #: keeps its own)
+        self.shared_transmitters: dict[int, Transmitter] | None = {} if shared_queues else None
         self.seed, self.T_ns = int(seed), int(T_ns)
         self.links = [Link(i, u, v, link_spec(u, v), seed, T_ns) for i, (u, v) in enumerate(arcs)]
         self.index = {(l.src, l.dst): l for l in self.links}
@@ -227,6 +277,13 @@ class Port:
         self._seq: dict[int, int] = {}
         #: arrival instant (ns) -> [link, payload, link, payload, ...] still to deliver
         self._due: dict[int, list[Any]] = {}
+        #: link id -> transmitter of a rate-limited link (the network's when shared)
+        shared = network.shared_transmitters
+        self._tx: dict[int, Transmitter] = shared if shared is not None else {}
+        #: link id -> this port's queueing delays on a rate-limited link
+        self._traffic: dict[int, LinkTraffic] = {}
+        #: link id -> the link's statistics as its owner reported them (:meth:`set_link_stats`)
+        self._stats: dict[int, dict[str, Any]] = {}
 
     def _grow(self) -> None:
         """One counter slot per link of the network (links may be added after the port)."""
@@ -247,6 +304,9 @@ class Port:
             self._grow()
         count["sent"][lid] += 1
         count["bytes"][lid] += nbytes
+        if link.rate is not None:
+            self._send_rated(now, seq, link, payload, nbytes)
+            return
         plain = link.plain
         if plain is not None:
             lat, lost = plain(now, seq)
@@ -255,8 +315,14 @@ class Port:
                 return
             self._enqueue(now, lat, link, payload)
             return
+        self._fly(now, 0, link, seq, payload)
+
+    def _fly(self, now: int, wait: int, link: Link, seq: int, payload: Any) -> None:
+        """A packet handed over ``now`` and leaving the sender ``wait`` ns later: its fate
+        (loss, outage, copies, latencies) drawn at ``now``, its arrivals ``wait`` later."""
+        lid, count = link.id, self._count
         arrivals, why = link.transmit(now, seq)
-        if why is not None:
+        if why is not None:                   # (lost in the air: it occupied the transmitter)
             count["lost"][lid] += 1
             if why == "outage":
                 count["outage_lost"][lid] += 1
@@ -264,7 +330,29 @@ class Port:
         if len(arrivals) > 1:
             count["copies"][lid] += 1
         for lat in arrivals:
-            self._enqueue(now, lat, link, payload)
+            self._enqueue(now, wait + lat, link, payload)
+
+    def _transmitter(self, link: Link) -> Transmitter:
+        tx = self._tx.get(link.id)
+        if tx is None:
+            tx = self._tx[link.id] = link.transmitter()
+        return tx
+
+    def _send_rated(self, now: int, seq: int, link: Link, payload: Any, nbytes: int) -> None:
+        """:meth:`send` on a link with a transmitter: dropped when the waiting room is full;
+        else its fate (loss, outage, copies, latencies) drawn as on any link at the hand-over
+        instant, its arrivals counted from the end of its transmission."""
+        lid, count = link.id, self._count
+        got = self._transmitter(link).offer(now, nbytes)
+        if got is None:
+            count["queue_dropped"][lid] += 1
+            return
+        start, end = got
+        traffic = self._traffic.get(lid)
+        if traffic is None:
+            traffic = self._traffic[lid] = LinkTraffic()
+        traffic.delays.append(start - now)
+        self._fly(now, end - now, link, seq, payload)
 
     def _enqueue(self, now: int, lat: int, link: Link, payload: Any) -> None:
         due = self._due.get(now + lat)
@@ -305,6 +393,12 @@ class Port:
         for key, value in counts.items():
             self._count[key][link.id] = value
 
+    def set_link_stats(self, link: Link, stats: dict[str, Any]) -> None:
+        """The statistics of a rate-limited ``link`` (:meth:`LinkTraffic.summary
+        <dkfsim.network.transmitter.LinkTraffic.summary>`), for a protocol whose packets
+        travel outside the port (the compiled ``tree``)."""
+        self._stats[link.id] = dict(stats)
+
     def count_late(self, n: int = 1) -> None:
         """Count ``n`` late items: what is late is the estimator's to decide (e.g. a message
         delivered after its last usable instant, dropped unused); ``counts()["late"]``."""
@@ -312,12 +406,14 @@ class Port:
 
     def counts(self) -> dict[str, Any]:
         """Totals, ``per_link`` (links this port used) and ``late`` (:meth:`count_late`);
-        ``in_flight`` by the identity."""
+        ``in_flight`` by the identity (packets still waiting in a queue included).  A
+        rate-limited link's row adds its utilisation of ``[0, until]`` and this port's
+        queueing delays (:meth:`~dkfsim.network.transmitter.LinkTraffic.stats`)."""
         self._grow()
         count = self._count
         totals: dict[str, Any] = {k: sum(count[k]) for k in COUNTERS}
         totals["in_flight"] = (totals["sent"] + totals["copies"] - totals["delivered"]
-                               - totals["lost"] - totals["crash_dropped"])
+                               - totals["lost"] - totals["queue_dropped"] - totals["crash_dropped"])
         used = self._links if self._links is not None else \
             [i for i in range(len(self.net.links)) if any(count[k][i] for k in COUNTERS)]
         per_link = []
@@ -325,7 +421,12 @@ class Port:
             link = self.net.links[i]
             row: dict[str, Any] = {"link": (link.src, link.dst), **{k: count[k][i] for k in COUNTERS}}
             row["in_flight"] = (row["sent"] + row["copies"] - row["delivered"] - row["lost"]
-                                - row["crash_dropped"])
+                                - row["queue_dropped"] - row["crash_dropped"])
+            if i in self._stats:
+                row.update(self._stats[i])
+            elif link.rate is not None:
+                end = self.until if self.until is not None else self.env.now
+                row.update(self._traffic.get(i, LinkTraffic()).stats(self._transmitter(link), end))
             per_link.append(row)
         totals["per_link"] = per_link
         totals["late"] = self._late

@@ -30,6 +30,7 @@ from dkfsim.core.jit import entry_point
 from dkfsim.core.registry import PROTOCOLS
 from dkfsim.model.holdings import Holdings
 from dkfsim.network.links import PRIORITY_FLUSH, Scheduled
+from dkfsim.network.transmitter import LinkTraffic
 from dkfsim.protocols import tree_compiled_kernels as tk
 from dkfsim.protocols.base import PACKET_HEADER, Wiring, exchange_counts, row_bytes
 from dkfsim.protocols.tree import TreeExchange
@@ -80,7 +81,10 @@ class CompiledTreeExchange:
         self.row_bytes = row_bytes(nx, n)
         self._k = tk.compiled()
         self.W = -(-holdings.info.theta.shape[1] // 64)
-        self.CT = np.zeros(11, dtype=np.int64)
+        self.CT = np.zeros(12, dtype=np.int64)
+        #: queueing delay (ns) and link of each packet a transmitter accepted (CT[ND] of them)
+        self.dly = np.zeros(0, dtype=np.int64)
+        self.dlk = np.zeros(0, dtype=np.int64)
         self._flush_pending = False
 
     def attach(self, port, links) -> None:
@@ -110,12 +114,14 @@ class CompiledTreeExchange:
         self.due = np.zeros(n, dtype=np.uint8)
         self.queue = np.zeros(n + 1, dtype=np.int64)
         self.counts_ = np.zeros((4, E), dtype=np.int64)     # sent, delivered, late packets, bytes
+        self._transmitters(links)
         self.late_node = np.zeros(n, dtype=np.int64)
         deg = int(np.diff(self.out_ptr).max()) if n else 0
         self.outp = np.full(max(deg, 1), -1, dtype=np.int64)
         self.new = np.zeros(W, dtype=np.uint64)
         self.out = np.zeros(W, dtype=np.uint64)
         self._pool(max(self.initial_pool, 4 * E) if self.initial_pool > 1 else 1)
+        self._grow_delays(max(1024, 4 * E))
         logf = self.arrival is not None
         # With the arrival log: the holdings of the last late_horizon final rows (late accounting).
         K = self.holdings.info.theta.shape[0]
@@ -127,7 +133,7 @@ class CompiledTreeExchange:
                                self.due, self.queue, self.new, self.out)
         self._k_links = tk.Links(self.G, self.out_ptr, self.out_idx, self.lkind, self.lkey, self.lpar, self.dinst,
                                  self.dcnt, self.lseq, self.counts_, self.late_node, PACKET_HEADER, self.row_bytes,
-                                 self.T_ns)
+                                 self.T_ns, *self.tx)
         self._k_fold = self.holdings.fold_target
         self._k_log = tk.Log(logf, self.arrival if logf else np.empty((1, 1, 1)), self.fheld, self.frow)
         self._bind()
@@ -137,6 +143,35 @@ class CompiledTreeExchange:
         self._deliver = entry_point(k.deliver, -1, *self._args)
         self._flush_k = entry_point(k.flush_all, -1, -1, *self._args)
         self._measure_k = k.measure
+
+    def _transmitters(self, links) -> None:
+        """The links' transmitters as the kernels keep them (:class:`tree_compiled_kernels.Links`
+        from ``rate`` on); the first background packet of each drawn here."""
+        E = len(links)
+        forms = [link.compiled_traffic() for link in links]
+        rate = np.zeros(E)
+        qcap = np.full(E, -1, dtype=np.int64)
+        bgk = np.zeros(E, dtype=np.int64)
+        bgkey = np.zeros(E, dtype=np.uint64)
+        bgskey = np.zeros(E, dtype=np.uint64)
+        bgper, bgsize = np.zeros(E), np.zeros(E)
+        bgexp = np.zeros(E, dtype=np.bool_)
+        bgoff, bgt, bgs = (np.zeros(E, dtype=np.int64) for _ in range(3))
+        for e, (link, f) in enumerate(zip(links, forms)):
+            if f is None:
+                continue
+            rate[e], qcap[e], bgk[e], bgkey[e], bgskey[e], bgper[e], bgsize[e], bgexp[e], bgoff[e] = f
+            if bgk[e]:
+                first = link.transmitter().background
+                bgt[e] = first.next_time()
+                bgs[e] = first.until(bgt[e])[1][0]
+            else:
+                bgt[e] = tk.MAX_NS
+        ring = np.zeros((E, max(1, int(qcap.max(initial=1)))), dtype=np.int64)
+        zeros = [np.zeros(E, dtype=np.int64) for _ in range(5)]    # rhead rlen free_at busy bgi
+        self.tx = (rate, qcap, ring, zeros[0], zeros[1], zeros[2], zeros[3], bgk, bgkey, bgskey, bgper, bgsize,
+                   bgexp, bgoff, zeros[4], bgt, bgs, np.zeros((2, E), dtype=np.int64), np.zeros(E, dtype=np.int64))
+        self.rated = bool(rate.any())
 
     def _pool(self, P: int) -> None:
         """A packet pool of ``P`` slots (the heap holds at most that many); grows, keeping
@@ -165,10 +200,16 @@ class CompiledTreeExchange:
                 a[:len(old)] = old
             setattr(self, name, a)
 
+    def _grow_delays(self, size: int) -> None:
+        """Room for ``size`` queueing delays (what the transmitters accepted so far kept)."""
+        dly, dlk = np.zeros(size, dtype=np.int64), np.zeros(size, dtype=np.int64)
+        dly[:len(self.dly)], dlk[:len(self.dlk)] = self.dly, self.dlk
+        self.dly, self.dlk = dly, dlk
+
     def _bind(self) -> None:
         """The kernels' arguments (rebuilt when the pool grows)."""
         self._k_pool = tk.Pool(*self.heap, self.free, self.pk, self.pk_rows, self.pk_masks, self.times, self.newt,
-                               self.outp)
+                               self.outp, self.dly, self.dlk)
         self._args = (self._k_rows, self._k_links, self._k_pool, self._k_fold, self._k_log)
 
     # -- rows ------------------------------------------------------------------
@@ -198,7 +239,10 @@ class CompiledTreeExchange:
         self._flush_pending = False
         now, until = self.env.now, self.port.until
         while self._flush_k(now, until, *self._args) == tk.NEED_ROOM:
-            self._pool(2 * self.pk.shape[0])
+            if int(self.CT[tk.NFREE]) < self.outp.shape[0]:
+                self._pool(2 * self.pk.shape[0])
+            if int(self.CT[tk.ND]) + self.outp.shape[0] > len(self.dly):
+                self._grow_delays(2 * len(self.dly))
             self._bind()
         CT, env = self.CT, self.env
         for t in self.newt[:CT[tk.NEWT]].tolist():
@@ -216,8 +260,27 @@ class CompiledTreeExchange:
         """Write the kernels' per-link counts into the port (what ``port.counts()`` reports);
         the arrival log is already written."""
         sent, delivered, _, nbytes = (row.tolist() for row in self.counts_)
+        qdrop = self.tx[-1].tolist()
         for i, link in enumerate(self.links):
-            self.port.set_counts(link, sent=sent[i], delivered=delivered[i], bytes=nbytes[i])
+            self.port.set_counts(link, sent=sent[i], delivered=delivered[i], bytes=nbytes[i],
+                                 queue_dropped=qdrop[i])
+        if self.rated:
+            self._link_stats()
+
+    def _link_stats(self) -> None:
+        """Each rate-limited link's utilisation, queueing delays and background (the port's
+        :meth:`~dkfsim.network.links.Port.set_link_stats`), as the Python transmitters report them."""
+        end = int(self.port.until if self.port.until is not None else self.env.now)
+        self._k.traffic_until(end, self._k_links)
+        rate, free_at, busy, bgc = self.tx[0], self.tx[5], self.tx[6], self.tx[17]
+        nd = int(self.CT[tk.ND])
+        dly, dlk = self.dly[:nd], self.dlk[:nd]
+        for e, link in enumerate(self.links):
+            if rate[e] > 0:
+                traffic = LinkTraffic()
+                traffic.delays = dly[dlk == e].tolist()
+                used = int(busy[e]) - max(0, int(free_at[e]) - end)
+                self.port.set_link_stats(link, traffic.summary(used, int(bgc[0, e]), int(bgc[1, e]), end))
 
     @property
     def late_packets(self) -> list[int]:

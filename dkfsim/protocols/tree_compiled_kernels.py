@@ -32,9 +32,9 @@ from dkfsim.core.jit import LazyKernels
 from dkfsim.model import holdings_kernels as hk
 
 _KERNELS = ("keyed_uniform", "_log_arrivals", "_push", "_pop", "_enqueue", "_receive", "deliver", "measure", "_pack",
-            "_send", "flush_all")
+            "_accept", "_background", "_send", "flush_all", "traffic_until")
 #: Steps inlined into the kernels that call them per packet or contribution.
-_INLINE = ("_log_arrivals", "_push", "_pop", "_enqueue", "_receive", "_pack", "_send")
+_INLINE = ("_log_arrivals", "_push", "_pop", "_enqueue", "_receive", "_pack", "_accept", "_background", "_send")
 #: Kernel files of other modules whose steps these kernels inline, with the sha256 of the
 #: file they were written against: numba's cache does not see an edit there, so after one
 #: these kernels compile without the cache until the pin is updated (docs/decisions.md 131).
@@ -42,7 +42,7 @@ BORROWS = {"dkfsim.model.holdings_kernels": "f5ba9bd99b4d6598cc258c4188fda9f3e2d
 _lazy = LazyKernels(__name__, _KERNELS, inline=_INLINE, borrows=BORROWS)
 
 # CT indices
-HEAP, NFREE, QHEAD, QLEN, LO, HI, ORDER, LATE, STALE, NEWT, NTIMES = range(11)
+HEAP, NFREE, QHEAD, QLEN, LO, HI, ORDER, LATE, STALE, NEWT, NTIMES, ND = range(12)
 #: Flag returned by :func:`flush_all` when the packet pool is full (grow it and call again).
 NEED_ROOM = -2
 
@@ -59,12 +59,23 @@ Rows = namedtuple("Rows", "CT rowid held inbox inseq sent dirty due queue new ou
 #: sends at it and the last sequence number (``dinst``, ``dcnt``, ``seq``), the counts (sent,
 #: delivered, late packets, bytes) per link and the late contributions per node; a packet's
 #: ``header`` and per-row bytes, and the tick ``T_ns``.
-Links = namedtuple("Links", "G out_ptr out_idx kind key par dinst dcnt seq counts late_node header row_bytes T_ns")
+#: A rate-limited link's transmitter (docs/design.md §3; the twin of
+#: :class:`dkfsim.network.transmitter.Transmitter`): ``rate`` (bits/s, 0: none), the waiting
+#: room ``qcap`` (packets, -1: unbounded) and the start instants of the packets waiting in it
+#: (``ring`` from ``rhead``, ``rlen`` of them), ``free_at`` and ``busy`` ns, the background
+#: (``bgk`` 0 none, 1 Poisson, 2 periodic; keys ``bgkey``, ``bgskey``; ``bgper`` ns between
+#: packets, ``bgsize`` bytes, ``bgexp`` exponential sizes, ``bgoff`` ns; the next packet's index,
+#: instant and size ``bgi``, ``bgt``, ``bgs``; ``bgc`` sent and dropped) and ``qdrop``.
+Links = namedtuple("Links", "G out_ptr out_idx kind key par dinst dcnt seq counts late_node header row_bytes T_ns "
+                            "rate qcap ring rhead rlen free_at busy bgk bgkey bgskey bgper bgsize bgexp bgoff "
+                            "bgi bgt bgs bgc qdrop")
 #: The packets in flight: the heap (arrival instant, send order, packet), the free packet slots,
 #: per packet (link, sequence number, rows) in ``pk`` and its rows and origin sets; the future
 #: arrival instants that have an event (``times``), those new since the flush began (``newt``),
 #: and the packet being filled per out-link of the flushing node (``outp``, -1: none).
-Pool = namedtuple("Pool", "heap_t heap_o heap_p free pk rows masks times newt outp")
+#: ``dly``/``dlk``: the queueing delay (ns) and link of every packet a transmitter accepted
+#: (``CT[ND]`` of them).
+Pool = namedtuple("Pool", "heap_t heap_o heap_p free pk rows masks times newt outp dly dlk")
 #: The arrival log (``on``: kept): ``arrival`` (node, origin, row) in seconds, and the holdings
 #: ``fheld`` of the last final rows ``frow``, so that a late contribution counts once.
 Log = namedtuple("Log", "on arrival fheld frow")
@@ -76,6 +87,10 @@ _S30, _S27, _S31, _S11 = np.uint64(30), np.uint64(27), np.uint64(31), np.uint64(
 _ONE = np.uint64(1)
 _ZERO = np.uint64(0)
 _SCALE = 1.0 / 9007199254740992.0
+_MAX_NS = 1 << 62
+_MAX_GAP_NS = 1 << 49
+#: The latest instant (ns): a transmitter's background that never comes.
+MAX_NS = _MAX_NS
 
 
 def compiled():
@@ -293,6 +308,66 @@ def _pack(j, deg, X, L, P):
                 P.masks[p, q, w] = X.out[w]
 
 
+def _accept(e, t, size, L):
+    """:meth:`Transmitter._accept <dkfsim.network.transmitter.Transmitter>`: a packet of
+    ``size`` bytes handed to link ``e``'s transmitter at ``t``; its start ns, or -1 (dropped)."""
+    cap = L.qcap[e]
+    if cap > 0:
+        while L.rlen[e] > 0 and L.ring[e, L.rhead[e]] <= t:
+            L.rhead[e] = (L.rhead[e] + 1) % cap
+            L.rlen[e] -= 1
+    start = L.free_at[e] if L.free_at[e] > t else t
+    if start > t and cap >= 0 and L.rlen[e] >= cap:
+        return -1
+    ns = size * 8.0 * 1e9 / L.rate[e]
+    tx = _MAX_NS if ns >= _MAX_NS else int(ns + 0.5)
+    end = start + tx
+    if end > _MAX_NS:
+        end = _MAX_NS
+    L.free_at[e] = end
+    L.busy[e] += end - start
+    if start > t and cap > 0:
+        L.ring[e, (L.rhead[e] + L.rlen[e]) % cap] = start
+        L.rlen[e] += 1
+    return start
+
+
+def _background(e, now, L):
+    """Link ``e``'s background packets up to and including ``now`` into its transmitter; the
+    next one drawn as :class:`~dkfsim.network.transmitter.BackgroundArrivals` draws it."""
+    while L.bgk[e] != 0 and L.bgt[e] <= now:
+        if _accept(e, L.bgt[e], L.bgs[e], L) < 0:
+            L.bgc[1, e] += 1
+        else:
+            L.bgc[0, e] += 1
+        i = L.bgi[e] + 1
+        L.bgi[e] = i
+        if L.bgk[e] == 1:
+            g = np.floor(-np.log(keyed_uniform(L.bgkey[e], i, 0)) * L.bgper[e] + 0.5)
+            if g > _MAX_GAP_NS:
+                g = _MAX_GAP_NS
+            t = L.bgt[e] + np.int64(g)
+        else:
+            f = i * L.bgper[e] + 0.5
+            if f > _MAX_NS:
+                f = _MAX_NS
+            f = L.bgoff[e] + np.floor(f)
+            t = _MAX_NS if f >= _MAX_NS else np.int64(f)
+        L.bgt[e] = _MAX_NS if t > _MAX_NS else t
+        if L.bgexp[e]:
+            sz = np.floor(-np.log(keyed_uniform(L.bgskey[e], i, 0)) * L.bgsize[e] + 0.5)
+            L.bgs[e] = 1 if sz < 1 else np.int64(sz)
+        else:
+            L.bgs[e] = np.int64(L.bgsize[e])
+
+
+def traffic_until(now, L):
+    """Every transmitter's background up to ``now`` (the end of the run, for the statistics)."""
+    for e in range(L.rate.shape[0]):
+        if L.rate[e] > 0:
+            _background(e, now, L)
+
+
 def _send(j, deg, now, X, L, P):
     """Send node ``j``'s filled packets: stamp link and sequence number, draw the latency
     (the link's keyed draw), count, and put each on the heap; a new arrival instant with a
@@ -311,6 +386,22 @@ def _send(j, deg, now, X, L, P):
             L.dcnt[e] = 0
         d = L.dcnt[e]
         L.dcnt[e] = d + 1
+        base = now
+        if L.rate[e] > 0:
+            size = L.header + P.pk[p, 2] * L.row_bytes
+            _background(e, now, L)
+            start = _accept(e, now, size, L)
+            if start < 0:                      # the waiting room is full: dropped
+                L.counts[0, e] += 1
+                L.counts[3, e] += size
+                L.qdrop[e] += 1
+                P.free[X.CT[NFREE]] = p
+                X.CT[NFREE] += 1
+                continue
+            P.dly[X.CT[ND]] = start - now
+            P.dlk[X.CT[ND]] = e
+            X.CT[ND] += 1
+            base = L.free_at[e]
         if L.kind[e] == 0:
             lat = L.par[e]
         else:
@@ -318,8 +409,8 @@ def _send(j, deg, now, X, L, P):
             lat = min(v, L.par[e]) * L.T_ns
         L.counts[0, e] += 1
         L.counts[3, e] += L.header + P.pk[p, 2] * L.row_bytes
-        t = now + lat
-        if lat > 0:                            # a new arrival instant needs an event
+        t = base + lat
+        if t > now:                            # a new arrival instant needs an event
             fresh = True
             for h in range(X.CT[NTIMES]):
                 if P.times[h] == t:
@@ -341,7 +432,7 @@ def flush_all(now, until, X, L, P, F, log):
     while X.CT[QLEN] > 0:
         j = X.queue[X.CT[QHEAD]]
         deg = L.out_ptr[j + 1] - L.out_ptr[j]
-        if X.CT[NFREE] < deg:
+        if X.CT[NFREE] < deg or X.CT[ND] + deg > P.dly.shape[0]:
             return NEED_ROOM
         X.CT[QHEAD] = (X.CT[QHEAD] + 1) % X.queue.shape[0]
         X.CT[QLEN] -= 1

@@ -35,7 +35,8 @@ def run_table(res, burn_in: int | None = None) -> str:
     lines += aligned(rows, left=(0, -1))
     c = res.counts
     extra = "".join(f", {label} {c[key]}" for key, label in
-                    (("copies", "duplicate copies"), ("crash_dropped", "dropped at crashed nodes"))
+                    (("copies", "duplicate copies"), ("queue_dropped", "dropped by full queues"),
+                     ("crash_dropped", "dropped at crashed nodes"))
                     if c.get(key))
     lines.append(f"packets: sent {c['sent']}, delivered {c['delivered']}, lost {c['lost']}, "
                  f"in flight at end {c['in_flight']}{extra}; late "
