@@ -20,14 +20,17 @@ Each case is a Monte Carlo of ``--runs`` runs (``dkfsim montecarlo``).  The
 reference of the paper's Figs. 3/4 ([2020Distributed], a consensus filter) is
 represented by the ``ci_consensus`` estimator.
 
-Simulation folders go to ``--work`` (default ``out/reproduce_paper``); figures
-(PNG and PDF) to ``--out`` (default ``docs/figures``).  ``--plot-only``
-redraws from existing simulation folders.
+Everything goes to one output folder, ``--out`` (default ``out/reproduce_paper``,
+ignored by git): the figures (PNG and PDF) and, unless ``--work`` names another
+folder, one simulation folder per case.  It never writes over tracked files unless
+asked to: refreshing the figures the docs show is ``--out docs/figures --work
+out/reproduce_paper``.  ``--plot-only`` redraws from existing simulation folders.
 
 Usage::
 
     .venv/bin/python tools/reproduce_paper.py                  # 20 runs per case, 1000 ticks
     .venv/bin/python tools/reproduce_paper.py --runs 100 --jobs 8 --out out/figs
+    .venv/bin/python tools/reproduce_paper.py --runs 1 --steps 10 --format png   # a smoke test
 """
 
 from __future__ import annotations
@@ -93,10 +96,11 @@ def main(argv=None) -> int:
                     help="ticks per run (default: the scenarios' 1000, i.e. 10 s)")
     ap.add_argument("--jobs", type=int, default=min(2, os.cpu_count() or 1), metavar="J",
                     help="worker processes (default: min(2, CPUs))")
-    ap.add_argument("--out", type=Path, default=ROOT / "docs" / "figures", metavar="DIR",
-                    help="figure folder (default: docs/figures)")
-    ap.add_argument("--work", type=Path, default=ROOT / "out" / "reproduce_paper", metavar="DIR",
-                    help="folder for the simulation outputs (default: out/reproduce_paper)")
+    ap.add_argument("--out", type=Path, default=ROOT / "out" / "reproduce_paper", metavar="DIR",
+                    help="output folder: the figures and, unless --work says otherwise, the "
+                         "simulation folders (default: out/reproduce_paper, ignored by git)")
+    ap.add_argument("--work", type=Path, default=None, metavar="DIR",
+                    help="folder for the simulation outputs (default: the --out folder)")
     ap.add_argument("--format", dest="formats", nargs="+", default=["png", "pdf"], choices=plots.FORMATS,
                     help="figure formats (default: png pdf)")
     ap.add_argument("--smooth", type=int, default=None, metavar="TICKS",
@@ -107,7 +111,8 @@ def main(argv=None) -> int:
     if args.runs < 1 or args.jobs < 1 or (args.steps is not None and args.steps < 10):
         ap.error("--runs and --jobs must be >= 1 and --steps >= 10")
 
-    work, out = args.work, args.out
+    out = args.out
+    work = out if args.work is None else args.work
     t_start = time.perf_counter()
     jobs = [Job("case1_d3", CASE1, 3, REFERENCE)]
     jobs += [Job(f"case1_d{d}", CASE1, d, ["centralized"]) for d in DELAY_BOUNDS if d != 3]
