@@ -6,8 +6,11 @@ from __future__ import annotations
 import csv
 import math
 import os
+import re
+import shutil
 import subprocess
 import sys
+import tomllib
 from pathlib import Path
 
 import numpy as np
@@ -96,12 +99,38 @@ def test_a_callable_progress_sees_every_run():
 
 
 @pytest.mark.slow
-def test_the_example_notebook_executes(tmp_path):
-    env = {**os.environ, "MPLBACKEND": "Agg", "DKFSIM_EXAMPLE_OUT": str(tmp_path),
+def test_the_example_notebook_executes_from_another_directory(tmp_path):
+    """Started outside the repository (cwd = tmp_path), it finds the scenarios beside itself."""
+    out = tmp_path / "out"
+    env = {**os.environ, "MPLBACKEND": "Agg", "DKFSIM_EXAMPLE_OUT": str(out),
            "DKFSIM_EXAMPLE_STEPS": "30", "DKFSIM_EXAMPLE_RUNS": "2"}
-    p = subprocess.run([sys.executable, str(ROOT / "docs" / "examples" / "notebook.py")], cwd=ROOT,
-                       env=env, capture_output=True, text=True, timeout=300)
+    p = subprocess.run([sys.executable, str(ROOT / "docs" / "examples" / "notebook.py")],
+                       cwd=tmp_path, env=env, capture_output=True, text=True, timeout=300)
     assert p.returncode == 0, p.stderr[-3000:]
-    assert (tmp_path / "delay.sqlite").is_file()
+    assert (out / "delay.sqlite").is_file()
+    assert sorted(x.name for x in tmp_path.iterdir()) == ["out"]
     text = (ROOT / "docs" / "examples" / "notebook.py").read_text()
     assert text.count("# %%") >= 8 and "format_name: percent" in text
+
+
+def test_the_example_notebook_says_which_file_it_cannot_find(tmp_path):
+    """Copied out of the repository with a dkfsim that is no checkout, it stops at once with an
+    error naming the scenario it needs, not a bare StopIteration."""
+    shutil.copy2(ROOT / "docs" / "examples" / "notebook.py", tmp_path / "notebook.py")
+    shutil.copytree(ROOT / "dkfsim", tmp_path / "site" / "dkfsim",
+                    ignore=shutil.ignore_patterns("__pycache__"))
+    env = {**os.environ, "MPLBACKEND": "Agg", "PYTHONPATH": str(tmp_path / "site")}
+    p = subprocess.run([sys.executable, "notebook.py"], cwd=tmp_path, env=env,
+                       capture_output=True, text=True, timeout=120)
+    assert p.returncode != 0
+    last = p.stderr.strip().splitlines()[-1]
+    assert last.startswith("FileNotFoundError:") and "scenarios/paper_case1.yaml" in last, last
+    here = tmp_path.resolve()
+    assert str(here / "site" / "dkfsim") in last and str(here) in last
+
+
+def test_the_notebook_extra_brings_the_progress_bar_widget():
+    """tqdm.auto draws a widget in Jupyter only with ipywidgets installed."""
+    extras = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]["optional-dependencies"]
+    names = {re.split(r"[<>=!~\[; ]", req, maxsplit=1)[0].lower() for req in extras["notebook"]}
+    assert {"pandas", "xarray", "ipywidgets"} <= names

@@ -17,9 +17,12 @@
 # A jupytext "percent" script: open it in Jupyter (`jupytext --to notebook
 # docs/examples/notebook.py`, or Jupyter with the jupytext extension) or run it as
 # `python docs/examples/notebook.py`. It needs the `notebook` and `plots` extras
-# (`pip install 'dkfsim[notebook,plots]'`): pandas, xarray and matplotlib.
-# `tests/test_notebook.py` executes it on every `make test`, with tiny sizes, so
-# it cannot go stale.
+# (`pip install 'dkfsim[notebook,plots]'`): pandas, xarray, ipywidgets (the
+# progress bars' widget in Jupyter) and matplotlib. It runs from any working
+# directory inside or outside the repository, and finds the example scenarios
+# beside itself (or in the checkout dkfsim is installed from).
+# `tests/test_notebook.py` executes it on every `make test`, with tiny sizes, from
+# another directory, so it cannot go stale.
 #
 # Every result converts to pandas with `to_frame()` -- the tidy columns of the
 # files (`run, seed, estimate, component, mse, anees, ...`) -- and the arrays to
@@ -34,8 +37,25 @@ import matplotlib.pyplot as plt
 
 import dkfsim
 
-# The repository's scenarios folder, from wherever the notebook was started.
-ROOT = next(p for p in [Path.cwd(), *Path.cwd().parents] if (p / "scenarios" / "paper_case1.yaml").is_file())
+
+def find_repository(marker: str = "scenarios/paper_case1.yaml") -> Path:
+    """The dkfsim checkout holding the example scenarios, from any working directory: above
+    this file (run as a script), above the installed package (`pip install -e .`), or above
+    the working directory (Jupyter, where `__file__` is not defined)."""
+    starts = [Path(dkfsim.__file__).resolve().parent, Path.cwd().resolve()]
+    if "__file__" in globals():
+        starts.insert(0, Path(__file__).resolve().parent)
+    for start in starts:
+        for folder in (start, *start.parents):
+            if (folder / marker).is_file():
+                return folder
+    raise FileNotFoundError(
+        f"the example notebook needs {marker} from the dkfsim repository, and found it above "
+        f"none of: {', '.join(str(s) for s in starts)}. The scenarios come with a clone of the "
+        "repository, not with the installed package: start the notebook inside a clone.")
+
+
+ROOT = find_repository()
 OUT = Path(os.environ.get("DKFSIM_EXAMPLE_OUT", ROOT / "out" / "notebook"))
 OUT.mkdir(parents=True, exist_ok=True)
 # Sizes: small enough for a laptop in a minute; the test makes them tiny.
