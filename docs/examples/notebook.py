@@ -33,7 +33,7 @@ from pathlib import Path
 import matplotlib.pyplot as plt
 
 import dkfsim
-from dkfsim.report.plots import color_of     # each estimate's colour in every dkfsim figure
+from dkfsim.report.plots import color_of  # each estimate's colour in every dkfsim figure
 
 # The repository's scenarios folder, from wherever the notebook was started.
 ROOT = next(p for p in [Path.cwd(), *Path.cwd().parents] if (p / "scenarios" / "paper_case1.yaml").is_file())

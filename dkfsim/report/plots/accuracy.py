@@ -85,7 +85,7 @@ def plot_mse(folder: Folder, stem, formats=DEFAULT_FORMATS, components=None, smo
     for row, i in enumerate(idx):
         ax = axes[row, 0]
         drawn, entries = [], []
-        for j, a in enumerate(names):
+        for a in names:
             col = color_of(a, folder.mse)
             entries.append((average_text(folder, a, i), col))
             style = dict(color=col, lw=1.0, ls="--" if a == "centralized" else "-",
@@ -120,7 +120,7 @@ def _ratio_panel(ar, folder: Folder, names, ref: str, i: int, wr: int, first: bo
     den = moving_average(folder.mse[ref][:, i], wr)
     base = folder.time_average(ref, i)
     off = []
-    for j, a in enumerate(names):
+    for a in names:
         factor = folder.time_average(a, i) / base if base > 0 else np.inf
         if a == ref:
             continue
@@ -165,7 +165,7 @@ def plot_nees(folder: Folder, stem, formats=DEFAULT_FORMATS, title=None) -> list
         return _nees_small_multiples(folder, names, stem, formats, head)
     plt = pyplot()
     fig, ax = plt.subplots(figsize=(7.5, 3.4))
-    for j, a in enumerate(names):
+    for a in names:
         ax.plot(folder.t, folder.nees[a], color=color_of(a, folder.mse), lw=1.0,
                 label=f"{label_of(a)}: {nees_verdict(folder, a)}", ls="--" if a == "centralized" else "-")
     if folder.nees_band is not None:
