@@ -261,3 +261,109 @@ def test_a_figure_file_gets_the_mode_of_the_umask_like_every_other_output(tmp_pa
         os.umask(old)
     assert [p.name for p in paths] == ["f.png", "f.pdf"]
     assert all((p.stat().st_mode & 0o777) == 0o644 for p in paths)
+
+
+# ----------------------------------------------------------------------------
+# colours: built-in names fixed, other names from a palette without those colours
+# (issue 24 §2, decision 197)
+# ----------------------------------------------------------------------------
+
+#: Smallest RGB distance (0..sqrt 3) counted as "another colour": "C0" and "#1f77b4" are
+#: one colour, and so are the near copies the old palette held ("#3182bd" beside "C0").
+DISTINCT = 0.18
+
+
+def rgb_distance(a, b) -> float:
+    from matplotlib.colors import to_rgb
+    return float(np.linalg.norm(np.subtract(to_rgb(a), to_rgb(b))))
+
+
+def built_in_names() -> list[str]:
+    """``fused``, ``local`` and the default name (= kind) of every estimator kind shipped in
+    dkfsim.components.estimators, read from the registry (not from the colour table)."""
+    import dkfsim.components.estimators  # noqa: F401  (registers the built-in kinds)
+    from dkfsim.core.registry import ESTIMATORS
+    kinds = [e.name for e in ESTIMATORS.entries()
+             if e.params is not None and e.params.__module__ == "dkfsim.components.estimators"]
+    assert {"centralized", "ci_consensus", "anti_delay_dkf", "hcmci"} <= set(kinds)
+    return ["fused", "local", *kinds]
+
+
+def test_every_built_in_name_has_its_own_fixed_colour():
+    from dkfsim.report.plots.style import color_of
+    names = built_in_names()
+    others = ["aa", "zz", "neighbour_mean", "dkf_b"]
+    colours = {a: color_of(a) for a in names}
+    for a in names:                       # the same whatever else the result holds
+        assert color_of(a, names + others) == color_of(a, others[:1]) == colours[a], a
+    for i, a in enumerate(names):
+        for b in names[i + 1:]:
+            assert rgb_distance(colours[a], colours[b]) >= DISTINCT, (a, b, colours[a], colours[b])
+
+
+def test_an_unknown_name_never_gets_a_built_in_colour():
+    from dkfsim.report.plots.style import color_of
+    fixed = [color_of(a) for a in built_in_names()]
+    unknown = [f"plugin_{k:02d}" for k in range(25)]
+    for k in range(1, len(unknown) + 1):
+        result = built_in_names() + unknown[:k]
+        for a in unknown[:k]:
+            c = color_of(a, result)
+            near = [f for f in fixed if rgb_distance(c, f) < DISTINCT]
+            assert not near, (a, k, c, near)
+
+
+def test_unknown_names_get_distinct_colours_whatever_their_order():
+    import itertools
+
+    from dkfsim.report.plots.style import color_of
+    names = ["zeta", "fused", "neighbour_mean", "centralized", "dkf_b", "nm_self"]
+    first = {a: color_of(a, names) for a in names}
+    for perm in itertools.permutations(names):
+        assert {a: color_of(a, list(perm)) for a in perm} == first
+    unknown = [f"u{k}" for k in range(10)]
+    cols = [color_of(a, unknown) for a in unknown]
+    for i in range(len(cols)):
+        for j in range(i + 1, len(cols)):
+            assert rgb_distance(cols[i], cols[j]) >= DISTINCT, (unknown[i], unknown[j])
+
+
+def line_colours(monkeypatch, folder: Path, tmp_path: Path) -> dict:
+    """Legend label -> RGB of the MSE figure drawn from ``folder`` (captured before saving)."""
+    from matplotlib.colors import to_rgb
+
+    from dkfsim.report.plots import accuracy, style
+    seen: dict = {}
+    real = style.save_figure            # (not accuracy's: a second call would find the first capture)
+
+    def capture(fig, stem, formats):
+        for ax in fig.axes:
+            for line in ax.get_lines():
+                if not line.get_label().startswith("_"):
+                    seen[line.get_label()] = to_rgb(line.get_color())
+        return real(fig, stem, formats)
+
+    monkeypatch.setattr(accuracy, "save_figure", capture)
+    accuracy.plot_mse(plots.load_folder(folder), tmp_path / "mse", formats=("png",), ratio=False)
+    return seen
+
+
+def test_a_name_has_the_same_colour_in_a_run_and_a_montecarlo_figure(monkeypatch, tmp_path):
+    # a run with a second DKF and a renamed no_buffer (names the colour table does not know)
+    run = tmp_path / "run"
+    assert main(["run", str(ROOT / "scenarios" / "paper_case1.yaml"), "--out", str(run), "--steps", "40",
+                 "--quiet", "--set", "estimators=[{kind: centralized}, {kind: anti_delay_dkf, name: dkf_b, "
+                 "buffer_length: 1}, {kind: no_buffer, name: aa_nb}]"]) == 0
+    # a Monte Carlo folder of the same estimates, listed in another order
+    mc = write_montecarlo(tmp_path / "mc", estimates=("aa_nb", "centralized", "local", "dkf_b", "fused"))
+    in_run = line_colours(monkeypatch, run, tmp_path / "f1")
+    in_mc = line_colours(monkeypatch, mc, tmp_path / "f2")
+    from dkfsim.report.plots.style import label_of
+    labels = [label_of(a) for a in ("fused", "local", "centralized", "dkf_b", "aa_nb")]
+    assert set(labels) <= set(in_run) and set(labels) <= set(in_mc)
+    for lab in labels:
+        assert in_run[lab] == in_mc[lab], lab
+    assert rgb_distance(in_run["dkf_b"], in_run["aa_nb"]) >= DISTINCT
+    for a in ("fused", "local", "centralized"):          # not the colour of a built-in
+        assert rgb_distance(in_run["dkf_b"], in_run[label_of(a)]) >= DISTINCT
+        assert rgb_distance(in_run["aa_nb"], in_run[label_of(a)]) >= DISTINCT

@@ -36,6 +36,7 @@ from pathlib import Path
 import matplotlib.pyplot as plt
 
 import dkfsim
+from dkfsim.report.plots import color_of  # each estimate's colour in every dkfsim figure
 
 
 def find_repository(marker: str = "scenarios/paper_case1.yaml") -> Path:
@@ -84,8 +85,9 @@ ds
 # %%
 fig, ax = plt.subplots(figsize=(7, 3))
 ax.plot(ds.time, ds.truth.sel(state="position"), color="0.6", lw=3, label="truth")
-ax.plot(ds.time, ds.x_fused.sel(state="position"), label="fused")
-ax.plot(ds.time, ds.x_local.sel(state="position", node=0), ls=":", label="local, node 0")
+ax.plot(ds.time, ds.x_fused.sel(state="position"), color=color_of("fused"), label="fused")
+ax.plot(ds.time, ds.x_local.sel(state="position", node=0), color=color_of("local"), ls=":",
+        label="local, node 0")
 ax.set_xlabel("time [s]")
 ax.set_ylabel("position [m]")
 ax.legend()
@@ -116,8 +118,9 @@ curves = mc.to_xarray()
 fig, ax = plt.subplots(figsize=(7, 3))
 for name in ("fused", "centralized", "local"):
     c = curves.sel(estimate=name, state="position")
-    ax.plot(c.time, c.mse, label=name)
-    ax.fill_between(c.time, c.mse_ci_lo.clip(min=0), c.mse_ci_hi, alpha=0.2)
+    col = color_of(name, curves.estimate.values)
+    ax.plot(c.time, c.mse, color=col, label=name)
+    ax.fill_between(c.time, c.mse_ci_lo.clip(min=0), c.mse_ci_hi, color=col, alpha=0.2)
 ax.set_yscale("log")
 ax.set_xlabel("time [s]")
 ax.set_ylabel("position MSE [m$^2$]")

@@ -85,8 +85,8 @@ def plot_mse(folder: Folder, stem, formats=DEFAULT_FORMATS, components=None, smo
     for row, i in enumerate(idx):
         ax = axes[row, 0]
         drawn, entries = [], []
-        for j, a in enumerate(names):
-            col = color_of(a, j)
+        for a in names:
+            col = color_of(a, folder.mse)
             entries.append((average_text(folder, a, i), col))
             style = dict(color=col, lw=1.0, ls="--" if a == "centralized" else "-",
                          zorder={"fused": 5, "centralized": 6}.get(a, 3))
@@ -120,7 +120,7 @@ def _ratio_panel(ar, folder: Folder, names, ref: str, i: int, wr: int, first: bo
     den = moving_average(folder.mse[ref][:, i], wr)
     base = folder.time_average(ref, i)
     off = []
-    for j, a in enumerate(names):
+    for a in names:
         factor = folder.time_average(a, i) / base if base > 0 else np.inf
         if a == ref:
             continue
@@ -128,7 +128,7 @@ def _ratio_panel(ar, folder: Folder, names, ref: str, i: int, wr: int, first: bo
             off.append(f"{plain(a)} ×{factor:.3g}" if np.isfinite(factor) else plain(a))
             continue
         with np.errstate(divide="ignore", invalid="ignore"):
-            ar.plot(folder.t, moving_average(folder.mse[a][:, i], wr) / den, color=color_of(a, j), lw=1.2)
+            ar.plot(folder.t, moving_average(folder.mse[a][:, i], wr) / den, color=color_of(a, folder.mse), lw=1.2)
     ar.axhline(1.0, color="k", lw=1.0, ls="--")
     ar.set_ylabel(f"{plain(folder.components[i])} MSE / {plain(ref)}")
     ar.grid(True, alpha=0.3)
@@ -165,8 +165,8 @@ def plot_nees(folder: Folder, stem, formats=DEFAULT_FORMATS, title=None) -> list
         return _nees_small_multiples(folder, names, stem, formats, head)
     plt = pyplot()
     fig, ax = plt.subplots(figsize=(7.5, 3.4))
-    for j, a in enumerate(names):
-        ax.plot(folder.t, folder.nees[a], color=color_of(a, j), lw=1.0,
+    for a in names:
+        ax.plot(folder.t, folder.nees[a], color=color_of(a, folder.mse), lw=1.0,
                 label=f"{label_of(a)}: {nees_verdict(folder, a)}", ls="--" if a == "centralized" else "-")
     if folder.nees_band is not None:
         ax.axhspan(*folder.nees_band, color="0.5", alpha=0.18, lw=0, label=band_label(folder))
@@ -217,7 +217,7 @@ def _nees_small_multiples(folder: Folder, names, stem, formats, head) -> list[Pa
         if folder.nees_band is not None:
             ax.axhspan(*folder.nees_band, color="0.5", alpha=0.18, lw=0)
         ax.axhline(folder.nx, color="0.3", lw=0.8, ls=":")
-        ax.plot(folder.t, folder.nees[a], color=color_of(a, k), lw=0.9)
+        ax.plot(folder.t, folder.nees[a], color=color_of(a, folder.mse), lw=0.9)
         verdict = nees_verdict(folder, a).replace("; ", "\n", 1)
         ax.set_title(f"{label_of(a)}\n{verdict}" if verdict else label_of(a), fontsize=7.5)
         ax.grid(True, alpha=0.3)

@@ -78,7 +78,7 @@ def plot_paired(folder: Folder, stem, formats=DEFAULT_FORMATS, components=None) 
             vals.append(r)
             ok = lo is not None and hi is not None and np.isfinite(lo) and np.isfinite(hi)
             err = [[max(r - lo, 0.0)], [max(hi - r, 0.0)]] if ok else None     # (a file may lie)
-            ax.errorbar([r], [y], xerr=err, fmt="o", ms=3.5, capsize=2.5, lw=1.1, color=color_of(a, y))
+            ax.errorbar([r], [y], xerr=err, fmt="o", ms=3.5, capsize=2.5, lw=1.1, color=color_of(a, folder.mse))
         ax.axvline(1.0, color="0.3", lw=0.8, ls=":")
         finite = np.array([v for v in vals if np.isfinite(v) and v > 0])
         if finite.size and finite.max() / min(finite.min(), 1.0) > 10:

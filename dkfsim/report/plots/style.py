@@ -21,8 +21,9 @@ from dkfsim.report.plots.folders import Folder
 FORMATS = ("png", "pdf", "svg")
 DEFAULT_FORMATS = ("png", "pdf")
 
-#: Display order, legend label and colour of the estimate names (any other name is drawn
-#: after these, labelled by its name).
+#: Display order, legend label and fixed colour of the built-in estimate names: ``fused``,
+#: ``local`` and the default name of every built-in estimator kind (design §8).  A built-in
+#: name keeps its colour in every figure (run, Monte Carlo, sweep, report, notebook).
 ESTIMATES: dict[str, tuple[str, str]] = {
     "fused": ("fused: anti-delay DKF", "C0"),
     "local": ("local: DKF node estimates (mean over nodes)", "C9"),
@@ -35,13 +36,16 @@ ESTIMATES: dict[str, tuple[str, str]] = {
     "icf": ("icf: information-weighted consensus", "C5"),
     "diffusion_kf": ("diffusion_kf: diffusion Kalman filter", "C6"),
     "hcmci": ("hcmci: hybrid consensus (measurements + information)", "C8"),
+    "anti_delay_dkf": ("anti_delay_dkf: a second anti-delay DKF, fused", "#393b79"),
 }
 
-#: Colours for names not listed above (a second ``hcmci``, a plugin's estimator): darker
-#: shades that none of the listed colours repeats, so no two lines of one figure share one.
-OTHER_COLORS = ("#393b79", "#637939", "#8c6d31", "#843c39", "#7b4173",
-                "#3182bd", "#e6550d", "#31a354", "#756bb1", "#636363")
-
+#: Colours for every other name (a plugin's estimator, a second DKF under its own name):
+#: none is within 0.18 (RGB distance) of a colour above or of another one here, so an
+#: unknown name is never drawn like a built-in.  They go to the unknown names of one result
+#: in sorted name order (:func:`color_of`), so a name's colour does not depend on where it
+#: comes in a figure; beyond ten unknown names they repeat.
+OTHER_COLORS = ("#e7298a", "#1b9e77", "#a6761d", "#637939", "#7b4173",
+                "#e6ab02", "#5254a3", "#d6616b", "#66a61e", "#9c9ede")
 
 
 #: Longest name drawn in a figure (longer ones are cut with "…").
@@ -65,17 +69,21 @@ def label_of(name: str) -> str:
     return known[0] if known is not None else plain(name)
 
 
-def color_of(name: str, fallback_index: int = 0):
-    c = ESTIMATES.get(name, (None, None))[1]
-    return c if c is not None else OTHER_COLORS[fallback_index % len(OTHER_COLORS)]
+def color_of(name: str, names=()) -> str:
+    """The colour of estimate ``name`` in a figure of a result whose estimates are ``names``
+    (all of the result's names, not only those drawn, so that choosing fewer changes no colour).
+    A built-in name has its fixed colour; any other takes :data:`OTHER_COLORS` by its rank
+    among the result's other names in sorted order (``name`` counts as one of them)."""
+    known = ESTIMATES.get(name)
+    if known is not None:
+        return known[1]
+    others = sorted({str(a) for a in names if a not in ESTIMATES} | {name})
+    return OTHER_COLORS[others.index(name) % len(OTHER_COLORS)]
 
 
 def estimate_order(names) -> list[str]:
     known = [a for a in ESTIMATES if a in names]
     return known + sorted(a for a in names if a not in ESTIMATES)
-
-
-
 
 
 # ----------------------------------------------------------------------------

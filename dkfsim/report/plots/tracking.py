@@ -60,7 +60,7 @@ def plot_tracking(folder: Folder, stem, formats=DEFAULT_FORMATS, components=None
                       dict(color="C4", lw=1.0, ls=(0, (1.5, 1.2)), zorder=3)))
     if "centralized" in folder.examples:
         lines.append((label_of("centralized"), folder.examples["centralized"],
-                      dict(color="k", lw=0.9, ls="--", zorder=5)))
+                      dict(color=color_of("centralized"), lw=0.9, ls="--", zorder=5)))
     if "ci_consensus" in folder.examples:
         lab = label_of("ci_consensus") + (", node 0" if folder.kind == "run" else "")
         lines.append((lab, folder.examples["ci_consensus"],

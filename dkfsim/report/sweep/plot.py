@@ -101,7 +101,8 @@ def per_component(metric: str) -> bool:
 def sweep_curves(path, x: str | None = None, hue: str | None = None, metric: str = "mse",
                  estimate: str | None = None, where=(), relative_to: str | None = None) -> dict:
     """The points to draw: ``{"x": key, "hue": key or None, "xs": values, "lines": {label:
-    {component: [(x, n, mean, lo, hi), ...]}}, "components": [...], "nx": {estimate: nx}}``;
+    {component: [(x, n, mean, lo, hi), ...]}}, "components": [...], "nx": {estimate: nx},
+    "estimates": every estimate name of the sweep (for :func:`~dkfsim.report.plots.style.color_of`)}``;
     with ``relative_to`` the points are paired ratios to the reference (:func:`_paired`)."""
     columns, rows = read_table(path)
     if metric not in columns:
@@ -177,7 +178,7 @@ def sweep_curves(path, x: str | None = None, hue: str | None = None, metric: str
     lines.pop(relative_to, None)
     xs = _values(gs, x)
     return {"x": x, "hue": hue_key, "estimate": estimate if hue_key else None, "xs": xs,
-            "lines": lines, "components": components, "metric": metric, "fixed": fixed,
+            "estimates": sorted({g["estimate"] for g in found.values()}), "lines": lines, "components": components, "metric": metric, "fixed": fixed,
             "nx": {e: len(c) for e, c in nx.items()}, "relative_to": relative_to}
 
 
@@ -246,7 +247,7 @@ def plot_sweep(path, stem, x=None, hue=None, metric="mse", estimate=None, where=
             lo = np.array([p[3] for p in pts])
             hi = np.array([p[4] for p in pts])
             if cur["hue"] is None:
-                col, lab = color_of(label, j), label_of(label)
+                col, lab = color_of(label, cur["estimates"]), label_of(label)
             else:
                 col = f"C{j}" if n_lines <= 8 else cmap(0.9 * j / (n_lines - 1))
                 lab = f"{plain(cur['hue'])} = {plain(label)}"
