@@ -32,6 +32,8 @@ def test_help_explains_every_subcommand_and_option():
     for cmd in ("run", "validate"):
         assert cmd in top.stdout
     run = dkfsim("run", "--help")
+    for name in ("summary.json", "rows.csv", "run.npz"):
+        assert name in run.stdout, name
     for opt in ("--out", "--seed", "--steps", "--set", "--save", "--burn-in", "--quiet"):
         assert opt in run.stdout
 
@@ -41,6 +43,10 @@ def test_run_writes_summary_and_every_design_array(tmp_path):
     p = dkfsim("run", CASE1, "--out", out, "--steps", 120, "--seed", 5)
     assert p.returncode == 0, p.stderr
     assert "fused (matrix)" in p.stdout and "centralized" in p.stdout and "packets: sent" in p.stdout
+    wrote = next(line for line in p.stdout.splitlines() if line.startswith("wrote "))
+    written = sorted(f.name for f in out.iterdir() if not f.name.startswith("."))   # (.dkfsim-output: the owner mark)
+    assert written == ["rows.csv", "run.npz", "summary.json"]
+    assert all(str(out / name) in wrote for name in written), wrote   # the line names every file
     summary = json.loads((out / "summary.json").read_text())
     assert summary["seed"] == 5 and summary["steps"] == 120
     assert summary["scenario"] == "paper_case1" and len(summary["scenario_hash"]) == 64

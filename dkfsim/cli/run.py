@@ -13,9 +13,10 @@ from dkfsim.report.tables import run_table
 
 
 def add_command(sub) -> None:
-    p = sub.add_parser("run", help="simulate one scenario and write summary.json and run.npz",
+    p = sub.add_parser("run", help="simulate one scenario and write summary.json, rows.csv and run.npz",
                        description="Simulate one scenario: truth, sensors, the SimPy network, every node's "
-                                   "anti-delay DKF, fusion and the listed estimators. Writes DIR/summary.json and "
+                                   "anti-delay DKF, fusion and the listed estimators. Writes DIR/summary.json, "
+                                   "DIR/rows.csv (the tidy rows: one per estimate and state component) and "
                                    "DIR/run.npz (the arrays listed in docs/design.md, section 8) and prints an MSE table. "
                                    "DIR is replaced as a whole, atomically, when the run is done.")
     add_scenario_args(p)
@@ -73,5 +74,6 @@ def cmd_run(args) -> int:
     out = res.save(args.out, burn_in=args.burn_in)
     if not args.quiet:
         say(run_table(res, args.burn_in))
-        say(f"wrote {out / 'summary.json'}" + ("" if res.info["save"] == "summary" else f" and {out / 'run.npz'}"))
+        say(f"wrote {out / 'summary.json'}, {out / 'rows.csv'}"
+            + ("" if res.info["save"] == "summary" else f" and {out / 'run.npz'}"))
     return 0
