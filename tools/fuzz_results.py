@@ -187,9 +187,10 @@ def enumerate_mutants(bases=BASES) -> list[ResultMutant]:
 def select(specs: list[ResultMutant], limit: int, seed: int) -> list[ResultMutant]:
     """Every file and database mutant plus a seeded sample of ``limit`` others (JSON and npz)."""
     always = [i for i, s in enumerate(specs) if s.mutation in FILE_MUTATIONS or s.scenario == "sweep"]
-    rest = [i for i in range(len(specs)) if i not in set(always)]
+    always_set = set(always)
+    rest = [i for i in range(len(specs)) if i not in always_set]
     if 0 < limit < len(rest):
-        keep = set(always) | set(random.Random(seed).sample(rest, limit))
+        keep = always_set | set(random.Random(seed).sample(rest, limit))
         return [s for i, s in enumerate(specs) if i in keep]
     return list(specs)
 

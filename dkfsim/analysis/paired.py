@@ -23,13 +23,14 @@ from dkfsim.analysis.metrics import paired_interval
 DEFAULT_REFERENCE = "centralized"
 
 
-def _number(v) -> float:
+def number_or_nan(v) -> float:
+    """A metric cell as a float, ``None`` (not applicable) as NaN."""
     return math.nan if v is None else float(v)
 
 
 def by_run(rows, metric: str) -> dict[int, float]:
     """``{run: value of metric}`` of tidy rows of one estimate and component."""
-    return {int(r["run"]): _number(r.get(metric)) for r in rows}
+    return {int(r["run"]): number_or_nan(r.get(metric)) for r in rows}
 
 
 def pair_values(rows, reference_rows, metric: str) -> tuple[np.ndarray, np.ndarray]:

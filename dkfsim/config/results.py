@@ -119,8 +119,9 @@ class RunSummary(Model):
     @model_validator(mode="after")
     def _rows_cover_the_estimates(self):
         have = {(r.estimate, r.component) for r in self.rows}
+        comps = components_of(self.rows) or ["?"]
         for e in self.estimates:
-            for c in components_of(self.rows) or ["?"]:
+            for c in comps:
                 if (e, c) not in have:
                     raise custom_error(f"no row for estimate {clip(e)}, component {clip(c)} (the "
                                        "rows do not match the estimates)", "rows")
@@ -240,14 +241,9 @@ def validate(model, data: Any, label: str):
         raise ScenarioError("too deeply nested or too large to check", source=label) from None
 
 
-_ADAPTERS: dict[Any, TypeAdapter] = {}
-
-
+@functools.cache
 def _adapter(tp) -> TypeAdapter:
-    got = _ADAPTERS.get(tp)
-    if got is None:
-        got = _ADAPTERS[tp] = TypeAdapter(tp)
-    return got
+    return TypeAdapter(tp)
 
 
 # =========================================================================== reading files

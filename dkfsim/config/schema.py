@@ -47,7 +47,6 @@ Decisions where docs/design.md leaves a choice:
 from __future__ import annotations
 
 import hashlib
-import json
 from typing import TYPE_CHECKING, Annotated, Any, Literal
 
 from pydantic import AfterValidator, BaseModel, BeforeValidator, Field, PrivateAttr, field_validator, model_validator
@@ -62,6 +61,7 @@ from dkfsim.components.traffic import Background, Queue, Rate
 from dkfsim.components.truth import TruthParams
 from dkfsim.config.dynamics import Model, Prior
 from dkfsim.config.plan import RunPlan
+from dkfsim.config.sweep import canonical_json
 from dkfsim.core.files import clip
 from dkfsim.core.params import (
     MAX_NS,
@@ -467,8 +467,7 @@ class Scenario(StrictModel):
 
 def scenario_hash(scenario: Scenario) -> str:
     """sha256 hex digest of the canonical JSON of ``scenario.to_dict()``."""
-    text = json.dumps(scenario.to_dict(), sort_keys=True, separators=(",", ":"),
-                      ensure_ascii=True, allow_nan=False)
+    text = canonical_json(scenario.to_dict())
     return hashlib.sha256(text.encode("utf-8")).hexdigest()
 
 

@@ -428,8 +428,8 @@ class MonteCarloResult:
         self.example = {k: np.asarray(curves[k], dtype=float) if k in curves else None
                         for k in ("example_truth", "example_x", "example_node0")}
         self.relative_to = summary.get("relative_to")
-        missing = [(e, c) for e in self.estimates for c in self.components
-                   if not any(r["estimate"] == e and r["component"] == c for r in rows)]
+        have = {(r["estimate"], r["component"]) for r in rows}
+        missing = [(e, c) for e in self.estimates for c in self.components if (e, c) not in have]
         if missing or len(self.seeds) != self.runs:
             raise DkfsimError("runs.csv does not match curves.npz and summary.json ("
                               + (f"no row for estimate {missing[0][0]}, component {missing[0][1]}"

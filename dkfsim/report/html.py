@@ -82,6 +82,11 @@ def table(table_id: str, head, rows, caption: str = "") -> str:
     return "\n".join(out)
 
 
+def verdict(ok) -> str | None:
+    """``anees_consistent`` as a table cell: yes / no / – (a single run)."""
+    return None if ok is None else ("yes" if ok else "no")
+
+
 def png_b64(path: Path) -> str:
     return base64.b64encode(Path(path).read_bytes()).decode("ascii")
 
@@ -93,7 +98,7 @@ def figure(png: str, caption: str, alt: str) -> str:
 
 def fig_b64(fig) -> str:
     buf = io.BytesIO()
-    fig.savefig(buf, format="png", dpi=110, bbox_inches="tight")
+    fig.savefig(buf, format="png", dpi=SCREEN_DPI, bbox_inches="tight")
     pyplot().close(fig)
     return base64.b64encode(buf.getvalue()).decode("ascii")
 

@@ -41,6 +41,7 @@ from dkfsim.report.html import (
     scenario_text,
     stored_or_unvalidated,
     table,
+    verdict,
     versions_table,
 )
 from dkfsim.report.plots import load_folder, paired_reference, plot_mse, plot_nees, plot_paired, plot_tracking
@@ -70,7 +71,7 @@ def _figures(folder_path: Path, kinds) -> list[str]:
             out.append(figure(png_b64(tmp / "nees.png"), "Mean NEES per tick with the per-tick 95 % "
                               "chi-square band of the mean NEES (labels: the fraction of ticks in it "
                               "and the ANEES verdict).", "nees"))
-        if paired_reference(folder) is not None:
+        if paired_reference(folder.stats) is not None:
             plot_paired(folder, tmp / "paired", ("png",))
             out.append(figure(png_b64(tmp / "paired.png"), "MSE relative to the reference estimate, "
                               "paired over the runs (95 % t-interval of the per-run log-ratios).",
@@ -126,9 +127,9 @@ def montecarlo_page(folder: Path) -> str:
     mse_rows = [(name, *(Interval((e["mse"][c], *e["mse_ci95"][c])) for c in comps))
                  for name, e in est.items()]
     nees_rows = [(name, Interval((e.get("anees"), *(e.get("anees_ci95") or (None, None)))),
-                  _verdict(e.get("anees_consistent")), e.get("anees_fraction_in_band"))
+                  verdict(e.get("anees_consistent")), e.get("anees_fraction_in_band"))
                  for name, e in est.items()]
-    ref = next((e["paired"]["reference"] for e in est.values() if e.get("paired")), None)
+    ref = paired_reference(est)
     paired_rows = [(name, *(Interval((e["paired"]["mse_ratio"].get(c),
                                       *e["paired"]["mse_ratio_ci95"].get(c, (None, None)))) for c in comps),
                     *(Interval((e["paired"]["mse_diff"].get(c),
@@ -167,11 +168,6 @@ def montecarlo_page(folder: Path) -> str:
     ]
     return html_page(f"dkfsim report: {s.get('scenario')}",
                  f"Monte Carlo: {s.get('runs')} runs x {s.get('steps')} ticks", sections)
-
-
-def _verdict(ok) -> str | None:
-    """``anees_consistent`` as a table cell: yes / no / – (a single run)."""
-    return None if ok is None else ("yes" if ok else "no")
 
 
 def _runs_seeds(path: Path) -> list[tuple[int, int]]:

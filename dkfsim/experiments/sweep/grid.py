@@ -22,7 +22,7 @@ import math
 import numpy as np
 
 from dkfsim.analysis.metrics import anees_consistent, nees_band, paired_interval, t_interval
-from dkfsim.analysis.paired import DEFAULT_REFERENCE, pair_values
+from dkfsim.analysis.paired import DEFAULT_REFERENCE, number_or_nan, pair_values
 from dkfsim.core.errors import DkfsimError
 
 #: Columns of the summary after the grid columns.
@@ -36,10 +36,6 @@ SUMMARY_COLUMNS = ("param_hash", "estimate", "component", "runs", "mse", "mse_ci
 def grid_columns(columns) -> list[str]:
     """The grid columns of a sweep table: those before ``param_hash``."""
     return list(columns[:list(columns).index("param_hash")])
-
-
-def _number(v) -> float:
-    return math.nan if v is None else float(v)
 
 
 def groups(columns, rows) -> dict:
@@ -60,7 +56,7 @@ def groups(columns, rows) -> dict:
 
 def interval(values) -> tuple[float, float, float]:
     """Mean and 95 % Student-t interval of per-run values (NaN when not applicable)."""
-    a = np.array([_number(v) for v in values], dtype=float)
+    a = np.array([number_or_nan(v) for v in values], dtype=float)
     if a.size == 0 or np.isnan(a).all():
         return math.nan, math.nan, math.nan
     mean, lo, hi = t_interval(a)
@@ -68,7 +64,7 @@ def interval(values) -> tuple[float, float, float]:
 
 
 def _mean(values) -> float | None:
-    a = np.array([_number(v) for v in values], dtype=float)
+    a = np.array([number_or_nan(v) for v in values], dtype=float)
     return None if a.size == 0 or np.isnan(a).all() else float(np.mean(a))
 
 

@@ -68,7 +68,7 @@ def plot_folder(folder: Folder, out_dir, formats=DEFAULT_FORMATS, components=Non
     written += plot_mse(folder, out / "mse", formats, components, smooth)
     if folder.nees:
         written += plot_nees(folder, out / "nees", formats)
-    if paired_reference(folder) is not None:
+    if paired_reference(folder.stats) is not None:
         written += plot_paired(folder, out / "paired", formats, components)
     return written
 

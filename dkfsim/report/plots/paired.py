@@ -31,9 +31,10 @@ from dkfsim.report.plots.style import (
 )
 
 
-def paired_reference(folder: Folder) -> str | None:
-    """The reference estimate named by the folder's paired blocks, None without any."""
-    for s in folder.stats.values():
+def paired_reference(stats) -> str | None:
+    """The reference estimate named by the paired blocks of ``stats`` (a folder's ``stats``, or
+    the ``estimates`` of its summary.json), None without any."""
+    for s in stats.values():
         p = (s or {}).get("paired")
         if p:
             return p["reference"]
@@ -58,7 +59,7 @@ def relative_to(folder: Folder, reference: str) -> Folder:
 def plot_paired(folder: Folder, stem, formats=DEFAULT_FORMATS, components=None) -> list[Path]:
     """Draw the MSE ratios to the reference with their paired 95 % intervals into ``stem``."""
     formats = check_formats(formats)
-    ref = paired_reference(folder)
+    ref = paired_reference(folder.stats)
     if ref is None:
         raise DkfsimError(f"{folder.path}: summary.json has no paired comparison (no reference "
                           "estimate in these runs; dkfsim montecarlo --relative-to NAME)")

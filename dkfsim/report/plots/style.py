@@ -214,7 +214,7 @@ def save_figure(fig, stem: Path, formats) -> list[Path]:
 def draw_averages(ax, entries, folder: Folder) -> None:
     """A column right of the panel: each curve's time-averaged MSE after the burn-in, in its colour
     (with the 95 % interval over runs when the Monte Carlo summary has it)."""
-    b = folder.burn_in if folder.burn_in is not None else folder.K // 10
+    b = folder.burn_rows()
     pm = any("±" in text for text, _ in entries)
     head = f"MSE, mean\nover t ≥ {folder.t[min(b, folder.K - 1)]:g} s" + ("\n(± 95 % half-width)" if pm else "")
     ax.text(1.02, 1.0, head + ":", transform=ax.transAxes, ha="left", va="top", fontsize=7.5, color="0.3")

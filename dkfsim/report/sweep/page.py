@@ -48,7 +48,7 @@ def sweep_page(db: Path) -> str:
         first.setdefault((r[ix["param_hash"]], r[ix["estimate"]]), r)
     nees_rows = [(*(r[ix[k]] for k in grid), r[ix["estimate"]],
                   blocks.Interval((r[ix["anees"]], r[ix["anees_ci95_lo"]], r[ix["anees_ci95_hi"]])),
-                  None if r[ix["anees_consistent"]] is None else ("yes" if r[ix["anees_consistent"]] else "no"))
+                  blocks.verdict(r[ix["anees_consistent"]]))
                  for r in first.values()]
     pk = [(*(r[ix[k]] for k in grid), r[ix["estimate"]], r[ix["messages_per_tick"]],
            r[ix["bytes_per_tick"]], r[ix["late"]]) for r in first.values()]
