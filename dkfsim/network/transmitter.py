@@ -37,6 +37,19 @@ def _log(u: np.ndarray) -> np.ndarray:
     return np.array([math.log(x) for x in u.tolist()], dtype=np.float64)
 
 
+def background_keys(prefix: tuple, seed: int) -> tuple[int, int]:
+    """The keys of a link's background draws: its arrival gaps' and its sizes' (``prefix`` is
+    the link's, ``("link", u, v)``)."""
+    return key64(seed, *prefix, "background", "arrival"), key64(seed, *prefix, "background", "size")
+
+
+def busy_within(busy_ns: int, free_at: int, end_ns: int) -> int:
+    """ns of ``[0, end_ns]`` a transmitter was busy, from the ns of work it accepted (``busy_ns``)
+    and the instant it is free: what is accepted and not yet sent at ``end_ns`` is one busy
+    stretch, so it is cut off."""
+    return busy_ns - max(0, free_at - end_ns)
+
+
 class BackgroundArrivals:
     """The background packets of one link, in order: ``(instant ns, size bytes)``, keyed draws.
 
@@ -48,8 +61,7 @@ class BackgroundArrivals:
     def __init__(self, spec: Background, prefix: tuple, seed: int):
         self.spec = spec
         #: the keys of the arrival gaps (or nothing, periodic) and of the sizes
-        self.gap_key = key64(seed, *prefix, "background", "arrival")
-        self.size_key = key64(seed, *prefix, "background", "size")
+        self.gap_key, self.size_key = background_keys(prefix, seed)
         self._times = np.empty(0, dtype=np.int64)
         self._sizes = np.empty(0, dtype=np.int64)
         self._drawn = 0          # packets drawn so far
@@ -193,10 +205,10 @@ class Transmitter:
         return sum(1 for start, _ in self._waiting if start > t_ns)
 
     def busy_until(self, t_ns: int) -> int:
-        """ns of ``[0, t_ns]`` the transmitter was busy (background up to ``t_ns`` taken):
-        what is accepted and not yet sent at ``t_ns`` is one busy stretch, so it is cut off."""
+        """ns of ``[0, t_ns]`` the transmitter was busy (background up to ``t_ns`` taken;
+        :func:`busy_within`)."""
         self.advance(t_ns)
-        return self.busy_ns - max(0, self.free_at - t_ns)
+        return busy_within(self.busy_ns, self.free_at, t_ns)
 
 
 class LinkTraffic:
@@ -205,8 +217,8 @@ class LinkTraffic:
 
     __slots__ = ("delays",)
 
-    def __init__(self) -> None:
-        self.delays: list[int] = []
+    def __init__(self, delays: list[int] | None = None) -> None:
+        self.delays: list[int] = [] if delays is None else delays
 
     def stats(self, transmitter: Transmitter, end_ns: int) -> dict[str, float | int]:
         """Utilisation of ``[0, end_ns]`` (every packet the transmitter carried, background
@@ -220,10 +232,8 @@ class LinkTraffic:
         """:meth:`stats` from the transmitter's numbers (busy ns in ``[0, end_ns]``, background
         packets sent and dropped): what the compiled tree reports."""
         d = np.asarray(self.delays, dtype=np.float64) / NS_PER_S
-        busy = busy_ns
-        background = (background_sent, background_dropped)
-        return {"utilisation": busy / end_ns if end_ns > 0 else 0.0,
+        return {"utilisation": busy_ns / end_ns if end_ns > 0 else 0.0,
                 "queueing_delay_mean": float(d.mean()) if len(d) else 0.0,
                 "queueing_delay_p95": float(np.percentile(d, 95)) if len(d) else 0.0,
-                "background_sent": background[0],
-                "background_dropped": background[1]}
+                "background_sent": background_sent,
+                "background_dropped": background_dropped}
