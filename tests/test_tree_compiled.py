@@ -34,12 +34,14 @@ CASES = {
     "no_fusion": dict(n=9, edges=tree_edges(9, 7), fusion="none", latency={"model": "uniform_steps", "d_t": 2}),
     "paper_weights_diagonal": dict(n=8, edges=tree_edges(8, 5), weights="paper", fusion="diagonal",
                                    latency={"model": "uniform_steps", "d_t": 2}),
-    # half a tick on most links, a whole tick on three: at a tick arrive packets sent at the
-    # tick before (their delivery came before the tick's measure) and packets relayed half a
-    # tick before (after it); the kernel runs the instants between ticks itself
-    "ticks_and_between": dict(n=9, nx=3, edges=tree_edges(9, 11), latency={"model": "constant", "value": 0.005},
+    # half a tick: what arrives at a tick was relayed half a tick before, so its delivery
+    # comes after the tick's measure (the kernel runs the instants between ticks itself)
+    "relayed_to_the_tick": dict(n=16, nx=3, edges=tree_edges(16, 14), latency={"model": "constant", "value": 0.005}),
+    # and a whole tick on three links: packets sent at the tick before arrive too, so the
+    # tick's deliveries come before its measure
+    "ticks_and_between": dict(n=16, nx=3, edges=tree_edges(16, 14), latency={"model": "constant", "value": 0.005},
                               overrides=[{"link": list(e), "latency": {"model": "constant", "value": 0.01}}
-                                         for e in tree_edges(9, 11)[:3]]),
+                                         for e in tree_edges(16, 14)[:3]]),
 }
 
 
@@ -98,7 +100,8 @@ def test_what_the_kernels_cannot_draw_runs_the_python_protocol(change, value, mo
     assert _run(d, "", monkeypatch).info["exchange"] == "masks"
 
 
-@pytest.mark.parametrize("case", ["uniform_steps", "short_buffer", "constant_off_grid", "ticks_and_between"])
+@pytest.mark.parametrize("case", ["uniform_steps", "short_buffer", "constant_off_grid", "relayed_to_the_tick",
+                                  "ticks_and_between"])
 def test_the_arrival_log_is_the_python_protocols(case, monkeypatch):
     """With the log, late contributions count once each (holdings of final rows kept) and
     every arrival instant is written: the same array and counts as the Python protocol."""
