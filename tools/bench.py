@@ -67,7 +67,6 @@ import dkfsim  # noqa: E402
 from dkfsim.estimators.kernels import KERNELS_ENV  # noqa: E402
 from dkfsim.protocols.tree_compiled import EXCHANGE_ENV  # noqa: E402
 
-
 #: Issue 21's bench line: every link of ``paper_case1`` at 1 Mbit/s, a room of 20 packets and
 #: Poisson background of 50 packets/s x 250 B (docs/traffic.md, "Cost").
 TRAFFIC = ("links.default.rate=1.0e6", "links.default.queue={packets: 20}",

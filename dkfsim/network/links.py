@@ -395,9 +395,9 @@ class Port:
             self._count[key][link.id] = value
 
     def set_link_stats(self, link: Link, stats: dict[str, Any]) -> None:
-        """The statistics of a rate-limited ``link`` (:meth:`LinkTraffic.summary
-        <dkfsim.network.transmitter.LinkTraffic.summary>`), for a protocol whose packets
-        travel outside the port (the compiled ``tree``)."""
+        """The statistics of a rate-limited ``link``
+        (:func:`~dkfsim.network.transmitter.link_stats`), for a protocol whose packets travel
+        outside the port (the compiled ``tree``)."""
         self._stats[link.id] = dict(stats)
 
     def count_late(self, n: int = 1) -> None:

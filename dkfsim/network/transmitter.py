@@ -211,29 +211,32 @@ class Transmitter:
         return busy_within(self.busy_ns, self.free_at, t_ns)
 
 
+def link_stats(delays: list[int] | np.ndarray, busy_ns: int, background_sent: int, background_dropped: int,
+               end_ns: int) -> dict[str, float | int]:
+    """A rate-limited link's statistics in ``summary.json``: utilisation of ``[0, end_ns]`` from
+    the busy ns in it (every packet the transmitter carried, background included), the queueing
+    delay's mean and 95th percentile (s, over one port's ``delays`` in ns; 0 without any), and
+    the background packets sent and dropped.  The Python port's (:meth:`LinkTraffic.stats`) and
+    the compiled tree's."""
+    d = np.asarray(delays, dtype=np.float64) / NS_PER_S
+    return {"utilisation": busy_ns / end_ns if end_ns > 0 else 0.0,
+            "queueing_delay_mean": float(d.mean()) if len(d) else 0.0,
+            "queueing_delay_p95": float(np.percentile(d, 95)) if len(d) else 0.0,
+            "background_sent": background_sent,
+            "background_dropped": background_dropped}
+
+
 class LinkTraffic:
     """What one port measured on one rate-limited link: its packets' queueing delays (ns from
-    hand-over to the start of transmission), for ``summary.json``'s per-link statistics."""
+    hand-over to the start of transmission, in hand-over order), for ``summary.json``'s
+    per-link statistics."""
 
     __slots__ = ("delays",)
 
-    def __init__(self, delays: list[int] | None = None) -> None:
-        self.delays: list[int] = [] if delays is None else delays
+    def __init__(self) -> None:
+        self.delays: list[int] = []
 
     def stats(self, transmitter: Transmitter, end_ns: int) -> dict[str, float | int]:
-        """Utilisation of ``[0, end_ns]`` (every packet the transmitter carried, background
-        included), the queueing delay's mean and 95th percentile (s, this port's packets;
-        0 without any), and the background packets sent and dropped."""
-        busy = transmitter.busy_until(end_ns)
-        return self.summary(busy, transmitter.background_sent, transmitter.background_dropped, end_ns)
-
-    def summary(self, busy_ns: int, background_sent: int, background_dropped: int,
-                end_ns: int) -> dict[str, float | int]:
-        """:meth:`stats` from the transmitter's numbers (busy ns in ``[0, end_ns]``, background
-        packets sent and dropped): what the compiled tree reports."""
-        d = np.asarray(self.delays, dtype=np.float64) / NS_PER_S
-        return {"utilisation": busy_ns / end_ns if end_ns > 0 else 0.0,
-                "queueing_delay_mean": float(d.mean()) if len(d) else 0.0,
-                "queueing_delay_p95": float(np.percentile(d, 95)) if len(d) else 0.0,
-                "background_sent": background_sent,
-                "background_dropped": background_dropped}
+        """:func:`link_stats` of this port's packets on ``transmitter``'s link up to ``end_ns``."""
+        return link_stats(self.delays, transmitter.busy_until(end_ns), transmitter.background_sent,
+                          transmitter.background_dropped, end_ns)

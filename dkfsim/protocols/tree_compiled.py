@@ -31,7 +31,7 @@ from dkfsim.core.backend import EXCHANGE_ENV, Backend  # noqa: F401  (EXCHANGE_E
 from dkfsim.core.jit import entry_point
 from dkfsim.core.registry import PROTOCOLS
 from dkfsim.model.holdings import Holdings
-from dkfsim.network.transmitter import LinkTraffic, busy_within
+from dkfsim.network.transmitter import busy_within, link_stats
 from dkfsim.protocols import tree_compiled_kernels as tk
 from dkfsim.protocols.base import PACKET_HEADER, Wiring, exchange_counts, row_bytes
 from dkfsim.protocols.tree import TreeExchange
@@ -262,9 +262,9 @@ class CompiledTreeExchange:
         cut = np.searchsorted(self.dlk[:nd][order], np.arange(len(self.links) + 1))
         for e, link in enumerate(self.links):
             if rate[e] > 0:
-                traffic = LinkTraffic(dly[cut[e]:cut[e + 1]].tolist())
                 used = busy_within(int(busy[e]), int(free_at[e]), end)
-                self.port.set_link_stats(link, traffic.summary(used, int(bgc[0, e]), int(bgc[1, e]), end))
+                self.port.set_link_stats(link, link_stats(dly[cut[e]:cut[e + 1]], used, int(bgc[0, e]),
+                                                          int(bgc[1, e]), end))
 
     @property
     def late_packets(self) -> list[int]:
