@@ -37,8 +37,8 @@ _KERNELS = ("keyed_uniform", "_log_arrivals", "_push", "_pop", "_enqueue", "_rec
             "_accept", "_next_background", "_background", "_send", "flush_all", "advance", "tick",
             "start_background", "traffic_until")
 #: Steps inlined into the kernels that call them per packet or contribution.
-_INLINE = ("_log_arrivals", "_push", "_pop", "_enqueue", "_receive", "_pack", "_accept", "_next_background",
-           "_background", "_send")
+_INLINE = ("_log_arrivals", "_push", "_pop", "_enqueue", "_receive", "deliver", "_pack", "_accept",
+           "_next_background", "_background", "_send")
 #: Kernel files of other modules whose steps these kernels inline, with the sha256 of the
 #: file they were written against: numba's cache does not see an edit there, so after one
 #: these kernels compile without the cache until the pin is updated (docs/decisions.md 131).
@@ -421,11 +421,15 @@ def _send(j, deg, now, X, L, P):
 
 
 def flush_all(now, until, X, L, P, F, log):
-    """Flush the due nodes, first due first; after each flush the zero-latency packets are
-    delivered (they may make more nodes due).  Packets with a latency go on the heap.
-    Returns :data:`NEED_ROOM` if the pool has fewer free packets than the next node has
-    out-links (nothing of that node done yet)."""
-    while X.CT[QLEN] > 0:
+    """Deliver the packets due at ``now``, then flush the due nodes, first due first; after
+    each flush the zero-latency packets are delivered (they may make more nodes due).  Packets
+    with a latency go on the heap.  Returns :data:`NEED_ROOM` if the pool has fewer free
+    packets than the next node has out-links (nothing of that node done yet; call again)."""
+    while True:
+        if now <= until:
+            deliver(now, X, L, P, F, log)
+        if X.CT[QLEN] == 0:
+            return 0
         j = X.queue[X.CT[QHEAD]]
         deg = L.out_ptr[j + 1] - L.out_ptr[j]
         if X.CT[NFREE] < deg or X.CT[ND] + deg > P.dly.shape[0]:
@@ -435,20 +439,18 @@ def flush_all(now, until, X, L, P, F, log):
         X.due[j] = 0
         _pack(j, deg, X, L, P)
         _send(j, deg, now, X, L, P)
-        if now <= until:
-            deliver(now, X, L, P, F, log)
-    return 0
 
 
 def advance(limit, until, mark, X, L, P, F, log):
     """Every instant before ``limit`` (and not after ``until``) at which packets arrive, in
     order: deliver them, then flush the nodes that gained something (what the port's delivery
-    event and the flush event of that instant did).  Then, if the first packet due at ``limit``
-    was sent before ``mark`` (the send order when the tick began), deliver the packets due at
-    ``limit`` now: their SimPy event was made before the tick's measure was scheduled, so it
-    came first.  Returns :data:`NEED_ROOM` (call again after growing the pool) or 0."""
+    event and the flush event of that instant did; :func:`flush_all`).  Then, if the first
+    packet due at ``limit`` was sent before ``mark`` (the send order when the tick began),
+    deliver the packets due at ``limit`` now: their SimPy event was made before the tick's
+    measure was scheduled, so it came first.  Returns :data:`NEED_ROOM` (call again after
+    growing the pool) or 0."""
     while True:
-        if X.CT[QLEN] > 0:
+        if X.CT[QLEN] > 0:                     # an instant a full pool interrupted
             if flush_all(X.CT[NOW], until, X, L, P, F, log) == NEED_ROOM:
                 return NEED_ROOM
         if X.CT[HEAP] == 0:
@@ -461,12 +463,13 @@ def advance(limit, until, mark, X, L, P, F, log):
                 deliver(t, X, L, P, F, log)
             return 0
         X.CT[NOW] = t
-        deliver(t, X, L, P, F, log)
+        if flush_all(t, until, X, L, P, F, log) == NEED_ROOM:
+            return NEED_ROOM
 
 
 def tick(row, now, until, X, L, P, F, log):
     """The tick at ``now`` that opens ``row``: :func:`advance` to ``now``, then :func:`measure`,
-    the packets due at ``now`` not delivered yet, and :func:`flush_all`.  Returns
+    then :func:`flush_all` (the packets due at ``now`` not delivered yet first).  Returns
     :data:`NEED_ROOM` (grow the pool and call again with the same arguments: the tick resumes
     where it stopped, ``CT[PHASE]``) or 0.  ``row < 0``: nothing (the entry point's first call)."""
     if row < 0:
@@ -478,8 +481,6 @@ def tick(row, now, until, X, L, P, F, log):
         if advance(now, until, X.CT[MARK], X, L, P, F, log) == NEED_ROOM:
             return NEED_ROOM
         measure(row, now, X, F, log)
-        if now <= until:
-            deliver(now, X, L, P, F, log)
         X.CT[PHASE] = 2
     if flush_all(now, until, X, L, P, F, log) == NEED_ROOM:
         return NEED_ROOM
