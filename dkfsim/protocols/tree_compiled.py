@@ -133,8 +133,11 @@ class CompiledTreeExchange:
                                self.due, self.queue, self.new, self.out)
         self._k_links = tk.Links(self.G, self.out_ptr, self.out_idx, self.lkind, self.lkey, self.lpar, self.dinst,
                                  self.dcnt, self.lseq, self.counts_, self.late_node, PACKET_HEADER, self.row_bytes,
-                                 self.T_ns, *self.tx)
-        self._k.start_background(self._k_links)
+                                 self.T_ns)
+        #: the transmitters, or None without a rate (the kernels compiled without them)
+        self._k_tx = tk.Tx(*self.tx) if self.rated else None
+        if self._k_tx is not None:
+            self._k.start_background(self._k_tx)
         self._k_fold = self.holdings.fold_target
         self._k_log = tk.Log(logf, self.arrival if logf else np.empty((1, 1, 1)), self.fheld, self.frow)
         self._bind()
@@ -145,8 +148,8 @@ class CompiledTreeExchange:
         self._advance = entry_point(k.advance, -1, -1, 0, *self._args)
 
     def _transmitters(self, links) -> None:
-        """The links' transmitters as the kernels keep them (:class:`tree_compiled_kernels.Links`
-        from ``rate`` on); each background's first packet is drawn by the kernel
+        """The links' transmitters as the kernels keep them (:class:`tree_compiled_kernels.Tx`);
+        each background's first packet is drawn by the kernel
         (:func:`~dkfsim.protocols.tree_compiled_kernels.start_background`)."""
         E = len(links)
         forms = [link.compiled_traffic() for link in links]
@@ -201,7 +204,7 @@ class CompiledTreeExchange:
         """The kernels' arguments (rebuilt when the pool grows)."""
         self._k_pool = tk.Pool(*self.heap, self.free, self.pk, self.pk_rows, self.pk_masks, self.outp, self.dly,
                                self.dlk)
-        self._args = (self._k_rows, self._k_links, self._k_pool, self._k_fold, self._k_log)
+        self._args = (self._k_rows, self._k_links, self._k_tx, self._k_pool, self._k_fold, self._k_log)
 
     # -- rows ------------------------------------------------------------------
     def open_row(self, row: int) -> None:
@@ -254,7 +257,7 @@ class CompiledTreeExchange:
         """Each rate-limited link's utilisation, queueing delays and background (the port's
         :meth:`~dkfsim.network.links.Port.set_link_stats`), as the Python transmitters report them."""
         end = int(self.port.until if self.port.until is not None else self.env.now)
-        self._k.traffic_until(end, self._k_links)
+        self._k.traffic_until(end, self._k_tx)
         rate, free_at, busy, bgc = self.tx[0], self.tx[5], self.tx[6], self.tx[17]
         nd = int(self.CT[tk.ND])
         order = np.argsort(self.dlk[:nd], kind="stable")         # by link, hand-over order kept

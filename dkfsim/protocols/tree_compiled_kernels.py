@@ -66,16 +66,18 @@ Rows = namedtuple("Rows", "CT rowid held inbox inseq sent dirty due queue new ou
 #: sends at it and the last sequence number (``dinst``, ``dcnt``, ``seq``), the counts (sent,
 #: delivered, late packets, bytes) per link and the late contributions per node; a packet's
 #: ``header`` and per-row bytes, and the tick ``T_ns``.
-#: A rate-limited link's transmitter (docs/design.md §3; the twin of
-#: :class:`dkfsim.network.transmitter.Transmitter`): ``rate`` (bits/s, 0: none), the waiting
-#: room ``qcap`` (packets, -1: unbounded) and the start instants of the packets waiting in it
-#: (``ring`` from ``rhead``, ``rlen`` of them), ``free_at`` and ``busy`` ns, the background
-#: (``bgk`` 0 none, 1 Poisson, 2 periodic; keys ``bgkey``, ``bgskey``; ``bgper`` ns between
-#: packets, ``bgsize`` bytes, ``bgexp`` exponential sizes, ``bgoff`` ns; the next packet's index,
-#: instant and size ``bgi``, ``bgt``, ``bgs``; ``bgc`` sent and dropped) and ``qdrop``.
-Links = namedtuple("Links", "G out_ptr out_idx kind key par dinst dcnt seq counts late_node header row_bytes T_ns "
-                            "rate qcap ring rhead rlen free_at busy bgk bgkey bgskey bgper bgsize bgexp bgoff "
-                            "bgi bgt bgs bgc qdrop")
+Links = namedtuple("Links", "G out_ptr out_idx kind key par dinst dcnt seq counts late_node header row_bytes T_ns")
+#: The links' transmitters, passed as ``T`` (docs/design.md §3; the twin of
+#: :class:`dkfsim.network.transmitter.Transmitter`), or None when no link has a rate: the kernels
+#: are then compiled without them, the packet loop as it was before transmitters (docs/decisions.md
+#: 159).  Per link ``rate`` (bits/s, 0: none), the waiting room ``qcap`` (packets, -1: unbounded)
+#: and the start instants of the packets waiting in it (``ring`` from ``rhead``, ``rlen`` of them),
+#: ``free_at`` and ``busy`` ns, the background (``bgk`` 0 none, 1 Poisson, 2 periodic; keys
+#: ``bgkey``, ``bgskey``; ``bgper`` ns between packets, ``bgsize`` bytes, ``bgexp`` exponential
+#: sizes, ``bgoff`` ns; the next packet's index, instant and size ``bgi``, ``bgt``, ``bgs``;
+#: ``bgc`` sent and dropped) and ``qdrop``.
+Tx = namedtuple("Tx", "rate qcap ring rhead rlen free_at busy bgk bgkey bgskey bgper bgsize bgexp bgoff bgi bgt bgs "
+                      "bgc qdrop")
 #: The packets in flight: the heap (arrival instant, send order, packet), the free packet slots,
 #: per packet (link, sequence number, rows) in ``pk`` and its rows and origin sets, and the
 #: packet being filled per out-link of the flushing node (``outp``, -1: none).
@@ -305,80 +307,80 @@ def _pack(j, deg, X, L, P):
                 P.masks[p, q, w] = X.out[w]
 
 
-def _accept(e, t, size, L):
+def _accept(e, t, size, T):
     """:meth:`Transmitter._accept <dkfsim.network.transmitter.Transmitter>`: a packet of
     ``size`` bytes handed to link ``e``'s transmitter at ``t``; its start ns, or -1 (dropped)."""
-    cap = L.qcap[e]
+    cap = T.qcap[e]
     if cap > 0:
-        while L.rlen[e] > 0 and L.ring[e, L.rhead[e]] <= t:
-            L.rhead[e] = (L.rhead[e] + 1) % cap
-            L.rlen[e] -= 1
-    start = L.free_at[e] if L.free_at[e] > t else t
-    if start > t and cap >= 0 and L.rlen[e] >= cap:
+        while T.rlen[e] > 0 and T.ring[e, T.rhead[e]] <= t:
+            T.rhead[e] = (T.rhead[e] + 1) % cap
+            T.rlen[e] -= 1
+    start = T.free_at[e] if T.free_at[e] > t else t
+    if start > t and cap >= 0 and T.rlen[e] >= cap:
         return -1
-    ns = size * 8.0 * 1e9 / L.rate[e]
+    ns = size * 8.0 * 1e9 / T.rate[e]
     tx = _MAX_NS if ns >= _MAX_NS else int(ns + 0.5)
     end = start + tx
     if end > _MAX_NS:
         end = _MAX_NS
-    L.free_at[e] = end
-    L.busy[e] += end - start
+    T.free_at[e] = end
+    T.busy[e] += end - start
     if start > t and cap > 0:
-        L.ring[e, (L.rhead[e] + L.rlen[e]) % cap] = start
-        L.rlen[e] += 1
+        T.ring[e, (T.rhead[e] + T.rlen[e]) % cap] = start
+        T.rlen[e] += 1
     return start
 
 
-def _next_background(e, L):
+def _next_background(e, T):
     """Draw link ``e``'s next background packet (index ``bgi + 1``, after the one at ``bgt``;
     the first from ``bgi = -1``, ``bgt = 0``) as
     :class:`~dkfsim.network.transmitter.BackgroundArrivals` draws it."""
-    i = L.bgi[e] + 1
-    L.bgi[e] = i
-    if L.bgk[e] == 1:
-        g = np.floor(-np.log(keyed_uniform(L.bgkey[e], i, 0)) * L.bgper[e] + 0.5)
+    i = T.bgi[e] + 1
+    T.bgi[e] = i
+    if T.bgk[e] == 1:
+        g = np.floor(-np.log(keyed_uniform(T.bgkey[e], i, 0)) * T.bgper[e] + 0.5)
         if g > _MAX_GAP_NS:
             g = _MAX_GAP_NS
-        t = L.bgt[e] + np.int64(g)
+        t = T.bgt[e] + np.int64(g)
     else:
-        f = i * L.bgper[e] + 0.5
+        f = i * T.bgper[e] + 0.5
         if f > _MAX_NS:
             f = _MAX_NS
-        f = L.bgoff[e] + np.floor(f)
+        f = T.bgoff[e] + np.floor(f)
         t = _MAX_NS if f >= _MAX_NS else np.int64(f)
-    L.bgt[e] = _MAX_NS if t > _MAX_NS else t
-    if L.bgexp[e]:
-        sz = np.floor(-np.log(keyed_uniform(L.bgskey[e], i, 0)) * L.bgsize[e] + 0.5)
-        L.bgs[e] = 1 if sz < 1 else np.int64(sz)
+    T.bgt[e] = _MAX_NS if t > _MAX_NS else t
+    if T.bgexp[e]:
+        sz = np.floor(-np.log(keyed_uniform(T.bgskey[e], i, 0)) * T.bgsize[e] + 0.5)
+        T.bgs[e] = 1 if sz < 1 else np.int64(sz)
     else:
-        L.bgs[e] = np.int64(L.bgsize[e])
+        T.bgs[e] = np.int64(T.bgsize[e])
 
 
-def _background(e, now, L):
+def _background(e, now, T):
     """Link ``e``'s background packets up to and including ``now`` into its transmitter."""
-    while L.bgk[e] != 0 and L.bgt[e] <= now:
-        if _accept(e, L.bgt[e], L.bgs[e], L) < 0:
-            L.bgc[1, e] += 1
+    while T.bgk[e] != 0 and T.bgt[e] <= now:
+        if _accept(e, T.bgt[e], T.bgs[e], T) < 0:
+            T.bgc[1, e] += 1
         else:
-            L.bgc[0, e] += 1
-        _next_background(e, L)
+            T.bgc[0, e] += 1
+        _next_background(e, T)
 
 
-def start_background(L):
+def start_background(T):
     """Draw every background's first packet (``bgi = -1``, ``bgt = 0`` before)."""
-    for e in range(L.bgk.shape[0]):
-        if L.bgk[e] != 0:
-            _next_background(e, L)
+    for e in range(T.bgk.shape[0]):
+        if T.bgk[e] != 0:
+            _next_background(e, T)
 
 
-def traffic_until(now, L):
+def traffic_until(now, T):
     """Every transmitter's background up to ``now`` (the end of the run, for the statistics)."""
-    for e in range(L.rate.shape[0]):
-        if L.rate[e] > 0:
-            _background(e, now, L)
+    for e in range(T.rate.shape[0]):
+        if T.rate[e] > 0:
+            _background(e, now, T)
 
 
-def _send(j, deg, now, X, L, P):
+def _send(j, deg, now, X, L, T, P):
     """Send node ``j``'s filled packets: stamp link and sequence number, draw the latency
     (the link's keyed draw), count, and put each on the heap (after its transmission on a
     rate-limited link, unless the waiting room drops it)."""
@@ -400,18 +402,18 @@ def _send(j, deg, now, X, L, P):
         L.counts[0, e] += 1
         L.counts[3, e] += size
         base = now
-        if L.rate[e] > 0:
-            _background(e, now, L)
-            start = _accept(e, now, size, L)
+        if T is not None and T.rate[e] > 0:    # (no transmitters: compiled away)
+            _background(e, now, T)
+            start = _accept(e, now, size, T)
             if start < 0:                      # the waiting room is full: dropped
-                L.qdrop[e] += 1
+                T.qdrop[e] += 1
                 P.free[X.CT[NFREE]] = p
                 X.CT[NFREE] += 1
                 continue
             P.dly[X.CT[ND]] = start - now
             P.dlk[X.CT[ND]] = e
             X.CT[ND] += 1
-            base = L.free_at[e]
+            base = T.free_at[e]
         if L.kind[e] == 0:
             lat = L.par[e]
         else:
@@ -420,7 +422,7 @@ def _send(j, deg, now, X, L, P):
         _push(X.CT, P, base + lat, p)
 
 
-def flush_all(now, until, X, L, P, F, log):
+def flush_all(now, until, X, L, T, P, F, log):
     """Deliver the packets due at ``now``, then flush the due nodes, first due first; after
     each flush the zero-latency packets are delivered (they may make more nodes due).  Packets
     with a latency go on the heap.  Returns :data:`NEED_ROOM` if the pool has fewer free
@@ -438,10 +440,10 @@ def flush_all(now, until, X, L, P, F, log):
         X.CT[QLEN] -= 1
         X.due[j] = 0
         _pack(j, deg, X, L, P)
-        _send(j, deg, now, X, L, P)
+        _send(j, deg, now, X, L, T, P)
 
 
-def advance(limit, until, mark, X, L, P, F, log):
+def advance(limit, until, mark, X, L, T, P, F, log):
     """Every instant before ``limit`` (and not after ``until``) at which packets arrive, in
     order: deliver them, then flush the nodes that gained something (what the port's delivery
     event and the flush event of that instant did; :func:`flush_all`).  Then, if the first
@@ -451,7 +453,7 @@ def advance(limit, until, mark, X, L, P, F, log):
     growing the pool) or 0."""
     while True:
         if X.CT[QLEN] > 0:                     # an instant a full pool interrupted
-            if flush_all(X.CT[NOW], until, X, L, P, F, log) == NEED_ROOM:
+            if flush_all(X.CT[NOW], until, X, L, T, P, F, log) == NEED_ROOM:
                 return NEED_ROOM
         if X.CT[HEAP] == 0:
             return 0
@@ -463,11 +465,11 @@ def advance(limit, until, mark, X, L, P, F, log):
                 deliver(t, X, L, P, F, log)
             return 0
         X.CT[NOW] = t
-        if flush_all(t, until, X, L, P, F, log) == NEED_ROOM:
+        if flush_all(t, until, X, L, T, P, F, log) == NEED_ROOM:
             return NEED_ROOM
 
 
-def tick(row, now, until, X, L, P, F, log):
+def tick(row, now, until, X, L, T, P, F, log):
     """The tick at ``now`` that opens ``row``: :func:`advance` to ``now``, then :func:`measure`,
     then :func:`flush_all` (the packets due at ``now`` not delivered yet first).  Returns
     :data:`NEED_ROOM` (grow the pool and call again with the same arguments: the tick resumes
@@ -478,11 +480,11 @@ def tick(row, now, until, X, L, P, F, log):
         X.CT[MARK] = X.CT[ORDER]
         X.CT[PHASE] = 1
     if X.CT[PHASE] == 1:
-        if advance(now, until, X.CT[MARK], X, L, P, F, log) == NEED_ROOM:
+        if advance(now, until, X.CT[MARK], X, L, T, P, F, log) == NEED_ROOM:
             return NEED_ROOM
         measure(row, now, X, F, log)
         X.CT[PHASE] = 2
-    if flush_all(now, until, X, L, P, F, log) == NEED_ROOM:
+    if flush_all(now, until, X, L, T, P, F, log) == NEED_ROOM:
         return NEED_ROOM
     X.CT[PHASE] = 0
     return 0
