@@ -38,7 +38,7 @@ _KERNELS = ("keyed_uniform", "_log_arrivals", "_push", "_pop", "_enqueue", "_rec
             "start_background", "traffic_until")
 #: Steps inlined into the kernels that call them per packet or contribution.
 _INLINE = ("_log_arrivals", "_push", "_pop", "_enqueue", "_receive", "deliver", "_pack", "_accept",
-           "_next_background", "_background", "_send")
+           "_next_background", "_background", "_send", "flush_all")
 #: Kernel files of other modules whose steps these kernels inline, with the sha256 of the
 #: file they were written against: numba's cache does not see an edit there, so after one
 #: these kernels compile without the cache until the pin is updated (docs/decisions.md 131).
@@ -452,20 +452,18 @@ def advance(limit, until, mark, X, L, T, P, F, log):
     measure was scheduled, so it came first.  Returns :data:`NEED_ROOM` (call again after
     growing the pool) or 0."""
     while True:
-        if X.CT[QLEN] > 0:                     # an instant a full pool interrupted
-            if flush_all(X.CT[NOW], until, X, L, T, P, F, log) == NEED_ROOM:
-                return NEED_ROOM
-        if X.CT[HEAP] == 0:
-            return 0
-        t = P.heap_t[0]
-        if t > until:
-            return 0
-        if t >= limit:
-            if t == limit and P.heap_o[0] < mark:
-                deliver(t, X, L, P, F, log)
-            return 0
-        X.CT[NOW] = t
-        if flush_all(t, until, X, L, T, P, F, log) == NEED_ROOM:
+        if X.CT[QLEN] == 0:                    # (else: an instant a full pool interrupted)
+            if X.CT[HEAP] == 0:
+                return 0
+            t = P.heap_t[0]
+            if t > until:
+                return 0
+            if t >= limit:
+                if t == limit and P.heap_o[0] < mark:
+                    deliver(t, X, L, P, F, log)
+                return 0
+            X.CT[NOW] = t
+        if flush_all(X.CT[NOW], until, X, L, T, P, F, log) == NEED_ROOM:
             return NEED_ROOM
 
 
