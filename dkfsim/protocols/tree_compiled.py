@@ -135,7 +135,7 @@ class CompiledTreeExchange:
                                  self.dcnt, self.lseq, self.counts_, self.late_node, PACKET_HEADER, self.row_bytes,
                                  self.T_ns)
         #: the transmitters, or None without a rate (the kernels compiled without them)
-        self._k_tx = tk.Tx(*self.tx) if self.rated else None
+        self._k_tx = self.tx if self.rated else None
         if self._k_tx is not None:
             self._k.start_background(self._k_tx)
         self._k_fold = self.holdings.fold_target
@@ -169,8 +169,8 @@ class CompiledTreeExchange:
         bgi = np.full(E, -1, dtype=np.int64)
         ring = np.zeros((E, max(1, int(qcap.max(initial=1)))), dtype=np.int64)
         zeros = [np.zeros(E, dtype=np.int64) for _ in range(5)]    # rhead rlen free_at busy bgs
-        self.tx = (rate, qcap, ring, zeros[0], zeros[1], zeros[2], zeros[3], bgk, bgkey, bgskey, bgper, bgsize,
-                   bgexp, bgoff, bgi, bgt, zeros[4], np.zeros((2, E), dtype=np.int64), np.zeros(E, dtype=np.int64))
+        self.tx = tk.Tx(rate, qcap, ring, zeros[0], zeros[1], zeros[2], zeros[3], bgk, bgkey, bgskey, bgper, bgsize,
+                        bgexp, bgoff, bgi, bgt, zeros[4], np.zeros((2, E), dtype=np.int64), np.zeros(E, dtype=np.int64))
         self.rated = bool(rate.any())
 
     def _pool(self, P: int) -> None:
@@ -246,7 +246,7 @@ class CompiledTreeExchange:
         while self._advance(until + 1, until, 0, *self._args) == tk.NEED_ROOM:
             self._grow()
         sent, delivered, _, nbytes = (row.tolist() for row in self.counts_)
-        qdrop = self.tx[-1].tolist()
+        qdrop = self.tx.qdrop.tolist()
         for i, link in enumerate(self.links):
             self.port.set_counts(link, sent=sent[i], delivered=delivered[i], bytes=nbytes[i],
                                  queue_dropped=qdrop[i])
@@ -258,7 +258,7 @@ class CompiledTreeExchange:
         :meth:`~dkfsim.network.links.Port.set_link_stats`), as the Python transmitters report them."""
         end = int(self.port.until if self.port.until is not None else self.env.now)
         self._k.traffic_until(end, self._k_tx)
-        rate, free_at, busy, bgc = self.tx[0], self.tx[5], self.tx[6], self.tx[17]
+        rate, free_at, busy, bgc = self.tx.rate, self.tx.free_at, self.tx.busy, self.tx.bgc
         nd = int(self.CT[tk.ND])
         order = np.argsort(self.dlk[:nd], kind="stable")         # by link, hand-over order kept
         dly = self.dly[:nd][order]
