@@ -1,6 +1,6 @@
 """``tree`` with its instants compiled: a twin of :class:`~dkfsim.protocols.tree.TreeExchange`
-(the same protocol, packets, counts and folds), a few kernel calls per instant instead of
-Python per packet.
+(the same protocol, packets, counts and folds), one kernel call per tick instead of Python
+per packet.
 
 SimPy runs the clock, but the exchange has no events of its own: its state is its own
 (no other estimator reads it) and the tick's update is the first thing that reads what it
