@@ -140,11 +140,12 @@ class RunResult(Mapping):
         """MSE per state component after the burn-in, by estimate name."""
         if "truth" not in self.arrays:
             rows = self.saved_rows(burn_in)
-            out: dict = {"burn_in": self.saved["burn_in"]}
+            assert self.saved is not None                  # saved_rows raised otherwise
+            saved: dict = {"burn_in": self.saved["burn_in"]}
             for name in self.estimates:
-                out[name] = [r["mse"] for c in self.components for r in rows
-                             if r["estimate"] == name and r["component"] == c]
-            return out
+                saved[name] = [r["mse"] for c in self.components for r in rows
+                               if r["estimate"] == name and r["component"] == c]
+            return saved
         burn = self._burn(burn_in)
         out: dict = {"burn_in": burn}
         with np.errstate(all="ignore"):       # diverged estimates give inf / nan, reported
