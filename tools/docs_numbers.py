@@ -15,11 +15,14 @@ Two kinds of generator:
 
 * **cheap** (one run, a few seconds): ``quickstart``.  The drift test
   (tests/test_docs_numbers.py) recomputes it in the normal suite.
-* **Monte Carlo studies** (minutes of CPU): ``paper`` (Figs. 4-6), ``consensus``
-  (docs/consensus.md and docs/estimators.md) and ``radar``.  The per-run rows a study's
-  blocks are computed from are kept in ``docs/numbers/<study>.csv``; the drift test renders
-  the blocks from those rows (normal suite) and, in its slow tier, re-runs runs 0 and 1 of each
-  study (all 200 short radar runs) and checks they equal the stored rows.
+* **Monte Carlo studies** (minutes of CPU): ``paper`` (Figs. 4-6 of docs/figures.md),
+  ``consensus`` (docs/consensus.md, docs/estimators.md, docs/statistics.md) and ``sweep``
+  (``scenarios/sweep_algorithms.yaml``: docs/consensus.md, docs/figures.md).  The per-run rows
+  a study's blocks are computed from are kept in ``docs/numbers/<study>.csv``; the drift test
+  renders the blocks from those rows (normal suite) and, in its slow tier, re-runs runs 0 and 1
+  of each study and checks they equal the stored rows.
+* ``radar`` (docs/radar.md, docs/figures.md): 200 runs of 21 ticks, recomputed whole by the
+  slow tier (``--check`` recomputes it only when named in ``--only``).
 
 Timings are never generated: they depend on the machine (decision 205).
 
