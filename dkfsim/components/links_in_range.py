@@ -1,0 +1,131 @@
+"""Which links are up at each tick: a time-varying graph from vehicle positions (issue 23).
+
+A link ``u -> v`` of the scenario's topology is *up* at tick ``k`` while the pair is in
+range at ``t_k = k T``: with ``range: {model: disk, radius: R}``, while the distance between
+the two vehicles is at most ``R`` metres.  The state of tick ``k`` holds for every instant of
+``[t_k, t_{k+1})`` (docs/design.md §3, "Links that come and go").  A :class:`LinkSchedule`
+is that table, worked out once by the run plan (:mod:`dkfsim.config.plan`) and read by the
+network (a packet handed to a link that is down is lost, ``range_lost``) and the protocols
+(flood's resend on link-up, the consensus filters' current neighbours).
+
+:meth:`LinkSchedule.connect_window` gives ``B``, the shortest length such that every
+interval of ``B`` consecutive ticks has a (strongly) connected union graph: the quantity
+of the finite-time result on time-varying graphs (docs/design.md §6).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from typing import Literal
+
+import numpy as np
+
+from dkfsim.core.params import PosReal, StrictModel
+
+
+class DiskRange(StrictModel):
+    """A pair is in range while the vehicles are at most ``radius`` metres apart."""
+
+    model: Literal["disk"] = "disk"
+    #: metres
+    radius: PosReal
+
+    def in_range(self, distance: np.ndarray) -> np.ndarray:
+        """Which distances (m) are in range."""
+        return distance <= self.radius
+
+
+class LinkSchedule:
+    """``up[k, a]``: whether arc ``a`` (of ``arcs``) is up at tick ``k`` (``k = 0 .. K``).
+
+    :param up: a boolean ``(K + 1, len(arcs))`` array.
+    :param arcs: the topology's arcs, in the network's link order.
+    """
+
+    def __init__(self, up: np.ndarray, arcs: Sequence[tuple[int, int]]):
+        self.up = np.ascontiguousarray(up, dtype=bool)
+        self.arcs = [tuple(a) for a in arcs]
+        if self.up.shape != (self.up.shape[0], len(self.arcs)):
+            raise ValueError(f"up must have one column per arc, got shape {self.up.shape}")
+        #: whether some arc is down at some tick ``1 .. K`` (the ticks a run sends at): a
+        #: schedule that never changes runs exactly as the fixed graph
+        self.changes = not bool(self.up[1:].all())
+
+    @classmethod
+    def from_positions(cls, positions: np.ndarray, arcs: Sequence[tuple[int, int]], rng: DiskRange) -> LinkSchedule:
+        """The schedule of ``arcs`` for vehicle ``positions`` (``(K + 1, n, 2)`` metres, row
+        ``k`` at ``t_k``) under the range model ``rng``."""
+        pos = np.asarray(positions, dtype=float)
+        if not arcs:
+            return cls(np.zeros((pos.shape[0], 0), dtype=bool), arcs)
+        a = np.asarray(arcs, dtype=np.intp)
+        d = np.hypot(*(pos[:, a[:, 0], :] - pos[:, a[:, 1], :]).transpose(2, 0, 1))
+        return cls(rng.in_range(d), arcs)
+
+    @property
+    def K(self) -> int:
+        return self.up.shape[0] - 1
+
+    def column(self, arc: int) -> bytes:
+        """Arc ``arc``'s state per tick as bytes (``col[k]`` is 1 when up): cheap per packet."""
+        return self.up[:, arc].astype(np.uint8).tobytes()
+
+    def came_up(self, k: int) -> list[int]:
+        """The arcs up at tick ``k`` that were down at tick ``k - 1`` (none at tick 0)."""
+        if k <= 0 or k > self.K:
+            return []
+        return np.flatnonzero(self.up[k] & ~self.up[k - 1]).tolist()
+
+    def connect_window(self, n: int, arcs: Sequence[int] | None = None) -> int | None:
+        """``B``: the smallest length such that the union of the graphs of every ``B``
+        consecutive ticks in ``1 .. K`` is strongly connected (over the arcs numbered
+        ``arcs``, default all); None when even the union of ticks ``1 .. K`` is not.
+
+        Two pointers: for each start ``s`` the earliest end ``e(s)`` of a connected union,
+        which never decreases with ``s``; ``B`` is the smallest value with
+        ``e(s) - s + 1 <= B`` for every start ``s <= K - B + 1``."""
+        K = self.K
+        cols = list(range(len(self.arcs))) if arcs is None else list(arcs)
+        if n <= 1:
+            return 1
+        up = self.up[:, cols]
+        pairs = [self.arcs[c] for c in cols]
+        count = np.zeros(len(cols), dtype=np.int64)
+        span = np.full(K + 2, np.iinfo(np.int64).max, dtype=np.int64)     # e(s) - s + 1
+        e = 0
+        for s in range(1, K + 1):
+            while not _strongly_connected(n, pairs, count > 0) and e < K:
+                e += 1
+                count += up[e]
+            if e < s or not _strongly_connected(n, pairs, count > 0):
+                break                                   # no later start connects either
+            span[s] = e - s + 1
+            count -= up[s]
+        worst = np.maximum.accumulate(span[1:K + 1])    # worst[m - 1]: max span over starts 1..m
+        for B in range(1, K + 1):
+            if worst[K - B] <= B:
+                return B
+        return None
+
+
+def _strongly_connected(n: int, pairs: Sequence[tuple[int, int]], on: np.ndarray) -> bool:
+    """Whether the arcs ``pairs[a]`` with ``on[a]`` connect every node to node 0 and back."""
+    fwd: list[list[int]] = [[] for _ in range(n)]
+    bwd: list[list[int]] = [[] for _ in range(n)]
+    for a in np.flatnonzero(on).tolist():
+        u, v = pairs[a]
+        fwd[u].append(v)
+        bwd[v].append(u)
+    for adj in (fwd, bwd):
+        seen = [False] * n
+        seen[0] = True
+        stack, reached = [0], 1
+        while stack:
+            for v in adj[stack.pop()]:
+                if not seen[v]:
+                    seen[v] = True
+                    reached += 1
+                    stack.append(v)
+        if reached < n:
+            return False
+    return True
