@@ -78,7 +78,7 @@ class Run:
         crashes = CrashSchedule(scenario.faults, system.n) or None
         env = simpy.Environment()
         network = Network(env, plan.arcs, scenario.link_spec, seed, system.T_ns, crashes=crashes,
-                          shared_queues=bool(scenario.links.shared_queues))
+                          shared_queues=bool(scenario.links.shared_queues), schedule=plan.link_schedule)
         self.backend = run_backend(plan, network, crashes)
         self.ctx = RunContext(scenario=scenario, plan=plan, backend=self.backend, system=system, truth=truth, ys=ys,
                               info=system.information(ys), crashes=crashes, env=env, network=network)

@@ -51,7 +51,7 @@ import simpy
 from simpy.events import NORMAL, Event
 
 from dkfsim.components.faults import CrashSchedule, LinkSpec, ScaleSchedule, Windows
-from dkfsim.components.links_in_range import LinkSchedule
+from dkfsim.components.mobility import LinkSchedule
 from dkfsim.core.params import MAX_NS, NS_PER_S, seconds_to_ns
 from dkfsim.core.streams import key64, keyed_uniform
 from dkfsim.network.transmitter import BackgroundArrivals, LinkTraffic, Transmitter
@@ -175,8 +175,10 @@ class Link:
     def compiled_latency(self) -> tuple[int, int, int] | None:
         """The latency model's :meth:`~dkfsim.components.latency.Sampler.compiled_form` when
         nothing else acts on the link but a transmitter with no queue or a queue counted in
-        packets, else None (a compiled protocol cannot draw it)."""
+        packets, and the link never goes down, else None (a compiled protocol cannot draw it)."""
         spec = self.spec
+        if self.changes:
+            return None
         if self.loss > 0 or self.duplicate > 0 or spec.outages or spec.schedule or spec.jitter is not None:
             return None
         if spec.queue is not None and spec.queue.packets is None:
@@ -234,7 +236,7 @@ class Network:
         arriving at a node that is down is dropped (``crash_dropped``).
     :param shared_queues: every port's packets through the same transmitter of a
         rate-limited link (default: each port its own, the same background in each).
-    :param schedule: a :class:`~dkfsim.components.links_in_range.LinkSchedule` of ``arcs``
+    :param schedule: a :class:`~dkfsim.components.mobility.LinkSchedule` of ``arcs``
         (``mobility:``): which links are up at each tick; None: every link always up.
     """
 

@@ -1,4 +1,8 @@
-"""Which links are up at each tick: a time-varying graph from vehicle positions (issue 23).
+"""Vehicles that move: the ``mobility:`` key and the time-varying graph it makes (issue 23).
+
+``mobility: {vehicles: {default: <trajectory>, 0: <trajectory>, ...}, range: {model: disk,
+radius: R}}`` gives every node a trajectory (:mod:`dkfsim.components.trajectories`: its own
+entry, else ``default``) and a range model (docs/mobility.md).
 
 A link ``u -> v`` of the scenario's topology is *up* at tick ``k`` while the pair is in
 range at ``t_k = k T``: with ``range: {model: disk, radius: R}``, while the distance between
@@ -16,11 +20,17 @@ of the finite-time result on time-varying graphs (docs/design.md §6).
 from __future__ import annotations
 
 from collections.abc import Sequence
-from typing import Literal
+from typing import Any, Literal
 
 import numpy as np
+from pydantic import field_validator
 
-from dkfsim.core.params import PosReal, StrictModel
+from dkfsim.components.trajectories import Trajectory, TrajectoryParams
+from dkfsim.core.files import clip
+from dkfsim.core.params import PosReal, StrictModel, custom_error
+
+#: Largest link schedule (ticks x arcs, one byte each) a scenario may ask for.
+SCHEDULE_LIMIT = 1 << 30
 
 
 class DiskRange(StrictModel):
@@ -33,6 +43,54 @@ class DiskRange(StrictModel):
     def in_range(self, distance: np.ndarray) -> np.ndarray:
         """Which distances (m) are in range."""
         return distance <= self.radius
+
+
+class Mobility(StrictModel):
+    """The top-level ``mobility`` key: a trajectory per vehicle (node) and the radio range."""
+
+    #: ``default`` and/or node numbers -> a trajectory (:mod:`dkfsim.components.trajectories`)
+    vehicles: dict[str, Trajectory]
+    range: DiskRange
+
+    @field_validator("vehicles", mode="before")
+    @classmethod
+    def _keys(cls, v: Any) -> Any:
+        """Keys are ``default`` or node numbers (YAML reads ``0:`` as an integer)."""
+        if not isinstance(v, dict):
+            return v
+        out = {}
+        for key in v:
+            if isinstance(key, bool) or not (key == "default" or isinstance(key, int)
+                                             or (isinstance(key, str) and key.isdigit())):
+                raise custom_error(f"a vehicle key is a node number or 'default', got {clip(key)}", str(key))
+            out[str(key)] = v[key]
+        if not out:
+            raise custom_error("give at least one vehicle (or a default trajectory)")
+        return out
+
+    def check(self, n: int) -> None:
+        """Cross-checks that need the network size (called by the scenario): every key a node,
+        every node a trajectory."""
+        for key in self.vehicles:
+            if key != "default" and not 0 <= int(key) < n:
+                raise custom_error(f"node {key} is out of range 0..{n - 1}", f"mobility.vehicles.{key}")
+        if "default" not in self.vehicles:
+            missing = [i for i in range(n) if str(i) not in self.vehicles]
+            if missing:
+                raise custom_error(f"node {missing[0]} has no trajectory ({len(missing)} node(s) without one); "
+                                   "give it one, or a 'default' trajectory", "mobility.vehicles")
+
+    def trajectory(self, node: int) -> TrajectoryParams:
+        """Node ``node``'s trajectory: its own entry, else the default."""
+        return self.vehicles.get(str(node)) or self.vehicles["default"]
+
+    def positions(self, n: int, K: int, T: float) -> np.ndarray:
+        """Every vehicle's position (m) at ``t_k = k T``, ``k = 0 .. K``: ``(K + 1, n, 2)``."""
+        t = np.arange(K + 1) * float(T)
+        out = np.empty((K + 1, n, 2))
+        for i in range(n):
+            out[:, i, :] = self.trajectory(i).positions(t)
+        return out
 
 
 class LinkSchedule:
