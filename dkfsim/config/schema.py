@@ -199,6 +199,15 @@ class Scenario(StrictModel):
 
     @model_validator(mode="before")
     @classmethod
+    def _mobility_topology(cls, data: Any) -> Any:
+        """With ``mobility:`` the topology defaults to every pair (links then exist while in
+        range): the complete graph, written as ``erdos_renyi`` with ``p: 1`` (decision 170)."""
+        if isinstance(data, dict) and data.get("mobility") is not None and "topology" not in data:
+            data = {**data, "topology": {"generator": "erdos_renyi", "params": {"p": 1.0, "seed": 0}}}
+        return data
+
+    @model_validator(mode="before")
+    @classmethod
     def _old_spellings(cls, data: Any) -> Any:
         """``baselines: [names]`` (and ``consensus_rounds``) are the old spelling of
         ``estimators``: converted here, before ``estimators`` is validated.  With
