@@ -409,3 +409,51 @@ def test_consensus_filters_use_the_current_neighbours():
         x = P @ (np.linalg.solve(Pp, xp) + H.T @ np.linalg.solve(R, y[r]))
         ref.assert_close(a["x_ci_consensus"][r, 3][None], x[None], f"ci_consensus node 3 row {r}", 1e-9)
         ref.assert_close(a["P_ci_consensus"][r, 3][None], P[None], f"ci_consensus P node 3 row {r}", 1e-9)
+
+
+# ================================================================= item 4: tree
+
+def _switch_trajectories(K, at):
+    """Nodes 0, 1, 2 at x = 0, 8, 16 (radius 10: the path 0-1-2); node 3 at x = -8 (next to
+    0) before tick ``at`` and at x = 24 (next to 2) from it: the graph is the path 3-0-1-2,
+    then 0-1-2-3."""
+    fixed = [{"kind": "constant_velocity", "start": [8.0 * i, 0.0]} for i in range(3)]
+    return fixed + [waypoints([(-8.0 if k < at else 24.0, 0.0) for k in range(K + 1)])]
+
+
+def test_a_rebuilt_tree_carries_its_first_packets_on_the_new_tree():
+    """Hand-worked: every pair a link (complete topology, ``spanning_tree: true``), the
+    graph of the links in range is a path, so each tick's tree is that path.  With one step
+    of latency per hop: from tick 10 on nothing is sent between 0 and 3, the new arc 2-3
+    carries packets from tick 10 on (the rebuild's resend), every arrival is the earliest
+    along the tree of its tick (computed here), and the estimates follow the arrival log."""
+    K, L, at = 40, 8, 10
+    sc = scenario(4, edges=[(u, v) for u in range(4) for v in range(u + 1, 4)], protocol="tree", steps=K,
+                  buffer_length=L, latency=steps_latency(1))
+    sc["spanning_tree"] = True
+    run = run_scenario(with_mobility(sc, _switch_trajectories(K, at)))
+    per = {tuple(r["link"]): r for r in run.counts["per_link"]}
+    # 0 <-> 3 only before tick 10 (one packet per tick with news: ticks 1..9 each way at most)
+    assert 0 < per[(3, 0)]["sent"] <= at - 1 and 0 < per[(0, 3)]["sent"] <= at - 1
+    assert per[(2, 3)]["sent"] >= K - at and per[(3, 2)]["sent"] >= K - at
+    for arc in ((0, 2), (2, 0), (1, 3), (3, 1)):      # never in range: never used
+        assert arc not in per or per[arc]["sent"] == 0
+    assert run.counts["range_lost"] == 0
+    path_before = {(3, 0), (0, 3), (0, 1), (1, 0), (1, 2), (2, 1)}
+    path_after = {(0, 1), (1, 0), (1, 2), (2, 1), (2, 3), (3, 2)}
+    arcs = sorted(path_before | path_after)
+    up = lambda a, k: arcs[a] in (path_before if k < at else path_after)    # noqa: E731
+    expect = earliest_arrivals(4, K, L, arcs, up, 1)
+    ticks = arrival_ticks(run.arrays)
+    assert np.array_equal(ticks, expect), np.argwhere(ticks != expect)[:5]
+    assert ticks[2, 3, at] == at + 2 and ticks[0, 3, at] == at + 4     # row of tick 11: 1 and 3 hops
+    assert ticks[0, 3, at - 3] == at - 1 and ticks[2, 3, at - 3] == at + 1   # tick 8's: the old tree
+    check_against_window_reference(run)
+
+
+def test_paper_weights_are_refused_on_a_changing_graph():
+    sc = scenario(4, edges=[(u, v) for u in range(4) for v in range(u + 1, 4)], protocol="tree", steps=20,
+                  weights="paper", buffer_length=4)
+    sc["spanning_tree"] = True
+    msg = _error(with_mobility(sc, _switch_trajectories(20, 10)))
+    assert "weights" in msg and "changes" in msg

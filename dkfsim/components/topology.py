@@ -380,6 +380,18 @@ def bfs_spanning_tree(graph: nx.Graph) -> nx.Graph:
     return tree
 
 
+def bfs_spanning_forest(graph: nx.Graph) -> nx.Graph:
+    """A BFS spanning tree of every connected component (each rooted at its lowest-index
+    centre, neighbours in increasing order): :func:`bfs_spanning_tree` of a graph that may be
+    disconnected, e.g. the links up at one tick of a graph that changes."""
+    forest = nx.Graph()
+    forest.add_nodes_from(sorted(graph.nodes))
+    for comp in sorted(nx.connected_components(graph), key=min):
+        if len(comp) > 1:
+            forest.add_edges_from(bfs_spanning_tree(graph.subgraph(comp)).edges())
+    return forest
+
+
 def all_pairs_work(graph: nx.Graph | nx.DiGraph) -> int:
     """Nodes and edges visited by one breadth-first search from every node: the cost
     of an exact diameter or centre of a graph that is not a tree."""

@@ -75,7 +75,7 @@ class RunPlan:
     def resolve(self) -> RunPlan:
         """Work out now every fact a run reads (the graphs, the exchange graph's diameter, the
         delay bound), so that the copies :meth:`with_seed` makes share them; returns the plan."""
-        _ = self.arcs, self.exchange.d_g, self.d_t, self.latency_bound, self.connect_window
+        _ = self.arcs, self.exchange.d_g, self.d_t, self.latency_bound, self.connect_window, self.tree_schedule
         return self
 
     # -- the network ------------------------------------------------------------------
@@ -119,7 +119,39 @@ class RunPlan:
         if schedule is None or not schedule.changes:
             return None
         index = {arc: i for i, arc in enumerate(self.arcs)}
-        return schedule.connect_window(self.scenario.n, [index[a] for a in self.exchange.arcs])
+        return schedule.connect_window(self.scenario.n, [index[a] for a in self.exchange_arcs])
+
+    @functools.cached_property
+    def tree_schedule(self) -> dict[int, list[tuple[int, int]]] | None:
+        """``tree`` on a graph that changes: tick -> the arcs of the spanning forest from that
+        tick on (a BFS tree of each component of the links up then, as ``spanning_tree``
+        builds, :func:`~dkfsim.components.topology.bfs_spanning_forest`), at tick 1 and at
+        every tick whose graph differs from the tick before.  None otherwise."""
+        schedule = self.link_schedule
+        if schedule is None or not schedule.changes or self.protocol_graph != "tree":
+            return None
+        out: dict[int, list[tuple[int, int]]] = {}
+        prev = None
+        for k in range(1, schedule.K + 1):
+            up = schedule.up[k]
+            if prev is not None and (up == prev).all():
+                continue
+            prev = up
+            g = networkx.Graph()
+            g.add_nodes_from(range(self.scenario.n))
+            g.add_edges_from(a for a, on in zip(self.arcs, up.tolist()) if on)
+            forest = topo.bfs_spanning_forest(g)
+            out[k] = sorted([(int(u), int(v)) for u, v in forest.edges()] + [(int(v), int(u)) for u, v in forest.edges()])
+        return out
+
+    @property
+    def exchange_arcs(self) -> list[tuple[int, int]]:
+        """The arcs the protocol may use: the exchange graph's, or, for ``tree`` on a graph
+        that changes (whose tree is rebuilt from the links up, :attr:`tree_schedule`), every
+        arc of the topology."""
+        if self.protocol_graph == "tree" and self.graph_changes:
+            return self.arcs
+        return self.exchange.arcs
 
     @functools.cached_property
     def latency_bound(self) -> int | None:
@@ -130,7 +162,7 @@ class RunPlan:
         if not sc.links.overrides:
             return sc.link_spec(-1, -1).bound_steps(sc.T_ns)
         bound = 0
-        for u, v in self.exchange.arcs:
+        for u, v in self.exchange_arcs:
             b = sc.link_spec(u, v).bound_steps(sc.T_ns)
             if b is None:
                 return None
@@ -144,7 +176,7 @@ class RunPlan:
         sc = self.scenario
         if not sc.links.overrides:
             return sc.link_spec(-1, -1).rate is not None
-        return any(sc.link_spec(u, v).rate is not None for u, v in self.exchange.arcs)
+        return any(sc.link_spec(u, v).rate is not None for u, v in self.exchange_arcs)
 
     @functools.cached_property
     def d_t(self) -> int | None:
@@ -156,7 +188,7 @@ class RunPlan:
     def unbounded_models(self) -> list[str]:
         """The unbounded latency models of the links the protocol uses (sorted names)."""
         sc = self.scenario
-        return sorted({name for u, v in self.exchange.arcs for name in sc.link_spec(u, v).unbounded_models(sc.T_ns)})
+        return sorted({name for u, v in self.exchange_arcs for name in sc.link_spec(u, v).unbounded_models(sc.T_ns)})
 
     # -- the exchange ----------------------------------------------------------------------
     @property

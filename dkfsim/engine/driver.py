@@ -49,7 +49,7 @@ def run_backend(plan: RunPlan, network: Network, crashes: CrashSchedule | None) 
     twin, a link it cannot draw, crash windows, transmitters shared between estimators)."""
     backend = Backend.from_environment()
     if backend.compiled_exchange:
-        links = [network.link(u, v) for u, v in plan.exchange.arcs]
+        links = [network.link(u, v) for u, v in plan.exchange_arcs]
         shared = network.shared_transmitters is not None and plan.rate_limited
         if shared or not tree_compiled.usable(plan.protocol, links, crashes):
             backend = backend.python_exchange()

@@ -124,6 +124,8 @@ class AntiDelayDKF(Estimator, params=AntiDelayParams):
         self.exchange = protocol(ctx.env, n, self.holdings, arrival=self.arrival,
                                  late_horizon=late_horizon(plan, n, self.L), nx=nx, T_ns=ctx.T_ns)
         self.exchange.crashes = ctx.crashes
+        if plan.tree_schedule is not None:
+            self.exchange.tree_changes = plan.tree_schedule
         self.exchange.attach(self.open_port(self.exchange.receive, links), links)
         self.x_local = np.empty((K, n, nx))
         # P_local is the one (K, n, nx, nx) array: skip it when nothing will save it
