@@ -196,15 +196,17 @@ def test_the_network_loses_what_is_handed_to_a_link_that_is_down():
 
 # ================================================================= item 2: flood
 
+@pytest.mark.parametrize("protocol", ["flood", "tree"])
 @pytest.mark.parametrize("L", [5, 15])
-def test_a_vehicle_that_leaves_range_stops_receiving_and_catches_up_on_return(L):
+def test_a_vehicle_that_leaves_range_stops_receiving_and_catches_up_on_return(L, protocol):
     """Hand-worked: vehicle 1 is in range of vehicle 0 at ticks 0..9 and 20..30, away at
     ticks 10..19; zero latency.  Rows 0..8 arrive at their own tick; rows 9..18 (ticks
-    10..19) arrive at tick 20 by the link-up resend when still in the window there
-    (r + L >= 20), else never; later rows at their own tick.  Nothing is sent while away."""
+    10..19) arrive at tick 20 by the link-up resend (flood) or the rebuilt tree's first
+    packets (tree) when still in the window there (r + L >= 20), else never; later rows at
+    their own tick.  Nothing is sent while away."""
     K = 30
     xs = [(5.0 if (k < 10 or k >= 20) else 500.0, 0.0) for k in range(K + 1)]
-    sc = with_mobility(scenario(2, edges=[(0, 1)], protocol="flood", steps=K, buffer_length=L, latency=ZERO),
+    sc = with_mobility(scenario(2, edges=[(0, 1)], protocol=protocol, steps=K, buffer_length=L, latency=ZERO),
                        [{"kind": "constant_velocity"}, waypoints(xs)])
     run = run_scenario(sc)
     ticks = arrival_ticks(run.arrays)
