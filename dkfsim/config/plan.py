@@ -131,17 +131,22 @@ class RunPlan:
         if schedule is None or not schedule.changes or self.protocol_graph != "tree":
             return None
         out: dict[int, list[tuple[int, int]]] = {}
+        seen: dict[bytes, list[tuple[int, int]]] = {}      # link sets recur: one forest each
         prev = None
         for k in range(1, schedule.K + 1):
-            up = schedule.up[k]
-            if prev is not None and (up == prev).all():
+            key = schedule.up[k].tobytes()
+            if key == prev:
                 continue
-            prev = up
-            g = networkx.Graph()
-            g.add_nodes_from(range(self.scenario.n))
-            g.add_edges_from(a for a, on in zip(self.arcs, up.tolist()) if on)
-            forest = topo.bfs_spanning_forest(g)
-            out[k] = sorted([(int(u), int(v)) for u, v in forest.edges()] + [(int(v), int(u)) for u, v in forest.edges()])
+            prev = key
+            arcs = seen.get(key)
+            if arcs is None:
+                g = networkx.Graph()
+                g.add_nodes_from(range(self.scenario.n))
+                g.add_edges_from(a for a, on in zip(self.arcs, schedule.up[k].tolist()) if on)
+                forest = topo.bfs_spanning_forest(g)
+                arcs = seen[key] = sorted([(int(u), int(v)) for u, v in forest.edges()]
+                                          + [(int(v), int(u)) for u, v in forest.edges()])
+            out[k] = arcs
         return out
 
     @property
