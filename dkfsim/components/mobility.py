@@ -102,7 +102,7 @@ class LinkSchedule:
 
     def __init__(self, up: np.ndarray, arcs: Sequence[tuple[int, int]]):
         self.up = np.ascontiguousarray(up, dtype=bool)
-        self.arcs = [tuple(a) for a in arcs]
+        self.arcs: list[tuple[int, int]] = [(int(a[0]), int(a[1])) for a in arcs]
         if self.up.shape != (self.up.shape[0], len(self.arcs)):
             raise ValueError(f"up must have one column per arc, got shape {self.up.shape}")
         #: whether some arc is down at some tick ``1 .. K`` (the ticks a run sends at): a

@@ -212,9 +212,10 @@ class RoundBased(Estimator):
         self.A = scipy.sparse.csr_matrix((np.ones(E), (self.dst, np.arange(E))), shape=(n, E))
         self.box = {name: Box(E, shapes) for name, shapes in self.boxes().items()}
         # A graph that changes: the arcs' states per tick (K + 1, E), else None.
-        self._up_table = (np.array([np.frombuffer(link.up, dtype=np.uint8) for link in self.links],
-                                   dtype=bool).T if self.links and any(link.changes for link in self.links)
-                          else None)
+        self._up_table: np.ndarray | None = None
+        if self.links and any(link.changes for link in self.links):
+            self._up_table = np.stack([np.frombuffer(link.up or b"", dtype=np.uint8) for link in self.links],
+                                      axis=1).astype(bool)
         #: (E,) the arcs up at the tick being computed (all of them on a fixed graph)
         self.up_now = np.ones(E, dtype=bool)
         self._up_tick = -1
