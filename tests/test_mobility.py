@@ -96,9 +96,13 @@ def test_connect_window_matches_brute_force():
     rng = np.random.default_rng(5)
     n, K = 4, 40
     arcs = [(u, v) for u in range(n) for v in range(n) if u != v]
-    for trial in range(6):
+    for trial in range(10):
         p = rng.uniform(0.05, 0.3)
         und = rng.random((K + 1, n, n)) < p
+        if trial % 2:                   # sticky: each pair keeps its state ~10 ticks (long segments)
+            keep = rng.random((K + 1, n, n)) < 0.9
+            for k in range(1, K + 1):
+                und[k] = np.where(keep[k], und[k - 1], und[k])
         up = np.array([[und[k, min(u, v), max(u, v)] for (u, v) in arcs] for k in range(K + 1)])
         s = LinkSchedule(up, arcs)
 

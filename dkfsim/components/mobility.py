@@ -23,14 +23,16 @@ from collections.abc import Sequence
 from typing import Any, Literal
 
 import numpy as np
+import scipy.sparse
+import scipy.sparse.csgraph
 from pydantic import field_validator
 
 from dkfsim.components.trajectories import Trajectory, TrajectoryParams
 from dkfsim.core.files import clip
 from dkfsim.core.params import PosReal, StrictModel, custom_error
 
-#: Largest link schedule (ticks x arcs, one byte each) a scenario may ask for.
-SCHEDULE_LIMIT = 1 << 30
+#: Largest link schedule (ticks x arcs, one byte each) a scenario may ask for (256 MiB).
+SCHEDULE_LIMIT = 1 << 28
 
 
 class DiskRange(StrictModel):
@@ -117,8 +119,12 @@ class LinkSchedule:
         if not arcs:
             return cls(np.zeros((pos.shape[0], 0), dtype=bool), arcs)
         a = np.asarray(arcs, dtype=np.intp)
-        d = np.hypot(*(pos[:, a[:, 0], :] - pos[:, a[:, 1], :]).transpose(2, 0, 1))
-        return cls(rng.in_range(d), arcs)
+        up = np.empty((pos.shape[0], len(a)), dtype=bool)
+        step = max(1, (1 << 21) // len(a))                  # ticks per block: a few MB of distances
+        for k in range(0, pos.shape[0], step):
+            p = pos[k:k + step]
+            up[k:k + step] = rng.in_range(np.hypot(*(p[:, a[:, 0], :] - p[:, a[:, 1], :]).transpose(2, 0, 1)))
+        return cls(up, arcs)
 
     @property
     def K(self) -> int:
@@ -139,51 +145,46 @@ class LinkSchedule:
         consecutive ticks in ``1 .. K`` is strongly connected (over the arcs numbered
         ``arcs``, default all); None when even the union of ticks ``1 .. K`` is not.
 
-        Two pointers: for each start ``s`` the earliest end ``e(s)`` of a connected union,
-        which never decreases with ``s``; ``B`` is the smallest value with
-        ``e(s) - s + 1 <= B`` for every start ``s <= K - B + 1``."""
+        Ticks with the same links form segments (``a_i`` the first tick of segment ``i``).
+        Two pointers over segments: for each ``i`` the first segment ``j(i)`` whose union
+        with ``i .. j(i) - 1`` is connected, which never decreases with ``i``; a start
+        ``s`` in segment ``i`` then needs ``max(1, a_j(i) - s + 1)`` ticks, most at
+        ``s = a_i``, so ``B`` is the smallest value with ``a_j(i) - a_i + 1 <= B`` for every
+        segment with ``a_i <= K - B + 1``.  One connectivity check per segment step."""
         K = self.K
-        cols = list(range(len(self.arcs))) if arcs is None else list(arcs)
-        if n <= 1:
+        if n <= 1 or K < 1:
             return 1
-        up = self.up[:, cols]
-        pairs = [self.arcs[c] for c in cols]
+        cols = np.arange(len(self.arcs)) if arcs is None else np.asarray(list(arcs), dtype=np.intp)
+        up = self.up[1:, cols]
+        pairs = np.asarray([self.arcs[c] for c in cols], dtype=np.intp).reshape(-1, 2)
+        change = np.flatnonzero((up[1:] != up[:-1]).any(axis=1)) + 1
+        starts = np.concatenate([[0], change])             # segment starts, 0-based (tick - 1)
+        rows = up[starts]
+        M = len(starts)
         count = np.zeros(len(cols), dtype=np.int64)
-        span = np.full(K + 2, np.iinfo(np.int64).max, dtype=np.int64)     # e(s) - s + 1
-        e = 0
-        for s in range(1, K + 1):
-            while not _strongly_connected(n, pairs, count > 0) and e < K:
-                e += 1
-                count += up[e]
-            if e < s or not _strongly_connected(n, pairs, count > 0):
+        span = np.full(M, np.iinfo(np.int64).max, dtype=np.int64)
+        j = -1                                              # segments i .. j are in the window
+        for i in range(M):
+            while (j < i or not _strongly_connected(n, pairs, count > 0)) and j < M - 1:
+                j += 1
+                count += rows[j]
+            if j < i or not _strongly_connected(n, pairs, count > 0):
                 break                                   # no later start connects either
-            span[s] = e - s + 1
-            count -= up[s]
-        worst = np.maximum.accumulate(span[1:K + 1])    # worst[m - 1]: max span over starts 1..m
+            span[i] = starts[j] - starts[i] + 1 if j > i else 1
+            count -= rows[i]
+        worst = np.maximum.accumulate(span)             # worst[m]: max span over segments 0..m
         for B in range(1, K + 1):
-            if worst[K - B] <= B:
+            m = int(np.searchsorted(starts, K - B, side="right")) - 1     # segments with a_i <= K - B + 1
+            if worst[m] <= B:
                 return B
         return None
 
 
-def _strongly_connected(n: int, pairs: Sequence[tuple[int, int]], on: np.ndarray) -> bool:
-    """Whether the arcs ``pairs[a]`` with ``on[a]`` connect every node to node 0 and back."""
-    fwd: list[list[int]] = [[] for _ in range(n)]
-    bwd: list[list[int]] = [[] for _ in range(n)]
-    for a in np.flatnonzero(on).tolist():
-        u, v = pairs[a]
-        fwd[u].append(v)
-        bwd[v].append(u)
-    for adj in (fwd, bwd):
-        seen = [False] * n
-        seen[0] = True
-        stack, reached = [0], 1
-        while stack:
-            for v in adj[stack.pop()]:
-                if not seen[v]:
-                    seen[v] = True
-                    reached += 1
-                    stack.append(v)
-        if reached < n:
-            return False
-    return True
+def _strongly_connected(n: int, pairs: np.ndarray, on: np.ndarray) -> bool:
+    """Whether the arcs ``pairs[a]`` (``(E, 2)``) with ``on[a]`` make a strongly connected
+    graph on nodes ``0 .. n-1``."""
+    used = pairs[on]
+    if len(used) < n:
+        return False                # (a strongly connected digraph on n > 1 nodes has >= n arcs)
+    graph = scipy.sparse.csr_matrix((np.ones(len(used)), (used[:, 0], used[:, 1])), shape=(n, n))
+    return int(scipy.sparse.csgraph.connected_components(graph, directed=True, connection="strong")[0]) == 1
