@@ -122,3 +122,95 @@ def test_held_outside_the_points(pts, dt):
     t = np.array([pts[0, 0] - dt, pts[-1, 0] + dt])
     assert np.array_equal(traj.positions(t), [pts[0, 1:], pts[-1, 1:]])
     assert np.array_equal(traj.velocities(t), np.zeros((2, 2)))
+
+
+# --------------------------------------------------------------------------- track
+# The first rows of cicv5g/arterial_n8_v70_run03 (copied by hand from the file):
+#   pub_time(ms)   utmX(m)        utmY(m)       sinr(db)
+#   1721809961241  329231.340000  3463451.680000  22
+#   1721809961297  329231.360000  3463451.710000  22
+ARTERIAL = {"kind": "track", "dataset": "cicv5g/arterial_n8_v70_run03"}
+
+
+def test_track_between_its_first_two_rows():
+    traj = parse_trajectory(ARTERIAL)
+    # Half-way between rows 1 and 2 (0.028 s after the first of two rows 0.056 s apart).
+    assert np.allclose(traj.positions([0.0, 0.028]), [[329231.34, 3463451.68], [329231.35, 3463451.695]],
+                       rtol=0, atol=1e-6)
+    assert np.allclose(traj.velocities([0.028]), [[0.02 / 0.056, 0.03 / 0.056]], rtol=1e-6)
+    assert np.array_equal(traj.sinr_db([0.0, 0.03]), [22, 22])
+
+
+def test_track_shifted_in_time_and_space():
+    traj = parse_trajectory({**ARTERIAL, "time_offset": 1.0, "offset": [5, -3]})
+    # At run time 1.028 s the vehicle is where the car was 0.028 s into the drive, moved by (5, -3);
+    # before 1 s it waits at the first row.
+    assert np.allclose(traj.positions([0.0, 0.5, 1.028]),
+                       [[329236.34, 3463448.68], [329236.34, 3463448.68], [329236.35, 3463448.695]],
+                       rtol=0, atol=1e-6)
+    assert np.allclose(traj.velocities([0.5, 1.028]), [[0, 0], [0.02 / 0.056, 0.03 / 0.056]], rtol=1e-6)
+
+
+def _write(tmp_path, name, text):
+    path = tmp_path / name
+    path.write_text(text)
+    return path
+
+
+L_TRACK = "t x y sinr\n0 0 0 3\n10 100 0 7\n15 100 0 9\n25 100 100 11\n"
+
+
+@pytest.mark.parametrize("along, t, pos, vel", [
+    (-50.0, 10.0, (50, 0), (0, 0)),      # leader at 100 m, parked until 15 s: follower parked at 50 m
+    (-50.0, 9.0, (40, 0), (10, 0)),      # leader at 90 m at 10 m/s: follower at 40 m, same speed
+    (50.0, 5.0, (100, 0), (0, 10)),      # 50 + 50 = 100 m: the corner, turning north (later leg)
+    (50.0, 20.0, (100, 100), (0, 0)),    # 150 + 50 = 200 m: the path's end, held
+    (-50.0, 2.0, (0, 0), (0, 0)),        # 20 - 50 < 0: waiting at the start
+    (-50.0, 20.0, (100, 0), (0, 10)),    # leader at 150 m; follower at the corner, moving north
+    (-30.0, 20.0, (100, 20), (0, 10)),
+])
+def test_track_along_the_path_by_hand(tmp_path, along, t, pos, vel):
+    path = _write(tmp_path, "l.txt", L_TRACK)
+    traj = parse_trajectory({"kind": "track", "file": str(path), "time_column": "t", "time_unit": "s",
+                             "x_column": "x", "y_column": "y", "along": along})
+    assert np.allclose(traj.positions([t]), [pos], rtol=0, atol=1e-9)
+    assert np.allclose(traj.velocities([t]), [vel], rtol=0, atol=1e-9)
+
+
+def test_track_sinr_follows_the_drive_clock(tmp_path):
+    path = _write(tmp_path, "l.txt", L_TRACK)
+    traj = parse_trajectory({"kind": "track", "file": str(path), "time_column": "t", "time_unit": "s",
+                             "x_column": "x", "y_column": "y", "sinr_column": "sinr", "time_offset": 5})
+    # Run time t is drive time t - 5; the last row at or before it (the first row before the drive).
+    assert np.array_equal(traj.sinr_db([0, 5, 14.9, 15, 29.9, 30, 99]), [3, 3, 3, 7, 9, 11, 11])
+
+
+@pytest.mark.parametrize("spec, words", [
+    ({"kind": "track", "dataset": "cicv5g/arterial"}, "unknown dataset"),
+    ({"kind": "track"}, "exactly one of file"),
+    ({**ARTERIAL, "x_column": "utmZ"}, "no column 'utmZ'"),
+    ({**ARTERIAL, "offset": [1]}, "two numbers"),
+    ({**ARTERIAL, "time_offset": float("inf")}, "time_offset"),
+    ({**ARTERIAL, "along": "far"}, "along"),
+])
+def test_track_bad_keys(spec, words):
+    with pytest.raises(ValidationError) as err:
+        parse_trajectory(spec)
+    assert words in str(err.value)
+
+
+def test_track_bad_file(tmp_path):
+    path = _write(tmp_path, "bad.txt", "t x y\n0 0 0\n1 oops 0\n")
+    with pytest.raises(ValidationError) as err:
+        parse_trajectory({"kind": "track", "file": str(path), "time_column": "t", "x_column": "x",
+                          "y_column": "y"})
+    assert "bad.txt line 3" in str(err.value) and "'oops' is not a number" in str(err.value)
+
+
+def test_track_without_the_sinr_column_says_so(tmp_path):
+    from dkfsim.core.errors import DkfsimError
+    path = _write(tmp_path, "nosinr.txt", "t x y\n0 0 0\n1 1 0\n")
+    traj = parse_trajectory({"kind": "track", "file": str(path), "time_column": "t", "x_column": "x",
+                             "y_column": "y"})
+    with pytest.raises(DkfsimError, match="nosinr.txt.*sinr_column.*no column 'sinr\\(db\\)'"):
+        traj.sinr_db([0.0])
