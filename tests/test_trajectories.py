@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 from hypothesis import given, settings
@@ -214,3 +216,88 @@ def test_track_without_the_sinr_column_says_so(tmp_path):
                              "y_column": "y"})
     with pytest.raises(DkfsimError, match="nosinr.txt.*sinr_column.*no column 'sinr\\(db\\)'"):
         traj.sinr_db([0.0])
+
+
+# --------------------------------------------------------------------------- sumo_fcd
+SMALL_FCD = Path(__file__).parent / "data" / "fcd" / "small.xml"
+
+
+@pytest.mark.parametrize("vehicle, t, pos, vel", [
+    ("veh0", 0.5, (15, 5), (10, 0)),
+    ("veh0", 2.0, (30, 5), (0, 10)),      # the turn: the later leg's velocity
+    ("veh0", 2.5, (30, 10), (0, 10)),
+    ("veh0", 9.0, (30, 15), (0, 0)),      # left the simulation after t = 3: held
+    ("veh1", 0.0, (0, -3.2), (0, 0)),     # enters at t = 1: held before
+    ("veh1", 1.5, (2.5, -3.2), (5, 0)),
+    ("veh1", 3.5, (20, -3.2), (10, 0)),
+])
+def test_sumo_fcd_by_hand(vehicle, t, pos, vel):
+    traj = parse_trajectory({"kind": "sumo_fcd", "file": str(SMALL_FCD), "vehicle": vehicle})
+    assert np.allclose(traj.positions([t]), [pos], rtol=0, atol=1e-12)
+    assert np.allclose(traj.velocities([t]), [vel], rtol=0, atol=1e-12)
+
+
+def test_sumo_fcd_relative_file_and_shifts():
+    traj = parse_trajectory({"kind": "sumo_fcd", "file": "small.xml", "vehicle": "veh1", "time_offset": -1,
+                             "offset": [0, 3.2]}, base_dir=SMALL_FCD.parent)
+    # Run time 0.5 is SUMO time 1.5.
+    assert np.allclose(traj.positions([0.5]), [[2.5, 0.0]], rtol=0, atol=1e-12)
+
+
+_HEAD = '<?xml version="1.0"?>\n'
+_OK_STEP = '<timestep time="0"><vehicle id="veh0" x="1" y="2"/></timestep>'
+HOSTILE_FCD = {
+    "bomb.xml": (_HEAD + '<!DOCTYPE lolz [<!ENTITY lol "lol"><!ENTITY lol2 "&lol;&lol;&lol;&lol;&lol;'
+                 '&lol;&lol;&lol;&lol;&lol;"><!ENTITY lol3 "&lol2;&lol2;&lol2;&lol2;&lol2;&lol2;&lol2;'
+                 '&lol2;&lol2;&lol2;">]>\n<fcd-export><timestep time="0"><vehicle id="&lol3;" x="1" '
+                 'y="2"/></timestep></fcd-export>\n', "line 2: refused"),
+    "external.xml": (_HEAD + '<!DOCTYPE fcd [<!ENTITY xxe SYSTEM "file:///etc/passwd">]>\n<fcd-export>'
+                     '<timestep time="0"><vehicle id="&xxe;" x="1" y="2"/></timestep></fcd-export>\n',
+                     "line 2: refused"),
+    "dtd.xml": (_HEAD + '<!DOCTYPE fcd-export SYSTEM "http://example.invalid/fcd.dtd">\n<fcd-export>'
+                + _OK_STEP + '</fcd-export>\n', "refused"),
+    "noid.xml": (_HEAD + '<fcd-export>\n<timestep time="0">\n<vehicle x="1" y="2"/>\n</timestep>\n'
+                 '</fcd-export>\n', "line 4: a <vehicle> without an id"),
+    "nanx.xml": (_HEAD + '<fcd-export>\n' + _OK_STEP + '\n<timestep time="1">\n<vehicle id="veh0" '
+                 'x="east" y="2"/></timestep></fcd-export>\n',
+                 "line 5: vehicle 'veh0' at time 1.0: x='east' is not a finite number"),
+    "infy.xml": (_HEAD + '<fcd-export>\n<timestep time="0"><vehicle id="veh0" x="1" y="inf"/></timestep>'
+                 '</fcd-export>\n', "y='inf' is not a finite number"),
+    "back.xml": (_HEAD + '<fcd-export>\n<timestep time="5">\n<vehicle id="veh0" x="1" y="2"/></timestep>'
+                 '\n<timestep time="4">\n<vehicle id="veh0" x="1" y="2"/></timestep></fcd-export>\n',
+                 "line 5: time goes backwards: timestep time=4.0 after time=5.0"),
+    "twice.xml": (_HEAD + '<fcd-export>\n<timestep time="0"><vehicle id="veh0" x="1" y="2"/>\n'
+                  '<vehicle id="veh0" x="1" y="3"/></timestep></fcd-export>\n', "appears twice"),
+    "notime.xml": (_HEAD + '<fcd-export>\n<timestep><vehicle id="veh0" x="1" y="2"/></timestep>'
+                   '</fcd-export>\n', "line 3: <timestep> has no 'time' attribute"),
+    "broken.xml": (_HEAD + '<fcd-export>\n' + _OK_STEP + '\n<timestep time="1">', "not well-formed XML"),
+    "root.xml": (_HEAD + '<routes>' + _OK_STEP + '</routes>\n', "not <fcd-export>"),
+    "empty.xml": (_HEAD + '<fcd-export/>\n', "has no <timestep>"),
+    "other.xml": (_HEAD + '<fcd-export>' + _OK_STEP.replace("veh0", "veh_0") + '</fcd-export>\n',
+                  "no vehicle 'veh0' in other.xml (did you mean 'veh_0'?)"),
+}
+
+
+@pytest.mark.parametrize("name", sorted(HOSTILE_FCD))
+def test_sumo_fcd_hostile_files(tmp_path, name):
+    text, words = HOSTILE_FCD[name]
+    (tmp_path / name).write_text(text)
+    with pytest.raises(ValidationError) as err:
+        parse_trajectory({"kind": "sumo_fcd", "file": name, "vehicle": "veh0"}, base_dir=tmp_path)
+    assert words in str(err.value)
+    assert name in str(err.value)
+    assert "passwd" not in str(err.value).replace("file:///etc/passwd", "")   # no file content leaked
+
+
+def test_sumo_fcd_missing_file(tmp_path):
+    with pytest.raises(ValidationError, match="file not found"):
+        parse_trajectory({"kind": "sumo_fcd", "file": "nope.xml", "vehicle": "veh0"}, base_dir=tmp_path)
+
+
+def test_sumo_fcd_without_defusedxml_says_what_to_install(tmp_path, monkeypatch):
+    import sys
+    (tmp_path / "f.xml").write_text(_HEAD + "<fcd-export>" + _OK_STEP + "</fcd-export>\n")
+    monkeypatch.setitem(sys.modules, "defusedxml", None)          # import fails
+    monkeypatch.setitem(sys.modules, "defusedxml.ElementTree", None)
+    with pytest.raises(ValidationError, match="pip install defusedxml"):
+        parse_trajectory({"kind": "sumo_fcd", "file": "f.xml", "vehicle": "veh0"}, base_dir=tmp_path)

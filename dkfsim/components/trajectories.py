@@ -32,11 +32,21 @@ import numpy as np
 from pydantic import AfterValidator, Field, PrivateAttr, TypeAdapter, ValidationInfo, model_validator
 from typing_extensions import override
 
+from dkfsim.components.fcd import read_fcd
 from dkfsim.components.latency import located
 from dkfsim.components.truth import TIME_UNITS, TrackError, read_track
 from dkfsim.core.datafiles import DataFileError, read_table
 from dkfsim.core.errors import DkfsimError
-from dkfsim.core.params import MAX_SECONDS, Matrix, Name, StrictModel, Vector, custom_error, registered
+from dkfsim.core.params import (
+    MAX_SECONDS,
+    Matrix,
+    Name,
+    StrictModel,
+    Vector,
+    custom_error,
+    registered,
+    suggest,
+)
 from dkfsim.core.registry import TRAJECTORIES
 
 
@@ -280,6 +290,50 @@ def sampled_column(path, time_column: str, column: str, time_unit: str) -> tuple
 
 
 _COLUMNS: dict[tuple, tuple[np.ndarray, np.ndarray]] = {}
+
+
+@TRAJECTORIES.register("sumo_fcd")
+class SumoFcd(TrajectoryParams):
+    """One vehicle of a SUMO floating-car-data file (sumo --fcd-output)."""
+
+    kind: Literal["sumo_fcd"] = "sumo_fcd"
+    file: Name
+    #: The vehicle's id in the file (``<vehicle id="veh0">``).
+    vehicle: Name
+    #: At run time t the vehicle is where the file puts it at SUMO time t - time_offset.
+    time_offset: Shift = 0.0
+    #: A fixed displacement added to every position (m).
+    offset: Point = (0.0, 0.0)
+
+    _line: Polyline | None = PrivateAttr(default=None)
+
+    @model_validator(mode="after")
+    def _load(self, info: ValidationInfo):
+        path, _ = located(self.file, None, info)
+        try:
+            data = read_fcd(path)
+        except DkfsimError as err:
+            raise custom_error(str(err), "file") from None
+        if self.vehicle not in data.vehicles:
+            names = sorted(data.vehicles)
+            raise custom_error(f"no vehicle {self.vehicle!r} in {path.name}{suggest(self.vehicle, names)}; "
+                               f"its vehicles: {', '.join(names[:20])}{' ...' if len(names) > 20 else ''}",
+                               "vehicle")
+        self._line = Polyline(*data.vehicles[self.vehicle])
+        return self
+
+    def polyline(self) -> Polyline:
+        """The vehicle's samples (SUMO time, position)."""
+        assert self._line is not None
+        return self._line
+
+    @override
+    def positions(self, t_s):
+        return self.polyline().positions(run_times(t_s) - self.time_offset) + np.asarray(self.offset)
+
+    @override
+    def velocities(self, t_s):
+        return self.polyline().velocities(run_times(t_s) - self.time_offset)
 
 
 #: The field type of a trajectory in a scenario (any registered kind).
