@@ -301,3 +301,29 @@ def test_sumo_fcd_without_defusedxml_says_what_to_install(tmp_path, monkeypatch)
     monkeypatch.setitem(sys.modules, "defusedxml.ElementTree", None)
     with pytest.raises(ValidationError, match="pip install defusedxml"):
         parse_trajectory({"kind": "sumo_fcd", "file": "f.xml", "vehicle": "veh0"}, base_dir=tmp_path)
+
+
+def test_sumo_fcd_larger_than_a_read_chunk(tmp_path):
+    """A file of several 1 MiB chunks (elements cut at chunk boundaries) reads every sample:
+    veh0 at x = 2 t, y = -t; veh1 listed every other timestep at x = 100 + t."""
+    steps = []
+    for k in range(12_000):
+        t = k * 0.5
+        veh1 = f'<vehicle id="veh1" x="{100 + t:.2f}" y="7.00" speed="1.00" angle="90.00"/>' if k % 2 else ""
+        steps.append(f'<timestep time="{t:.2f}"><vehicle id="veh0" x="{2 * t:.2f}" y="{-t:.2f}" '
+                     f'speed="2.24" angle="117.00" lane="E0_0" pos="0.00" slope="0.00"/>{veh1}</timestep>')
+    (tmp_path / "big.xml").write_text(_HEAD + "<fcd-export>\n" + "\n".join(steps) + "\n</fcd-export>\n")
+    assert (tmp_path / "big.xml").stat().st_size > 2 * (1 << 20)
+    veh0 = parse_trajectory({"kind": "sumo_fcd", "file": "big.xml", "vehicle": "veh0"}, base_dir=tmp_path)
+    veh1 = parse_trajectory({"kind": "sumo_fcd", "file": "big.xml", "vehicle": "veh1"}, base_dir=tmp_path)
+    t = np.array([0.75, 1234.75, 5999.25])
+    assert np.allclose(veh0.positions(t), np.column_stack([2 * t, -t]), rtol=0, atol=1e-9)
+    assert np.allclose(veh1.positions(t), np.column_stack([100 + t, [7, 7, 7]]), rtol=0, atol=1e-9)
+    assert len(veh0.polyline().t) == 12_000 and len(veh1.polyline().t) == 6_000
+
+
+def test_sumo_fcd_single_sample_stands_still(tmp_path):
+    (tmp_path / "one.xml").write_text(_HEAD + "<fcd-export>" + _OK_STEP + "</fcd-export>\n")
+    traj = parse_trajectory({"kind": "sumo_fcd", "file": "one.xml", "vehicle": "veh0"}, base_dir=tmp_path)
+    assert np.array_equal(traj.positions([-1, 0, 5]), [[1, 2]] * 3)
+    assert np.array_equal(traj.velocities([-1, 0, 5]), np.zeros((3, 2)))

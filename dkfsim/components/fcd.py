@@ -18,6 +18,7 @@ import os
 from array import array
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any, NoReturn
 
 import numpy as np
 
@@ -41,12 +42,12 @@ class _Collector:
 
     def __init__(self, name: str):
         self.name = name
-        self.parser = None            # set once the parser exists (for line numbers)
+        self.parser: Any = None       # expat's parser, set once it exists (for line numbers)
         self.depth = 0
         self.time: float | None = None
         self.samples: dict[str, tuple[array, array, array]] = {}
 
-    def fail(self, what: str) -> None:
+    def fail(self, what: str) -> NoReturn:
         line = self.parser.CurrentLineNumber if self.parser is not None else "?"
         raise DkfsimError(f"SUMO FCD file {self.name} line {line}: {what}")
 
@@ -85,11 +86,8 @@ class _Collector:
             xs.append(x)
             ys.append(y)
 
-    def end(self, tag: str) -> None:
+    def end(self, _tag: str) -> None:
         self.depth -= 1
-
-    def data(self, text: str) -> None:
-        pass
 
     def close(self) -> None:
         return None
