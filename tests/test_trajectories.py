@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 
 import numpy as np
@@ -327,3 +328,40 @@ def test_sumo_fcd_single_sample_stands_still(tmp_path):
     traj = parse_trajectory({"kind": "sumo_fcd", "file": "one.xml", "vehicle": "veh0"}, base_dir=tmp_path)
     assert np.array_equal(traj.positions([-1, 0, 5]), [[1, 2]] * 3)
     assert np.array_equal(traj.velocities([-1, 0, 5]), np.zeros((3, 2)))
+
+
+@st.composite
+def _track_and_time(draw):
+    pts = draw(_waypoints())
+    frac = draw(st.floats(0, 1))
+    return pts, pts[0, 0] + frac * (pts[-1, 0] - pts[0, 0])
+
+
+@settings(max_examples=60, deadline=None)
+@given(case=_track_and_time(), gap=st.floats(0, 2e4))
+def test_along_keeps_the_road_distance(case, gap):
+    """A vehicle ``gap`` metres behind on the path is where the recorded car was when it had
+    driven ``gap`` metres less (computed here by walking the segments), or at the start."""
+    import tempfile
+    import uuid
+    pts, t = case
+    with tempfile.TemporaryDirectory() as tmp:
+        path = Path(tmp) / f"{uuid.uuid4().hex}.txt"
+        path.write_text("t x y\n" + "\n".join(f"{a!r} {b!r} {c!r}" for a, b, c in pts.tolist()) + "\n")
+        traj = parse_trajectory({"kind": "track", "file": str(path), "time_column": "t", "time_unit": "s",
+                                 "x_column": "x", "y_column": "y", "along": -gap})
+        got = traj.positions([t - pts[0, 0]])[0]
+    lengths = [math.dist(pts[k, 1:], pts[k + 1, 1:]) for k in range(len(pts) - 1)]
+    k = min(int(np.searchsorted(pts[:, 0], t, side="right")) - 1, len(pts) - 2)
+    driven = sum(lengths[:k]) + lengths[k] * (t - pts[k, 0]) / (pts[k + 1, 0] - pts[k, 0])
+    target = driven - gap
+    want = pts[0, 1:]
+    for j, length in enumerate(lengths):
+        if target <= 0:
+            break
+        if target <= length:
+            want = pts[j, 1:] + (pts[j + 1, 1:] - pts[j, 1:]) * (target / length)
+            break
+        target -= length
+    scale = 1e-7 * (1 + np.abs(pts[:, 1:]).max() + sum(lengths))
+    assert np.allclose(got, want, rtol=0, atol=scale)
