@@ -22,6 +22,7 @@ from typing import Any, NoReturn
 
 import numpy as np
 
+from dkfsim.core.datafiles import DataFileError, file_key
 from dkfsim.core.errors import DkfsimError
 from dkfsim.core.extras import optional
 
@@ -105,10 +106,9 @@ def read_fcd(path: str | os.PathLike) -> FcdData:
     """Read (and cache, on path, size and modification time) a SUMO FCD file."""
     path = Path(path)
     try:
-        st = path.stat()
-    except OSError as err:
-        raise DkfsimError(f"cannot read SUMO FCD file {path}: {err.strerror}") from None
-    key = (str(path), st.st_mtime_ns, st.st_size)
+        key = file_key(path)
+    except DataFileError as err:
+        raise DkfsimError(f"SUMO FCD file: {err}") from None
     if key not in _CACHE:
         _CACHE[key] = _parse(path)
     return _CACHE[key]

@@ -131,14 +131,39 @@ class Polyline:
         return out
 
 
+class SampledTrajectory(TrajectoryParams):
+    """A kind known at sample times (a :class:`Polyline` built when validated)."""
+
+    _line: Polyline | None = PrivateAttr(default=None)
+
+    def polyline(self) -> Polyline:
+        """The samples as a :class:`Polyline` (on the samples' own clock)."""
+        assert self._line is not None
+        return self._line
+
+    def sample_times(self, t: np.ndarray) -> np.ndarray:
+        """The samples' clock at run times ``t`` (the same, unless the kind shifts it)."""
+        return t
+
+    def displacement(self) -> np.ndarray:
+        """What is added to every position (m)."""
+        return np.zeros(2)
+
+    @override
+    def positions(self, t_s):
+        return self.polyline().positions(self.sample_times(run_times(t_s))) + self.displacement()
+
+    @override
+    def velocities(self, t_s):
+        return self.polyline().velocities(self.sample_times(run_times(t_s)))
+
+
 @TRAJECTORIES.register("waypoints")
-class Waypoints(TrajectoryParams):
+class Waypoints(SampledTrajectory):
     """Straight lines between timed points ``[t, x, y]``; held before the first and after the last."""
 
     kind: Literal["waypoints"] = "waypoints"
     points: Matrix
-
-    _line: Polyline | None = PrivateAttr(default=None)
 
     @model_validator(mode="after")
     def _check(self):
@@ -154,19 +179,6 @@ class Waypoints(TrajectoryParams):
                                f"{float(pts[k, 0])!r})", "points")
         self._line = Polyline(pts[:, 0], pts[:, 1:])
         return self
-
-    def polyline(self) -> Polyline:
-        """The points as a :class:`Polyline`."""
-        assert self._line is not None
-        return self._line
-
-    @override
-    def positions(self, t_s):
-        return self.polyline().positions(run_times(t_s))
-
-    @override
-    def velocities(self, t_s):
-        return self.polyline().velocities(run_times(t_s))
 
 
 #: A signed time shift (s) or distance (m).
@@ -293,7 +305,7 @@ _COLUMNS: dict[tuple, tuple[np.ndarray, np.ndarray]] = {}
 
 
 @TRAJECTORIES.register("sumo_fcd")
-class SumoFcd(TrajectoryParams):
+class SumoFcd(SampledTrajectory):
     """One vehicle of a SUMO floating-car-data file (sumo --fcd-output)."""
 
     kind: Literal["sumo_fcd"] = "sumo_fcd"
@@ -304,8 +316,6 @@ class SumoFcd(TrajectoryParams):
     time_offset: Shift = 0.0
     #: A fixed displacement added to every position (m).
     offset: Point = (0.0, 0.0)
-
-    _line: Polyline | None = PrivateAttr(default=None)
 
     @model_validator(mode="after")
     def _load(self, info: ValidationInfo):
@@ -322,18 +332,13 @@ class SumoFcd(TrajectoryParams):
         self._line = Polyline(*data.vehicles[self.vehicle])
         return self
 
-    def polyline(self) -> Polyline:
-        """The vehicle's samples (SUMO time, position)."""
-        assert self._line is not None
-        return self._line
+    @override
+    def sample_times(self, t):
+        return t - self.time_offset
 
     @override
-    def positions(self, t_s):
-        return self.polyline().positions(run_times(t_s) - self.time_offset) + np.asarray(self.offset)
-
-    @override
-    def velocities(self, t_s):
-        return self.polyline().velocities(run_times(t_s) - self.time_offset)
+    def displacement(self):
+        return np.asarray(self.offset, dtype=float)
 
 
 #: The field type of a trajectory in a scenario (any registered kind).
