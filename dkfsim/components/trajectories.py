@@ -29,10 +29,24 @@ from __future__ import annotations
 from typing import Annotated, Literal
 
 import numpy as np
-from pydantic import AfterValidator, PrivateAttr, TypeAdapter, model_validator
+from pydantic import AfterValidator, Field, PrivateAttr, TypeAdapter, ValidationInfo, model_validator
 from typing_extensions import override
 
-from dkfsim.core.params import Matrix, StrictModel, Vector, custom_error, registered
+from dkfsim.components.fcd import read_fcd
+from dkfsim.components.latency import located
+from dkfsim.components.truth import TIME_UNITS, TrackError, read_track
+from dkfsim.core.datafiles import DataFileError, read_table
+from dkfsim.core.errors import DkfsimError
+from dkfsim.core.params import (
+    MAX_SECONDS,
+    Matrix,
+    Name,
+    StrictModel,
+    Vector,
+    custom_error,
+    registered,
+    suggest,
+)
 from dkfsim.core.registry import TRAJECTORIES
 
 
@@ -117,14 +131,39 @@ class Polyline:
         return out
 
 
+class SampledTrajectory(TrajectoryParams):
+    """A kind known at sample times (a :class:`Polyline` built when validated)."""
+
+    _line: Polyline | None = PrivateAttr(default=None)
+
+    def polyline(self) -> Polyline:
+        """The samples as a :class:`Polyline` (on the samples' own clock)."""
+        assert self._line is not None
+        return self._line
+
+    def sample_times(self, t: np.ndarray) -> np.ndarray:
+        """The samples' clock at run times ``t`` (the same, unless the kind shifts it)."""
+        return t
+
+    def displacement(self) -> np.ndarray:
+        """What is added to every position (m)."""
+        return np.zeros(2)
+
+    @override
+    def positions(self, t_s):
+        return self.polyline().positions(self.sample_times(run_times(t_s))) + self.displacement()
+
+    @override
+    def velocities(self, t_s):
+        return self.polyline().velocities(self.sample_times(run_times(t_s)))
+
+
 @TRAJECTORIES.register("waypoints")
-class Waypoints(TrajectoryParams):
+class Waypoints(SampledTrajectory):
     """Straight lines between timed points ``[t, x, y]``; held before the first and after the last."""
 
     kind: Literal["waypoints"] = "waypoints"
     points: Matrix
-
-    _line: Polyline | None = PrivateAttr(default=None)
 
     @model_validator(mode="after")
     def _check(self):
@@ -141,18 +180,165 @@ class Waypoints(TrajectoryParams):
         self._line = Polyline(pts[:, 0], pts[:, 1:])
         return self
 
-    def polyline(self) -> Polyline:
-        """The points as a :class:`Polyline`."""
-        assert self._line is not None
-        return self._line
+
+#: A signed time shift (s) or distance (m).
+Shift = Annotated[float, Field(strict=True, ge=-MAX_SECONDS, le=MAX_SECONDS, allow_inf_nan=False)]
+
+
+class ArcPath:
+    """A :class:`Polyline` re-parametrised by distance travelled: where the vehicle is
+    ``along`` metres ahead of (negative: behind) its recorded position at a time.
+
+    The path is the polyline's points with zero-length steps removed, indexed by
+    cumulative distance ``s``; beyond either end the vehicle is held there.
+    """
+
+    __slots__ = ("line", "s_t", "s", "xy", "tangents")
+
+    def __init__(self, line: Polyline):
+        self.line = line
+        step = np.hypot(*np.diff(line.xy, axis=0).T)
+        self.s_t = np.concatenate([[0.0], np.cumsum(step)])     # distance travelled at each sample
+        keep = np.concatenate([[True], step > 0])
+        self.s, self.xy = self.s_t[keep], line.xy[keep]
+        seg = np.diff(self.xy, axis=0)
+        self.tangents = seg / np.hypot(*seg.T)[:, None] if len(seg) else np.zeros((0, 2))
+
+    def positions(self, t: np.ndarray, along: float) -> np.ndarray:
+        s = np.interp(t, self.line.t, self.s_t) + along
+        return np.column_stack([np.interp(s, self.s, self.xy[:, 0]), np.interp(s, self.s, self.xy[:, 1])])
+
+    def velocities(self, t: np.ndarray, along: float) -> np.ndarray:
+        speed = np.hypot(*self.line.velocities(t).T)
+        s = np.interp(t, self.line.t, self.s_t) + along
+        seg = np.searchsorted(self.s, s, side="right") - 1
+        inside = (seg >= 0) & (seg < len(self.tangents))
+        out = np.zeros((len(t), 2))
+        out[inside] = self.tangents[seg[inside]] * speed[inside, None]
+        return out
+
+
+@TRAJECTORIES.register("track")
+class RecordedTrack(TrajectoryParams):
+    """A recorded drive (a shipped CICV5G track or a file), shifted in time and space per vehicle."""
+
+    kind: Literal["track"] = "track"
+    file: Name | None = None
+    dataset: Name | None = None
+    x_column: Name = "utmX(m)"
+    y_column: Name = "utmY(m)"
+    time_column: Name = "pub_time(ms)"
+    time_unit: Literal["s", "ms", "us", "ns"] = "ms"
+    #: Seconds the vehicle runs behind the recording: at run time t it is where the
+    #: recorded car was at t - time_offset (negative: ahead).
+    time_offset: Shift = 0.0
+    #: Metres along the recorded path ahead of the (time-shifted) recorded car; negative: behind.
+    along: Shift = 0.0
+    #: A fixed displacement added to every position (m).
+    offset: Point = (0.0, 0.0)
+    #: The column :meth:`sinr_db` reads (the cellular link quality the car saw).
+    sinr_column: Name = "sinr(db)"
+
+    _path: str | None = PrivateAttr(default=None)
+    _arc: ArcPath | None = PrivateAttr(default=None)
+
+    @model_validator(mode="after")
+    def _load(self, info: ValidationInfo):
+        path, key = located(self.file, self.dataset, info)
+        try:
+            track = read_track(path, self.time_column, self.x_column, self.y_column, self.time_unit)
+        except TrackError as err:
+            raise custom_error(str(err), key if err.key == "file" else err.key) from None
+        self._path = str(path)
+        self._arc = ArcPath(Polyline(track.t, np.column_stack([track.x, track.y])))
+        return self
+
+    def arc(self) -> ArcPath:
+        """The recorded path (read once when the scenario is validated)."""
+        assert self._arc is not None
+        return self._arc
+
+    def duration(self) -> float:
+        """Seconds from the track's first sample to its last."""
+        t = self.arc().line.t
+        return float(t[-1] - t[0])
 
     @override
     def positions(self, t_s):
-        return self.polyline().positions(run_times(t_s))
+        t = run_times(t_s) - self.time_offset
+        return self.arc().positions(t, self.along) + np.asarray(self.offset)
 
     @override
     def velocities(self, t_s):
-        return self.polyline().velocities(run_times(t_s))
+        return self.arc().velocities(run_times(t_s) - self.time_offset, self.along)
+
+    def sinr_db(self, t_s) -> np.ndarray:
+        """The recorded SINR (dB) at run times ``t_s``: the last row at or before the
+        vehicle's track time (the first row's before it).  Follows ``time_offset``
+        (the drive's clock), not ``along``."""
+        t = run_times(t_s) - self.time_offset
+        try:
+            times, values = sampled_column(self._path, self.time_column, self.sinr_column, self.time_unit)
+        except DataFileError as err:
+            raise DkfsimError(f"trajectory track {self._path}: sinr_column: {err}") from None
+        idx = np.clip(np.searchsorted(times, t, side="right") - 1, 0, len(times) - 1)
+        return values[idx]
+
+
+def sampled_column(path, time_column: str, column: str, time_unit: str) -> tuple[np.ndarray, np.ndarray]:
+    """``(t, values)`` of one numeric column of a track file, sorted by time, ``t`` in
+    seconds from the first row.  Raises :class:`DataFileError` naming the line of a problem."""
+    table = read_table(path)
+    key = (str(table.path), id(table), time_column, column, time_unit)
+    if key not in _COLUMNS:
+        tcol, vcol = table.column_index(time_column), table.column_index(column)
+        t = np.array([v for _, v in table.floats(tcol, table.header[tcol] if table.header else "")])
+        v = np.array([v for _, v in table.floats(vcol, table.header[vcol] if table.header else "")])
+        if not (np.isfinite(t).all() and np.isfinite(v).all()):
+            raise DataFileError(f"{table.path.name}: {column!r} and {time_column!r} must be finite")
+        order = np.argsort(t, kind="stable")
+        _COLUMNS[key] = ((t[order] - t[order[0]]) * TIME_UNITS[time_unit], v[order])
+    return _COLUMNS[key]
+
+
+_COLUMNS: dict[tuple, tuple[np.ndarray, np.ndarray]] = {}
+
+
+@TRAJECTORIES.register("sumo_fcd")
+class SumoFcd(SampledTrajectory):
+    """One vehicle of a SUMO floating-car-data file (sumo --fcd-output)."""
+
+    kind: Literal["sumo_fcd"] = "sumo_fcd"
+    file: Name
+    #: The vehicle's id in the file (``<vehicle id="veh0">``).
+    vehicle: Name
+    #: At run time t the vehicle is where the file puts it at SUMO time t - time_offset.
+    time_offset: Shift = 0.0
+    #: A fixed displacement added to every position (m).
+    offset: Point = (0.0, 0.0)
+
+    @model_validator(mode="after")
+    def _load(self, info: ValidationInfo):
+        path, _ = located(self.file, None, info)
+        try:
+            data = read_fcd(path)
+        except DkfsimError as err:
+            raise custom_error(str(err), "file") from None
+        if self.vehicle not in data.vehicles:
+            names = sorted(data.vehicles)
+            raise custom_error(f"no vehicle {self.vehicle!r} in {path.name}{suggest(self.vehicle, names)}; "
+                               f"its vehicles: {', '.join(names[:20])}{' ...' if len(names) > 20 else ''}",
+                               "vehicle")
+        self._line = Polyline(*data.vehicles[self.vehicle])
+        return self
+
+    @override
+    def sample_times(self, t):
+        return t - self.time_offset
+
+    @override
+    def displacement(self):
+        return np.asarray(self.offset, dtype=float)
 
 
 #: The field type of a trajectory in a scenario (any registered kind).
