@@ -463,3 +463,56 @@ def test_paper_weights_are_refused_on_a_changing_graph():
     sc["spanning_tree"] = True
     msg = _error(with_mobility(sc, _switch_trajectories(20, 10)))
     assert "weights" in msg and "changes" in msg
+
+
+# ================================================================= a SUMO FCD file
+
+FCD = """<?xml version="1.0" encoding="UTF-8"?>
+<fcd-export>
+  <timestep time="0.00">
+    <vehicle id="a" x="0.00" y="0.00" speed="0.00" angle="90.00"/>
+    <vehicle id="b" x="5.00" y="0.00" speed="0.00" angle="90.00"/>
+    <vehicle id="c" x="100.00" y="0.00" speed="90.00" angle="270.00"/>
+  </timestep>
+  <timestep time="1.00">
+    <vehicle id="a" x="0.00" y="0.00" speed="0.00" angle="90.00"/>
+    <vehicle id="b" x="5.00" y="0.00" speed="20.00" angle="90.00"/>
+    <vehicle id="c" x="10.00" y="0.00" speed="0.00" angle="270.00"/>
+  </timestep>
+  <timestep time="2.00">
+    <vehicle id="a" x="0.00" y="0.00" speed="0.00" angle="90.00"/>
+    <vehicle id="b" x="25.00" y="0.00" speed="0.00" angle="90.00"/>
+    <vehicle id="c" x="10.00" y="0.00" speed="0.00" angle="270.00"/>
+  </timestep>
+</fcd-export>
+"""
+
+
+def test_a_sumo_fcd_file_gives_the_expected_positions_and_links(tmp_path):
+    """Hand-worked from the file (radius 10 m, ticks of 0.1 s, every pair a link): c comes
+    from x = 100 to 10 over the first second, b leaves from 5 to 25 over the next.  So a-b is
+    up at ticks 0..12 (|x_b| <= 10 until t = 1.25), b-c at ticks 10..17 (from t = 0.944 to
+    1.75), a-c from tick 10 on (x_c = 10 exactly at t = 1); flood's arrivals follow."""
+    import dkfsim
+    from dkfsim.config.plan import RunPlan
+    fcd = tmp_path / "fcd.xml"
+    fcd.write_text(FCD)
+    K = 20
+    sc = scenario(3, protocol="flood", steps=K, buffer_length=6, latency=steps_latency(1))
+    del sc["topology"]                                   # mobility: every pair by default
+    sc["mobility"] = {"vehicles": {i: {"kind": "sumo_fcd", "file": str(fcd), "vehicle": v}
+                                   for i, v in enumerate("abc")},
+                      "range": {"model": "disk", "radius": RADIUS}}
+    plan = RunPlan(dkfsim.load_scenario(copy.deepcopy(sc)))
+    pos = plan.scenario.mobility.positions(3, K, T)
+    assert np.allclose(pos[10], [[0, 0], [5, 0], [10, 0]]) and np.allclose(pos[15], [[0, 0], [15, 0], [10, 0]])
+    assert np.allclose(pos[5, 2], [55, 0])
+    expect_pair = {(0, 1): lambda k: k <= 12, (1, 2): lambda k: 10 <= k <= 17, (0, 2): lambda k: k >= 10}
+    arcs = plan.arcs
+    assert arcs == [(0, 1), (0, 2), (1, 0), (1, 2), (2, 0), (2, 1)]
+    up = lambda a, k: expect_pair[tuple(sorted(arcs[a]))](k)       # noqa: E731
+    for a in range(len(arcs)):
+        assert plan.link_schedule.up[:, a].tolist() == [up(a, k) for k in range(K + 1)], arcs[a]
+    run = run_scenario(sc)
+    ticks = arrival_ticks(run.arrays)
+    assert np.array_equal(ticks, earliest_arrivals(3, K, 6, arcs, up, 1))
