@@ -574,3 +574,22 @@ def test_shipped_groups_share_nothing_while_apart(name, groups):
                 assert (ticks[i_, o_, rows] >= meet).all(), (name, i_, o_)
     assert np.isfinite(ticks[a[0], b[0], meet:]).any()
     check_against_window_reference(run)
+
+
+def test_spanning_forest_is_the_bfs_spanning_tree_of_each_component():
+    """The per-tick forest (plain Python) equals networkx's rule of ``spanning_tree`` (the
+    lowest-index centre as root, neighbours in increasing order) on every component."""
+    import networkx as nx
+
+    from dkfsim.components.topology import bfs_spanning_forest, bfs_spanning_tree
+    rng = np.random.default_rng(11)
+    for trial in range(60):
+        n = int(rng.integers(1, 14))
+        g = nx.gnp_random_graph(n, float(rng.uniform(0.05, 0.6)), seed=int(rng.integers(1 << 30)))
+        expect = set()
+        for comp in nx.connected_components(g):
+            if len(comp) > 1:
+                sub = nx.relabel_nodes(g.subgraph(comp), {v: v for v in comp})
+                expect |= {tuple(sorted(e)) for e in bfs_spanning_tree(sub).edges()}
+        got = {tuple(sorted(e)) for e in bfs_spanning_forest(n, list(g.edges()))}
+        assert got == expect, (trial, n, sorted(g.edges()))

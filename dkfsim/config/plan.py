@@ -140,12 +140,9 @@ class RunPlan:
             prev = key
             arcs = seen.get(key)
             if arcs is None:
-                g = networkx.Graph()
-                g.add_nodes_from(range(self.scenario.n))
-                g.add_edges_from(a for a, on in zip(self.arcs, schedule.up[k].tolist()) if on)
-                forest = topo.bfs_spanning_forest(g)
-                arcs = seen[key] = sorted([(int(u), int(v)) for u, v in forest.edges()]
-                                          + [(int(v), int(u)) for u, v in forest.edges()])
+                forest = topo.bfs_spanning_forest(
+                    self.scenario.n, [a for a, on in zip(self.arcs, schedule.up[k].tolist()) if on])
+                arcs = seen[key] = sorted(forest + [(v, u) for u, v in forest])
             out[k] = arcs
         return out
 
