@@ -21,9 +21,10 @@
    while a CPU hog process spins beside it.
 7. A graph that changes (issue 23): ``paper_case1`` with ``mobility:`` whose links go down
    and come back every few ticks (each non-root vehicle out of range one tick in
-   ``--mobility-period``), against the same run on the fixed graph, alternated
-   (``--repeats`` times, min CPU of each); the ratio changing / fixed and the exchange each
-   used (the fixed graph runs the compiled tree where numba is present).
+   ``--mobility-period``, periodically, and then at random ticks with that probability, so
+   that almost every tick has a new set of links), against the same run on the fixed graph,
+   alternated (``--repeats`` times, min CPU of each); the ratio changing / fixed and the
+   exchange each used (the fixed graph runs the compiled tree where numba is present).
    ``--mobility-only`` runs this section alone.
 6. Monte Carlo on the one executor: this process, 2 local processes and a Dask
    LocalCluster of 2 worker processes (start-up included), runs per minute and
@@ -215,16 +216,20 @@ def kernel_workloads(ticks: int, scale_ticks: int, big_nodes: int, big_ticks: in
     }
 
 
-def moving_paper_case1(ticks: int, period: int) -> tuple[dkfsim.Scenario, dkfsim.Scenario]:
+def moving_paper_case1(ticks: int, period: int, random: bool = False) -> tuple[dkfsim.Scenario, dkfsim.Scenario]:
     """``paper_case1`` on its fixed tree, and the same with vehicles 1 m apart (radius 50 m)
-    of which vehicle ``i >= 1`` is 1 km away at the ticks ``k`` with ``(k + i) % period == 0``:
-    every tick some links are down, each link comes back the tick after."""
+    of which vehicle ``i >= 1`` is 1 km away at the ticks ``k`` with ``(k + i) % period == 0``
+    (``random``: at each tick with probability ``1 / period``, seeded): every tick some links
+    are down, each link comes back the tick after."""
+    import numpy as np
     fixed = dkfsim.load_scenario(ROOT / "scenarios" / "paper_case1.yaml", overrides=[f"steps={ticks}"])
     T = fixed.model.T
+    away = np.random.default_rng(0).random((fixed.n, ticks + 1)) < 1 / period if random else \
+        np.array([[(k + i) % period == 0 for k in range(ticks + 1)] for i in range(fixed.n)])
     vehicles = {"0": {"kind": "constant_velocity"}}
     for i in range(1, fixed.n):
         vehicles[str(i)] = {"kind": "waypoints", "points": [
-            [k * T, 1000.0 if (k + i) % period == 0 else float(i), 0.0] for k in range(ticks + 1)]}
+            [k * T, 1000.0 if away[i, k] else float(i), 0.0] for k in range(ticks + 1)]}
     data = fixed.to_dict()
     data["mobility"] = {"vehicles": vehicles, "range": {"model": "disk", "radius": 50.0}}
     data["buffer_length"] = fixed.buffer_length if isinstance(fixed.buffer_length, int) else \
@@ -239,8 +244,14 @@ def RunPlan_L(sc) -> int:       # noqa: N802
 
 
 def changing_graph(ticks: int, period: int, repeats: int) -> None:
-    """Section 7 (see the module): changing graph against fixed, alternated, min CPU each."""
-    fixed, moving = moving_paper_case1(ticks, period)
+    """Section 7 (see the module): both patterns."""
+    for random in (False, True):
+        changing_graph_line(ticks, period, repeats, random)
+
+
+def changing_graph_line(ticks: int, period: int, repeats: int, random: bool) -> None:
+    """One pattern of section 7: changing graph against fixed, alternated, min CPU each."""
+    fixed, moving = moving_paper_case1(ticks, period, random)
     dkfsim.run(fixed, steps=50, save="estimates")
     dkfsim.run(moving, steps=50, save="estimates")
     cpu = {"fixed": [], "changing": []}
@@ -252,7 +263,8 @@ def changing_graph(ticks: int, period: int, repeats: int) -> None:
             info[label] = r
     f, m = min(cpu["fixed"]), min(cpu["changing"])
     rl = info["changing"].counts.get("range_lost", 0)
-    print(f"paper_case1 on a changing graph, {ticks} ticks, each vehicle out of range one tick in {period} "
+    how = f"with probability 1/{period} per tick" if random else f"one tick in {period}"
+    print(f"paper_case1 on a changing graph, {ticks} ticks, each vehicle out of range {how} "
           f"(L = {info['changing'].info['buffer_length']} both):")
     print(f"  fixed graph     CPU {f:8.3f} s  (exchange {info['fixed'].info['backend']['exchange']})")
     print(f"  changing graph  CPU {m:8.3f} s  (exchange {info['changing'].info['backend']['exchange']}, "
