@@ -593,3 +593,24 @@ def test_spanning_forest_is_the_bfs_spanning_tree_of_each_component():
                 expect |= {tuple(sorted(e)) for e in bfs_spanning_tree(sub).edges()}
         got = {tuple(sorted(e)) for e in bfs_spanning_forest(n, list(g.edges()))}
         assert got == expect, (trial, n, sorted(g.edges()))
+
+
+@pytest.mark.parametrize("protocol", ["flood", "tree"])
+def test_a_node_that_is_down_when_its_link_returns_resends_nothing(protocol):
+    """Hand-worked: vehicle 1 is away at ticks 10..19 and down (crash window [1.5 s, 2.5 s),
+    ticks 15..24) when its link returns at tick 20.  It resends nothing then, so its rows of
+    ticks 10..14 never reach node 0; node 0's resend reaches a node that is down
+    (crash_dropped); from tick 25 both exchange as before."""
+    K, L = 40, 15
+    xs = [(5.0 if (k < 10 or k >= 20) else 500.0, 0.0) for k in range(K + 1)]
+    sc = with_mobility(scenario(2, edges=[(0, 1)], protocol=protocol, steps=K, buffer_length=L, latency=ZERO),
+                       [{"kind": "constant_velocity"}, waypoints(xs)])
+    sc["faults"] = {"crashes": [{"node": 1, "start": 1.5, "end": 2.5}]}
+    run = run_scenario(sc)
+    ticks = arrival_ticks(run.arrays)
+    assert np.isinf(ticks[0, 1, 9:24]).all()          # ticks 10..14 held by 1, never sent; 15..24 down
+    assert np.isinf(ticks[1, 0, 9:24]).all()
+    assert run.counts["crash_dropped"] > 0
+    assert np.array_equal(ticks[0, 1, 24:], np.arange(25, K + 1)) and np.array_equal(ticks[1, 0, 24:],
+                                                                                     np.arange(25, K + 1))
+    check_against_window_reference(run)

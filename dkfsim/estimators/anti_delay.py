@@ -54,8 +54,8 @@ def late_horizon(plan: RunPlan, n: int, L: int) -> int:
     Nothing is sent for a final row, so with a latency bound of ``d`` steps per
     hop a late packet arrives at most ``d + 1`` rows after its row became
     final: keep that many.  Unbounded latency, a rate-limited link (queueing has no
-    bound) or a graph that changes (a link-up resends old rows): 4096 rows, fewer on large networks so that the holdings (n masks of n bits per
-    row) stay near 64 MB.
+    bound) or a graph that changes (a link-up resends old rows): 4096 rows, fewer on large
+    networks so that the holdings (n masks of n bits per row) stay near 64 MB.
     """
     bound = None if plan.rate_limited or plan.graph_changes else plan.latency_bound
     if bound is not None:

@@ -333,8 +333,7 @@ class Port:
             self._grow()
         count["sent"][lid] += 1
         count["bytes"][lid] += nbytes
-        up = link.up
-        if up is not None and not up[min(now // link.T_ns, len(up) - 1)]:
+        if link.up is not None and not link.is_up(now):
             count["lost"][lid] += 1          # the pair is out of range: nothing leaves
             count["range_lost"][lid] += 1
             return

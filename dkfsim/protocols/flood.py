@@ -55,6 +55,8 @@ class FloodExchange(Exchange):
     def _resend(self, link) -> None:
         """``link`` came up: queue on it everything its sender holds for the window's rows."""
         j = link.src
+        if self.crashes is not None and self.crashes.down(j, self.env.now):
+            return                              # a node that is down sends nothing
         p = self._pending[self.lid[link.id]]
         for row, st in self.rows.items():
             if st.held[j]:

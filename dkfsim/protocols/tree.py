@@ -59,8 +59,11 @@ class TreeExchange(Exchange):
         self._outs = [tuple((e, rev, l) for e, rev, l in
                             ((self.lid[l.id], self.reverse[self.lid[l.id]], l) for l in self.out_links[j])
                             if e in tree) for j in range(self.n)]
+        now = self.env.now
         for e in sorted(new):
             j = self.links[e].src
+            if self.crashes is not None and self.crashes.down(j, now):
+                continue                        # a node that is down sends nothing
             for row, st in self.rows.items():
                 st.sent[e] = 0
                 self._dirty[j].add(row)
