@@ -614,3 +614,20 @@ def test_a_node_that_is_down_when_its_link_returns_resends_nothing(protocol):
     assert np.array_equal(ticks[0, 1, 24:], np.arange(25, K + 1)) and np.array_equal(ticks[1, 0, 24:],
                                                                                      np.arange(25, K + 1))
     check_against_window_reference(run)
+
+
+@pytest.mark.slow
+def test_the_mobility_tables_of_the_docs_are_what_the_code_gives():
+    """docs/mobility.md's two tables (tools/docs_numbers.py generator ``mobility``, decision
+    205) equal a fresh run of every shipped mobility scenario and of the range sweep."""
+    import importlib.util
+    from pathlib import Path
+    path = Path(__file__).resolve().parents[1] / "tools" / "docs_numbers.py"
+    spec = importlib.util.spec_from_file_location("docs_numbers_mobility", path)
+    dn = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(dn)
+    found = dn.page_blocks()
+    for name, text in dn.render_mobility().items():
+        assert found[name], name
+        for page, body in found[name]:
+            assert body.rstrip("\n") == text.rstrip("\n"), (page.name, name)

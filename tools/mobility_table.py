@@ -1,22 +1,29 @@
 #!/usr/bin/env python
-"""The table of docs/mobility.md: the shipped mobility scenarios, one run each.
+"""The tables and the figure of docs/mobility.md: the shipped mobility scenarios.
 
-For each scenario (its own steps and seed): the buffer length and the window ``B`` of the
-finite-time result (docs/design.md §6), the share of (tick, link) pairs that are up, how many
-ticks change the set of links, the position MSE (x + y, m^2, after the burn-in) of the fused,
-local (mean over nodes), centralized and ci_consensus estimates, and ``late`` counted per
-contribution (the run keeps the arrival log).  Prints a Markdown table.
+``scenario_table()``: one run of each shipped mobility scenario (its own steps and seed): the
+buffer length and the window ``B`` of the finite-time result (docs/design.md §6), the share of
+(tick, link) pairs that are up, how many ticks change the set of links, the position MSE (x + y,
+m^2, after the burn-in) of the fused, local (mean over nodes), centralized and ci_consensus
+estimates, and ``late`` counted per contribution (the run keeps the arrival log).
+``range_table()``: ``scenarios/sweep_mobility_range.yaml`` run through ``dkfsim sweep`` (in a
+temporary folder), the position MSE per range and estimate from its ``summary.csv``.  Both are
+Markdown tables; tools/docs_numbers.py writes them into docs/mobility.md (generator
+``mobility``, decision 205), and this script prints them.
 
 With ``--figure STEM`` it also draws the convoy (``STEM.png``): the cars' paths with the
 links up at three instants, and over time the number of links up beside car 5's position
 error (fused, its own window estimate, centralized; 1 s moving average).
 
-Usage: ``python tools/mobility_table.py [--steps N] [--figure docs/figures/mobility_convoy]``.
+Usage: ``python tools/mobility_table.py [--figure docs/figures/mobility_convoy]``.
 """
 
 from __future__ import annotations
 
 import argparse
+import csv
+import tempfile
+from collections import defaultdict
 from pathlib import Path
 
 import numpy as np
@@ -30,9 +37,9 @@ SCENARIOS = ("mobility_convoy", "mobility_crossing", "mobility_platoon")
 ESTIMATES = ("fused", "local", "centralized", "ci_consensus")
 
 
-def row(name: str, steps: int | None) -> str:
-    over = [f"steps={steps}"] if steps else []
-    sc = dkfsim.load_scenario(ROOT / "scenarios" / f"{name}.yaml", overrides=over)
+def row(name: str) -> str:
+    """The table row of scenario ``name`` (see the module)."""
+    sc = dkfsim.load_scenario(ROOT / "scenarios" / f"{name}.yaml")
     plan = RunPlan(sc)
     up = plan.link_schedule.up[1:]
     changes = int((up[1:] != up[:-1]).any(axis=1).sum())
@@ -87,19 +94,43 @@ def convoy_figure(stem: Path) -> list[Path]:
     return save_figure(fig, stem, ("png",))
 
 
+def scenario_table() -> str:
+    """One run of each shipped mobility scenario, as a Markdown table (see the module)."""
+    lines = ["| scenario | ticks | L | links up | ticks that change links | " + " | ".join(ESTIMATES)
+             + " | late |", "|---|---|---|---|---|" + "---|" * len(ESTIMATES) + "---|"]
+    return "\n".join(lines + [row(name) for name in SCENARIOS])
+
+
+def range_table() -> str:
+    """``scenarios/sweep_mobility_range.yaml`` through ``dkfsim sweep``, as a Markdown table."""
+    from dkfsim.cli.main import main as cli
+    with tempfile.TemporaryDirectory() as tmp:
+        db = Path(tmp) / "range.sqlite"
+        cli(["sweep", str(ROOT / "scenarios" / "sweep_mobility_range.yaml"), "--db", str(db), "--jobs", "1",
+             "--quiet", "--yes"])
+        with open(db.with_suffix(".summary.csv"), newline="") as f:
+            rows = list(csv.DictReader(f))
+    mse: dict[tuple[float, str], float] = defaultdict(float)
+    for r in rows:
+        if r["component"] in ("x", "y"):
+            mse[(float(r["mobility.range.radius"]), r["estimate"])] += float(r["mse"])
+    cols = ("local", "ci_consensus", "fused", "centralized")
+    lines = ["| range (m) | local (mean over nodes) | ci_consensus | fused | centralized |", "|---|---|---|---|---|"]
+    for radius in sorted({k[0] for k in mse}):
+        lines.append(f"| {radius:g} | " + " | ".join(f"{mse[(radius, e)]:.3f}" for e in cols) + " |")
+    return "\n".join(lines)
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--steps", type=int, default=None, help="override every scenario's steps")
     ap.add_argument("--figure", type=Path, default=None, help="draw the convoy figure to this stem")
     args = ap.parse_args(argv)
     if args.figure is not None:
         for path in convoy_figure(args.figure):
             print(f"wrote {path}")
-    print("| scenario | ticks | L | links up | ticks that change links | " + " | ".join(ESTIMATES)
-          + " | late |")
-    print("|---|---|---|---|---|" + "---|" * len(ESTIMATES) + "---|")
-    for name in SCENARIOS:
-        print(row(name, args.steps))
+    print(scenario_table())
+    print()
+    print(range_table())
     return 0
 
 
