@@ -261,35 +261,46 @@ def read_record(path, model, what: str) -> dict:
     return validate(model, data, str(path)).model_dump()
 
 
-def read_run_seeds(path) -> dict[int, int]:
-    """``{run: seed}`` of a Monte Carlo ``runs.csv``, read as a stream (the file is only
-    needed for its first two columns).  Raises :class:`DkfsimError`."""
+def _csv_lines(path, what: str, first: list[str], writer: str):
+    """The header, then each non-empty line as ``(number, cells)``, of a CSV file dkfsim
+    wrote, read as a stream; the header must start with ``first``.  Every reading problem
+    (size, encoding, CSV syntax) becomes a :class:`DkfsimError` naming the file."""
     label = str(path)
-    check_regular_file(Path(path), limit=MAX_CSV_BYTES, what="runs.csv")
-    seeds: dict[int, int] = {}
+    check_regular_file(Path(path), limit=MAX_CSV_BYTES, what=what)
     try:
         with open(path, newline="", encoding="utf-8") as fh:
             reader = csv.reader(fh)
             head = next(reader, None)
-            if not head or head[:2] != ["run", "seed"]:
-                raise DkfsimError(f"{label}: not a runs.csv written by dkfsim montecarlo (its header "
-                                  f"is {clip(head)}, expected run, seed, ...)")
-            for line, row in enumerate(reader, 2):
-                if not row:
-                    continue
-                try:
-                    run, seed = int(row[0]), int(row[1])
-                    if run < 0 or seed < 0:
-                        raise ValueError
-                except (ValueError, IndexError):
-                    raise DkfsimError(f"{label}: line {line}: run and seed must be integers >= 0, got "
-                                      f"{clip(row[:2])}") from None
-                if seeds.setdefault(run, seed) != seed:
-                    raise DkfsimError(f"{label}: line {line}: run {run} has two seeds")
+            if not head or head[:len(first)] != first:
+                raise DkfsimError(f"{label}: not a {what} written by {writer} (its header is "
+                                  f"{clip(head)}, expected {', '.join(first)}, ...)")
+            yield head
+            for line, cells in enumerate(reader, 2):
+                if cells:
+                    yield line, cells
     except UnicodeDecodeError as exc:
         raise DkfsimError(f"{label}: not a UTF-8 text file ({exc.reason} at byte {exc.start})") from None
     except (csv.Error, OSError) as exc:
         raise DkfsimError(f"{label}: cannot read as CSV ({clip(str(exc), 120)})") from None
+
+
+def read_run_seeds(path) -> dict[int, int]:
+    """``{run: seed}`` of a Monte Carlo ``runs.csv``, read as a stream (the file is only
+    needed for its first two columns).  Raises :class:`DkfsimError`."""
+    label = str(path)
+    lines = _csv_lines(path, "runs.csv", ["run", "seed"], "dkfsim montecarlo")
+    next(lines)
+    seeds: dict[int, int] = {}
+    for line, row in lines:
+        try:
+            run, seed = int(row[0]), int(row[1])
+            if run < 0 or seed < 0:
+                raise ValueError
+        except (ValueError, IndexError):
+            raise DkfsimError(f"{label}: line {line}: run and seed must be integers >= 0, got "
+                              f"{clip(row[:2])}") from None
+        if seeds.setdefault(run, seed) != seed:
+            raise DkfsimError(f"{label}: line {line}: run {run} has two seeds")
     return seeds
 
 
@@ -298,28 +309,16 @@ def read_rows(path, what: str = "runs.csv") -> list[dict]:
     then metric columns, every row checked with :class:`Row` (numbers as numbers, an empty
     cell None).  Read as text only; raises :class:`DkfsimError`."""
     label = str(path)
-    check_regular_file(Path(path), limit=MAX_CSV_BYTES, what=what)
+    lines = _csv_lines(path, what, ["run", "seed", "estimate", "component"], "dkfsim")
+    head = next(lines)
+    if len(set(head)) != len(head) or any(not c or len(c) > NAME_LIMIT for c in head):
+        raise DkfsimError(f"{label}: its header {clip(head)} names a column twice, or "
+                          "has an empty or too long name")
     rows: list[dict] = []
-    try:
-        with open(path, newline="", encoding="utf-8") as fh:
-            reader = csv.reader(fh)
-            head = next(reader, None)
-            if not head or head[:4] != ["run", "seed", "estimate", "component"]:
-                raise DkfsimError(f"{label}: not a {what} written by dkfsim (its header is "
-                                  f"{clip(head)}, expected run, seed, estimate, component, ...)")
-            if len(set(head)) != len(head) or any(not c or len(c) > NAME_LIMIT for c in head):
-                raise DkfsimError(f"{label}: its header {clip(head)} names a column twice, or "
-                                  "has an empty or too long name")
-            for line, cells in enumerate(reader, 2):
-                if not cells:
-                    continue
-                if len(cells) != len(head):
-                    raise DkfsimError(f"{label}: line {line}: {len(cells)} cells for {len(head)} columns")
-                rows.append(_row(head, cells, f"{label}: line {line}"))
-    except UnicodeDecodeError as exc:
-        raise DkfsimError(f"{label}: not a UTF-8 text file ({exc.reason} at byte {exc.start})") from None
-    except (csv.Error, OSError) as exc:
-        raise DkfsimError(f"{label}: cannot read as CSV ({clip(str(exc), 120)})") from None
+    for line, cells in lines:
+        if len(cells) != len(head):
+            raise DkfsimError(f"{label}: line {line}: {len(cells)} cells for {len(head)} columns")
+        rows.append(_row(head, cells, f"{label}: line {line}"))
     return [validate(Row, r, f"{label} (row {i + 1})").model_dump() for i, r in enumerate(rows)]
 
 
