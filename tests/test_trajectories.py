@@ -367,3 +367,25 @@ def test_along_keeps_the_road_distance(case, gap):
         want = pts[-1, 1:]              # rounding left target a hair past the end
     scale = 1e-7 * (1 + np.abs(pts[:, 1:]).max() + sum(lengths))
     assert np.allclose(got, want, rtol=0, atol=scale)
+
+
+@pytest.mark.parametrize("spec", [
+    {**ARTERIAL, "along": -20.0, "offset": [1, 2]},
+    {"kind": "sumo_fcd", "file": str(SMALL_FCD), "vehicle": "veh1", "time_offset": 0.5},
+    WAYPOINTS,
+    {"kind": "constant_velocity", "velocity": [1, 2]},
+])
+def test_round_trips(spec):
+    """Plain data and pickling (scenarios are saved, compared and sent to worker processes)
+    give an equal trajectory that moves alike."""
+    import pickle
+    traj = parse_trajectory(spec)
+    again, copied = parse_trajectory(traj.to_dict()), pickle.loads(pickle.dumps(traj))
+    assert again == traj and copied == traj and hash(again) == hash(traj)
+    t = np.linspace(-1, 30, 9)
+    for other in (again, copied):
+        assert np.array_equal(other.positions(t), traj.positions(t))
+        assert np.array_equal(other.velocities(t), traj.velocities(t))
+    moved = parse_trajectory({**traj.to_dict(), "offset": [9, 9]} if "offset" in traj.to_dict()
+                             else {**traj.to_dict(), "kind": traj.kind})
+    assert (moved != traj) == ("offset" in traj.to_dict())

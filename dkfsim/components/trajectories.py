@@ -119,6 +119,13 @@ class Polyline:
         else:
             self.slopes = np.zeros((0, 2))
 
+    def __eq__(self, other: object) -> bool:
+        # Models holding a polyline compare equal when their samples are (pydantic compares
+        # private attributes too): a scenario validated twice equals itself.
+        return isinstance(other, Polyline) and np.array_equal(self.t, other.t) and np.array_equal(self.xy, other.xy)
+
+    __hash__ = None  # type: ignore[assignment]
+
     def positions(self, t: np.ndarray) -> np.ndarray:
         # np.interp holds the end values outside [t[0], t[-1]]: the documented hold.
         return np.column_stack([np.interp(t, self.t, self.xy[:, 0]), np.interp(t, self.t, self.xy[:, 1])])
@@ -203,6 +210,11 @@ class ArcPath:
         self.s, self.xy = self.s_t[keep], line.xy[keep]
         seg = np.diff(self.xy, axis=0)
         self.tangents = seg / np.hypot(*seg.T)[:, None] if len(seg) else np.zeros((0, 2))
+
+    def __eq__(self, other: object) -> bool:
+        return isinstance(other, ArcPath) and self.line == other.line
+
+    __hash__ = None  # type: ignore[assignment]
 
     def positions(self, t: np.ndarray, along: float) -> np.ndarray:
         s = np.interp(t, self.line.t, self.s_t) + along
