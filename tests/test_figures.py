@@ -28,3 +28,132 @@ def test_relative_to_fused_with_fusion_none_is_refused_before_any_run(tmp_path, 
     err = capsys.readouterr().err
     assert "--relative-to fused" in err and "fusion: none" in err and err.count("\n") == 1
     assert not out.exists()
+
+
+# ----------------------------------------------------------------------------
+# sweep figures
+# ----------------------------------------------------------------------------
+
+@pytest.fixture(scope="module")
+def swept(tmp_path_factory):
+    d = tmp_path_factory.mktemp("sweep")
+    (d / "s.yaml").write_text(yaml.safe_dump({
+        "scenario": str(CASE1), "grid": {"links.default.latency.d_t": [0, 2], "protocol": ["tree", "flood"]},
+        "set": ["steps=40", "estimators=[{kind: centralized}, {kind: kcf}, {kind: icf}, {kind: hcmci}]"],
+        "runs": 2}))
+    assert main(["sweep", str(d / "s.yaml"), "--jobs", "1", "--quiet", "--export", str(d / "s.csv")]) == 0
+    return d
+
+
+@pytest.fixture
+def figures(monkeypatch):
+    """The figures plot_sweep would save, kept open instead of written."""
+    import dkfsim.report.sweep.plot as sp
+    kept = []
+    monkeypatch.setattr(sp, "save_figure", lambda fig, stem, formats: kept.append(fig) or [])
+    return kept
+
+
+def data_lines(ax):
+    """The lines of a panel that draw data (not the reference lines at 1 or nx)."""
+    return [ln for ln in ax.get_lines() if ln.get_marker() not in (None, "None", "")]
+
+
+def style(line):
+    return (line.get_marker(), str(line.get_linestyle()), str(line.get_markerfacecolor()))
+
+
+def test_sweep_x_label_is_the_key_in_words_with_its_unit_or_xlabel(swept, figures):
+    from dkfsim.report.sweep.plot import plot_sweep
+    plot_sweep(swept / "s.sqlite", swept / "f", x="d_t", where=["protocol=tree"])
+    fig = figures.pop()
+    assert fig.axes[-1].get_xlabel() == "per-hop delay bound d_t [ticks]"
+    assert "links.default.latency.d_t" in fig._suptitle.get_text()          # the exact key stays findable
+    plot_sweep(swept / "s.sqlite", swept / "f", x="d_t", where=["protocol=tree"], xlabel="d_t (ticks of 0.1 s)")
+    assert figures.pop().axes[-1].get_xlabel() == "d_t (ticks of 0.1 s)"
+
+
+def test_component_and_xlabel_are_accepted_for_a_sweep(swept, figures):
+    assert main(["plot", str(swept / "s.sqlite"), "--x", "d_t", "--where", "protocol=tree", "--component",
+                 "velocity", "--xlabel", "bound", "--format", "png", "--out", str(swept / "c")]) == 0
+    fig = figures.pop()
+    labels = [ax.get_ylabel() for ax in fig.axes if ax.get_ylabel()]
+    assert labels and all(lab.startswith("velocity MSE") or lab.startswith("velocity MSE /") for lab in labels)
+    assert all(ax.get_xlabel() in ("", "bound") for ax in fig.axes)
+
+
+def test_component_of_a_scalar_metric_or_unknown_is_refused(swept, capsys):
+    for extra, words in ((["--component", "veloctiy"], "did you mean 'velocity'"),
+                         (["--metric", "messages_per_tick", "--component", "position"], "one value per run")):
+        assert main(["plot", str(swept / "s.sqlite"), "--x", "d_t", "--where", "protocol=tree", *extra,
+                     "--out", str(swept / "bad")]) == 2
+        err = capsys.readouterr().err
+        assert words in err and err.count("\n") == 1
+    assert not (swept / "bad").exists()
+
+
+def test_coinciding_sweep_lines_get_distinct_markers_and_styles(swept, figures):
+    """fused lies on centralized, and kcf, icf and hcmci send the same messages: every line of
+    a panel has its own marker, and a line drawn over an equal one is hollow and dashed."""
+    from dkfsim.report.sweep.plot import plot_sweep
+    for metric in ("mse", "messages_per_tick"):
+        plot_sweep(swept / "s.sqlite", swept / "f", x="d_t", where=["protocol=tree"], metric=metric)
+        for ax in figures.pop().axes:
+            lines = data_lines(ax)
+            assert len({ln.get_marker() for ln in lines}) == len(lines)
+            for k, ln in enumerate(lines):
+                same = [o for o in lines[:k] if list(o.get_ydata()) == pytest.approx(list(ln.get_ydata()), rel=1e-3)]
+                if same:                                # drawn over an equal line: hollow, not solid
+                    assert str(ln.get_markerfacecolor()) == "none" and ln.get_linestyle() != "-"
+                    assert all(style(o) != style(ln) for o in same)
+        if metric == "messages_per_tick":              # the three consensus filters are equal here
+            equal = [ln for ln in lines if str(ln.get_markerfacecolor()) == "none"]
+            assert len(equal) >= 2
+
+
+def test_hue_lines_never_take_a_built_in_estimate_colour(swept, figures):
+    from matplotlib.colors import to_rgb
+
+    from dkfsim.report.plots.style import ESTIMATES
+    from dkfsim.report.sweep.plot import plot_sweep
+    plot_sweep(swept / "s.sqlite", swept / "f", x="d_t", hue="protocol")
+    builtin = {to_rgb(c) for _, c in ESTIMATES.values()}
+    colours = {to_rgb(ln.get_color()) for ax in figures.pop().axes for ln in data_lines(ax)}
+    assert len(colours) == 2 and not colours & builtin
+
+
+def test_sweep_mse_has_a_paired_relative_panel_and_labelled_log_ticks(swept, figures):
+    from dkfsim.report.sweep.plot import plot_sweep
+    plot_sweep(swept / "s.sqlite", swept / "f", x="d_t", where=["protocol=tree"])
+    fig = figures.pop()
+    right = [ax for ax in fig.axes if "/ centralized" in ax.get_ylabel()]
+    assert len(right) == 3                                # one ratio panel per component
+    assert all(1.0 in list(ln.get_ydata()) for ax in right for ln in ax.get_lines()
+               if ln.get_marker() in (None, "None", ""))  # the reference line at 1
+    logs = [ax for ax in fig.axes if ax.get_yscale() == "log"]
+    assert logs
+    for ax in logs:
+        fig.canvas.draw()
+        lo, hi = ax.get_ylim()
+        shown = [t.get_text() for t, v in zip(ax.get_yticklabels(), ax.get_yticks()) if lo <= v <= hi and t.get_text()]
+        assert len(shown) >= 3, (ax.get_ylabel(), shown)   # not only 1 and 10
+
+
+def test_an_empty_anees_or_relative_figure_is_refused_not_saved(swept, figures, capsys, tmp_path):
+    """Review bug (a): the reference line (nx, or 1) counted as something drawn."""
+    import csv
+    rows = list(csv.DictReader(open(swept / "s.csv", newline="")))
+    for r in rows:
+        r["anees"] = ""
+    with open(tmp_path / "empty.csv", "w", newline="") as fh:
+        w = csv.DictWriter(fh, fieldnames=list(rows[0]))
+        w.writeheader()
+        w.writerows(rows)
+    for path, extra in ((tmp_path / "empty.csv", ["--metric", "anees"]),
+                        (swept / "s.sqlite", ["--metric", "messages_per_tick", "--estimate", "fused",
+                                              "--relative-to", "centralized"])):
+        assert main(["plot", str(path), "--x", "d_t", "--where", "protocol=tree", *extra,
+                     "--format", "png", "--out", str(tmp_path / "figs")]) == 2
+        err = capsys.readouterr().err
+        assert "nothing to draw" in err and err.count("\n") == 1
+    assert not figures and not (tmp_path / "figs").exists()

@@ -14,6 +14,7 @@ from dkfsim.core.extras import pyplot
 from dkfsim.report.plots.folders import Folder
 from dkfsim.report.plots.style import (
     DEFAULT_FORMATS,
+    OPEN_BELOW,
     average_text,
     check_formats,
     color_of,
@@ -27,6 +28,7 @@ from dkfsim.report.plots.style import (
     moving_average,
     mse_note,
     mse_ylabel,
+    opens_below,
     plain,
     positive_only,
     save_figure,
@@ -82,6 +84,7 @@ def plot_mse(folder: Folder, stem, formats=DEFAULT_FORMATS, components=None, smo
                              sharex=True, squeeze=False,
                              gridspec_kw={"width_ratios": [1.25, 1]} if ref else None)
     wr = max(w, folder.K // 20)
+    opened = False
     for row, i in enumerate(idx):
         ax = axes[row, 0]
         drawn, entries = [], []
@@ -94,9 +97,9 @@ def plot_mse(folder: Folder, stem, formats=DEFAULT_FORMATS, components=None, smo
             drawn.append(y)
             ax.plot(folder.t, y, label=label_of(a), **style)
             if a in folder.ci:
-                lo, hi = folder.ci[a]
-                ax.fill_between(folder.t, *log_band(moving_average(lo[:, i], w), moving_average(hi[:, i], w)),
-                                color=col, alpha=0.2, lw=0)
+                lo, hi = (moving_average(b[:, i], w) for b in folder.ci[a])
+                opened |= opens_below(lo)
+                ax.fill_between(folder.t, *log_band(lo, hi, y), color=col, alpha=0.2, lw=0)
         ax.set_yscale("log")
         log_limits(ax, drawn)
         ax.set_ylabel(mse_ylabel(folder, i))
@@ -109,7 +112,7 @@ def plot_mse(folder: Folder, stem, formats=DEFAULT_FORMATS, components=None, smo
         axes[-1, c].set_xlabel("time [s]")
     cond = folder.condition()
     fig.suptitle((plain(title) if title else f"MSE per tick{', ' + cond if cond else ''}")
-                 + f"\n({mse_note(folder, w)})",
+                 + f"\n({mse_note(folder, w)}{'; ' + OPEN_BELOW if opened else ''})",
                  fontsize=11)
     legend_below(fig, axes[0, 0], ncol=3 if ref and len(names) > 4 else 2)
     return save_figure(fig, stem, formats)

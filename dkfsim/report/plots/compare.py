@@ -98,7 +98,7 @@ def plot_compare(folders: list[Folder], stem, labels=None, formats=DEFAULT_FORMA
             ax.plot(f.t, y, color=col, lw=1.1, label=lab)
             if bands and estimate in f.ci:
                 lo, hi = f.ci[estimate]
-                ax.fill_between(f.t, *log_band(moving_average(lo[:, i], w), moving_average(hi[:, i], w)),
+                ax.fill_between(f.t, *log_band(moving_average(lo[:, i], w), moving_average(hi[:, i], w), y),
                                 color=col, alpha=0.18, lw=0)
         if "centralized" in first.mse:
             y = positive_only(moving_average(first.mse["centralized"][:, i], w))

@@ -260,20 +260,47 @@ def positive_only(a):
     return np.where(a > 0, a, np.nan)
 
 
-def log_band(lo, hi):
-    """A confidence band for a log axis: a lower bound <= 0 (t-interval of few runs) goes to the floor."""
+def log_band(lo, hi, mean):
+    """A confidence band for a log axis.  Where the lower bound is <= 0 (a t-interval of few
+    runs) a log axis cannot show it: the band starts at the mean there (open below) instead
+    of running down to the axis' floor as if values near 0 were drawn (docs/decisions.md, 200);
+    :data:`OPEN_BELOW` is the caption saying so (give it when :func:`opens_below`)."""
+    lo, mean = np.asarray(lo, dtype=float), np.asarray(mean, dtype=float)
+    return np.where(lo > 0, lo, mean), positive_only(hi)
+
+
+#: What a figure's caption adds when a band is open below (:func:`log_band`).
+OPEN_BELOW = "band drawn from the mean up where its lower end is <= 0 (not on a log axis)"
+
+
+def opens_below(lo) -> bool:
+    """True when some lower bound of a band is <= 0 (so :func:`log_band` opens it below)."""
     lo = np.asarray(lo, dtype=float)
-    return np.where(lo > 0, lo, 1e-300), positive_only(hi)
+    return bool(np.any(np.isfinite(lo) & (lo <= 0)))
 
 
-def plain_log_ticks(ax) -> None:
-    """Tick labels 0.2, 0.05, 1e-05 instead of 2 x 10^-1 (matplotlib decides which ticks get one)."""
-    class Plain(optional("matplotlib.ticker").LogFormatter):
-        def __call__(self, x, pos=None):
-            return f"{x:g}" if super().__call__(x, pos) else ""
+#: Decades below which a log axis is labelled at 1, 2 and 5 times each power of ten (above:
+#: at the powers of ten only, which are then enough to read it).
+LOG_SUBS_DECADES = 3.5
 
-    ax.yaxis.set_major_formatter(Plain(labelOnlyBase=False))
-    ax.yaxis.set_minor_formatter(Plain(labelOnlyBase=False))
+
+def plain_log_ticks(ax, axis: str = "y") -> None:
+    """Labelled ticks on a log axis: 0.2, 0.5, 1, 2, 5, 10 ... over a few decades (matplotlib
+    labels only 1 and 10 there), the powers of ten over many; labels as plain numbers
+    (0.05, 1e-05) instead of 5 x 10^-2.  The ticks follow the limits set later."""
+    ticker = optional("matplotlib.ticker")
+
+    class Ticks(ticker.LogLocator):
+        def tick_values(self, vmin, vmax):
+            lo, hi = sorted((max(vmin, 1e-300), max(vmax, 1e-300)))
+            wide = np.log10(hi / lo) > LOG_SUBS_DECADES
+            self.set_params(subs=(1.0,) if wide else (1.0, 2.0, 5.0), numticks=15)
+            return super().tick_values(vmin, vmax)
+
+    which = ax.yaxis if axis == "y" else ax.xaxis
+    which.set_major_locator(Ticks(base=10.0))
+    which.set_major_formatter(ticker.FuncFormatter(lambda v, _pos=None: f"{v:g}"))
+    which.set_minor_formatter(ticker.NullFormatter())
 
 
 def log_limits(ax, curves) -> None:
