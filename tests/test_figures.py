@@ -157,3 +157,48 @@ def test_an_empty_anees_or_relative_figure_is_refused_not_saved(swept, figures, 
         err = capsys.readouterr().err
         assert "nothing to draw" in err and err.count("\n") == 1
     assert not figures and not (tmp_path / "figs").exists()
+
+
+# ----------------------------------------------------------------------------
+# maxdelay figure
+# ----------------------------------------------------------------------------
+
+def rgb_distance(a, b) -> float:
+    from matplotlib.colors import to_rgb
+    return sum((x - y) ** 2 for x, y in zip(to_rgb(a), to_rgb(b))) ** 0.5
+
+
+def test_maxdelay_figure_legend_labels_and_colours(tmp_path, monkeypatch, capsys):
+    import dkfsim.report.maxdelay as rm
+    from dkfsim.report.plots.style import ESTIMATES, OTHER_COLORS
+    kept = []
+    monkeypatch.setattr(rm, "save_figure", lambda fig, stem, formats: kept.append(fig) or [])
+    assert main(["maxdelay", str(CASE1), "--metric", "trace_P", "--relative", "1.05", "--steps", "60",
+                 "--jobs", "1", "--batch", "2", "--max-runs", "4", "--max-delay", "4",
+                 "--out", str(tmp_path / "md")]) == 0
+    text = capsys.readouterr().out
+    import re
+    n = re.search(r"\((\d+) Monte Carlo runs\)", text).group(1)        # one count, said the same way twice
+    assert re.search(rf"runs in [\d.]+ s: {n} Monte Carlo \(1\)", text)
+    if "p_tol = " in text:                     # the level the paper bound is solved for, explained
+        assert "p_tol = tol / nx = " in text
+    fig = kept.pop()
+    fig.canvas.draw()
+    r = fig.canvas.get_renderer()
+    top, bot = fig.axes[:2]
+    legend = fig.legends[0].get_window_extent(r)
+    width = fig.bbox.width
+    assert legend.x0 >= -0.05 * width and legend.x1 <= 1.05 * width     # not wider than the figure
+    assert legend.y1 <= bot.get_window_extent(r).y0                       # below the panels
+    label = top.yaxis.label.get_window_extent(r)
+    ticks = [t.get_window_extent(r) for t in bot.get_yticklabels() if t.get_text()]
+    assert not any(label.overlaps(t) for t in ticks)                      # y label clear of the lower ticks
+    # the data fill the upper panel: the no-exchange limit far above is named, not drawn
+    lo, hi = top.get_ylim()
+    means = [y for ln in top.get_lines() if ln.get_marker() in ("o", "s") for y in ln.get_ydata()]
+    assert (max(means) - min(means)) / (hi - lo) > 0.6
+    # run counts drawn over the vertical answer lines
+    counts = [t for t in top.texts if t.get_text().isdigit()]
+    assert counts and all(t.get_zorder() > max(ln.get_zorder() for ln in top.get_lines()) for t in counts)
+    for c in rm.COLORS.values():
+        assert min(rgb_distance(c, b) for b in [v[1] for v in ESTIMATES.values()] + list(OTHER_COLORS)) >= 0.18

@@ -231,7 +231,7 @@ def average_text(folder: Folder, estimate: str, i: int) -> str:
     return f"{m:.4g}" if ci is None else f"{m:.4g} ± {(ci[1] - ci[0]) / 2:.2g}"
 
 
-def legend_below(fig, ax, ncol=2):
+def legend_below(fig, ax, ncol=2, fontsize=8.5):
     """One legend for all panels, under them, so that it never hides a curve.  ``ax``: the
     panel whose entries it lists, or a list of panels (their entries one after the other)."""
     handles, labels = [], []
@@ -241,7 +241,7 @@ def legend_below(fig, ax, ncol=2):
         labels += lab
     fig.tight_layout()
     fig.legend(handles, labels, loc="upper center", bbox_to_anchor=(0.5, 0.0), ncol=ncol,
-               fontsize=8.5, frameon=False)
+               fontsize=fontsize, frameon=False)
 
 
 def check_formats(formats) -> tuple[str, ...]:

@@ -296,7 +296,7 @@ def hue_color(j: int, n: int, cmap):
     return OTHER_COLORS[j] if n <= len(OTHER_COLORS) else cmap(0.9 * j / (n - 1))
 
 
-def _draw_column(axes, cur, comps, pos, styles, cmap) -> tuple[int, set]:
+def _draw_column(axes, cur, comps, pos, styles, cmap, single: bool = True) -> tuple[int, set, bool]:
     """Draw the lines of :func:`sweep_curves` result ``cur`` into one column of panels; return
     the number of data lines drawn (reference lines do not count), the run counts seen and
     whether a band was opened below (:func:`~dkfsim.report.plots.style.log_band`)."""
@@ -344,9 +344,9 @@ def _draw_column(axes, cur, comps, pos, styles, cmap) -> tuple[int, set]:
             ax.set_ylim(vals.min() / 1.6, vals.max() * 1.6)   # the means, not bands reaching to 0
         name = METRIC_LABELS.get(metric, metric)
         unit = unit_label(units[comps.index(comp)], squared=True) if metric == "mse" and ref is None else ""
-        if ref is not None:
-            name = f"{name} / {'' if cur['hue'] is None else plain(cur['hue'].removeprefix('param:')) + ' = '}" \
-                   f"{plain(ref)}"
+        if ref is not None:               # beside the absolute column, its title names the hue key
+            hue = "" if cur["hue"] is None or not single else plain(cur["hue"].removeprefix("param:")) + " = "
+            name = f"{name} / {hue}{plain(ref)}"
         ax.set_ylabel(f"{plain(comp)} {plain(name)}{unit}" if len(comps) > 1 or metric == "mse" else plain(name))
         ax.grid(True, which="major", alpha=0.3)
         ax.grid(True, which="minor", alpha=0.1)
@@ -382,7 +382,7 @@ def plot_sweep(path, stem, x=None, hue=None, metric="mse", estimate=None, where=
     cmap = plt.get_cmap("viridis")
     drawn, runs, opened = 0, set(), False
     for c, col in enumerate(cols):
-        n, r, o = _draw_column(axes[:, c], col, comps, pos, styles, cmap)
+        n, r, o = _draw_column(axes[:, c], col, comps, pos, styles, cmap, single=len(cols) == 1)
         drawn, runs, opened = drawn + n, runs | r, opened or o
     if not drawn:
         plt.close(fig)
@@ -400,7 +400,8 @@ def plot_sweep(path, stem, x=None, hue=None, metric="mse", estimate=None, where=
             last.set_xticklabels([plain(v, 40) for v in xs])
     if len(cols) == 2:
         axes[0, 0].set_title("mean over the runs", fontsize=9.5)
-        axes[0, 1].set_title(f"relative to {plain(ref)}: paired ratio, run by run", fontsize=9.5)
+        hue = "" if cur["hue"] is None else plain(cur["hue"].removeprefix("param:")) + " = "
+        axes[0, 1].set_title(f"relative to {hue}{plain(ref)}: paired ratio, run by run", fontsize=9.5)
     r = sorted(runs)
     per = f"{r[0]} runs" if len(r) == 1 else f"{r[0]}-{r[-1]} runs"
     what = METRIC_LABELS.get(metric, metric)
