@@ -19,7 +19,7 @@ CASE1 = ROOT / "scenarios" / "paper_case1.yaml"
 def test_relative_to_fused_with_fusion_none_is_refused_before_any_run(tmp_path, capsys, monkeypatch):
     import dkfsim.experiments.montecarlo as mc
 
-    def no_run(*a, **k):
+    def no_run(*_a, **_k):
         raise AssertionError("a run started before --relative-to was checked")
     monkeypatch.setattr(mc, "_montecarlo", no_run)
     out = tmp_path / "mc"
