@@ -5,6 +5,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import numpy as np
 import pytest
 import yaml
 
@@ -202,3 +203,61 @@ def test_maxdelay_figure_legend_labels_and_colours(tmp_path, monkeypatch, capsys
     assert counts and all(t.get_zorder() > max(ln.get_zorder() for ln in top.get_lines()) for t in counts)
     for c in rm.COLORS.values():
         assert min(rgb_distance(c, b) for b in [v[1] for v in ESTIMATES.values()] + list(OTHER_COLORS)) >= 0.18
+
+
+# ----------------------------------------------------------------------------
+# Monte Carlo figures
+# ----------------------------------------------------------------------------
+
+ZOO = "estimators=[{kind: centralized}, {kind: local_only}, {kind: kcf}, {kind: icf}, {kind: diffusion_kf}]"
+
+
+@pytest.fixture(scope="module")
+def mc_folder(tmp_path_factory):
+    out = tmp_path_factory.mktemp("mc") / "mc"
+    assert main(["montecarlo", str(CASE1), "--runs", "3", "--steps", "80", "--jobs", "1", "--quiet",
+                 "--set", ZOO, "--out", str(out)]) == 0
+    return out
+
+
+@pytest.fixture
+def mc_figures(monkeypatch):
+    import dkfsim.report.plots.accuracy as acc
+    kept = []
+    monkeypatch.setattr(acc, "save_figure", lambda fig, stem, formats: kept.append(fig) or [])
+    return kept
+
+
+def test_mse_margin_names_each_value_and_nothing_covers_the_ratio_curves(mc_folder, mc_figures):
+    from dkfsim.report.plots import load_folder
+    from dkfsim.report.plots.accuracy import plot_mse
+    folder = load_folder(mc_folder)
+    plot_mse(folder, mc_folder / "f", ratio=True)
+    fig = mc_figures.pop()
+    left, right = fig.axes[0::2], fig.axes[1::2]
+    for ax in right:
+        values = [t.get_text() for t in ax.texts if "±" in t.get_text() or t.get_text()[:1].isalpha()]
+        named = [v for v in values if ":" in v and not v.startswith("MSE")]
+        assert sorted(v.split(":")[0] for v in named) == sorted(folder.mse)      # every value has its name
+        inside = [t for t in ax.texts if 0 <= t.get_position()[0] <= 1]
+        assert not inside                                 # no box over the curves
+    assert "off this scale" in right[0].get_title()
+    # a band whose lower end is <= 0 starts at the mean, not at 1e-300 (the bottom of the axis)
+    for ax in left:
+        for band in ax.collections:
+            ys = np.concatenate([p.vertices[:, 1] for p in band.get_paths()])
+            assert np.nanmin(ys) > 1e-100
+
+
+def test_nees_small_multiples_share_one_y_axis_with_the_expected_line_on_top(mc_folder, mc_figures):
+    from dkfsim.report.plots import load_folder
+    from dkfsim.report.plots.accuracy import plot_nees
+    folder = load_folder(mc_folder)
+    plot_nees(folder, mc_folder / "n")
+    axes = [ax for ax in mc_figures.pop().axes if ax.get_visible()]
+    assert len(axes) == len(folder.nees) > 4
+    assert len({ax.get_ylim() for ax in axes}) == 1       # one scale for all panels
+    for ax in axes:
+        trace, expected = [ln for ln in ax.get_lines() if len(ln.get_xdata()) > 2], \
+            [ln for ln in ax.get_lines() if list(ln.get_ydata()) == [folder.nx, folder.nx]]
+        assert expected and expected[0].get_zorder() > max(ln.get_zorder() for ln in trace)

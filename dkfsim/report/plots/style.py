@@ -213,7 +213,8 @@ def save_figure(fig, stem: Path, formats) -> list[Path]:
 
 def draw_averages(ax, entries, folder: Folder) -> None:
     """A column right of the panel: each curve's time-averaged MSE after the burn-in, in its colour
-    (with the 95 % interval over runs when the Monte Carlo summary has it)."""
+    and named (``entries``: ``("name: value", colour)``; colour alone identifies nothing for a
+    reader who cannot tell the hues apart), with the 95 % interval over runs when known."""
     b = folder.burn_rows()
     pm = any("±" in text for text, _ in entries)
     head = f"MSE, mean\nover t ≥ {folder.t[min(b, folder.K - 1)]:g} s" + ("\n(± 95 % half-width)" if pm else "")
