@@ -261,3 +261,46 @@ def test_nees_small_multiples_share_one_y_axis_with_the_expected_line_on_top(mc_
         trace, expected = [ln for ln in ax.get_lines() if len(ln.get_xdata()) > 2], \
             [ln for ln in ax.get_lines() if list(ln.get_ydata()) == [folder.nx, folder.nx]]
         assert expected and expected[0].get_zorder() > max(ln.get_zorder() for ln in trace)
+
+
+# ----------------------------------------------------------------------------
+# units and the state order
+# ----------------------------------------------------------------------------
+
+def test_kinematic_components_have_units_and_others_none():
+    from dkfsim.config.dynamics import component_names, component_units
+    assert component_units(component_names("constant_velocity", 4), "constant_velocity") == ["m", "m/s", "m", "m/s"]
+    assert component_units(["position", "velocity"], "constant_velocity") == ["m", "m/s"]
+    assert component_units(["position", "velocity", "acceleration"], None) == ["m", "m/s", "m/s$^2$"]
+    assert component_units(["x", "vx", "y", "vy"], None) == ["m", "m/s", "m", "m/s"]       # a sweep: names only
+    assert component_units(["x0", "x1"], "linear") == ["", ""]
+    assert component_units(["x", "vx"], "linear") == ["", ""]                               # not its names
+
+
+def test_constant_velocity_figures_have_units_the_state_order_and_node_0_in_local_colour(tmp_path, monkeypatch):
+    import dkfsim.report.plots.accuracy as acc
+    import dkfsim.report.plots.tracking as tr
+    from dkfsim.report.plots.style import color_of
+    kept = []
+    for mod in (acc, tr):
+        monkeypatch.setattr(mod, "save_figure", lambda fig, stem, formats: kept.append(fig) or [])
+    out = tmp_path / "radar"
+    assert main(["run", str(ROOT / "scenarios" / "radar_experiment.yaml"), "--steps", "40", "--quiet",
+                 "--out", str(out)]) == 0
+    assert main(["plot", str(out), "--format", "png"]) == 0
+    tracking, mse = kept[:2]
+    labels = [ax.get_ylabel() for ax in tracking.axes if ax.get_ylabel()]
+    assert labels == ["x [m]", "vx [m/s]", "y [m]", "vy [m/s]"]
+    assert "state [x, vx, y, vy]" in tracking._suptitle.get_text()
+    assert "state [x, vx, y, vy]" in mse._suptitle.get_text()
+    assert [ax.get_ylabel() for ax in mse.axes if "MSE" in ax.get_ylabel()][:2] == \
+        ["x MSE [m$^2$]", "vx MSE [(m/s)$^2$]"]
+    node0 = [ln for ln in tracking.axes[0].get_lines() if "anti-delay DKF, node 0" in ln.get_label()]
+    assert node0 and all(ln.get_color() == color_of("local") for ln in node0)
+
+
+def test_late_and_lost_are_labelled_per_run():
+    from dkfsim.core.registry import METRICS
+    from dkfsim.report.sweep.plot import METRIC_LABELS
+    assert "per run" in METRIC_LABELS["late"] and "per run" in METRIC_LABELS["lost"]
+    assert METRICS.get("late").implementation.unit and METRICS.get("lost").implementation.unit

@@ -9,6 +9,7 @@ from pathlib import Path
 
 import numpy as np
 
+from dkfsim.config.dynamics import state_text
 from dkfsim.core.errors import DkfsimError
 from dkfsim.core.extras import pyplot
 from dkfsim.report.plots.folders import Folder
@@ -111,8 +112,9 @@ def plot_mse(folder: Folder, stem, formats=DEFAULT_FORMATS, components=None, smo
     for c in range(ncols):
         axes[-1, c].set_xlabel("time [s]")
     cond = folder.condition()
+    open_note = f";\n{OPEN_BELOW}" if opened else ""
     fig.suptitle((plain(title) if title else f"MSE per tick{', ' + cond if cond else ''}")
-                 + f"\n({mse_note(folder, w)}{'; ' + OPEN_BELOW if opened else ''})",
+                 + f"\n({mse_note(folder, w)}; {plain(state_text(folder.components))}{open_note})",
                  fontsize=11)
     legend_below(fig, axes[0, 0], ncol=3 if ref and len(names) > 4 else 2)
     return save_figure(fig, stem, formats)

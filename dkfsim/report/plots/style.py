@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import contextlib
 import io
+import math
 import os
 import tempfile
 from pathlib import Path
@@ -280,22 +281,23 @@ def opens_below(lo) -> bool:
     return bool(np.any(np.isfinite(lo) & (lo <= 0)))
 
 
-#: Decades below which a log axis is labelled at 1, 2 and 5 times each power of ten (above:
-#: at the powers of ten only, which are then enough to read it).
-LOG_SUBS_DECADES = 3.5
+#: Labelled ticks of a log axis by the decades it spans: up to 2, at 1, 2 and 5 times each power
+#: of ten; up to 4, at 1 and 3 times; beyond, at the powers of ten (enough to read it by then).
+LOG_SUBS = ((2.0, (1.0, 2.0, 5.0)), (4.0, (1.0, 3.0)), (math.inf, (1.0,)))
 
 
 def plain_log_ticks(ax, axis: str = "y") -> None:
-    """Labelled ticks on a log axis: 0.2, 0.5, 1, 2, 5, 10 ... over a few decades (matplotlib
-    labels only 1 and 10 there), the powers of ten over many; labels as plain numbers
+    """Labelled ticks on a log axis: 0.2, 0.5, 1, 2, 5 ... over a few decades (matplotlib
+    labels only 1 and 10 there), fewer over more (:data:`LOG_SUBS`); labels as plain numbers
     (0.05, 1e-05) instead of 5 x 10^-2.  The ticks follow the limits set later."""
     ticker = optional("matplotlib.ticker")
 
     class Ticks(ticker.LogLocator):
         def tick_values(self, vmin, vmax):
             lo, hi = sorted((max(vmin, 1e-300), max(vmax, 1e-300)))
-            wide = np.log10(hi / lo) > LOG_SUBS_DECADES
-            self.set_params(subs=(1.0,) if wide else (1.0, 2.0, 5.0), numticks=15)
+            decades = np.log10(hi / lo)
+            subs = next(s for top, s in LOG_SUBS if decades <= top)
+            self.set_params(subs=subs, numticks=15)
             return super().tick_values(vmin, vmax)
 
     which = ax.yaxis if axis == "y" else ax.xaxis

@@ -50,7 +50,8 @@ from dkfsim.report.plots.style import (
 #: y-axis label per metric (docs/estimators.md, "Tidy rows").
 METRIC_LABELS = {"mse": "MSE", "anees": "ANEES", "disagreement": "disagreement",
                  "messages_per_tick": "messages per tick", "bytes_per_tick": "bytes per tick",
-                 "lost": "lost packets", "late": "late information"}
+                 "lost": "lost packets per run",
+                 "late": "late information per run [packet rows or contributions]"}
 
 def _key(columns, name: str, flag: str) -> str:
     grid = grid_columns(columns)
@@ -301,7 +302,7 @@ def _draw_column(axes, cur, comps, pos, styles, cmap, single: bool = True) -> tu
     the number of data lines drawn (reference lines do not count), the run counts seen and
     whether a band was opened below (:func:`~dkfsim.report.plots.style.log_band`)."""
     ref, metric = cur["relative_to"], cur["metric"]
-    units = component_units(comps, None) if per_component(metric) else [""] * len(comps)
+    units = component_units(comps, None) if per_component(metric) else [""] * len(comps)   # by the names
     n_lines = len(styles)
     drawn, runs, opened = 0, set(), False
     for ax, comp in zip(axes, comps):
