@@ -304,3 +304,33 @@ def test_late_and_lost_are_labelled_per_run():
     from dkfsim.report.sweep.plot import METRIC_LABELS
     assert "per run" in METRIC_LABELS["late"] and "per run" in METRIC_LABELS["lost"]
     assert METRICS.get("late").implementation.unit and METRICS.get("lost").implementation.unit
+
+
+# ----------------------------------------------------------------------------
+# the HTML report
+# ----------------------------------------------------------------------------
+
+def test_report_packets_have_units_and_the_seeds_are_folded(mc_folder, tmp_path):
+    import re
+    assert main(["report", str(mc_folder), "--out", str(tmp_path / "r.html")]) == 0
+    page = (tmp_path / "r.html").read_text()
+    packets = page[page.index('id="packets"'):]
+    packets = packets[:packets.index("</table>")]
+    for head in ("messages per tick [1/tick]", "bytes per tick [B/tick]", "lost [packets/run]", "late [items/run]"):
+        assert head in packets
+    fold = re.search(r"<details><summary>Seeds of the 3 runs[^<]*</summary>(.*?)</details>", page, re.S)
+    assert fold and fold.group(1).count("<tr>") >= 3        # every seed, behind a click
+
+
+def test_sensor_names_are_drawn_under_the_node_circles_not_in_them():
+    import networkx as nx
+
+    from dkfsim.report.network import draw_network
+    g = nx.path_graph(3)
+    fig, _ = draw_network(g, g, is_tree=True, labels=["front_radar", "s2", "a_long_sensor_name"])
+    ax = fig.axes[0]
+    inside = [t.get_text() for t in ax.texts if not hasattr(t, "xyann")]
+    below = [t for t in ax.texts if hasattr(t, "xyann")]
+    assert sorted(inside) == ["0", "1", "2"]
+    assert sorted(t.get_text() for t in below) == ["a_long_sensor_name", "front_radar", "s2"]
+    assert all(t.xyann[1] < 0 and t.get_va() == "top" for t in below)

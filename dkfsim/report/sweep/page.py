@@ -94,8 +94,8 @@ def sweep_page(db: Path) -> str:
                               nees_rows, "mean over runs of each run's time-averaged NEES and its 95 % "
                               "t-interval; consistent: the interval covers the number of state "
                               "components (docs/statistics.md)")),
-        ("Packets", blocks.table("packets", (*gh, "estimate", "messages per tick", "bytes per tick", "late"),
-                          pk, "means over runs; – : not modelled for that estimate")),
+        ("Packets", blocks.table("packets", (*gh, "estimate", *blocks.RATE_HEADS, blocks.LATE_HEAD),
+                          pk, f"means over runs; {blocks.PACKETS_NOTE}")),
         ("Versions and seeds", blocks.versions_table({"dkfsim (database)": meta.get("dkfsim_version")},
                                          [("created", meta.get("created", ""))])
          + blocks.table("seeds", ("parameter set", "param_hash", "base seed"),
