@@ -46,13 +46,19 @@ def swept(tmp_path_factory):
     return d
 
 
+def keep_figures(monkeypatch, *modules) -> list:
+    """The figures the drawing ``modules`` would save, kept open (in order) instead of written."""
+    kept: list = []
+    for mod in modules:
+        monkeypatch.setattr(mod, "save_figure", lambda fig, stem, formats: kept.append(fig) or [])
+    return kept
+
+
 @pytest.fixture
 def figures(monkeypatch):
-    """The figures plot_sweep would save, kept open instead of written."""
+    """The figures plot_sweep would save."""
     import dkfsim.report.sweep.plot as sp
-    kept = []
-    monkeypatch.setattr(sp, "save_figure", lambda fig, stem, formats: kept.append(fig) or [])
-    return kept
+    return keep_figures(monkeypatch, sp)
 
 
 def data_lines(ax):
@@ -172,8 +178,7 @@ def rgb_distance(a, b) -> float:
 def test_maxdelay_figure_legend_labels_and_colours(tmp_path, monkeypatch, capsys):
     import dkfsim.report.maxdelay as rm
     from dkfsim.report.plots.style import ESTIMATES, OTHER_COLORS
-    kept = []
-    monkeypatch.setattr(rm, "save_figure", lambda fig, stem, formats: kept.append(fig) or [])
+    kept = keep_figures(monkeypatch, rm)
     assert main(["maxdelay", str(CASE1), "--metric", "trace_P", "--relative", "1.05", "--steps", "60",
                  "--jobs", "1", "--batch", "2", "--max-runs", "4", "--max-delay", "4",
                  "--out", str(tmp_path / "md")]) == 0
@@ -223,9 +228,7 @@ def mc_folder(tmp_path_factory):
 @pytest.fixture
 def mc_figures(monkeypatch):
     import dkfsim.report.plots.accuracy as acc
-    kept = []
-    monkeypatch.setattr(acc, "save_figure", lambda fig, stem, formats: kept.append(fig) or [])
-    return kept
+    return keep_figures(monkeypatch, acc)
 
 
 def test_mse_margin_names_each_value_and_nothing_covers_the_ratio_curves(mc_folder, mc_figures):
@@ -281,9 +284,7 @@ def test_constant_velocity_figures_have_units_the_state_order_and_node_0_in_loca
     import dkfsim.report.plots.accuracy as acc
     import dkfsim.report.plots.tracking as tr
     from dkfsim.report.plots.style import color_of
-    kept = []
-    for mod in (acc, tr):
-        monkeypatch.setattr(mod, "save_figure", lambda fig, stem, formats: kept.append(fig) or [])
+    kept = keep_figures(monkeypatch, acc, tr)
     out = tmp_path / "radar"
     assert main(["run", str(ROOT / "scenarios" / "radar_experiment.yaml"), "--steps", "40", "--quiet",
                  "--out", str(out)]) == 0
