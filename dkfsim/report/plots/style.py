@@ -292,7 +292,7 @@ def plain_log_ticks(ax, axis: str = "y") -> None:
     (0.05, 1e-05) instead of 5 x 10^-2.  The ticks follow the limits set later."""
     ticker = optional("matplotlib.ticker")
 
-    class Ticks(ticker.LogLocator):
+    class Ticks(ticker.LogLocator):  # type: ignore[name-defined]   # matplotlib, imported when drawing
         def tick_values(self, vmin, vmax):
             lo, hi = sorted((max(vmin, 1e-300), max(vmax, 1e-300)))
             decades = np.log10(hi / lo)

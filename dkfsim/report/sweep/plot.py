@@ -304,7 +304,7 @@ def _draw_column(axes, cur, comps, pos, styles, cmap, single: bool = True) -> tu
     ref, metric = cur["relative_to"], cur["metric"]
     units = component_units(comps, None) if per_component(metric) else [""] * len(comps)   # by the names
     n_lines = len(styles)
-    drawn, runs, opened = 0, set(), False
+    drawn, runs, opened = 0, set[int](), False
     for ax, comp in zip(axes, comps):
         series = []
         for label, by_comp in cur["lines"].items():
@@ -381,10 +381,10 @@ def plot_sweep(path, stem, x=None, hue=None, metric="mse", estimate=None, where=
     fig, axes = plt.subplots(len(comps), len(cols), figsize=(6.4 if len(cols) == 1 else 11.0,
                              2.4 * len(comps) + 1.0), sharex=True, squeeze=False)
     cmap = plt.get_cmap("viridis")
-    drawn, runs, opened = 0, set(), False
+    drawn, runs, opened = 0, set[int](), False
     for c, col in enumerate(cols):
-        n, r, o = _draw_column(axes[:, c], col, comps, pos, styles, cmap, single=len(cols) == 1)
-        drawn, runs, opened = drawn + n, runs | r, opened or o
+        n, seen, o = _draw_column(axes[:, c], col, comps, pos, styles, cmap, single=len(cols) == 1)
+        drawn, runs, opened = drawn + n, runs | seen, opened or o
     if not drawn:
         plt.close(fig)
         raise DkfsimError(f"--metric {metric}: nothing to draw, no value of {metric} is known in the "
