@@ -31,10 +31,15 @@ from dkfsim.core.errors import DkfsimError
 from dkfsim.core.folders import write_text
 from dkfsim.experiments.sweep import is_database
 from dkfsim.report.html import (
+    LATE_HEAD,
+    LOST_HEAD,
+    PACKETS_NOTE,
+    RATE_HEADS,
     SCREEN_DPI,
     Interval,
     facts_table,
     figure,
+    folded,
     html_page,
     network_section,
     png_b64,
@@ -107,8 +112,10 @@ def run_page(folder: Path) -> str:
                       f"time-averaged squared error after {burn} burn-in rows (rows.csv)")),
         ("NEES", table("nees", ("estimate", "ANEES", "disagreement"), nees_rows,
                        f"time-averaged NEES after the burn-in; expected {len(comps)} when consistent")),
-        ("Packets", table("packets", ("estimator", "sent", "delivered", "lost", "in flight at end",
-                                      "late"), pk, "late: contributions (the DKF) or stale packets")),
+        ("Packets", table("packets", ("estimator", "sent [packets]", "delivered [packets]",
+                                      "lost [packets]", "in flight at end [packets]", "late [items]"),
+                          pk, f"totals over the whole run ({s.get('steps')} ticks); late items: "
+                              "contributions or (packet, row) pairs for the DKF, stale packets for the others")),
         ("Figures", "\n".join(_figures(folder, ("tracking",)))),
         ("Versions and seeds", versions_table(s.get("versions"), [("seed", str(s.get("seed")))])),
     ]
@@ -159,12 +166,12 @@ def montecarlo_page(folder: Path) -> str:
                          "per-run differences")
          if paired_rows else "<p class='note'>No paired comparison (no reference estimate in "
                              "these runs).</p>"),
-        ("Packets", table("packets", ("estimate", "messages per tick", "bytes per tick", "lost", "late"),
-                          pk, "means over runs; – : not modelled for that estimate")),
+        ("Packets", table("packets", ("estimate", *RATE_HEADS, LOST_HEAD, LATE_HEAD),
+                          pk, f"means over runs; {PACKETS_NOTE}")),
         ("Figures", "\n".join(_figures(folder, ("tracking",)))),
         ("Versions and seeds", versions_table(s.get("versions"), [("seed rule", s.get("seed_rule", ""))])
-         + table("seeds", ("run", "seed"), seeds[:50],
-                 f"{len(seeds)} runs" + (", the first 50 shown" if len(seeds) > 50 else ""))),
+         + folded(f"Seeds of the {len(seeds)} runs" + (", the first 50" if len(seeds) > 50 else "")
+                  + " (the seed rule above)", table("seeds", ("run", "seed"), seeds[:50]))),
     ]
     return html_page(f"dkfsim report: {s.get('scenario')}",
                  f"Monte Carlo: {s.get('runs')} runs x {s.get('steps')} ticks", sections)

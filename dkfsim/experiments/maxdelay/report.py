@@ -175,7 +175,8 @@ class MaxDelayResult:
             lines.append(f"  zero-delay value {r['mean']:.4g} [{r['ci'][0]:.4g}, {r['ci'][1]:.4g}] "
                          f"({how}) -> tolerance {r['tolerance']:.4g}")
         e = d["empirical"]
-        lines.append(f"  (1) empirical:   {_answer_text(e, unit, cap_option(ax))}  ({self.runs_empirical} runs)")
+        lines.append(f"  (1) empirical:   {_answer_text(e, unit, cap_option(ax))}  "
+                     f"({self.runs_empirical} Monte Carlo runs)")
         for key, what in (("at_answer", "at answer"), ("at_answer_plus_1", "at answer+1")):
             a = e[key]
             if a:
@@ -202,6 +203,8 @@ class MaxDelayResult:
                 f"n_bar = {p['n_bar']}, Z = {p['Z']}, alpha_bar = {p['alpha_used']:.4g}, "
                 f"eta = {p['eta']:.6g}, gamma_hat = {p['gamma_hat']:.4g}, omega_min = {p['omega_min']:.4g} "
                 f"(literal {p['omega_min_literal']:.4g}), p_tol = {p['p_tol']:.4g}")
+            lines.append(f"        p_tol: the level on lambda_max(P) the bound is solved for, from the "
+                         f"covariance tolerance {p['covariance_tolerance']:.4g}: {p['p_tol_rule']}")
             lines.append(f"        guaranteed lambda_max(P) <= {pow10_text(p['log10_lambda_max_bound']['0'])} at "
                          f"d_t = 0, {pow10_text(p['log10_lambda_max_bound']['1'])} at d_t = 1, "
                          f"{pow10_text(p['log10_lambda_max_bound']['4'])} at d_t = 4")
@@ -209,7 +212,8 @@ class MaxDelayResult:
                 lines.append(f"        {p['note']}")
         for n in d["notes"]:
             lines.append(f"  note: {n}")
-        lines.append(f"  {self.runs_total} runs in {self.wall:.1f} s")
+        lines.append(f"  {self.runs_total} runs in {self.wall:.1f} s: {self.runs_empirical} Monte Carlo "
+                     f"(1), {self.runs_total - self.runs_empirical} deterministic for the worst case (2)")
         return "\n".join(lines)
 
 

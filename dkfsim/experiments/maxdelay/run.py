@@ -281,8 +281,9 @@ class MaxDelay:
             return {"error": str(exc)}
         d = b.terms()
         d["covariance_tolerance"] = cov_tol
-        d["p_tol_rule"] = ("lambda_max(P) <= tol / nx guarantees trace(P) <= tol" if per_lambda else
-                           "lambda_max(P) <= tol guarantees P[c, c] <= tol")
+        d["p_tol_rule"] = (f"p_tol = tol / nx = {cov_tol:.4g} / {nx}, as lambda_max(P) <= tol / nx "
+                           "guarantees trace(P) <= tol" if per_lambda else
+                           "p_tol = tol, as lambda_max(P) <= tol guarantees P[c, c] <= tol")
         d["log10_lambda_max_bound"] = {str(k): b.log10_lambda_max_bound(k) for k in range(0, 9)}
         d["d_star_in_axis_units"] = None
         if b.d_star is not None and math.isfinite(b.d_star):

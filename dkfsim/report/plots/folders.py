@@ -12,8 +12,8 @@ from pathlib import Path
 
 import numpy as np
 
-from dkfsim.config.dynamics import CA_UNITS
 from dkfsim.config.dynamics import component_names as names_of
+from dkfsim.config.dynamics import component_units as units_of
 from dkfsim.config.results import (
     NAME_LIMIT,
     MonteCarloSummary,
@@ -29,7 +29,6 @@ from dkfsim.core.npzfile import NpzFile
 
 NOT_ESTIMATES = {"x_final", "x0_mean"}
 
-CA_COMPONENTS = ("position", "velocity", "acceleration")
 
 
 class NothingToPlot(DkfsimError):
@@ -117,9 +116,8 @@ def component_names(nx: int, model_kind: str | None) -> list[str]:
 
 
 def component_units(components, model_kind) -> list[str]:
-    if model_kind in (None, "constant_acceleration") and list(components) == list(CA_COMPONENTS):
-        return [CA_UNITS[c] for c in components]
-    return [""] * len(components)
+    """Units of the components (:func:`dkfsim.config.dynamics.component_units`)."""
+    return units_of(components, model_kind)
 
 
 def _model_kind(summary: dict) -> str | None:
