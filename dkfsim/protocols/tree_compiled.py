@@ -85,6 +85,8 @@ class CompiledTreeExchange:
         #: queueing delay (ns) and link of each packet a transmitter accepted (CT[ND] of them)
         self.dly = np.zeros(0, dtype=np.int64)
         self.dlk = np.zeros(0, dtype=np.int64)
+        self.dlt = np.zeros(0, dtype=np.int64)
+        self.dls = np.zeros(0, dtype=np.int64)
         self._flush_pending = False
 
     def attach(self, port, links) -> None:
@@ -202,14 +204,17 @@ class CompiledTreeExchange:
 
     def _grow_delays(self, size: int) -> None:
         """Room for ``size`` queueing delays (what the transmitters accepted so far kept)."""
-        dly, dlk = np.zeros(size, dtype=np.int64), np.zeros(size, dtype=np.int64)
-        dly[:len(self.dly)], dlk[:len(self.dlk)] = self.dly, self.dlk
-        self.dly, self.dlk = dly, dlk
+        grown = []
+        for old in (self.dly, self.dlk, self.dlt, self.dls):
+            a = np.zeros(size, dtype=np.int64)
+            a[:len(old)] = old
+            grown.append(a)
+        self.dly, self.dlk, self.dlt, self.dls = grown
 
     def _bind(self) -> None:
         """The kernels' arguments (rebuilt when the pool grows)."""
         self._k_pool = tk.Pool(*self.heap, self.free, self.pk, self.pk_rows, self.pk_masks, self.times, self.newt,
-                               self.outp, self.dly, self.dlk)
+                               self.outp, self.dly, self.dlk, self.dlt, self.dls)
         self._args = (self._k_rows, self._k_links, self._k_pool, self._k_fold, self._k_log)
 
     # -- rows ------------------------------------------------------------------
@@ -274,13 +279,32 @@ class CompiledTreeExchange:
         self._k.traffic_until(end, self._k_links)
         rate, free_at, busy, bgc = self.tx[0], self.tx[5], self.tx[6], self.tx[17]
         nd = int(self.CT[tk.ND])
-        dly, dlk = self.dly[:nd], self.dlk[:nd]
+        dly, dlk, dlt, dls = self.dly[:nd], self.dlk[:nd], self.dlt[:nd], self.dls[:nd]
         for e, link in enumerate(self.links):
             if rate[e] > 0:
                 traffic = LinkTraffic()
-                traffic.delays = dly[dlk == e].tolist()
+                mine = dlk == e
+                traffic.delays = dly[mine].tolist()
                 used = int(busy[e]) - max(0, int(free_at[e]) - end)
                 self.port.set_link_stats(link, traffic.summary(used, int(bgc[0, e]), int(bgc[1, e]), end))
+                self.port.set_link_log(link, self._replay(link, dlt[mine], dls[mine], dly[mine], end))
+
+    @staticmethod
+    def _replay(link, handed: np.ndarray, sizes: np.ndarray, delays: np.ndarray, end: int) -> np.ndarray:
+        """The interval log of ``link``'s transmitter (:mod:`~dkfsim.network.occupancy`): the
+        port's accepted packets (hand-over instants, sizes) offered again, in order, to a fresh
+        transmitter with the link's background -- the queue-length series is computed after
+        the run, not in the kernels.  The replay must reproduce the kernels' queueing delays."""
+        tx = link.transmitter(record=True)
+        own = np.empty((len(handed), 3), dtype=np.int64)
+        for i, (t, size) in enumerate(zip(handed.tolist(), sizes.tolist())):
+            got = tx.offer(t, size)
+            own[i] = (t, *got) if got is not None else (t, -1, -1)
+        tx.advance(end)
+        if not np.array_equal(own[:, 1] - own[:, 0], delays):
+            raise RuntimeError(f"link {link.src} -> {link.dst}: the transmitter's replay differs "
+                               "from the compiled tree's queueing delays")
+        return np.concatenate([own, tx.log()])
 
     @property
     def late_packets(self) -> list[int]:
