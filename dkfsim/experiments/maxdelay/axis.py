@@ -231,14 +231,17 @@ def make_axis(scenario, *, max_delay: int, scale_step: float, max_scale: float,
 
 def latencies_deterministic(sc) -> bool:
     """True when no random draw can change any covariance of a run of ``sc``:
-    every used link has a constant latency (and jitter), no loss and no
-    duplicates, and every sensor is linear (its information does not depend
+    every used link has a constant latency (and jitter), no loss, no
+    duplicates and no random background load, and every sensor is linear (its information does not depend
     on its measurement)."""
     if any(s.kind != "linear" for s in sc.sensors):
         return False
     for u, v in RunPlan(sc).exchange.arcs:
         spec = sc.link_spec(u, v)
         if spec.loss > 0 or (getattr(spec, "duplicate", 0.0) or 0.0) > 0:
+            return False
+        bg = getattr(spec, "background", None)         # (keyed by the seed: random per run)
+        if bg is not None and (bg.arrivals == "poisson" or bg.sizes == "exponential"):
             return False
         for lat in (spec.latency, getattr(spec, "jitter", None)):
             if lat is not None and not lat.deterministic:
