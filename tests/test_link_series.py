@@ -51,6 +51,9 @@ def test_littles_law_on_a_runs_own_packets(monkeypatch):
         assert queue[:, e].mean() == pytest.approx(lam * row["queueing_delay_mean"], rel=1e-3, abs=1e-12)
         assert queue[:, e].mean() == pytest.approx(row["queue_length_mean"], rel=1e-9, abs=1e-12)
         assert util[:, e].mean() == pytest.approx(row["utilisation"], rel=1e-9)
+        q = r.arrays["queueing_delay_quantiles"][e]          # the distribution the plots draw
+        assert q[95] == pytest.approx(row["queueing_delay_p95"], rel=1e-9, abs=1e-15)
+        assert q[0] >= 0 and np.all(np.diff(q) >= 0)
         waited += row["queueing_delay_mean"] > 0
     assert waited >= 3, "the rate was meant to make packets wait"
     assert queue.shape == util.shape == (80, len(rows)) and util.max() <= 1.0 + 1e-12
@@ -69,8 +72,8 @@ def test_compiled_tree_series_equal_the_python_exchange(monkeypatch):
         assert r.info["backend"]["exchange"] == exchange
         got[exchange] = r
     a, b = got["compiled"].arrays, got["python"].arrays
-    for key in ("rated_links", "queue_length", "utilisation"):
-        assert np.array_equal(a[key], b[key]), key
+    for key in ("rated_links", "queue_length", "utilisation", "queueing_delay_quantiles"):
+        assert np.array_equal(a[key], b[key], equal_nan=True), key
     assert a["queue_length"].max() > 0.1
 
 

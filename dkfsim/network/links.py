@@ -289,8 +289,9 @@ class Port:
         self._stats: dict[int, dict[str, Any]] = {}
         #: link id -> (hand-over, start, end) ns of this port's packets its transmitter accepted
         self._own: dict[int, array] = {}
-        #: link id -> the link's whole interval log as its owner reported it (:meth:`set_link_log`)
-        self._logs: dict[int, np.ndarray] = {}
+        #: link id -> (own, background) interval logs as the port's owner reported them
+        #: (:meth:`set_link_log`)
+        self._logs: dict[int, tuple[np.ndarray, np.ndarray]] = {}
 
     def _grow(self) -> None:
         """One counter slot per link of the network (links may be added after the port)."""
@@ -410,18 +411,19 @@ class Port:
         travel outside the port (the compiled ``tree``)."""
         self._stats[link.id] = dict(stats)
 
-    def set_link_log(self, link: Link, log: np.ndarray) -> None:
-        """The interval log of a rate-limited ``link``'s transmitter (every packet it carried:
-        hand-over, start, end ns; :mod:`~dkfsim.network.occupancy`), for a protocol whose
-        packets travel outside the port (the compiled ``tree``)."""
-        self._logs[link.id] = np.asarray(log, dtype=np.int64).reshape(-1, 3)
+    def set_link_log(self, link: Link, own: np.ndarray, background: np.ndarray) -> None:
+        """The interval logs of a rate-limited ``link``'s transmitter (hand-over, start, end ns;
+        :mod:`~dkfsim.network.occupancy`): this port's accepted packets and the background, for
+        a protocol whose packets travel outside the port (the compiled ``tree``)."""
+        self._logs[link.id] = (np.asarray(own, dtype=np.int64).reshape(-1, 3),
+                               np.asarray(background, dtype=np.int64).reshape(-1, 3))
 
     def link_log(self, link: Link) -> np.ndarray:
         """``(packets, 3)`` int64: (hand-over, start, end) ns of every packet the transmitter of
         rate-limited ``link`` carried as this port saw it -- its own, the background and, with
         shared queues, the other ports' -- in no particular order (``start < 0``: dropped)."""
         if link.id in self._logs:
-            return self._logs[link.id]
+            return np.concatenate(self._logs[link.id])
         tx = self._transmitter(link)
         tx.advance(self.until if self.until is not None else self.env.now)
         parts = [tx.log()]
@@ -436,17 +438,34 @@ class Port:
         """(hand-over, start, end) ns of this port's accepted packets on ``link``, flat."""
         return self._own.get(link.id)
 
+    def _own_delays(self, link: Link) -> np.ndarray:
+        """This port's accepted packets' queueing delays on ``link`` (ns)."""
+        if link.id in self._logs:
+            own = self._logs[link.id][0]
+        else:
+            flat = self._own.get(link.id)
+            own = np.frombuffer(flat, dtype=np.int64).reshape(-1, 3) if flat else np.zeros((0, 3), np.int64)
+        return own[:, 1] - own[:, 0]
+
     def link_series(self, T_ns: int, K: int) -> dict[str, np.ndarray]:
         """Per tick, each rate-limited link this port reports on: the time-averaged number of
         packets waiting and the utilisation (:func:`~dkfsim.network.occupancy.per_tick`), as
         ``run.npz`` keeps them: ``rated_links`` (E, 2), ``queue_length`` and ``utilisation``
-        (K, E).  Empty without a rate-limited link."""
+        (K, E), and ``queueing_delay_quantiles`` (E, 101): the percentiles 0, 1, ..., 100 of
+        this port's queueing delays on each link, seconds (NaN without a packet).  Empty without
+        a rate-limited link."""
         links = [self.net.links[i] for i in self._reported() if self.net.links[i].rate is not None]
         if not links:
             return {}
         queue, busy = zip(*(per_tick(self.link_log(link), T_ns, K) for link in links))
+        quantiles = np.full((len(links), 101), np.nan)
+        for e, link in enumerate(links):
+            d = self._own_delays(link)
+            if len(d):
+                quantiles[e] = np.percentile(d / NS_PER_S, np.arange(101))
         return {"rated_links": np.array([(l.src, l.dst) for l in links], dtype=np.int64),
-                "queue_length": np.stack(queue, axis=1), "utilisation": np.stack(busy, axis=1)}
+                "queue_length": np.stack(queue, axis=1), "utilisation": np.stack(busy, axis=1),
+                "queueing_delay_quantiles": quantiles}
 
     def _reported(self) -> list[int]:
         """The ids of the links this port reports on (given, or those it used)."""

@@ -287,11 +287,13 @@ class CompiledTreeExchange:
                 traffic.delays = dly[mine].tolist()
                 used = int(busy[e]) - max(0, int(free_at[e]) - end)
                 self.port.set_link_stats(link, traffic.summary(used, int(bgc[0, e]), int(bgc[1, e]), end))
-                self.port.set_link_log(link, self._replay(link, dlt[mine], dls[mine], dly[mine], end))
+                self.port.set_link_log(link, *self._replay(link, dlt[mine], dls[mine], dly[mine], end))
 
     @staticmethod
-    def _replay(link, handed: np.ndarray, sizes: np.ndarray, delays: np.ndarray, end: int) -> np.ndarray:
-        """The interval log of ``link``'s transmitter (:mod:`~dkfsim.network.occupancy`): the
+    def _replay(link, handed: np.ndarray, sizes: np.ndarray, delays: np.ndarray,
+                end: int) -> tuple[np.ndarray, np.ndarray]:
+        """The interval logs (own, background) of ``link``'s transmitter
+        (:mod:`~dkfsim.network.occupancy`): the
         port's accepted packets (hand-over instants, sizes) offered again, in order, to a fresh
         transmitter with the link's background -- the queue-length series is computed after
         the run, not in the kernels.  The replay must reproduce the kernels' queueing delays."""
@@ -304,7 +306,7 @@ class CompiledTreeExchange:
         if not np.array_equal(own[:, 1] - own[:, 0], delays):
             raise RuntimeError(f"link {link.src} -> {link.dst}: the transmitter's replay differs "
                                "from the compiled tree's queueing delays")
-        return np.concatenate([own, tx.log()])
+        return own, tx.log()
 
     @property
     def late_packets(self) -> list[int]:
