@@ -4,11 +4,15 @@ Each sensor sends its row to the centre at its tick over a direct link with
 the scenario's *default* link settings (latency model, loss, jitter,
 schedule, outages, duplication: the earlier copy counts); the per-link
 overrides name links of the graph, which the centre is not on.  The links'
-draws are named ``("direct", <sensor name>, ...)``.  The centre runs the
+draws are named ``("direct", <sensor name>, ...)``.  With a ``rate`` in the
+default settings each direct link has its transmitter (its ``queue`` and
+``background`` too, docs/traffic.md), like every link of the graph: a packet
+leaves at the end of its transmission, or is dropped when the waiting room is
+full (``queue_dropped``).  The centre runs the
 anti-delay window filter with the DKF's buffer length ``L``: a row arriving
 after it became final is late.  A crashed sensor sends nothing.  Traffic:
-``sent = delivered + lost + in_flight`` (a duplicated packet counts once,
-by its first copy).
+``sent = delivered + lost + queue_dropped + in_flight`` (a duplicated packet
+counts once, by its first copy).
 """
 
 from __future__ import annotations
@@ -27,7 +31,8 @@ class CentralizedDelayed(Estimator, params=CentralizedDelayedParams):
     """The window filter of a fusion centre that receives every sensor over its own link."""
 
     #: Its packets and their nominal sizes (bytes; docs/estimators.md, "Packet sizes").
-    packets = ("one per sensor and tick on its direct link (latency and loss only: rate, queue and background are not applied yet)")
+    packets = ("one per sensor and tick on its direct link: 16 + 8 (nx + nx(nx+1)/2) "
+               "(the measurement's information vector and matrix)")
 
     @classmethod
     @override
@@ -48,19 +53,33 @@ class CentralizedDelayed(Estimator, params=CentralizedDelayedParams):
         spec = ctx.scenario.link_spec(-1, -1)              # the default settings
         ticks = np.zeros((s.n, K), dtype=np.int64)
         m = ctx.measured()
-        sent = lost = 0
+        sent = lost = dropped = 0
+        size = self.packet_bytes()
         for i, name in enumerate(s.names):
             link = ctx.network.extra_link(("direct", name), spec, i, -1)
+            tx = link.transmitter() if link.rate is not None else None
             for r in range(K):
                 if m is not None and not m[r, i]:          # a crashed sensor sends nothing
                     continue
                 t = (r + 1) * T_ns
-                arrivals, why = link.transmit(t, 0)
                 sent += 1
+                wait = 0                                   # hand-over to the end of transmission
+                if tx is not None:
+                    got = tx.offer(t, size)
+                    if got is None:                        # the waiting room is full
+                        dropped += 1
+                        continue
+                    wait = got[1] - t
+                arrivals, why = link.transmit(t, 0)
                 lost += why is not None
                 if arrivals:
-                    ticks[i, r] = -(-(t + min(arrivals)) // T_ns)
-        return ticks, {"sent": sent, "lost": lost}
+                    ticks[i, r] = -(-(t + wait + min(arrivals)) // T_ns)
+        return ticks, {"sent": sent, "lost": lost, "queue_dropped": dropped}
+
+    def packet_bytes(self) -> int:
+        """A sensor's packet: header and its measurement's information vector and matrix."""
+        nx = self.ctx.system.nx
+        return 16 + 8 * (nx + nx * (nx + 1) // 2)
 
     def finish(self) -> EstimatorResult:
         ctx = self.ctx
@@ -87,6 +106,6 @@ class CentralizedDelayed(Estimator, params=CentralizedDelayedParams):
         late = int(((ticks > rows + L) & (ticks <= K)).sum())
         delivered = int(((ticks > 0) & (ticks <= K)).sum())      # the first copy, by t_K
         traffic = {**counts, "delivered": delivered, "late": late,
-                   "in_flight": counts["sent"] - counts["lost"] - delivered,
-                   "bytes": counts["sent"] * (16 + 8 * (s.nx + s.nx * (s.nx + 1) // 2))}
+                   "in_flight": counts["sent"] - counts["lost"] - counts["queue_dropped"] - delivered,
+                   "bytes": counts["sent"] * self.packet_bytes()}
         return EstimatorResult({self.name: Estimate(x, P)}, traffic=traffic)
