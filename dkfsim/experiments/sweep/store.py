@@ -474,7 +474,7 @@ def check_shared_growth(path, store: "SweepDB", sweep: Sweep) -> None:
                 f"is refused because links.shared_queues is true (parameter set "
                 f"{shared[h].describe()}): every estimator's packets share the queues, so estimators "
                 "added to finished runs cannot be run alone. Write the grown sweep to a new database "
-                "(--out), or run without links.shared_queues")
+                "(--db PATH, or output: in the sweep file), or run without links.shared_queues")
 
 
 def missing_estimates(store: "SweepDB", sweep: Sweep) -> dict[tuple[str, int], list[str]]:
