@@ -7,14 +7,14 @@ from __future__ import annotations
 
 import json
 
-import dkfsim
 import pytest
 import yaml
 from test_maxdelay import const_latency, dkfsim_cli, rw_scenario
 
+import dkfsim
 from dkfsim.components.traffic import transmission_ns
 from dkfsim.core.errors import DkfsimError
-from dkfsim.experiments.maxdelay import MaxDelay, Settings, metric_value
+from dkfsim.experiments.maxdelay import MaxDelay, Settings
 from dkfsim.experiments.maxdelay.rate import NO_LIMIT, make_rate_axis
 
 

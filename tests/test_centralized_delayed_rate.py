@@ -3,9 +3,10 @@ default link's rate, queue and background like every link of the graph."""
 
 from __future__ import annotations
 
-import dkfsim
 import numpy as np
 from test_maxdelay import const_latency, rw_scenario
+
+import dkfsim
 
 
 def _centre(latency=0.65, steps=20, **links):

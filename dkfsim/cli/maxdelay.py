@@ -73,13 +73,12 @@ def add_command(subparsers) -> None:
     p.add_argument("--link", metavar="U,V",
                    help="with --axis rate: search the rate of this one link (both directions on an "
                         "undirected topology) (default: every link)")
-    p.add_argument("--max-rate", type=float, default=1e9, metavar="R",
-                   help="with --axis rate: the fastest limited rate tried, bit/s; candidate 0 is no "
-                        "limit (default: 1e9)")
-    p.add_argument("--min-rate", type=float, default=1e4, metavar="R",
-                   help="with --axis rate: the slowest rate tried, bit/s (default: 1e4)")
-    p.add_argument("--rate-step", type=float, default=1.25, metavar="F",
-                   help="with --axis rate: the factor between two candidate rates (> 1) (default: 1.25)")
+    for flag, meta, what in (("--max-rate", "R", "the fastest limited rate tried, bit/s; candidate 0 is no limit"),
+                             ("--min-rate", "R", "the slowest rate tried, bit/s"),
+                             ("--rate-step", "F", "the factor between two candidate rates (> 1)")):
+        default = getattr(Settings, flag[2:].replace("-", "_"))
+        p.add_argument(flag, type=float, default=default, metavar=meta,
+                       help=f"with --axis rate: {what} (default: {default:g})")
     p.add_argument("--burn-in", type=int, metavar="ROWS",
                    help="rows skipped before time-averaging the metric (default: 10%% of the ticks)")
     p.add_argument("--steps", type=int, help="override the number of ticks K (same as --set steps=K); "

@@ -24,7 +24,7 @@ from dkfsim.config.load import load_scenario
 from dkfsim.config.plan import RunPlan
 from dkfsim.core.errors import DkfsimError
 from dkfsim.engine.driver import Run
-from dkfsim.experiments.maxdelay.axis import RANDOM_GENERATORS
+from dkfsim.experiments.maxdelay.axis import search_base
 from dkfsim.protocols.base import PACKET_HEADER
 
 #: Candidate 0: every transmission of a scenario takes 0 ns (a 1 GiB packet: 8.6 ns), the run
@@ -93,7 +93,7 @@ class RateAxis:
 
     def worst_overrides(self, j: int) -> None:
         """No worst case on this axis (a latency notion): the lower bound stands in."""
-        return None
+        del j                  # (the delay axis's signature)
 
     def describe(self) -> dict:
         keys = ([f"links.overrides (+ an entry {{link: [{self.link[0]}, {self.link[1]}], rate}})"]
@@ -128,12 +128,7 @@ def make_rate_axis(scenario, *, max_rate: float, min_rate: float, step: float, l
             raise DkfsimError(f"--link {pair[0]},{pair[1]}: not a link the scenario's exchange uses "
                               f"(links: {', '.join(f'{u},{v}' for u, v in sorted(arcs)[:12])}"
                               f"{', ...' if len(arcs) > 12 else ''})")
-    kept = [e for e in data.get("estimators", []) if (e.get("name") or e["kind"]) == keep]
-    pin = ["estimators=" + json.dumps(kept)]
-    top = data.get("topology", {})
-    if top.get("generator") in RANDOM_GENERATORS and "seed" not in (top.get("params") or {}):
-        pin.append(f"topology.params.seed={int(scenario.seed)}")
-    base = load_scenario(scenario, overrides=pin)
+    base = search_base(scenario, keep)
     links = data.get("links", {})
     default_rate = (links.get("default") or {}).get("rate")
     overrides = list(links.get("overrides") or [])

@@ -259,32 +259,21 @@ def _bound_text(b: dict | None) -> str:
 
 
 def _answer_text(e: dict, unit: str, option: str = "--max-delay", mode: str = "d_t") -> str:
-    s = e["status"]
-    if mode == "rate":
-        return _rate_answer_text(e, option)
+    """The empirical (or worst-case) answer, one line; on the rate axis the least rate."""
+    s, rate = e["status"], mode == "rate"
+
+    def fmt(v) -> str:
+        return "none" if v is None else (f"{v:.4g} bit/s" if rate else f"{v:g}")
     if s == "decided":
-        return f"{unit} = {e['answer']:g} (decided: {unit} = {e['first_exceeding']:g} exceeds)"
+        return f"{unit} = {fmt(e['answer'])} (decided: {unit} = {fmt(e['first_exceeding'])} exceeds)"
+    if s == "capped" and rate:
+        return (f"rate <= {fmt(e['answer'])} (capped: within tolerance down to the slowest candidate "
+                f"tried; lower it with {option}, e.g. {option} {e['answer'] / 10:g})")
     if s == "capped":
         return (f"{unit} >= {e['answer']:g} (capped: within tolerance up to the largest candidate "
                 f"tried; raise it with {option}, e.g. {option} {_double(e['answer'])})")
     if s == "none":
-        return "none: even zero delay exceeds the tolerance"
-    a = "none" if e["answer"] is None else f"{e['answer']:g}"
-    pe = "n/a" if e["point_estimate"] is None else f"{e['point_estimate']:g}"
-    return f"{unit} = {a} (undecided: run cap hit near the boundary; by the means {pe})"
-
-
-
-def _rate_answer_text(e: dict, option: str) -> str:
-    """The rate axis's answer: the least rate within (a larger index is a slower link)."""
-    s = e["status"]
-    if s == "decided":
-        return (f"rate = {e['answer']:.4g} bit/s (decided: {e['first_exceeding']:.4g} bit/s exceeds)")
-    if s == "capped":
-        return (f"rate <= {e['answer']:.4g} bit/s (capped: within tolerance down to the slowest candidate "
-                f"tried; lower it with {option}, e.g. {option} {e['answer'] / 10:g})")
-    if s == "none":
-        return "none: even without a rate limit the tolerance is exceeded"
-    a = "none" if e["answer"] is None else f"{e['answer']:.4g} bit/s"
-    pe = "n/a" if e["point_estimate"] is None else f"{e['point_estimate']:.4g} bit/s"
-    return f"rate = {a} (undecided: run cap hit near the boundary; by the means {pe})"
+        return ("none: even without a rate limit the tolerance is exceeded" if rate else
+                "none: even zero delay exceeds the tolerance")
+    pe = "n/a" if e["point_estimate"] is None else fmt(e["point_estimate"])
+    return f"{unit} = {fmt(e['answer'])} (undecided: run cap hit near the boundary; by the means {pe})"
