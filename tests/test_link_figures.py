@@ -52,3 +52,11 @@ def test_run_without_a_rate_has_neither(tmp_path):
     assert _cli("report", out).returncode == 0
     page = (out / "report.html").read_text()
     assert 'alt="links"' not in page and 'id="links"' not in page
+
+
+def test_a_rate_sweep_is_drawn_on_a_log_axis():
+    """Link rates span decades: a positive grid over more than a factor 100 gets a log x axis
+    (the rate sweep's figure), a delay bound 0..6 does not."""
+    from dkfsim.report.sweep.plot import log_x
+    assert log_x([1e15, 1e8, 3e5])
+    assert not log_x([0.0, 1.0, 6.0]) and not log_x([1.0, 50.0]) and not log_x([])

@@ -50,7 +50,15 @@ METRIC_LABELS = {"mse": "MSE", "anees": "ANEES", "disagreement": "disagreement",
 #: Units of common swept keys, by the last part of the dotted key.
 KEY_UNITS = {"d_t": "ticks", "steps": "ticks", "buffer_length": "ticks", "T": "s", "value": "s",
              "mean": "s", "median": "s", "offset": "s", "loss": "probability",
-             "rounds": "rounds per tick"}
+             "rounds": "rounds per tick", "rate": "bit/s"}
+
+#: Positive numeric grid values spanning more than this factor get a log x axis (link rates).
+LOG_X_SPAN = 100.0
+
+
+def log_x(values: list[float]) -> bool:
+    """A log x axis: every value positive and they span more than :data:`LOG_X_SPAN`."""
+    return bool(values) and min(values) > 0 and max(values) / min(values) > LOG_X_SPAN
 
 
 def _key(columns, name: str, flag: str) -> str:
@@ -279,9 +287,15 @@ def plot_sweep(path, stem, x=None, hue=None, metric="mse", estimate=None, where=
     xname = cur["x"].removeprefix("param:")
     unit = KEY_UNITS.get(xname.rsplit(".", 1)[-1])
     last.set_xlabel(f"{plain(xname)} [{unit}]" if unit else plain(xname))
+    if numeric and log_x([float(v) for v in xs]):
+        last.set_xscale("log")
+        last.minorticks_off()
+        last.set_xlabel(last.get_xlabel() + " (log axis)")
     if numeric:
         last.set_xticks([float(v) for v in xs])
         last.set_xticklabels([f"{v:g}" if isinstance(v, float) else plain(v, 40) for v in xs])
+        if log_x([float(v) for v in xs]):        # values close on a long axis: labels upright
+            last.tick_params(axis="x", labelrotation=90, labelsize=8)
     else:
         last.set_xticks(range(len(xs)))
         last.set_xticklabels([plain(v, 40) for v in xs])
