@@ -19,6 +19,7 @@ from __future__ import annotations
 import json
 import math
 from dataclasses import dataclass
+from typing import Any
 
 from dkfsim.config.load import load_scenario
 from dkfsim.config.plan import RunPlan
@@ -60,7 +61,7 @@ class RateAxis:
     step: float
     max_rate: float
     max_index: int
-    base: object                # Scenario
+    base: Any                   # Scenario
     link: tuple[int, int] | None
     ratios: list                # [(override index, its rate / the default rate), ...]
     overrides_list: list        # the scenario's links.overrides (one-link mode appends to it)
@@ -91,9 +92,10 @@ class RateAxis:
     def scenario(self, j: int, overrides: list[str] | None = None):
         return load_scenario(self.base, overrides=self.overrides(j) if overrides is None else overrides)
 
-    def worst_overrides(self, j: int) -> None:
+    def worst_overrides(self, j: int) -> list[str] | None:
         """No worst case on this axis (a latency notion): the lower bound stands in."""
         del j                  # (the delay axis's signature)
+        return None
 
     def describe(self) -> dict:
         keys = ([f"links.overrides (+ an entry {{link: [{self.link[0]}, {self.link[1]}], rate}})"]

@@ -20,8 +20,8 @@ from dkfsim.core.resources import Cost, check, repeat
 from dkfsim.core.threads import single_thread
 from dkfsim.engine.estimate import estimate_run
 from dkfsim.experiments import executors
-from dkfsim.experiments.maxdelay.axis import latencies_deterministic, make_axis
-from dkfsim.experiments.maxdelay.rate import make_rate_axis, parse_link, rate_lower_bound
+from dkfsim.experiments.maxdelay.axis import DelayAxis, latencies_deterministic, make_axis
+from dkfsim.experiments.maxdelay.rate import RateAxis, make_rate_axis, parse_link, rate_lower_bound
 from dkfsim.experiments.maxdelay.report import MaxDelayResult
 from dkfsim.experiments.maxdelay.search import (
     COVARIANCE_METRICS,
@@ -137,6 +137,7 @@ class MaxDelay:
             raise DkfsimError(f"--burn-in: must be in [0, steps) = [0, {K}), got {settings.burn_in}")
         self.comp, self.comp_name = resolve_component(scenario, settings.metric, settings.component)
         keep = settings.estimate if settings.metric == "mse" else None
+        self.axis: DelayAxis | RateAxis
         if settings.axis == "rate":
             self.axis = make_rate_axis(scenario, max_rate=settings.max_rate, min_rate=settings.min_rate,
                                        step=settings.rate_step, link=settings.link, keep=keep)
@@ -273,13 +274,13 @@ class MaxDelay:
             wc = None
             wc_tol = None
             limit = None
-            if wc_data0 is not None:
+            if wc_data0 is not None and isinstance(self.axis, DelayAxis):
                 ref0 = self.worst_value(wc_data0, runner)
                 wc_tol = st.tolerance if st.relative is None else st.relative * ref0
                 self.evaluate_worst(0, runner, wc_tol, value=ref0)
                 wc = worst_case_scan(lambda j: self.evaluate_worst(j, runner, wc_tol), J)
                 limit = self.worst_value(self.axis.limit_overrides(), runner)
-            elif self.axis.mode == "rate":
+            elif isinstance(self.axis, RateAxis):
                 self.notes.append("worst case not computed: it is a latency notion; on the rate axis "
                                   "the lower bound from the packet sizes stands beside the empirical answer")
             else:
@@ -291,7 +292,7 @@ class MaxDelay:
                 ex.close()
         # 3. the paper's bound (delay), or the lower bound from the packet sizes (rate)
         bound = None
-        if self.axis.mode == "rate":
+        if isinstance(self.axis, RateAxis):
             self.progress(label="lower bound from the packet sizes")
             paper = {"error": "the paper's bound is on the delay, not the rate"}
             bound = rate_lower_bound(self.axis, tracked_estimate(st))
@@ -330,6 +331,7 @@ class MaxDelay:
     def _sup_at_scale_one(self) -> float | None:
         """Largest per-hop delay (s) at scale 1: latency sup plus jitter sup."""
         ax = self.axis
+        assert isinstance(ax, DelayAxis)       # (the paper's bound: the delay axis only)
         lat = [ax.sup_seconds(l, 1.0) for _, l in ax.specs]
         jit = [ax.sup_seconds(l, 1.0) for _, l in ax.jitters]
         if any(v is None for v in jit):
