@@ -13,7 +13,15 @@ from conftest import scenario, tree_edges
 
 from dkfsim.config.load import load_scenario
 from dkfsim.engine.driver import run
-from dkfsim.network.occupancy import mean_waiting, per_tick
+from dkfsim.network.occupancy import fifo, mean_waiting, per_tick
+from dkfsim.protocols.tree_compiled import CompiledTreeExchange
+
+
+def test_fifo_closed_form_is_lindleys_recursion():
+    """``fifo``: arrivals 0, 1, 1, 10 with services 3, 1, 2, 1 start at 0, 3, 4, 10."""
+    starts, ends = fifo(np.array([0, 1, 1, 10]), np.array([3, 1, 2, 1]))
+    np.testing.assert_array_equal(starts, [0, 3, 4, 10])
+    np.testing.assert_array_equal(ends, [3, 4, 6, 11])
 
 
 def test_per_tick_by_hand():
@@ -59,11 +67,19 @@ def test_littles_law_on_a_runs_own_packets(monkeypatch):
     assert queue.shape == util.shape == (80, len(rows)) and util.max() <= 1.0 + 1e-12
 
 
-def test_compiled_tree_series_equal_the_python_exchange(monkeypatch):
-    """With background, the compiled tree's series (replayed from what its kernels kept) equal
-    the Python exchange's to the bit."""
+@pytest.mark.parametrize("room", [None, 1])
+def test_compiled_tree_series_equal_the_python_exchange(room, monkeypatch):
+    """With background, the compiled tree's series (rebuilt from what its kernels kept: in
+    closed form when no background packet was dropped, by replaying the transmitter when a
+    room of one packet drops some) equal the Python exchange's to the bit."""
     sc = _rated(latency={"model": "uniform_steps", "d_t": 2})     # (a latency the kernels draw)
     sc["links"]["default"]["background"] = {"packets_per_second": 20.0, "size": 200}
+    if room is not None:
+        sc["links"]["default"]["queue"] = {"packets": room}
+    else:                                   # the closed form must do it alone
+        def no_replay(*args):
+            raise AssertionError("the closed form fell back to the replay")
+        monkeypatch.setattr(CompiledTreeExchange, "_replay", staticmethod(no_replay))
     got = {}
     monkeypatch.setenv("DKFSIM_KERNELS", "numba")           # (the compiled tree needs numba)
     for exchange in ("compiled", "python"):
@@ -75,6 +91,8 @@ def test_compiled_tree_series_equal_the_python_exchange(monkeypatch):
     for key in ("rated_links", "queue_length", "utilisation", "queueing_delay_quantiles"):
         assert np.array_equal(a[key], b[key], equal_nan=True), key
     assert a["queue_length"].max() > 0.1
+    dropped = sum(row["background_dropped"] for row in got["compiled"].counts["per_link"])
+    assert (dropped > 0) == (room is not None)
 
 
 def test_every_estimators_per_link_traffic_in_summary_json(tmp_path):

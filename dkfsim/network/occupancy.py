@@ -21,6 +21,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from dkfsim.core.params import MAX_NS, NS_PER_S
+
 
 def _covered(starts: np.ndarray, ends: np.ndarray, edges: np.ndarray) -> np.ndarray:
     """``F(x) = |union of [starts, ends) counted with multiplicity, cut at x|`` at each edge:
@@ -53,3 +55,23 @@ def mean_waiting(log: np.ndarray, end_ns: int) -> float:
     kept = log[log[:, 1] >= 0]
     edges = np.array([end_ns], dtype=np.int64)
     return float(_covered(kept[:, 0], kept[:, 1], edges)[0]) / end_ns
+
+
+def fifo(arrivals: np.ndarray, services: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Start and end (ns) of packets served first in first out by one transmitter, every one
+    accepted, ``arrivals`` in service order: Lindley's recursion ``start_i = max(a_i,
+    end_{i-1})`` in closed form, ``end_i = S_i + max_{j <= i}(a_j - S_{j-1})`` with ``S`` the
+    cumulative service time (vectorised; the Python transmitter's numbers while nothing is
+    dropped and no end reaches ``MAX_NS``)."""
+    a = np.asarray(arrivals, dtype=np.int64)
+    s = np.asarray(services, dtype=np.int64)
+    S = np.cumsum(s)
+    end = S + np.maximum.accumulate(a - (S - s))
+    return end - s, end
+
+
+def transmission_times(sizes: np.ndarray, rate: float) -> np.ndarray:
+    """:func:`~dkfsim.components.traffic.transmission_ns` of each size (bytes), vectorised: the
+    same float operations, halves up, at most ``MAX_NS``."""
+    ns = np.asarray(sizes, dtype=np.float64) * 8.0 * NS_PER_S / rate
+    return np.where(ns >= MAX_NS, MAX_NS, np.floor(ns + 0.5)).astype(np.int64)

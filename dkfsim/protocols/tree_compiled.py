@@ -30,6 +30,7 @@ from dkfsim.core.jit import entry_point
 from dkfsim.core.registry import PROTOCOLS
 from dkfsim.model.holdings import Holdings
 from dkfsim.network.links import PRIORITY_FLUSH, Scheduled
+from dkfsim.network.occupancy import fifo, transmission_times
 from dkfsim.network.transmitter import LinkTraffic
 from dkfsim.protocols import tree_compiled_kernels as tk
 from dkfsim.protocols.base import PACKET_HEADER, Wiring, exchange_counts, row_bytes
@@ -287,7 +288,34 @@ class CompiledTreeExchange:
                 traffic.delays = dly[mine].tolist()
                 used = int(busy[e]) - max(0, int(free_at[e]) - end)
                 self.port.set_link_stats(link, traffic.summary(used, int(bgc[0, e]), int(bgc[1, e]), end))
-                self.port.set_link_log(link, *self._replay(link, dlt[mine], dls[mine], dly[mine], end))
+                logs = None
+                if int(bgc[1, e]) == 0:           # no background dropped: the closed form
+                    logs = self._merge(link, dlt[mine], dls[mine], dly[mine], end)
+                if logs is None:
+                    logs = self._replay(link, dlt[mine], dls[mine], dly[mine], end)
+                self.port.set_link_log(link, *logs)
+
+    @staticmethod
+    def _merge(link, handed: np.ndarray, sizes: np.ndarray, delays: np.ndarray,
+               end: int) -> tuple[np.ndarray, np.ndarray] | None:
+        """The interval logs (own, background) of ``link``'s transmitter when the queue dropped
+        no background packet: the port's accepted packets and the background up to ``end``
+        merged in first-in-first-out order (background first at one instant) and served by
+        :func:`~dkfsim.network.occupancy.fifo`.  None when it does not reproduce the kernels'
+        queueing delays (:meth:`_replay` then decides)."""
+        bg = link.transmitter().background
+        times, bsizes = bg.until(end) if bg is not None else ([], [])
+        t = np.concatenate([np.asarray(times, dtype=np.int64), handed])
+        nbytes = np.concatenate([np.asarray(bsizes, dtype=np.int64), sizes])
+        kind = np.concatenate([np.zeros(len(times), dtype=np.int64), np.ones(len(handed), dtype=np.int64)])
+        order = np.lexsort((np.arange(len(t)), kind, t))
+        starts, ends = np.empty_like(t), np.empty_like(t)
+        starts[order], ends[order] = fifo(t[order], transmission_times(nbytes[order], link.rate))
+        own = np.stack([handed, starts[len(times):], ends[len(times):]], axis=1)
+        if not np.array_equal(own[:, 1] - own[:, 0], delays) or (len(ends) and ends.max() >= tk.MAX_NS):
+            return None
+        k = len(times)
+        return own, np.stack([t[:k], starts[:k], ends[:k]], axis=1)
 
     @staticmethod
     def _replay(link, handed: np.ndarray, sizes: np.ndarray, delays: np.ndarray,
