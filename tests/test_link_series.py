@@ -77,8 +77,8 @@ def test_compiled_tree_series_equal_the_python_exchange(room, monkeypatch):
     if room is not None:
         sc["links"]["default"]["queue"] = {"packets": room}
     else:                                   # the closed form must do it alone
-        def no_replay(*args):
-            raise AssertionError("the closed form fell back to the replay")
+        def no_replay(link, *_):
+            raise AssertionError(f"link {link.src} -> {link.dst}: the closed form fell back to the replay")
         monkeypatch.setattr(CompiledTreeExchange, "_replay", staticmethod(no_replay))
     got = {}
     monkeypatch.setenv("DKFSIM_KERNELS", "numba")           # (the compiled tree needs numba)
