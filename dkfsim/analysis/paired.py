@@ -18,9 +18,22 @@ import math
 import numpy as np
 
 from dkfsim.analysis.metrics import paired_interval
+from dkfsim.core.errors import DkfsimError
 
 #: The reference estimate when none is named (``--relative-to``).
 DEFAULT_REFERENCE = "centralized"
+
+
+def reference_of(names, relative_to: str | None, of: str = "these runs") -> str | None:
+    """The reference estimate of the paired comparisons: ``relative_to`` (refused when not among
+    ``names``, the estimates ``of`` a result), else ``centralized`` when present, else None."""
+    names = list(names)
+    if relative_to is not None:
+        if relative_to not in names:
+            raise DkfsimError(f"--relative-to {relative_to}: not an estimate of {of} "
+                              f"(estimates: {', '.join(dict.fromkeys(names))})")
+        return relative_to
+    return DEFAULT_REFERENCE if DEFAULT_REFERENCE in names else None
 
 
 def number_or_nan(v) -> float:

@@ -5,14 +5,13 @@ from __future__ import annotations
 import argparse
 import sys
 from collections import Counter
-from pathlib import Path
 
 from dkfsim.cli.common import add_executor_args, add_yes_arg, executor_from_args, workers_from_args
 from dkfsim.cli.common import say as say_line
 from dkfsim.core.errors import DkfsimError
-from dkfsim.core.extras import optional
 from dkfsim.experiments.montecarlo import check_reference
 from dkfsim.experiments.sweep import Sweep, export, is_database, load_sweep, run_sweep, tasks_done
+from dkfsim.experiments.sweep.results import export_format, read_results
 from dkfsim.experiments.sweep.summary import write_summary
 
 HELP = """\
@@ -88,9 +87,11 @@ def cmd_sweep(args) -> int:
         if args.jobs is not None or args.scheduler or args.dask_local is not None or args.db:
             raise DkfsimError(f"{args.file} is a sweep database: only --export applies "
                               "(nothing is computed)")
-        out, n = export(args.file, args.export)
+        export_format(args.export)
+        table = read_results(args.file)
+        out, n = export(args.file, args.export, table)
         say(f"wrote {out} ({n} rows)")
-        out, n = write_summary(args.file, relative_to=args.relative_to)
+        out, n = write_summary(args.file, relative_to=args.relative_to, table=table)
         say(f"wrote {out} ({n} rows: mean and 95 % interval per grid point, estimate and component)")
         return 0
     sweep = load_sweep(args.file, output=args.db, yes=args.yes)
@@ -100,12 +101,7 @@ def cmd_sweep(args) -> int:
     if args.dry_run:
         return _dry_run(sweep, say)
     if args.export is not None:
-        suffix = Path(args.export).suffix.lower()
-        if suffix not in (".csv", ".parquet", ".pq"):
-            raise DkfsimError(f"--export {args.export}: unknown format {suffix or '(no suffix)'!r}; "
-                              "use a .csv or .parquet file name")
-        if suffix != ".csv":
-            optional("pyarrow")            # a missing package is reported before any work
+        export_format(args.export)       # a bad name or a missing pyarrow before any work
     make = executor_from_args(args)      # a missing Dask package is reported before any work
     say(f"{sweep.source}: {len(sweep.parameter_sets)} parameter set(s) x {sweep.runs} "
         f"run(s) = {sweep.n_tasks} tasks -> {sweep.output}")
@@ -115,10 +111,11 @@ def cmd_sweep(args) -> int:
     rate = f" on {rep.executor} ({rep.runs_per_minute:.1f} runs/min)" if rep.computed else ""
     say(f"done: {rep.skipped} already in the database, {rep.computed} computed in "
         f"{_duration(rep.wall_s)}{rate}")
+    table = read_results(rep.db)
     if args.export is not None:
-        out, n = export(rep.db, args.export)
+        out, n = export(rep.db, args.export, table)
         say(f"wrote {out} ({n} rows)")
-    out, n = write_summary(rep.db, relative_to=args.relative_to)
+    out, n = write_summary(rep.db, relative_to=args.relative_to, table=table)
     say(f"wrote {out} ({n} rows: mean and 95 % interval per grid point, estimate and component; "
         f"draw it with dkfsim plot {rep.db} --x KEY)")
     return 0

@@ -49,7 +49,7 @@ from dkfsim.analysis.metrics import (
     t_interval,
     t_interval_from_moments,
 )
-from dkfsim.analysis.paired import DEFAULT_REFERENCE, paired_block
+from dkfsim.analysis.paired import paired_block, reference_of
 from dkfsim.components.topology import generator_params
 from dkfsim.config.dynamics import component_names
 from dkfsim.config.load import load_scenario, scenario_hash, stored_scenario
@@ -392,12 +392,7 @@ class MonteCarloResult:
     def reference(self) -> str | None:
         """The estimate the paired blocks compare with: ``relative_to``, else ``centralized``
         when the runs have it, else None (no paired comparison)."""
-        if self.relative_to is not None:
-            if self.relative_to not in self.estimates:
-                raise DkfsimError(f"--relative-to {self.relative_to}: not an estimate of these runs "
-                                  f"(estimates: {', '.join(self.estimates)})")
-            return self.relative_to
-        return DEFAULT_REFERENCE if DEFAULT_REFERENCE in self.estimates else None
+        return reference_of(self.estimates, self.relative_to)
 
     @classmethod
     def restored(cls, scenario, summary: dict, rows: list[dict], curves: dict) -> "MonteCarloResult":

@@ -1,8 +1,10 @@
 """What the hostile tests share: legitimate result folders to tamper with, and the CLI run as a
 user runs it (a real process) with its CPU time and peak memory measured.
 
-Time and memory bounds are on the child's own CPU seconds and peak resident set size
-(``os.wait4``), never wall time: the machine is shared.
+Time and memory bounds are on the child's own CPU seconds (``os.wait4``) and peak resident set
+size (its ``VmHWM`` at exit, reported through a pipe), never wall time: the machine is shared.
+``wait4``'s ``ru_maxrss`` is no measure of the child's memory: Linux carries the forking
+process's resident size into the child's record, so it would include the pytest worker's.
 """
 
 from __future__ import annotations
@@ -26,7 +28,7 @@ ROOT = Path(__file__).resolve().parents[2]
 CASE1 = ROOT / "scenarios" / "paper_case1.yaml"
 
 #: Bounds of a clean refusal: CPU seconds (starting Python, dkfsim, numpy and matplotlib takes
-#: 2-3 s of CPU) and peak resident memory (a report of a legitimate small folder: ~250 MB).
+#: 2-3 s of CPU) and peak resident memory (of a legitimate small folder: report ~160 MB, plot ~340 MB).
 CPU_LIMIT = 30.0
 MEMORY_LIMIT_MB = 800
 
@@ -39,7 +41,7 @@ class Child:
     stdout: str
     stderr: str
     cpu: float            # user + system seconds of the child (and the children it waited for)
-    maxrss_mb: float      # peak resident set size
+    maxrss_mb: float      # peak resident set size of the child's own program (VmHWM)
 
     def clean_error(self, *words, cpu: float = CPU_LIMIT, memory_mb: float = MEMORY_LIMIT_MB) -> str:
         """Exit 2, no traceback, one paragraph naming every word, within the bounds."""
@@ -72,6 +74,21 @@ def file_size_limit(limit: int):
     return apply
 
 
+#: Run first in every child: at exit, write the process's peak resident size (kB, ``VmHWM`` of
+#: /proc/self/status) to the pipe named by the environment.  Silent if anything fails.
+PEAK_REPORTER = """\
+import atexit as _atexit, os as _os
+def _report_peak(fd=int(_os.environ.pop("DKFSIM_TEST_PEAK_FD"))):
+    try:
+        with open("/proc/self/status", "rb") as f:
+            _os.write(fd, next(l.split()[1] for l in f if l.startswith(b"VmHWM:")))
+    except Exception:
+        pass
+_atexit.register(_report_peak)
+"""
+RUN_DKFSIM = "import runpy; runpy.run_module('dkfsim', run_name='__main__', alter_sys=True)"
+
+
 def dkfsim_cli(*args, cwd=None, env=None, timeout: float = 300, stdin=subprocess.DEVNULL,
                stdout=None, preexec=None, python=None) -> Child:
     """``python -m dkfsim ARGS`` in a child process; its resources are read with ``wait4``.
@@ -80,12 +97,16 @@ def dkfsim_cli(*args, cwd=None, env=None, timeout: float = 300, stdin=subprocess
     ``preexec``: run in the child before it starts (limits); ``python``: code run with ``-c``
     instead of ``-m dkfsim`` (``sys.argv[1:]`` are ARGS).
     """
-    full_env = {**os.environ, **(env or {})}
-    head = ["-m", "dkfsim"] if python is None else ["-c", python]
+    peak_r, peak_w = os.pipe()
+    full_env = {**os.environ, **(env or {}), "DKFSIM_TEST_PEAK_FD": str(peak_w)}
+    code = PEAK_REPORTER + (RUN_DKFSIM if python is None else python)
     # Pipes, not files: a file-size limit set for the child must not cut its own messages.
-    p = subprocess.Popen([sys.executable, *head, *map(str, args)], cwd=cwd, env=full_env, stdin=stdin,
-                         stdout=subprocess.PIPE if stdout is None else stdout, stderr=subprocess.PIPE,
-                         preexec_fn=preexec)
+    try:
+        p = subprocess.Popen([sys.executable, "-c", code, *map(str, args)], cwd=cwd, env=full_env,
+                             stdin=stdin, stdout=subprocess.PIPE if stdout is None else stdout,
+                             stderr=subprocess.PIPE, preexec_fn=preexec, pass_fds=(peak_w,))
+    finally:
+        os.close(peak_w)
     chunks: dict[str, list[bytes]] = {"out": [], "err": []}
     readers = [threading.Thread(target=lambda f=f, k=k: chunks[k].append(f.read()))
                for f, k in ((p.stdout, "out"), (p.stderr, "err")) if f is not None]
@@ -98,6 +119,12 @@ def dkfsim_cli(*args, cwd=None, env=None, timeout: float = 300, stdin=subprocess
     finally:
         timer.cancel()
     p.returncode = os.waitstatus_to_exitcode(status)
+    os.set_blocking(peak_r, False)   # a grandchild may still hold the write end
+    try:
+        peak_kb = os.read(peak_r, 64)
+    except BlockingIOError:
+        peak_kb = b""
+    os.close(peak_r)
     for r in readers:
         r.join()
     for f in (p.stdout, p.stderr):
@@ -105,7 +132,8 @@ def dkfsim_cli(*args, cwd=None, env=None, timeout: float = 300, stdin=subprocess
             f.close()
     return Child(p.returncode, b"".join(chunks["out"]).decode("utf-8", "replace"),
                  b"".join(chunks["err"]).decode("utf-8", "replace"), usage.ru_utime + usage.ru_stime,
-                 usage.ru_maxrss / 1024)
+                 # killed before its exit handlers ran: only wait4's (inflated) figure is left
+                 int(peak_kb) / 1024 if peak_kb.isdigit() else usage.ru_maxrss / 1024)
 
 
 def small_scenario() -> dkfsim.Scenario:

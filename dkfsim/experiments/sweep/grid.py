@@ -22,8 +22,7 @@ import math
 import numpy as np
 
 from dkfsim.analysis.metrics import anees_consistent, nees_band, paired_interval, t_interval
-from dkfsim.analysis.paired import DEFAULT_REFERENCE, number_or_nan, pair_values
-from dkfsim.core.errors import DkfsimError
+from dkfsim.analysis.paired import number_or_nan, pair_values, reference_of
 
 #: Columns of the summary after the grid columns.
 SUMMARY_COLUMNS = ("param_hash", "estimate", "component", "runs", "mse", "mse_ci95_lo",
@@ -68,24 +67,12 @@ def _mean(values) -> float | None:
     return None if a.size == 0 or np.isnan(a).all() else float(np.mean(a))
 
 
-def reference_of(names, relative_to: str | None) -> str | None:
-    """The reference estimate of the paired columns: ``relative_to`` (refused when not among
-    ``names``), else ``centralized`` when present, else None."""
-    names = list(names)
-    if relative_to is not None:
-        if relative_to not in names:
-            raise DkfsimError(f"--relative-to {relative_to}: not an estimate of the sweep "
-                              f"(estimates: {', '.join(dict.fromkeys(names))})")
-        return relative_to
-    return DEFAULT_REFERENCE if DEFAULT_REFERENCE in names else None
-
-
 def summarize(columns, rows, relative_to: str | None = None) -> tuple[list[str], list[list]]:
     """The summary table (see the module docstring) of a sweep table's ``(columns, rows)``;
     ``relative_to``: the reference estimate of the paired columns (default ``centralized``)."""
     grid = grid_columns(columns)
     found = groups(columns, rows)
-    ref = reference_of((est for (_h, est, _c) in found), relative_to)
+    ref = reference_of((est for (_h, est, _c) in found), relative_to, "the sweep")
     n_comp: dict = {}
     for (h, est, _c) in found:
         n_comp[(h, est)] = n_comp.get((h, est), 0) + 1

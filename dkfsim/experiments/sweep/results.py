@@ -51,15 +51,25 @@ def read_results(db: str | os.PathLike) -> tuple[list[str], list[list]]:
     return names + list(KEY_COLUMNS) + metric_cols, rows
 
 
-def export(db: str | os.PathLike, to: str | os.PathLike) -> tuple[Path, int]:
-    """Write the results of ``db`` to ``to`` (``.csv`` or ``.parquet``), sorted
-    by key (see :func:`read_results`); return ``(path, number of rows)``."""
-    to = Path(to)
-    suffix = to.suffix.lower()
+def export_format(to: str | os.PathLike) -> str:
+    """The format (``.csv`` or ``.parquet``) of an export file name; refused before any work
+    when unknown, or when pyarrow, needed for parquet, is missing."""
+    suffix = Path(to).suffix.lower()
     if suffix not in (".csv", ".parquet", ".pq"):
         raise DkfsimError(f"--export {to}: unknown format {suffix or '(no suffix)'!r}; "
                           "use a .csv or .parquet file name")
-    columns, rows = read_results(db)
+    if suffix != ".csv":
+        optional("pyarrow")
+    return ".csv" if suffix == ".csv" else ".parquet"
+
+
+def export(db: str | os.PathLike, to: str | os.PathLike, table=None) -> tuple[Path, int]:
+    """Write the results of ``db`` to ``to`` (``.csv`` or ``.parquet``), sorted
+    by key (see :func:`read_results`); return ``(path, number of rows)``.  ``table``: the
+    ``(columns, rows)`` of ``db`` when already read."""
+    to = Path(to)
+    suffix = export_format(to)
+    columns, rows = read_results(db) if table is None else table
     try:
         to.parent.mkdir(parents=True, exist_ok=True)
         if suffix == ".csv":

@@ -102,11 +102,12 @@ def read_table(path) -> tuple[list[str], list[list]]:
     return columns, rows
 
 
-def write_summary(db, to=None, relative_to: str | None = None) -> tuple[Path, int]:
+def write_summary(db, to=None, relative_to: str | None = None, table=None) -> tuple[Path, int]:
     """Summarize the sweep database (or export) ``db`` into ``to`` (default
     :func:`summary_path`), atomically; return ``(path, number of rows)``.  ``relative_to``:
-    the reference estimate of the paired columns (default ``centralized``)."""
-    columns, rows = summarize(*read_table(db), relative_to=relative_to)
+    the reference estimate of the paired columns (default ``centralized``); ``table``: the
+    ``(columns, rows)`` of ``db`` when already read."""
+    columns, rows = summarize(*(read_table(db) if table is None else table), relative_to=relative_to)
     to = Path(to) if to is not None else summary_path(db)
     try:
         write_csv(to, columns, rows)
