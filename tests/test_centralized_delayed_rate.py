@@ -48,3 +48,22 @@ def test_rate_1e15_equals_no_rate():
     a, b = _centre(), _centre(rate=1e15)
     assert np.array_equal(a.arrays["x_centralized_delayed"], b.arrays["x_centralized_delayed"])
     assert a.traffic["centralized_delayed"] == b.traffic["centralized_delayed"]
+
+
+def test_per_link_rows_and_the_rate_bound_of_its_direct_links():
+    """One row per direct link (sensor i -> the centre, -1), summing to the totals; the rate
+    search's lower bound for it is its payload on a direct link (32 - 16 bytes per tick of 1 s)
+    plus the background (3 x 40 bytes per second)."""
+    from dkfsim.experiments.maxdelay.rate import make_rate_axis, rate_lower_bound
+    res = _centre(rate=1e4, background={"packets_per_second": 3.0, "size": 40})
+    t = res.traffic["centralized_delayed"]
+    assert [row["link"] for row in t["per_link"]] == [(0, -1), (1, -1)]
+    for key in ("sent", "delivered", "lost", "queue_dropped", "in_flight", "bytes"):
+        assert sum(row[key] for row in t["per_link"]) == t[key], key
+    data = rw_scenario(const_latency(0.65), n=2, steps=20)
+    data["estimators"] = [{"kind": "centralized_delayed"}]
+    data["links"]["default"].update(rate=1e4, background={"packets_per_second": 3.0, "size": 40})
+    ax = make_rate_axis(dkfsim.load_scenario(data), max_rate=1e4, min_rate=1e3, step=10.0,
+                        keep="centralized_delayed")
+    bound = rate_lower_bound(ax, "centralized_delayed")
+    assert bound["rate"] == (32 - 16) * 8 + 3 * 40 * 8 and bound["link"][1] == -1

@@ -47,13 +47,14 @@ class CentralizedDelayed(Estimator, params=CentralizedDelayedParams):
 
     def arrival_ticks(self) -> tuple[np.ndarray, dict]:
         """Tick (1-based) at which the centre holds sensor i's row r, 0 if never
-        (``(n, K)`` ints: the first ``k`` with ``t_k >= t_{r+1} + latency``), and the counts."""
+        (``(n, K)`` ints: the first ``k`` with ``t_k >= t_{r+1} + latency``), and the counts
+        per sensor (``sent``, ``lost``, ``queue_dropped``: ``(n,)`` ints)."""
         ctx = self.ctx
         s, K, T_ns = ctx.system, ctx.K, ctx.T_ns
         spec = ctx.scenario.link_spec(-1, -1)              # the default settings
         ticks = np.zeros((s.n, K), dtype=np.int64)
         m = ctx.measured()
-        sent = lost = dropped = 0
+        sent, lost, dropped = (np.zeros(s.n, dtype=np.int64) for _ in range(3))   # per sensor
         size = self.packet_bytes()
         for i, name in enumerate(s.names):
             link = ctx.network.extra_link(("direct", name), spec, i, -1)
@@ -62,16 +63,16 @@ class CentralizedDelayed(Estimator, params=CentralizedDelayedParams):
                 if m is not None and not m[r, i]:          # a crashed sensor sends nothing
                     continue
                 t = (r + 1) * T_ns
-                sent += 1
+                sent[i] += 1
                 wait = 0                                   # hand-over to the end of transmission
                 if tx is not None:
                     got = tx.offer(t, size)
                     if got is None:                        # the waiting room is full
-                        dropped += 1
+                        dropped[i] += 1
                         continue
                     wait = got[1] - t
                 arrivals, why = link.transmit(t, 0)
-                lost += why is not None
+                lost[i] += why is not None
                 if arrivals:
                     ticks[i, r] = -(-(t + wait + min(arrivals)) // T_ns)
         return ticks, {"sent": sent, "lost": lost, "queue_dropped": dropped}
@@ -104,8 +105,10 @@ class CentralizedDelayed(Estimator, params=CentralizedDelayedParams):
             slot = (k - 1) % w.S
             x[k - 1], P[k - 1] = w.state.x[slot, 0], w.state.P[slot, 0]
         late = int(((ticks > rows + L) & (ticks <= K)).sum())
-        delivered = int(((ticks > 0) & (ticks <= K)).sum())      # the first copy, by t_K
-        traffic = {**counts, "delivered": delivered, "late": late,
-                   "in_flight": counts["sent"] - counts["lost"] - counts["queue_dropped"] - delivered,
-                   "bytes": counts["sent"] * self.packet_bytes()}
+        per = {**counts, "delivered": ((ticks > 0) & (ticks <= K)).sum(axis=1)}   # first copy, by t_K
+        per["in_flight"] = per["sent"] - per["lost"] - per["queue_dropped"] - per["delivered"]
+        per["bytes"] = per["sent"] * self.packet_bytes()
+        keys = ("sent", "lost", "queue_dropped", "delivered", "in_flight", "bytes")
+        traffic = {**{k: int(per[k].sum()) for k in keys}, "late": late,
+                   "per_link": [{"link": (i, -1), **{k: int(per[k][i]) for k in keys}} for i in range(s.n)]}
         return EstimatorResult({self.name: Estimate(x, P)}, traffic=traffic)
