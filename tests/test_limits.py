@@ -68,6 +68,30 @@ def test_save_summary_removes_a_stale_run_npz(tmp_path):
     assert not (tmp_path / "run.npz").exists() and (tmp_path / "summary.json").exists()
 
 
+def test_a_run_saved_as_summary_reads_back_its_rows_and_refuses_another_burn_in(tmp_path):
+    """issue 24: `RunResult.to_frame()` of a `--save summary` folder (no run.npz) raised KeyError."""
+    sc = dkfsim.load_scenario(scenario(3, steps=20))
+    full, summary = dkfsim.run(sc, save="estimates"), dkfsim.run(sc, save="summary")
+    summary.save(tmp_path)
+    back = dkfsim.load(tmp_path)
+    assert not back.arrays
+    frame, expected = back.to_frame(), summary.to_frame()      # the rows of the run in memory
+    assert list(frame.columns) == list(expected.columns) and len(frame) == len(expected)
+    for col in ("estimate", "component"):
+        assert list(frame[col]) == list(expected[col])
+    for col in ("mse", "anees", "messages_per_tick", "bytes_per_tick"):
+        assert frame[col].to_numpy() == pytest.approx(expected[col].to_numpy(), rel=1e-12, nan_ok=True)
+    got, want = back.metrics(), full.metrics()
+    assert set(got) == set(want) and got["burn_in"] == want["burn_in"]
+    for name in full.estimates:
+        assert got[name] == pytest.approx(want[name], rel=1e-12)
+    assert back.to_frame(burn_in=full.metrics()["burn_in"]).shape == expected.shape
+    assert frame["mse"].to_numpy() == pytest.approx(full.to_frame()["mse"].to_numpy(), rel=1e-12)
+    with pytest.raises(dkfsim.DkfsimError, match=r"saved with --save summary.*burn-in 7") as err:
+        back.to_frame(burn_in=7)
+    assert str(tmp_path) in str(err.value)
+
+
 def test_montecarlo_with_one_run_writes_valid_json(tmp_path):
     import json
 

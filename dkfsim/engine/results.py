@@ -54,12 +54,15 @@ class RunResult(Mapping):
     ``estimates``: names in output order; ``traffic``: each estimate's
     estimator counts (``None``: no network model); ``counts``: the scenario's
     DKF packet counts (``sent``, ``delivered``, ``lost``, ``late``,
-    ``per_link``, ...); ``facts``: side facts of the other estimators.
+    ``per_link``, ...); ``facts``: side facts of the other estimators.  ``saved``: for a
+    folder read without arrays (``--save summary``), ``{"folder", "burn_in", "rows"}`` of its
+    ``summary.json``, which :meth:`rows`, :meth:`to_frame` and :meth:`metrics` return.
     """
 
     def __init__(self, scenario, arrays: dict, counts: dict, info: dict, *, estimates=None,
-                 traffic: dict | None = None, facts: dict | None = None):
+                 traffic: dict | None = None, facts: dict | None = None, saved: dict | None = None):
         self.scenario = scenario
+        self.saved = saved
         self.arrays = arrays
         self.counts = counts
         self.info = info
@@ -120,8 +123,29 @@ class RunResult(Mapping):
         K = self.arrays["truth"].shape[0]
         return default_burn_in(K) if burn_in is None else int(burn_in)
 
+    def saved_rows(self, burn_in: int | None = None) -> list[dict]:
+        """The rows ``summary.json`` holds, for a run read without arrays (``--save summary``);
+        a clear error when there are none or ``burn_in`` asks for another burn-in."""
+        if self.saved is None:
+            raise DkfsimError(f"run {self.scenario.name}: it holds no arrays (no run.npz) and no "
+                              "saved rows: nothing to score")
+        where, burn = self.saved["folder"], self.saved["burn_in"]
+        if burn_in is not None and int(burn_in) != burn:
+            raise DkfsimError(f"{where}: saved with --save summary, so it holds the rows after "
+                              f"{burn} burn-in rows only and no arrays to score burn-in {burn_in}; "
+                              "run it again with --save estimates (or full) to choose the burn-in")
+        return [dict(row) for row in self.saved["rows"]]
+
     def metrics(self, burn_in: int | None = None) -> dict:
         """MSE per state component after the burn-in, by estimate name."""
+        if "truth" not in self.arrays:
+            rows = self.saved_rows(burn_in)
+            assert self.saved is not None                  # saved_rows raised otherwise
+            saved: dict = {"burn_in": self.saved["burn_in"]}
+            for name in self.estimates:
+                saved[name] = [r["mse"] for c in self.components for r in rows
+                               if r["estimate"] == name and r["component"] == c]
+            return saved
         burn = self._burn(burn_in)
         out: dict = {"burn_in": burn}
         with np.errstate(all="ignore"):       # diverged estimates give inf / nan, reported
@@ -138,7 +162,10 @@ class RunResult(Mapping):
 
     def rows(self, burn_in: int | None = None, scored_: dict | None = None) -> list[dict]:
         """The tidy rows of this run (``run`` 0): one per estimate and state component.
-        ``scored_``: :meth:`scored` when the caller has it already (and reuses its NEES)."""
+        ``scored_``: :meth:`scored` when the caller has it already (and reuses its NEES).
+        A run read without arrays (``--save summary``) returns the rows it saved."""
+        if "truth" not in self.arrays and scored_ is None:
+            return self.saved_rows(burn_in)
         scored_ = self.scored(burn_in) if scored_ is None else scored_
         components = self.components
         out = []
@@ -248,8 +275,11 @@ def load_run(folder) -> RunResult:
     traffic = {name: (t if t is None or "per_link" not in t else
                       {**t, "per_link": [{**d, "link": tuple(d["link"])} for d in t["per_link"]]})
                for name, t in summary["traffic"].items()}
+    saved = None
+    if not arrays:
+        saved = {"folder": str(folder), "burn_in": summary["metrics"]["burn_in"], "rows": summary["rows"]}
     return RunResult(scenario, arrays, counts, info, estimates=summary["estimates"],
-                     traffic=traffic, facts=summary["facts"])
+                     traffic=traffic, facts=summary["facts"], saved=saved)
 
 
 #: ``run.npz`` arrays with one row per tick (their first axis is ``steps``): whole names, then
