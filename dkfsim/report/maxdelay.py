@@ -15,8 +15,8 @@ from pathlib import Path
 import numpy as np
 
 from dkfsim.core.extras import optional, pyplot
-from dkfsim.experiments.maxdelay.report import axis_label, metric_label, number_text, pow10_text
-from dkfsim.experiments.maxdelay.search import EXCEEDS, MSE_OF, UNDECIDED, WITHIN
+from dkfsim.experiments.maxdelay.report import axis_label, metric_label, number_text, pow10_text, reference_name
+from dkfsim.experiments.maxdelay.search import EXCEEDS, UNDECIDED, WITHIN, tracked_estimate
 from dkfsim.report.plots.style import DEFAULT_FORMATS, check_formats, color_of, legend_below, plain, save_figure
 
 #: Colours of the decisions, the worst case and the paper bound: none within 0.18 (RGB distance)
@@ -25,11 +25,6 @@ from dkfsim.report.plots.style import DEFAULT_FORMATS, check_formats, color_of, 
 #: ``kcf`` had C1-C4; ``local_only`` the grey).
 COLORS = {"within": "#006d2c", "exceeds": "#67000d", "undecided": "0.72", "worst": "#fdae61",
           "paper": "#2d004b"}
-
-
-def tracked_estimate(st) -> str:
-    """The estimate whose metric the search tracks (``fused`` for the covariance metrics)."""
-    return MSE_OF.get(st.metric, st.estimate if st.metric == "mse" else "fused")
 
 
 def plot_maxdelay(result, stem, formats=DEFAULT_FORMATS) -> dict:
@@ -68,12 +63,12 @@ def plot_maxdelay(result, stem, formats=DEFAULT_FORMATS) -> dict:
     elif result.reference:
         r = result.reference
         top.axhline(r["tolerance"], color="k", ls="--", lw=1,
-                    label=f"tolerance {st.relative:g} x zero-delay mean")
+                    label=f"tolerance {st.relative:g} x {reference_name(ax)} mean")
         top.axhspan(*r["tolerance_ci"], color="k", alpha=0.08, lw=0,
                     label=f"{st.relative:g} x its confidence interval")
     if result.emp.answer is not None:
         top.axvline(ax.value(result.emp.answer), color=color_of(estimate), ls=":", lw=2, zorder=1,
-                    label=f"empirical answer {ax.value(result.emp.answer):g} ({result.emp.status})")
+                    label=f"empirical answer {ax.value(result.emp.answer):.4g} ({result.emp.status})")
     ws = sorted(md.wc.values(), key=lambda c: c.index)
     if ws:
         top.plot([c.delay for c in ws], [c.mean for c in ws], "s-", color=worst, ms=3.5, lw=1.2,
@@ -106,8 +101,14 @@ def plot_maxdelay(result, stem, formats=DEFAULT_FORMATS) -> dict:
                f"{pow10_text(p['log10_lambda_max_bound']['1'])} at d_t = 1")
         top.text(0.01, 0.98, txt, transform=top.transAxes, va="top", fontsize=7.5, color=paper,
                  bbox=dict(boxstyle="round", fc="white", ec=paper, alpha=0.85), zorder=8)
+    bound = getattr(result, "rate_bound", None)
+    if bound and "error" not in bound:
+        top.axvline(bound["rate"], color=paper, ls="-.", lw=1.5,
+                    label=f"lower bound from the packet sizes {bound['rate']:.3g} bit/s (utilisation 1 on "
+                          f"link {bound['link'][0]}->{bound['link'][1]})")
     top.set_ylabel("\n".join(textwrap.wrap(plain(metric_label(st.metric, md.comp_name, md.sc)), 30)))
-    top.set_title(f"Largest {plain(ax.name)} within tolerance (point labels: Monte Carlo runs)", fontsize=10)
+    least = "Least" if ax.mode == "rate" else "Largest"
+    top.set_title(f"{least} {plain(ax.name)} within tolerance (point labels: Monte Carlo runs)", fontsize=10)
     top.grid(alpha=0.3)
     # -- bottom: what the decisions use
     for c in cs:
@@ -127,6 +128,8 @@ def plot_maxdelay(result, stem, formats=DEFAULT_FORMATS) -> dict:
     bot.grid(alpha=0.3)
     if ax.mode == "d_t":
         bot.xaxis.set_major_locator(MaxNLocator(integer=True))
+    elif ax.mode == "rate":
+        bot.set_xscale("log")
     legend_below(fig, [top, bot], ncol=3, fontsize=7.5)
     fig.align_ylabels([top, bot])
     drawn = {"xlabel": bot.get_xlabel(), "ylabel": top.get_ylabel().replace("\n", " "),

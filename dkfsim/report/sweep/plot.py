@@ -53,6 +53,15 @@ METRIC_LABELS = {"mse": "MSE", "anees": "ANEES", "disagreement": "disagreement",
                  "lost": "lost packets per run",
                  "late": "late information per run [packet rows or contributions]"}
 
+#: Positive numeric grid values spanning more than this factor get a log x axis (link rates).
+LOG_X_SPAN = 100.0
+
+
+def log_x(values: list[float]) -> bool:
+    """A log x axis: every value positive and they span more than :data:`LOG_X_SPAN`."""
+    return bool(values) and min(values) > 0 and max(values) / min(values) > LOG_X_SPAN
+
+
 def _key(columns, name: str, flag: str) -> str:
     grid = grid_columns(columns)
     if name in grid:
@@ -393,9 +402,16 @@ def plot_sweep(path, stem, x=None, hue=None, metric="mse", estimate=None, where=
     for c in range(len(cols)):
         last = axes[-1, c]
         last.set_xlabel(axis_label(cur["x"], xlabel))
+        wide = numeric and log_x([float(v) for v in xs])
+        if wide:
+            last.set_xscale("log")
+            last.minorticks_off()
+            last.set_xlabel(last.get_xlabel() + " (log axis)")
         if numeric:
             last.set_xticks([float(v) for v in xs])
             last.set_xticklabels([f"{v:g}" if isinstance(v, float) else plain(v, 40) for v in xs])
+            if wide:                         # values close on a long axis: labels upright
+                last.tick_params(axis="x", labelrotation=90, labelsize=8)
         else:
             last.set_xticks(range(len(xs)))
             last.set_xticklabels([plain(v, 40) for v in xs])
