@@ -149,6 +149,8 @@ class Run:
             if res.facts and est is not self.dkf:
                 facts[est.name] = res.facts
         counts = dict(results[0][1].traffic or {})    # the scenario's DKF: the run's packets
+        if self.dkf.port is not None:     # its rate-limited links over time (none: nothing added)
+            arrays.update(self.dkf.port.link_series(sys_.T_ns, K))
         plan = self.plan
         info = {
             "buffer_length": self.dkf.L,

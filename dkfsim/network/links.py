@@ -45,8 +45,10 @@ chain of zero-latency relays it starts, counts for tick ``k``.
 
 from __future__ import annotations
 
+from array import array
 from typing import Any, Callable, Protocol, cast
 
+import numpy as np
 import simpy
 from simpy.events import NORMAL, Event
 
@@ -54,6 +56,7 @@ from dkfsim.components.faults import CrashSchedule, LinkSpec, ScaleSchedule, Win
 from dkfsim.components.mobility import LinkSchedule
 from dkfsim.core.params import MAX_NS, NS_PER_S, seconds_to_ns
 from dkfsim.core.streams import key64, keyed_uniform
+from dkfsim.network.occupancy import mean_waiting, per_tick
 from dkfsim.network.transmitter import BackgroundArrivals, LinkTraffic, Transmitter
 
 PRIORITY_DELIVER = NORMAL
@@ -313,6 +316,11 @@ class Port:
         self._traffic: dict[int, LinkTraffic] = {}
         #: link id -> the link's statistics as its owner reported them (:meth:`set_link_stats`)
         self._stats: dict[int, dict[str, Any]] = {}
+        #: link id -> (hand-over, start, end) ns of this port's packets its transmitter accepted
+        self._own: dict[int, array] = {}
+        #: link id -> (own, background) interval logs as the port's owner reported them
+        #: (:meth:`set_link_log`)
+        self._logs: dict[int, tuple[np.ndarray, np.ndarray]] = {}
 
     def _grow(self) -> None:
         """One counter slot per link of the network (links may be added after the port)."""
@@ -368,7 +376,7 @@ class Port:
     def _transmitter(self, link: Link) -> Transmitter:
         tx = self._tx.get(link.id)
         if tx is None:
-            tx = self._tx[link.id] = link.transmitter()
+            tx = self._tx[link.id] = link.transmitter(record=True)
         return tx
 
     def _send_rated(self, now: int, seq: int, link: Link, payload: Any, nbytes: int) -> None:
@@ -385,6 +393,10 @@ class Port:
         if traffic is None:
             traffic = self._traffic[lid] = LinkTraffic()
         traffic.delays.append(start - now)
+        own = self._own.get(lid)
+        if own is None:
+            own = self._own[lid] = array("q")
+        own.extend((now, start, end))
         self._fly(now, end - now, link, seq, payload)
 
     def _enqueue(self, now: int, lat: int, link: Link, payload: Any) -> None:
@@ -432,6 +444,68 @@ class Port:
         travel outside the port (the compiled ``tree``)."""
         self._stats[link.id] = dict(stats)
 
+    def set_link_log(self, link: Link, own: np.ndarray, background: np.ndarray) -> None:
+        """The interval logs of a rate-limited ``link``'s transmitter (hand-over, start, end ns;
+        :mod:`~dkfsim.network.occupancy`): this port's accepted packets and the background, for
+        a protocol whose packets travel outside the port (the compiled ``tree``)."""
+        self._logs[link.id] = (np.asarray(own, dtype=np.int64).reshape(-1, 3),
+                               np.asarray(background, dtype=np.int64).reshape(-1, 3))
+
+    def link_log(self, link: Link) -> np.ndarray:
+        """``(packets, 3)`` int64: (hand-over, start, end) ns of every packet the transmitter of
+        rate-limited ``link`` carried as this port saw it -- its own, the background and, with
+        shared queues, the other ports' -- in no particular order (``start < 0``: dropped)."""
+        if link.id in self._logs:
+            return np.concatenate(self._logs[link.id])
+        tx = self._transmitter(link)
+        tx.advance(self.until if self.until is not None else self.env.now)
+        parts = [tx.log()]
+        ports = self.net.ports if self.net.shared_transmitters is not None else [self]
+        for port in ports:
+            own = port.own_log(link)
+            if own is not None and len(own):
+                parts.append(np.frombuffer(own, dtype=np.int64).reshape(-1, 3))
+        return np.concatenate(parts)
+
+    def own_log(self, link: Link) -> array | None:
+        """(hand-over, start, end) ns of this port's accepted packets on ``link``, flat."""
+        return self._own.get(link.id)
+
+    def _own_delays(self, link: Link) -> np.ndarray:
+        """This port's accepted packets' queueing delays on ``link`` (ns)."""
+        if link.id in self._logs:
+            own = self._logs[link.id][0]
+        else:
+            flat = self._own.get(link.id)
+            own = np.frombuffer(flat, dtype=np.int64).reshape(-1, 3) if flat else np.zeros((0, 3), np.int64)
+        return own[:, 1] - own[:, 0]
+
+    def link_series(self, T_ns: int, K: int) -> dict[str, np.ndarray]:
+        """Per tick, each rate-limited link this port reports on: the time-averaged number of
+        packets waiting and the utilisation (:func:`~dkfsim.network.occupancy.per_tick`), as
+        ``run.npz`` keeps them: ``rated_links`` (E, 2), ``queue_length`` and ``utilisation``
+        (K, E), and ``queueing_delay_quantiles`` (E, 101): the percentiles 0, 1, ..., 100 of
+        this port's queueing delays on each link, seconds (NaN without a packet).  Empty without
+        a rate-limited link."""
+        links = [self.net.links[i] for i in self._reported() if self.net.links[i].rate is not None]
+        if not links:
+            return {}
+        queue, busy = zip(*(per_tick(self.link_log(link), T_ns, K) for link in links))
+        quantiles = np.full((len(links), 101), np.nan)
+        for e, link in enumerate(links):
+            d = self._own_delays(link)
+            if len(d):
+                quantiles[e] = np.percentile(d / NS_PER_S, np.arange(101))
+        return {"rated_links": np.array([(l.src, l.dst) for l in links], dtype=np.int64),
+                "queue_length": np.stack(queue, axis=1), "utilisation": np.stack(busy, axis=1),
+                "queueing_delay_quantiles": quantiles}
+
+    def _reported(self) -> list[int]:
+        """The ids of the links this port reports on (given, or those it used)."""
+        count = self._count
+        return self._links if self._links is not None else \
+            [i for i in range(len(self.net.links)) if any(count[k][i] for k in COUNTERS)]
+
     def count_late(self, n: int = 1) -> None:
         """Count ``n`` late items: what is late is the estimator's to decide (e.g. a message
         delivered after its last usable instant, dropped unused); ``counts()["late"]``."""
@@ -447,10 +521,8 @@ class Port:
         totals: dict[str, Any] = {k: sum(c) for k, c in count.items()}
         totals["in_flight"] = (totals["sent"] + totals["copies"] - totals["delivered"]
                                - totals["lost"] - totals["queue_dropped"] - totals["crash_dropped"])
-        used = self._links if self._links is not None else \
-            [i for i in range(len(self.net.links)) if any(c[i] for c in count.values())]
         per_link = []
-        for i in used:
+        for i in self._reported():
             link = self.net.links[i]
             row: dict[str, Any] = {"link": (link.src, link.dst), **{k: c[i] for k, c in count.items()}}
             row["in_flight"] = (row["sent"] + row["copies"] - row["delivered"] - row["lost"]
@@ -460,6 +532,9 @@ class Port:
             elif link.rate is not None:
                 end = self.until if self.until is not None else self.env.now
                 row.update(self._traffic.get(i, LinkTraffic()).stats(self._transmitter(link), end))
+            if link.rate is not None:
+                end = self.until if self.until is not None else self.env.now
+                row["queue_length_mean"] = mean_waiting(self.link_log(link), end)
             per_link.append(row)
         totals["per_link"] = per_link
         totals["late"] = self._late

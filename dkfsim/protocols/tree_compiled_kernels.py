@@ -74,8 +74,9 @@ Links = namedtuple("Links", "G out_ptr out_idx kind key par dinst dcnt seq count
 #: arrival instants that have an event (``times``), those new since the flush began (``newt``),
 #: and the packet being filled per out-link of the flushing node (``outp``, -1: none).
 #: ``dly``/``dlk``: the queueing delay (ns) and link of every packet a transmitter accepted
-#: (``CT[ND]`` of them).
-Pool = namedtuple("Pool", "heap_t heap_o heap_p free pk rows masks times newt outp dly dlk")
+#: (``CT[ND]`` of them), its hand-over instant ``dlt`` and size ``dls`` (bytes): the link's
+#: interval log is replayed from them (:meth:`TreeCompiled._link_stats`).
+Pool = namedtuple("Pool", "heap_t heap_o heap_p free pk rows masks times newt outp dly dlk dlt dls")
 #: The arrival log (``on``: kept): ``arrival`` (node, origin, row) in seconds, and the holdings
 #: ``fheld`` of the last final rows ``frow``, so that a late contribution counts once.
 Log = namedtuple("Log", "on arrival fheld frow")
@@ -400,6 +401,8 @@ def _send(j, deg, now, X, L, P):
                 continue
             P.dly[X.CT[ND]] = start - now
             P.dlk[X.CT[ND]] = e
+            P.dlt[X.CT[ND]] = now
+            P.dls[X.CT[ND]] = size
             X.CT[ND] += 1
             base = L.free_at[e]
         if L.kind[e] == 0:
