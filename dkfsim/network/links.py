@@ -53,6 +53,7 @@ import simpy
 from simpy.events import NORMAL, Event
 
 from dkfsim.components.faults import CrashSchedule, LinkSpec, ScaleSchedule, Windows
+from dkfsim.components.mobility import LinkSchedule
 from dkfsim.core.params import MAX_NS, NS_PER_S, seconds_to_ns
 from dkfsim.core.streams import key64, keyed_uniform
 from dkfsim.network.occupancy import mean_waiting, per_tick
@@ -133,13 +134,18 @@ class Link:
     :param key: the prefix of the link's draw names, ``("link", src, dst)`` by default.
     """
 
-    __slots__ = ("id", "src", "dst", "spec", "loss", "duplicate", "plain", "rate", "_main", "_copy",
-                 "_loss_key", "_dup_key", "_outages", "_prefix", "_seed")
+    __slots__ = ("id", "src", "dst", "spec", "loss", "duplicate", "plain", "rate", "up", "changes", "T_ns",
+                 "_main", "_copy", "_loss_key", "_dup_key", "_outages", "_prefix", "_seed")
 
     def __init__(self, link_id: int, src: int, dst: int, spec: Any, seed: int, T_ns: int,
                  key: tuple | None = None):
         spec = _as_spec(spec)
         self.id, self.src, self.dst, self.spec = link_id, src, dst, spec
+        self.T_ns = int(T_ns)
+        #: per tick ``0 .. K``, 1 while the link is up (:meth:`set_schedule`); None: always up
+        self.up: bytes | None = None
+        #: whether the link is down at some tick ``1 .. K``
+        self.changes = False
         self.loss = float(spec.loss)
         self.duplicate = float(spec.duplicate)
         prefix = ("link", src, dst) if key is None else tuple(key)
@@ -158,11 +164,24 @@ class Link:
                      or spec.jitter is not None or self.rate is not None)
         self.plain = self._main._model.draw if plain else None
 
+    def set_schedule(self, up: bytes) -> None:
+        """The link comes and goes: ``up[k]`` is 1 while it is up at tick ``k`` (docs/design.md
+        §3); a packet handed to it while it is down is lost (``range_lost``)."""
+        self.up = up
+        self.changes = 0 in up[1:]
+
+    def is_up(self, t_ns: int) -> bool:
+        """Whether the link is up at instant ``t_ns`` (the state of the tick ``t_ns`` is in)."""
+        up = self.up
+        return up is None or bool(up[min(t_ns // self.T_ns, len(up) - 1)])
+
     def compiled_latency(self) -> tuple[int, int, int] | None:
         """The latency model's :meth:`~dkfsim.components.latency.Sampler.compiled_form` when
         nothing else acts on the link but a transmitter with no queue or a queue counted in
-        packets, else None (a compiled protocol cannot draw it)."""
+        packets, and the link never goes down, else None (a compiled protocol cannot draw it)."""
         spec = self.spec
+        if self.changes:
+            return None
         if self.loss > 0 or self.duplicate > 0 or spec.outages or spec.schedule or spec.jitter is not None:
             return None
         if spec.queue is not None and spec.queue.packets is None:
@@ -220,11 +239,14 @@ class Network:
         arriving at a node that is down is dropped (``crash_dropped``).
     :param shared_queues: every port's packets through the same transmitter of a
         rate-limited link (default: each port its own, the same background in each).
+    :param schedule: a :class:`~dkfsim.components.mobility.LinkSchedule` of ``arcs``
+        (``mobility:``): which links are up at each tick; None: every link always up.
     """
 
     def __init__(self, env: simpy.Environment, arcs: list[tuple[int, int]],
                  link_spec: Callable[[int, int], Any], seed: int, T_ns: int,
-                 crashes: CrashSchedule | None = None, shared_queues: bool = False):
+                 crashes: CrashSchedule | None = None, shared_queues: bool = False,
+                 schedule: LinkSchedule | None = None):
         self.env = cast(Clock, env)         # (SimPy types time as int | float; here it is ns)
         #: link id -> the transmitter every port uses, when queues are shared (else each port
         #: keeps its own)
@@ -232,6 +254,11 @@ class Network:
         self.seed, self.T_ns = int(seed), int(T_ns)
         self.links = [Link(i, u, v, link_spec(u, v), seed, T_ns) for i, (u, v) in enumerate(arcs)]
         self.index = {(l.src, l.dst): l for l in self.links}
+        #: which links are up at each tick (None: all, always)
+        self.schedule = schedule
+        if schedule is not None:
+            for i, link in enumerate(self.links):
+                link.set_schedule(schedule.column(i))
         self.crashes = crashes if crashes else None
         self.ports: list[Port] = []
 
@@ -273,7 +300,9 @@ class Port:
         self.until = until
         self._receive = receive
         self._links = None if links is None else [l.id for l in links]
-        self._count: dict[str, list[int]] = {k: [] for k in COUNTERS}
+        #: ``range_lost`` (a part of ``lost``) only on a network whose links come and go
+        names = COUNTERS + (("range_lost",) if network.schedule is not None else ())
+        self._count: dict[str, list[int]] = {k: [] for k in names}
         self._late = 0
         self._grow()
         self._instant = -1
@@ -312,6 +341,10 @@ class Port:
             self._grow()
         count["sent"][lid] += 1
         count["bytes"][lid] += nbytes
+        if link.up is not None and not link.is_up(now):
+            count["lost"][lid] += 1          # the pair is out of range: nothing leaves
+            count["range_lost"][lid] += 1
+            return
         if link.rate is not None:
             self._send_rated(now, seq, link, payload, nbytes)
             return
@@ -485,13 +518,13 @@ class Port:
         queueing delays (:meth:`~dkfsim.network.transmitter.LinkTraffic.stats`)."""
         self._grow()
         count = self._count
-        totals: dict[str, Any] = {k: sum(count[k]) for k in COUNTERS}
+        totals: dict[str, Any] = {k: sum(c) for k, c in count.items()}
         totals["in_flight"] = (totals["sent"] + totals["copies"] - totals["delivered"]
                                - totals["lost"] - totals["queue_dropped"] - totals["crash_dropped"])
         per_link = []
         for i in self._reported():
             link = self.net.links[i]
-            row: dict[str, Any] = {"link": (link.src, link.dst), **{k: count[k][i] for k in COUNTERS}}
+            row: dict[str, Any] = {"link": (link.src, link.dst), **{k: c[i] for k, c in count.items()}}
             row["in_flight"] = (row["sent"] + row["copies"] - row["delivered"] - row["lost"]
                                 - row["queue_dropped"] - row["crash_dropped"])
             if i in self._stats:
