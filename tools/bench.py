@@ -22,7 +22,14 @@
 6. Monte Carlo on the one executor: this process, 2 local processes and a Dask
    LocalCluster of 2 worker processes (start-up included), runs per minute and
    whether the rows are identical.
-7. Links that carry the traffic (issue 21): ``paper_case1`` with every link at 1 Mbit/s, a
+7. A graph that changes (issue 23): ``paper_case1`` with ``mobility:`` whose links go down
+   and come back every few ticks (each non-root vehicle out of range one tick in
+   ``--mobility-period``, periodically, and then at random ticks with that probability, so
+   that almost every tick has a new set of links), against the same run on the fixed graph,
+   alternated (``--repeats`` times, min CPU of each); the ratio changing / fixed and the
+   exchange each used (the fixed graph runs the compiled tree where numba is present).
+   ``--mobility-only`` runs this section alone.
+8. Links that carry the traffic (issue 21): ``paper_case1`` with every link at 1 Mbit/s, a
    room of 20 packets and Poisson background (:data:`TRAFFIC`) against the same scenario
    without these keys, both on the backend's defaults (the compiled tree on the numba path),
    alternated in this process, min of ``--repeats``; the issue asks at most 2x.
@@ -206,7 +213,7 @@ def executors_compared(steps: int, runs: int) -> list[tuple[str, float, bool]]:
 
 
 def traffic_cost(ticks: int, repeats: int) -> dict:
-    """Section 7: CPU seconds of ``paper_case1`` with :data:`TRAFFIC` and without (``dkfsim.run``,
+    """Section 8: CPU seconds of ``paper_case1`` with :data:`TRAFFIC` and without (``dkfsim.run``,
     ``save="estimates"``, the environment's backend), each warmed up once, then alternated
     ``repeats`` times in this process; the min of each, their ratio, packets and exchange."""
     plain = dkfsim.load_scenario(ROOT / "scenarios" / "paper_case1.yaml", overrides=[f"steps={ticks}"])
@@ -248,6 +255,62 @@ def kernel_workloads(ticks: int, scale_ticks: int, big_nodes: int, big_ticks: in
         f"200-node tree, no fusion, {scale_ticks} ticks": (tree_scenario(200, scale_ticks, "none"), "summary", None),
         f"{big_nodes}-node tree, d_t = 1, {big_ticks} ticks": (big, "summary", None),
     }
+
+
+def moving_paper_case1(ticks: int, period: int, random: bool = False) -> tuple[dkfsim.Scenario, dkfsim.Scenario]:
+    """``paper_case1`` on its fixed tree, and the same with vehicles 1 m apart (radius 50 m)
+    of which vehicle ``i >= 1`` is 1 km away at the ticks ``k`` with ``(k + i) % period == 0``
+    (``random``: at each tick with probability ``1 / period``, seeded): every tick some links
+    are down, each link comes back the tick after."""
+    import numpy as np
+    fixed = dkfsim.load_scenario(ROOT / "scenarios" / "paper_case1.yaml", overrides=[f"steps={ticks}"])
+    T = fixed.model.T
+    away = np.random.default_rng(0).random((fixed.n, ticks + 1)) < 1 / period if random else \
+        np.array([[(k + i) % period == 0 for k in range(ticks + 1)] for i in range(fixed.n)])
+    vehicles = {"0": {"kind": "constant_velocity"}}
+    for i in range(1, fixed.n):
+        vehicles[str(i)] = {"kind": "waypoints", "points": [
+            [k * T, 1000.0 if away[i, k] else float(i), 0.0] for k in range(ticks + 1)]}
+    data = fixed.to_dict()
+    data["mobility"] = {"vehicles": vehicles, "range": {"model": "disk", "radius": 50.0}}
+    data["buffer_length"] = fixed.buffer_length if isinstance(fixed.buffer_length, int) else \
+        RunPlan_L(fixed)
+    return fixed, dkfsim.load_scenario(data)
+
+
+def RunPlan_L(sc) -> int:       # noqa: N802
+    """The fixed run's buffer length, so that both runs filter the same window."""
+    from dkfsim.config.plan import RunPlan
+    return RunPlan(sc).buffer_length()
+
+
+def changing_graph(ticks: int, period: int, repeats: int) -> None:
+    """Section 7 (see the module): both patterns."""
+    for random in (False, True):
+        changing_graph_line(ticks, period, repeats, random)
+
+
+def changing_graph_line(ticks: int, period: int, repeats: int, random: bool) -> None:
+    """One pattern of section 7: changing graph against fixed, alternated, min CPU each."""
+    fixed, moving = moving_paper_case1(ticks, period, random)
+    dkfsim.run(fixed, steps=50, save="estimates")
+    dkfsim.run(moving, steps=50, save="estimates")
+    cpu = {"fixed": [], "changing": []}
+    info = {}
+    for _ in range(repeats):
+        for label, sc in (("fixed", fixed), ("changing", moving)):
+            _, c, r = timed(sc)
+            cpu[label].append(c)
+            info[label] = r
+    f, m = min(cpu["fixed"]), min(cpu["changing"])
+    rl = info["changing"].counts.get("range_lost", 0)
+    how = f"with probability 1/{period} per tick" if random else f"one tick in {period}"
+    print(f"paper_case1 on a changing graph, {ticks} ticks, each vehicle out of range {how} "
+          f"(L = {info['changing'].info['buffer_length']} both):")
+    print(f"  fixed graph     CPU {f:8.3f} s  (exchange {info['fixed'].info['backend']['exchange']})")
+    print(f"  changing graph  CPU {m:8.3f} s  (exchange {info['changing'].info['backend']['exchange']}, "
+          f"packets lost to range {rl})")
+    print(f"  ratio changing / fixed  {m / f:.2f} x  (min over {repeats} alternated runs each)")
 
 
 def probe(args) -> int:
@@ -323,16 +386,22 @@ def main(argv=None) -> int:
                     help="skip the Monte Carlo comparison of the executors")
     ap.add_argument("--base", metavar="REF", help="before/after: the kernel-heavy runs of this commit against "
                     "this checkout, alternated (see the module's docstring); nothing else runs")
-    ap.add_argument("--repeats", type=int, default=3, help="alternations of --base and of the traffic line "
-                    "(default 3)")
-    ap.add_argument("--skip-traffic", action="store_true", help="skip the rate-limited links' cost (section 7)")
-    ap.add_argument("--traffic-only", action="store_true", help="only the rate-limited links' cost (section 7)")
+    ap.add_argument("--repeats", type=int, default=3, help="alternations of --base, of section 7 and of the "
+                    "traffic line (default 3)")
+    ap.add_argument("--mobility-period", type=int, default=4,
+                    help="section 7: each vehicle is out of range one tick in this many (default 4)")
+    ap.add_argument("--mobility-only", action="store_true", help="run section 7 (a changing graph) alone")
+    ap.add_argument("--skip-traffic", action="store_true", help="skip the rate-limited links' cost (section 8)")
+    ap.add_argument("--traffic-only", action="store_true", help="only the rate-limited links' cost (section 8)")
     ap.add_argument("--probe", action="store_true", help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
     if args.probe:
         return probe(args)
     if args.base:
         return before_after(args)
+    if args.mobility_only:
+        changing_graph(args.ticks, args.mobility_period, args.repeats)
+        return 0
     if args.traffic_only:
         print_traffic_cost(args.ticks, args.repeats)
         return 0
@@ -432,6 +501,9 @@ def main(argv=None) -> int:
         print(f"  1 process            {one['runs_per_minute']:7.1f} runs/min")
         print(f"  2 local workers      {two['runs_per_minute']:7.1f} runs/min  "
               f"(ratio {two['runs_per_minute'] / one['runs_per_minute']:.2f} x)")
+
+    print()
+    changing_graph(args.ticks, args.mobility_period, args.repeats)
 
     if not args.skip_executors:
         print()

@@ -22,7 +22,9 @@ Two kinds of generator:
   renders the blocks from those rows (normal suite) and, in its slow tier, re-runs runs 0 and 1
   of each study and checks they equal the stored rows.
 * ``radar`` (docs/radar.md, docs/figures.md): 200 runs of 21 ticks, recomputed whole by the
-  slow tier (``--check`` recomputes it only when named in ``--only``).
+  slow tier (``--check`` recomputes it only when named in ``--only``); ``mobility``
+  (docs/mobility.md: the shipped mobility scenarios and the range sweep, about 40 runs of
+  300-1080 ticks) likewise.
 
 Timings are never generated: they depend on the machine (decision 205).
 
@@ -512,6 +514,14 @@ def render_radar() -> dict[str, str]:
     return {"radar-table": f"```\n{table}\n```", "radar-summary": para(summary), "radar-reading": reading}
 
 
+def render_mobility() -> dict[str, str]:
+    """tools/mobility_table.py: the shipped mobility scenarios (one run each) and the range sweep
+    (5 runs x 5 ranges, through ``dkfsim sweep``): docs/mobility.md."""
+    sys.path.insert(0, str(ROOT / "tools"))
+    import mobility_table
+    return {"mobility-scenarios": mobility_table.scenario_table(), "mobility-range": mobility_table.range_table()}
+
+
 GENERATORS = (
     Generator("quickstart", ("quickstart", "quickstart-reading"), render_quickstart, cheap=True),
     Generator("paper", ("fig4", "fig5", "fig6"), render_paper, PAPER),
@@ -520,6 +530,7 @@ GENERATORS = (
               render_consensus, (CONSENSUS,)),
     Generator("sweep", ("sweep-table", "sweep-reading"), render_sweep, SWEEP),
     Generator("radar", ("radar-table", "radar-summary", "radar-reading"), render_radar),
+    Generator("mobility", ("mobility-scenarios", "mobility-range"), render_mobility),
 )
 
 

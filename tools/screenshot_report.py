@@ -17,13 +17,21 @@ import sys
 import tempfile
 from pathlib import Path
 
+#: What to do when no Chromium is found (the tool and its test say it).
+INSTALL = "no Chromium found: install it (Debian: apt-get install chromium)"
 
-def chromium() -> str:
+
+def find_chromium() -> str | None:
+    """The path of a Chromium (or Chrome) on PATH, None without one."""
     for name in ("chromium", "chromium-browser", "google-chrome", "chrome"):
         path = shutil.which(name)
         if path:
             return path
-    sys.exit("no Chromium found: install it (Debian: apt-get install chromium)")
+    return None
+
+
+def chromium() -> str:
+    return find_chromium() or sys.exit(INSTALL)
 
 
 def main(argv=None) -> int:

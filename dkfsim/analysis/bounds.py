@@ -328,7 +328,8 @@ def paper_bound(Phi, Q, omegas, P0, graph, p_tol: float, *, horizon: int = 1000,
     meaningful = d_star is not None and d_star >= 0
     if d_star is not None and d_star < 0 and not note:
         note = (f"d* = {d_star:.4g} < 0: even without delay the paper's bound guarantees only "
-                f"lambda_max(P) <= {math.exp(-ln_C0):.4g}, above the tolerance {p_tol:.4g}")
+                f"lambda_max(P) <= {math.exp(-ln_C0):.4g}, above the level p_tol = {p_tol:.4g} it is "
+                "asked for")
     bound = PaperBound(
         p_tol=float(p_tol), n=n, n_bar=g["n_bar"], Z=Z, alpha=g["alpha"], beta=g["beta"],
         alpha_bar=g["alpha_bar"], beta_bar=g["beta_bar"], alpha_used=alpha_used, eta=eta,

@@ -149,10 +149,10 @@ for _name, _metric, _doc in (
          "packets the estimator sent, per tick"),
         ("bytes_per_tick", Metric(_traffic("bytes", True), unit="B/tick"),
          "nominal bytes of those packets (8-byte floats, headers, origin masks), per tick"),
-        ("lost", Metric(_traffic("lost", False)), "packets the links lost"),
-        ("late", Metric(_traffic("late", False)),
-         "information that arrived too late to be used (the DKF: late (packet, row) pairs, or late "
-         "contributions when the run keeps the arrival log; docs/design.md §3)")):
+        ("lost", Metric(_traffic("lost", False), unit="packets/run"), "packets the links lost, per run"),
+        ("late", Metric(_traffic("late", False), unit="items/run"),
+         "information that arrived too late to be used, per run (the DKF: late (packet, row) pairs, or "
+         "late contributions when the run keeps the arrival log; docs/design.md §3; others: packets)")):
     METRICS.add(_name, implementation=_metric, description=_doc)
 
 #: The columns of a tidy row, in order (metrics by their registration order).

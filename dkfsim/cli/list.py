@@ -15,7 +15,7 @@ _NOT_PARAMS = {"model", "kind"}
 def add_command(sub) -> None:
     p = sub.add_parser("list", help="list the registered components: estimators, latency models, ...",
                        description="List what a scenario can name: estimators, latency models, "
-                                   "protocols, graph generators, sensor kinds, metrics and the shipped "
+                                   "protocols, graph generators, sensor kinds, metrics, trajectory kinds and the shipped "
                                    "datasets, each with a one-line description and its parameters "
                                    "(defaults in brackets). Plugins are included once loaded.")
     p.add_argument("what", nargs="?", choices=list(REGISTRIES) + ["datasets"],

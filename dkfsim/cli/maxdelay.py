@@ -21,8 +21,8 @@ from dkfsim.report.maxdelay import save_maxdelay
 
 def add_command(subparsers) -> None:
     p = subparsers.add_parser(
-        "maxdelay", help="largest delay bound for which a metric stays within a tolerance "
-                         "(Monte Carlo, worst case, paper bound)",
+        "maxdelay", help="largest delay bound (or, --axis rate, least link rate) for which a metric "
+                         "stays within a tolerance (Monte Carlo, worst case, paper bound)",
         description="Find the largest delay for which the anti-delay DKF's metric stays within a "
                     "tolerance, three ways: (1) empirically, with a sequential Monte Carlo search "
                     "(galloping then bisection over the delay; at each candidate, runs in batches "
@@ -66,6 +66,19 @@ def add_command(subparsers) -> None:
                    help="grid step of the latency scale s for continuous models (default: 0.25)")
     p.add_argument("--max-scale", type=float, default=16.0, metavar="S",
                    help="largest latency scale tried for continuous models (default: 16)")
+    p.add_argument("--axis", choices=["delay", "rate"], default="delay",
+                   help="delay: the largest delay (default); rate: the least link rate (bit/s) at which "
+                        "the metric stays within the tolerance, with a lower bound from the packet sizes "
+                        "(docs/traffic.md)")
+    p.add_argument("--link", metavar="U,V",
+                   help="with --axis rate: search the rate of this one link (both directions on an "
+                        "undirected topology) (default: every link)")
+    for flag, meta, what in (("--max-rate", "R", "the fastest limited rate tried, bit/s; candidate 0 is no limit"),
+                             ("--min-rate", "R", "the slowest rate tried, bit/s"),
+                             ("--rate-step", "F", "the factor between two candidate rates (> 1)")):
+        default = getattr(Settings, flag[2:].replace("-", "_"))
+        p.add_argument(flag, type=float, default=default, metavar=meta,
+                       help=f"with --axis rate: {what} (default: {default:g})")
     p.add_argument("--burn-in", type=int, metavar="ROWS",
                    help="rows skipped before time-averaging the metric (default: 10%% of the ticks)")
     p.add_argument("--steps", type=int, help="override the number of ticks K (same as --set steps=K); "
@@ -113,7 +126,9 @@ def cmd_maxdelay(args) -> int:
     st = Settings(metric=args.metric, estimate=args.estimate, tolerance=args.tolerance, relative=args.relative,
                   confidence=args.confidence, batch=args.batch, max_runs=args.max_runs,
                   burn_in=args.burn_in, jobs=args.jobs, max_delay=args.max_delay,
-                  scale_step=args.scale_step, max_scale=args.max_scale, component=args.component)
+                  scale_step=args.scale_step, max_scale=args.max_scale, component=args.component,
+                  axis=args.axis, link=args.link, max_rate=args.max_rate, min_rate=args.min_rate,
+                  rate_step=args.rate_step)
     check_target(args.out)                 # before any run: a bad --out costs nothing
     prog = _Progress(args)
     try:

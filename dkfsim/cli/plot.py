@@ -84,10 +84,13 @@ def add_command(sub) -> None:
                         "list of estimates to draw (default: all)")
     s.add_argument("--where", nargs="+", metavar="KEY=VALUE", default=[],
                    help="fix grid keys that are neither --x nor --hue")
+    s.add_argument("--xlabel", metavar="TEXT",
+                   help="x axis label (default: what the --x key is, with its unit, e.g. "
+                        "'per-hop delay bound d_t [ticks]')")
     p.set_defaults(func=cmd_plot)
 
 
-SWEEP_FLAGS = ("x", "hue", "estimate")
+SWEEP_FLAGS = ("x", "hue", "estimate", "xlabel")
 
 
 def _is_sweep(path: str) -> bool:
@@ -99,11 +102,10 @@ def cmd_plot_sweep(args, formats) -> int:
     for flag in ("compare", "relative"):
         if getattr(args, flag):
             raise DkfsimError(f"--{flag}: only for run and Monte Carlo folders, not a sweep")
-    for flag in ("labels", "components", "smooth"):
+    for flag in ("labels", "smooth"):
         if getattr(args, flag) is not None:
-            raise DkfsimError(f"--{flag.rstrip('s') if flag == 'components' else flag}: only for "
-                              "run and Monte Carlo folders; a sweep takes --x, --hue, --metric, "
-                              "--estimate, --where")
+            raise DkfsimError(f"--{flag}: only for run and Monte Carlo folders; a sweep takes --x, "
+                              "--hue, --metric, --estimate, --where, --component, --xlabel")
     path = Path(args.dirs[0])
     curves_x = (args.x or "x").removeprefix("param:").replace(".", "_")
     stem = args.name or f"{args.metric}_vs_{curves_x}" + (f"_by_{args.hue.replace('.', '_')}"
@@ -112,7 +114,7 @@ def cmd_plot_sweep(args, formats) -> int:
     out = Path(args.out) if args.out else _default_out(path.parent, path.stem + "_figures")
     written = plot_sweep(path, out / stem, x=args.x, hue=args.hue, metric=args.metric,
                          estimate=args.estimate, where=args.where, formats=formats, title=args.title,
-                         relative_to=args.relative_to)
+                         relative_to=args.relative_to, components=args.components, xlabel=args.xlabel)
     for f in written:
         say(f"wrote {f}")
     return 0

@@ -47,6 +47,11 @@ def cmd_validate(args) -> int:
     est = estimate_run(plan)
     if est.seconds > 60:               # a large graph: do not spend minutes on its exact diameter
         shape = f"{plan.n_exchange_links} directed links, buffer length L ~ {plan.L_estimate}"
+    elif plan.graph_changes:          # mobility: links come and go (docs/mobility.md)
+        B = plan.connect_window
+        shape = (f"{len(plan.exchange_arcs)} directed links that come and go "
+                 f"({'every B = ' + str(B) + ' ticks a connected union' if B else 'never a connected union'}), "
+                 f"buffer length L = {plan.buffer_length()}")
     else:
         xg = plan.exchange
         shape = (f"{len(xg.arcs)} directed links (d_g = {xg.d_g}), buffer length "

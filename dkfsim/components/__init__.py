@@ -6,4 +6,4 @@ and recorded tracks: everything a scenario key can name, validated here,
 below the configuration stage that reads them.
 """
 
-from dkfsim.components import estimators, faults, latency, sensors, topology, truth  # noqa: F401
+from dkfsim.components import estimators, faults, latency, sensors, topology, trajectories, truth  # noqa: F401

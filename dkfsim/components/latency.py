@@ -23,6 +23,9 @@ unless a key says otherwise (``d_t`` counts sampling periods).
     it in order, one row per tick of the run (row ``start + k`` for a packet
     sent during tick ``k``, cycling; ``start`` drawn per link when absent).
     Bounded by its largest value.
+``cellular_sinr {sinr, one_way, scale}``
+    a cellular (V2N) link: the CICV5G round trips of the SINR's bin (quantiles
+    fitted by tools/fit_sinr_latency.py).  Bounded by the bin's largest value.
 ``gilbert_elliott {p_good_to_bad, p_bad_to_good, good, bad, loss_good, loss_bad, initial}``
     a two-state Markov channel per link, stepped once per tick: latency and
     loss depend on the state at the send instant.
@@ -52,7 +55,8 @@ import scipy.special
 from pydantic import Field, PrivateAttr, TypeAdapter, ValidationInfo, model_validator
 from typing_extensions import override
 
-from dkfsim.core.datafiles import DataFileError, locate, read_table
+from dkfsim.core.datafiles import DATA_DIR, DataFileError, locate, read_table
+from dkfsim.core.files import read_json
 from dkfsim.core.params import (
     MAX_NS,
     NS_PER_S,
@@ -547,6 +551,56 @@ class _GESampler(Sampler):
             return lat, False
         p = self.m.loss_bad if bad else self.m.loss_good
         return lat, keyed_uniform(self.loss_key, t_ns, seq) < p
+
+
+# =========================================================================== cellular (V2N) by SINR
+#: The shipped fit of ``cellular_sinr`` (tools/fit_sinr_latency.py writes it; a test recomputes it).
+SINR_FIT_FILE = DATA_DIR / "cicv5g" / "sinr_latency_fit.json"
+_SINR_FIT: dict = {}
+
+
+def sinr_fit() -> dict:
+    """The shipped SINR-binned latency quantiles (read once)."""
+    if not _SINR_FIT:
+        _SINR_FIT.update(read_json(SINR_FIT_FILE, what="the cellular_sinr fit"))
+    return _SINR_FIT
+
+
+def sinr_latency_ms(u, sinr_db, fit: dict) -> np.ndarray:
+    """Round-trip latencies (ms) for uniforms ``u`` at SINRs ``sinr_db`` (broadcast): the
+    quantile function of the SINR's bin, linear between the fit's quantile levels."""
+    u, sinr = np.broadcast_arrays(np.asarray(u, float), np.asarray(sinr_db, float))
+    which = np.searchsorted(np.asarray(fit["bin_edges_db"], float), sinr, side="right")
+    levels = np.asarray(fit["levels"], float)
+    out = np.empty(u.shape)
+    for b, entry in enumerate(fit["bins"]):
+        sel = which == b
+        out[sel] = np.interp(u[sel], levels, np.asarray(entry["quantiles_ms"], float))
+    return out
+
+
+@LATENCY_MODELS.register("cellular_sinr")
+class CellularSinr(LatencyParams):
+    """A cellular (V2N, car -> cloud -> car) link: CICV5G latencies of the SINR's bin."""
+
+    model: Literal["cellular_sinr"] = "cellular_sinr"
+    #: The link's SINR (dB), constant for the run (docs/latency_models.md).
+    sinr: Annotated[float, Field(strict=True, ge=-50, le=80, allow_inf_nan=False)]
+    one_way: Annotated[bool, Field(strict=True)] = False
+    scale: PosReal = 1.0
+    scale_keys: ClassVar = ("scale",)
+
+    def factor(self) -> float:
+        """Seconds per recorded millisecond after ``one_way`` and ``scale``."""
+        return 1e-3 * self.scale * (0.5 if self.one_way else 1.0)
+
+    @override
+    def from_uniform(self, u, T_ns):
+        return _clamped(sinr_latency_ms(u, self.sinr, sinr_fit()) * self.factor() * NS_PER_S)
+
+    @override
+    def sup_ns(self, T_ns):
+        return int(self.from_uniform(1.0, T_ns))
 
 
 #: The field type of a latency model in a scenario (any registered model).

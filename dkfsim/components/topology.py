@@ -380,6 +380,61 @@ def bfs_spanning_tree(graph: nx.Graph) -> nx.Graph:
     return tree
 
 
+def bfs_spanning_forest(n: int, edges) -> list[tuple[int, int]]:
+    """The edges ``(parent, child)`` of a BFS spanning tree of every connected component of
+    the graph on nodes ``0 .. n-1`` with ``edges``, each rooted at its lowest-index centre,
+    neighbours in increasing order: :func:`bfs_spanning_tree` of a graph that may be
+    disconnected (the links up at one tick of a graph that changes), in plain Python, since a
+    run may need one per tick."""
+    adj: list[list[int]] = [[] for _ in range(n)]
+    for u, v in edges:
+        if u != v:
+            adj[u].append(v)
+            adj[v].append(u)
+    adj = [sorted(set(a)) for a in adj]
+
+    def bfs(root: int) -> list[int]:
+        """Distances from ``root`` (-1: unreached)."""
+        dist = [-1] * n
+        dist[root] = 0
+        frontier = [root]
+        while frontier:
+            nxt = []
+            for u in frontier:
+                for v in adj[u]:
+                    if dist[v] < 0:
+                        dist[v] = dist[u] + 1
+                        nxt.append(v)
+            frontier = nxt
+        return dist
+
+    out: list[tuple[int, int]] = []
+    done = [False] * n
+    for start in range(n):
+        if done[start]:
+            continue
+        comp = [i for i, d in enumerate(bfs(start)) if d >= 0]
+        for i in comp:
+            done[i] = True
+        if len(comp) == 1:
+            continue
+        ecc = {i: max(bfs(i)) for i in comp}
+        radius = min(ecc.values())
+        root = min(i for i in comp if ecc[i] == radius)
+        seen = {root}
+        frontier = [root]
+        while frontier:
+            nxt = []
+            for u in frontier:
+                for v in adj[u]:
+                    if v not in seen:
+                        seen.add(v)
+                        out.append((u, v))
+                        nxt.append(v)
+            frontier = nxt
+    return out
+
+
 def all_pairs_work(graph: nx.Graph | nx.DiGraph) -> int:
     """Nodes and edges visited by one breadth-first search from every node: the cost
     of an exact diameter or centre of a graph that is not a tree."""

@@ -26,6 +26,26 @@ from dkfsim.core.params import (
 
 #: Units of the constant-acceleration model's components (matplotlib mathtext), for axis labels.
 CA_UNITS = {"position": "m", "velocity": "m/s", "acceleration": "m/s$^2$"}
+#: Units of every component name :func:`component_names` gives a kinematic model (constant
+#: acceleration, or constant velocity on 1-3 axes: ``x, vx, y, vy, ...``); lengths in metres.
+KINEMATIC_UNITS = {**CA_UNITS, **{a: "m" for a in "xyz"}, **{"v" + a: "m/s" for a in "xyz"}}
+
+
+def component_units(components, kind: str | None = None) -> list[str]:
+    """The unit of each state component (mathtext), "" where the model has none: the names of a
+    kinematic model (:data:`KINEMATIC_UNITS`) when ``components`` are exactly those
+    :func:`component_names` gives it; ``kind`` None (a sweep, which stores only the names)
+    accepts any such set."""
+    comps = list(components)
+    kinds = ("constant_acceleration", "constant_velocity") if kind is None else (kind,)
+    if any(comps == component_names(k, len(comps)) for k in kinds if k != "linear"):
+        return [KINEMATIC_UNITS.get(c, "") for c in comps]
+    return [""] * len(comps)
+
+
+def state_text(components) -> str:
+    """``state [x, vx, y, vy]``: the order of the state vector, for figure and table captions."""
+    return "state [" + ", ".join(map(str, components)) + "]"
 
 
 def component_names(kind: str | None, nx: int) -> list[str]:

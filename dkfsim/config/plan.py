@@ -14,8 +14,9 @@ The plan has one section per kind of fact, so that later work extends one place:
 
 * the network: the topology graph, its arcs (one link each) and the per-hop delay bound
   (links with rates and queues add their settings here);
-* the exchange: the protocol, the graph it runs on and that graph's diameter (a graph that
-  changes with time adds its schedule here);
+* the exchange: the protocol, the graph it runs on and that graph's diameter; with
+  ``mobility:`` the per-tick link schedule (:attr:`RunPlan.link_schedule`) and the window
+  ``B`` of the finite-time result on a changing graph;
 * the buffer: ``L`` for any ``buffer_length``, exact or bounded (a rule for changing graphs
   goes into :meth:`RunPlan.buffer_length`);
 * the anti-delay DKF instances: the scenario's own and every listed one, their settings
@@ -37,6 +38,7 @@ import networkx
 
 from dkfsim.components import topology as topo
 from dkfsim.components.estimators import AntiDelayParams, NoBufferParams
+from dkfsim.components.mobility import LinkSchedule
 from dkfsim.core.resources import B_FLOAT, C_VISIT, CHEAP_VISITS, SaveMode, resolve_save_mode
 
 
@@ -73,7 +75,7 @@ class RunPlan:
     def resolve(self) -> RunPlan:
         """Work out now every fact a run reads (the graphs, the exchange graph's diameter, the
         delay bound), so that the copies :meth:`with_seed` makes share them; returns the plan."""
-        _ = self.arcs, self.exchange.d_g, self.d_t, self.latency_bound
+        _ = self.arcs, self.exchange.d_g, self.d_t, self.latency_bound, self.connect_window, self.tree_schedule
         return self
 
     # -- the network ------------------------------------------------------------------
@@ -91,6 +93,69 @@ class RunPlan:
         return topo.topology_arcs(self.graph)
 
     @functools.cached_property
+    def link_schedule(self) -> LinkSchedule | None:
+        """Which links (:attr:`arcs`) are up at each tick ``0 .. K``, from the vehicles'
+        positions and the range (``mobility:``); None without ``mobility``."""
+        sc = self.scenario
+        if sc.mobility is None:
+            return None
+        K = int(sc.steps)
+        positions = sc.mobility.positions(sc.n, K, sc.model.T)
+        return LinkSchedule.from_positions(positions, self.arcs, sc.mobility.range)
+
+    @property
+    def graph_changes(self) -> bool:
+        """Whether some link is down at some tick (a schedule that never changes runs as the
+        fixed graph, bit for bit)."""
+        schedule = self.link_schedule
+        return schedule is not None and schedule.changes
+
+    @functools.cached_property
+    def connect_window(self) -> int | None:
+        """``B`` of the finite-time result on a changing graph (docs/design.md §6): the
+        shortest length such that every interval of ``B`` ticks has a strongly connected union
+        of the exchange graph's links; None without a changing graph, or when none exists."""
+        schedule = self.link_schedule
+        if schedule is None or not schedule.changes:
+            return None
+        index = {arc: i for i, arc in enumerate(self.arcs)}
+        return schedule.connect_window(self.scenario.n, [index[a] for a in self.exchange_arcs])
+
+    @functools.cached_property
+    def tree_schedule(self) -> dict[int, list[tuple[int, int]]] | None:
+        """``tree`` on a graph that changes: tick -> the arcs of the spanning forest from that
+        tick on (a BFS tree of each component of the links up then, as ``spanning_tree``
+        builds, :func:`~dkfsim.components.topology.bfs_spanning_forest`), at tick 1 and at
+        every tick whose graph differs from the tick before.  None otherwise."""
+        schedule = self.link_schedule
+        if schedule is None or not schedule.changes or self.protocol_graph != "tree":
+            return None
+        out: dict[int, list[tuple[int, int]]] = {}
+        seen: dict[bytes, list[tuple[int, int]]] = {}      # link sets recur: one forest each
+        prev = None
+        for k in range(1, schedule.K + 1):
+            key = schedule.up[k].tobytes()
+            if key == prev:
+                continue
+            prev = key
+            arcs = seen.get(key)
+            if arcs is None:
+                forest = topo.bfs_spanning_forest(
+                    self.scenario.n, [a for a, on in zip(self.arcs, schedule.up[k].tolist()) if on])
+                arcs = seen[key] = sorted(forest + [(v, u) for u, v in forest])
+            out[k] = arcs
+        return out
+
+    @property
+    def exchange_arcs(self) -> list[tuple[int, int]]:
+        """The arcs the protocol may use: the exchange graph's, or, for ``tree`` on a graph
+        that changes (whose tree is rebuilt from the links up, :attr:`tree_schedule`), every
+        arc of the topology."""
+        if self.protocol_graph == "tree" and self.graph_changes:
+            return self.arcs
+        return self.exchange.arcs
+
+    @functools.cached_property
     def latency_bound(self) -> int | None:
         """The largest per-hop delay in steps the links the protocol uses can produce (None if
         unbounded), whatever ``links.d_t`` assumes.  Without overrides every link has the
@@ -99,7 +164,7 @@ class RunPlan:
         if not sc.links.overrides:
             return sc.link_spec(-1, -1).bound_steps(sc.T_ns)
         bound = 0
-        for u, v in self.exchange.arcs:
+        for u, v in self.exchange_arcs:
             b = sc.link_spec(u, v).bound_steps(sc.T_ns)
             if b is None:
                 return None
@@ -113,7 +178,7 @@ class RunPlan:
         sc = self.scenario
         if not sc.links.overrides:
             return sc.link_spec(-1, -1).rate is not None
-        return any(sc.link_spec(u, v).rate is not None for u, v in self.exchange.arcs)
+        return any(sc.link_spec(u, v).rate is not None for u, v in self.exchange_arcs)
 
     @functools.cached_property
     def d_t(self) -> int | None:
@@ -125,7 +190,7 @@ class RunPlan:
     def unbounded_models(self) -> list[str]:
         """The unbounded latency models of the links the protocol uses (sorted names)."""
         sc = self.scenario
-        return sorted({name for u, v in self.exchange.arcs for name in sc.link_spec(u, v).unbounded_models(sc.T_ns)})
+        return sorted({name for u, v in self.exchange_arcs for name in sc.link_spec(u, v).unbounded_models(sc.T_ns)})
 
     # -- the exchange ----------------------------------------------------------------------
     @property
@@ -175,21 +240,29 @@ class RunPlan:
     # -- the buffer --------------------------------------------------------------------------
     def buffer_length(self, spec: str | int | None = None) -> int:
         """``L`` for ``buffer_length`` ``spec`` (default: the scenario's), docs/design.md §4:
-        ``auto`` -> ``d_t d_g + 1``, ``paper`` -> ``max(d_t, 1)``, an integer -> itself."""
+        ``auto`` -> ``d_t d_g + 1``, on a changing graph ``(n - 1)(B + d_t) + 1``
+        (:attr:`connect_window`), ``paper`` -> ``max(d_t, 1)``, an integer -> itself."""
         spec = self.scenario.buffer_length if spec is None else spec
         if isinstance(spec, int):
             return spec
         d_t = self.d_t
         if d_t is None:
             raise ValueError(f"buffer_length {spec!r} needs a delay bound (validation refuses this scenario)")
-        return max(d_t, 1) if spec == "paper" else d_t * self.exchange.d_g + 1
+        if spec == "paper":
+            return max(d_t, 1)
+        if self.graph_changes:
+            B = self.connect_window
+            if B is None:
+                raise ValueError("buffer_length 'auto' needs a window B (validation refuses this scenario)")
+            return (self.scenario.n - 1) * (B + d_t) + 1
+        return d_t * self.exchange.d_g + 1
 
     def buffer_length_bound(self, spec: str | int | None = None) -> tuple[int, bool]:
         """``(L, exact)``: :meth:`buffer_length`, or, when ``auto`` would need the diameter of
         a large graph that is not a tree (:attr:`diameter_is_costly`), the cheap lower bound
         ``d_t * lower + 1`` with ``exact`` false.  For checks that must answer in seconds."""
         spec = self.scenario.buffer_length if spec is None else spec
-        if spec == "auto" and self.diameter_is_costly:
+        if spec == "auto" and self.diameter_is_costly and not self.graph_changes:
             return (self.d_t or 0) * self.diameter_bounds[0] + 1, False
         return self.buffer_length(spec), True
 

@@ -56,6 +56,7 @@ from dkfsim.components import topology as topo
 from dkfsim.components.estimators import BufferLength, CentralizedParams, EstimatorParams
 from dkfsim.components.faults import Faults, LinkSpec, Schedule, Window
 from dkfsim.components.latency import Constant, LatencyModel
+from dkfsim.components.mobility import SCHEDULE_LIMIT, Mobility
 from dkfsim.components.sensors import SensorParams
 from dkfsim.components.traffic import TRAFFIC_KEYS, TrafficKeys
 from dkfsim.components.truth import TruthParams
@@ -181,6 +182,8 @@ class Scenario(StrictModel):
     truth: TruthParams | None = None
     #: Sensor faults (crash windows), see :mod:`dkfsim.components.faults`.
     faults: Faults | None = None
+    #: Vehicles that move: links up only while in range (:mod:`dkfsim.components.mobility`).
+    mobility: Mobility | None = None
 
     _source: str | None = PrivateAttr(default=None)
     _base_dir: str | None = PrivateAttr(default=None)
@@ -195,6 +198,15 @@ class Scenario(StrictModel):
                 if not isinstance(s, (dict, BaseModel)):
                     raise custom_error(f"must be a mapping, got {type(s).__name__} {s!r}", str(i))
         return v
+
+    @model_validator(mode="before")
+    @classmethod
+    def _mobility_topology(cls, data: Any) -> Any:
+        """With ``mobility:`` the topology defaults to every pair (links then exist while in
+        range): the complete graph, written as ``erdos_renyi`` with ``p: 1`` (decision 170)."""
+        if isinstance(data, dict) and data.get("mobility") is not None and "topology" not in data:
+            data = {**data, "topology": {"generator": "erdos_renyi", "params": {"p": 1.0, "seed": 0}}}
+        return data
 
     @model_validator(mode="before")
     @classmethod
@@ -350,11 +362,35 @@ class Scenario(StrictModel):
         self._check_traffic()
         if self.faults is not None:
             self.faults.check(n)
+        if self.mobility is not None:
+            self._check_mobility(plan)
         if self.buffer_length in ("auto", "paper") and plan.d_t is None:
             raise custom_error(
                 f"{self.buffer_length!r} needs a delay bound, but latency model "
                 f"{', '.join(plan.unbounded_models())} is unbounded; set an explicit links.d_t (delay bound "
                 "in steps) or an integer buffer_length", "buffer_length")
+
+    def _check_mobility(self, plan: RunPlan) -> None:
+        """Every node a trajectory, a schedule that fits in memory, and what a changing graph
+        cannot do: paper weights on a tree that changes; ``auto`` without a window ``B``."""
+        assert self.mobility is not None
+        self.mobility.check(self.n)
+        size = (self.steps + 1) * len(plan.arcs)
+        if size > SCHEDULE_LIMIT:
+            raise custom_error(f"the link schedule has one entry per tick and link, {self.steps + 1} x "
+                               f"{len(plan.arcs)} = {size:.3g}, more than the {SCHEDULE_LIMIT:.3g} a run may "
+                               "keep; use fewer steps or a sparser topology", "mobility")
+        if not plan.graph_changes:
+            return
+        if self.weights == "paper":
+            raise custom_error("'paper' weights are not defined on a graph that changes (mobility: links "
+                               "come and go, and the weights follow the tree's degrees); use weights: "
+                               "unit", "weights")
+        if self.buffer_length == "auto" and plan.connect_window is None:
+            raise custom_error(
+                f"'auto' sizes the buffer from B, the length after which every interval of ticks has a "
+                f"connected union graph; with these trajectories and range the union of all {self.steps} "
+                "ticks is not connected, so no B exists: give an integer buffer_length", "buffer_length")
 
     def _check_traffic(self) -> None:
         """A queue limit or background load acts through the transmitter: it needs a rate."""
@@ -392,7 +428,8 @@ class Scenario(StrictModel):
             raise custom_error(f"a delay bound of {d_t} steps of {self.model.T:g} s is beyond {limit}",
                                "links.d_t" if self.links.d_t is not None else "links")
         # L <= d_t (n - 1) + 1 (the diameter is below n): the exact L only when that bound is too large.
-        if isinstance(self.buffer_length, int) or (d_t or 0) * (self.n - 1) * T_ns > MAX_NS:
+        if isinstance(self.buffer_length, int) or (d_t or 0) * (self.n - 1) * T_ns > MAX_NS \
+                or plan.graph_changes:
             if plan.buffer_length() * T_ns > MAX_NS:
                 raise custom_error(f"L = {plan.buffer_length()} rows of {self.model.T:g} s span "
                                    f"more than {limit}; use a smaller delay bound or buffer_length",

@@ -148,14 +148,19 @@ def _numeric(field: str) -> bool:
         return False
 
 
-def read_table(path: str | os.PathLike) -> Table:
-    """Read a table (cached on path, modification time and size)."""
-    path = Path(path)
+def file_key(path: Path) -> tuple[str, int, int]:
+    """``(path, modification time, size)``: what a cache of the file's contents is keyed on."""
     try:
         st = path.stat()
     except OSError as err:
         raise DataFileError(f"cannot read {path}: {err.strerror}") from None
-    key = (str(path), st.st_mtime_ns, st.st_size)
+    return str(path), st.st_mtime_ns, st.st_size
+
+
+def read_table(path: str | os.PathLike) -> Table:
+    """Read a table (cached on path, modification time and size)."""
+    path = Path(path)
+    key = file_key(path)
     table = _TABLES.get(key)
     if table is not None:
         return table

@@ -4,7 +4,8 @@ matplotlib (figures), Pillow (compact PNGs; ships with matplotlib),
 dask.distributed (clusters), pyarrow (Parquet), pandas and xarray (notebook
 conversions) are extras (``pip install 'dkfsim[plots]'``, ``[cluster]``,
 ``[notebook]``); numba (the compiled kernels, a core dependency) is imported
-here too, on the first filter, so commands that never filter do not pay it.  Every other module imports them through these functions,
+here too, on the first filter, so commands that never filter do not pay it, and so is
+defusedxml (safe XML, a core dependency), when a SUMO FCD file is read.  Every other module imports them through these functions,
 never at module level, so the core installs and imports without them and a
 missing one is a clear error that says what to install.
 """
@@ -23,6 +24,7 @@ _HINTS = {
     "pyarrow": ("Parquet export", "pip install 'dkfsim[cluster]' (or pip install pyarrow), or export to .csv"),
     "pandas": ("to_frame()", "pip install 'dkfsim[notebook]' (or pip install pandas)"),
     "xarray": ("to_xarray()", "pip install 'dkfsim[notebook]' (or pip install xarray)"),
+    "defusedxml": ("reading SUMO FCD files", "pip install defusedxml (a dependency of dkfsim: reinstall it)"),
     "numba": ("the compiled kernels", "pip install numba (or set DKFSIM_KERNELS=numpy)"),
 }
 

@@ -139,9 +139,12 @@ PROTOCOLS = Registry("protocol", "protocol")
 ESTIMATORS = Registry("estimator", "kind")
 SENSOR_KINDS = Registry("sensor kind", "kind")
 METRICS = Registry("metric", "metric")
+#: How a vehicle moves (issue 23): ``components/trajectories.py``.
+TRAJECTORIES = Registry("trajectory kind", "kind")
 REGISTRIES: dict[str, Registry] = {
     "generators": GENERATORS, "latency": LATENCY_MODELS, "protocols": PROTOCOLS,
     "estimators": ESTIMATORS, "sensors": SENSOR_KINDS, "metrics": METRICS,
+    "trajectories": TRAJECTORIES,
 }
 
 #: Entry-point groups whose modules are imported as plugins: ``dkfsim.plugins``

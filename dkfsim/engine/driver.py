@@ -49,7 +49,7 @@ def run_backend(plan: RunPlan, network: Network, crashes: CrashSchedule | None) 
     twin, a link it cannot draw, crash windows, transmitters shared between estimators)."""
     backend = Backend.from_environment()
     if backend.compiled_exchange:
-        links = [network.link(u, v) for u, v in plan.exchange.arcs]
+        links = [network.link(u, v) for u, v in plan.exchange_arcs]
         shared = network.shared_transmitters is not None and plan.rate_limited
         if shared or not tree_compiled.usable(plan.protocol, links, crashes):
             backend = backend.python_exchange()
@@ -78,7 +78,7 @@ class Run:
         crashes = CrashSchedule(scenario.faults, system.n) or None
         env = simpy.Environment()
         network = Network(env, plan.arcs, scenario.link_spec, seed, system.T_ns, crashes=crashes,
-                          shared_queues=bool(scenario.links.shared_queues))
+                          shared_queues=bool(scenario.links.shared_queues), schedule=plan.link_schedule)
         self.backend = run_backend(plan, network, crashes)
         self.ctx = RunContext(scenario=scenario, plan=plan, backend=self.backend, system=system, truth=truth, ys=ys,
                               info=system.information(ys), crashes=crashes, env=env, network=network)
@@ -149,6 +149,8 @@ class Run:
             if res.facts and est is not self.dkf:
                 facts[est.name] = res.facts
         counts = dict(results[0][1].traffic or {})    # the scenario's DKF: the run's packets
+        if self.dkf.port is not None:     # its rate-limited links over time (none: nothing added)
+            arrays.update(self.dkf.port.link_series(sys_.T_ns, K))
         plan = self.plan
         info = {
             "buffer_length": self.dkf.L,

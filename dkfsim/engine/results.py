@@ -182,7 +182,8 @@ class RunResult(Mapping):
     def summary(self, burn_in: int | None = None) -> dict:
         sc = self.scenario
         counts = {k: v for k, v in self.counts.items() if k != "per_link"}
-        traffic = {name: (None if t is None else {k: v for k, v in t.items() if k != "per_link"})
+        traffic = {name: (None if t is None else {k: (_json_links(v) if k == "per_link" else v)
+                                                  for k, v in t.items()})
                    for name, t in self.traffic.items()}
         return {
             "scenario": sc.name,
@@ -200,7 +201,7 @@ class RunResult(Mapping):
             "rows": self.rows(burn_in),
             "diverged": self.diverged,
             "packets": counts,
-            "per_link": [{**d, "link": list(d["link"])} for d in self.counts.get("per_link", [])],
+            "per_link": _json_links(self.counts.get("per_link", [])),
             "traffic": traffic,
             "facts": self.facts,
             "scenario_config": sc.to_dict(),
@@ -217,6 +218,11 @@ class RunResult(Mapping):
             write_rows(tmp / "rows.csv", summary["rows"])
             write_json(tmp / "summary.json", summary)
         return Path(out_dir)
+
+
+def _json_links(rows) -> list[dict]:
+    """Per-link rows as summary.json keeps them (the link as a list)."""
+    return [{**d, "link": list(d["link"])} for d in rows]
 
 
 def write_rows(path, rows: list[dict]) -> None:
@@ -266,14 +272,19 @@ def load_run(folder) -> RunResult:
     counts = dict(summary["packets"])
     counts["per_link"] = [{**d, "link": tuple(d["link"])} for d in summary["per_link"]]
     info = {key: summary[key] for key in INFO_KEYS if key in summary}
+    traffic = {name: (t if t is None or "per_link" not in t else
+                      {**t, "per_link": [{**d, "link": tuple(d["link"])} for d in t["per_link"]]})
+               for name, t in summary["traffic"].items()}
     saved = None
     if not arrays:
         saved = {"folder": str(folder), "burn_in": summary["metrics"]["burn_in"], "rows": summary["rows"]}
     return RunResult(scenario, arrays, counts, info, estimates=summary["estimates"],
-                     traffic=summary["traffic"], facts=summary["facts"], saved=saved)
+                     traffic=traffic, facts=summary["facts"], saved=saved)
 
 
-#: ``run.npz`` arrays with one row per tick (their first axis is ``steps``).
+#: ``run.npz`` arrays with one row per tick (their first axis is ``steps``): whole names, then
+#: prefixes.
+PER_TICK_ARRAYS = ("t", "truth", "queue_length", "utilisation")
 PER_TICK = ("t", "truth", "x_", "P_", "y_", "z_", "Rc_")
 
 
@@ -284,7 +295,7 @@ def _check_arrays(z: NpzFile, scenario, estimates) -> None:
     for key, h in z.headers.items():
         if not h.numeric:
             raise DkfsimError(f"{z.path}: array {clip(key)} holds {h.dtype} values, expected numbers")
-        per_tick = key in ("t", "truth") or (key.startswith(PER_TICK[2:]) and key not in NOT_ESTIMATES)
+        per_tick = key in PER_TICK_ARRAYS or (key.startswith(PER_TICK[2:]) and key not in NOT_ESTIMATES)
         if per_tick and (not h.shape or h.shape[0] != K):
             raise DkfsimError(f"{z.path}: array {clip(key)} has shape {h.shape}; the run has "
                               f"{K} ticks (steps in summary.json)")

@@ -53,11 +53,11 @@ def late_horizon(plan: RunPlan, n: int, L: int) -> int:
 
     Nothing is sent for a final row, so with a latency bound of ``d`` steps per
     hop a late packet arrives at most ``d + 1`` rows after its row became
-    final: keep that many.  Unbounded latency, or a rate-limited link (queueing has no
-    bound): 4096 rows, fewer on large networks so that the holdings (n masks of n bits per
-    row) stay near 64 MB.
+    final: keep that many.  Unbounded latency, a rate-limited link (queueing has no
+    bound) or a graph that changes (a link-up resends old rows): 4096 rows, fewer on large
+    networks so that the holdings (n masks of n bits per row) stay near 64 MB.
     """
-    bound = None if plan.rate_limited else plan.latency_bound
+    bound = None if plan.rate_limited or plan.graph_changes else plan.latency_bound
     if bound is not None:
         return bound + 2
     per_row = n * (n // 8 + 32)
@@ -124,6 +124,8 @@ class AntiDelayDKF(Estimator, params=AntiDelayParams):
         self.exchange = protocol(ctx.env, n, self.holdings, arrival=self.arrival,
                                  late_horizon=late_horizon(plan, n, self.L), nx=nx, T_ns=ctx.T_ns)
         self.exchange.crashes = ctx.crashes
+        if plan.tree_schedule is not None:
+            self.exchange.tree_changes = plan.tree_schedule
         self.exchange.attach(self.open_port(self.exchange.receive, links), links)
         self.x_local = np.empty((K, n, nx))
         # P_local is the one (K, n, nx, nx) array: skip it when nothing will save it

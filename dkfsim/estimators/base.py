@@ -142,9 +142,10 @@ class RunContext:
 
     def exchange_links(self) -> list[Link]:
         """The links of the graph the scenario's ``protocol`` runs on (``plan.exchange``: the
-        tree, or a spanning tree of the topology, for ``tree``; every arc for ``flood``):
-        what the anti-delay DKF and ``ci_consensus`` talk over."""
-        return [self.network.link(u, v) for u, v in self.plan.exchange.arcs]
+        tree, or a spanning tree of the topology, for ``tree``; every arc for ``flood``; every
+        arc for a ``tree`` rebuilt on a graph that changes): what the anti-delay DKF and
+        ``ci_consensus`` talk over."""
+        return [self.network.link(u, v) for u, v in self.plan.exchange_arcs]
 
 
 def existing_information_bytes(scenario: Scenario) -> int:

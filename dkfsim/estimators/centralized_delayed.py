@@ -4,11 +4,15 @@ Each sensor sends its row to the centre at its tick over a direct link with
 the scenario's *default* link settings (latency model, loss, jitter,
 schedule, outages, duplication: the earlier copy counts); the per-link
 overrides name links of the graph, which the centre is not on.  The links'
-draws are named ``("direct", <sensor name>, ...)``.  The centre runs the
+draws are named ``("direct", <sensor name>, ...)``.  With a ``rate`` in the
+default settings each direct link has its transmitter (its ``queue`` and
+``background`` too, docs/traffic.md), like every link of the graph: a packet
+leaves at the end of its transmission, or is dropped when the waiting room is
+full (``queue_dropped``).  The centre runs the
 anti-delay window filter with the DKF's buffer length ``L``: a row arriving
 after it became final is late.  A crashed sensor sends nothing.  Traffic:
-``sent = delivered + lost + in_flight`` (a duplicated packet counts once,
-by its first copy).
+``sent = delivered + lost + queue_dropped + in_flight`` (a duplicated packet
+counts once, by its first copy).
 """
 
 from __future__ import annotations
@@ -27,7 +31,8 @@ class CentralizedDelayed(Estimator, params=CentralizedDelayedParams):
     """The window filter of a fusion centre that receives every sensor over its own link."""
 
     #: Its packets and their nominal sizes (bytes; docs/estimators.md, "Packet sizes").
-    packets = ("one per sensor and tick on its direct link (latency and loss only: rate, queue and background are not applied yet)")
+    packets = ("one per sensor and tick on its direct link: 16 + 8 (nx + nx(nx+1)/2) "
+               "(the measurement's information vector and matrix)")
 
     @classmethod
     @override
@@ -42,25 +47,40 @@ class CentralizedDelayed(Estimator, params=CentralizedDelayedParams):
 
     def arrival_ticks(self) -> tuple[np.ndarray, dict]:
         """Tick (1-based) at which the centre holds sensor i's row r, 0 if never
-        (``(n, K)`` ints: the first ``k`` with ``t_k >= t_{r+1} + latency``), and the counts."""
+        (``(n, K)`` ints: the first ``k`` with ``t_k >= t_{r+1} + latency``), and the counts
+        per sensor (``sent``, ``lost``, ``queue_dropped``: ``(n,)`` ints)."""
         ctx = self.ctx
         s, K, T_ns = ctx.system, ctx.K, ctx.T_ns
         spec = ctx.scenario.link_spec(-1, -1)              # the default settings
         ticks = np.zeros((s.n, K), dtype=np.int64)
         m = ctx.measured()
-        sent = lost = 0
+        sent, lost, dropped = (np.zeros(s.n, dtype=np.int64) for _ in range(3))   # per sensor
+        size = self.packet_bytes()
         for i, name in enumerate(s.names):
             link = ctx.network.extra_link(("direct", name), spec, i, -1)
+            tx = link.transmitter() if link.rate is not None else None
             for r in range(K):
                 if m is not None and not m[r, i]:          # a crashed sensor sends nothing
                     continue
                 t = (r + 1) * T_ns
+                sent[i] += 1
+                wait = 0                                   # hand-over to the end of transmission
+                if tx is not None:
+                    got = tx.offer(t, size)
+                    if got is None:                        # the waiting room is full
+                        dropped[i] += 1
+                        continue
+                    wait = got[1] - t
                 arrivals, why = link.transmit(t, 0)
-                sent += 1
-                lost += why is not None
+                lost[i] += why is not None
                 if arrivals:
-                    ticks[i, r] = -(-(t + min(arrivals)) // T_ns)
-        return ticks, {"sent": sent, "lost": lost}
+                    ticks[i, r] = -(-(t + wait + min(arrivals)) // T_ns)
+        return ticks, {"sent": sent, "lost": lost, "queue_dropped": dropped}
+
+    def packet_bytes(self) -> int:
+        """A sensor's packet: header and its measurement's information vector and matrix."""
+        nx = self.ctx.system.nx
+        return 16 + 8 * (nx + nx * (nx + 1) // 2)
 
     def finish(self) -> EstimatorResult:
         ctx = self.ctx
@@ -85,8 +105,10 @@ class CentralizedDelayed(Estimator, params=CentralizedDelayedParams):
             slot = (k - 1) % w.S
             x[k - 1], P[k - 1] = w.state.x[slot, 0], w.state.P[slot, 0]
         late = int(((ticks > rows + L) & (ticks <= K)).sum())
-        delivered = int(((ticks > 0) & (ticks <= K)).sum())      # the first copy, by t_K
-        traffic = {**counts, "delivered": delivered, "late": late,
-                   "in_flight": counts["sent"] - counts["lost"] - delivered,
-                   "bytes": counts["sent"] * (16 + 8 * (s.nx + s.nx * (s.nx + 1) // 2))}
+        per = {**counts, "delivered": ((ticks > 0) & (ticks <= K)).sum(axis=1)}   # first copy, by t_K
+        per["in_flight"] = per["sent"] - per["lost"] - per["queue_dropped"] - per["delivered"]
+        per["bytes"] = per["sent"] * self.packet_bytes()
+        keys = ("sent", "lost", "queue_dropped", "delivered", "in_flight", "bytes")
+        traffic = {**{k: int(per[k].sum()) for k in keys}, "late": late,
+                   "per_link": [{"link": (i, -1), **{k: int(per[k][i]) for k in keys}} for i in range(s.n)]}
         return EstimatorResult({self.name: Estimate(x, P)}, traffic=traffic)

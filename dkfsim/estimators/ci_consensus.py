@@ -177,7 +177,7 @@ class CIConsensus(RoundBased, params=CIParams):
     def _average(self, k: int) -> None:
         """One consensus step at tick ``k`` with the newest pair held from each in-link."""
         box = self.box["pair"]
-        have = box.stamp >= 0
+        have = self.current(box.stamp >= 0)
         Om_nb, q_nb = box.f["Om"], box.f["q"]
         age = k - (box.stamp // self.rounds + 1)
         old = np.flatnonzero(have & (age > 0))

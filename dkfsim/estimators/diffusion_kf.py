@@ -28,7 +28,6 @@ the centralized filter.  Runs on the scenario's full topology.
 from __future__ import annotations
 
 import numpy as np
-import scipy.sparse
 from typing_extensions import override
 
 from dkfsim.components.estimators import DiffusionParams
@@ -53,10 +52,15 @@ class DiffusionKF(RoundBased, params=DiffusionParams):
 
     def setup(self) -> None:
         super().setup()
-        if self.params.weights == "uniform":      # c_ij = 1 / (|N_i| + 1)
-            indeg = np.bincount(self.dst, minlength=self.n)
-            self.S = scipy.sparse.csr_matrix((1.0 / (1.0 + indeg[self.dst]), (self.dst, np.arange(self.E))),
-                                             shape=(self.n, self.E))
+        if self.params.weights == "uniform":
+            self.S = self.weight_matrix(np.ones(self.E, dtype=bool))
+
+    def arc_weights(self, on: np.ndarray) -> np.ndarray:
+        """``uniform``: ``c_ij = 1 / (|N_i| + 1)`` over the arcs ``on``; else Metropolis."""
+        if self.params.weights != "uniform":
+            return super().arc_weights(on)
+        indeg = np.bincount(self.dst[on], minlength=self.n)
+        return np.where(on, 1.0 / (1.0 + indeg[self.dst]), 0.0)
 
     def boxes(self):
         nx = self.nx

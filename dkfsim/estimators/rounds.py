@@ -18,6 +18,11 @@ module holds what they share:
   and counted ``late``; an older stamp than the one held is ``superseded``);
 * Metropolis weights and the masked convex combination that leaves out a
   neighbour without a fresh message and gives its weight to the node itself;
+* on a graph that changes (``mobility:``), the current neighbours: the computations of
+  tick ``k`` (its sub-slots, and its end at ``t_{k+1}``) use the arcs up at tick ``k``
+  only (a message counts as fresh only on such an arc; nothing is sent on a down arc), and
+  the weights of that graph's degrees, so a node without a neighbour filters alone and
+  mixes again when its links return (docs/consensus.md);
 * the information-form helpers (one batched solve, no explicit inverse).
 """
 
@@ -206,6 +211,14 @@ class RoundBased(Estimator):
         # A[v, a] = 1 for arc a = (u -> v): sums over in-neighbours.
         self.A = scipy.sparse.csr_matrix((np.ones(E), (self.dst, np.arange(E))), shape=(n, E))
         self.box = {name: Box(E, shapes) for name, shapes in self.boxes().items()}
+        # A graph that changes: the arcs' states per tick (K + 1, E), else None.
+        self._up_table: np.ndarray | None = None
+        if self.links and any(link.changes for link in self.links):
+            self._up_table = np.stack([np.frombuffer(link.up or b"", dtype=np.uint8) for link in self.links],
+                                      axis=1).astype(bool)
+        #: (E,) the arcs up at the tick being computed (all of them on a fixed graph)
+        self.up_now = np.ones(E, dtype=bool)
+        self._up_tick = -1
         self.setup()
         self.x_out = np.empty((self.K, n, self.nx))
         self.P_out = np.empty((self.K, n, self.nx, self.nx))
@@ -233,10 +246,46 @@ class RoundBased(Estimator):
         now = self.env.now
         return np.array([i for i in range(self.n) if self.crashes.down(i, now)], dtype=np.intp)
 
+    def follow_graph(self, k: int) -> None:
+        """On a graph that changes: take the arcs up at tick ``k`` (the tick being computed),
+        and the weights of that graph's degrees (a down arc weighs nothing)."""
+        table = self._up_table
+        if table is None:
+            return
+        k = min(k, table.shape[0] - 1)
+        if k == self._up_tick:
+            return
+        self._up_tick = k
+        up = table[k]
+        if np.array_equal(up, self.up_now):
+            return
+        self.up_now = up.copy()
+        self.S = self.weight_matrix(up)
+
+    def arc_weights(self, on: np.ndarray) -> np.ndarray:
+        """(E,) the weight of each arc in the graph of the arcs ``on`` (0 off it): Metropolis
+        by default (a subclass with other weights overrides it)."""
+        pi = np.zeros(self.E)
+        idx = np.flatnonzero(on)
+        if idx.size:
+            pi[idx] = metropolis_weights(self.n, np.column_stack([self.src[idx], self.dst[idx]]))
+        return pi
+
+    def weight_matrix(self, on: np.ndarray) -> scipy.sparse.csr_matrix:
+        """``S[v, a] = pi_a`` for arc ``a = (u -> v)`` of the graph of the arcs ``on``."""
+        return scipy.sparse.csr_matrix((self.arc_weights(on), (self.dst, np.arange(self.E))),
+                                       shape=(self.n, self.E))
+
+    def current(self, have: np.ndarray) -> np.ndarray:
+        """``have`` restricted to the arcs up at the tick being computed (unchanged on a
+        fixed graph)."""
+        return have if self._up_table is None else have & self.up_now
+
     def fresh(self, box: str, first: int, last: int | None = None) -> np.ndarray:
-        """(E,) bool: the arc holds a message of ``box`` stamped in ``[first, last]``."""
+        """(E,) bool: the arc holds a message of ``box`` stamped in ``[first, last]`` (and, on
+        a graph that changes, is up at the tick being computed)."""
         st = self.box[box].stamp
-        return (st >= first) if last is None else (st >= first) & (st <= last)
+        return self.current((st >= first) if last is None else (st >= first) & (st <= last))
 
     def mix(self, own: np.ndarray, nb: np.ndarray, have: np.ndarray) -> np.ndarray:
         """``pi_ii' own_i + sum_j pi_ij nb_j`` over the arcs in ``have``; the weight of the
@@ -261,8 +310,9 @@ class RoundBased(Estimator):
         state = (g, box, fields)
         send = self.port.send
         down = set(self._down().tolist())
-        for link in self.links:
-            if link.src not in down:          # a crashed node sends nothing
+        up = self.up_now
+        for a, link in enumerate(self.links):
+            if link.src not in down and up[a]:      # a crashed node sends nothing; nor a down arc
                 send(link, state, nbytes)
 
     def _receive(self, link, payload) -> None:
@@ -284,9 +334,11 @@ class RoundBased(Estimator):
         k, l = g // self.slots + 1, g % self.slots
         if l == 0:
             if k > 1:
+                self.follow_graph(k - 1)         # tick k - 1 ends with its own graph
                 self.end_tick(k - 1)
             if k > self.K:
                 return
+            self.follow_graph(k)
             self.begin_tick(k)
         else:
             self.step(k, l)

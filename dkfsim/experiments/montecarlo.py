@@ -292,8 +292,9 @@ def _montecarlo(sc, runs: int, jobs, burn: int, progress, executor) -> "MonteCar
 
 def scenario_estimates(sc) -> list[str]:
     """The estimate names a run of ``sc`` gives, as far as the scenario says (the DKF's
-    ``fused`` and ``local``, then each listed estimator's name)."""
-    return ["fused", "local", *(p.label for p in sc.estimators)]
+    ``fused`` -- none with ``fusion: none`` -- and ``local``, then each listed estimator's name)."""
+    dkf = ["local"] if sc.fusion == "none" else ["fused", "local"]
+    return [*dkf, *(p.label for p in sc.estimators)]
 
 
 def check_reference(sc, relative_to: str | None) -> None:
@@ -302,8 +303,10 @@ def check_reference(sc, relative_to: str | None) -> None:
         return
     names = scenario_estimates(sc)
     if not isinstance(relative_to, str) or relative_to not in names:
+        why = "; the scenario has fusion: none, so there is no fused estimate" \
+            if relative_to == "fused" and sc.fusion == "none" else ""
         raise DkfsimError(f"--relative-to {relative_to}: not an estimate of {sc.name} "
-                          f"(estimates: {', '.join(names)})")
+                          f"(estimates: {', '.join(names)}){why}")
 
 
 def load_montecarlo(folder) -> "MonteCarloResult":

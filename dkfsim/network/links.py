@@ -45,14 +45,18 @@ chain of zero-latency relays it starts, counts for tick ``k``.
 
 from __future__ import annotations
 
+from array import array
 from typing import Any, Callable, Protocol, cast
 
+import numpy as np
 import simpy
 from simpy.events import NORMAL, Event
 
 from dkfsim.components.faults import CrashSchedule, LinkSpec, ScaleSchedule, Windows
+from dkfsim.components.mobility import LinkSchedule
 from dkfsim.core.params import MAX_NS, NS_PER_S, seconds_to_ns
 from dkfsim.core.streams import key64, keyed_uniform
+from dkfsim.network.occupancy import mean_waiting, per_tick
 from dkfsim.network.transmitter import BackgroundArrivals, LinkTraffic, Transmitter, background_keys
 
 PRIORITY_DELIVER = NORMAL
@@ -130,13 +134,18 @@ class Link:
     :param key: the prefix of the link's draw names, ``("link", src, dst)`` by default.
     """
 
-    __slots__ = ("id", "src", "dst", "spec", "loss", "duplicate", "plain", "rate", "_main", "_copy",
-                 "_loss_key", "_dup_key", "_outages", "_prefix", "_seed", "_faultless")
+    __slots__ = ("id", "src", "dst", "spec", "loss", "duplicate", "plain", "rate", "up", "changes", "T_ns",
+                 "_main", "_copy", "_loss_key", "_dup_key", "_outages", "_prefix", "_seed", "_faultless")
 
     def __init__(self, link_id: int, src: int, dst: int, spec: Any, seed: int, T_ns: int,
                  key: tuple | None = None):
         spec = _as_spec(spec)
         self.id, self.src, self.dst, self.spec = link_id, src, dst, spec
+        self.T_ns = int(T_ns)
+        #: per tick ``0 .. K``, 1 while the link is up (:meth:`set_schedule`); None: always up
+        self.up: bytes | None = None
+        #: whether the link is down at some tick ``1 .. K``
+        self.changes = False
         self.loss = float(spec.loss)
         self.duplicate = float(spec.duplicate)
         prefix = ("link", src, dst) if key is None else tuple(key)
@@ -156,12 +165,23 @@ class Link:
         #: :meth:`Port.send`, equal to :meth:`transmit`.  None otherwise.
         self.plain = self._main._model.draw if self._faultless and self.rate is None else None
 
+    def set_schedule(self, up: bytes) -> None:
+        """The link comes and goes: ``up[k]`` is 1 while it is up at tick ``k`` (docs/design.md
+        §3); a packet handed to it while it is down is lost (``range_lost``)."""
+        self.up = up
+        self.changes = 0 in up[1:]
+
+    def is_up(self, t_ns: int) -> bool:
+        """Whether the link is up at instant ``t_ns`` (the state of the tick ``t_ns`` is in)."""
+        up = self.up
+        return up is None or bool(up[min(t_ns // self.T_ns, len(up) - 1)])
+
     def compiled_latency(self) -> tuple[int, int, int] | None:
         """The latency model's :meth:`~dkfsim.components.latency.Sampler.compiled_form` when
         nothing else acts on the link but a transmitter with no queue or a queue counted in
-        packets, else None (a compiled protocol cannot draw it)."""
+        packets, and the link never goes down, else None (a compiled protocol cannot draw it)."""
         spec = self.spec
-        if not self._faultless:
+        if self.changes or not self._faultless:
             return None
         if spec.queue is not None and spec.queue.packets is None:
             return None
@@ -218,11 +238,14 @@ class Network:
         arriving at a node that is down is dropped (``crash_dropped``).
     :param shared_queues: every port's packets through the same transmitter of a
         rate-limited link (default: each port its own, the same background in each).
+    :param schedule: a :class:`~dkfsim.components.mobility.LinkSchedule` of ``arcs``
+        (``mobility:``): which links are up at each tick; None: every link always up.
     """
 
     def __init__(self, env: simpy.Environment, arcs: list[tuple[int, int]],
                  link_spec: Callable[[int, int], Any], seed: int, T_ns: int,
-                 crashes: CrashSchedule | None = None, shared_queues: bool = False):
+                 crashes: CrashSchedule | None = None, shared_queues: bool = False,
+                 schedule: LinkSchedule | None = None):
         self.env = cast(Clock, env)         # (SimPy types time as int | float; here it is ns)
         #: link id -> the transmitter every port uses, when queues are shared (else each port
         #: keeps its own)
@@ -230,6 +253,11 @@ class Network:
         self.seed, self.T_ns = int(seed), int(T_ns)
         self.links = [Link(i, u, v, link_spec(u, v), seed, T_ns) for i, (u, v) in enumerate(arcs)]
         self.index = {(l.src, l.dst): l for l in self.links}
+        #: which links are up at each tick (None: all, always)
+        self.schedule = schedule
+        if schedule is not None:
+            for i, link in enumerate(self.links):
+                link.set_schedule(schedule.column(i))
         self.crashes = crashes if crashes else None
         self.ports: list[Port] = []
 
@@ -271,7 +299,9 @@ class Port:
         self.until = until
         self._receive = receive
         self._links = None if links is None else [l.id for l in links]
-        self._count: dict[str, list[int]] = {k: [] for k in COUNTERS}
+        #: ``range_lost`` (a part of ``lost``) only on a network whose links come and go
+        names = COUNTERS + (("range_lost",) if network.schedule is not None else ())
+        self._count: dict[str, list[int]] = {k: [] for k in names}
         self._late = 0
         self._grow()
         self._instant = -1
@@ -285,6 +315,11 @@ class Port:
         self._traffic: dict[int, LinkTraffic] = {}
         #: link id -> the link's statistics as its owner reported them (:meth:`set_link_stats`)
         self._stats: dict[int, dict[str, Any]] = {}
+        #: link id -> (hand-over, start, end) ns of this port's packets its transmitter accepted
+        self._own: dict[int, array] = {}
+        #: link id -> (own, background) interval logs as the port's owner reported them
+        #: (:meth:`set_link_log`)
+        self._logs: dict[int, tuple[np.ndarray, np.ndarray]] = {}
 
     def _grow(self) -> None:
         """One counter slot per link of the network (links may be added after the port)."""
@@ -305,6 +340,10 @@ class Port:
             self._grow()
         count["sent"][lid] += 1
         count["bytes"][lid] += nbytes
+        if link.up is not None and not link.is_up(now):
+            count["lost"][lid] += 1          # the pair is out of range: nothing leaves
+            count["range_lost"][lid] += 1
+            return
         if link.rate is not None:
             self._send_rated(now, seq, link, payload, nbytes)
             return
@@ -336,7 +375,7 @@ class Port:
     def _transmitter(self, link: Link) -> Transmitter:
         tx = self._tx.get(link.id)
         if tx is None:
-            tx = self._tx[link.id] = link.transmitter()
+            tx = self._tx[link.id] = link.transmitter(record=True)
         return tx
 
     def _send_rated(self, now: int, seq: int, link: Link, payload: Any, nbytes: int) -> None:
@@ -353,6 +392,10 @@ class Port:
         if traffic is None:
             traffic = self._traffic[lid] = LinkTraffic()
         traffic.delays.append(start - now)
+        own = self._own.get(lid)
+        if own is None:
+            own = self._own[lid] = array("q")
+        own.extend((now, start, end))
         self._fly(now, end - now, link, seq, payload)
 
     def _enqueue(self, now: int, lat: int, link: Link, payload: Any) -> None:
@@ -400,6 +443,68 @@ class Port:
         outside the port (the compiled ``tree``)."""
         self._stats[link.id] = dict(stats)
 
+    def set_link_log(self, link: Link, own: np.ndarray, background: np.ndarray) -> None:
+        """The interval logs of a rate-limited ``link``'s transmitter (hand-over, start, end ns;
+        :mod:`~dkfsim.network.occupancy`): this port's accepted packets and the background, for
+        a protocol whose packets travel outside the port (the compiled ``tree``)."""
+        self._logs[link.id] = (np.asarray(own, dtype=np.int64).reshape(-1, 3),
+                               np.asarray(background, dtype=np.int64).reshape(-1, 3))
+
+    def link_log(self, link: Link) -> np.ndarray:
+        """``(packets, 3)`` int64: (hand-over, start, end) ns of every packet the transmitter of
+        rate-limited ``link`` carried as this port saw it -- its own, the background and, with
+        shared queues, the other ports' -- in no particular order (``start < 0``: dropped)."""
+        if link.id in self._logs:
+            return np.concatenate(self._logs[link.id])
+        tx = self._transmitter(link)
+        tx.advance(self.until if self.until is not None else self.env.now)
+        parts = [tx.log()]
+        ports = self.net.ports if self.net.shared_transmitters is not None else [self]
+        for port in ports:
+            own = port.own_log(link)
+            if own is not None and len(own):
+                parts.append(np.frombuffer(own, dtype=np.int64).reshape(-1, 3))
+        return np.concatenate(parts)
+
+    def own_log(self, link: Link) -> array | None:
+        """(hand-over, start, end) ns of this port's accepted packets on ``link``, flat."""
+        return self._own.get(link.id)
+
+    def _own_delays(self, link: Link) -> np.ndarray:
+        """This port's accepted packets' queueing delays on ``link`` (ns)."""
+        if link.id in self._logs:
+            own = self._logs[link.id][0]
+        else:
+            flat = self._own.get(link.id)
+            own = np.frombuffer(flat, dtype=np.int64).reshape(-1, 3) if flat else np.zeros((0, 3), np.int64)
+        return own[:, 1] - own[:, 0]
+
+    def link_series(self, T_ns: int, K: int) -> dict[str, np.ndarray]:
+        """Per tick, each rate-limited link this port reports on: the time-averaged number of
+        packets waiting and the utilisation (:func:`~dkfsim.network.occupancy.per_tick`), as
+        ``run.npz`` keeps them: ``rated_links`` (E, 2), ``queue_length`` and ``utilisation``
+        (K, E), and ``queueing_delay_quantiles`` (E, 101): the percentiles 0, 1, ..., 100 of
+        this port's queueing delays on each link, seconds (NaN without a packet).  Empty without
+        a rate-limited link."""
+        links = [self.net.links[i] for i in self._reported() if self.net.links[i].rate is not None]
+        if not links:
+            return {}
+        queue, busy = zip(*(per_tick(self.link_log(link), T_ns, K) for link in links))
+        quantiles = np.full((len(links), 101), np.nan)
+        for e, link in enumerate(links):
+            d = self._own_delays(link)
+            if len(d):
+                quantiles[e] = np.percentile(d / NS_PER_S, np.arange(101))
+        return {"rated_links": np.array([(l.src, l.dst) for l in links], dtype=np.int64),
+                "queue_length": np.stack(queue, axis=1), "utilisation": np.stack(busy, axis=1),
+                "queueing_delay_quantiles": quantiles}
+
+    def _reported(self) -> list[int]:
+        """The ids of the links this port reports on (given, or those it used)."""
+        count = self._count
+        return self._links if self._links is not None else \
+            [i for i in range(len(self.net.links)) if any(count[k][i] for k in COUNTERS)]
+
     def count_late(self, n: int = 1) -> None:
         """Count ``n`` late items: what is late is the estimator's to decide (e.g. a message
         delivered after its last usable instant, dropped unused); ``counts()["late"]``."""
@@ -412,15 +517,13 @@ class Port:
         queueing delays (:meth:`~dkfsim.network.transmitter.LinkTraffic.stats`)."""
         self._grow()
         count = self._count
-        totals: dict[str, Any] = {k: sum(count[k]) for k in COUNTERS}
+        totals: dict[str, Any] = {k: sum(c) for k, c in count.items()}
         totals["in_flight"] = (totals["sent"] + totals["copies"] - totals["delivered"]
                                - totals["lost"] - totals["queue_dropped"] - totals["crash_dropped"])
-        used = self._links if self._links is not None else \
-            [i for i in range(len(self.net.links)) if any(count[k][i] for k in COUNTERS)]
         per_link = []
-        for i in used:
+        for i in self._reported():
             link = self.net.links[i]
-            row: dict[str, Any] = {"link": (link.src, link.dst), **{k: count[k][i] for k in COUNTERS}}
+            row: dict[str, Any] = {"link": (link.src, link.dst), **{k: c[i] for k, c in count.items()}}
             row["in_flight"] = (row["sent"] + row["copies"] - row["delivered"] - row["lost"]
                                 - row["queue_dropped"] - row["crash_dropped"])
             if i in self._stats:
@@ -428,6 +531,9 @@ class Port:
             elif link.rate is not None:
                 end = self.until if self.until is not None else self.env.now
                 row.update(self._traffic.get(i, LinkTraffic()).stats(self._transmitter(link), end))
+            if link.rate is not None:
+                end = self.until if self.until is not None else self.env.now
+                row["queue_length_mean"] = mean_waiting(self.link_log(link), end)
             per_link.append(row)
         totals["per_link"] = per_link
         totals["late"] = self._late

@@ -60,7 +60,8 @@ def row_bytes(nx: int, n: int) -> int:
 class Wiring:
     """The links an exchange runs over, indexed locally: ``links[e]`` is link ``e``
     (``lid[link.id] == e``), ``out_links[j]`` node ``j``'s out-links in order, ``reverse[e]``
-    the local index of the link back (``None`` without one)."""
+    the local index of the link back (``None`` without one); on a graph that changes
+    (``mobility:``), ``came_up[k]`` the links that come up at tick ``k`` (down at ``k - 1``)."""
 
     def __init__(self, links: Sequence[Link], n: int):
         self.links = list(links)
@@ -71,6 +72,13 @@ class Wiring:
             self.out_links[link.src].append(link)
         by_arc = {(l.src, l.dst): i for i, l in enumerate(self.links)}
         self.reverse = [by_arc.get((l.dst, l.src)) for l in self.links]
+        self.came_up: dict[int, list[Link]] = {}
+        for link in self.links:
+            if link.up is not None and link.changes:
+                up = link.up
+                for k in range(1, len(up)):
+                    if up[k] and not up[k - 1]:
+                        self.came_up.setdefault(k, []).append(link)
 
 
 def exchange_counts(late: int, late_per_node: list[int], logged: bool, duplicates: int,
@@ -154,6 +162,8 @@ class Exchange:
         wiring = Wiring(links, self.n)
         self.links, self.lid, self.n_links = wiring.links, wiring.lid, wiring.n_links
         self.out_links, self.reverse = wiring.out_links, wiring.reverse
+        #: tick -> the links that come up then (a graph that changes; empty otherwise)
+        self.came_up = wiring.came_up
         #: per link: delivered packets that carried a contribution for a row
         #: already final at the receiver.
         self.late_packets = [0] * self.n_links

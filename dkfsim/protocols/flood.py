@@ -4,6 +4,11 @@ Each contribution ``(origin, row)`` goes on along every out-link except
 back to the neighbour it came from; duplicates are dropped.  Exact on any
 strongly connected digraph: the directed-graph case of the paper
 (docs/design.md §5).
+
+On a graph that changes (``mobility:``) nothing is sent on a link that is down, and a
+link that comes up at tick ``k`` carries, at ``t_k``, everything its sender holds for the
+window's rows: a contribution is relayed once, when first held, so without this resend a
+link that appears later would never carry it (docs/design.md §5, §6 "Time-varying graphs").
 """
 
 from __future__ import annotations
@@ -30,6 +35,8 @@ class FloodExchange(Exchange):
         self.schedule_flush(j)
 
     def measure(self, row: int) -> None:
+        for link in self.came_up.get(row + 1, ()):        # row's tick: links that came up
+            self._resend(link)
         st = self.rows[row]
         for i in self.measuring_nodes():
             self.gain(i, row, st, 1 << i)
@@ -45,9 +52,23 @@ class FloodExchange(Exchange):
             self.gain(j, row, st, new)
             self._queue(j, row, new, link.src)
 
+    def _resend(self, link) -> None:
+        """``link`` came up: queue on it everything its sender holds for the window's rows."""
+        j = link.src
+        if self.crashes is not None and self.crashes.down(j, self.env.now):
+            return                              # a node that is down sends nothing
+        p = self._pending[self.lid[link.id]]
+        for row, st in self.rows.items():
+            if st.held[j]:
+                p[row] = p.get(row, 0) | st.held[j]
+        self.schedule_flush(j)
+
     def flush(self, j: int) -> None:
+        now = self.env.now
         for link in self.out_links[j]:
             p = self._pending[self.lid[link.id]]
+            if p and link.up is not None and not link.is_up(now):
+                p.clear()                       # out of range: its link-up resend carries it
             if p:
                 items = tuple((row, m) for row, m in sorted(p.items()) if row in self.rows)
                 p.clear()

@@ -7,6 +7,14 @@ the paper's ``Theta_i - msg(j -> i)`` update, which subtracts a stale
 message under asynchrony (docs/design.md §5).  Messages carry a per-link
 sequence number; a message for a row supersedes the stored one only if its
 number is higher (links reorder).
+
+On a graph that changes (``mobility:``) the tree is rebuilt whenever the links up change
+(:attr:`TreeExchange.tree_changes`, worked out by the run plan): from that tick on node
+``i`` sends only on the arcs of the new spanning forest, and on each arc new to it sends
+at once everything it holds for the window's rows but what came from that neighbour (the
+arc's last sent message is forgotten).  Holdings are sets, so nothing is counted twice
+whatever the tree was; packets in flight on an arc that left the tree are still accepted
+(docs/design.md §5).
 """
 
 from __future__ import annotations
@@ -21,6 +29,9 @@ class TreeExchange(Exchange):
 
     tree = True
     graph = "tree"
+    #: tick -> the arcs of the tree from that tick on (a graph that changes), else None:
+    #: set by the estimator before :meth:`attach`
+    tree_changes: dict[int, list[tuple[int, int]]] | None = None
 
     def __init__(self, *args, **kwargs):
         super().__init__(*args, **kwargs)
@@ -34,8 +45,35 @@ class TreeExchange(Exchange):
         self._local = [-1] * (max(self.lid, default=-1) + 1)
         for lid, e in self.lid.items():
             self._local[lid] = e
+        if self.tree_changes is not None:
+            self._by_arc = {(l.src, l.dst): self.lid[l.id] for l in self.links}
+            self._in_tree: set[int] = set()
+            self._outs = [() for _ in range(self.n)]     # the first tree comes at tick 1
+
+    def retree(self, arcs) -> None:
+        """The tree is now ``arcs``: send only on them, and on each arc new to it everything
+        the sender holds for the window's rows (its last sent message is forgotten)."""
+        tree = {self._by_arc[a] for a in arcs}
+        new = tree - self._in_tree
+        self._in_tree = tree
+        self._outs = [tuple((e, rev, l) for e, rev, l in
+                            ((self.lid[l.id], self.reverse[self.lid[l.id]], l) for l in self.out_links[j])
+                            if e in tree) for j in range(self.n)]
+        now = self.env.now
+        for e in sorted(new):
+            j = self.links[e].src
+            if self.crashes is not None and self.crashes.down(j, now):
+                continue                        # a node that is down sends nothing
+            for row, st in self.rows.items():
+                st.sent[e] = 0
+                self._dirty[j].add(row)
+            self.schedule_flush(j)
 
     def measure(self, row: int) -> None:
+        if self.tree_changes is not None:
+            arcs = self.tree_changes.get(row + 1)          # row's tick: a new tree from now on
+            if arcs is not None:
+                self.retree(arcs)
         st = self.rows[row]
         for i in self.measuring_nodes():
             self.gain(i, row, st, 1 << i)

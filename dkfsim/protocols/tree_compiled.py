@@ -31,6 +31,7 @@ from dkfsim.core.backend import EXCHANGE_ENV, Backend  # noqa: F401  (EXCHANGE_E
 from dkfsim.core.jit import entry_point
 from dkfsim.core.registry import PROTOCOLS
 from dkfsim.model.holdings import Holdings
+from dkfsim.network.occupancy import fifo, transmission_times
 from dkfsim.network.transmitter import busy_within, link_stats
 from dkfsim.protocols import tree_compiled_kernels as tk
 from dkfsim.protocols.base import PACKET_HEADER, Wiring, exchange_counts, row_bytes
@@ -86,6 +87,8 @@ class CompiledTreeExchange:
         #: queueing delay (ns) and link of each packet a transmitter accepted (CT[ND] of them)
         self.dly = np.zeros(0, dtype=np.int64)
         self.dlk = np.zeros(0, dtype=np.int64)
+        self.dlt = np.zeros(0, dtype=np.int64)
+        self.dls = np.zeros(0, dtype=np.int64)
 
     def attach(self, port, links) -> None:
         """Run over ``links`` (the exchange graph's arcs, in order), reporting the counts to ``port``."""
@@ -196,14 +199,17 @@ class CompiledTreeExchange:
 
     def _grow_delays(self, size: int) -> None:
         """Room for ``size`` queueing delays (what the transmitters accepted so far kept)."""
-        dly, dlk = np.zeros(size, dtype=np.int64), np.zeros(size, dtype=np.int64)
-        dly[:len(self.dly)], dlk[:len(self.dlk)] = self.dly, self.dlk
-        self.dly, self.dlk = dly, dlk
+        grown = []
+        for old in (self.dly, self.dlk, self.dlt, self.dls):
+            a = np.zeros(size, dtype=np.int64)
+            a[:len(old)] = old
+            grown.append(a)
+        self.dly, self.dlk, self.dlt, self.dls = grown
 
     def _bind(self) -> None:
         """The kernels' arguments (rebuilt when the pool grows)."""
         self._k_pool = tk.Pool(*self.heap, self.free, self.pk, self.pk_rows, self.pk_masks, self.outp, self.dly,
-                               self.dlk)
+                               self.dlk, self.dlt, self.dls)
         self._args = (self._k_rows, self._k_links, self._k_tx, self._k_pool, self._k_fold, self._k_log)
 
     # -- rows ------------------------------------------------------------------
@@ -261,13 +267,60 @@ class CompiledTreeExchange:
         rate, free_at, busy, bgc = self.tx.rate, self.tx.free_at, self.tx.busy, self.tx.bgc
         nd = int(self.CT[tk.ND])
         order = np.argsort(self.dlk[:nd], kind="stable")         # by link, hand-over order kept
-        dly = self.dly[:nd][order]
+        dly, dlt, dls = self.dly[:nd][order], self.dlt[:nd][order], self.dls[:nd][order]
         cut = np.searchsorted(self.dlk[:nd][order], np.arange(len(self.links) + 1))
         for e, link in enumerate(self.links):
             if rate[e] > 0:
+                mine = slice(cut[e], cut[e + 1])
                 used = busy_within(int(busy[e]), int(free_at[e]), end)
-                self.port.set_link_stats(link, link_stats(dly[cut[e]:cut[e + 1]], used, int(bgc[0, e]),
-                                                          int(bgc[1, e]), end))
+                self.port.set_link_stats(link, link_stats(dly[mine], used, int(bgc[0, e]), int(bgc[1, e]), end))
+                logs = None
+                if int(bgc[1, e]) == 0:           # no background dropped: the closed form
+                    logs = self._merge(link, dlt[mine], dls[mine], dly[mine], end)
+                if logs is None:
+                    logs = self._replay(link, dlt[mine], dls[mine], dly[mine], end)
+                self.port.set_link_log(link, *logs)
+
+    @staticmethod
+    def _merge(link, handed: np.ndarray, sizes: np.ndarray, delays: np.ndarray,
+               end: int) -> tuple[np.ndarray, np.ndarray] | None:
+        """The interval logs (own, background) of ``link``'s transmitter when the queue dropped
+        no background packet: the port's accepted packets and the background up to ``end``
+        merged in first-in-first-out order (background first at one instant) and served by
+        :func:`~dkfsim.network.occupancy.fifo`.  None when it does not reproduce the kernels'
+        queueing delays (:meth:`_replay` then decides)."""
+        bg = link.transmitter().background
+        times, bsizes = bg.until(end) if bg is not None else ([], [])
+        t = np.concatenate([np.asarray(times, dtype=np.int64), handed])
+        nbytes = np.concatenate([np.asarray(bsizes, dtype=np.int64), sizes])
+        kind = np.concatenate([np.zeros(len(times), dtype=np.int64), np.ones(len(handed), dtype=np.int64)])
+        order = np.lexsort((np.arange(len(t)), kind, t))
+        starts, ends = np.empty_like(t), np.empty_like(t)
+        starts[order], ends[order] = fifo(t[order], transmission_times(nbytes[order], link.rate))
+        own = np.stack([handed, starts[len(times):], ends[len(times):]], axis=1)
+        if not np.array_equal(own[:, 1] - own[:, 0], delays) or (len(ends) and ends.max() >= tk.MAX_NS):
+            return None
+        k = len(times)
+        return own, np.stack([t[:k], starts[:k], ends[:k]], axis=1)
+
+    @staticmethod
+    def _replay(link, handed: np.ndarray, sizes: np.ndarray, delays: np.ndarray,
+                end: int) -> tuple[np.ndarray, np.ndarray]:
+        """The interval logs (own, background) of ``link``'s transmitter
+        (:mod:`~dkfsim.network.occupancy`): the
+        port's accepted packets (hand-over instants, sizes) offered again, in order, to a fresh
+        transmitter with the link's background -- the queue-length series is computed after
+        the run, not in the kernels.  The replay must reproduce the kernels' queueing delays."""
+        tx = link.transmitter(record=True)
+        own = np.empty((len(handed), 3), dtype=np.int64)
+        for i, (t, size) in enumerate(zip(handed.tolist(), sizes.tolist())):
+            got = tx.offer(t, size)
+            own[i] = (t, *got) if got is not None else (t, -1, -1)
+        tx.advance(end)
+        if not np.array_equal(own[:, 1] - own[:, 0], delays):
+            raise RuntimeError(f"link {link.src} -> {link.dst}: the transmitter's replay differs "
+                               "from the compiled tree's queueing delays")
+        return own, tx.log()
 
     @property
     def late_packets(self) -> list[int]:

@@ -82,8 +82,9 @@ Tx = namedtuple("Tx", "rate qcap ring rhead rlen free_at busy bgk bgkey bgskey b
 #: per packet (link, sequence number, rows) in ``pk`` and its rows and origin sets, and the
 #: packet being filled per out-link of the flushing node (``outp``, -1: none).
 #: ``dly``/``dlk``: the queueing delay (ns) and link of every packet a transmitter accepted
-#: (``CT[ND]`` of them).
-Pool = namedtuple("Pool", "heap_t heap_o heap_p free pk rows masks outp dly dlk")
+#: (``CT[ND]`` of them), its hand-over instant ``dlt`` and size ``dls`` (bytes): the link's
+#: interval log is replayed from them (:meth:`CompiledTreeExchange._link_stats`).
+Pool = namedtuple("Pool", "heap_t heap_o heap_p free pk rows masks outp dly dlk dlt dls")
 #: The arrival log (``on``: kept): ``arrival`` (node, origin, row) in seconds, and the holdings
 #: ``fheld`` of the last final rows ``frow``, so that a late contribution counts once.
 Log = namedtuple("Log", "on arrival fheld frow")
@@ -412,6 +413,8 @@ def _send(j, deg, now, X, L, T, P):
                 continue
             P.dly[X.CT[ND]] = start - now
             P.dlk[X.CT[ND]] = e
+            P.dlt[X.CT[ND]] = now
+            P.dls[X.CT[ND]] = size
             X.CT[ND] += 1
             base = T.free_at[e]
         if L.kind[e] == 0:

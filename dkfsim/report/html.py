@@ -44,6 +44,19 @@ table.facts td:first-child{color:#555}pre{background:#f6f8fa;padding:.8em;overfl
 """
 
 
+#: Column heads of the packets tables: rates per tick and totals per run said apart, with units
+#: (``late`` counts items: the DKF's (packet, row) pairs or contributions, others' packets).
+RATE_HEADS = ("messages per tick [1/tick]", "bytes per tick [B/tick]")
+LOST_HEAD, LATE_HEAD = "lost [packets/run]", "late [items/run]"
+PACKETS_NOTE = ("per tick: rates; per run: totals over one whole run; late items: (packet, row) "
+                "pairs or contributions for the DKF, packets for the others; – : not modelled")
+
+
+def folded(summary: str, body: str) -> str:
+    """``body`` in a fold that opens on a click (long lists: seeds), ``summary`` always shown."""
+    return f"<details><summary>{html.escape(summary)}</summary>{body}</details>"
+
+
 # =========================================================================== building blocks
 class Interval(tuple):
     """A table cell ``mean [low, high]`` (a 95 % interval), 5 significant digits."""

@@ -31,10 +31,15 @@ from dkfsim.core.errors import DkfsimError
 from dkfsim.core.folders import write_text
 from dkfsim.experiments.sweep import is_database
 from dkfsim.report.html import (
+    LATE_HEAD,
+    LOST_HEAD,
+    PACKETS_NOTE,
+    RATE_HEADS,
     SCREEN_DPI,
     Interval,
     facts_table,
     figure,
+    folded,
     html_page,
     network_section,
     png_b64,
@@ -44,7 +49,16 @@ from dkfsim.report.html import (
     verdict,
     versions_table,
 )
-from dkfsim.report.plots import load_folder, paired_reference, plot_mse, plot_nees, plot_paired, plot_tracking
+from dkfsim.report.plots import (
+    has_links,
+    load_folder,
+    paired_reference,
+    plot_links,
+    plot_mse,
+    plot_nees,
+    plot_paired,
+    plot_tracking,
+)
 from dkfsim.report.plots.folders import NothingToPlot
 from dkfsim.report.plots.style import png_resolution
 from dkfsim.report.sweep.page import sweep_page
@@ -76,7 +90,29 @@ def _figures(folder_path: Path, kinds) -> list[str]:
             out.append(figure(png_b64(tmp / "paired.png"), "MSE relative to the reference estimate, "
                               "paired over the runs (95 % t-interval of the per-run log-ratios).",
                               "paired"))
+        if has_links(folder):
+            plot_links(folder, tmp / "links", ("png",))
+            out.append(figure(png_b64(tmp / "links.png"), "The rate-limited links: the DKF's queueing "
+                              "delay per link, utilisation and time-averaged queue length per tick "
+                              "(run.npz).", "links"))
     return out
+
+
+def _links_section(per_link: list[dict]) -> list[tuple[str, str]]:
+    """A rate-limited run's per-link table (summary.json ``per_link``), none otherwise."""
+    rated = [r for r in per_link if "utilisation" in r]
+    if not rated:
+        return []
+    rows = [(f"{r['link'][0]}→{r['link'][1]}", r["utilisation"], r.get("queue_length_mean"),
+             1e3 * r["queueing_delay_mean"], 1e3 * r["queueing_delay_p95"], r.get("sent"),
+             r.get("queue_dropped"), r.get("lost"), r.get("background_sent"), r.get("background_dropped"))
+            for r in rated]
+    return [("Links", table("links", ("link", "utilisation", "mean waiting", "queueing delay mean [ms]",
+                                       "queueing delay p95 [ms]", "sent", "queue dropped", "lost",
+                                       "background sent", "background dropped"), rows,
+                            "the DKF's packets on each rate-limited link (summary.json per_link): utilisation "
+                            "and mean number waiting over the run, background included; queueing delay "
+                            "from hand-over to the start of transmission"))]
 
 
 # =========================================================================== per kind
@@ -107,8 +143,11 @@ def run_page(folder: Path) -> str:
                       f"time-averaged squared error after {burn} burn-in rows (rows.csv)")),
         ("NEES", table("nees", ("estimate", "ANEES", "disagreement"), nees_rows,
                        f"time-averaged NEES after the burn-in; expected {len(comps)} when consistent")),
-        ("Packets", table("packets", ("estimator", "sent", "delivered", "lost", "in flight at end",
-                                      "late"), pk, "late: contributions (the DKF) or stale packets")),
+        ("Packets", table("packets", ("estimator", "sent [packets]", "delivered [packets]",
+                                      "lost [packets]", "in flight at end [packets]", "late [items]"),
+                          pk, f"totals over the whole run ({s.get('steps')} ticks); late items: "
+                              "contributions or (packet, row) pairs for the DKF, stale packets for the others")),
+        *_links_section(s.get("per_link") or []),
         ("Figures", "\n".join(_figures(folder, ("tracking",)))),
         ("Versions and seeds", versions_table(s.get("versions"), [("seed", str(s.get("seed")))])),
     ]
@@ -159,12 +198,12 @@ def montecarlo_page(folder: Path) -> str:
                          "per-run differences")
          if paired_rows else "<p class='note'>No paired comparison (no reference estimate in "
                              "these runs).</p>"),
-        ("Packets", table("packets", ("estimate", "messages per tick", "bytes per tick", "lost", "late"),
-                          pk, "means over runs; – : not modelled for that estimate")),
+        ("Packets", table("packets", ("estimate", *RATE_HEADS, LOST_HEAD, LATE_HEAD),
+                          pk, f"means over runs; {PACKETS_NOTE}")),
         ("Figures", "\n".join(_figures(folder, ("tracking",)))),
         ("Versions and seeds", versions_table(s.get("versions"), [("seed rule", s.get("seed_rule", ""))])
-         + table("seeds", ("run", "seed"), seeds[:50],
-                 f"{len(seeds)} runs" + (", the first 50 shown" if len(seeds) > 50 else ""))),
+         + folded(f"Seeds of the {len(seeds)} runs" + (", the first 50" if len(seeds) > 50 else "")
+                  + " (the seed rule above)", table("seeds", ("run", "seed"), seeds[:50]))),
     ]
     return html_page(f"dkfsim report: {s.get('scenario')}",
                  f"Monte Carlo: {s.get('runs')} runs x {s.get('steps')} ticks", sections)

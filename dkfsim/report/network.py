@@ -67,10 +67,14 @@ def draw_network(graph, exchange_graph, is_tree: bool, labels=None, title: str =
                            node_size=300 if len(keep) <= 30 else 80)
     size = 420 if len(keep) <= 20 else (260 if len(keep) <= 40 else 120)
     nx.draw_networkx_nodes(g, pos, ax=ax, node_color="#cfe2f3", edgecolors="#2a6fb0", node_size=size)
-    if len(keep) <= 40:
-        text = {v: str(v) if labels is None or len(keep) > 20 else f"{v}\n{plain(labels[v], 30)}"
-                for v in keep}
-        nx.draw_networkx_labels(g, pos, labels=text, ax=ax, font_size=7 if len(keep) <= 20 else 6)
+    if len(keep) <= 40:                   # the index inside the circle, the sensor's name under it
+        nx.draw_networkx_labels(g, pos, labels={v: str(v) for v in keep}, ax=ax,
+                                font_size=7 if len(keep) <= 20 else 6)
+        if labels is not None and len(keep) <= 20:
+            for v in keep:
+                ax.annotate(plain(labels[v], 30), pos[v], textcoords="offset points", xytext=(0, -10),
+                            ha="center", va="top", fontsize=6.5, color="0.25", zorder=5,
+                            bbox=dict(boxstyle="round,pad=0.1", fc="white", ec="none", alpha=0.8))
     ax.set_axis_off()
     if title:
         ax.set_title(plain(title), fontsize=10)

@@ -259,11 +259,15 @@ def test_a_tampered_sweep_database_is_refused_cleanly(legit, tmp_path, case):  #
 
 
 def test_null_metrics_are_not_applicable_not_an_error(legit, tmp_path):  # noqa: F811
-    """NULL in a metric column is "not applicable" (how NaN is stored): drawn as a gap, no crash."""
+    """NULL in a metric column is "not applicable" (how NaN is stored): drawn as a gap, no crash;
+    where every value is NULL there is nothing to draw, which is said cleanly (issue 24 §2: an
+    empty figure was saved) and the report page says it in place of that figure."""
     db = copy_of(legit["sweep"], tmp_path)
+    sql(db, "UPDATE results SET anees=NULL WHERE estimate='fused'")
+    dkfsim_cli("plot", db, "--format", "png", "--x", "d_t", "--metric", "anees").ok()
     sql(db, "UPDATE results SET anees=NULL")
     dkfsim_cli("report", db).ok()
-    dkfsim_cli("plot", db, "--format", "png", "--x", "d_t", "--metric", "anees").ok()
+    dkfsim_cli("plot", db, "--format", "png", "--x", "d_t", "--metric", "anees").clean_error("nothing to draw")
 
 
 # =========================================================================== names matplotlib sees

@@ -174,17 +174,24 @@ class DelayAxis:
                               else "")}
 
 
-def make_axis(scenario, *, max_delay: int, scale_step: float, max_scale: float,
-              keep: str | None = None) -> DelayAxis:
-    """The delay axis of ``scenario`` (raises DkfsimError when it has none).  The base
-    scenario keeps only the estimator named ``keep`` (the searched one, if listed)."""
+def search_base(scenario, keep: str | None):
+    """The scenario every candidate rewrites: only the estimator named ``keep`` (the searched
+    one, if listed) and a random topology's seed pinned (so every run has the same graph)."""
     data = scenario.to_dict()
     kept = [e for e in data.get("estimators", []) if (e.get("name") or e["kind"]) == keep]
     pin = ["estimators=" + json.dumps(kept)]
     top = data.get("topology", {})
     if top.get("generator") in RANDOM_GENERATORS and "seed" not in (top.get("params") or {}):
         pin.append(f"topology.params.seed={int(scenario.seed)}")
-    base = load_scenario(scenario, overrides=pin)
+    return load_scenario(scenario, overrides=pin)
+
+
+def make_axis(scenario, *, max_delay: int, scale_step: float, max_scale: float,
+              keep: str | None = None) -> DelayAxis:
+    """The delay axis of ``scenario`` (raises DkfsimError when it has none).  The base
+    scenario keeps only the estimator named ``keep`` (the searched one, if listed)."""
+    data = scenario.to_dict()
+    base = search_base(scenario, keep)
     links = data.get("links", {})
     default = links.get("default", {})
     specs = [("links.default.latency", default.get("latency", {"model": "constant", "value": 0.0}))]
@@ -231,14 +238,17 @@ def make_axis(scenario, *, max_delay: int, scale_step: float, max_scale: float,
 
 def latencies_deterministic(sc) -> bool:
     """True when no random draw can change any covariance of a run of ``sc``:
-    every used link has a constant latency (and jitter), no loss and no
-    duplicates, and every sensor is linear (its information does not depend
+    every used link has a constant latency (and jitter), no loss, no
+    duplicates and no random background load, and every sensor is linear (its information does not depend
     on its measurement)."""
     if any(s.kind != "linear" for s in sc.sensors):
         return False
     for u, v in RunPlan(sc).exchange.arcs:
         spec = sc.link_spec(u, v)
         if spec.loss > 0 or (getattr(spec, "duplicate", 0.0) or 0.0) > 0:
+            return False
+        bg = getattr(spec, "background", None)         # (keyed by the seed: random per run)
+        if bg is not None and (bg.arrivals == "poisson" or bg.sizes == "exponential"):
             return False
         for lat in (spec.latency, getattr(spec, "jitter", None)):
             if lat is not None and not lat.deterministic:

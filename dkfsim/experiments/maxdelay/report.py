@@ -32,13 +32,25 @@ def pow10_text(x) -> str:
 
 
 def axis_label(ax) -> str:
-    """The delay axis with its unit."""
+    """The axis with its unit."""
+    if ax.mode == "rate":
+        return f"{ax.name} [bit/s] (log axis; rightmost: no rate limit)"
     return "delay bound d_t [ticks]" if ax.mode == "d_t" else "latency scale s [× the scenario's latencies]"
 
 
 def cap_option(ax) -> str:
-    """The option that raises the last candidate of the delay axis."""
-    return "--max-delay" if ax.mode == "d_t" else "--max-scale"
+    """The option that moves the last candidate of the axis."""
+    return {"d_t": "--max-delay", "rate": "--min-rate"}.get(ax.mode, "--max-scale")
+
+
+def axis_unit(ax) -> str:
+    """What a candidate's value is called in the table."""
+    return {"d_t": "d_t", "rate": "rate"}.get(ax.mode, "s")
+
+
+def reference_name(ax) -> str:
+    """Candidate 0 (the reference of a relative tolerance)."""
+    return "unlimited-rate" if ax.mode == "rate" else "zero-delay"
 
 
 def metric_label(metric: str, comp_name, sc) -> str:
@@ -56,8 +68,10 @@ class MaxDelayResult:
     :class:`~dkfsim.experiments.maxdelay.run.MaxDelay` that produced them."""
 
     def __init__(self, md, emp: SearchResult, wc: SearchResult | None, wc_tol, limit,
-                 paper: dict, runs_empirical: int, runs_total: int, wall: float):
+                 paper: dict, runs_empirical: int, runs_total: int, wall: float, rate_bound: dict | None = None):
         self.md, self.emp, self.wc, self.wc_tol, self.limit = md, emp, wc, wc_tol, limit
+        #: the rate axis's lower bound from the packet sizes (:func:`~.rate.rate_lower_bound`)
+        self.rate_bound = rate_bound
         self.paper, self.runs_empirical, self.runs_total, self.wall = paper, runs_empirical, runs_total, wall
         st = md.st
         self.reference = None
@@ -125,6 +139,7 @@ class MaxDelayResult:
                 "never_exceeds": None if self.limit is None or self.wc_tol is None else
                 bool(self.limit <= self.wc_tol)},
             "paper_bound": paper,
+            **({"rate_lower_bound": self.rate_bound} if md.axis.mode == "rate" else {}),
             "runs_total": self.runs_total,
             "notes": md.notes + self._notes(),
             "wall_time_s": self.wall,
@@ -163,19 +178,20 @@ class MaxDelayResult:
     def table(self) -> str:
         md, st, ax = self.md, self.md.st, self.md.axis
         d = self.to_dict()
-        unit = "d_t" if ax.mode == "d_t" else "s"
+        unit = axis_unit(ax)
         tol = (f"<= {st.tolerance:g}" if st.relative is None else
-               f"<= {st.relative:g} x zero-delay value")
-        lines = [f"{md.sc.name}: largest {ax.name} with {st.metric}"
+               f"<= {st.relative:g} x {reference_name(ax)} value")
+        lines = [f"{md.sc.name}: {'least' if ax.mode == 'rate' else 'largest'} {ax.name} with {st.metric}"
                  f"{'' if st.metric == 'trace_P' else ' (' + md.comp_name + ')'} {tol}, "
                  f"{100 * st.confidence:g}% confidence, {md.sc.steps} ticks, burn-in {md.burn}"]
         if self.reference:
             r = self.reference
             how = "deterministic" if r["deterministic"] else f"{r['runs']} runs"
-            lines.append(f"  zero-delay value {r['mean']:.4g} [{r['ci'][0]:.4g}, {r['ci'][1]:.4g}] "
+            lines.append(f"  {reference_name(ax)} value {r['mean']:.4g} [{r['ci'][0]:.4g}, {r['ci'][1]:.4g}] "
                          f"({how}) -> tolerance {r['tolerance']:.4g}")
         e = d["empirical"]
-        lines.append(f"  (1) empirical:   {_answer_text(e, unit, cap_option(ax))}  ({self.runs_empirical} runs)")
+        lines.append(f"  (1) empirical:   {_answer_text(e, unit, cap_option(ax), ax.mode)}  "
+                     f"({self.runs_empirical} Monte Carlo runs)")
         for key, what in (("at_answer", "at answer"), ("at_answer_plus_1", "at answer+1")):
             a = e[key]
             if a:
@@ -184,14 +200,18 @@ class MaxDelayResult:
                              f"[{a['excess_ci'][0]:+.3g}, {a['excess_ci'][1]:+.3g}]; {a['runs']} runs, "
                              f"{a['decision']}")
         w = d["worst_case"]
-        if w is None:
+        if ax.mode == "rate":
+            lines.append("  (2) lower bound: " + _bound_text(self.rate_bound))
+        elif w is None:
             lines.append("  (2) worst case:  not computed (unbounded latency without links.d_t)")
         else:
             lines.append(f"  (2) worst case:  {_answer_text(w, unit, cap_option(ax))}  (every link at its largest "
                          f"latency; tolerance {w['tolerance']:.4g}; no-exchange limit "
                          f"{w['no_exchange_limit']:.4g})")
         p = d["paper_bound"]
-        if "error" in p:
+        if ax.mode == "rate":
+            pass
+        elif "error" in p:
             lines.append(f"  (3) paper bound: not computed: {p['error']}")
         else:
             ds = p["d_star"]
@@ -202,6 +222,8 @@ class MaxDelayResult:
                 f"n_bar = {p['n_bar']}, Z = {p['Z']}, alpha_bar = {p['alpha_used']:.4g}, "
                 f"eta = {p['eta']:.6g}, gamma_hat = {p['gamma_hat']:.4g}, omega_min = {p['omega_min']:.4g} "
                 f"(literal {p['omega_min_literal']:.4g}), p_tol = {p['p_tol']:.4g}")
+            lines.append(f"        p_tol: the level on lambda_max(P) the bound is solved for, from the "
+                         f"covariance tolerance {p['covariance_tolerance']:.4g}: {p['p_tol_rule']}")
             lines.append(f"        guaranteed lambda_max(P) <= {pow10_text(p['log10_lambda_max_bound']['0'])} at "
                          f"d_t = 0, {pow10_text(p['log10_lambda_max_bound']['1'])} at d_t = 1, "
                          f"{pow10_text(p['log10_lambda_max_bound']['4'])} at d_t = 4")
@@ -209,7 +231,8 @@ class MaxDelayResult:
                 lines.append(f"        {p['note']}")
         for n in d["notes"]:
             lines.append(f"  note: {n}")
-        lines.append(f"  {self.runs_total} runs in {self.wall:.1f} s")
+        lines.append(f"  {self.runs_total} runs in {self.wall:.1f} s: {self.runs_empirical} Monte Carlo "
+                     f"(1), {self.runs_total - self.runs_empirical} deterministic for the worst case (2)")
         return "\n".join(lines)
 
 
@@ -226,16 +249,34 @@ def number_text(v) -> str:
     return f"{v:.4g}"
 
 
-def _answer_text(e: dict, unit: str, option: str = "--max-delay") -> str:
-    s = e["status"]
+def _bound_text(b: dict | None) -> str:
+    """The rate axis's lower bound, one line."""
+    if not b or "error" in b:
+        return "not computed" + (f": {b['error']}" if b else "")
+    u, v = b["link"]
+    return (f"rate >= {b['rate']:.4g} bit/s (busiest link {u}->{v}: without a rate limit {b['estimate']} "
+            f"puts {b['bytes_per_tick']:.4g} bytes in {b['packets_per_tick']:.3g} packets per tick on it, "
+            f"{b['payload_bit_per_s']:.4g} bit/s without their headers, {b['own_bit_per_s']:.4g} with; "
+            f"background {b['background_bit_per_s']:.4g} bit/s; below the bound utilisation > 1; "
+            f"the traffic as sent without a limit fills the link at {b['demand_rate']:.4g} bit/s)")
+
+
+def _answer_text(e: dict, unit: str, option: str = "--max-delay", mode: str = "d_t") -> str:
+    """The empirical (or worst-case) answer, one line; on the rate axis the least rate."""
+    s, rate = e["status"], mode == "rate"
+
+    def fmt(v) -> str:
+        return "none" if v is None else (f"{v:.4g} bit/s" if rate else f"{v:g}")
     if s == "decided":
-        return f"{unit} = {e['answer']:g} (decided: {unit} = {e['first_exceeding']:g} exceeds)"
+        return f"{unit} = {fmt(e['answer'])} (decided: {unit} = {fmt(e['first_exceeding'])} exceeds)"
+    if s == "capped" and rate:
+        return (f"rate <= {fmt(e['answer'])} (capped: within tolerance down to the slowest candidate "
+                f"tried; lower it with {option}, e.g. {option} {e['answer'] / 10:g})")
     if s == "capped":
         return (f"{unit} >= {e['answer']:g} (capped: within tolerance up to the largest candidate "
                 f"tried; raise it with {option}, e.g. {option} {_double(e['answer'])})")
     if s == "none":
-        return "none: even zero delay exceeds the tolerance"
-    a = "none" if e["answer"] is None else f"{e['answer']:g}"
-    pe = "n/a" if e["point_estimate"] is None else f"{e['point_estimate']:g}"
-    return f"{unit} = {a} (undecided: run cap hit near the boundary; by the means {pe})"
-
+        return ("none: even without a rate limit the tolerance is exceeded" if rate else
+                "none: even zero delay exceeds the tolerance")
+    pe = "n/a" if e["point_estimate"] is None else fmt(e["point_estimate"])
+    return f"{unit} = {fmt(e['answer'])} (undecided: run cap hit near the boundary; by the means {pe})"

@@ -20,7 +20,8 @@ from dkfsim.core.resources import Cost, check, repeat
 from dkfsim.core.threads import single_thread
 from dkfsim.engine.estimate import estimate_run
 from dkfsim.experiments import executors
-from dkfsim.experiments.maxdelay.axis import latencies_deterministic, make_axis
+from dkfsim.experiments.maxdelay.axis import DelayAxis, latencies_deterministic, make_axis
+from dkfsim.experiments.maxdelay.rate import RateAxis, make_rate_axis, parse_link, rate_lower_bound
 from dkfsim.experiments.maxdelay.report import MaxDelayResult
 from dkfsim.experiments.maxdelay.search import (
     COVARIANCE_METRICS,
@@ -32,6 +33,7 @@ from dkfsim.experiments.maxdelay.search import (
     Runner,
     classify,
     empirical_search,
+    tracked_estimate,
     worst_case_scan,
 )
 from dkfsim.experiments.montecarlo import components_of, derive_seed
@@ -53,6 +55,14 @@ class Settings:
     max_delay: int = 32
     scale_step: float = 0.25
     max_scale: float = 16.0
+    axis: str = "delay"                # "delay" or "rate" (the least rate within the tolerance)
+    link: str | tuple | None = None    # rate axis: "U,V", one link's rate (None: every link)
+    max_rate: float = 1e9              # rate axis: the fastest limited candidate (bit/s)
+    min_rate: float = 1e4              # ... the slowest
+    rate_step: float = 1.25            # ... the factor between two candidates
+
+#: The axes of ``--axis``.
+AXES = ("delay", "rate")
 
 
 def check_settings(st: Settings) -> None:
@@ -73,6 +83,13 @@ def check_settings(st: Settings) -> None:
     if st.max_runs < st.batch:
         raise DkfsimError(f"--max-runs: must be >= --batch ({st.batch}), got {st.max_runs}")
     executors.check_jobs(st.jobs)
+    if st.axis not in AXES:
+        raise DkfsimError(f"--axis: unknown axis {st.axis!r}; choose delay (the largest delay) or rate "
+                          "(the least link rate)")
+    if st.link is not None:
+        if st.axis != "rate":
+            raise DkfsimError("--link: names the link whose rate --axis rate searches; add --axis rate")
+        parse_link(st.link)
     for flag, value in (("--batch", st.batch), ("--max-runs", st.max_runs), ("--max-delay", st.max_delay)):
         if value > 10**9:
             raise DkfsimError(f"{flag}: at most 10^9, got {value}")
@@ -119,15 +136,21 @@ class MaxDelay:
         if not 0 <= self.burn < K:
             raise DkfsimError(f"--burn-in: must be in [0, steps) = [0, {K}), got {settings.burn_in}")
         self.comp, self.comp_name = resolve_component(scenario, settings.metric, settings.component)
-        self.axis = make_axis(scenario, max_delay=settings.max_delay, scale_step=settings.scale_step,
-                              max_scale=settings.max_scale,
-                              keep=settings.estimate if settings.metric == "mse" else None)
-        check(self.estimate(), yes=yes, hint="a larger --scale-step, a smaller --max-scale or "
-                                             "--max-delay, fewer --max-runs or --steps")
+        keep = settings.estimate if settings.metric == "mse" else None
+        self.axis: DelayAxis | RateAxis
+        if settings.axis == "rate":
+            self.axis = make_rate_axis(scenario, max_rate=settings.max_rate, min_rate=settings.min_rate,
+                                       step=settings.rate_step, link=settings.link, keep=keep)
+        else:
+            self.axis = make_axis(scenario, max_delay=settings.max_delay, scale_step=settings.scale_step,
+                                  max_scale=settings.max_scale, keep=keep)
+        check(self.estimate(), yes=yes, hint="a larger --rate-step, a narrower --max-rate/--min-rate, "
+                                             "fewer --max-runs or --steps" if settings.axis == "rate" else
+              "a larger --scale-step, a smaller --max-scale or --max-delay, fewer --max-runs or --steps")
         self.seeds = [derive_seed(int(scenario.seed), r) for r in range(settings.max_runs)]
         self.progress = progress or (lambda *_, **__: None)
         self.notes: list[str] = []
-        if scenario.buffer_length != "auto":
+        if scenario.buffer_length != "auto" and settings.axis == "delay":
             self.notes.append(f"buffer_length is {scenario.buffer_length!r}, not auto: it does not follow "
                               "the candidate delay")
         self.cands: dict[int, Candidate] = {}
@@ -251,12 +274,15 @@ class MaxDelay:
             wc = None
             wc_tol = None
             limit = None
-            if wc_data0 is not None:
+            if wc_data0 is not None and isinstance(self.axis, DelayAxis):
                 ref0 = self.worst_value(wc_data0, runner)
                 wc_tol = st.tolerance if st.relative is None else st.relative * ref0
                 self.evaluate_worst(0, runner, wc_tol, value=ref0)
                 wc = worst_case_scan(lambda j: self.evaluate_worst(j, runner, wc_tol), J)
                 limit = self.worst_value(self.axis.limit_overrides(), runner)
+            elif isinstance(self.axis, RateAxis):
+                self.notes.append("worst case not computed: it is a latency notion; on the rate axis "
+                                  "the lower bound from the packet sizes stands beside the empirical answer")
             else:
                 self.notes.append("worst case not computed: a latency (or jitter) model is unbounded "
                                   "and links.d_t is not set, so there is no largest latency")
@@ -264,10 +290,17 @@ class MaxDelay:
         finally:
             if own:
                 ex.close()
-        # 3. the paper's bound
-        paper = self._paper_bound(wc_tol if wc_tol is not None else st.tolerance)
+        # 3. the paper's bound (delay), or the lower bound from the packet sizes (rate)
+        bound = None
+        if isinstance(self.axis, RateAxis):
+            self.progress(label="lower bound from the packet sizes")
+            paper = {"error": "the paper's bound is on the delay, not the rate"}
+            bound = rate_lower_bound(self.axis, tracked_estimate(st))
+        else:
+            paper = self._paper_bound(wc_tol if wc_tol is not None else st.tolerance)
         wall = time.perf_counter() - t0
-        return MaxDelayResult(self, emp, wc, wc_tol, limit, paper, runs_empirical, runs_total, wall)
+        return MaxDelayResult(self, emp, wc, wc_tol, limit, paper, runs_empirical, runs_total, wall,
+                              rate_bound=bound)
 
     def _paper_bound(self, cov_tol):
         if cov_tol is None:
@@ -281,8 +314,9 @@ class MaxDelay:
             return {"error": str(exc)}
         d = b.terms()
         d["covariance_tolerance"] = cov_tol
-        d["p_tol_rule"] = ("lambda_max(P) <= tol / nx guarantees trace(P) <= tol" if per_lambda else
-                           "lambda_max(P) <= tol guarantees P[c, c] <= tol")
+        d["p_tol_rule"] = (f"p_tol = tol / nx = {cov_tol:.4g} / {nx}, as lambda_max(P) <= tol / nx "
+                           "guarantees trace(P) <= tol" if per_lambda else
+                           "p_tol = tol, as lambda_max(P) <= tol guarantees P[c, c] <= tol")
         d["log10_lambda_max_bound"] = {str(k): b.log10_lambda_max_bound(k) for k in range(0, 9)}
         d["d_star_in_axis_units"] = None
         if b.d_star is not None and math.isfinite(b.d_star):
@@ -298,6 +332,7 @@ class MaxDelay:
     def _sup_at_scale_one(self) -> float | None:
         """Largest per-hop delay (s) at scale 1: latency sup plus jitter sup."""
         ax = self.axis
+        assert isinstance(ax, DelayAxis)       # (the paper's bound: the delay axis only)
         lat = [ax.sup_seconds(l, 1.0) for _, l in ax.specs]
         jit = [ax.sup_seconds(l, 1.0) for _, l in ax.jitters]
         if any(v is None for v in jit):

@@ -39,6 +39,11 @@ FUSED_METRICS = ("fused_mse", "trace_P", "fused_var")
 MSE_OF = {"fused_mse": "fused", "local_mse": "local"}
 
 
+def tracked_estimate(st) -> str:
+    """The estimate whose metric the search tracks (``fused`` for the covariance metrics)."""
+    return MSE_OF.get(st.metric, st.estimate if st.metric == "mse" else "fused")
+
+
 # =========================================================================== metrics
 def metric_value(arrays, metric: str, comp: int | None, burn: int, estimate: str = "fused") -> float:
     """The per-run value of ``metric`` (``comp`` None = all components)."""

@@ -454,9 +454,27 @@ def tasks_done(path: Path, sweep: Sweep) -> set:
         problem = growth_problem(store.conn, store.definition, sweep)
         if problem:
             raise DkfsimError(f"{path} was made by a different sweep definition ({problem})")
+        check_shared_growth(path, store, sweep)
         return whole_tasks(store, sweep)
     finally:
         store.close()
+
+
+def check_shared_growth(path, store: "SweepDB", sweep: Sweep) -> None:
+    """Refuse to grow a sweep by estimators when its queues are shared (``links.shared_queues``,
+    docs/traffic.md): the added estimators would run alone on the stored runs, whereas with
+    shared queues every estimator's packets wait behind the others', so their rows would not
+    be those of a run of the whole list (and the stored rows would no longer be either)."""
+    missing = missing_estimates(store, sweep)
+    shared = {p.param_hash: p for p in sweep.parameter_sets if p.scenario.links.shared_queues}
+    for (h, _run), added in missing.items():
+        if h in shared:
+            raise DkfsimError(
+                f"{sweep.source}: estimators: adding {short_json(added)} to the runs stored in {path} "
+                f"is refused because links.shared_queues is true (parameter set "
+                f"{shared[h].describe()}): every estimator's packets share the queues, so estimators "
+                "added to finished runs cannot be run alone. Write the grown sweep to a new database "
+                "(--db PATH, or output: in the sweep file), or run without links.shared_queues")
 
 
 def missing_estimates(store: "SweepDB", sweep: Sweep) -> dict[tuple[str, int], list[str]]:

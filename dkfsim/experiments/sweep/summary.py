@@ -107,7 +107,8 @@ def write_summary(db, to=None, relative_to: str | None = None, table=None) -> tu
     :func:`summary_path`), atomically; return ``(path, number of rows)``.  ``relative_to``:
     the reference estimate of the paired columns (default ``centralized``); ``table``: the
     ``(columns, rows)`` of ``db`` when already read."""
-    columns, rows = summarize(*(read_table(db) if table is None else table), relative_to=relative_to)
+    columns, rows = read_table(db) if table is None else table
+    columns, rows = summarize(columns, rows, relative_to=relative_to)
     to = Path(to) if to is not None else summary_path(db)
     try:
         write_csv(to, columns, rows)

@@ -12,7 +12,9 @@
 * ``nees`` (Monte Carlo folders only): the average NEES per tick with the per-tick 95 %
   chi-square band, the fraction of ticks inside it and the ANEES verdict of each estimate;
 * ``paired`` (Monte Carlo folders with a reference estimate): each estimate's MSE relative
-  to the reference, paired over the runs (:mod:`.paired`).
+  to the reference, paired over the runs (:mod:`.paired`);
+* ``links`` (a rate-limited run): the DKF's queueing delay per link, utilisation and queue
+  length over time (:mod:`.links`).
 
 ``dkfsim plot DIR1 DIR2 ... --compare --labels ...`` overlays the fused MSE of
 several folders and the centralized filter of the first -- the paper's Fig. 5
@@ -37,6 +39,7 @@ from pathlib import Path
 from dkfsim.report.plots.accuracy import plot_mse, plot_nees
 from dkfsim.report.plots.compare import check_comparable, plot_compare
 from dkfsim.report.plots.folders import Folder, component_names, load_folder
+from dkfsim.report.plots.links import has_links, plot_links
 from dkfsim.report.plots.paired import paired_reference, plot_paired, relative_to
 from dkfsim.report.plots.style import (
     DEFAULT_FORMATS,
@@ -53,9 +56,9 @@ from dkfsim.report.plots.style import (
 from dkfsim.report.plots.tracking import plot_tracking, zoom_window
 
 __all__ = ["DEFAULT_FORMATS", "ESTIMATES", "FORMATS", "Folder", "check_comparable", "color_of",
-           "component_names", "default_smooth", "label_of", "load_folder", "moving_average",
+           "component_names", "default_smooth", "has_links", "label_of", "load_folder", "moving_average",
            "mse_note", "paired_reference", "plot_compare", "plot_folder", "plot_mse", "plot_nees",
-           "plot_paired", "plot_tracking", "relative_to",
+           "plot_links", "plot_paired", "plot_tracking", "relative_to",
            "select_components", "zoom_window", "check_formats"]
 
 
@@ -70,5 +73,7 @@ def plot_folder(folder: Folder, out_dir, formats=DEFAULT_FORMATS, components=Non
         written += plot_nees(folder, out / "nees", formats)
     if paired_reference(folder.stats) is not None:
         written += plot_paired(folder, out / "paired", formats, components)
+    if has_links(folder):
+        written += plot_links(folder, out / "links", formats)
     return written
 

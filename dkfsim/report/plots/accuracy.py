@@ -9,11 +9,13 @@ from pathlib import Path
 
 import numpy as np
 
+from dkfsim.config.dynamics import state_text
 from dkfsim.core.errors import DkfsimError
 from dkfsim.core.extras import pyplot
 from dkfsim.report.plots.folders import Folder
 from dkfsim.report.plots.style import (
     DEFAULT_FORMATS,
+    OPEN_BELOW,
     average_text,
     check_formats,
     color_of,
@@ -27,6 +29,7 @@ from dkfsim.report.plots.style import (
     moving_average,
     mse_note,
     mse_ylabel,
+    opens_below,
     plain,
     positive_only,
     save_figure,
@@ -82,21 +85,22 @@ def plot_mse(folder: Folder, stem, formats=DEFAULT_FORMATS, components=None, smo
                              sharex=True, squeeze=False,
                              gridspec_kw={"width_ratios": [1.25, 1]} if ref else None)
     wr = max(w, folder.K // 20)
+    opened = False
     for row, i in enumerate(idx):
         ax = axes[row, 0]
         drawn, entries = [], []
         for a in names:
             col = color_of(a, folder.mse)
-            entries.append((average_text(folder, a, i), col))
+            entries.append((f"{plain(a, 16)}: {average_text(folder, a, i)}", col))
             style = dict(color=col, lw=1.0, ls="--" if a == "centralized" else "-",
                          zorder={"fused": 5, "centralized": 6}.get(a, 3))
             y = positive_only(moving_average(folder.mse[a][:, i], w))
             drawn.append(y)
             ax.plot(folder.t, y, label=label_of(a), **style)
             if a in folder.ci:
-                lo, hi = folder.ci[a]
-                ax.fill_between(folder.t, *log_band(moving_average(lo[:, i], w), moving_average(hi[:, i], w)),
-                                color=col, alpha=0.2, lw=0)
+                lo, hi = (moving_average(b[:, i], w) for b in folder.ci[a])
+                opened |= opens_below(lo)
+                ax.fill_between(folder.t, *log_band(lo, hi, y), color=col, alpha=0.2, lw=0)
         ax.set_yscale("log")
         log_limits(ax, drawn)
         ax.set_ylabel(mse_ylabel(folder, i))
@@ -108,8 +112,9 @@ def plot_mse(folder: Folder, stem, formats=DEFAULT_FORMATS, components=None, smo
     for c in range(ncols):
         axes[-1, c].set_xlabel("time [s]")
     cond = folder.condition()
+    open_note = f";\n{OPEN_BELOW}" if opened else ""
     fig.suptitle((plain(title) if title else f"MSE per tick{', ' + cond if cond else ''}")
-                 + f"\n({mse_note(folder, w)})",
+                 + f"\n({mse_note(folder, w)}; {plain(state_text(folder.components))}{open_note})",
                  fontsize=11)
     legend_below(fig, axes[0, 0], ncol=3 if ref and len(names) > 4 else 2)
     return save_figure(fig, stem, formats)
@@ -133,13 +138,13 @@ def _ratio_panel(ar, folder: Folder, names, ref: str, i: int, wr: int, first: bo
     ar.set_ylabel(f"{plain(folder.components[i])} MSE / {plain(ref)}")
     ar.grid(True, alpha=0.3)
     ar.margins(x=0)
-    if off:
-        lines = [", ".join(off[k:k + 2]) for k in range(0, len(off), 2)]
-        ar.text(0.02, 0.97, "off this scale:\n" + ",\n".join(lines), transform=ar.transAxes, va="top",
-                fontsize=7, color="0.3", bbox=dict(fc="white", ec="none", alpha=0.8, pad=1.5))
-    if first:
-        ar.set_title(f"relative to {plain(ref)} (estimates within ×{RATIO_SHOWN_WITHIN:g}; {wr}-tick "
-                     "moving averages)", fontsize=9)
+    head = f"relative to {plain(ref)} (estimates within ×{RATIO_SHOWN_WITHIN:g}; {wr}-tick " \
+        "moving averages)\n" if first else ""
+    if off or first:                      # above the panel, never over a curve
+        per_line = 4
+        lines = [", ".join(off[k:k + per_line]) for k in range(0, len(off), per_line)]
+        ar.set_title(head + ("off this scale: " + ",\n".join(lines) if off else ""), fontsize=7.5,
+                     color="0.2")
 
 
 def plot_nees(folder: Folder, stem, formats=DEFAULT_FORMATS, title=None) -> list[Path]:
@@ -170,7 +175,7 @@ def plot_nees(folder: Folder, stem, formats=DEFAULT_FORMATS, title=None) -> list
                 label=f"{label_of(a)}: {nees_verdict(folder, a)}", ls="--" if a == "centralized" else "-")
     if folder.nees_band is not None:
         ax.axhspan(*folder.nees_band, color="0.5", alpha=0.18, lw=0, label=band_label(folder))
-    ax.axhline(folder.nx, color="0.3", lw=0.8, ls=":")
+    ax.axhline(folder.nx, color="k", lw=1.0, ls="--", zorder=4, label=f"expected value nx = {folder.nx}")
     ax.set_xlabel("time [s]")
     ax.set_ylabel("average NEES")
     ax.grid(True, alpha=0.3)
@@ -208,7 +213,7 @@ def _nees_small_multiples(folder: Folder, names, stem, formats, head) -> list[Pa
     ncols = 3 if len(names) > 4 else 2
     nrows = -(-len(names) // ncols)
     fig, axes = plt.subplots(nrows, ncols, figsize=(3.6 * ncols, 2.3 * nrows + 0.9), sharex=True,
-                             squeeze=False)
+                             sharey=True, squeeze=False)      # one scale: panels compare at a glance
     for k, ax in enumerate(axes.flat):
         if k >= len(names):
             ax.set_visible(False)
@@ -216,8 +221,8 @@ def _nees_small_multiples(folder: Folder, names, stem, formats, head) -> list[Pa
         a = names[k]
         if folder.nees_band is not None:
             ax.axhspan(*folder.nees_band, color="0.5", alpha=0.18, lw=0)
-        ax.axhline(folder.nx, color="0.3", lw=0.8, ls=":")
         ax.plot(folder.t, folder.nees[a], color=color_of(a, folder.mse), lw=0.9)
+        ax.axhline(folder.nx, color="k", lw=1.0, ls="--", zorder=4)       # over the trace
         verdict = nees_verdict(folder, a).replace("; ", "\n", 1)
         ax.set_title(f"{label_of(a)}\n{verdict}" if verdict else label_of(a), fontsize=7.5)
         ax.grid(True, alpha=0.3)
@@ -228,7 +233,8 @@ def _nees_small_multiples(folder: Folder, names, stem, formats, head) -> list[Pa
         if k >= len(names) - ncols:         # the lowest panel of its column: its own time axis
             ax.set_xlabel("time [s]", fontsize=8)
             ax.xaxis.set_tick_params(labelbottom=True)
-    band = "" if folder.nees_band is None else f"\ngrey: {band_label(folder)}"
+    band = f"\ndashed: the expected value nx = {folder.nx}" + \
+        ("" if folder.nees_band is None else f"; grey: {band_label(folder)}")
     fig.suptitle(head + band, fontsize=10)
     fig.tight_layout()
     return save_figure(fig, stem, formats)

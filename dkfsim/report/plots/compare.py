@@ -94,16 +94,16 @@ def plot_compare(folders: list[Folder], stem, labels=None, formats=DEFAULT_FORMA
         for f, lab, col in zip(folders, labels, colors):
             y = positive_only(moving_average(f.mse[estimate][:, i], w))
             drawn.append(y)
-            entries.append((average_text(f, estimate, i), col))
+            entries.append((f"{plain(lab, 16)}: {average_text(f, estimate, i)}", col))
             ax.plot(f.t, y, color=col, lw=1.1, label=lab)
             if bands and estimate in f.ci:
                 lo, hi = f.ci[estimate]
-                ax.fill_between(f.t, *log_band(moving_average(lo[:, i], w), moving_average(hi[:, i], w)),
+                ax.fill_between(f.t, *log_band(moving_average(lo[:, i], w), moving_average(hi[:, i], w), y),
                                 color=col, alpha=0.18, lw=0)
         if "centralized" in first.mse:
             y = positive_only(moving_average(first.mse["centralized"][:, i], w))
             drawn.append(y)
-            entries.append((average_text(first, "centralized", i), "k"))
+            entries.append((f"centralized: {average_text(first, 'centralized', i)}", "k"))
             ax.plot(first.t, y, color="k", lw=1.0, ls="--",
                     label="centralized KF (all data on time)" + (f", from {labels[0]}" if len(labels[0]) < 12 else ""))
         ax.set_yscale("log")

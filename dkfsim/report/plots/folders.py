@@ -12,8 +12,8 @@ from pathlib import Path
 
 import numpy as np
 
-from dkfsim.config.dynamics import CA_UNITS
 from dkfsim.config.dynamics import component_names as names_of
+from dkfsim.config.dynamics import component_units as units_of
 from dkfsim.config.results import (
     NAME_LIMIT,
     MonteCarloSummary,
@@ -29,7 +29,8 @@ from dkfsim.core.npzfile import NpzFile
 
 NOT_ESTIMATES = {"x_final", "x0_mean"}
 
-CA_COMPONENTS = ("position", "velocity", "acceleration")
+#: A rate-limited run's per-link arrays beside ``rated_links`` (E, 2), with their shapes.
+LINK_ARRAYS = {"queue_length": ("K", "E"), "utilisation": ("K", "E"), "queueing_delay_quantiles": ("E", 101)}
 
 
 class NothingToPlot(DkfsimError):
@@ -64,6 +65,9 @@ class Folder:
     mse_ci95: dict[str, list] = field(default_factory=dict)   # estimate -> per component [lo, hi]
     #: estimate -> its summary.json entry (Monte Carlo): anees, anees_ci95, anees_consistent, paired
     stats: dict[str, dict] = field(default_factory=dict)
+    #: a rate-limited run's links (run.npz): ``rated_links`` (E, 2), ``queue_length`` and
+    #: ``utilisation`` (K, E), ``queueing_delay_quantiles`` (E, 101); empty otherwise
+    links: dict[str, np.ndarray] = field(default_factory=dict)
 
     def fraction_in_band(self, estimate: str) -> float | None:
         """Fraction of the ticks after the burn-in whose mean NEES lies in the per-tick band."""
@@ -117,9 +121,8 @@ def component_names(nx: int, model_kind: str | None) -> list[str]:
 
 
 def component_units(components, model_kind) -> list[str]:
-    if model_kind in (None, "constant_acceleration") and list(components) == list(CA_COMPONENTS):
-        return [CA_UNITS[c] for c in components]
-    return [""] * len(components)
+    """Units of the components (:func:`dkfsim.config.dynamics.component_units`)."""
+    return units_of(components, model_kind)
 
 
 def _model_kind(summary: dict) -> str | None:
@@ -181,7 +184,13 @@ def _load_run(p: Path) -> Folder:
                                   f"or ({K}, n, {nx})")
             if len(key) - 2 > NAME_LIMIT:
                 raise DkfsimError(f"{f}: array name {clip(key)} is longer than {NAME_LIMIT} characters")
-        arrays = z.read(["t", "truth", *keys])
+        link_keys = []
+        if "rated_links" in z:
+            E = npz_header(z, "rated_links", (None, 2)).shape[0]
+            for key, shape in LINK_ARRAYS.items():
+                npz_header(z, key, tuple(K if s == "K" else E if s == "E" else s for s in shape))
+            link_keys = ["rated_links", *LINK_ARRAYS]
+        arrays = z.read(["t", "truth", *keys, *link_keys])
     truth = arrays["truth"].astype(float)
     t = arrays["t"].astype(float)
     kind = _model_kind(summary)
@@ -206,7 +215,8 @@ def _load_run(p: Path) -> Folder:
     return Folder(path=p, kind="run", scenario=str(summary.get("scenario", p.name)), t=t,
                   components=comps, units=component_units(comps, kind), mse=mse, truth=truth,
                   examples=examples, node0=node0, n_runs=1, d_t=_d_t(summary),
-                  burn_in=(summary.get("metrics") or {}).get("burn_in"))
+                  burn_in=(summary.get("metrics") or {}).get("burn_in"),
+                  links={k: arrays[k] for k in link_keys})
 
 
 def _load_montecarlo(p: Path) -> Folder:

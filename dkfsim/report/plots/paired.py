@@ -84,7 +84,7 @@ def plot_paired(folder: Folder, stem, formats=DEFAULT_FORMATS, components=None) 
         finite = np.array([v for v in vals if np.isfinite(v) and v > 0])
         if finite.size and finite.max() / min(finite.min(), 1.0) > 10:
             ax.set_xscale("log")
-            plain_log_ticks(ax)
+            plain_log_ticks(ax, "x")
         ax.set_title(plain(comp), fontsize=9)
         ax.set_xlabel(f"MSE / {plain(ref)} MSE", fontsize=8.5)
         ax.grid(True, which="both", axis="x", alpha=0.3)

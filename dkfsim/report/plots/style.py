@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import contextlib
 import io
+import math
 import os
 import tempfile
 from pathlib import Path
@@ -213,7 +214,8 @@ def save_figure(fig, stem: Path, formats) -> list[Path]:
 
 def draw_averages(ax, entries, folder: Folder) -> None:
     """A column right of the panel: each curve's time-averaged MSE after the burn-in, in its colour
-    (with the 95 % interval over runs when the Monte Carlo summary has it)."""
+    and named (``entries``: ``("name: value", colour)``; colour alone identifies nothing for a
+    reader who cannot tell the hues apart), with the 95 % interval over runs when known."""
     b = folder.burn_rows()
     pm = any("±" in text for text, _ in entries)
     head = f"MSE, mean\nover t ≥ {folder.t[min(b, folder.K - 1)]:g} s" + ("\n(± 95 % half-width)" if pm else "")
@@ -231,7 +233,7 @@ def average_text(folder: Folder, estimate: str, i: int) -> str:
     return f"{m:.4g}" if ci is None else f"{m:.4g} ± {(ci[1] - ci[0]) / 2:.2g}"
 
 
-def legend_below(fig, ax, ncol=2):
+def legend_below(fig, ax, ncol=2, fontsize=8.5):
     """One legend for all panels, under them, so that it never hides a curve.  ``ax``: the
     panel whose entries it lists, or a list of panels (their entries one after the other)."""
     handles, labels = [], []
@@ -241,7 +243,7 @@ def legend_below(fig, ax, ncol=2):
         labels += lab
     fig.tight_layout()
     fig.legend(handles, labels, loc="upper center", bbox_to_anchor=(0.5, 0.0), ncol=ncol,
-               fontsize=8.5, frameon=False)
+               fontsize=fontsize, frameon=False)
 
 
 def check_formats(formats) -> tuple[str, ...]:
@@ -260,20 +262,48 @@ def positive_only(a):
     return np.where(a > 0, a, np.nan)
 
 
-def log_band(lo, hi):
-    """A confidence band for a log axis: a lower bound <= 0 (t-interval of few runs) goes to the floor."""
+def log_band(lo, hi, mean):
+    """A confidence band for a log axis.  Where the lower bound is <= 0 (a t-interval of few
+    runs) a log axis cannot show it: the band starts at the mean there (open below) instead
+    of running down to the axis' floor as if values near 0 were drawn (docs/decisions.md, 200);
+    :data:`OPEN_BELOW` is the caption saying so (give it when :func:`opens_below`)."""
+    lo, mean = np.asarray(lo, dtype=float), np.asarray(mean, dtype=float)
+    return np.where(lo > 0, lo, mean), positive_only(hi)
+
+
+#: What a figure's caption adds when a band is open below (:func:`log_band`).
+OPEN_BELOW = "band drawn from the mean up where its lower end is <= 0 (not on a log axis)"
+
+
+def opens_below(lo) -> bool:
+    """True when some lower bound of a band is <= 0 (so :func:`log_band` opens it below)."""
     lo = np.asarray(lo, dtype=float)
-    return np.where(lo > 0, lo, 1e-300), positive_only(hi)
+    return bool(np.any(np.isfinite(lo) & (lo <= 0)))
 
 
-def plain_log_ticks(ax) -> None:
-    """Tick labels 0.2, 0.05, 1e-05 instead of 2 x 10^-1 (matplotlib decides which ticks get one)."""
-    class Plain(optional("matplotlib.ticker").LogFormatter):
-        def __call__(self, x, pos=None):
-            return f"{x:g}" if super().__call__(x, pos) else ""
+#: Labelled ticks of a log axis by the decades it spans: up to 2, at 1, 2 and 5 times each power
+#: of ten; up to 4, at 1 and 3 times; beyond, at the powers of ten (enough to read it by then).
+LOG_SUBS = ((2.0, (1.0, 2.0, 5.0)), (4.0, (1.0, 3.0)), (math.inf, (1.0,)))
 
-    ax.yaxis.set_major_formatter(Plain(labelOnlyBase=False))
-    ax.yaxis.set_minor_formatter(Plain(labelOnlyBase=False))
+
+def plain_log_ticks(ax, axis: str = "y") -> None:
+    """Labelled ticks on a log axis: 0.2, 0.5, 1, 2, 5 ... over a few decades (matplotlib
+    labels only 1 and 10 there), fewer over more (:data:`LOG_SUBS`); labels as plain numbers
+    (0.05, 1e-05) instead of 5 x 10^-2.  The ticks follow the limits set later."""
+    ticker = optional("matplotlib.ticker")
+
+    class Ticks(ticker.LogLocator):  # type: ignore[name-defined]   # matplotlib, imported when drawing
+        def tick_values(self, vmin, vmax):
+            lo, hi = sorted((max(vmin, 1e-300), max(vmax, 1e-300)))
+            decades = np.log10(hi / lo)
+            subs = next(s for top, s in LOG_SUBS if decades <= top)
+            self.set_params(subs=subs, numticks=15)
+            return super().tick_values(vmin, vmax)
+
+    which = ax.yaxis if axis == "y" else ax.xaxis
+    which.set_major_locator(Ticks(base=10.0))
+    which.set_major_formatter(ticker.FuncFormatter(lambda v, _pos=None: f"{v:g}"))
+    which.set_minor_formatter(ticker.NullFormatter())
 
 
 def log_limits(ax, curves) -> None:

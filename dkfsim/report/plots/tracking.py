@@ -7,6 +7,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from dkfsim.config.dynamics import state_text
 from dkfsim.core.errors import DkfsimError
 from dkfsim.core.extras import pyplot
 from dkfsim.report.plots.folders import Folder
@@ -56,8 +57,8 @@ def plot_tracking(folder: Folder, stem, formats=DEFAULT_FORMATS, components=None
         lines.append((label_of("fused"), folder.examples["fused"],
                       dict(color=color_of("fused"), lw=1.2, zorder=4)))
     if folder.node0 is not None:
-        lines.append(("anti-delay DKF, node 0 (real time)", folder.node0,
-                      dict(color="C4", lw=1.0, ls=(0, (1.5, 1.2)), zorder=3)))
+        lines.append(("local: anti-delay DKF, node 0 (real time)", folder.node0,   # one of the local estimates
+                      dict(color=color_of("local"), lw=1.0, ls=(0, (1.5, 1.2)), zorder=3)))
     if "centralized" in folder.examples:
         lines.append((label_of("centralized"), folder.examples["centralized"],
                       dict(color=color_of("centralized"), lw=0.9, ls="--", zorder=5)))
@@ -74,7 +75,7 @@ def plot_tracking(folder: Folder, stem, formats=DEFAULT_FORMATS, components=None
         ax.grid(True, alpha=0.3)
         ax.margins(x=0)
         if ncols == 2:
-            ax.axvspan(t[lo], t[hi - 1], color="C1", alpha=0.15, lw=0)
+            ax.axvspan(t[lo], t[hi - 1], color="0.5", alpha=0.15, lw=0)     # no estimate's colour
             az = axes[row, 1]
             for _lab, x, style in lines:
                 az.plot(t[lo:hi], x[lo:hi, i], **style)
@@ -87,7 +88,8 @@ def plot_tracking(folder: Folder, stem, formats=DEFAULT_FORMATS, components=None
         axes[0, 1].set_title("zoom on the shaded window", fontsize=9)
     sub = "" if folder.kind == "run" else " (one example run)"
     cond = folder.condition()
-    fig.suptitle(plain(title) if title else f"Tracking{', ' + cond if cond else ''}{sub}", fontsize=11)
+    fig.suptitle(plain(title) if title else f"Tracking{', ' + cond if cond else ''}{sub}\n"
+                 f"({plain(state_text(folder.components))})", fontsize=11)
     legend_below(fig, axes[0, 0], ncol=3 if len(lines) > 4 else 2)
     return save_figure(fig, stem, formats)
 

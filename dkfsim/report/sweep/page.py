@@ -17,7 +17,7 @@ from dkfsim.experiments.sweep import SweepDB, read_results
 from dkfsim.experiments.sweep.grid import grid_columns, summarize
 from dkfsim.report import html as blocks
 from dkfsim.report.plots.style import png_resolution
-from dkfsim.report.sweep.plot import plot_sweep
+from dkfsim.report.sweep.plot import axis_label, plot_sweep
 
 
 def sweep_page(db: Path) -> str:
@@ -68,7 +68,8 @@ def sweep_page(db: Path) -> str:
                     plot_sweep(db, Path(tmp) / metric, x=x, hue=hue, metric=metric, where=where,
                                formats=("png",))
                     figs.append(blocks.figure(blocks.png_b64(Path(tmp) / f"{metric}.png"),
-                                       f"{metric} against {x}" + (f", one line per {hue}" if hue else "")
+                                       f"{metric} against the {axis_label(x)} ({x})"
+                                       + (f", one line per {hue}" if hue else "")
                                        + (f" ({', '.join(where)})" if where else "")
                                        + "; bands: 95 % intervals over runs.", metric))
             except DkfsimError as exc:
@@ -94,8 +95,8 @@ def sweep_page(db: Path) -> str:
                               nees_rows, "mean over runs of each run's time-averaged NEES and its 95 % "
                               "t-interval; consistent: the interval covers the number of state "
                               "components (docs/statistics.md)")),
-        ("Packets", blocks.table("packets", (*gh, "estimate", "messages per tick", "bytes per tick", "late"),
-                          pk, "means over runs; – : not modelled for that estimate")),
+        ("Packets", blocks.table("packets", (*gh, "estimate", *blocks.RATE_HEADS, blocks.LATE_HEAD),
+                          pk, f"means over runs; {blocks.PACKETS_NOTE}")),
         ("Versions and seeds", blocks.versions_table({"dkfsim (database)": meta.get("dkfsim_version")},
                                          [("created", meta.get("created", ""))])
          + blocks.table("seeds", ("parameter set", "param_hash", "base seed"),

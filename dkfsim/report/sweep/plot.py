@@ -23,6 +23,7 @@ import numpy as np
 
 from dkfsim.analysis.metrics import paired_interval
 from dkfsim.analysis.paired import pair_values
+from dkfsim.config.keys import key_label
 from dkfsim.core.errors import DkfsimError
 from dkfsim.core.extras import pyplot
 from dkfsim.core.params import suggest
@@ -32,10 +33,14 @@ from dkfsim.experiments.sweep.summary import read_table
 from dkfsim.report.plots.folders import component_units
 from dkfsim.report.plots.style import (
     DEFAULT_FORMATS,
+    OPEN_BELOW,
+    OTHER_COLORS,
     check_formats,
     color_of,
     estimate_order,
     label_of,
+    log_band,
+    opens_below,
     plain,
     plain_log_ticks,
     save_figure,
@@ -45,12 +50,16 @@ from dkfsim.report.plots.style import (
 #: y-axis label per metric (docs/estimators.md, "Tidy rows").
 METRIC_LABELS = {"mse": "MSE", "anees": "ANEES", "disagreement": "disagreement",
                  "messages_per_tick": "messages per tick", "bytes_per_tick": "bytes per tick",
-                 "lost": "lost packets", "late": "late information"}
+                 "lost": "lost packets per run",
+                 "late": "late information per run [packet rows or contributions]"}
 
-#: Units of common swept keys, by the last part of the dotted key.
-KEY_UNITS = {"d_t": "ticks", "steps": "ticks", "buffer_length": "ticks", "T": "s", "value": "s",
-             "mean": "s", "median": "s", "offset": "s", "loss": "probability",
-             "rounds": "rounds per tick"}
+#: Positive numeric grid values spanning more than this factor get a log x axis (link rates).
+LOG_X_SPAN = 100.0
+
+
+def log_x(values: list[float]) -> bool:
+    """A log x axis: every value positive and they span more than :data:`LOG_X_SPAN`."""
+    return bool(values) and min(values) > 0 and max(values) / min(values) > LOG_X_SPAN
 
 
 def _key(columns, name: str, flag: str) -> str:
@@ -99,11 +108,13 @@ def per_component(metric: str) -> bool:
 
 
 def sweep_curves(path, x: str | None = None, hue: str | None = None, metric: str = "mse",
-                 estimate: str | None = None, where=(), relative_to: str | None = None) -> dict:
+                 estimate: str | None = None, where=(), relative_to: str | None = None,
+                 components=None) -> dict:
     """The points to draw: ``{"x": key, "hue": key or None, "xs": values, "lines": {label:
     {component: [(x, n, mean, lo, hi), ...]}}, "components": [...], "nx": {estimate: nx},
     "estimates": every estimate name of the sweep (for :func:`~dkfsim.report.plots.style.color_of`)}``;
-    with ``relative_to`` the points are paired ratios to the reference (:func:`_paired`)."""
+    with ``relative_to`` the points are paired ratios to the reference (:func:`_paired`);
+    ``components``: the state components kept, by name or index (``--component``; default all)."""
     columns, rows = read_table(path)
     if metric not in columns:
         metrics = [c for c in columns if c in METRICS]
@@ -150,12 +161,17 @@ def sweep_curves(path, x: str | None = None, hue: str | None = None, metric: str
                                   f"(estimates: {', '.join(names)})")
         gs = [g for g in gs if g["estimate"] in wanted]
         names = [n for n in names if n in wanted]
-    components = []
+    wanted_components, components = list(components or ()), []
     for g in gs:
         if g["component"] not in components:
             components.append(g["component"])
     if not per_component(metric):
+        if wanted_components:
+            raise DkfsimError(f"--component: --metric {metric} has one value per run, not one per "
+                              "state component (--component is for mse)")
         components = components[:1]       # scalar metrics repeat on every component row
+    elif wanted_components:
+        components = _select(components, wanted_components)
     nx = {}
     for g in gs:
         nx.setdefault(g["estimate"], set()).add(g["component"])
@@ -180,6 +196,20 @@ def sweep_curves(path, x: str | None = None, hue: str | None = None, metric: str
     return {"x": x, "hue": hue_key, "estimate": estimate if hue_key else None, "xs": xs,
             "estimates": sorted({g["estimate"] for g in found.values()}), "lines": lines, "components": components, "metric": metric, "fixed": fixed,
             "nx": {e: len(c) for e, c in nx.items()}, "relative_to": relative_to}
+
+
+def _select(have: list, wanted: list) -> list:
+    """``--component`` for a sweep: names or indices of the sweep's components, in the order given."""
+    out = []
+    for w in map(str, wanted):
+        if w in have:
+            out.append(w)
+        elif w.isdigit() and int(w) < len(have):
+            out.append(have[int(w)])
+        else:
+            raise DkfsimError(f"--component: {w!r} is not a component of the sweep{suggest(w, have)} "
+                              f"(components: {', '.join(have)}, or 0..{len(have) - 1})")
+    return out
 
 
 def _check_reference(ref: str, names, gs, hue_key, grid) -> None:
@@ -219,91 +249,193 @@ def _paired(g, found, gs, ref: str, hue_key, metric: str):
     return (p["ratio"], np.nan if lo is None else lo, np.nan if hi is None else hi)
 
 
-def plot_sweep(path, stem, x=None, hue=None, metric="mse", estimate=None, where=(),
-               formats=DEFAULT_FORMATS, title=None, relative_to=None) -> list[Path]:
-    """Draw :func:`sweep_curves` into ``stem.<format>``; return the files written."""
-    formats = check_formats(formats)
-    cur = sweep_curves(path, x, hue, metric, estimate, where, relative_to)
-    ref = cur["relative_to"]
-    comps, xs = cur["components"], cur["xs"]
-    numeric = _numeric(xs)
-    pos = {str(v): (float(v) if numeric else i) for i, v in enumerate(xs)}
-    plt = pyplot()
-    fig, axes = plt.subplots(len(comps), 1, figsize=(6.4, 2.4 * len(comps) + 1.0), sharex=True,
-                             squeeze=False)
-    cmap = plt.get_cmap("viridis")
-    n_lines = len(cur["lines"])
-    units = component_units(comps, None) if per_component(metric) else [""] * len(comps)
-    runs = set()
-    for ax, comp in zip(axes[:, 0], comps):
-        means = []
-        for j, (label, by_comp) in enumerate(cur["lines"].items()):
+#: Marker of the i-th line of a sweep figure (by its place among all the sweep's lines, so a
+#: line keeps its marker in every panel and column).
+MARKERS = ("o", "s", "^", "D", "v", "P", "X", "*", "<", ">", "h", "p")
+#: Line styles of a line drawn over ones it coincides with (the k-th such line: DASHES[k - 1]).
+DASHES = ("--", (0, (1, 1.5)), "-.", (0, (5, 2, 1, 2, 1, 2)), (0, (3, 1)))
+#: Two lines coincide where they differ by less than this fraction of the panel's range.
+COINCIDE = 0.015
+
+
+def coinciding(series, log: bool) -> list[int]:
+    """For each line ``(xs, ys)`` of a panel, drawn in order, how many lines drawn before it
+    it coincides with (at every x they share, closer than :data:`COINCIDE` of the panel's
+    range, on the panel's scale).  A line over k others is drawn hollow, larger and dashed,
+    so that each one stays visible (docs/decisions.md, 199)."""
+    def scaled(ys):
+        ys = np.asarray(ys, dtype=float)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            return np.where(ys > 0, np.log10(ys), np.nan) if log else ys
+    vals = [dict(zip(map(str, xs), scaled(ys))) for xs, ys in series]
+    every = np.array([v for d in vals for v in d.values()], dtype=float)
+    every = every[np.isfinite(every)]
+    span = float(every.max() - every.min()) if every.size else 0.0
+    tol = COINCIDE * (span if span > 0 else max(1.0, float(np.abs(every).max()) if every.size else 1.0))
+    out = []
+    for j, d in enumerate(vals):
+        k = 0
+        for e in vals[:j]:
+            shared = [x for x in d if x in e and np.isfinite(d[x]) and np.isfinite(e[x])]
+            if shared and all(abs(d[x] - e[x]) <= tol for x in shared):
+                k += 1
+        out.append(k)
+    return out
+
+
+def line_style(index: int, over: int) -> dict:
+    """Matplotlib keywords of the line with marker ``index`` drawn over ``over`` coinciding lines."""
+    style = {"marker": MARKERS[index % len(MARKERS)], "ms": 4.0, "lw": 1.2, "ls": "-"}
+    if over:
+        style.update(ms=4.0 + 2.4 * over, mfc="none", mew=1.2, ls=DASHES[(over - 1) % len(DASHES)])
+    return style
+
+
+def axis_label(key: str, xlabel: str | None = None) -> str:
+    """The x label of grid key ``key``: ``--xlabel`` when given, else what the key is and its
+    unit (:func:`dkfsim.config.keys.key_label`), ``per-hop delay bound d_t [ticks]``."""
+    if xlabel is not None:
+        return plain(xlabel)
+    words, unit = key_label(key)
+    return f"{plain(words)} [{plain(unit)}]" if unit else plain(words)
+
+
+def hue_color(j: int, n: int, cmap):
+    """The colour of the j-th of n hue values: never a built-in estimate's colour (a hue value
+    is not an estimate): :data:`OTHER_COLORS`, or a colour map beyond them."""
+    return OTHER_COLORS[j] if n <= len(OTHER_COLORS) else cmap(0.9 * j / (n - 1))
+
+
+def _draw_column(axes, cur, comps, pos, styles, cmap, single: bool = True) -> tuple[int, set, bool]:
+    """Draw the lines of :func:`sweep_curves` result ``cur`` into one column of panels; return
+    the number of data lines drawn (reference lines do not count), the run counts seen and
+    whether a band was opened below (:func:`~dkfsim.report.plots.style.log_band`)."""
+    ref, metric = cur["relative_to"], cur["metric"]
+    units = component_units(comps, None) if per_component(metric) else [""] * len(comps)   # by the names
+    n_lines = len(styles)
+    drawn, runs, opened = 0, set[int](), False
+    for ax, comp in zip(axes, comps):
+        series = []
+        for label, by_comp in cur["lines"].items():
             pts = sorted(by_comp[comp], key=lambda p: pos[str(p[0])])
-            if not pts:
-                continue
+            m = np.array([p[2] for p in pts], dtype=float)
+            if not pts or np.isnan(m).all():
+                continue                      # not applicable to this estimate: no legend entry
             runs.update(p[1] for p in pts)
-            px = [pos[str(p[0])] for p in pts]
-            m = np.array([p[2] for p in pts])
-            lo = np.array([p[3] for p in pts])
-            hi = np.array([p[4] for p in pts])
+            series.append((label, [p[0] for p in pts], m, np.array([p[3] for p in pts], dtype=float),
+                           np.array([p[4] for p in pts], dtype=float)))
+        vals = np.concatenate([m for *_, m, _lo, _hi in series]) if series else np.array([])
+        vals = vals[np.isfinite(vals) & (vals > 0)]
+        log = (metric == "mse" or ref is not None) and vals.size > 0 and vals.max() / vals.min() > 10
+        overs = coinciding([(xs, m) for _, xs, m, _, _ in series], log)
+        for (label, xs, m, lo, hi), over in zip(series, overs):
+            j = list(styles).index(label)
             if cur["hue"] is None:
                 col, lab = color_of(label, cur["estimates"]), label_of(label)
             else:
-                col = f"C{j}" if n_lines <= 8 else cmap(0.9 * j / (n_lines - 1))
-                lab = f"{plain(cur['hue'])} = {plain(label)}"
-            if np.isnan(m).all():
-                continue                      # not applicable to this estimate: no legend entry
-            means.append(m)
-            ax.plot(px, m, marker="o", ms=3.5, lw=1.2, color=col, label=lab)
+                col, lab = hue_color(j, n_lines, cmap), f"{plain(cur['hue'].removeprefix('param:'))} = {plain(label)}"
+            px = [pos[str(v)] for v in xs]
+            ax.plot(px, m, color=col, label=lab, zorder=2 + over, **line_style(styles[label], over))
+            drawn += 1
             if not np.isnan(lo).all():
-                ax.fill_between(px, lo, hi, color=col, alpha=0.18, lw=0)
+                if log:
+                    opened |= opens_below(lo)
+                    lo, hi = log_band(lo, hi, m)
+                ax.fill_between(px, lo, hi, color=col, alpha=0.15, lw=0)
         if ref is not None:
-            ax.axhline(1.0, color="0.3", lw=0.8, ls=":")
+            ax.axhline(1.0, color="0.3", lw=0.8, ls=":", zorder=1)
         elif metric == "anees" and cur["nx"] and len(set(cur["nx"].values())) == 1:
             nx = next(iter(cur["nx"].values()))
-            ax.axhline(nx, color="0.3", lw=0.8, ls=":",
+            ax.axhline(nx, color="0.3", lw=0.8, ls=":", zorder=1,
                        label=f"nx = {nx}: consistent where the 95 % interval covers it")
-        vals = np.concatenate(means) if means else np.array([])
-        vals = vals[np.isfinite(vals) & (vals > 0)]
-        if (metric == "mse" or ref is not None) and vals.size and vals.max() / vals.min() > 10:
+        if log:
             ax.set_yscale("log")
             plain_log_ticks(ax)
+            ax.set_ylim(vals.min() / 1.6, vals.max() * 1.6)   # the means, not bands reaching to 0
         name = METRIC_LABELS.get(metric, metric)
         unit = unit_label(units[comps.index(comp)], squared=True) if metric == "mse" and ref is None else ""
-        if ref is not None:
-            name = f"{name} / {'' if cur['hue'] is None else plain(cur['hue'].removeprefix('param:')) + ' = '}" \
-                   f"{plain(ref)}"
+        if ref is not None:               # beside the absolute column, its title names the hue key
+            hue = "" if cur["hue"] is None or not single else plain(cur["hue"].removeprefix("param:")) + " = "
+            name = f"{name} / {hue}{plain(ref)}"
         ax.set_ylabel(f"{plain(comp)} {plain(name)}{unit}" if len(comps) > 1 or metric == "mse" else plain(name))
-        ax.grid(True, which="both", alpha=0.25)
-    last = axes[-1, 0]
-    xname = cur["x"].removeprefix("param:")
-    unit = KEY_UNITS.get(xname.rsplit(".", 1)[-1])
-    last.set_xlabel(f"{plain(xname)} [{unit}]" if unit else plain(xname))
-    if numeric:
-        last.set_xticks([float(v) for v in xs])
-        last.set_xticklabels([f"{v:g}" if isinstance(v, float) else plain(v, 40) for v in xs])
-    else:
-        last.set_xticks(range(len(xs)))
-        last.set_xticklabels([plain(v, 40) for v in xs])
-    r = sorted(runs)
-    per = f"{r[0]} runs" if len(r) == 1 else f"{r[0]}-{r[-1]} runs"
-    what = METRIC_LABELS.get(metric, metric)
-    sub = f"mean over {per} per point; band: 95 % interval (Student t)" if ref is None else \
-        f"paired over {per} per point: geometric mean of the per-run ratios, band: 95 % t-interval of their logs"
-    if cur["estimate"]:
-        sub = f"{label_of(cur['estimate'])}; " + sub
-    if cur["fixed"]:
-        sub += "; " + ", ".join(f"{plain(k.removeprefix('param:'))} = {plain(v, 40)}"
-                                for k, v in cur["fixed"].items())
-    fig.suptitle((plain(title) if title else f"{plain(what)} against {plain(xname)}") + f"\n({sub})",
-                 fontsize=10.5)
-    handles, labels = axes[0, 0].get_legend_handles_labels()
-    if not any(ax.get_lines() for ax in axes[:, 0]):
+        ax.grid(True, which="major", alpha=0.3)
+        ax.grid(True, which="minor", alpha=0.1)
+    return drawn, runs, opened
+
+
+def plot_sweep(path, stem, x=None, hue=None, metric="mse", estimate=None, where=(),
+               formats=DEFAULT_FORMATS, title=None, relative_to=None, components=None,
+               xlabel=None) -> list[Path]:
+    """Draw :func:`sweep_curves` into ``stem.<format>``; return the files written.
+
+    ``mse`` gets a second column of panels, each estimate's paired ratio to the reference
+    (``relative_to``; default ``centralized`` when the sweep has it and there is no ``hue``);
+    another metric with ``relative_to`` is drawn as the ratio alone.  ``xlabel`` replaces the
+    x label made from the key (:func:`axis_label`)."""
+    formats = check_formats(formats)
+    absolute = sweep_curves(path, x, hue, metric, estimate, where, None, components)
+    ref = relative_to
+    if ref is None and metric == "mse" and absolute["hue"] is None and "centralized" in absolute["estimates"] \
+            and len(absolute["lines"]) > 1:
+        ref = "centralized"
+    cols = [] if ref is not None and metric != "mse" else [absolute]
+    if ref is not None:
+        cols.append(sweep_curves(path, x, hue, metric, estimate, where, ref, components))
+    cur = cols[0]
+    comps, xs = cur["components"], cur["xs"]
+    numeric = _numeric(xs)
+    pos = {str(v): (float(v) if numeric else i) for i, v in enumerate(xs)}
+    styles = {label: j for j, label in enumerate(absolute["lines"])}
+    plt = pyplot()
+    fig, axes = plt.subplots(len(comps), len(cols), figsize=(6.4 if len(cols) == 1 else 11.0,
+                             2.4 * len(comps) + 1.0), sharex=True, squeeze=False)
+    cmap = plt.get_cmap("viridis")
+    drawn, runs, opened = 0, set[int](), False
+    for c, col in enumerate(cols):
+        n, seen, o = _draw_column(axes[:, c], col, comps, pos, styles, cmap, single=len(cols) == 1)
+        drawn, runs, opened = drawn + n, runs | seen, opened or o
+    if not drawn:
         plt.close(fig)
         raise DkfsimError(f"--metric {metric}: nothing to draw, no value of {metric} is known in the "
                           "selected rows (every one is empty: not applicable)")
+    xname = cur["x"].removeprefix("param:")
+    for c in range(len(cols)):
+        last = axes[-1, c]
+        last.set_xlabel(axis_label(cur["x"], xlabel))
+        wide = numeric and log_x([float(v) for v in xs])
+        if wide:
+            last.set_xscale("log")
+            last.minorticks_off()
+            last.set_xlabel(last.get_xlabel() + " (log axis)")
+        if numeric:
+            last.set_xticks([float(v) for v in xs])
+            last.set_xticklabels([f"{v:g}" if isinstance(v, float) else plain(v, 40) for v in xs])
+            if wide:                         # values close on a long axis: labels upright
+                last.tick_params(axis="x", labelrotation=90, labelsize=8)
+        else:
+            last.set_xticks(range(len(xs)))
+            last.set_xticklabels([plain(v, 40) for v in xs])
+    if len(cols) == 2:
+        axes[0, 0].set_title("mean over the runs", fontsize=9.5)
+        hue = "" if cur["hue"] is None else plain(cur["hue"].removeprefix("param:")) + " = "
+        axes[0, 1].set_title(f"relative to {hue}{plain(ref)}: paired ratio, run by run", fontsize=9.5)
+    r = sorted(runs)
+    per = f"{r[0]} runs" if len(r) == 1 else f"{r[0]}-{r[-1]} runs"
+    what = METRIC_LABELS.get(metric, metric)
+    mean = f"mean over {per} per point; band: 95 % interval (Student t)"
+    ratio = "ratio: geometric mean of the per-run ratios, band: 95 % t-interval of their logs"
+    sub = ratio.replace("ratio: ", f"paired over {per} per point: ") if cols[0]["relative_to"] else \
+        mean + ("" if len(cols) == 1 else f";\n{ratio}")
+    if cur["estimate"]:
+        sub = f"{label_of(cur['estimate'])}; " + sub
+    fixed = [f"{plain(k.removeprefix('param:'))} = {plain(v, 40)}" for k, v in cur["fixed"].items()]
+    sub += "; x: " + ", ".join([plain(xname)] + fixed) + (f";\n{OPEN_BELOW}" if opened else "")
+    words = axis_label(cur["x"]) if xlabel is None else plain(xlabel)
+    fig.suptitle((plain(title) if title else f"{plain(what)} against {words}") + f"\n({sub})",
+                 fontsize=10.5)
+    handles, labels = axes[0, 0].get_legend_handles_labels()
     fig.tight_layout()
     if labels:
         fig.legend(handles, labels, loc="upper center", bbox_to_anchor=(0.5, 0.0),
-                   ncol=2 if len(labels) > 2 else len(labels), fontsize=8.5, frameon=False)
+                   ncol=min(len(labels), 2 if len(cols) == 1 else 3), fontsize=8.5, frameon=False)
     return save_figure(fig, stem, formats)

@@ -1,0 +1,144 @@
+"""SUMO floating-car data: the vehicles' timed positions in a ``sumo --fcd-output`` file.
+
+The file is ``<fcd-export><timestep time="…"><vehicle id="…" x="…" y="…"
+speed="…" angle="…"/>…</timestep>…</fcd-export>``.  It is read in one
+streaming pass (1 MiB at a time, no tree kept: files of any size fit in
+memory as 24 bytes per vehicle sample) with defusedxml's expat parser, which
+refuses document type declarations, entity declarations and external
+references outright: a SUMO file has none, and they are how an XML file
+attacks its reader (entity expansion "bombs", reading local files or URLs).
+Every problem is a :class:`~dkfsim.core.errors.DkfsimError` naming the file,
+the line and what is wrong.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from array import array
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, NoReturn
+
+import numpy as np
+
+from dkfsim.core.datafiles import DataFileError, file_key
+from dkfsim.core.errors import DkfsimError
+from dkfsim.core.extras import optional
+
+_CHUNK = 1 << 20
+
+
+@dataclass(frozen=True)
+class FcdData:
+    """Every vehicle of one FCD file: ``vehicles[id] = (t, xy)``, ``t`` (N,) strictly
+    increasing seconds of SUMO's clock, ``xy`` (N, 2) metres."""
+
+    path: str
+    vehicles: dict[str, tuple[np.ndarray, np.ndarray]]
+
+
+class _Collector:
+    """The parser's target: checks each element as it opens, keeps only numbers."""
+
+    def __init__(self, name: str):
+        self.name = name
+        self.parser: Any = None       # expat's parser, set once it exists (for line numbers)
+        self.depth = 0
+        self.time: float | None = None
+        self.samples: dict[str, tuple[array, array, array]] = {}
+
+    def fail(self, what: str) -> NoReturn:
+        line = self.parser.CurrentLineNumber if self.parser is not None else "?"
+        raise DkfsimError(f"SUMO FCD file {self.name} line {line}: {what}")
+
+    def number(self, attrib: dict, key: str, what: str) -> float:
+        raw = attrib.get(key)
+        if raw is None:
+            self.fail(f"{what} has no {key!r} attribute")
+        try:
+            value = float(raw)
+        except ValueError:
+            value = math.nan
+        if not math.isfinite(value):
+            self.fail(f"{what}: {key}={raw[:40]!r} is not a finite number")
+        return value
+
+    def start(self, tag: str, attrib: dict) -> None:
+        self.depth += 1
+        if self.depth == 1 and tag != "fcd-export":
+            self.fail(f"the root element is <{tag[:40]}>, not <fcd-export> (is this sumo --fcd-output?)")
+        if tag == "timestep" and self.depth == 2:
+            t = self.number(attrib, "time", "<timestep>")
+            if self.time is not None and t <= self.time:
+                self.fail(f"time goes backwards: timestep time={t!r} after time={self.time!r} "
+                          "(timesteps must increase)")
+            self.time = t
+        elif tag == "vehicle" and self.depth == 3:
+            vid = attrib.get("id")
+            if not vid:
+                self.fail("a <vehicle> without an id")
+            what = f"vehicle {vid[:40]!r} at time {self.time!r}"
+            x, y = self.number(attrib, "x", what), self.number(attrib, "y", what)
+            ts, xs, ys = self.samples.setdefault(vid, (array("d"), array("d"), array("d")))
+            if ts and ts[-1] == self.time:
+                self.fail(f"vehicle {vid[:40]!r} appears twice in the timestep at time {self.time!r}")
+            ts.append(self.time)
+            xs.append(x)
+            ys.append(y)
+
+    def end(self, _tag: str) -> None:
+        self.depth -= 1
+
+    def close(self) -> None:
+        return None
+
+
+_CACHE: dict[tuple, FcdData] = {}
+#: defusedxml's refusals, in words.
+_REFUSED = {"DTDForbidden": "a document type declaration (<!DOCTYPE ...>)",
+            "EntitiesForbidden": "an entity declaration (<!ENTITY ...>)",
+            "ExternalReferenceForbidden": "an external reference",
+            "NotSupportedError": "an XML feature it does not support"}
+
+
+def read_fcd(path: str | os.PathLike) -> FcdData:
+    """Read (and cache, on path, size and modification time) a SUMO FCD file."""
+    path = Path(path)
+    try:
+        key = file_key(path)
+    except DataFileError as err:
+        raise DkfsimError(f"SUMO FCD file: {err}") from None
+    if key not in _CACHE:
+        _CACHE[key] = _parse(path)
+    return _CACHE[key]
+
+
+def _parse(path: Path) -> FcdData:
+    defused = optional("defusedxml.ElementTree")
+    errors = optional("defusedxml")
+    collector = _Collector(path.name)
+    parser = defused.DefusedXMLParser(target=collector, forbid_dtd=True, forbid_entities=True,
+                                      forbid_external=True)
+    collector.parser = parser.parser
+    try:
+        with open(path, "rb") as fh:
+            while chunk := fh.read(_CHUNK):
+                parser.feed(chunk)
+            parser.close()
+    except errors.DefusedXmlException as err:
+        what = _REFUSED.get(type(err).__name__, type(err).__name__)
+        raise DkfsimError(f"SUMO FCD file {path.name} line {collector.parser.CurrentLineNumber}: refused "
+                          f"{what}: a SUMO FCD file has none, and they are how an XML file attacks its "
+                          "reader (entity expansion, reading local files or URLs)") from None
+    except defused.ParseError as err:
+        raise DkfsimError(f"SUMO FCD file {path.name}: not well-formed XML: {err}") from None
+    except OSError as err:
+        raise DkfsimError(f"cannot read SUMO FCD file {path}: {err.strerror}") from None
+    if collector.time is None:
+        raise DkfsimError(f"SUMO FCD file {path.name} has no <timestep>")
+    vehicles = {}
+    for vid, (ts, xs, ys) in collector.samples.items():
+        t, xy = np.frombuffer(ts), np.column_stack([np.frombuffer(xs), np.frombuffer(ys)])
+        vehicles[vid] = (t, xy)
+    return FcdData(str(path), vehicles)

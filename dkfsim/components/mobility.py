@@ -1,0 +1,190 @@
+"""Vehicles that move: the ``mobility:`` key and the time-varying graph it makes (issue 23).
+
+``mobility: {vehicles: {default: <trajectory>, 0: <trajectory>, ...}, range: {model: disk,
+radius: R}}`` gives every node a trajectory (:mod:`dkfsim.components.trajectories`: its own
+entry, else ``default``) and a range model (docs/mobility.md).
+
+A link ``u -> v`` of the scenario's topology is *up* at tick ``k`` while the pair is in
+range at ``t_k = k T``: with ``range: {model: disk, radius: R}``, while the distance between
+the two vehicles is at most ``R`` metres.  The state of tick ``k`` holds for every instant of
+``[t_k, t_{k+1})`` (docs/design.md §3, "Links that come and go").  A :class:`LinkSchedule`
+is that table, worked out once by the run plan (:mod:`dkfsim.config.plan`) and read by the
+network (a packet handed to a link that is down is lost, ``range_lost``) and the protocols
+(flood's resend on link-up, the consensus filters' current neighbours).
+
+:meth:`LinkSchedule.connect_window` gives ``B``, the shortest length such that every
+interval of ``B`` consecutive ticks has a (strongly) connected union graph: the quantity
+of the finite-time result on time-varying graphs (docs/design.md §6).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from typing import Any, Literal
+
+import numpy as np
+import scipy.sparse
+import scipy.sparse.csgraph
+from pydantic import field_validator
+
+from dkfsim.components.trajectories import Trajectory, TrajectoryParams
+from dkfsim.core.files import clip
+from dkfsim.core.params import PosReal, StrictModel, custom_error
+
+#: Largest link schedule (ticks x arcs, one byte each) a scenario may ask for (256 MiB).
+SCHEDULE_LIMIT = 1 << 28
+
+
+class DiskRange(StrictModel):
+    """A pair is in range while the vehicles are at most ``radius`` metres apart."""
+
+    model: Literal["disk"] = "disk"
+    #: metres
+    radius: PosReal
+
+    def in_range(self, distance: np.ndarray) -> np.ndarray:
+        """Which distances (m) are in range."""
+        return distance <= self.radius
+
+
+class Mobility(StrictModel):
+    """The top-level ``mobility`` key: a trajectory per vehicle (node) and the radio range."""
+
+    #: ``default`` and/or node numbers -> a trajectory (:mod:`dkfsim.components.trajectories`)
+    vehicles: dict[str, Trajectory]
+    range: DiskRange
+
+    @field_validator("vehicles", mode="before")
+    @classmethod
+    def _keys(cls, v: Any) -> Any:
+        """Keys are ``default`` or node numbers (YAML reads ``0:`` as an integer)."""
+        if not isinstance(v, dict):
+            return v
+        out = {}
+        for key in v:
+            if isinstance(key, bool) or not (key == "default" or isinstance(key, int)
+                                             or (isinstance(key, str) and key.isdigit())):
+                raise custom_error(f"a vehicle key is a node number or 'default', got {clip(key)}", str(key))
+            out[str(key)] = v[key]
+        if not out:
+            raise custom_error("give at least one vehicle (or a default trajectory)")
+        return out
+
+    def check(self, n: int) -> None:
+        """Cross-checks that need the network size (called by the scenario): every key a node,
+        every node a trajectory."""
+        for key in self.vehicles:
+            if key != "default" and not 0 <= int(key) < n:
+                raise custom_error(f"node {key} is out of range 0..{n - 1}", f"mobility.vehicles.{key}")
+        if "default" not in self.vehicles:
+            missing = [i for i in range(n) if str(i) not in self.vehicles]
+            if missing:
+                raise custom_error(f"node {missing[0]} has no trajectory ({len(missing)} node(s) without one); "
+                                   "give it one, or a 'default' trajectory", "mobility.vehicles")
+
+    def trajectory(self, node: int) -> TrajectoryParams:
+        """Node ``node``'s trajectory: its own entry, else the default."""
+        return self.vehicles.get(str(node)) or self.vehicles["default"]
+
+    def positions(self, n: int, K: int, T: float) -> np.ndarray:
+        """Every vehicle's position (m) at ``t_k = k T``, ``k = 0 .. K``: ``(K + 1, n, 2)``."""
+        t = np.arange(K + 1) * float(T)
+        out = np.empty((K + 1, n, 2))
+        for i in range(n):
+            out[:, i, :] = self.trajectory(i).positions(t)
+        return out
+
+
+class LinkSchedule:
+    """``up[k, a]``: whether arc ``a`` (of ``arcs``) is up at tick ``k`` (``k = 0 .. K``).
+
+    :param up: a boolean ``(K + 1, len(arcs))`` array.
+    :param arcs: the topology's arcs, in the network's link order.
+    """
+
+    def __init__(self, up: np.ndarray, arcs: Sequence[tuple[int, int]]):
+        self.up = np.ascontiguousarray(up, dtype=bool)
+        self.arcs: list[tuple[int, int]] = [(int(a[0]), int(a[1])) for a in arcs]
+        if self.up.shape != (self.up.shape[0], len(self.arcs)):
+            raise ValueError(f"up must have one column per arc, got shape {self.up.shape}")
+        #: whether some arc is down at some tick ``1 .. K`` (the ticks a run sends at): a
+        #: schedule that never changes runs exactly as the fixed graph
+        self.changes = not bool(self.up[1:].all())
+
+    @classmethod
+    def from_positions(cls, positions: np.ndarray, arcs: Sequence[tuple[int, int]], rng: DiskRange) -> LinkSchedule:
+        """The schedule of ``arcs`` for vehicle ``positions`` (``(K + 1, n, 2)`` metres, row
+        ``k`` at ``t_k``) under the range model ``rng``."""
+        pos = np.asarray(positions, dtype=float)
+        if not arcs:
+            return cls(np.zeros((pos.shape[0], 0), dtype=bool), arcs)
+        a = np.asarray(arcs, dtype=np.intp)
+        up = np.empty((pos.shape[0], len(a)), dtype=bool)
+        step = max(1, (1 << 21) // len(a))                  # ticks per block: a few MB of distances
+        for k in range(0, pos.shape[0], step):
+            p = pos[k:k + step]
+            up[k:k + step] = rng.in_range(np.hypot(*(p[:, a[:, 0], :] - p[:, a[:, 1], :]).transpose(2, 0, 1)))
+        return cls(up, arcs)
+
+    @property
+    def K(self) -> int:
+        return self.up.shape[0] - 1
+
+    def column(self, arc: int) -> bytes:
+        """Arc ``arc``'s state per tick as bytes (``col[k]`` is 1 when up): cheap per packet."""
+        return self.up[:, arc].astype(np.uint8).tobytes()
+
+    def came_up(self, k: int) -> list[int]:
+        """The arcs up at tick ``k`` that were down at tick ``k - 1`` (none at tick 0)."""
+        if k <= 0 or k > self.K:
+            return []
+        return np.flatnonzero(self.up[k] & ~self.up[k - 1]).tolist()
+
+    def connect_window(self, n: int, arcs: Sequence[int] | None = None) -> int | None:
+        """``B``: the smallest length such that the union of the graphs of every ``B``
+        consecutive ticks in ``1 .. K`` is strongly connected (over the arcs numbered
+        ``arcs``, default all); None when even the union of ticks ``1 .. K`` is not.
+
+        Ticks with the same links form segments (``a_i`` the first tick of segment ``i``).
+        Two pointers over segments: for each ``i`` the first segment ``j(i)`` whose union
+        with ``i .. j(i) - 1`` is connected, which never decreases with ``i``; a start
+        ``s`` in segment ``i`` then needs ``max(1, a_j(i) - s + 1)`` ticks, most at
+        ``s = a_i``, so ``B`` is the smallest value with ``a_j(i) - a_i + 1 <= B`` for every
+        segment with ``a_i <= K - B + 1``.  One connectivity check per segment step."""
+        K = self.K
+        if n <= 1 or K < 1:
+            return 1
+        cols = np.arange(len(self.arcs)) if arcs is None else np.asarray(list(arcs), dtype=np.intp)
+        up = self.up[1:, cols]
+        pairs = np.asarray([self.arcs[c] for c in cols], dtype=np.intp).reshape(-1, 2)
+        change = np.flatnonzero((up[1:] != up[:-1]).any(axis=1)) + 1
+        starts = np.concatenate([[0], change])             # segment starts, 0-based (tick - 1)
+        rows = up[starts]
+        M = len(starts)
+        count = np.zeros(len(cols), dtype=np.int64)
+        span = np.full(M, np.iinfo(np.int64).max, dtype=np.int64)
+        j = -1                                              # segments i .. j are in the window
+        for i in range(M):
+            while (j < i or not _strongly_connected(n, pairs, count > 0)) and j < M - 1:
+                j += 1
+                count += rows[j]
+            if j < i or not _strongly_connected(n, pairs, count > 0):
+                break                                   # no later start connects either
+            span[i] = starts[j] - starts[i] + 1 if j > i else 1
+            count -= rows[i]
+        worst = np.maximum.accumulate(span)             # worst[m]: max span over segments 0..m
+        for B in range(1, K + 1):
+            m = int(np.searchsorted(starts, K - B, side="right")) - 1     # segments with a_i <= K - B + 1
+            if worst[m] <= B:
+                return B
+        return None
+
+
+def _strongly_connected(n: int, pairs: np.ndarray, on: np.ndarray) -> bool:
+    """Whether the arcs ``pairs[a]`` (``(E, 2)``) with ``on[a]`` make a strongly connected
+    graph on nodes ``0 .. n-1``."""
+    used = pairs[on]
+    if len(used) < n:
+        return False                # (a strongly connected digraph on n > 1 nodes has >= n arcs)
+    graph = scipy.sparse.csr_matrix((np.ones(len(used)), (used[:, 0], used[:, 1])), shape=(n, n))
+    return int(scipy.sparse.csgraph.connected_components(graph, directed=True, connection="strong")[0]) == 1
