@@ -25,8 +25,10 @@ from dkfsim.components.traffic import Background, Queue, transmission_ns
 from dkfsim.core.params import MAX_NS, NS_PER_S, seconds_to_ns
 from dkfsim.core.streams import key64, keyed_uniforms
 
-#: Background packets drawn at once (a block of keyed draws).
-BLOCK = 4096
+#: Background packets drawn at once (a block of keyed draws).  The instants are integer sums of
+#: rounded gaps, so the block size changes no value; 512 keeps a link's first block, which
+#: every port and the compiled tree's interval log draw, cheap (one math.log per packet).
+BLOCK = 512
 #: Longest gap between two Poisson background packets (ns), about 6.5 days.
 MAX_GAP_NS = 1 << 49
 
