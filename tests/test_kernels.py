@@ -219,7 +219,7 @@ os.environ["DKFSIM_EXCHANGE"] = "python"
 dkfsim.run(sc, save="estimates")
 stats = {}
 for mod, names in ((kernels, ("window_rows", "xi_rows", "filter_rows")),
-                   (tk, ("deliver", "flush_all", "measure")), (hk, ("fold_masks",))):
+                   (tk, ("tick", "advance")), (hk, ("fold_masks",))):
     for name in names:
         d = getattr(mod, name)
         stats[name] = [sum(d.stats.cache_hits.values()), sum(d.stats.cache_misses.values())]

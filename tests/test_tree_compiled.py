@@ -34,6 +34,14 @@ CASES = {
     "no_fusion": dict(n=9, edges=tree_edges(9, 7), fusion="none", latency={"model": "uniform_steps", "d_t": 2}),
     "paper_weights_diagonal": dict(n=8, edges=tree_edges(8, 5), weights="paper", fusion="diagonal",
                                    latency={"model": "uniform_steps", "d_t": 2}),
+    # half a tick: what arrives at a tick was relayed half a tick before, so its delivery
+    # comes after the tick's measure (the kernel runs the instants between ticks itself)
+    "relayed_to_the_tick": dict(n=16, nx=3, edges=tree_edges(16, 14), latency={"model": "constant", "value": 0.005}),
+    # and a whole tick on three links: packets sent at the tick before arrive too, so the
+    # tick's deliveries come before its measure
+    "ticks_and_between": dict(n=16, nx=3, edges=tree_edges(16, 14), latency={"model": "constant", "value": 0.005},
+                              overrides=[{"link": list(e), "latency": {"model": "constant", "value": 0.01}}
+                                         for e in tree_edges(16, 14)[:3]]),
 }
 
 
@@ -61,8 +69,12 @@ def test_compiled_tree_is_the_python_protocol(case, monkeypatch):
         assert a.counts["late"] > 0 and a.counts["stale"] > 0      # the case exercises both
 
 
-def test_a_growing_packet_pool_keeps_the_packets_in_flight(monkeypatch):
-    d = scenario(n=12, edges=tree_edges(12, 9), steps=30, latency={"model": "uniform_steps", "d_t": 4})
+@pytest.mark.parametrize("case", ["d_t_4", "ticks_and_between"])
+def test_a_growing_packet_pool_keeps_the_packets_in_flight(case, monkeypatch):
+    """The pool grows in the middle of a tick (between ticks too): the tick resumes where it stopped."""
+    kw = dict(n=12, edges=tree_edges(12, 9), latency={"model": "uniform_steps", "d_t": 4}) if case == "d_t_4" \
+        else CASES[case]
+    d = scenario(**{"steps": 30, **kw})
     monkeypatch.setattr(tree_compiled.CompiledTreeExchange, "initial_pool", 1)
     a = _run(d, "", monkeypatch)
     monkeypatch.undo()
@@ -88,7 +100,8 @@ def test_what_the_kernels_cannot_draw_runs_the_python_protocol(change, value, mo
     assert _run(d, "", monkeypatch).info["exchange"] == "masks"
 
 
-@pytest.mark.parametrize("case", ["uniform_steps", "short_buffer", "constant_off_grid"])
+@pytest.mark.parametrize("case", ["uniform_steps", "short_buffer", "constant_off_grid", "relayed_to_the_tick",
+                                  "ticks_and_between"])
 def test_the_arrival_log_is_the_python_protocols(case, monkeypatch):
     """With the log, late contributions count once each (holdings of final rows kept) and
     every arrival instant is written: the same array and counts as the Python protocol."""

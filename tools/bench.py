@@ -19,6 +19,9 @@
 5. BLAS threads under load: a 50-node matrix-fusion run with the BLAS
    library's default threads and with one thread (what dkfsim uses), each
    while a CPU hog process spins beside it.
+6. Monte Carlo on the one executor: this process, 2 local processes and a Dask
+   LocalCluster of 2 worker processes (start-up included), runs per minute and
+   whether the rows are identical.
 7. A graph that changes (issue 23): ``paper_case1`` with ``mobility:`` whose links go down
    and come back every few ticks (each non-root vehicle out of range one tick in
    ``--mobility-period``, periodically, and then at random ticks with that probability, so
@@ -26,9 +29,11 @@
    alternated (``--repeats`` times, min CPU of each); the ratio changing / fixed and the
    exchange each used (the fixed graph runs the compiled tree where numba is present).
    ``--mobility-only`` runs this section alone.
-6. Monte Carlo on the one executor: this process, 2 local processes and a Dask
-   LocalCluster of 2 worker processes (start-up included), runs per minute and
-   whether the rows are identical.
+8. Links that carry the traffic (issue 21): ``paper_case1`` with every link at 1 Mbit/s, a
+   room of 20 packets and Poisson background (:data:`TRAFFIC`) against the same scenario
+   without these keys, both on the backend's defaults (the compiled tree on the numba path),
+   alternated in this process, min of ``--repeats``; the issue asks at most 2x.
+   ``--traffic-only`` runs this line alone.
 
 Before/after (``--base REF``): the runs of sections 1, 2 and 4 that exercise the kernels
 (paper_case1 on the three kernel paths, a 50-node tree with matrix fusion, a 200-node tree
@@ -38,7 +43,8 @@ prints the CPU seconds of each (min over the repeats, each run after a short war
 the same kind) and the ratio this / base.  Nothing else runs in that mode.
 
 Usage: ``python tools/bench.py [--ticks 1000] [--sizes 12 50 200] [--fit-sizes 12 50 200 1000]
-[--skip-sweep] [--big-ticks 200] [--skip-threads] [--skip-executors]``, or
+[--skip-sweep] [--big-ticks 200] [--skip-threads] [--skip-executors] [--skip-traffic]``,
+``python tools/bench.py --traffic-only [--ticks 1000] [--repeats 3]``, or
 ``python tools/bench.py --base REF [--repeats 3]``.
 Timing lives here, never in the tests.
 """
@@ -67,6 +73,11 @@ sys.path.insert(0, os.environ.get(TREE_ENV) or str(ROOT))
 import dkfsim  # noqa: E402
 from dkfsim.estimators.kernels import KERNELS_ENV  # noqa: E402
 from dkfsim.protocols.tree_compiled import EXCHANGE_ENV  # noqa: E402
+
+#: Issue 21's bench line: every link of ``paper_case1`` at 1 Mbit/s, a room of 20 packets and
+#: Poisson background of 50 packets/s x 250 B (docs/traffic.md, "Cost").
+TRAFFIC = ("links.default.rate=1.0e6", "links.default.queue={packets: 20}",
+           "links.default.background={arrivals: poisson, packets_per_second: 50, size: 250}")
 
 
 def bare_simpy(n_events: int, horizon: int) -> float:
@@ -199,6 +210,36 @@ def executors_compared(steps: int, runs: int) -> list[tuple[str, float, bool]]:
         first = repr(res.rows) if first is None else first
         out.append((label, 60.0 * runs / wall, repr(res.rows) == first))
     return out
+
+
+def traffic_cost(ticks: int, repeats: int) -> dict:
+    """Section 8: CPU seconds of ``paper_case1`` with :data:`TRAFFIC` and without (``dkfsim.run``,
+    ``save="estimates"``, the environment's backend), each warmed up once, then alternated
+    ``repeats`` times in this process; the min of each, their ratio, packets and exchange."""
+    plain = dkfsim.load_scenario(ROOT / "scenarios" / "paper_case1.yaml", overrides=[f"steps={ticks}"])
+    rated = dkfsim.load_scenario(plain, overrides=list(TRAFFIC))
+    runs = {"plain": plain, "rated": rated}
+    for sc in runs.values():                          # kernels compiled or loaded: not counted
+        dkfsim.run(dkfsim.load_scenario(sc, overrides=["steps=20"]), save="estimates")
+    cpu: dict[str, list[float]] = {name: [] for name in runs}
+    last = {}
+    for _ in range(max(1, repeats)):
+        for name, sc in runs.items():
+            _, c, last[name] = timed(sc)
+            cpu[name].append(c)
+    out = {name: min(v) for name, v in cpu.items()}
+    out["ratio"] = out["rated"] / out["plain"]
+    out.update({f"{name}_sent": r.counts["sent"] for name, r in last.items()})
+    out["exchange"] = last["rated"].info["backend"]["exchange"]
+    return out
+
+
+def print_traffic_cost(ticks: int, repeats: int) -> None:
+    t = traffic_cost(ticks, repeats)
+    print(f"links that carry the traffic (issue 21): paper_case1, {ticks} ticks, 1 Mbit/s, room of 20, "
+          f"Poisson background 50/s x 250 B, against the plain run; CPU s, min of {repeats} alternated")
+    print(f"  plain {t['plain']:8.3f} s ({t['plain_sent']} packets)   rate-limited {t['rated']:8.3f} s "
+          f"({t['rated_sent']} packets, exchange '{t['exchange']}')   ratio {t['ratio']:.2f} x (issue: <= 2)")
 
 
 def kernel_workloads(ticks: int, scale_ticks: int, big_nodes: int, big_ticks: int) -> dict:
@@ -345,10 +386,13 @@ def main(argv=None) -> int:
                     help="skip the Monte Carlo comparison of the executors")
     ap.add_argument("--base", metavar="REF", help="before/after: the kernel-heavy runs of this commit against "
                     "this checkout, alternated (see the module's docstring); nothing else runs")
-    ap.add_argument("--repeats", type=int, default=3, help="alternations of --base (default 3)")
+    ap.add_argument("--repeats", type=int, default=3, help="alternations of --base, of section 7 and of the "
+                    "traffic line (default 3)")
     ap.add_argument("--mobility-period", type=int, default=4,
                     help="section 7: each vehicle is out of range one tick in this many (default 4)")
     ap.add_argument("--mobility-only", action="store_true", help="run section 7 (a changing graph) alone")
+    ap.add_argument("--skip-traffic", action="store_true", help="skip the rate-limited links' cost (section 8)")
+    ap.add_argument("--traffic-only", action="store_true", help="only the rate-limited links' cost (section 8)")
     ap.add_argument("--probe", action="store_true", help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
     if args.probe:
@@ -357,6 +401,9 @@ def main(argv=None) -> int:
         return before_after(args)
     if args.mobility_only:
         changing_graph(args.ticks, args.mobility_period, args.repeats)
+        return 0
+    if args.traffic_only:
+        print_traffic_cost(args.ticks, args.repeats)
         return 0
 
     sc = dkfsim.load_scenario(ROOT / "scenarios" / "paper_case1.yaml", overrides=[f"steps={args.ticks}"])
@@ -467,6 +514,10 @@ def main(argv=None) -> int:
         for label, rate, same in rows:
             print(f"  {label:40s} {rate:7.1f} runs/min  (ratio {rate / base:.2f} x)  "
                   f"rows {'identical' if same else 'DIFFER'}")
+
+    if not args.skip_traffic:
+        print()
+        print_traffic_cost(args.ticks, args.repeats)
     return 0
 
 

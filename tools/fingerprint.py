@@ -86,6 +86,15 @@ SCENARIOS: dict[str, tuple[str, list[str]]] = {
     "nodes70": (CASE1, [f"sensors={SENSORS_70}",
                         "topology={directed: false, generator: random_tree, params: {seed: 3}}",
                         "links.default.latency.d_t=1"]),
+    # links that carry the traffic (issue 21): 1 Mbit/s, a room of 20, Poisson background
+    "traffic": (CASE1, ["links.default.rate=1.0e6", "links.default.queue={packets: 20}",
+                        "links.default.background={arrivals: poisson, packets_per_second: 50, size: 250}"]),
+    # transmitters between ticks: constant latency off the grid, a room of 2 that overflows,
+    # exponential background sizes
+    "traffic_off_grid": (CASE1, ["links.default.latency={model: constant, value: 0.013}",
+                                 "links.default.rate=2.0e5", "links.default.queue={packets: 2}",
+                                 "links.default.background={packets_per_second: 40, size: 200, "
+                                 "sizes: exponential}"]),
 }
 
 #: Kernel paths: name -> environment variables of the run (DKFSIM_* not listed are unset).

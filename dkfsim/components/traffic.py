@@ -78,3 +78,16 @@ class Background(StrictModel):
             raise custom_error("offset is the first arrival of periodic background; a Poisson "
                                "process starts at 0", "offset")
         return self
+
+
+class TrafficKeys(StrictModel):
+    """A link's traffic keys, defined once for ``links.default`` and each ``links.overrides``
+    entry (the scenario's link models inherit them): each absent by default."""
+
+    rate: Rate | None = None
+    queue: Queue | None = None
+    background: Background | None = None
+
+
+#: The traffic keys' names, in order (an override replaces each one it gives).
+TRAFFIC_KEYS: tuple[str, ...] = tuple(TrafficKeys.model_fields)

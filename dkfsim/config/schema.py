@@ -58,7 +58,7 @@ from dkfsim.components.faults import Faults, LinkSpec, Schedule, Window
 from dkfsim.components.latency import Constant, LatencyModel
 from dkfsim.components.mobility import SCHEDULE_LIMIT, Mobility
 from dkfsim.components.sensors import SensorParams
-from dkfsim.components.traffic import Background, Queue, Rate
+from dkfsim.components.traffic import TRAFFIC_KEYS, TrafficKeys
 from dkfsim.components.truth import TruthParams
 from dkfsim.config.dynamics import Model, Prior
 from dkfsim.config.plan import RunPlan
@@ -115,21 +115,22 @@ class Topology(StrictModel):
         return {} if v is None else v
 
 
-class LinkSettings(StrictModel):
-    """A link's latency and faults (see :mod:`dkfsim.components.faults`); ``None`` = no such fault."""
-
+class _LinkFaults(StrictModel):
     latency: LatencyModel = Field(default_factory=lambda: Constant())
     loss: Probability = 0.0
     duplicate: Probability | None = None
     jitter: LatencyModel | None = None
     schedule: Schedule | None = None
     outages: tuple[Window, ...] | None = None
-    rate: Rate | None = None
-    queue: Queue | None = None
-    background: Background | None = None
 
 
-class LinkOverride(StrictModel):
+class LinkSettings(TrafficKeys, _LinkFaults):
+    """A link's latency and faults (see :mod:`dkfsim.components.faults`; ``None`` = no such
+    fault), then its traffic keys (:class:`~dkfsim.components.traffic.TrafficKeys`: the bases in
+    this order keep the keys in this order)."""
+
+
+class _OverrideFaults(StrictModel):
     link: tuple[StrictInt, StrictInt]
     latency: LatencyModel | None = None
     loss: Probability | None = None
@@ -137,9 +138,10 @@ class LinkOverride(StrictModel):
     jitter: LatencyModel | None = None
     schedule: Schedule | None = None
     outages: tuple[Window, ...] | None = None
-    rate: Rate | None = None
-    queue: Queue | None = None
-    background: Background | None = None
+
+
+class LinkOverride(TrafficKeys, _OverrideFaults):
+    """One link's keys over the default's (``link: [u, v]``, then what it replaces)."""
 
 
 class Links(StrictModel):
@@ -475,7 +477,7 @@ class Scenario(StrictModel):
         fault or traffic key it gives (duplicate, jitter, schedule, outages, rate, queue,
         background; a ``background`` replaces the default's whole).
         """
-        keys = ("latency", "loss", "duplicate", "jitter", "schedule", "outages", "rate", "queue", "background")
+        keys = ("latency", "loss", "duplicate", "jitter", "schedule", "outages") + TRAFFIC_KEYS
         spec = {k: getattr(self.links.default, k) for k in keys}
         for ov in self.links.overrides:
             a, b = ov.link
@@ -484,8 +486,7 @@ class Scenario(StrictModel):
         return LinkSpec(latency=spec["latency"], loss=float(spec["loss"]),
                         duplicate=float(spec["duplicate"] or 0.0), jitter=spec["jitter"],
                         schedule=tuple(spec["schedule"] or ()),
-                        outages=tuple(spec["outages"] or ()), rate=spec["rate"], queue=spec["queue"],
-                        background=spec["background"])
+                        outages=tuple(spec["outages"] or ()), **{k: spec[k] for k in TRAFFIC_KEYS})
 
     # ------------------------------------------------------------------ identity
     def to_dict(self) -> dict:

@@ -57,7 +57,7 @@ from dkfsim.components.mobility import LinkSchedule
 from dkfsim.core.params import MAX_NS, NS_PER_S, seconds_to_ns
 from dkfsim.core.streams import key64, keyed_uniform
 from dkfsim.network.occupancy import mean_waiting, per_tick
-from dkfsim.network.transmitter import BackgroundArrivals, LinkTraffic, Transmitter
+from dkfsim.network.transmitter import BackgroundArrivals, LinkTraffic, Transmitter, background_keys
 
 PRIORITY_DELIVER = NORMAL
 PRIORITY_FLUSH = NORMAL + 1
@@ -135,7 +135,7 @@ class Link:
     """
 
     __slots__ = ("id", "src", "dst", "spec", "loss", "duplicate", "plain", "rate", "up", "changes", "T_ns",
-                 "_main", "_copy", "_loss_key", "_dup_key", "_outages", "_prefix", "_seed")
+                 "_main", "_copy", "_loss_key", "_dup_key", "_outages", "_prefix", "_seed", "_faultless")
 
     def __init__(self, link_id: int, src: int, dst: int, spec: Any, seed: int, T_ns: int,
                  key: tuple | None = None):
@@ -157,12 +157,13 @@ class Link:
         self._dup_key = key64(seed, *prefix, "duplicate") if self.duplicate > 0 else None
         self._copy = Recipe(spec, prefix + ("duplicate",), seed, T_ns) if self.duplicate > 0 else None
         self._outages = Windows(spec.outages) if spec.outages else None
+        #: nothing but the latency model acts on a packet's fate (no loss, duplication, outage,
+        #: schedule or jitter)
+        self._faultless = spec.plain and not self.loss > 0
         #: The latency model's own ``draw(t_ns, seq) -> (ns, lost)`` when nothing else acts
-        #: on the link (no loss, duplication, outage, schedule or jitter): the per-packet
-        #: fast path of :meth:`Port.send`, equal to :meth:`transmit`.  None otherwise.
-        plain = not (self.loss > 0 or self.duplicate > 0 or spec.outages or spec.schedule
-                     or spec.jitter is not None or self.rate is not None)
-        self.plain = self._main._model.draw if plain else None
+        #: on the link (faultless, no transmitter): the per-packet fast path of
+        #: :meth:`Port.send`, equal to :meth:`transmit`.  None otherwise.
+        self.plain = self._main._model.draw if self._faultless and self.rate is None else None
 
     def set_schedule(self, up: bytes) -> None:
         """The link comes and goes: ``up[k]`` is 1 while it is up at tick ``k`` (docs/design.md
@@ -180,9 +181,7 @@ class Link:
         nothing else acts on the link but a transmitter with no queue or a queue counted in
         packets, and the link never goes down, else None (a compiled protocol cannot draw it)."""
         spec = self.spec
-        if self.changes:
-            return None
-        if self.loss > 0 or self.duplicate > 0 or spec.outages or spec.schedule or spec.jitter is not None:
+        if self.changes or not self._faultless:
             return None
         if spec.queue is not None and spec.queue.packets is None:
             return None
@@ -199,8 +198,8 @@ class Link:
         bg = spec.background
         if bg is None:
             return (self.rate, qcap, 0, 0, 0, 0.0, 0.0, False, 0)
-        arrivals = BackgroundArrivals(bg, self._prefix, self._seed)
-        return (self.rate, qcap, 1 if bg.arrivals == "poisson" else 2, arrivals.gap_key, arrivals.size_key,
+        gap_key, size_key = background_keys(self._prefix, self._seed)
+        return (self.rate, qcap, 1 if bg.arrivals == "poisson" else 2, gap_key, size_key,
                 NS_PER_S / bg.packets_per_second, float(bg.size), bg.sizes == "exponential",
                 seconds_to_ns(bg.offset))
 
@@ -439,9 +438,9 @@ class Port:
             self._count[key][link.id] = value
 
     def set_link_stats(self, link: Link, stats: dict[str, Any]) -> None:
-        """The statistics of a rate-limited ``link`` (:meth:`LinkTraffic.summary
-        <dkfsim.network.transmitter.LinkTraffic.summary>`), for a protocol whose packets
-        travel outside the port (the compiled ``tree``)."""
+        """The statistics of a rate-limited ``link``
+        (:func:`~dkfsim.network.transmitter.link_stats`), for a protocol whose packets travel
+        outside the port (the compiled ``tree``)."""
         self._stats[link.id] = dict(stats)
 
     def set_link_log(self, link: Link, own: np.ndarray, background: np.ndarray) -> None:

@@ -25,8 +25,10 @@ from dkfsim.components.traffic import Background, Queue, transmission_ns
 from dkfsim.core.params import MAX_NS, NS_PER_S, seconds_to_ns
 from dkfsim.core.streams import key64, keyed_uniforms
 
-#: Background packets drawn at once (a block of keyed draws).
-BLOCK = 4096
+#: Background packets drawn at once (a block of keyed draws).  The instants are integer sums of
+#: rounded gaps, so the block size changes no value; 512 keeps a link's first block, which
+#: every port and the compiled tree's interval log draw, cheap (one math.log per packet).
+BLOCK = 512
 #: Longest gap between two Poisson background packets (ns), about 6.5 days.
 MAX_GAP_NS = 1 << 49
 
@@ -35,6 +37,19 @@ def _log(u: np.ndarray) -> np.ndarray:
     """``log`` of each entry by the C library's ``log`` (``math.log``), the function the compiled
     tree's kernels call: numpy's vectorised ``log`` may differ in the last bit."""
     return np.array([math.log(x) for x in u.tolist()], dtype=np.float64)
+
+
+def background_keys(prefix: tuple, seed: int) -> tuple[int, int]:
+    """The keys of a link's background draws: its arrival gaps' and its sizes' (``prefix`` is
+    the link's, ``("link", u, v)``)."""
+    return key64(seed, *prefix, "background", "arrival"), key64(seed, *prefix, "background", "size")
+
+
+def busy_within(busy_ns: int, free_at: int, end_ns: int) -> int:
+    """ns of ``[0, end_ns]`` a transmitter was busy, from the ns of work it accepted (``busy_ns``)
+    and the instant it is free: what is accepted and not yet sent at ``end_ns`` is one busy
+    stretch, so it is cut off."""
+    return busy_ns - max(0, free_at - end_ns)
 
 
 class BackgroundArrivals:
@@ -48,8 +63,7 @@ class BackgroundArrivals:
     def __init__(self, spec: Background, prefix: tuple, seed: int):
         self.spec = spec
         #: the keys of the arrival gaps (or nothing, periodic) and of the sizes
-        self.gap_key = key64(seed, *prefix, "background", "arrival")
-        self.size_key = key64(seed, *prefix, "background", "size")
+        self.gap_key, self.size_key = background_keys(prefix, seed)
         self._times = np.empty(0, dtype=np.int64)
         self._sizes = np.empty(0, dtype=np.int64)
         self._drawn = 0          # packets drawn so far
@@ -193,15 +207,31 @@ class Transmitter:
         return sum(1 for start, _ in self._waiting if start > t_ns)
 
     def busy_until(self, t_ns: int) -> int:
-        """ns of ``[0, t_ns]`` the transmitter was busy (background up to ``t_ns`` taken):
-        what is accepted and not yet sent at ``t_ns`` is one busy stretch, so it is cut off."""
+        """ns of ``[0, t_ns]`` the transmitter was busy (background up to ``t_ns`` taken;
+        :func:`busy_within`)."""
         self.advance(t_ns)
-        return self.busy_ns - max(0, self.free_at - t_ns)
+        return busy_within(self.busy_ns, self.free_at, t_ns)
+
+
+def link_stats(delays: list[int] | np.ndarray, busy_ns: int, background_sent: int, background_dropped: int,
+               end_ns: int) -> dict[str, float | int]:
+    """A rate-limited link's statistics in ``summary.json``: utilisation of ``[0, end_ns]`` from
+    the busy ns in it (every packet the transmitter carried, background included), the queueing
+    delay's mean and 95th percentile (s, over one port's ``delays`` in ns; 0 without any), and
+    the background packets sent and dropped.  The Python port's (:meth:`LinkTraffic.stats`) and
+    the compiled tree's."""
+    d = np.asarray(delays, dtype=np.float64) / NS_PER_S
+    return {"utilisation": busy_ns / end_ns if end_ns > 0 else 0.0,
+            "queueing_delay_mean": float(d.mean()) if len(d) else 0.0,
+            "queueing_delay_p95": float(np.percentile(d, 95)) if len(d) else 0.0,
+            "background_sent": background_sent,
+            "background_dropped": background_dropped}
 
 
 class LinkTraffic:
     """What one port measured on one rate-limited link: its packets' queueing delays (ns from
-    hand-over to the start of transmission), for ``summary.json``'s per-link statistics."""
+    hand-over to the start of transmission, in hand-over order), for ``summary.json``'s
+    per-link statistics."""
 
     __slots__ = ("delays",)
 
@@ -209,21 +239,6 @@ class LinkTraffic:
         self.delays: list[int] = []
 
     def stats(self, transmitter: Transmitter, end_ns: int) -> dict[str, float | int]:
-        """Utilisation of ``[0, end_ns]`` (every packet the transmitter carried, background
-        included), the queueing delay's mean and 95th percentile (s, this port's packets;
-        0 without any), and the background packets sent and dropped."""
-        busy = transmitter.busy_until(end_ns)
-        return self.summary(busy, transmitter.background_sent, transmitter.background_dropped, end_ns)
-
-    def summary(self, busy_ns: int, background_sent: int, background_dropped: int,
-                end_ns: int) -> dict[str, float | int]:
-        """:meth:`stats` from the transmitter's numbers (busy ns in ``[0, end_ns]``, background
-        packets sent and dropped): what the compiled tree reports."""
-        d = np.asarray(self.delays, dtype=np.float64) / NS_PER_S
-        busy = busy_ns
-        background = (background_sent, background_dropped)
-        return {"utilisation": busy / end_ns if end_ns > 0 else 0.0,
-                "queueing_delay_mean": float(d.mean()) if len(d) else 0.0,
-                "queueing_delay_p95": float(np.percentile(d, 95)) if len(d) else 0.0,
-                "background_sent": background[0],
-                "background_dropped": background[1]}
+        """:func:`link_stats` of this port's packets on ``transmitter``'s link up to ``end_ns``."""
+        return link_stats(self.delays, transmitter.busy_until(end_ns), transmitter.background_sent,
+                          transmitter.background_dropped, end_ns)

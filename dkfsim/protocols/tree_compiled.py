@@ -1,10 +1,13 @@
 """``tree`` with its instants compiled: a twin of :class:`~dkfsim.protocols.tree.TreeExchange`
-(the same protocol, packets, counts and folds), a few kernel calls per instant instead of
-Python per packet.
+(the same protocol, packets, counts and folds), one kernel call per tick instead of Python
+per packet.
 
-SimPy still runs the clock: one event per arrival instant (deliveries), the tick's
-measure, one event per instant that flushes the due nodes (priority after deliveries,
-before the update), in the order the Python protocol creates them.  Inside, the kernels of
+SimPy runs the clock, but the exchange has no events of its own: its state is its own
+(no other estimator reads it) and the tick's update is the first thing that reads what it
+folded, so the tick's measure runs, in one kernel call, every instant since the last tick at
+which its packets arrived (deliveries, then flushes, as the Python protocol's events would
+have run them), then the tick's own deliveries and flushes, in the order the Python
+protocol's events come (docs/design.md §2; docs/decisions.md 158).  Inside, the kernels of
 :mod:`dkfsim.protocols.tree_compiled_kernels` keep every row's holdings, messages and
 sequence numbers as uint64 words, draw each packet's latency from its link's keys, keep
 packets in flight on a heap and fold new contributions straight into the run's
@@ -23,15 +26,13 @@ Anything else runs the Python protocol.  docs/design.md §5 ("Compiled tree").
 from __future__ import annotations
 
 import numpy as np
-from simpy.events import NORMAL
 
 from dkfsim.core.backend import EXCHANGE_ENV, Backend  # noqa: F401  (EXCHANGE_ENV re-exported)
 from dkfsim.core.jit import entry_point
 from dkfsim.core.registry import PROTOCOLS
 from dkfsim.model.holdings import Holdings
-from dkfsim.network.links import PRIORITY_FLUSH, Scheduled
 from dkfsim.network.occupancy import fifo, transmission_times
-from dkfsim.network.transmitter import LinkTraffic
+from dkfsim.network.transmitter import busy_within, link_stats
 from dkfsim.protocols import tree_compiled_kernels as tk
 from dkfsim.protocols.base import PACKET_HEADER, Wiring, exchange_counts, row_bytes
 from dkfsim.protocols.tree import TreeExchange
@@ -82,13 +83,12 @@ class CompiledTreeExchange:
         self.row_bytes = row_bytes(nx, n)
         self._k = tk.compiled()
         self.W = -(-holdings.info.theta.shape[1] // 64)
-        self.CT = np.zeros(12, dtype=np.int64)
+        self.CT = np.zeros(13, dtype=np.int64)
         #: queueing delay (ns) and link of each packet a transmitter accepted (CT[ND] of them)
         self.dly = np.zeros(0, dtype=np.int64)
         self.dlk = np.zeros(0, dtype=np.int64)
         self.dlt = np.zeros(0, dtype=np.int64)
         self.dls = np.zeros(0, dtype=np.int64)
-        self._flush_pending = False
 
     def attach(self, port, links) -> None:
         """Run over ``links`` (the exchange graph's arcs, in order), reporting the counts to ``port``."""
@@ -136,20 +136,24 @@ class CompiledTreeExchange:
                                self.due, self.queue, self.new, self.out)
         self._k_links = tk.Links(self.G, self.out_ptr, self.out_idx, self.lkind, self.lkey, self.lpar, self.dinst,
                                  self.dcnt, self.lseq, self.counts_, self.late_node, PACKET_HEADER, self.row_bytes,
-                                 self.T_ns, *self.tx)
+                                 self.T_ns)
+        #: the transmitters, or None without a rate (the kernels compiled without them)
+        self._k_tx = self.tx if self.rated else None
+        if self._k_tx is not None:
+            self._k.start_background(self._k_tx)
         self._k_fold = self.holdings.fold_target
         self._k_log = tk.Log(logf, self.arrival if logf else np.empty((1, 1, 1)), self.fheld, self.frow)
         self._bind()
         # Compiled entry points of exactly these argument types (numba's per-call type
-        # dispatch skipped); each kernel called once with nothing to do (empty heap and queue).
+        # dispatch skipped); each kernel called once with nothing to do (row -1; empty heap).
         k = self._k
-        self._deliver = entry_point(k.deliver, -1, *self._args)
-        self._flush_k = entry_point(k.flush_all, -1, -1, *self._args)
-        self._measure_k = k.measure
+        self._tick = entry_point(k.tick, -1, -1, -1, *self._args)
+        self._advance = entry_point(k.advance, -1, -1, 0, *self._args)
 
     def _transmitters(self, links) -> None:
-        """The links' transmitters as the kernels keep them (:class:`tree_compiled_kernels.Links`
-        from ``rate`` on); the first background packet of each drawn here."""
+        """The links' transmitters as the kernels keep them (:class:`tree_compiled_kernels.Tx`);
+        each background's first packet is drawn by the kernel
+        (:func:`~dkfsim.protocols.tree_compiled_kernels.start_background`)."""
         E = len(links)
         forms = [link.compiled_traffic() for link in links]
         rate = np.zeros(E)
@@ -159,21 +163,17 @@ class CompiledTreeExchange:
         bgskey = np.zeros(E, dtype=np.uint64)
         bgper, bgsize = np.zeros(E), np.zeros(E)
         bgexp = np.zeros(E, dtype=np.bool_)
-        bgoff, bgt, bgs = (np.zeros(E, dtype=np.int64) for _ in range(3))
-        for e, (link, f) in enumerate(zip(links, forms)):
-            if f is None:
-                continue
-            rate[e], qcap[e], bgk[e], bgkey[e], bgskey[e], bgper[e], bgsize[e], bgexp[e], bgoff[e] = f
-            if bgk[e]:
-                first = link.transmitter().background
-                bgt[e] = first.next_time()
-                bgs[e] = first.until(bgt[e])[1][0]
-            else:
-                bgt[e] = tk.MAX_NS
+        bgoff = np.zeros(E, dtype=np.int64)
+        for e, f in enumerate(forms):
+            if f is not None:
+                rate[e], qcap[e], bgk[e], bgkey[e], bgskey[e], bgper[e], bgsize[e], bgexp[e], bgoff[e] = f
+        # the next background packet: none (MAX_NS) or, before the first, index -1 at 0
+        bgt = np.where(bgk > 0, 0, tk.MAX_NS).astype(np.int64)
+        bgi = np.full(E, -1, dtype=np.int64)
         ring = np.zeros((E, max(1, int(qcap.max(initial=1)))), dtype=np.int64)
-        zeros = [np.zeros(E, dtype=np.int64) for _ in range(5)]    # rhead rlen free_at busy bgi
-        self.tx = (rate, qcap, ring, zeros[0], zeros[1], zeros[2], zeros[3], bgk, bgkey, bgskey, bgper, bgsize,
-                   bgexp, bgoff, zeros[4], bgt, bgs, np.zeros((2, E), dtype=np.int64), np.zeros(E, dtype=np.int64))
+        zeros = [np.zeros(E, dtype=np.int64) for _ in range(5)]    # rhead rlen free_at busy bgs
+        self.tx = tk.Tx(rate, qcap, ring, zeros[0], zeros[1], zeros[2], zeros[3], bgk, bgkey, bgskey, bgper, bgsize,
+                        bgexp, bgoff, bgi, bgt, zeros[4], np.zeros((2, E), dtype=np.int64), np.zeros(E, dtype=np.int64))
         self.rated = bool(rate.any())
 
     def _pool(self, P: int) -> None:
@@ -196,12 +196,6 @@ class CompiledTreeExchange:
         else:
             self.CT[tk.NFREE] = P
         self.pk, self.pk_rows, self.pk_masks, self.heap, self.free = pk, rows, masks, heap, free
-        for name in ("newt", "times"):          # arrival instants: new ones, those with an event
-            a = np.zeros(P, dtype=np.int64)
-            if hasattr(self, name):
-                old = getattr(self, name)
-                a[:len(old)] = old
-            setattr(self, name, a)
 
     def _grow_delays(self, size: int) -> None:
         """Room for ``size`` queueing delays (what the transmitters accepted so far kept)."""
@@ -214,13 +208,14 @@ class CompiledTreeExchange:
 
     def _bind(self) -> None:
         """The kernels' arguments (rebuilt when the pool grows)."""
-        self._k_pool = tk.Pool(*self.heap, self.free, self.pk, self.pk_rows, self.pk_masks, self.times, self.newt,
-                               self.outp, self.dly, self.dlk, self.dlt, self.dls)
-        self._args = (self._k_rows, self._k_links, self._k_pool, self._k_fold, self._k_log)
+        self._k_pool = tk.Pool(*self.heap, self.free, self.pk, self.pk_rows, self.pk_masks, self.outp, self.dly,
+                               self.dlk, self.dlt, self.dls)
+        self._args = (self._k_rows, self._k_links, self._k_tx, self._k_pool, self._k_fold, self._k_log)
 
     # -- rows ------------------------------------------------------------------
     def open_row(self, row: int) -> None:
-        """Nothing: :meth:`measure` opens the row in the kernel."""
+        """Nothing: :meth:`measure` opens the row in the kernel (what arrives before it cannot
+        touch the row's slot in the holdings: the row that used it is final)."""
 
     def close_row(self, row: int) -> None:
         """``row`` became final: what arrives for it from now on is late."""
@@ -232,41 +227,32 @@ class CompiledTreeExchange:
                 self.fheld[row % len(self.frow)] = self.held[slot]
                 self.frow[row % len(self.frow)] = row
 
-    # -- events ----------------------------------------------------------------
+    # -- the clock -------------------------------------------------------------
     def measure(self, row: int) -> None:
-        self._measure_k(row, self.env.now, self._k_rows, self._k_fold, self._k_log)
-        self._after()
-
-    def _on_deliver(self, _event) -> None:
-        self._deliver(self.env.now, *self._args)
-        self._after()
-
-    def _on_flush(self, _event) -> None:
-        self._flush_pending = False
+        """The tick: every instant since the last one, then the new row and this instant's
+        deliveries and flushes (:func:`~dkfsim.protocols.tree_compiled_kernels.tick`)."""
         now, until = self.env.now, self.port.until
-        while self._flush_k(now, until, *self._args) == tk.NEED_ROOM:
-            if int(self.CT[tk.NFREE]) < self.outp.shape[0]:
-                self._pool(2 * self.pk.shape[0])
-            if int(self.CT[tk.ND]) + self.outp.shape[0] > len(self.dly):
-                self._grow_delays(2 * len(self.dly))
-            self._bind()
-        CT, env = self.CT, self.env
-        for t in self.newt[:CT[tk.NEWT]].tolist():
-            if t <= until:
-                Scheduled(env, self._on_deliver, NORMAL, t - now)
-        CT[tk.NEWT] = 0
+        while self._tick(row, now, until, *self._args) == tk.NEED_ROOM:
+            self._grow()
 
-    def _after(self) -> None:
-        if self.CT[tk.QLEN] and not self._flush_pending:
-            self._flush_pending = True
-            Scheduled(self.env, self._on_flush, PRIORITY_FLUSH)
+    def _grow(self) -> None:
+        """Room for the next node's flush: a pool twice as large, more queueing delays."""
+        if int(self.CT[tk.NFREE]) < self.outp.shape[0]:
+            self._pool(2 * self.pk.shape[0])
+        if int(self.CT[tk.ND]) + self.outp.shape[0] > len(self.dly):
+            self._grow_delays(2 * len(self.dly))
+        self._bind()
 
     # -- results ---------------------------------------------------------------
     def finish(self) -> None:
-        """Write the kernels' per-link counts into the port (what ``port.counts()`` reports);
-        the arrival log is already written."""
+        """Run the instants after the last tick up to the port's last instant, then write the
+        kernels' per-link counts into the port (what ``port.counts()`` reports); the arrival
+        log is already written."""
+        until = self.port.until
+        while self._advance(until + 1, until, 0, *self._args) == tk.NEED_ROOM:
+            self._grow()
         sent, delivered, _, nbytes = (row.tolist() for row in self.counts_)
-        qdrop = self.tx[-1].tolist()
+        qdrop = self.tx.qdrop.tolist()
         for i, link in enumerate(self.links):
             self.port.set_counts(link, sent=sent[i], delivered=delivered[i], bytes=nbytes[i],
                                  queue_dropped=qdrop[i])
@@ -277,17 +263,17 @@ class CompiledTreeExchange:
         """Each rate-limited link's utilisation, queueing delays and background (the port's
         :meth:`~dkfsim.network.links.Port.set_link_stats`), as the Python transmitters report them."""
         end = int(self.port.until if self.port.until is not None else self.env.now)
-        self._k.traffic_until(end, self._k_links)
-        rate, free_at, busy, bgc = self.tx[0], self.tx[5], self.tx[6], self.tx[17]
+        self._k.traffic_until(end, self._k_tx)
+        rate, free_at, busy, bgc = self.tx.rate, self.tx.free_at, self.tx.busy, self.tx.bgc
         nd = int(self.CT[tk.ND])
-        dly, dlk, dlt, dls = self.dly[:nd], self.dlk[:nd], self.dlt[:nd], self.dls[:nd]
+        order = np.argsort(self.dlk[:nd], kind="stable")         # by link, hand-over order kept
+        dly, dlt, dls = self.dly[:nd][order], self.dlt[:nd][order], self.dls[:nd][order]
+        cut = np.searchsorted(self.dlk[:nd][order], np.arange(len(self.links) + 1))
         for e, link in enumerate(self.links):
             if rate[e] > 0:
-                traffic = LinkTraffic()
-                mine = dlk == e
-                traffic.delays = dly[mine].tolist()
-                used = int(busy[e]) - max(0, int(free_at[e]) - end)
-                self.port.set_link_stats(link, traffic.summary(used, int(bgc[0, e]), int(bgc[1, e]), end))
+                mine = slice(cut[e], cut[e + 1])
+                used = busy_within(int(busy[e]), int(free_at[e]), end)
+                self.port.set_link_stats(link, link_stats(dly[mine], used, int(bgc[0, e]), int(bgc[1, e]), end))
                 logs = None
                 if int(bgc[1, e]) == 0:           # no background dropped: the closed form
                     logs = self._merge(link, dlt[mine], dls[mine], dly[mine], end)

@@ -1,9 +1,11 @@
 """Kernels of :mod:`dkfsim.protocols.tree_compiled`: the ``tree`` protocol's instants, compiled.
 
-One call handles what one event of :class:`~dkfsim.protocols.tree.TreeExchange` and its
-port would do at an instant: :func:`deliver` the packets due now (in the order they were
-sent), :func:`measure` a new row, or :func:`flush_all` the nodes that gained something
-(each flush's zero-latency packets delivered before the next node flushes).  Packets wait
+One call, :func:`tick`, runs a tick of :class:`~dkfsim.protocols.tree.TreeExchange` and its
+port: every instant since the last tick at which packets arrived (:func:`advance`: at each,
+:func:`deliver` the packets due, in the order they were sent, then :func:`flush_all` the
+nodes that gained something, each flush's zero-latency packets delivered before the next
+node flushes), then the tick's own instant (its deliveries before or after :func:`measure`
+opens the new row, as their SimPy events would have come, then the flushes).  Packets wait
 in a binary heap ordered by (arrival instant, send order); their latencies are the links'
 keyed draws (:func:`dkfsim.core.streams.keyed_uniform`, bit for bit) for ``constant`` and
 ``uniform_steps`` links.  New contributions are folded straight into the run's
@@ -32,18 +34,23 @@ from dkfsim.core.jit import LazyKernels
 from dkfsim.model import holdings_kernels as hk
 
 _KERNELS = ("keyed_uniform", "_log_arrivals", "_push", "_pop", "_enqueue", "_receive", "deliver", "measure", "_pack",
-            "_accept", "_background", "_send", "flush_all", "traffic_until")
+            "_accept", "_next_background", "_background", "_send", "flush_all", "advance", "tick",
+            "start_background", "traffic_until")
 #: Steps inlined into the kernels that call them per packet or contribution.
-_INLINE = ("_log_arrivals", "_push", "_pop", "_enqueue", "_receive", "_pack", "_accept", "_background", "_send")
+_INLINE = ("_log_arrivals", "_push", "_pop", "_enqueue", "_receive", "deliver", "_pack", "_accept",
+           "_next_background", "_background", "_send", "flush_all")
 #: Kernel files of other modules whose steps these kernels inline, with the sha256 of the
 #: file they were written against: numba's cache does not see an edit there, so after one
 #: these kernels compile without the cache until the pin is updated (docs/decisions.md 131).
 BORROWS = {"dkfsim.model.holdings_kernels": "f5ba9bd99b4d6598cc258c4188fda9f3e2d0e1645766f96dd735e008fe277ffd"}
 _lazy = LazyKernels(__name__, _KERNELS, inline=_INLINE, borrows=BORROWS)
 
-# CT indices
-HEAP, NFREE, QHEAD, QLEN, LO, HI, ORDER, LATE, STALE, NEWT, NTIMES, ND = range(12)
-#: Flag returned by :func:`flush_all` when the packet pool is full (grow it and call again).
+# CT indices: heap size, free packets, due queue (head, length), open rows (LO..HI), packets
+# pushed so far (send order), late, stale, queueing delays kept, the instant being run between
+# ticks, the tick's phase and its mark (:func:`tick`).
+HEAP, NFREE, QHEAD, QLEN, LO, HI, ORDER, LATE, STALE, ND, NOW, PHASE, MARK = range(13)
+#: Flag returned by :func:`flush_all`, :func:`advance` and :func:`tick` when the packet pool
+#: (or the queueing delays' array) is full: grow it and call again (the call resumes).
 NEED_ROOM = -2
 
 #: The exchange's window rows (slot ``row % S``): which row a slot holds (``rowid``, -1 once
@@ -59,24 +66,25 @@ Rows = namedtuple("Rows", "CT rowid held inbox inseq sent dirty due queue new ou
 #: sends at it and the last sequence number (``dinst``, ``dcnt``, ``seq``), the counts (sent,
 #: delivered, late packets, bytes) per link and the late contributions per node; a packet's
 #: ``header`` and per-row bytes, and the tick ``T_ns``.
-#: A rate-limited link's transmitter (docs/design.md §3; the twin of
-#: :class:`dkfsim.network.transmitter.Transmitter`): ``rate`` (bits/s, 0: none), the waiting
-#: room ``qcap`` (packets, -1: unbounded) and the start instants of the packets waiting in it
-#: (``ring`` from ``rhead``, ``rlen`` of them), ``free_at`` and ``busy`` ns, the background
-#: (``bgk`` 0 none, 1 Poisson, 2 periodic; keys ``bgkey``, ``bgskey``; ``bgper`` ns between
-#: packets, ``bgsize`` bytes, ``bgexp`` exponential sizes, ``bgoff`` ns; the next packet's index,
-#: instant and size ``bgi``, ``bgt``, ``bgs``; ``bgc`` sent and dropped) and ``qdrop``.
-Links = namedtuple("Links", "G out_ptr out_idx kind key par dinst dcnt seq counts late_node header row_bytes T_ns "
-                            "rate qcap ring rhead rlen free_at busy bgk bgkey bgskey bgper bgsize bgexp bgoff "
-                            "bgi bgt bgs bgc qdrop")
+Links = namedtuple("Links", "G out_ptr out_idx kind key par dinst dcnt seq counts late_node header row_bytes T_ns")
+#: The links' transmitters, passed as ``T`` (docs/design.md §3; the twin of
+#: :class:`dkfsim.network.transmitter.Transmitter`), or None when no link has a rate: the kernels
+#: are then compiled without them, the packet loop as it was before transmitters (docs/decisions.md
+#: 159).  Per link ``rate`` (bits/s, 0: none), the waiting room ``qcap`` (packets, -1: unbounded)
+#: and the start instants of the packets waiting in it (``ring`` from ``rhead``, ``rlen`` of them),
+#: ``free_at`` and ``busy`` ns, the background (``bgk`` 0 none, 1 Poisson, 2 periodic; keys
+#: ``bgkey``, ``bgskey``; ``bgper`` ns between packets, ``bgsize`` bytes, ``bgexp`` exponential
+#: sizes, ``bgoff`` ns; the next packet's index, instant and size ``bgi``, ``bgt``, ``bgs``;
+#: ``bgc`` sent and dropped) and ``qdrop``.
+Tx = namedtuple("Tx", "rate qcap ring rhead rlen free_at busy bgk bgkey bgskey bgper bgsize bgexp bgoff bgi bgt bgs "
+                      "bgc qdrop")
 #: The packets in flight: the heap (arrival instant, send order, packet), the free packet slots,
-#: per packet (link, sequence number, rows) in ``pk`` and its rows and origin sets; the future
-#: arrival instants that have an event (``times``), those new since the flush began (``newt``),
-#: and the packet being filled per out-link of the flushing node (``outp``, -1: none).
+#: per packet (link, sequence number, rows) in ``pk`` and its rows and origin sets, and the
+#: packet being filled per out-link of the flushing node (``outp``, -1: none).
 #: ``dly``/``dlk``: the queueing delay (ns) and link of every packet a transmitter accepted
 #: (``CT[ND]`` of them), its hand-over instant ``dlt`` and size ``dls`` (bytes): the link's
-#: interval log is replayed from them (:meth:`TreeCompiled._link_stats`).
-Pool = namedtuple("Pool", "heap_t heap_o heap_p free pk rows masks times newt outp dly dlk dlt dls")
+#: interval log is replayed from them (:meth:`CompiledTreeExchange._link_stats`).
+Pool = namedtuple("Pool", "heap_t heap_o heap_p free pk rows masks outp dly dlk dlt dls")
 #: The arrival log (``on``: kept): ``arrival`` (node, origin, row) in seconds, and the holdings
 #: ``fheld`` of the last final rows ``frow``, so that a late contribution counts once.
 Log = namedtuple("Log", "on arrival fheld frow")
@@ -232,21 +240,12 @@ def _enqueue(j, X):
 
 
 def deliver(now, X, L, P, F, log):
-    """Deliver every packet due at ``now`` (send order).  Returns the heap's next instant or -1.
-
-    ``P.times[:CT[NTIMES]]`` are the future arrival instants that have an event: ``now`` leaves."""
-    k = 0
-    for h in range(X.CT[NTIMES]):
-        if P.times[h] > now:
-            P.times[k] = P.times[h]
-            k += 1
-    X.CT[NTIMES] = k
+    """Deliver every packet due at ``now`` (send order)."""
     while X.CT[HEAP] > 0 and P.heap_t[0] <= now:
         p = _pop(X.CT, P)
         _receive(p, now, X, L, P, F, log)
         P.free[X.CT[NFREE]] = p
         X.CT[NFREE] += 1
-    return P.heap_t[0] if X.CT[HEAP] > 0 else -1
 
 
 def measure(row, now, X, F, log):
@@ -309,70 +308,83 @@ def _pack(j, deg, X, L, P):
                 P.masks[p, q, w] = X.out[w]
 
 
-def _accept(e, t, size, L):
+def _accept(e, t, size, T):
     """:meth:`Transmitter._accept <dkfsim.network.transmitter.Transmitter>`: a packet of
     ``size`` bytes handed to link ``e``'s transmitter at ``t``; its start ns, or -1 (dropped)."""
-    cap = L.qcap[e]
+    cap = T.qcap[e]
     if cap > 0:
-        while L.rlen[e] > 0 and L.ring[e, L.rhead[e]] <= t:
-            L.rhead[e] = (L.rhead[e] + 1) % cap
-            L.rlen[e] -= 1
-    start = L.free_at[e] if L.free_at[e] > t else t
-    if start > t and cap >= 0 and L.rlen[e] >= cap:
+        while T.rlen[e] > 0 and T.ring[e, T.rhead[e]] <= t:
+            T.rhead[e] = (T.rhead[e] + 1) % cap
+            T.rlen[e] -= 1
+    start = T.free_at[e] if T.free_at[e] > t else t
+    if start > t and cap >= 0 and T.rlen[e] >= cap:
         return -1
-    ns = size * 8.0 * 1e9 / L.rate[e]
+    ns = size * 8.0 * 1e9 / T.rate[e]
     tx = _MAX_NS if ns >= _MAX_NS else int(ns + 0.5)
     end = start + tx
     if end > _MAX_NS:
         end = _MAX_NS
-    L.free_at[e] = end
-    L.busy[e] += end - start
+    T.free_at[e] = end
+    T.busy[e] += end - start
     if start > t and cap > 0:
-        L.ring[e, (L.rhead[e] + L.rlen[e]) % cap] = start
-        L.rlen[e] += 1
+        T.ring[e, (T.rhead[e] + T.rlen[e]) % cap] = start
+        T.rlen[e] += 1
     return start
 
 
-def _background(e, now, L):
-    """Link ``e``'s background packets up to and including ``now`` into its transmitter; the
-    next one drawn as :class:`~dkfsim.network.transmitter.BackgroundArrivals` draws it."""
-    while L.bgk[e] != 0 and L.bgt[e] <= now:
-        if _accept(e, L.bgt[e], L.bgs[e], L) < 0:
-            L.bgc[1, e] += 1
-        else:
-            L.bgc[0, e] += 1
-        i = L.bgi[e] + 1
-        L.bgi[e] = i
-        if L.bgk[e] == 1:
-            g = np.floor(-np.log(keyed_uniform(L.bgkey[e], i, 0)) * L.bgper[e] + 0.5)
-            if g > _MAX_GAP_NS:
-                g = _MAX_GAP_NS
-            t = L.bgt[e] + np.int64(g)
-        else:
-            f = i * L.bgper[e] + 0.5
-            if f > _MAX_NS:
-                f = _MAX_NS
-            f = L.bgoff[e] + np.floor(f)
-            t = _MAX_NS if f >= _MAX_NS else np.int64(f)
-        L.bgt[e] = _MAX_NS if t > _MAX_NS else t
-        if L.bgexp[e]:
-            sz = np.floor(-np.log(keyed_uniform(L.bgskey[e], i, 0)) * L.bgsize[e] + 0.5)
-            L.bgs[e] = 1 if sz < 1 else np.int64(sz)
-        else:
-            L.bgs[e] = np.int64(L.bgsize[e])
+def _next_background(e, T):
+    """Draw link ``e``'s next background packet (index ``bgi + 1``, after the one at ``bgt``;
+    the first from ``bgi = -1``, ``bgt = 0``) as
+    :class:`~dkfsim.network.transmitter.BackgroundArrivals` draws it."""
+    i = T.bgi[e] + 1
+    T.bgi[e] = i
+    if T.bgk[e] == 1:
+        g = np.floor(-np.log(keyed_uniform(T.bgkey[e], i, 0)) * T.bgper[e] + 0.5)
+        if g > _MAX_GAP_NS:
+            g = _MAX_GAP_NS
+        t = T.bgt[e] + np.int64(g)
+    else:
+        f = i * T.bgper[e] + 0.5
+        if f > _MAX_NS:
+            f = _MAX_NS
+        f = T.bgoff[e] + np.floor(f)
+        t = _MAX_NS if f >= _MAX_NS else np.int64(f)
+    T.bgt[e] = _MAX_NS if t > _MAX_NS else t
+    if T.bgexp[e]:
+        sz = np.floor(-np.log(keyed_uniform(T.bgskey[e], i, 0)) * T.bgsize[e] + 0.5)
+        T.bgs[e] = 1 if sz < 1 else np.int64(sz)
+    else:
+        T.bgs[e] = np.int64(T.bgsize[e])
 
 
-def traffic_until(now, L):
+def _background(e, now, T):
+    """Link ``e``'s background packets up to and including ``now`` into its transmitter."""
+    while T.bgk[e] != 0 and T.bgt[e] <= now:
+        if _accept(e, T.bgt[e], T.bgs[e], T) < 0:
+            T.bgc[1, e] += 1
+        else:
+            T.bgc[0, e] += 1
+        _next_background(e, T)
+
+
+def start_background(T):
+    """Draw every background's first packet (``bgi = -1``, ``bgt = 0`` before)."""
+    for e in range(T.bgk.shape[0]):
+        if T.bgk[e] != 0:
+            _next_background(e, T)
+
+
+def traffic_until(now, T):
     """Every transmitter's background up to ``now`` (the end of the run, for the statistics)."""
-    for e in range(L.rate.shape[0]):
-        if L.rate[e] > 0:
-            _background(e, now, L)
+    for e in range(T.rate.shape[0]):
+        if T.rate[e] > 0:
+            _background(e, now, T)
 
 
-def _send(j, deg, now, X, L, P):
+def _send(j, deg, now, X, L, T, P):
     """Send node ``j``'s filled packets: stamp link and sequence number, draw the latency
-    (the link's keyed draw), count, and put each on the heap; a new arrival instant with a
-    latency is listed in ``P.newt`` (it needs an event)."""
+    (the link's keyed draw), count, and put each on the heap (after its transmission on a
+    rate-limited link, unless the waiting room drops it)."""
     for k in range(deg):
         p = P.outp[k]
         if p < 0:
@@ -387,15 +399,15 @@ def _send(j, deg, now, X, L, P):
             L.dcnt[e] = 0
         d = L.dcnt[e]
         L.dcnt[e] = d + 1
+        size = L.header + P.pk[p, 2] * L.row_bytes
+        L.counts[0, e] += 1
+        L.counts[3, e] += size
         base = now
-        if L.rate[e] > 0:
-            size = L.header + P.pk[p, 2] * L.row_bytes
-            _background(e, now, L)
-            start = _accept(e, now, size, L)
+        if T is not None and T.rate[e] > 0:    # (no transmitters: compiled away)
+            _background(e, now, T)
+            start = _accept(e, now, size, T)
             if start < 0:                      # the waiting room is full: dropped
-                L.counts[0, e] += 1
-                L.counts[3, e] += size
-                L.qdrop[e] += 1
+                T.qdrop[e] += 1
                 P.free[X.CT[NFREE]] = p
                 X.CT[NFREE] += 1
                 continue
@@ -404,35 +416,25 @@ def _send(j, deg, now, X, L, P):
             P.dlt[X.CT[ND]] = now
             P.dls[X.CT[ND]] = size
             X.CT[ND] += 1
-            base = L.free_at[e]
+            base = T.free_at[e]
         if L.kind[e] == 0:
             lat = L.par[e]
         else:
             v = int(keyed_uniform(L.key[e], now, d) * (L.par[e] + 1))
             lat = min(v, L.par[e]) * L.T_ns
-        L.counts[0, e] += 1
-        L.counts[3, e] += L.header + P.pk[p, 2] * L.row_bytes
-        t = base + lat
-        if t > now:                            # a new arrival instant needs an event
-            fresh = True
-            for h in range(X.CT[NTIMES]):
-                if P.times[h] == t:
-                    fresh = False
-                    break
-            if fresh:
-                P.times[X.CT[NTIMES]] = t
-                X.CT[NTIMES] += 1
-                P.newt[X.CT[NEWT]] = t
-                X.CT[NEWT] += 1
-        _push(X.CT, P, t, p)
+        _push(X.CT, P, base + lat, p)
 
 
-def flush_all(now, until, X, L, P, F, log):
-    """Flush the due nodes, first due first; after each flush the zero-latency packets are
-    delivered (they may make more nodes due).  Packets with a latency go on the heap and a
-    new arrival instant is listed in ``P.newt``.  Returns :data:`NEED_ROOM` if the pool has
-    fewer free packets than the next node has out-links (nothing of that node done yet)."""
-    while X.CT[QLEN] > 0:
+def flush_all(now, until, X, L, T, P, F, log):
+    """Deliver the packets due at ``now``, then flush the due nodes, first due first; after
+    each flush the zero-latency packets are delivered (they may make more nodes due).  Packets
+    with a latency go on the heap.  Returns :data:`NEED_ROOM` if the pool has fewer free
+    packets than the next node has out-links (nothing of that node done yet; call again)."""
+    while True:
+        if now <= until:
+            deliver(now, X, L, P, F, log)
+        if X.CT[QLEN] == 0:
+            return 0
         j = X.queue[X.CT[QHEAD]]
         deg = L.out_ptr[j + 1] - L.out_ptr[j]
         if X.CT[NFREE] < deg or X.CT[ND] + deg > P.dly.shape[0]:
@@ -441,7 +443,49 @@ def flush_all(now, until, X, L, P, F, log):
         X.CT[QLEN] -= 1
         X.due[j] = 0
         _pack(j, deg, X, L, P)
-        _send(j, deg, now, X, L, P)
-        if now <= until:
-            deliver(now, X, L, P, F, log)
+        _send(j, deg, now, X, L, T, P)
+
+
+def advance(limit, until, mark, X, L, T, P, F, log):
+    """Every instant before ``limit`` (and not after ``until``) at which packets arrive, in
+    order: deliver them, then flush the nodes that gained something (what the port's delivery
+    event and the flush event of that instant did; :func:`flush_all`).  Then, if the first
+    packet due at ``limit`` was sent before ``mark`` (the send order when the tick began),
+    deliver the packets due at ``limit`` now: their SimPy event was made before the tick's
+    measure was scheduled, so it came first.  Returns :data:`NEED_ROOM` (call again after
+    growing the pool) or 0."""
+    while True:
+        if X.CT[QLEN] == 0:                    # (else: an instant a full pool interrupted)
+            if X.CT[HEAP] == 0:
+                return 0
+            t = P.heap_t[0]
+            if t > until:
+                return 0
+            if t >= limit:
+                if t == limit and P.heap_o[0] < mark:
+                    deliver(t, X, L, P, F, log)
+                return 0
+            X.CT[NOW] = t
+        if flush_all(X.CT[NOW], until, X, L, T, P, F, log) == NEED_ROOM:
+            return NEED_ROOM
+
+
+def tick(row, now, until, X, L, T, P, F, log):
+    """The tick at ``now`` that opens ``row``: :func:`advance` to ``now``, then :func:`measure`,
+    then :func:`flush_all` (the packets due at ``now`` not delivered yet first).  Returns
+    :data:`NEED_ROOM` (grow the pool and call again with the same arguments: the tick resumes
+    where it stopped, ``CT[PHASE]``) or 0.  ``row < 0``: nothing (the entry point's first call)."""
+    if row < 0:
+        return 0
+    if X.CT[PHASE] == 0:
+        X.CT[MARK] = X.CT[ORDER]
+        X.CT[PHASE] = 1
+    if X.CT[PHASE] == 1:
+        if advance(now, until, X.CT[MARK], X, L, T, P, F, log) == NEED_ROOM:
+            return NEED_ROOM
+        measure(row, now, X, F, log)
+        X.CT[PHASE] = 2
+    if flush_all(now, until, X, L, T, P, F, log) == NEED_ROOM:
+        return NEED_ROOM
+    X.CT[PHASE] = 0
     return 0
