@@ -376,9 +376,13 @@ class Scenario(StrictModel):
         assert self.mobility is not None
         self.mobility.check(self.n)
         size = (self.steps + 1) * len(plan.arcs)
-        if size > SCHEDULE_LIMIT:
+        # a link quality from distance keeps each entry's distance too (8 more bytes)
+        weight = 9 if self.mobility.links is not None else 1
+        if size * weight > SCHEDULE_LIMIT:
             raise custom_error(f"the link schedule has one entry per tick and link, {self.steps + 1} x "
-                               f"{len(plan.arcs)} = {size:.3g}, more than the {SCHEDULE_LIMIT:.3g} a run may "
+                               f"{len(plan.arcs)} = {size:.3g}"
+                               + (" (9 bytes each with mobility.links)" if weight > 1 else "")
+                               + f", more than the {SCHEDULE_LIMIT:.3g} bytes a run may "
                                "keep; use fewer steps or a sparser topology", "mobility")
         if not plan.graph_changes:
             return
@@ -398,7 +402,8 @@ class Scenario(StrictModel):
                                               for i, ov in enumerate(self.links.overrides)]
         for key, link in places:
             spec = self.link_spec(*link) if link is not None else self.link_spec(-1, -1)
-            if spec.rate is None:
+            if spec.rate is None and not (self.mobility is not None and self.mobility.links is not None
+                                          and self.mobility.links.rate is not None):
                 for what in ("queue", "background"):
                     if getattr(spec, what) is not None:
                         raise custom_error(f"a {what} acts through the link's transmitter, but the link "
