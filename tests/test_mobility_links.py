@@ -148,3 +148,77 @@ def test_speed_evaluates_every_trajectory_at_factor_times_t():
         {**ref.model_dump(), "vehicles": {"0": {"kind": "waypoints", "points": pts},
                                           "1": {"kind": "constant_velocity", "velocity": [3.0, -1.0]}}}
     ).positions(2, 40, 0.05))
+
+
+# ================================================================= cellular_sinr with sinr: track
+
+SINR_TRACK = "t x y sinr\n0 0 0 3\n1 0 0 12\n2 0 0 20\n"
+
+
+@pytest.mark.parametrize("speed", [1.0, 2.0])
+def test_cellular_sinr_track_draws_at_the_senders_recorded_sinr(tmp_path, speed):
+    """Decision 181: a packet sent at run time t on a ``sinr: track`` link takes the latency the
+    constant-SINR model draws (same link key, instant and seq) at the SINR the sender's track
+    recorded at drive time speed x t: 3, 12 and 20 dB, one per bin of the fit."""
+    from dkfsim.components.latency import CellularSinr
+    path = tmp_path / "drive.txt"
+    path.write_text(SINR_TRACK)
+    track = {"kind": "track", "file": str(path), "time_column": "t", "time_unit": "s",
+             "x_column": "x", "y_column": "y", "sinr_column": "sinr"}
+    mob = Mobility.model_validate({"vehicles": {"default": track}, "range": {"model": "disk", "radius": 5.0},
+                                   "speed": speed})
+    T_ns = 100_000_000
+    env = simpy.Environment()
+    sched = LinkSchedule(np.ones((40, 1), dtype=bool), [(0, 1)])
+    sched.sinr[0] = mob.sinr_at(0)
+    model = CellularSinr(sinr="track", one_way=True)
+    net = Network(env, [(0, 1)], lambda u, v: LinkSpec(latency=model), 7, T_ns, schedule=sched)
+    got = []
+    port = net.port("p", lambda link, payload: got.append((env.now, payload)), until=10**12)
+    sends = [0, 500_000_000, 1_200_000_000, 2_500_000_000]
+    for t in sends:
+        if t > env.now:
+            env.run(until=t)
+        port.send(net.link(0, 1), t)
+    env.run(until=10**12)
+    recorded = {0: 3.0, 500_000_000: 3.0 if speed == 1 else 12.0, 1_200_000_000: 12.0 if speed == 1 else 20.0,
+                2_500_000_000: 20.0}
+    want = []
+    for t in sends:
+        fixed = CellularSinr(sinr=recorded[t], one_way=True).sampler(("link", 0, 1), 7, T_ns)
+        want.append((t + fixed.draw(t, 0)[0], t))
+    assert sorted(got) == sorted(want)
+    assert len({lat - t for lat, t in want}) == 4
+
+
+def test_cellular_sinr_track_needs_a_track_sender(tmp_path):
+    import dkfsim
+    sc = scenario(2, edges=[(0, 1)], protocol="flood", steps=10)
+    sc["links"]["default"]["latency"] = {"model": "cellular_sinr", "sinr": "track"}
+    with pytest.raises(ScenarioError) as e:
+        dkfsim.load_scenario(sc)
+    assert "links.default.latency.sinr" in str(e.value) and "mobility" in str(e.value)
+    sc["mobility"] = {"vehicles": {"default": {"kind": "constant_velocity"}},
+                      "range": {"model": "disk", "radius": 150.0}}
+    with pytest.raises(ScenarioError) as e:
+        dkfsim.load_scenario(sc)
+    assert "node 0" in str(e.value) and "not a 'track' vehicle" in str(e.value)
+
+
+def test_a_run_with_track_senders_draws_their_sinr(tmp_path):
+    """The plan hands every ``track`` vehicle's SINR to its links: a run completes with every
+    packet delivered, its delay bound from the slowest bin of the fit."""
+    import dkfsim
+    from dkfsim.config.plan import RunPlan
+    path = tmp_path / "drive.txt"
+    path.write_text(SINR_TRACK)
+    track = {"kind": "track", "file": str(path), "time_column": "t", "time_unit": "s",
+             "x_column": "x", "y_column": "y", "sinr_column": "sinr"}
+    sc = scenario(2, edges=[(0, 1)], protocol="flood", steps=30)
+    sc["links"]["default"]["latency"] = {"model": "cellular_sinr", "sinr": "track", "one_way": True}
+    sc["mobility"] = {"vehicles": {"0": track, "1": {**track, "offset": [1.0, 0.0]}},
+                      "range": {"model": "disk", "radius": 5.0}}
+    loaded = dkfsim.load_scenario(sc)
+    assert sorted(RunPlan(loaded).link_schedule.sinr) == [0, 1]
+    run = run_scenario(sc)
+    assert run.counts["delivered"] + run.counts["in_flight"] == run.counts["sent"] > 0

@@ -138,6 +138,15 @@ class Mobility(StrictModel):
         """Node ``node``'s trajectory: its own entry, else the default."""
         return self.vehicles.get(str(node)) or self.vehicles["default"]
 
+    def sinr_at(self, node: int) -> Any:
+        """Node ``node``'s recorded SINR as a function of run seconds (``speed`` applied), or
+        None when its trajectory records none (only a ``track`` does)."""
+        traj = self.trajectory(node)
+        if not hasattr(traj, "sinr_db"):
+            return None
+        speed = float(self.speed)
+        return lambda t: traj.sinr_db(np.asarray([t * speed]))[0]
+
     def positions(self, n: int, K: int, T: float) -> np.ndarray:
         """Every vehicle's position (m) at ``t_k = k T``, ``k = 0 .. K``: ``(K + 1, n, 2)``."""
         t = np.arange(K + 1) * float(T)
@@ -163,6 +172,9 @@ class LinkSchedule:
         #: link quality from distance (``quality``, ``mobility.links``)
         self.distance = distance
         self.quality = quality
+        #: node -> its recorded SINR (run seconds -> dB) for ``cellular_sinr`` with ``sinr:
+        #: track`` (set by the run plan for ``track`` vehicles)
+        self.sinr: dict[int, Any] = {}
         self.arcs: list[tuple[int, int]] = [(int(a[0]), int(a[1])) for a in arcs]
         if self.up.shape != (self.up.shape[0], len(self.arcs)):
             raise ValueError(f"up must have one column per arc, got shape {self.up.shape}")

@@ -101,7 +101,12 @@ class RunPlan:
             return None
         K = int(sc.steps)
         positions = sc.mobility.positions(sc.n, K, sc.model.T)
-        return LinkSchedule.from_positions(positions, self.arcs, sc.mobility.range, sc.mobility.links)
+        schedule = LinkSchedule.from_positions(positions, self.arcs, sc.mobility.range, sc.mobility.links)
+        for i in range(sc.n):
+            fn = sc.mobility.sinr_at(i)
+            if fn is not None:
+                schedule.sinr[i] = fn
+        return schedule
 
     @property
     def graph_changes(self) -> bool:

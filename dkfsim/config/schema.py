@@ -364,6 +364,7 @@ class Scenario(StrictModel):
             self.faults.check(n)
         if self.mobility is not None:
             self._check_mobility(plan)
+        self._check_sinr_track(plan)
         if self.buffer_length in ("auto", "paper") and plan.d_t is None:
             raise custom_error(
                 f"{self.buffer_length!r} needs a delay bound, but latency model "
@@ -395,6 +396,25 @@ class Scenario(StrictModel):
                 f"'auto' sizes the buffer from B, the length after which every interval of ticks has a "
                 f"connected union graph; with these trajectories and range the union of all {self.steps} "
                 "ticks is not connected, so no B exists: give an integer buffer_length", "buffer_length")
+
+    def _check_sinr_track(self, plan: RunPlan) -> None:
+        """``cellular_sinr`` with ``sinr: track`` draws at the sender's recorded SINR: every
+        sender on such a link is a ``track`` vehicle of ``mobility:`` (decision 181)."""
+        places = [("links.default", None)] + [(f"links.overrides.{i}", tuple(ov.link))
+                                              for i, ov in enumerate(self.links.overrides)]
+        if not any(getattr(self.link_spec(*(link or (-1, -1))).latency, "sinr", None) == "track"
+                   for _, link in places):
+            return
+        for u, v in plan.arcs:
+            if getattr(self.link_spec(u, v).latency, "sinr", None) != "track":
+                continue
+            key = next((k for k, link in places[1:] if link == (u, v)), "links.default") + ".latency.sinr"
+            if self.mobility is None:
+                raise custom_error("'track' takes the sender's recorded SINR, which needs a mobility: key "
+                                   "with 'track' vehicles; give a number (dB)", key)
+            if self.mobility.sinr_at(u) is None:
+                raise custom_error(f"'track' takes the sender's recorded SINR, but node {u} (sender on link "
+                                   f"{u} -> {v}) is not a 'track' vehicle of mobility:; give a number (dB)", key)
 
     def _check_traffic(self) -> None:
         """A queue limit or background load acts through the transmitter: it needs a rate."""

@@ -53,6 +53,7 @@ import simpy
 from simpy.events import NORMAL, Event
 
 from dkfsim.components.faults import CrashSchedule, LinkSpec, ScaleSchedule, Windows
+from dkfsim.components.latency import TrackSinrSampler
 from dkfsim.components.mobility import LinkSchedule
 from dkfsim.core.params import MAX_NS, NS_PER_S, seconds_to_ns
 from dkfsim.core.streams import key64, keyed_uniform
@@ -113,6 +114,11 @@ class Recipe:
         self._sched = ScaleSchedule(spec.schedule) if spec.schedule else None
         self._jitter = spec.jitter.sampler(prefix + ("jitter",), seed, T_ns) \
             if spec.jitter is not None else None
+
+    def set_sinr(self, sinr_at: Any) -> None:
+        """Hand the sender's SINR to a model that draws at it (``cellular_sinr``, ``sinr: track``)."""
+        if isinstance(self._model, TrackSinrSampler):
+            self._model.sinr_at = sinr_at
 
     def draw(self, t_ns: int, seq: int) -> tuple[int, bool]:
         lat, lost = self._model.draw(t_ns, seq)
@@ -190,6 +196,13 @@ class Link:
             self.rate = float(rate[0])
         self._faultless = False
         self.plain = None
+
+    def set_sinr(self, sinr_at: Any) -> None:
+        """The sender's SINR (run seconds -> dB) for a ``cellular_sinr`` latency with ``sinr:
+        track`` (decision 181); nothing for any other model."""
+        for recipe in (self._main, self._copy):
+            if recipe is not None:
+                recipe.set_sinr(sinr_at)
 
     def _tick(self, t_ns: int, size: int) -> int:
         return min(t_ns // self.T_ns, size - 1)
@@ -301,6 +314,8 @@ class Network:
                 link.set_schedule(schedule.column(i))
                 if schedule.distance is not None:
                     link.set_distance(schedule.distance[:, i], schedule.quality)
+                if link.src in schedule.sinr:
+                    link.set_sinr(schedule.sinr[link.src])
         self.crashes = crashes if crashes else None
         self.ports: list[Port] = []
 
