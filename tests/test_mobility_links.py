@@ -191,7 +191,7 @@ def test_cellular_sinr_track_draws_at_the_senders_recorded_sinr(tmp_path, speed)
     assert len({lat - t for lat, t in want}) == 4
 
 
-def test_cellular_sinr_track_needs_a_track_sender(tmp_path):
+def test_cellular_sinr_track_needs_a_track_sender():
     import dkfsim
     sc = scenario(2, edges=[(0, 1)], protocol="flood", steps=10)
     sc["links"]["default"]["latency"] = {"model": "cellular_sinr", "sinr": "track"}
