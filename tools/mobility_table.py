@@ -121,6 +121,28 @@ def range_table() -> str:
     return "\n".join(lines)
 
 
+def speed_table() -> str:
+    """``scenarios/sweep_mobility_speed.yaml`` (range x ``mobility.speed``) through ``dkfsim
+    sweep``, as a Markdown table."""
+    from dkfsim.cli.main import main as cli
+    with tempfile.TemporaryDirectory() as tmp:
+        db = Path(tmp) / "speed.sqlite"
+        cli(["sweep", str(ROOT / "scenarios" / "sweep_mobility_speed.yaml"), "--db", str(db), "--jobs", "1",
+             "--quiet", "--yes"])
+        with open(db.with_suffix(".summary.csv"), newline="") as f:
+            rows = list(csv.DictReader(f))
+    mse: dict[tuple[float, float, str], float] = defaultdict(float)
+    for r in rows:
+        if r["component"] in ("x", "y"):
+            mse[(float(r["mobility.range.radius"]), float(r["mobility.speed"]), r["estimate"])] += float(r["mse"])
+    cols = ("local", "ci_consensus", "fused", "centralized")
+    lines = ["| range (m) | speed | local (mean over nodes) | ci_consensus | fused | centralized |",
+             "|---|---|---|---|---|---|"]
+    for radius, speed in sorted({k[:2] for k in mse}):
+        lines.append(f"| {radius:g} | {speed:g} | " + " | ".join(f"{mse[(radius, speed, e)]:.3f}" for e in cols) + " |")
+    return "\n".join(lines)
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--figure", type=Path, default=None, help="draw the convoy figure to this stem")
@@ -131,6 +153,8 @@ def main(argv=None) -> int:
     print(scenario_table())
     print()
     print(range_table())
+    print()
+    print(speed_table())
     return 0
 
 
