@@ -101,15 +101,19 @@ def scenario_table() -> str:
     return "\n".join(lines + [row(name) for name in SCENARIOS])
 
 
-def range_table() -> str:
-    """``scenarios/sweep_mobility_range.yaml`` through ``dkfsim sweep``, as a Markdown table."""
+def _sweep_rows(name: str) -> list[dict[str, str]]:
+    """The ``summary.csv`` rows of ``scenarios/<name>`` run through ``dkfsim sweep``."""
     from dkfsim.cli.main import main as cli
     with tempfile.TemporaryDirectory() as tmp:
-        db = Path(tmp) / "range.sqlite"
-        cli(["sweep", str(ROOT / "scenarios" / "sweep_mobility_range.yaml"), "--db", str(db), "--jobs", "1",
-             "--quiet", "--yes"])
+        db = Path(tmp) / "sweep.sqlite"
+        cli(["sweep", str(ROOT / "scenarios" / name), "--db", str(db), "--jobs", "1", "--quiet", "--yes"])
         with open(db.with_suffix(".summary.csv"), newline="") as f:
-            rows = list(csv.DictReader(f))
+            return list(csv.DictReader(f))
+
+
+def range_table() -> str:
+    """``scenarios/sweep_mobility_range.yaml`` through ``dkfsim sweep``, as a Markdown table."""
+    rows = _sweep_rows("sweep_mobility_range.yaml")
     mse: dict[tuple[float, str], float] = defaultdict(float)
     for r in rows:
         if r["component"] in ("x", "y"):
@@ -124,13 +128,7 @@ def range_table() -> str:
 def speed_table() -> str:
     """``scenarios/sweep_mobility_speed.yaml`` (range x ``mobility.speed``) through ``dkfsim
     sweep``, as a Markdown table."""
-    from dkfsim.cli.main import main as cli
-    with tempfile.TemporaryDirectory() as tmp:
-        db = Path(tmp) / "speed.sqlite"
-        cli(["sweep", str(ROOT / "scenarios" / "sweep_mobility_speed.yaml"), "--db", str(db), "--jobs", "1",
-             "--quiet", "--yes"])
-        with open(db.with_suffix(".summary.csv"), newline="") as f:
-            rows = list(csv.DictReader(f))
+    rows = _sweep_rows("sweep_mobility_speed.yaml")
     mse: dict[tuple[float, float, str], float] = defaultdict(float)
     for r in rows:
         if r["component"] in ("x", "y"):
