@@ -23,8 +23,8 @@ Two kinds of generator:
   of each study and checks they equal the stored rows.
 * ``radar`` (docs/radar.md, docs/figures.md): 200 runs of 21 ticks, recomputed whole by the
   slow tier (``--check`` recomputes it only when named in ``--only``); ``mobility``
-  (docs/mobility.md: the shipped mobility scenarios and the range sweep, about 40 runs of
-  300-1080 ticks) likewise.
+  (docs/mobility.md: the shipped mobility scenarios, the range sweep and the range x speed
+  sweep, about 60 runs of 300-1080 ticks) likewise.
 
 Timings are never generated: they depend on the machine (decision 205).
 
@@ -515,11 +515,13 @@ def render_radar() -> dict[str, str]:
 
 
 def render_mobility() -> dict[str, str]:
-    """tools/mobility_table.py: the shipped mobility scenarios (one run each) and the range sweep
-    (5 runs x 5 ranges, through ``dkfsim sweep``): docs/mobility.md."""
+    """tools/mobility_table.py: the shipped mobility scenarios (one run each), the range sweep
+    (5 runs x 5 ranges) and the range x speed sweep (2 runs x 9 points), through ``dkfsim
+    sweep``: docs/mobility.md."""
     sys.path.insert(0, str(ROOT / "tools"))
     import mobility_table
-    return {"mobility-scenarios": mobility_table.scenario_table(), "mobility-range": mobility_table.range_table()}
+    return {"mobility-scenarios": mobility_table.scenario_table(), "mobility-range": mobility_table.range_table(),
+            "mobility-speed": mobility_table.speed_table()}
 
 
 GENERATORS = (
@@ -530,7 +532,7 @@ GENERATORS = (
               render_consensus, (CONSENSUS,)),
     Generator("sweep", ("sweep-table", "sweep-reading"), render_sweep, SWEEP),
     Generator("radar", ("radar-table", "radar-summary", "radar-reading"), render_radar),
-    Generator("mobility", ("mobility-scenarios", "mobility-range"), render_mobility),
+    Generator("mobility", ("mobility-scenarios", "mobility-range", "mobility-speed"), render_mobility),
 )
 
 

@@ -101,15 +101,19 @@ def scenario_table() -> str:
     return "\n".join(lines + [row(name) for name in SCENARIOS])
 
 
-def range_table() -> str:
-    """``scenarios/sweep_mobility_range.yaml`` through ``dkfsim sweep``, as a Markdown table."""
+def _sweep_rows(name: str) -> list[dict[str, str]]:
+    """The ``summary.csv`` rows of ``scenarios/<name>`` run through ``dkfsim sweep``."""
     from dkfsim.cli.main import main as cli
     with tempfile.TemporaryDirectory() as tmp:
-        db = Path(tmp) / "range.sqlite"
-        cli(["sweep", str(ROOT / "scenarios" / "sweep_mobility_range.yaml"), "--db", str(db), "--jobs", "1",
-             "--quiet", "--yes"])
+        db = Path(tmp) / "sweep.sqlite"
+        cli(["sweep", str(ROOT / "scenarios" / name), "--db", str(db), "--jobs", "1", "--quiet", "--yes"])
         with open(db.with_suffix(".summary.csv"), newline="") as f:
-            rows = list(csv.DictReader(f))
+            return list(csv.DictReader(f))
+
+
+def range_table() -> str:
+    """``scenarios/sweep_mobility_range.yaml`` through ``dkfsim sweep``, as a Markdown table."""
+    rows = _sweep_rows("sweep_mobility_range.yaml")
     mse: dict[tuple[float, str], float] = defaultdict(float)
     for r in rows:
         if r["component"] in ("x", "y"):
@@ -118,6 +122,22 @@ def range_table() -> str:
     lines = ["| range (m) | local (mean over nodes) | ci_consensus | fused | centralized |", "|---|---|---|---|---|"]
     for radius in sorted({k[0] for k in mse}):
         lines.append(f"| {radius:g} | " + " | ".join(f"{mse[(radius, e)]:.3f}" for e in cols) + " |")
+    return "\n".join(lines)
+
+
+def speed_table() -> str:
+    """``scenarios/sweep_mobility_speed.yaml`` (range x ``mobility.speed``) through ``dkfsim
+    sweep``, as a Markdown table."""
+    rows = _sweep_rows("sweep_mobility_speed.yaml")
+    mse: dict[tuple[float, float, str], float] = defaultdict(float)
+    for r in rows:
+        if r["component"] in ("x", "y"):
+            mse[(float(r["mobility.range.radius"]), float(r["mobility.speed"]), r["estimate"])] += float(r["mse"])
+    cols = ("local", "ci_consensus", "fused", "centralized")
+    lines = ["| range (m) | speed | local (mean over nodes) | ci_consensus | fused | centralized |",
+             "|---|---|---|---|---|---|"]
+    for radius, speed in sorted({k[:2] for k in mse}):
+        lines.append(f"| {radius:g} | {speed:g} | " + " | ".join(f"{mse[(radius, speed, e)]:.3f}" for e in cols) + " |")
     return "\n".join(lines)
 
 
@@ -131,6 +151,8 @@ def main(argv=None) -> int:
     print(scenario_table())
     print()
     print(range_table())
+    print()
+    print(speed_table())
     return 0
 
 

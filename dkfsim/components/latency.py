@@ -56,6 +56,7 @@ from pydantic import Field, PrivateAttr, TypeAdapter, ValidationInfo, model_vali
 from typing_extensions import override
 
 from dkfsim.core.datafiles import DATA_DIR, DataFileError, locate, read_table
+from dkfsim.core.errors import DkfsimError
 from dkfsim.core.files import read_json
 from dkfsim.core.params import (
     MAX_NS,
@@ -584,8 +585,9 @@ class CellularSinr(LatencyParams):
     """A cellular (V2N, car -> cloud -> car) link: CICV5G latencies of the SINR's bin."""
 
     model: Literal["cellular_sinr"] = "cellular_sinr"
-    #: The link's SINR (dB), constant for the run (docs/latency_models.md).
-    sinr: Annotated[float, Field(strict=True, ge=-50, le=80, allow_inf_nan=False)]
+    #: The link's SINR (dB), constant for the run, or ``track``: the sender's recorded SINR at
+    #: each packet's send instant (a ``track`` vehicle of ``mobility:``, decision 181).
+    sinr: Annotated[float, Field(strict=True, ge=-50, le=80, allow_inf_nan=False)] | Literal["track"]
     one_way: Annotated[bool, Field(strict=True)] = False
     scale: PosReal = 1.0
     scale_keys: ClassVar = ("scale",)
@@ -594,13 +596,49 @@ class CellularSinr(LatencyParams):
         """Seconds per recorded millisecond after ``one_way`` and ``scale``."""
         return 1e-3 * self.scale * (0.5 if self.one_way else 1.0)
 
+    def at_sinr(self, u, sinr_db) -> np.ndarray:
+        """Latencies (int64 ns) for uniforms ``u`` at SINRs ``sinr_db`` (dB)."""
+        return _clamped(sinr_latency_ms(u, sinr_db, sinr_fit()) * self.factor() * NS_PER_S)
+
     @override
     def from_uniform(self, u, T_ns):
-        return _clamped(sinr_latency_ms(u, self.sinr, sinr_fit()) * self.factor() * NS_PER_S)
+        if self.sinr == "track":
+            raise DkfsimError("cellular_sinr with sinr: track draws at the sender's recorded SINR, which "
+                              "only a run with a 'track' vehicle under mobility: has; give a number (dB)")
+        return self.at_sinr(u, self.sinr)
 
     @override
     def sup_ns(self, T_ns):
-        return int(self.from_uniform(1.0, T_ns))
+        if self.sinr != "track":
+            return int(self.from_uniform(1.0, T_ns))
+        edges = [float(e) for e in sinr_fit()["bin_edges_db"]]
+        probes = [edges[0] - 1.0] + edges                  # one SINR in every bin
+        return int(np.max(self.at_sinr(np.ones(len(probes)), probes)))
+
+    @override
+    def sampler(self, prefix, seed, T_ns):
+        if self.sinr != "track":
+            return super().sampler(prefix, seed, T_ns)
+        return TrackSinrSampler(self, key64(seed, *prefix, "latency"))
+
+
+class TrackSinrSampler(Sampler):
+    """``cellular_sinr`` with ``sinr: track``: one keyed uniform per packet, the quantile of the
+    bin of the sender's SINR at the send instant (:attr:`sinr_at`, run seconds -> dB, set by
+    the network from the sender's trajectory)."""
+
+    __slots__ = ("model", "key", "sinr_at")
+
+    def __init__(self, model: CellularSinr, key: int):
+        self.model, self.key = model, key
+        self.sinr_at = None
+
+    def draw(self, t_ns, seq):
+        if self.sinr_at is None:
+            raise DkfsimError("cellular_sinr with sinr: track needs the sender to be a 'track' vehicle "
+                              "of mobility:")
+        sinr = float(self.sinr_at(t_ns / NS_PER_S))
+        return int(self.model.at_sinr(keyed_uniform(self.key, t_ns, seq), sinr)), False
 
 
 #: The field type of a latency model in a scenario (any registered model).

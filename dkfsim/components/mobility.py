@@ -29,7 +29,7 @@ from pydantic import field_validator
 
 from dkfsim.components.trajectories import Trajectory, TrajectoryParams
 from dkfsim.core.files import clip
-from dkfsim.core.params import PosReal, StrictModel, custom_error
+from dkfsim.core.params import NonNegReal, PosReal, Probability, StrictModel, custom_error
 
 #: Largest link schedule (ticks x arcs, one byte each) a scenario may ask for (256 MiB).
 SCHEDULE_LIMIT = 1 << 28
@@ -47,12 +47,64 @@ class DiskRange(StrictModel):
         return distance <= self.radius
 
 
+def _table(points: list, what: str) -> list:
+    """A piecewise-linear table ``[[distance, value], ...]``: distances strictly increasing."""
+    if not points:
+        raise custom_error(f"give at least one [distance, {what}] point")
+    d = [p[0] for p in points]
+    if any(b <= a for a, b in zip(d, d[1:])):
+        raise custom_error(f"the distances of the [distance, {what}] points must strictly increase, got {clip(d)}")
+    return points
+
+
+class DistanceLinks(StrictModel):
+    """``mobility.links``: a link's quality from its pair's distance at the hand-over tick
+    (decision 176).  Tables are piecewise linear in the distance (m) and held constant
+    beyond their first and last points."""
+
+    #: ``[[d, p], ...]``: loss probability, combined with the link's own ``loss`` as
+    #: ``1 - (1 - loss)(1 - p(d))`` and decided with the link's keyed loss uniform
+    loss: list[tuple[NonNegReal, Probability]] | None = None
+    #: seconds per metre added to every latency draw (propagation, processing)
+    latency_per_m: NonNegReal = 0.0
+    #: ``[[d, bit/s], ...]``: the link's transmitter rate, replacing ``links.*.rate``
+    rate: list[tuple[NonNegReal, PosReal]] | None = None
+
+    @field_validator("loss")
+    @classmethod
+    def _loss(cls, v: Any) -> Any:
+        return v if v is None else _table(v, "loss probability")
+
+    @field_validator("rate")
+    @classmethod
+    def _rate(cls, v: Any) -> Any:
+        return v if v is None else _table(v, "bit/s")
+
+    @staticmethod
+    def _interp(table: list, distance: np.ndarray) -> np.ndarray:
+        return np.interp(distance, [p[0] for p in table], [p[1] for p in table])
+
+    def per_tick(self, distance: np.ndarray) -> tuple[list[float] | None, list[int] | None, list[float] | None]:
+        """For one arc's distances per tick: (loss probability, extra latency ns, rate bit/s)
+        per tick, each None when not given."""
+        d = np.asarray(distance, dtype=float)
+        loss = self._interp(self.loss, d).tolist() if self.loss is not None else None
+        extra = np.rint(d * self.latency_per_m * 1e9).astype(np.int64).tolist() if self.latency_per_m > 0 else None
+        rate = self._interp(self.rate, d).tolist() if self.rate is not None else None
+        return loss, extra, rate
+
+
 class Mobility(StrictModel):
-    """The top-level ``mobility`` key: a trajectory per vehicle (node) and the radio range."""
+    """The top-level ``mobility`` key: a trajectory per vehicle (node), the radio range, the
+    link quality from distance and a speed factor."""
 
     #: ``default`` and/or node numbers -> a trajectory (:mod:`dkfsim.components.trajectories`)
     vehicles: dict[str, Trajectory]
     range: DiskRange
+    #: link quality from distance (None: the link models alone, as without ``mobility:``)
+    links: DistanceLinks | None = None
+    #: every trajectory is evaluated at ``speed * t`` (decision 180)
+    speed: PosReal = 1.0
 
     @field_validator("vehicles", mode="before")
     @classmethod
@@ -86,9 +138,20 @@ class Mobility(StrictModel):
         """Node ``node``'s trajectory: its own entry, else the default."""
         return self.vehicles.get(str(node)) or self.vehicles["default"]
 
+    def sinr_at(self, node: int) -> Any:
+        """Node ``node``'s recorded SINR as a function of run seconds (``speed`` applied), or
+        None when its trajectory records none (only a ``track`` does)."""
+        traj = self.trajectory(node)
+        if not hasattr(traj, "sinr_db"):
+            return None
+        speed = float(self.speed)
+        return lambda t: traj.sinr_db(np.asarray([t * speed]))[0]
+
     def positions(self, n: int, K: int, T: float) -> np.ndarray:
         """Every vehicle's position (m) at ``t_k = k T``, ``k = 0 .. K``: ``(K + 1, n, 2)``."""
         t = np.arange(K + 1) * float(T)
+        if self.speed != 1.0:
+            t = t * float(self.speed)
         out = np.empty((K + 1, n, 2))
         for i in range(n):
             out[:, i, :] = self.trajectory(i).positions(t)
@@ -102,8 +165,16 @@ class LinkSchedule:
     :param arcs: the topology's arcs, in the network's link order.
     """
 
-    def __init__(self, up: np.ndarray, arcs: Sequence[tuple[int, int]]):
+    def __init__(self, up: np.ndarray, arcs: Sequence[tuple[int, int]], distance: np.ndarray | None = None,
+                 quality: DistanceLinks | None = None):
         self.up = np.ascontiguousarray(up, dtype=bool)
+        #: ``(K + 1, len(arcs))`` metres between each arc's ends per tick, kept only with a
+        #: link quality from distance (``quality``, ``mobility.links``)
+        self.distance = distance
+        self.quality = quality
+        #: node -> its recorded SINR (run seconds -> dB) for ``cellular_sinr`` with ``sinr:
+        #: track`` (set by the run plan for ``track`` vehicles)
+        self.sinr: dict[int, Any] = {}
         self.arcs: list[tuple[int, int]] = [(int(a[0]), int(a[1])) for a in arcs]
         if self.up.shape != (self.up.shape[0], len(self.arcs)):
             raise ValueError(f"up must have one column per arc, got shape {self.up.shape}")
@@ -112,19 +183,25 @@ class LinkSchedule:
         self.changes = not bool(self.up[1:].all())
 
     @classmethod
-    def from_positions(cls, positions: np.ndarray, arcs: Sequence[tuple[int, int]], rng: DiskRange) -> LinkSchedule:
+    def from_positions(cls, positions: np.ndarray, arcs: Sequence[tuple[int, int]], rng: DiskRange,
+                       quality: DistanceLinks | None = None) -> LinkSchedule:
         """The schedule of ``arcs`` for vehicle ``positions`` (``(K + 1, n, 2)`` metres, row
-        ``k`` at ``t_k``) under the range model ``rng``."""
+        ``k`` at ``t_k``) under the range model ``rng``; with ``quality`` the distances are
+        kept for the links' quality (``mobility.links``)."""
         pos = np.asarray(positions, dtype=float)
         if not arcs:
             return cls(np.zeros((pos.shape[0], 0), dtype=bool), arcs)
         a = np.asarray(arcs, dtype=np.intp)
         up = np.empty((pos.shape[0], len(a)), dtype=bool)
+        dist = np.empty((pos.shape[0], len(a))) if quality is not None else None
         step = max(1, (1 << 21) // len(a))                  # ticks per block: a few MB of distances
         for k in range(0, pos.shape[0], step):
             p = pos[k:k + step]
-            up[k:k + step] = rng.in_range(np.hypot(*(p[:, a[:, 0], :] - p[:, a[:, 1], :]).transpose(2, 0, 1)))
-        return cls(up, arcs)
+            d = np.hypot(*(p[:, a[:, 0], :] - p[:, a[:, 1], :]).transpose(2, 0, 1))
+            up[k:k + step] = rng.in_range(d)
+            if dist is not None:
+                dist[k:k + step] = d
+        return cls(up, arcs, dist, quality)
 
     @property
     def K(self) -> int:

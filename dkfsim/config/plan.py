@@ -101,7 +101,12 @@ class RunPlan:
             return None
         K = int(sc.steps)
         positions = sc.mobility.positions(sc.n, K, sc.model.T)
-        return LinkSchedule.from_positions(positions, self.arcs, sc.mobility.range)
+        schedule = LinkSchedule.from_positions(positions, self.arcs, sc.mobility.range, sc.mobility.links)
+        for i in range(sc.n):
+            fn = sc.mobility.sinr_at(i)
+            if fn is not None:
+                schedule.sinr[i] = fn
+        return schedule
 
     @property
     def graph_changes(self) -> bool:
@@ -161,6 +166,14 @@ class RunPlan:
         unbounded), whatever ``links.d_t`` assumes.  Without overrides every link has the
         default settings, so the exchange graph is not built."""
         sc = self.scenario
+        extra = self._distance_latency_ns()
+        if extra:
+            # a packet leaves only while its pair is in range: at most latency_per_m x radius more
+            sups = [sc.link_spec(u, v).sup_ns(sc.T_ns) for u, v in
+                    (self.exchange_arcs if sc.links.overrides else [(-1, -1)])]
+            if any(s is None for s in sups):
+                return None
+            return -(-(max(sups, default=0) + extra) // int(sc.T_ns))
         if not sc.links.overrides:
             return sc.link_spec(-1, -1).bound_steps(sc.T_ns)
         bound = 0
@@ -171,11 +184,20 @@ class RunPlan:
             bound = max(bound, b)
         return bound
 
+    def _distance_latency_ns(self) -> int:
+        """The most ``mobility.links.latency_per_m`` adds to a packet (ns): at the range's radius."""
+        mob = self.scenario.mobility
+        if mob is None or mob.links is None or not mob.links.latency_per_m > 0:
+            return 0
+        return int(round(mob.links.latency_per_m * mob.range.radius * 1e9))
+
     @functools.cached_property
     def rate_limited(self) -> bool:
         """True when a link the protocol uses has a ``rate``: its packets queue, so an arrival
         has no bound however bounded the latency models are (``d_t`` ignores it)."""
         sc = self.scenario
+        if sc.mobility is not None and sc.mobility.links is not None and sc.mobility.links.rate is not None:
+            return True
         if not sc.links.overrides:
             return sc.link_spec(-1, -1).rate is not None
         return any(sc.link_spec(u, v).rate is not None for u, v in self.exchange_arcs)

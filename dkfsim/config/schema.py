@@ -364,6 +364,7 @@ class Scenario(StrictModel):
             self.faults.check(n)
         if self.mobility is not None:
             self._check_mobility(plan)
+        self._check_sinr_track(plan)
         if self.buffer_length in ("auto", "paper") and plan.d_t is None:
             raise custom_error(
                 f"{self.buffer_length!r} needs a delay bound, but latency model "
@@ -376,9 +377,13 @@ class Scenario(StrictModel):
         assert self.mobility is not None
         self.mobility.check(self.n)
         size = (self.steps + 1) * len(plan.arcs)
-        if size > SCHEDULE_LIMIT:
+        # a link quality from distance keeps each entry's distance too (8 more bytes)
+        weight = 9 if self.mobility.links is not None else 1
+        if size * weight > SCHEDULE_LIMIT:
             raise custom_error(f"the link schedule has one entry per tick and link, {self.steps + 1} x "
-                               f"{len(plan.arcs)} = {size:.3g}, more than the {SCHEDULE_LIMIT:.3g} a run may "
+                               f"{len(plan.arcs)} = {size:.3g}"
+                               + (" (9 bytes each with mobility.links)" if weight > 1 else "")
+                               + f", more than the {SCHEDULE_LIMIT:.3g} bytes a run may "
                                "keep; use fewer steps or a sparser topology", "mobility")
         if not plan.graph_changes:
             return
@@ -392,13 +397,33 @@ class Scenario(StrictModel):
                 f"connected union graph; with these trajectories and range the union of all {self.steps} "
                 "ticks is not connected, so no B exists: give an integer buffer_length", "buffer_length")
 
+    def _check_sinr_track(self, plan: RunPlan) -> None:
+        """``cellular_sinr`` with ``sinr: track`` draws at the sender's recorded SINR: every
+        sender on such a link is a ``track`` vehicle of ``mobility:`` (decision 181)."""
+        places = [("links.default", None)] + [(f"links.overrides.{i}", tuple(ov.link))
+                                              for i, ov in enumerate(self.links.overrides)]
+        if not any(getattr(self.link_spec(*(link or (-1, -1))).latency, "sinr", None) == "track"
+                   for _, link in places):
+            return
+        for u, v in plan.arcs:
+            if getattr(self.link_spec(u, v).latency, "sinr", None) != "track":
+                continue
+            key = next((k for k, link in places[1:] if link == (u, v)), "links.default") + ".latency.sinr"
+            if self.mobility is None:
+                raise custom_error("'track' takes the sender's recorded SINR, which needs a mobility: key "
+                                   "with 'track' vehicles; give a number (dB)", key)
+            if self.mobility.sinr_at(u) is None:
+                raise custom_error(f"'track' takes the sender's recorded SINR, but node {u} (sender on link "
+                                   f"{u} -> {v}) is not a 'track' vehicle of mobility:; give a number (dB)", key)
+
     def _check_traffic(self) -> None:
         """A queue limit or background load acts through the transmitter: it needs a rate."""
         places = [("links.default", None)] + [(f"links.overrides.{i}", tuple(ov.link))
                                               for i, ov in enumerate(self.links.overrides)]
         for key, link in places:
             spec = self.link_spec(*link) if link is not None else self.link_spec(-1, -1)
-            if spec.rate is None:
+            if spec.rate is None and not (self.mobility is not None and self.mobility.links is not None
+                                          and self.mobility.links.rate is not None):
                 for what in ("queue", "background"):
                     if getattr(spec, what) is not None:
                         raise custom_error(f"a {what} acts through the link's transmitter, but the link "

@@ -53,6 +53,7 @@ import simpy
 from simpy.events import NORMAL, Event
 
 from dkfsim.components.faults import CrashSchedule, LinkSpec, ScaleSchedule, Windows
+from dkfsim.components.latency import TrackSinrSampler
 from dkfsim.components.mobility import LinkSchedule
 from dkfsim.core.params import MAX_NS, NS_PER_S, seconds_to_ns
 from dkfsim.core.streams import key64, keyed_uniform
@@ -114,6 +115,11 @@ class Recipe:
         self._jitter = spec.jitter.sampler(prefix + ("jitter",), seed, T_ns) \
             if spec.jitter is not None else None
 
+    def set_sinr(self, sinr_at: Any) -> None:
+        """Hand the sender's SINR to a model that draws at it (``cellular_sinr``, ``sinr: track``)."""
+        if isinstance(self._model, TrackSinrSampler):
+            self._model.sinr_at = sinr_at
+
     def draw(self, t_ns: int, seq: int) -> tuple[int, bool]:
         lat, lost = self._model.draw(t_ns, seq)
         if self._sched is not None:
@@ -135,7 +141,7 @@ class Link:
     """
 
     __slots__ = ("id", "src", "dst", "spec", "loss", "duplicate", "plain", "rate", "up", "changes", "T_ns",
-                 "_main", "_copy", "_loss_key", "_dup_key", "_outages", "_prefix", "_seed", "_faultless")
+                 "near", "_near_loss", "_near_extra", "_near_rate", "_main", "_copy", "_loss_key", "_dup_key", "_outages", "_prefix", "_seed", "_faultless")
 
     def __init__(self, link_id: int, src: int, dst: int, spec: Any, seed: int, T_ns: int,
                  key: tuple | None = None):
@@ -146,6 +152,12 @@ class Link:
         self.up: bytes | None = None
         #: whether the link is down at some tick ``1 .. K``
         self.changes = False
+        #: whether its quality follows its pair's distance (:meth:`set_distance`); per tick
+        #: ``0 .. K``: loss probability, extra latency ns, rate bit/s (each None when not given)
+        self.near = False
+        self._near_loss: list[float] | None = None
+        self._near_extra: list[int] | None = None
+        self._near_rate: list[float] | None = None
         self.loss = float(spec.loss)
         self.duplicate = float(spec.duplicate)
         prefix = ("link", src, dst) if key is None else tuple(key)
@@ -171,6 +183,38 @@ class Link:
         self.up = up
         self.changes = 0 in up[1:]
 
+    def set_distance(self, distance: np.ndarray, quality: Any) -> None:
+        """The link's quality follows its pair's distance (``distance[k]`` m at tick ``k``)
+        through ``quality`` (:class:`~dkfsim.components.mobility.DistanceLinks`, decision 176):
+        loss and latency at the hand-over tick, the rate at the transmission's start tick."""
+        loss, extra, rate = quality.per_tick(distance)
+        self.near = True
+        self._near_loss, self._near_extra, self._near_rate = loss, extra, rate
+        if loss is not None and self._loss_key is None:
+            self._loss_key = key64(self._seed, *self._prefix, "loss")
+        if rate is not None:
+            self.rate = float(rate[0])
+        self._faultless = False
+        self.plain = None
+
+    def set_sinr(self, sinr_at: Any) -> None:
+        """The sender's SINR (run seconds -> dB) for a ``cellular_sinr`` latency with ``sinr:
+        track`` (decision 181); nothing for any other model."""
+        for recipe in (self._main, self._copy):
+            if recipe is not None:
+                recipe.set_sinr(sinr_at)
+
+    def _tick(self, t_ns: int, size: int) -> int:
+        return min(t_ns // self.T_ns, size - 1)
+
+    def rate_at(self, t_ns: int) -> float:
+        """The rate (bit/s) at instant ``t_ns``: from the distance of its tick
+        (``mobility.links.rate``), else the link's ``rate``."""
+        rate = self._near_rate
+        if rate is None:
+            return float(self.rate) if self.rate is not None else 0.0
+        return rate[self._tick(t_ns, len(rate))]
+
     def is_up(self, t_ns: int) -> bool:
         """Whether the link is up at instant ``t_ns`` (the state of the tick ``t_ns`` is in)."""
         up = self.up
@@ -181,7 +225,7 @@ class Link:
         nothing else acts on the link but a transmitter with no queue or a queue counted in
         packets, and the link never goes down, else None (a compiled protocol cannot draw it)."""
         spec = self.spec
-        if self.changes or not self._faultless:
+        if self.changes or self.near or not self._faultless:
             return None
         if spec.queue is not None and spec.queue.packets is None:
             return None
@@ -210,22 +254,32 @@ class Link:
         spec = self.spec
         bg = BackgroundArrivals(spec.background, self._prefix, self._seed) \
             if spec.background is not None else None
-        return Transmitter(self.rate, spec.queue, bg, record=record)
+        return Transmitter(self.rate, spec.queue, bg, record=record,
+                           rate_at=self.rate_at if self._near_rate is not None else None)
 
     def transmit(self, t_ns: int, seq: int = 0) -> tuple[tuple[int, ...], str | None]:
         """The arrivals of a packet sent at ``t_ns`` as number ``seq`` of its sender at
         that instant: ``(latencies, why lost)`` -- ``()`` and ``"lost"`` or
         ``"outage"`` when it is lost, one latency, or two when it is duplicated."""
         lat, lost = self._main.draw(t_ns, seq)
-        if self._loss_key is not None and keyed_uniform(self._loss_key, t_ns, seq) < self.loss:
+        loss = self.loss
+        near = self.near
+        if near and self._near_loss is not None:
+            loss = 1.0 - (1.0 - loss) * (1.0 - self._near_loss[self._tick(t_ns, len(self._near_loss))])
+        if self._loss_key is not None and keyed_uniform(self._loss_key, t_ns, seq) < loss:
             lost = True
         if self._outages is not None and t_ns in self._outages:
             return (), "outage"
         if lost:
             return (), "lost"
+        extra = 0
+        if near and self._near_extra is not None:
+            extra = self._near_extra[self._tick(t_ns, len(self._near_extra))]
         if self._dup_key is not None and self._copy is not None \
                 and keyed_uniform(self._dup_key, t_ns, seq) < self.duplicate:
-            return (lat, self._copy.draw(t_ns, seq)[0]), None
+            return (min(lat + extra, MAX_NS), min(self._copy.draw(t_ns, seq)[0] + extra, MAX_NS)), None
+        if extra:
+            lat = min(lat + extra, MAX_NS)
         return (lat,), None
 
 
@@ -258,6 +312,10 @@ class Network:
         if schedule is not None:
             for i, link in enumerate(self.links):
                 link.set_schedule(schedule.column(i))
+                if schedule.distance is not None:
+                    link.set_distance(schedule.distance[:, i], schedule.quality)
+                if link.src in schedule.sinr:
+                    link.set_sinr(schedule.sinr[link.src])
         self.crashes = crashes if crashes else None
         self.ports: list[Port] = []
 

@@ -18,6 +18,7 @@ from __future__ import annotations
 import math
 from array import array
 from collections import deque
+from collections.abc import Callable
 
 import numpy as np
 
@@ -118,13 +119,18 @@ class Transmitter:
     :param rate: bits per second.
     :param queue: the waiting room (None: unbounded).
     :param background: the link's :class:`BackgroundArrivals` (None: none).
+    :param rate_at: the rate (bit/s) at a packet's transmission start instant (ns), when it
+        changes with the pair's distance (``mobility.links.rate``); None: ``rate`` throughout.
     :param record: keep every background packet's (instant, start, end), start and end -1
         when dropped (for the queueing-theory checks; 24 bytes a packet): :meth:`log`.
     """
 
     def __init__(self, rate: float, queue: Queue | None = None,
-                 background: BackgroundArrivals | None = None, record: bool = False):
+                 background: BackgroundArrivals | None = None, record: bool = False,
+                 rate_at: Callable[[int], float] | None = None):
         self.rate = float(rate)
+        #: the rate at a packet's start instant (ns -> bit/s), when it changes (``mobility.links``)
+        self.rate_at = rate_at
         self.max_packets = queue.packets if queue is not None else None
         self.max_bytes = queue.bytes if queue is not None else None
         self.background = background
@@ -154,7 +160,7 @@ class Transmitter:
                 return None
             if self.max_bytes is not None and self._waiting_bytes + size > self.max_bytes:
                 return None
-        tx = transmission_ns(size, self.rate)
+        tx = transmission_ns(size, self.rate if self.rate_at is None else self.rate_at(start))
         end = start + tx
         if end > MAX_NS:
             end = MAX_NS
