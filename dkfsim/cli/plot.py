@@ -67,6 +67,9 @@ def add_command(sub) -> None:
     p.add_argument("--smooth", type=int, metavar="TICKS",
                    help="centred moving average of the MSE curves over TICKS ticks "
                         "(default: 2%% of the ticks for a single run, none for Monte Carlo)")
+    p.add_argument("--at", nargs="+", type=int, metavar="TICK",
+                   help="a run with mobility: the ticks (1..K) drawn in network_over_time "
+                        "(default: six evenly spaced)")
     p.add_argument("--name", default=None, metavar="STEM",
                    help="file name (without extension) of the --compare figure (default: compare_mse)")
     p.add_argument("--title", default=None,
@@ -102,7 +105,7 @@ def cmd_plot_sweep(args, formats) -> int:
     for flag in ("compare", "relative"):
         if getattr(args, flag):
             raise DkfsimError(f"--{flag}: only for run and Monte Carlo folders, not a sweep")
-    for flag in ("labels", "smooth"):
+    for flag in ("labels", "smooth", "at"):
         if getattr(args, flag) is not None:
             raise DkfsimError(f"--{flag}: only for run and Monte Carlo folders; a sweep takes --x, "
                               "--hue, --metric, --estimate, --where, --component, --xlabel")
@@ -165,6 +168,8 @@ def cmd_plot(args) -> int:
     for flag in ("name", "title"):
         if getattr(args, flag) is not None and not args.compare:
             raise DkfsimError(f"--{flag}: only used with --compare")
+    if args.at is not None and args.compare:
+        raise DkfsimError("--at: not with --compare (it picks the ticks of one run's network_over_time)")
     if args.relative and not args.compare:
         raise DkfsimError("--relative: only used with --compare")
     if args.compare and len(args.dirs) < 2:
@@ -188,7 +193,7 @@ def cmd_plot(args) -> int:
                 out = Path(args.out)
             else:
                 out = Path(args.out) / f.path.resolve().name
-            written += plot_folder(f, out, formats, args.components, args.smooth)
+            written += plot_folder(f, out, formats, args.components, args.smooth, args.at)
     for path in written:
         say(f"wrote {path}")
     return 0
