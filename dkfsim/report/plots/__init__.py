@@ -39,7 +39,6 @@ from __future__ import annotations
 from pathlib import Path
 
 from dkfsim.core.errors import DkfsimError
-
 from dkfsim.report.plots.accuracy import plot_mse, plot_nees
 from dkfsim.report.plots.compare import check_comparable, plot_compare
 from dkfsim.report.plots.folders import Folder, component_names, load_folder
