@@ -27,6 +27,7 @@ examples:
   dkfsim plot out/case1                                   # out/case1/figures/{tracking,mse}.{png,pdf}
   dkfsim plot out/mc_case1 --format png                   # a Monte Carlo folder; adds nees.png
   dkfsim plot out/case1 out/case2 --compare --labels "case 1 (undirected)" "case 2 (directed)"
+  dkfsim plot out/crossing --at 1 100 200                 # a run with mobility:: network_over_time at 3 ticks
   dkfsim plot scenarios/sweep_delay_bound.sqlite --x links.default.latency.d_t --hue protocol
   dkfsim plot out/delay.csv --x links.default.latency.d_t --metric anees --where protocol=tree
   dkfsim plot out/d0 out/d1 out/d2 out/d3 out/d4 --compare --component position \\
@@ -40,7 +41,8 @@ def add_command(sub) -> None:
         description="Draw figures (matplotlib, Agg backend) from folders written by dkfsim run "
                     "(run.npz + summary.json) or dkfsim montecarlo (curves.npz + runs.csv + summary.json): "
                     "tracking (truth, fused, node 0, references), MSE per tick (log scale; Monte Carlo: "
-                    "95% CI shaded) and, for Monte Carlo folders, NEES. With --compare, overlay the fused "
+                    "95% CI shaded), for Monte Carlo folders NEES, and for a run with mobility: "
+                    "network_over_time and topology_errors. With --compare, overlay the fused "
                     "MSE of several folders and the centralized filter of the first. Given a sweep database "
                     "(or its --export .csv/.parquet), draw a metric against one grid key (--x) with "
                     "95% interval bands over the runs, one line per estimate or per value of --hue.",
