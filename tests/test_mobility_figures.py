@@ -166,3 +166,19 @@ def test_a_mismatched_mobility_array_is_a_clean_error(folders, tmp_path, capsys,
     assert main(["plot", str(bad), "--format", "png"]) == 2
     err = capsys.readouterr().err
     assert "Traceback" not in err and words in err.replace(str(bad), "")
+
+
+def test_a_folder_read_back_and_saved_again_keeps_mobility_only_where_it_was(folders, tmp_path):
+    """dkfsim.load then save: the moving run's up-time table and arrays survive; the plain run
+    gains no ``mobility`` key (a None field of the record is not written back)."""
+    dk = import_dkfsim()
+    for name in ("moving", "plain"):
+        path = folders[name][0]
+        dk.load(path).save(tmp_path / name)
+        before = json.loads((path / "summary.json").read_text())
+        after = json.loads((tmp_path / name / "summary.json").read_text())
+        assert ("mobility" in after) == (name == "moving")
+        assert after.get("mobility") == before.get("mobility")
+    with np.load(folders["moving"][0] / "run.npz") as a, np.load(tmp_path / "moving" / "run.npz") as b:
+        for key in ("positions", "links_up", "mobility_links"):
+            assert np.array_equal(a[key], b[key]), key
