@@ -27,6 +27,7 @@ examples:
   dkfsim plot out/case1                                   # out/case1/figures/{tracking,mse}.{png,pdf}
   dkfsim plot out/mc_case1 --format png                   # a Monte Carlo folder; adds nees.png
   dkfsim plot out/case1 out/case2 --compare --labels "case 1 (undirected)" "case 2 (directed)"
+  dkfsim plot out/crossing --at 1 100 200                 # a run with mobility:: network_over_time at 3 ticks
   dkfsim plot scenarios/sweep_delay_bound.sqlite --x links.default.latency.d_t --hue protocol
   dkfsim plot out/delay.csv --x links.default.latency.d_t --metric anees --where protocol=tree
   dkfsim plot out/d0 out/d1 out/d2 out/d3 out/d4 --compare --component position \\
@@ -40,7 +41,8 @@ def add_command(sub) -> None:
         description="Draw figures (matplotlib, Agg backend) from folders written by dkfsim run "
                     "(run.npz + summary.json) or dkfsim montecarlo (curves.npz + runs.csv + summary.json): "
                     "tracking (truth, fused, node 0, references), MSE per tick (log scale; Monte Carlo: "
-                    "95% CI shaded) and, for Monte Carlo folders, NEES. With --compare, overlay the fused "
+                    "95% CI shaded), for Monte Carlo folders NEES, and for a run with mobility: "
+                    "network_over_time and topology_errors. With --compare, overlay the fused "
                     "MSE of several folders and the centralized filter of the first. Given a sweep database "
                     "(or its --export .csv/.parquet), draw a metric against one grid key (--x) with "
                     "95% interval bands over the runs, one line per estimate or per value of --hue.",
@@ -67,6 +69,9 @@ def add_command(sub) -> None:
     p.add_argument("--smooth", type=int, metavar="TICKS",
                    help="centred moving average of the MSE curves over TICKS ticks "
                         "(default: 2%% of the ticks for a single run, none for Monte Carlo)")
+    p.add_argument("--at", nargs="+", type=int, metavar="TICK",
+                   help="a run with mobility: the ticks (1..K) drawn in network_over_time "
+                        "(default: six evenly spaced)")
     p.add_argument("--name", default=None, metavar="STEM",
                    help="file name (without extension) of the --compare figure (default: compare_mse)")
     p.add_argument("--title", default=None,
@@ -102,7 +107,7 @@ def cmd_plot_sweep(args, formats) -> int:
     for flag in ("compare", "relative"):
         if getattr(args, flag):
             raise DkfsimError(f"--{flag}: only for run and Monte Carlo folders, not a sweep")
-    for flag in ("labels", "smooth"):
+    for flag in ("labels", "smooth", "at"):
         if getattr(args, flag) is not None:
             raise DkfsimError(f"--{flag}: only for run and Monte Carlo folders; a sweep takes --x, "
                               "--hue, --metric, --estimate, --where, --component, --xlabel")
@@ -165,6 +170,8 @@ def cmd_plot(args) -> int:
     for flag in ("name", "title"):
         if getattr(args, flag) is not None and not args.compare:
             raise DkfsimError(f"--{flag}: only used with --compare")
+    if args.at is not None and args.compare:
+        raise DkfsimError("--at: not with --compare (it picks the ticks of one run's network_over_time)")
     if args.relative and not args.compare:
         raise DkfsimError("--relative: only used with --compare")
     if args.compare and len(args.dirs) < 2:
@@ -188,7 +195,7 @@ def cmd_plot(args) -> int:
                 out = Path(args.out)
             else:
                 out = Path(args.out) / f.path.resolve().name
-            written += plot_folder(f, out, formats, args.components, args.smooth)
+            written += plot_folder(f, out, formats, args.components, args.smooth, args.at)
     for path in written:
         say(f"wrote {path}")
     return 0

@@ -265,3 +265,25 @@ def _strongly_connected(n: int, pairs: np.ndarray, on: np.ndarray) -> bool:
         return False                # (a strongly connected digraph on n > 1 nodes has >= n arcs)
     graph = scipy.sparse.csr_matrix((np.ones(len(used)), (used[:, 0], used[:, 1])), shape=(n, n))
     return int(scipy.sparse.csgraph.connected_components(graph, directed=True, connection="strong")[0]) == 1
+
+
+def link_pairs(schedule: LinkSchedule) -> tuple[np.ndarray, np.ndarray]:
+    """The schedule per pair of vehicles: ``pairs`` ``(E, 2)`` (``u < v``, sorted), one per
+    unordered pair with an arc of the topology, and ``up`` ``(K + 1, E)``: whether the pair's
+    link is up at tick ``k`` (one of its arcs up; a disk range puts both up together).  What
+    ``run.npz`` keeps as ``mobility_links`` and ``links_up`` (decision 187)."""
+    cols: dict[tuple[int, int], list[int]] = {}
+    for a, (u, v) in enumerate(schedule.arcs):
+        cols.setdefault((min(u, v), max(u, v)), []).append(a)
+    pairs = sorted(cols)
+    up = np.zeros((schedule.up.shape[0], len(pairs)), dtype=bool)
+    for e, pair in enumerate(pairs):
+        up[:, e] = schedule.up[:, cols[pair]].any(axis=1)
+    return np.array(pairs, dtype=np.int64).reshape(-1, 2), up
+
+
+def link_uptime(pairs: np.ndarray, up: np.ndarray) -> list[list]:
+    """``[u, v, fraction]`` per pair: the fraction of the rows of ``up`` (``(K, E)``, the run's
+    ticks ``1 .. K``) at which the pair's link was up -- summary.json's ``mobility.link_uptime``."""
+    frac = up.mean(axis=0) if up.shape[0] else np.zeros(up.shape[1])
+    return [[int(u), int(v), float(f)] for (u, v), f in zip(pairs.tolist(), frac.tolist())]

@@ -97,16 +97,24 @@ class RunPlan:
         """Which links (:attr:`arcs`) are up at each tick ``0 .. K``, from the vehicles'
         positions and the range (``mobility:``); None without ``mobility``."""
         sc = self.scenario
-        if sc.mobility is None:
+        if sc.mobility is None or self.positions is None:
             return None
-        K = int(sc.steps)
-        positions = sc.mobility.positions(sc.n, K, sc.model.T)
-        schedule = LinkSchedule.from_positions(positions, self.arcs, sc.mobility.range, sc.mobility.links)
+        schedule = LinkSchedule.from_positions(self.positions, self.arcs, sc.mobility.range,
+                                               sc.mobility.links)
         for i in range(sc.n):
             fn = sc.mobility.sinr_at(i)
             if fn is not None:
                 schedule.sinr[i] = fn
         return schedule
+
+    @functools.cached_property
+    def positions(self):
+        """Every vehicle's position (m) at ticks ``0 .. K``, ``(K + 1, n, 2)``
+        (:meth:`~dkfsim.components.mobility.Mobility.positions`); None without ``mobility``."""
+        sc = self.scenario
+        if sc.mobility is None:
+            return None
+        return sc.mobility.positions(sc.n, int(sc.steps), sc.model.T)
 
     @property
     def graph_changes(self) -> bool:

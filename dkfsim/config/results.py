@@ -95,6 +95,13 @@ def components_of(rows) -> list[str]:
     return out
 
 
+class MobilityRecord(Model):
+    """summary.json's ``mobility`` (a run with ``mobility:``): ``link_uptime`` rows ``[u, v,
+    fraction]``, the fraction of the run's ticks at which the pair's link was up (decision 187)."""
+
+    link_uptime: list[tuple[Count, Count, Annotated[float, Field(ge=0, le=1)]]]
+
+
 class RunSummary(Model):
     """``summary.json`` of ``dkfsim run``: what ``load_run``, ``plot`` and ``report`` use of it."""
 
@@ -115,6 +122,7 @@ class RunSummary(Model):
     buffer_length: Count | None = None
     d_t: Count | None = None
     d_g: Count | None = None
+    mobility: MobilityRecord | None = None
 
     @model_validator(mode="after")
     def _rows_cover_the_estimates(self):

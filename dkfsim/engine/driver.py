@@ -26,6 +26,7 @@ import simpy
 from simpy.events import NORMAL, Event
 
 from dkfsim.components.faults import CrashSchedule
+from dkfsim.components.mobility import link_pairs, link_uptime
 from dkfsim.config.load import load_scenario
 from dkfsim.config.plan import RunPlan
 from dkfsim.config.schema import Scenario
@@ -164,6 +165,13 @@ class Run:
             "exchange": self.dkf.exchange.bookkeeping,
             "backend": self.backend.record(),
         }
+        schedule = plan.link_schedule
+        if schedule is not None:          # mobility: what the figures of a moving network need
+            pairs, up = link_pairs(schedule)
+            arrays["positions"] = np.ascontiguousarray(plan.positions[1:])     # rows: ticks 1 .. K
+            arrays["links_up"] = up[1:].astype(np.uint8)
+            arrays["mobility_links"] = pairs
+            info["mobility"] = {"link_uptime": link_uptime(pairs, up[1:])}
         return RunResult(sc, arrays, counts, info, estimates=list(estimates), traffic=traffic,
                          facts=facts)
 

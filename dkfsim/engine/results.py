@@ -233,7 +233,7 @@ def write_rows(path, rows: list[dict]) -> None:
 
 #: Keys of summary.json that are facts of the run (``RunResult.info``).
 INFO_KEYS = ("buffer_length", "d_t", "d_g", "n_links", "wall_time_s", "save", "kernels",
-             "node_rows", "exchange", "backend")
+             "node_rows", "exchange", "backend", "mobility")
 
 
 def load_run(folder) -> RunResult:
@@ -272,6 +272,8 @@ def load_run(folder) -> RunResult:
     counts = dict(summary["packets"])
     counts["per_link"] = [{**d, "link": tuple(d["link"])} for d in summary["per_link"]]
     info = {key: summary[key] for key in INFO_KEYS if key in summary}
+    if info.get("mobility") is None:     # a run without mobility: no key (as it was written)
+        info.pop("mobility", None)
     traffic = {name: (t if t is None or "per_link" not in t else
                       {**t, "per_link": [{**d, "link": tuple(d["link"])} for d in t["per_link"]]})
                for name, t in summary["traffic"].items()}
@@ -284,7 +286,7 @@ def load_run(folder) -> RunResult:
 
 #: ``run.npz`` arrays with one row per tick (their first axis is ``steps``): whole names, then
 #: prefixes.
-PER_TICK_ARRAYS = ("t", "truth", "queue_length", "utilisation")
+PER_TICK_ARRAYS = ("t", "truth", "queue_length", "utilisation", "positions", "links_up")
 PER_TICK = ("t", "truth", "x_", "P_", "y_", "z_", "Rc_")
 
 

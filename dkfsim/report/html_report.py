@@ -51,12 +51,15 @@ from dkfsim.report.html import (
 )
 from dkfsim.report.plots import (
     has_links,
+    has_mobility,
     load_folder,
     paired_reference,
     plot_links,
     plot_mse,
     plot_nees,
+    plot_network_over_time,
     plot_paired,
+    plot_topology_errors,
     plot_tracking,
 )
 from dkfsim.report.plots.folders import NothingToPlot
@@ -95,6 +98,15 @@ def _figures(folder_path: Path, kinds) -> list[str]:
             out.append(figure(png_b64(tmp / "links.png"), "The rate-limited links: the DKF's queueing "
                               "delay per link, utilisation and time-averaged queue length per tick "
                               "(run.npz).", "links"))
+        if has_mobility(folder):
+            plot_network_over_time(folder, tmp / "network_over_time", ("png",))
+            out.append(figure(png_b64(tmp / "network_over_time.png"), "The vehicles and the links up at "
+                              "six evenly spaced ticks; grey: their paths over the whole run (run.npz).",
+                              "network_over_time"))
+            plot_topology_errors(folder, tmp / "topology_errors", ("png",))
+            out.append(figure(png_b64(tmp / "topology_errors.png"), "Squared position error over time; "
+                              "dotted: the ticks at which the links up change; below: the number of "
+                              "links up per tick.", "topology_errors"))
     return out
 
 
@@ -113,6 +125,17 @@ def _links_section(per_link: list[dict]) -> list[tuple[str, str]]:
                             "the DKF's packets on each rate-limited link (summary.json per_link): utilisation "
                             "and mean number waiting over the run, background included; queueing delay "
                             "from hand-over to the start of transmission"))]
+
+
+def _uptime_section(record: dict | None) -> list[tuple[str, str]]:
+    """A run with ``mobility:``: the fraction of the ticks each pair's link was up (summary.json
+    ``mobility.link_uptime``), none otherwise."""
+    if not record:
+        return []
+    rows = [(f"{int(u)}–{int(v)}", float(f)) for u, v, f in record["link_uptime"]]
+    return [("Link up-time", table("link_uptime", ("pair", "up-time [fraction of ticks]"), rows,
+                                   "the fraction of the run's ticks at which each pair's link was up "
+                                   "(in the topology and in range; summary.json mobility.link_uptime)"))]
 
 
 # =========================================================================== per kind
@@ -148,6 +171,7 @@ def run_page(folder: Path) -> str:
                           pk, f"totals over the whole run ({s.get('steps')} ticks); late items: "
                               "contributions or (packet, row) pairs for the DKF, stale packets for the others")),
         *_links_section(s.get("per_link") or []),
+        *_uptime_section(s.get("mobility")),
         ("Figures", "\n".join(_figures(folder, ("tracking",)))),
         ("Versions and seeds", versions_table(s.get("versions"), [("seed", str(s.get("seed")))])),
     ]

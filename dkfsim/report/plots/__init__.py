@@ -14,7 +14,9 @@
 * ``paired`` (Monte Carlo folders with a reference estimate): each estimate's MSE relative
   to the reference, paired over the runs (:mod:`.paired`);
 * ``links`` (a rate-limited run): the DKF's queueing delay per link, utilisation and queue
-  length over time (:mod:`.links`).
+  length over time (:mod:`.links`);
+* ``network_over_time`` and ``topology_errors`` (a run with ``mobility:``): the vehicles and
+  links up at chosen ticks, and the errors beside the changes of the links (:mod:`.mobility`).
 
 ``dkfsim plot DIR1 DIR2 ... --compare --labels ...`` overlays the fused MSE of
 several folders and the centralized filter of the first -- the paper's Fig. 5
@@ -36,10 +38,12 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from dkfsim.core.errors import DkfsimError
 from dkfsim.report.plots.accuracy import plot_mse, plot_nees
 from dkfsim.report.plots.compare import check_comparable, plot_compare
 from dkfsim.report.plots.folders import Folder, component_names, load_folder
 from dkfsim.report.plots.links import has_links, plot_links
+from dkfsim.report.plots.mobility import has_mobility, plot_network_over_time, plot_topology_errors
 from dkfsim.report.plots.paired import paired_reference, plot_paired, relative_to
 from dkfsim.report.plots.style import (
     DEFAULT_FORMATS,
@@ -56,14 +60,16 @@ from dkfsim.report.plots.style import (
 from dkfsim.report.plots.tracking import plot_tracking, zoom_window
 
 __all__ = ["DEFAULT_FORMATS", "ESTIMATES", "FORMATS", "Folder", "check_comparable", "color_of",
-           "component_names", "default_smooth", "has_links", "label_of", "load_folder", "moving_average",
+           "component_names", "default_smooth", "has_links", "has_mobility", "label_of", "load_folder", "moving_average",
            "mse_note", "paired_reference", "plot_compare", "plot_folder", "plot_mse", "plot_nees",
-           "plot_links", "plot_paired", "plot_tracking", "relative_to",
+           "plot_links", "plot_network_over_time", "plot_paired", "plot_topology_errors", "plot_tracking", "relative_to",
            "select_components", "zoom_window", "check_formats"]
 
 
-def plot_folder(folder: Folder, out_dir, formats=DEFAULT_FORMATS, components=None, smooth=None) -> list[Path]:
-    """Every figure a single folder supports, into ``out_dir``."""
+def plot_folder(folder: Folder, out_dir, formats=DEFAULT_FORMATS, components=None, smooth=None,
+                at=None) -> list[Path]:
+    """Every figure a single folder supports, into ``out_dir`` (``at``: the ticks of
+    ``network_over_time``, a run with ``mobility:`` only)."""
     out = Path(out_dir)
     written = []
     if folder.truth is not None:
@@ -75,5 +81,10 @@ def plot_folder(folder: Folder, out_dir, formats=DEFAULT_FORMATS, components=Non
         written += plot_paired(folder, out / "paired", formats, components)
     if has_links(folder):
         written += plot_links(folder, out / "links", formats)
+    if has_mobility(folder):
+        written += plot_network_over_time(folder, out / "network_over_time", formats, at)
+        written += plot_topology_errors(folder, out / "topology_errors", formats, smooth)
+    elif at is not None:
+        raise DkfsimError(f"--at: {folder.path} is not a run with mobility: (no positions in run.npz)")
     return written
 

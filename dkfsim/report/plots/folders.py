@@ -32,6 +32,10 @@ NOT_ESTIMATES = {"x_final", "x0_mean"}
 #: A rate-limited run's per-link arrays beside ``rated_links`` (E, 2), with their shapes.
 LINK_ARRAYS = {"queue_length": ("K", "E"), "utilisation": ("K", "E"), "queueing_delay_quantiles": ("E", 101)}
 
+#: A run with ``mobility:``: its arrays beside ``mobility_links`` (E, 2), with their shapes
+#: (``n`` the scenario's nodes); summary.json's ``mobility.link_uptime`` has one row per pair.
+MOBILITY_ARRAYS = {"positions": ("K", "n", 2), "links_up": ("K", "E")}
+
 
 class NothingToPlot(DkfsimError):
     """A folder dkfsim wrote without arrays to draw (``--save summary``): not a damaged one."""
@@ -68,6 +72,9 @@ class Folder:
     #: a rate-limited run's links (run.npz): ``rated_links`` (E, 2), ``queue_length`` and
     #: ``utilisation`` (K, E), ``queueing_delay_quantiles`` (E, 101); empty otherwise
     links: dict[str, np.ndarray] = field(default_factory=dict)
+    #: a run with ``mobility:`` (run.npz): ``mobility_links`` (E, 2), ``positions`` (K, n, 2),
+    #: ``links_up`` (K, E) and ``link_uptime`` (E,) from summary.json; empty otherwise
+    mobility: dict[str, np.ndarray] = field(default_factory=dict)
 
     def fraction_in_band(self, estimate: str) -> float | None:
         """Fraction of the ticks after the burn-in whose mean NEES lies in the per-tick band."""
@@ -190,7 +197,8 @@ def _load_run(p: Path) -> Folder:
             for key, shape in LINK_ARRAYS.items():
                 npz_header(z, key, tuple(K if s == "K" else E if s == "E" else s for s in shape))
             link_keys = ["rated_links", *LINK_ARRAYS]
-        arrays = z.read(["t", "truth", *keys, *link_keys])
+        mobility_keys = _check_mobility(z, summary, K)
+        arrays = z.read(["t", "truth", *keys, *link_keys, *mobility_keys])
     truth = arrays["truth"].astype(float)
     t = arrays["t"].astype(float)
     kind = _model_kind(summary)
@@ -216,7 +224,59 @@ def _load_run(p: Path) -> Folder:
                   components=comps, units=component_units(comps, kind), mse=mse, truth=truth,
                   examples=examples, node0=node0, n_runs=1, d_t=_d_t(summary),
                   burn_in=(summary.get("metrics") or {}).get("burn_in"),
-                  links={k: arrays[k] for k in link_keys})
+                  links={k: arrays[k] for k in link_keys},
+                  mobility=_mobility(f, summary, {k: arrays[k] for k in mobility_keys}))
+
+
+def _check_mobility(z: NpzFile, summary: dict, K: int) -> list[str]:
+    """The mobility arrays' headers against summary.json (before any data is read): present
+    together with summary.json's ``mobility`` or not at all, one ``link_uptime`` row per pair."""
+    record = summary.get("mobility")
+    if "mobility_links" not in z and not any(k in z for k in MOBILITY_ARRAYS):
+        if record is not None:
+            raise DkfsimError(f"{z.path}: summary.json has mobility but run.npz has no "
+                              "mobility_links (the files do not belong together)")
+        return []
+    if record is None:
+        raise DkfsimError(f"{z.path}: holds mobility arrays but summary.json has no mobility "
+                          "(the files do not belong together)")
+    E = npz_header(z, "mobility_links", (None, 2)).shape[0]
+    if E != len(record["link_uptime"]):
+        raise DkfsimError(f"{z.path}: array 'mobility_links' has {E} pairs but summary.json's "
+                          f"mobility.link_uptime has {len(record['link_uptime'])} rows")
+    n = _nodes(summary)
+    for key, shape in MOBILITY_ARRAYS.items():
+        npz_header(z, key, tuple(K if s == "K" else E if s == "E" else n if s == "n" else s for s in shape))
+    return ["mobility_links", *MOBILITY_ARRAYS]
+
+
+def _nodes(summary: dict) -> int | None:
+    """The scenario's number of nodes (its sensors in summary.json's scenario_config), if known."""
+    sensors = (summary.get("scenario_config") or {}).get("sensors")
+    return len(sensors) if isinstance(sensors, list) else None
+
+
+def _mobility(f: Path, summary: dict, arrays: dict) -> dict:
+    """The mobility arrays checked for values (pairs of nodes in the order summary.json gives,
+    links_up 0 or 1, finite positions) with summary.json's up-time per pair beside them."""
+    if not arrays:
+        return {}
+    pairs = np.asarray(arrays["mobility_links"])
+    n = arrays["positions"].shape[1]
+    rows = summary["mobility"]["link_uptime"]
+    if pairs.dtype.kind not in "iu" or ((pairs < 0) | (pairs >= n)).any() or (pairs[:, 0] >= pairs[:, 1]).any():
+        raise DkfsimError(f"{f}: array 'mobility_links' holds pairs that are not two nodes u < v of 0..{n - 1}")
+    if [list(p) for p in pairs.tolist()] != [[int(r[0]), int(r[1])] for r in rows]:
+        raise DkfsimError(f"{f}: array 'mobility_links' names other pairs than summary.json's "
+                          "mobility.link_uptime")
+    up = np.asarray(arrays["links_up"])
+    if not np.isin(up, (0, 1)).all():
+        raise DkfsimError(f"{f}: array 'links_up' holds values other than 0 and 1")
+    pos = np.asarray(arrays["positions"], dtype=float)
+    if not np.isfinite(pos).all():
+        raise DkfsimError(f"{f}: array 'positions' holds values that are not finite")
+    return {"mobility_links": pairs, "positions": pos, "links_up": up.astype(bool),
+            "link_uptime": np.array([float(r[2]) for r in rows])}
 
 
 def _load_montecarlo(p: Path) -> Folder:
