@@ -60,6 +60,7 @@ from dkfsim.core.errors import DkfsimError
 from dkfsim.core.folders import staged, write_json
 from dkfsim.core.progress import progress_callback
 from dkfsim.core.resources import Cost, check, repeat
+from dkfsim.core.text import aligned
 from dkfsim.core.threads import single_thread
 from dkfsim.engine.driver import Run
 from dkfsim.engine.estimate import estimate_run
@@ -588,7 +589,7 @@ class MonteCarloResult:
         lines = [f"{sc.name}: {self.runs} runs x {sc.steps} ticks (base seed {sc.seed}), "
                  f"burn-in {self.burn_in} rows, on {self.executor}, {self.wall_time_s:.1f} s; "
                  f"ANEES expected {len(self.components)} (consistent: its interval covers it)",
-                 *_columns(head, body)]
+                 *aligned([head, *body], left=(0, 1))]
         ref = self.reference
         if ref is not None and self.runs > 1:
             head = ("estimate", "component", f"MSE - {ref}", "95% CI (paired)", f"MSE / {ref}",
@@ -606,7 +607,7 @@ class MonteCarloResult:
             if body:
                 lines += ["", f"paired with {ref} over the {self.runs} runs (same draws; "
                               "ratio: exponentiated t-interval of the per-run log-ratios)",
-                          *_columns(head, body)]
+                          *aligned([head, *body], left=(0, 1))]
         return "\n".join(lines)
 
 
@@ -615,14 +616,3 @@ def _pair(v, spec: str = ".4g") -> str:
     if v is None or v[0] is None or v[1] is None or math.isnan(v[0]) or math.isnan(v[1]):
         return "-"
     return f"[{v[0]:{spec}}, {v[1]:{spec}}]"
-
-
-def _columns(head, body) -> list[str]:
-    """A plain-text table: the first two columns left-aligned, the others right-aligned."""
-    rows = [head, *body]
-    widths = [max(len(r[i]) for r in rows) for i in range(len(head))]
-
-    def fmt(r):
-        return "  " + "  ".join(v.ljust(w) if i < 2 else v.rjust(w)
-                                for i, (v, w) in enumerate(zip(r, widths))).rstrip()
-    return [fmt(head), "  " + "  ".join("-" * w for w in widths), *(fmt(r) for r in body)]

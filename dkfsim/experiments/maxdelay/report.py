@@ -17,8 +17,6 @@ from dkfsim.core.folders import staged, write_json
 from dkfsim.engine.results import versions
 from dkfsim.experiments.maxdelay.search import METRICS, SearchResult, interval, json_number
 
-#: Units of the constant-acceleration model's components (other models have none).
-
 
 def pow10_text(x) -> str:
     """``10**x`` as a plain number (``0.8812``, ``3.2e+05``), not ``10^-0.0549``."""
