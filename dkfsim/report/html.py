@@ -16,9 +16,9 @@ import time
 from pathlib import Path
 from typing import Sequence
 
-import networkx as nx
 import yaml
 
+from dkfsim.components.topology import is_tree as topology_is_tree
 from dkfsim.config.dynamics import component_names
 from dkfsim.config.load import stored_scenario
 from dkfsim.config.plan import RunPlan
@@ -157,15 +157,10 @@ def network_section(sc, note: str = "") -> str:
         graph, xg = plan.graph, plan.exchange
     except DkfsimError as exc:
         return f"<p class='note'>No drawing: {html.escape(str(exc))}</p>"
-    is_tree = not xg.graph.is_directed() and nx_is_tree(xg.graph)
+    is_tree = topology_is_tree(xg.graph)
     labels = [s.name or f"s{i + 1}" for i, s in enumerate(sc.sensors)]
     fig, caption = draw_network(graph, xg.graph, is_tree, labels)
     return figure(fig_b64(fig), caption + (f". {note}" if note else ""), "network")
-
-
-def nx_is_tree(g) -> bool:
-    return g.number_of_nodes() > 0 and g.number_of_edges() == g.number_of_nodes() - 1 and \
-        nx.is_connected(g)
 
 
 def versions_table(versions: dict | None, extra: Sequence = ()) -> str:
