@@ -58,7 +58,7 @@ from dkfsim.components.mobility import LinkSchedule
 from dkfsim.core.params import MAX_NS, NS_PER_S, seconds_to_ns
 from dkfsim.core.streams import key64, keyed_uniform
 from dkfsim.network.occupancy import mean_waiting, per_tick
-from dkfsim.network.transmitter import BackgroundArrivals, LinkTraffic, Transmitter, background_keys
+from dkfsim.network.transmitter import BackgroundArrivals, Transmitter, background_keys, link_stats
 
 PRIORITY_DELIVER = NORMAL
 PRIORITY_FLUSH = NORMAL + 1
@@ -369,8 +369,6 @@ class Port:
         #: link id -> transmitter of a rate-limited link (the network's when shared)
         shared = network.shared_transmitters
         self._tx: dict[int, Transmitter] = shared if shared is not None else {}
-        #: link id -> this port's queueing delays on a rate-limited link
-        self._traffic: dict[int, LinkTraffic] = {}
         #: link id -> the link's statistics as its owner reported them (:meth:`set_link_stats`)
         self._stats: dict[int, dict[str, Any]] = {}
         #: link id -> (hand-over, start, end) ns of this port's packets its transmitter accepted
@@ -446,10 +444,6 @@ class Port:
             count["queue_dropped"][lid] += 1
             return
         start, end = got
-        traffic = self._traffic.get(lid)
-        if traffic is None:
-            traffic = self._traffic[lid] = LinkTraffic()
-        traffic.delays.append(start - now)
         own = self._own.get(lid)
         if own is None:
             own = self._own[lid] = array("q")
@@ -572,13 +566,14 @@ class Port:
         """Totals, ``per_link`` (links this port used) and ``late`` (:meth:`count_late`);
         ``in_flight`` by the identity (packets still waiting in a queue included).  A
         rate-limited link's row adds its utilisation of ``[0, until]`` and this port's
-        queueing delays (:meth:`~dkfsim.network.transmitter.LinkTraffic.stats`)."""
+        queueing delays (:func:`~dkfsim.network.transmitter.link_stats`)."""
         self._grow()
         count = self._count
         totals: dict[str, Any] = {k: sum(c) for k, c in count.items()}
         totals["in_flight"] = (totals["sent"] + totals["copies"] - totals["delivered"]
                                - totals["lost"] - totals["queue_dropped"] - totals["crash_dropped"])
         per_link = []
+        end = self.until if self.until is not None else self.env.now
         for i in self._reported():
             link = self.net.links[i]
             row: dict[str, Any] = {"link": (link.src, link.dst), **{k: c[i] for k, c in count.items()}}
@@ -587,10 +582,10 @@ class Port:
             if i in self._stats:
                 row.update(self._stats[i])
             elif link.rate is not None:
-                end = self.until if self.until is not None else self.env.now
-                row.update(self._traffic.get(i, LinkTraffic()).stats(self._transmitter(link), end))
+                tx = self._transmitter(link)
+                row.update(link_stats(self._own_delays(link), tx.busy_until(end), tx.background_sent,
+                                      tx.background_dropped, end))
             if link.rate is not None:
-                end = self.until if self.until is not None else self.env.now
                 row["queue_length_mean"] = mean_waiting(self.link_log(link), end)
             per_link.append(row)
         totals["per_link"] = per_link

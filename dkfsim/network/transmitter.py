@@ -10,7 +10,7 @@ at once, or is dropped because the waiting room is full (drop-tail; the packet i
 transmission is not in the waiting room).  Transmission of ``size`` bytes takes
 :func:`~dkfsim.components.traffic.transmission_ns`.  What the transmitter measures --
 busy time, background packets offered and dropped -- it keeps; a packet's own queueing delay
-is its sender's to record (:class:`LinkTraffic`).
+is its sender's to record (the port's log of hand-over, start and end).
 """
 
 from __future__ import annotations
@@ -224,27 +224,10 @@ def link_stats(delays: list[int] | np.ndarray, busy_ns: int, background_sent: in
     """A rate-limited link's statistics in ``summary.json``: utilisation of ``[0, end_ns]`` from
     the busy ns in it (every packet the transmitter carried, background included), the queueing
     delay's mean and 95th percentile (s, over one port's ``delays`` in ns; 0 without any), and
-    the background packets sent and dropped.  The Python port's (:meth:`LinkTraffic.stats`) and
-    the compiled tree's."""
+    the background packets sent and dropped.  The Python port's and the compiled tree's."""
     d = np.asarray(delays, dtype=np.float64) / NS_PER_S
     return {"utilisation": busy_ns / end_ns if end_ns > 0 else 0.0,
             "queueing_delay_mean": float(d.mean()) if len(d) else 0.0,
             "queueing_delay_p95": float(np.percentile(d, 95)) if len(d) else 0.0,
             "background_sent": background_sent,
             "background_dropped": background_dropped}
-
-
-class LinkTraffic:
-    """What one port measured on one rate-limited link: its packets' queueing delays (ns from
-    hand-over to the start of transmission, in hand-over order), for ``summary.json``'s
-    per-link statistics."""
-
-    __slots__ = ("delays",)
-
-    def __init__(self) -> None:
-        self.delays: list[int] = []
-
-    def stats(self, transmitter: Transmitter, end_ns: int) -> dict[str, float | int]:
-        """:func:`link_stats` of this port's packets on ``transmitter``'s link up to ``end_ns``."""
-        return link_stats(self.delays, transmitter.busy_until(end_ns), transmitter.background_sent,
-                          transmitter.background_dropped, end_ns)
