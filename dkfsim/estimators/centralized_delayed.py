@@ -25,6 +25,7 @@ from dkfsim.core.resources import B_FLOAT, C_NODE_ROW, C_PACKET, C_ROW, C_TICK, 
 from dkfsim.estimators.base import Estimate, Estimator, EstimatorResult
 from dkfsim.estimators.window import WindowFilter
 from dkfsim.model.holdings import Holdings
+from dkfsim.protocols.base import info_bytes
 
 
 class CentralizedDelayed(Estimator, params=CentralizedDelayedParams):
@@ -79,8 +80,7 @@ class CentralizedDelayed(Estimator, params=CentralizedDelayedParams):
 
     def packet_bytes(self) -> int:
         """A sensor's packet: header and its measurement's information vector and matrix."""
-        nx = self.ctx.system.nx
-        return 16 + 8 * (nx + nx * (nx + 1) // 2)
+        return info_bytes(self.ctx.system.nx)
 
     def finish(self) -> EstimatorResult:
         ctx = self.ctx

@@ -115,6 +115,7 @@ from dkfsim.estimators.rounds import Powers as _Powers
 from dkfsim.estimators.rounds import RoundBased, metropolis_weights
 from dkfsim.estimators.rounds import solve_pair as _solve_pair
 from dkfsim.estimators.window import predict
+from dkfsim.protocols.base import info_bytes
 
 __all__ = ["CIConsensus", "metropolis_weights"]
 
@@ -156,7 +157,7 @@ class CIConsensus(RoundBased, params=CIParams):
         self.Om = self.q = None
         self.used = self.stale = 0
         self.powers = _Powers(self.Phi, self.Q)
-        self.nbytes = 16 + 8 * (nx + nx * (nx + 1) // 2)
+        self.nbytes = info_bytes(nx)
 
     def boxes(self):
         nx = self.nx

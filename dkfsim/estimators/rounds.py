@@ -40,6 +40,7 @@ from dkfsim.core.resources import B_FLOAT, C_NODE_ROW, C_PACKET, C_ROW, C_TICK, 
 from dkfsim.estimators.base import Estimate, Estimator, existing_information_bytes
 from dkfsim.estimators.window import predict
 from dkfsim.network.links import PRIORITY_UPDATE, Link, Port, Scheduled
+from dkfsim.protocols.base import info_bytes
 
 
 # --------------------------------------------------------------------------- helpers
@@ -151,8 +152,7 @@ class RoundBased(Estimator):
     def info_bytes(self, vectors: int, matrices: int) -> int:
         """Nominal size of a message of ``vectors`` nx-vectors and ``matrices`` symmetric
         nx x nx matrices: a 16-byte header (stamp, sender) and 8-byte floats."""
-        nx = self.nx
-        return 16 + 8 * (vectors * nx + matrices * nx * (nx + 1) // 2)
+        return info_bytes(self.nx, vectors, matrices)
 
     def boxes(self) -> dict[str, dict[str, tuple]]:
         """Message kinds: name -> {field: shape of one node's value}."""

@@ -51,6 +51,12 @@ from dkfsim.network.links import PRIORITY_FLUSH, Clock, Link, Port, Scheduled
 PACKET_HEADER = 16
 
 
+def info_bytes(nx: int, vectors: int = 1, matrices: int = 1) -> int:
+    """Nominal bytes of a message of ``vectors`` nx-vectors and ``matrices`` symmetric nx x nx
+    matrices (upper triangles): the header (stamp, sender) and 8-byte floats."""
+    return PACKET_HEADER + 8 * (vectors * nx + matrices * nx * (nx + 1) // 2)
+
+
 def row_bytes(nx: int, n: int) -> int:
     """Nominal bytes of one row of a packet: the row number, ``theta`` (nx floats),
     the upper triangle of ``omega`` and the origin bitmask."""
