@@ -50,64 +50,42 @@ from dkfsim.report.html import (
     versions_table,
 )
 from dkfsim.report.plots import (
-    has_links,
-    has_mobility,
     load_folder,
     paired_reference,
-    plot_links,
-    plot_mse,
-    plot_nees,
-    plot_network_over_time,
-    plot_paired,
-    plot_topology_errors,
-    plot_tracking,
+    plot_folder,
 )
 from dkfsim.report.plots.folders import NothingToPlot
 from dkfsim.report.plots.style import png_resolution
 from dkfsim.report.sweep.page import sweep_page
 
-
 # =========================================================================== sections
-def _figures(folder_path: Path, kinds) -> list[str]:
-    """The figures of ``dkfsim plot`` for a run or Monte Carlo folder, inline."""
-    out = []
+#: Captions of the figures of ``dkfsim plot`` in a report, by file stem.
+CAPTIONS = {
+    "tracking": "Truth and estimates (left: the whole run; right: the shaded window).",
+    "mse": "MSE per tick and state component.",
+    "nees": "Mean NEES per tick with the per-tick 95 % chi-square band of the mean NEES (labels: the "
+            "fraction of ticks in it and the ANEES verdict).",
+    "paired": "MSE relative to the reference estimate, paired over the runs (95 % t-interval of the "
+              "per-run log-ratios).",
+    "links": "The rate-limited links: the DKF's queueing delay per link, utilisation and "
+             "time-averaged queue length per tick (run.npz).",
+    "network_over_time": "The vehicles and the links up at six evenly spaced ticks; grey: their "
+                         "paths over the whole run (run.npz).",
+    "topology_errors": "Squared position error over time; dotted: the ticks at which the links up "
+                       "change; below: the number of links up per tick.",
+}
+
+
+def _figures(folder_path: Path) -> list[str]:
+    """The figures of ``dkfsim plot`` (:func:`~dkfsim.report.plots.plot_folder`) for a run or
+    Monte Carlo folder, inline, each with its caption."""
     try:
         folder = load_folder(folder_path)
     except NothingToPlot as exc:         # a damaged or hostile file is an error of the report
         return [f"<p class='note'>No figures: {html.escape(str(exc))}</p>"]
     with tempfile.TemporaryDirectory(prefix="dkfsim-report-") as where, png_resolution(SCREEN_DPI):
-        tmp = Path(where)
-        if folder.truth is not None and "tracking" in kinds:
-            plot_tracking(folder, tmp / "tracking", ("png",))
-            out.append(figure(png_b64(tmp / "tracking.png"), "Truth and estimates (left: the whole run; "
-                              "right: the shaded window).", "tracking"))
-        plot_mse(folder, tmp / "mse", ("png",))
-        out.append(figure(png_b64(tmp / "mse.png"), "MSE per tick and state component.", "mse"))
-        if folder.nees:
-            plot_nees(folder, tmp / "nees", ("png",))
-            out.append(figure(png_b64(tmp / "nees.png"), "Mean NEES per tick with the per-tick 95 % "
-                              "chi-square band of the mean NEES (labels: the fraction of ticks in it "
-                              "and the ANEES verdict).", "nees"))
-        if paired_reference(folder.stats) is not None:
-            plot_paired(folder, tmp / "paired", ("png",))
-            out.append(figure(png_b64(tmp / "paired.png"), "MSE relative to the reference estimate, "
-                              "paired over the runs (95 % t-interval of the per-run log-ratios).",
-                              "paired"))
-        if has_links(folder):
-            plot_links(folder, tmp / "links", ("png",))
-            out.append(figure(png_b64(tmp / "links.png"), "The rate-limited links: the DKF's queueing "
-                              "delay per link, utilisation and time-averaged queue length per tick "
-                              "(run.npz).", "links"))
-        if has_mobility(folder):
-            plot_network_over_time(folder, tmp / "network_over_time", ("png",))
-            out.append(figure(png_b64(tmp / "network_over_time.png"), "The vehicles and the links up at "
-                              "six evenly spaced ticks; grey: their paths over the whole run (run.npz).",
-                              "network_over_time"))
-            plot_topology_errors(folder, tmp / "topology_errors", ("png",))
-            out.append(figure(png_b64(tmp / "topology_errors.png"), "Squared position error over time; "
-                              "dotted: the ticks at which the links up change; below: the number of "
-                              "links up per tick.", "topology_errors"))
-    return out
+        return [figure(png_b64(path), CAPTIONS[path.stem], path.stem)
+                for path in plot_folder(folder, Path(where), ("png",))]
 
 
 def _links_section(per_link: list[dict]) -> list[tuple[str, str]]:
@@ -172,7 +150,7 @@ def run_page(folder: Path) -> str:
                               "contributions or (packet, row) pairs for the DKF, stale packets for the others")),
         *_links_section(s.get("per_link") or []),
         *_uptime_section(s.get("mobility")),
-        ("Figures", "\n".join(_figures(folder, ("tracking",)))),
+        ("Figures", "\n".join(_figures(folder))),
         ("Versions and seeds", versions_table(s.get("versions"), [("seed", str(s.get("seed")))])),
     ]
     if s.get("diverged"):
@@ -224,7 +202,7 @@ def montecarlo_page(folder: Path) -> str:
                              "these runs).</p>"),
         ("Packets", table("packets", ("estimate", *RATE_HEADS, LOST_HEAD, LATE_HEAD),
                           pk, f"means over runs; {PACKETS_NOTE}")),
-        ("Figures", "\n".join(_figures(folder, ("tracking",)))),
+        ("Figures", "\n".join(_figures(folder))),
         ("Versions and seeds", versions_table(s.get("versions"), [("seed rule", s.get("seed_rule", ""))])
          + folded(f"Seeds of the {len(seeds)} runs" + (", the first 50" if len(seeds) > 50 else "")
                   + " (the seed rule above)", table("seeds", ("run", "seed"), seeds[:50]))),
