@@ -107,7 +107,7 @@ def test_stored_positions_are_the_trajectories_at_the_ticks(folders):
     assert (pos[:, 1] == 0).all()
 
 
-def test_plot_and_report_draw_the_mobility_figures_only_for_a_moving_run(folders):
+def test_plot_and_report_draw_the_mobility_figures_only_for_a_moving_run(folders, tmp_path):
     figures = ("network_over_time.png", "topology_errors.png")
     moving, plain = folders["moving"][0], folders["plain"][0]
     assert main(["plot", str(moving), "--format", "png", "--at", "1", "30", str(K)]) == 0
@@ -115,7 +115,8 @@ def test_plot_and_report_draw_the_mobility_figures_only_for_a_moving_run(folders
     for f in figures:
         assert (moving / "figures" / f).stat().st_size > 1000
         assert not (plain / "figures" / f).exists()
-    assert main(["plot", str(plain), "--format", "png", "--at", "3"]) == 2       # no mobility: refused
+    assert main(["plot", str(plain), "--format", "png", "--at", "3", "--out", str(tmp_path / "f")]) == 2
+    assert not (tmp_path / "f").exists()           # no mobility: refused before any figure
     assert main(["plot", str(moving), "--format", "png", "--at", str(K + 1)]) == 2
     assert main(["report", str(moving)]) == 0
     assert main(["report", str(plain)]) == 0

@@ -70,6 +70,8 @@ def plot_folder(folder: Folder, out_dir, formats=DEFAULT_FORMATS, components=Non
                 at=None) -> list[Path]:
     """Every figure a single folder supports, into ``out_dir`` (``at``: the ticks of
     ``network_over_time``, a run with ``mobility:`` only)."""
+    if at is not None and not has_mobility(folder):      # before any figure is written
+        raise DkfsimError(f"--at: {folder.path} is not a run with mobility: (no positions in run.npz)")
     out = Path(out_dir)
     written = []
     if folder.truth is not None:
@@ -84,7 +86,5 @@ def plot_folder(folder: Folder, out_dir, formats=DEFAULT_FORMATS, components=Non
     if has_mobility(folder):
         written += plot_network_over_time(folder, out / "network_over_time", formats, at)
         written += plot_topology_errors(folder, out / "topology_errors", formats, smooth)
-    elif at is not None:
-        raise DkfsimError(f"--at: {folder.path} is not a run with mobility: (no positions in run.npz)")
     return written
 
