@@ -142,10 +142,9 @@ class Mobility(StrictModel):
         """Node ``node``'s recorded SINR as a function of run seconds (``speed`` applied), or
         None when its trajectory records none (only a ``track`` does)."""
         traj = self.trajectory(node)
-        if not hasattr(traj, "sinr_db"):
+        if not hasattr(traj, "sinr_function"):
             return None
-        speed = float(self.speed)
-        return lambda t: traj.sinr_db(np.asarray([t * speed]))[0]
+        return traj.sinr_function(float(self.speed))
 
     def positions(self, n: int, K: int, T: float) -> np.ndarray:
         """Every vehicle's position (m) at ``t_k = k T``, ``k = 0 .. K``: ``(K + 1, n, 2)``."""

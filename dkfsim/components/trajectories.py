@@ -288,13 +288,33 @@ class RecordedTrack(TrajectoryParams):
         """The recorded SINR (dB) at run times ``t_s``: the last row at or before the
         vehicle's track time (the first row's before it).  Follows ``time_offset``
         (the drive's clock), not ``along``."""
-        t = run_times(t_s) - self.time_offset
+        times, values = self._sinr_series()
+        return _held(times, values, run_times(t_s) - self.time_offset)
+
+    def sinr_function(self, speed: float = 1.0):
+        """:meth:`sinr_db` at one run time ``t`` evaluated at ``speed * t``: the column is read
+        at the first call (a track that is never asked needs none) and kept, as a network asks
+        once per packet."""
+        series: list[tuple[np.ndarray, np.ndarray]] = []
+        offset = self.time_offset
+
+        def at(t: float):
+            if not series:
+                series.append(self._sinr_series())
+            times, values = series[0]
+            return _held(times, values, np.asarray([t * speed]) - offset)[0]
+        return at
+
+    def _sinr_series(self) -> tuple[np.ndarray, np.ndarray]:
         try:
-            times, values = sampled_column(self._path, self.time_column, self.sinr_column, self.time_unit)
+            return sampled_column(self._path, self.time_column, self.sinr_column, self.time_unit)
         except DataFileError as err:
             raise DkfsimError(f"trajectory track {self._path}: sinr_column: {err}") from None
-        idx = np.clip(np.searchsorted(times, t, side="right") - 1, 0, len(times) - 1)
-        return values[idx]
+
+
+def _held(times: np.ndarray, values: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """``values`` of the last sample at or before each ``t`` (the first one's before it)."""
+    return values[np.clip(np.searchsorted(times, t, side="right") - 1, 0, len(times) - 1)]
 
 
 def sampled_column(path, time_column: str, column: str, time_unit: str) -> tuple[np.ndarray, np.ndarray]:
