@@ -195,7 +195,7 @@ def _load_run(p: Path) -> Folder:
         if "rated_links" in z:
             E = npz_header(z, "rated_links", (None, 2)).shape[0]
             for key, shape in LINK_ARRAYS.items():
-                npz_header(z, key, tuple(K if s == "K" else E if s == "E" else s for s in shape))
+                npz_header(z, key, _dims(shape, K=K, E=E))
             link_keys = ["rated_links", *LINK_ARRAYS]
         mobility_keys = _check_mobility(z, summary, K)
         arrays = z.read(["t", "truth", *keys, *link_keys, *mobility_keys])
@@ -246,7 +246,7 @@ def _check_mobility(z: NpzFile, summary: dict, K: int) -> list[str]:
                           f"mobility.link_uptime has {len(record['link_uptime'])} rows")
     n = _nodes(summary)
     for key, shape in MOBILITY_ARRAYS.items():
-        npz_header(z, key, tuple(K if s == "K" else E if s == "E" else n if s == "n" else s for s in shape))
+        npz_header(z, key, _dims(shape, K=K, E=E, n=n))
     return ["mobility_links", *MOBILITY_ARRAYS]
 
 
@@ -319,3 +319,8 @@ def _load_montecarlo(p: Path) -> Folder:
                   components=comps, units=component_units(comps, kind), mse=mse, ci=ci, truth=truth,
                   examples=examples, node0=node0, n_runs=n_runs or 0, d_t=_d_t(summary), nees=nees,
                   nees_band=band, burn_in=summary.get("burn_in"), mse_ci95=ci95, stats=stats)
+
+
+def _dims(shape: tuple, **sizes) -> tuple:
+    """A shape template (``("K", "E")``, ``("E", 101)``) with its named sizes filled in."""
+    return tuple(sizes.get(s, s) if isinstance(s, str) else s for s in shape)
