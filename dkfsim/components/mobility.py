@@ -134,6 +134,11 @@ class Mobility(StrictModel):
                 raise custom_error(f"node {missing[0]} has no trajectory ({len(missing)} node(s) without one); "
                                    "give it one, or a 'default' trajectory", "mobility.vehicles")
 
+    @property
+    def rate_from_distance(self) -> bool:
+        """True when ``links.rate`` gives every topology link a rate from the pair's distance."""
+        return self.links is not None and self.links.rate is not None
+
     def trajectory(self, node: int) -> TrajectoryParams:
         """Node ``node``'s trajectory: its own entry, else the default."""
         return self.vehicles.get(str(node)) or self.vehicles["default"]

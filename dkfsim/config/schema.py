@@ -422,8 +422,7 @@ class Scenario(StrictModel):
                                               for i, ov in enumerate(self.links.overrides)]
         for key, link in places:
             spec = self.link_spec(*link) if link is not None else self.link_spec(-1, -1)
-            if spec.rate is None and not (self.mobility is not None and self.mobility.links is not None
-                                          and self.mobility.links.rate is not None):
+            if spec.rate is None and not (self.mobility is not None and self.mobility.rate_from_distance):
                 for what in ("queue", "background"):
                     if getattr(spec, what) is not None:
                         raise custom_error(f"a {what} acts through the link's transmitter, but the link "
