@@ -59,6 +59,7 @@ sys.path.insert(0, str(ROOT))
 import dkfsim  # noqa: E402
 from dkfsim.analysis.metrics import anees_consistent, nees_band, t_interval  # noqa: E402
 from dkfsim.analysis.paired import paired_block  # noqa: E402
+from dkfsim.core.folders import write_csv  # noqa: E402
 from dkfsim.experiments.montecarlo import Template, derive_seed, run_rows  # noqa: E402
 from dkfsim.report.tables import run_table  # noqa: E402
 
@@ -171,14 +172,8 @@ class Rows:
 
 def save_rows(path: Path, rows: Iterable[dict]) -> None:
     path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_suffix(".tmp")
-    with tmp.open("w", newline="") as f:
-        w = csv.writer(f, lineterminator="\n")
-        w.writerow(COLUMNS)
-        for r in rows:
-            w.writerow([repr(float(r[c])) if c not in ("run", "estimate", "component") else r[c]
-                        for c in COLUMNS])
-    tmp.replace(path)
+    write_csv(path, COLUMNS, ([r[c] if c in ("run", "estimate", "component") else float(r[c])
+                               for c in COLUMNS] for r in rows))
 
 
 def read_rows(path: Path) -> list[dict]:
