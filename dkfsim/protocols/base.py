@@ -81,10 +81,9 @@ class Wiring:
         self.came_up: dict[int, list[Link]] = {}
         for link in self.links:
             if link.up is not None and link.changes:
-                up = link.up
-                for k in range(1, len(up)):
-                    if up[k] and not up[k - 1]:
-                        self.came_up.setdefault(k, []).append(link)
+                up = np.frombuffer(link.up, dtype=np.uint8) != 0
+                for k in np.flatnonzero(up[1:] & ~up[:-1]) + 1:
+                    self.came_up.setdefault(int(k), []).append(link)
 
 
 def exchange_counts(late: int, late_per_node: list[int], logged: bool, duplicates: int,
