@@ -1,0 +1,112 @@
+"""The protocols on a shared channel (issue 22 §1, decisions 227-228): what each hands the port.
+
+Flood and the consensus family broadcast: one frame per sending node and instant, the same
+content to each of its out-links, the frame the size of one message (flood: of the union of what
+it relays).  The tree sends one combined frame per flush, each neighbour's own message behind one
+header (``PACKET_HEADER + sum(PART_HEADER + rows)``), and the message to ``j`` leaves out what
+came from ``j``.  The frames are recorded by wrapping :meth:`Port.send_frame`; the sizes and the
+contents are recomputed here from the packets, not read from the protocols.
+"""
+
+from __future__ import annotations
+
+from collections import defaultdict
+
+import pytest
+from conftest import run_scenario, scenario, tree_edges
+
+from dkfsim.network.links import Port
+from dkfsim.protocols.base import PACKET_HEADER, PART_HEADER, row_bytes
+
+
+@pytest.fixture
+def frames(monkeypatch):
+    """Every frame handed to a port: (port name, instant, frame bytes, parts)."""
+    log: list[tuple[str, int, int, list]] = []
+    original = Port.send_frame
+
+    def spy(self, parts, frame_bytes):
+        parts = list(parts)
+        log.append((self.name, self.env.now, frame_bytes, parts))
+        original(self, parts, frame_bytes)
+    monkeypatch.setattr(Port, "send_frame", spy)
+    return log
+
+
+def _out_links(sc):
+    """Each node's out-neighbours on the scenario's (undirected) topology."""
+    out = defaultdict(set)
+    for u, v in sc["topology"]["edges"]:
+        out[u].add(v)
+        out[v].add(u)
+    return out
+
+
+@pytest.mark.parametrize("kind", ["ci_consensus", "kcf", "diffusion_kf"])
+def test_consensus_broadcasts_one_frame_per_node_and_instant(kind, frames, monkeypatch):
+    """Every sub-slot instant, every node hands over exactly one frame: one part per out-link,
+    all the same message, the frame that message's size; the parts are the port's packets."""
+    monkeypatch.setenv("DKFSIM_EXCHANGE", "python")
+    sc = dict(scenario(6, edges=tree_edges(6, 51), steps=20), estimators=[{"kind": kind}])
+    r = run_scenario(sc)
+    out = _out_links(sc)
+    mine = [f for f in frames if f[0] == kind]
+    per_instant = defaultdict(list)
+    for _, now, size, parts in mine:
+        srcs = {link.src for link, _, _ in parts}
+        assert len(srcs) == 1
+        src = srcs.pop()
+        per_instant[now].append(src)
+        assert {link.dst for link, _, _ in parts} == out[src]
+        assert len({id(p) for _, p, _ in parts}) == 1          # one message, broadcast
+        assert {n for _, _, n in parts} == {size}
+    instants = sorted(per_instant)
+    assert len(instants) >= 20
+    for now in instants:
+        assert sorted(per_instant[now]) == list(range(6)), now      # once per node
+    assert sum(len(f[3]) for f in mine) == r.res.traffic[kind]["sent"]
+
+
+def test_flood_broadcasts_the_union_once(frames, monkeypatch):
+    """Flood: one frame per flush; its size is one header and the union of the parts' rows; no
+    part goes back to the neighbour its contributions came from (a leaf's relays are empty)."""
+    monkeypatch.setenv("DKFSIM_EXCHANGE", "python")
+    sc = scenario(6, edges=tree_edges(6, 51), steps=20, protocol="flood",
+                  latency={"model": "uniform_steps", "d_t": 2})
+    run_scenario(sc)
+    mine = [f for f in frames if f[0] == "anti_delay_dkf"]
+    rb = row_bytes(2, 6)
+    for _, now, size, parts in mine:
+        src = parts[0][0].src
+        assert all(link.src == src for link, _, _ in parts)
+        union: dict[int, int] = defaultdict(int)
+        for link, (seq, items), n in parts:
+            assert n == PACKET_HEADER + len(items) * rb
+            for row, mask in items:
+                union[row] |= mask
+        assert size == PACKET_HEADER + len(union) * rb
+    assert len(mine) > 0 and any(len(p) > 1 for _, _, _, p in mine)
+
+
+def test_tree_combines_each_neighbours_message(frames, monkeypatch):
+    """Tree: one frame per flush of a node, its size one header plus each part's own header and
+    rows; the message to ``j`` never carries ``j``'s own contribution, and the numbers of a
+    link's parts increase by one per packet."""
+    monkeypatch.setenv("DKFSIM_EXCHANGE", "python")
+    sc = scenario(6, edges=tree_edges(6, 51), steps=20, latency={"model": "uniform_steps", "d_t": 2})
+    run_scenario(sc)
+    mine = [f for f in frames if f[0] == "anti_delay_dkf"]
+    rb = row_bytes(2, 6)
+    last = defaultdict(int)
+    for _, now, size, parts in mine:
+        src = parts[0][0].src
+        assert all(link.src == src for link, _, _ in parts)
+        assert len({link.dst for link, _, _ in parts}) == len(parts)
+        assert size == PACKET_HEADER + sum(PART_HEADER + len(items) * rb for _, (_, items), _ in parts)
+        for link, (seq, items), n in parts:
+            assert n == PACKET_HEADER + len(items) * rb
+            assert seq == last[link.id] + 1
+            last[link.id] = seq
+            for _row, mask in items:
+                assert not mask >> link.dst & 1            # never j's own contribution back to j
+    assert any(len(p) > 1 for _, _, _, p in mine)
