@@ -84,6 +84,7 @@ class Run:
         self.ctx = RunContext(scenario=scenario, plan=plan, backend=self.backend, system=system, truth=truth, ys=ys,
                               info=system.information(ys), crashes=crashes, env=env, network=network)
         self.dkf = AntiDelayDKF(AntiDelayParams(), self.ctx, main=True)
+        self.ctx.dkf = self.dkf
         self.estimators = [self.dkf] + [ESTIMATORS.get(p.kind).implementation(p, self.ctx)
                                         for p in scenario.estimators]
         self.k = 0
