@@ -46,6 +46,7 @@ chain of zero-latency relays it starts, counts for tick ``k``.
 from __future__ import annotations
 
 from array import array
+from collections.abc import Sequence
 from typing import Any, Callable, Protocol, cast
 
 import numpy as np
@@ -70,6 +71,11 @@ PRIORITY_FUSE = NORMAL + 3
 #: Counters of a port, per link:
 #: ``sent + copies = delivered + lost + queue_dropped + crash_dropped + in_flight``.
 COUNTERS = ("sent", "delivered", "lost", "copies", "crash_dropped", "outage_lost", "bytes", "queue_dropped")
+
+#: The first per-link sequence number of a port that shares another's transmitters
+#: (:meth:`Network.port` ``share_with``): its keyed draws never equal the other port's, and
+#: adding it changes none of them.
+SHARED_SEQ0 = 1 << 32
 
 #: What a port hands its estimator: ``receive(link, payload)``.
 Receive = Callable[["Link", Any], None]
@@ -333,12 +339,13 @@ class Network:
         return link
 
     def port(self, name: str, receive: Receive | None, links: list[Link] | None = None,
-             until: int | None = None) -> Port:
+             until: int | None = None, share_with: Port | None = None) -> Port:
         """A new port for an estimator: ``receive(link, payload)`` gets its deliveries (None:
         its owner moves its packets itself and reports their counts, :meth:`Port.set_counts`);
         ``links`` are the links it reports on (default: those it uses); deliveries after
-        ``until`` ns (default: the run's last tick) stay in flight."""
-        p = Port(self, name, receive, links, until)
+        ``until`` ns (default: the run's last tick) stay in flight.  With ``share_with`` its
+        packets wait in that port's transmitters (:class:`Port`)."""
+        p = Port(self, name, receive, links, until, share_with)
         self.ports.append(p)
         return p
 
@@ -350,10 +357,16 @@ class Port:
     they were sent), not one event each: at an instant every delivery runs
     before the flushes and the tick update anyway (their priorities), so the
     order of a port's deliveries is all that matters, and that is kept.
+
+    A port made ``share_with`` another shares that port's transmitters (its packets wait in
+    the same queues, behind the other's and the background) but keeps its own counters, its
+    own receiver and its own keyed sequence space: its per-link sequence numbers start at
+    :data:`SHARED_SEQ0`, so its draws never equal the other port's, and adding it changes
+    none of the other port's draws (it can change their queueing, which is the point).
     """
 
     def __init__(self, network: Network, name: str, receive: Receive | None, links: list[Link] | None = None,
-                 until: int | None = None):
+                 until: int | None = None, share_with: Port | None = None):
         self.net = network
         self.env = network.env
         self.name = name
@@ -367,10 +380,12 @@ class Port:
         self._grow()
         self._instant = -1
         self._seq: dict[int, int] = {}
+        #: the first per-link sequence number at an instant (:data:`SHARED_SEQ0` when sharing)
+        self._seq0 = 0 if share_with is None else SHARED_SEQ0
         #: arrival instant (ns) -> [link, payload, link, payload, ...] still to deliver
         self._due: dict[int, list[Any]] = {}
         #: link id -> transmitter of a rate-limited link (the network's when shared)
-        shared = network.shared_transmitters
+        shared = network.shared_transmitters if share_with is None else share_with._tx
         self._tx: dict[int, Transmitter] = shared if shared is not None else {}
         #: link id -> the link's statistics as its owner reported them (:meth:`set_link_stats`)
         self._stats: dict[int, dict[str, Any]] = {}
@@ -392,7 +407,7 @@ class Port:
         if now != self._instant:
             self._instant, self._seq = now, {}
         lid = link.id
-        seq = self._seq.get(lid, 0)
+        seq = self._seq.get(lid, self._seq0)
         self._seq[lid] = seq + 1
         count = self._count
         if lid >= len(count["sent"]):
@@ -415,6 +430,16 @@ class Port:
             self._enqueue(now, lat, link, payload)
             return
         self._fly(now, 0, link, seq, payload)
+
+    def send_frame(self, parts: Sequence[tuple[Link, Any, int]], frame_bytes: int) -> None:  # noqa: ARG002
+        """Hand one frame now carrying ``parts``, each ``(link, payload, nbytes)``, all links
+        from one sender; ``frame_bytes`` is the frame's size (a broadcast of one message of
+        ``n`` bytes to ``k`` neighbours: ``k`` parts of ``n`` and a frame of ``n``; a combined
+        frame of different messages: the sum of their sizes).  Each part is counted on its link
+        (``sent``, ``bytes`` += its ``nbytes``).  Without a shared channel: each part is sent on
+        its own link, :meth:`send`."""
+        for link, payload, nbytes in parts:
+            self.send(link, payload, nbytes)
 
     def _fly(self, now: int, wait: int, link: Link, seq: int, payload: Any) -> None:
         """A packet handed over ``now`` and leaving the sender ``wait`` ns later: its fate
@@ -514,7 +539,7 @@ class Port:
         tx = self._transmitter(link)
         tx.advance(self.until if self.until is not None else self.env.now)
         parts = [tx.log()]
-        ports = self.net.ports if self.net.shared_transmitters is not None else [self]
+        ports = [p for p in self.net.ports if p._tx is self._tx] if self in self.net.ports else [self]
         for port in ports:
             own = port.own_log(link)
             if own is not None and len(own):
