@@ -32,7 +32,7 @@ import numpy as np
 from simpy.events import Event
 
 from dkfsim.components.estimators import FusionCentreParams
-from dkfsim.core.resources import B_FLOAT, C_FUSION_ROW, C_FLOP, C_NODE_ROW, C_PACKET, C_ROW, C_TICK, Cost
+from dkfsim.core.resources import B_FLOAT, C_FLOP, C_FUSION_ROW, C_NODE_ROW, C_PACKET, C_ROW, C_TICK, Cost
 from dkfsim.estimators.base import Estimate, Estimator, EstimatorResult
 from dkfsim.estimators.fusion import FUSERS, CrossCovariance
 from dkfsim.estimators.window import WindowFilter
@@ -155,7 +155,9 @@ class FusionCentre(Estimator, params=FusionCentreParams):
         net = ctx.network
         self.out: list[Link | None] = [net.link(i, int(h)) if h >= 0 else None for i, h in enumerate(self.hop)]
         links = [l for l in self.out if l is not None]
-        self.port = net.port(self.name, self.receive, links)
+        # Through the DKF's transmitters (and channel): the centre's load is part of the DKF's
+        # cost; its own counters and keyed draws (sequence numbers from 1 << 32).
+        self.port = net.port(self.name, self.receive, links, share_with=dkf.port)
         self.x = np.empty((K, nx))
         self.P = np.empty((K, nx, nx))
         self.k = 0
