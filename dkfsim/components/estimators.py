@@ -80,6 +80,29 @@ class NoBufferParams(EstimatorParams, kind="no_buffer"):
 
 
 
+class FusionCentreParams(EstimatorParams, kind="fusion_centre"):
+    """The DKF's fusion at one node: every node's estimate reaches it hop by hop over the network."""
+
+    #: The node (index, 0-based) where the centre runs; the nodes' packets are relayed to it
+    #: over the scenario's DKF exchange graph, through the DKF's own queues.
+    at: Annotated[int, Field(strict=True, ge=0)]
+
+    def check(self, scenario) -> None:
+        if self.at >= scenario.n:
+            raise custom_error(f"node {self.at} does not exist: the scenario has {scenario.n} nodes "
+                               f"(0 .. {scenario.n - 1})", "at")
+        if scenario.fusion == "none":
+            raise custom_error("a fusion centre fuses the scenario's DKF, which runs with 'fusion: none' "
+                               "(set fusion: matrix or diagonal)", "kind")
+
+    def check_plan(self, plan) -> None:
+        """Cross-checks against what the scenario implies (the run's plan)."""
+        if plan.graph_changes:
+            raise custom_error("a fusion centre needs a graph that does not change (here mobility: takes "
+                               "links down): its packets are routed over the exchange graph once "
+                               "(docs/decisions.md #219)", "kind")
+
+
 def buffer_length_value(value: Any) -> Any:
     """A ``buffer_length`` (the scenario's, or an anti-delay DKF instance's; None: unset):
     ``'auto'``, ``'paper'`` or an integer >= 1 (a ``BeforeValidator``)."""

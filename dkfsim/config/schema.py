@@ -288,10 +288,12 @@ class Scenario(StrictModel):
                 raise custom_error(f"the name {p.label!r} is taken ({taken[p.label]}); give it "
                                    "another name", f"estimators.{i}.name" if p.name else f"estimators.{i}")
             taken[p.label] = f"estimators.{i}"
-            check = getattr(p, "check", None)
-            if check is not None:
+            checks = [getattr(p, "check", None), getattr(p, "check_plan", None)]
+            for check, arg in zip(checks, (self, plan)):
+                if check is None:
+                    continue
                 try:
-                    check(self)
+                    check(arg)
                 except PydanticCustomError as err:
                     ctx = err.context or {}
                     key = f"estimators.{i}" + (f".{ctx['key']}" if ctx.get("key") else "")

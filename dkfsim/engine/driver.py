@@ -47,11 +47,13 @@ from dkfsim.protocols import tree_compiled
 def run_backend(plan: RunPlan, network: Network, crashes: CrashSchedule | None) -> Backend:
     """The backend of a run: what the environment asks for (:meth:`Backend.from_environment`),
     with the Python exchange where the compiled one cannot run (a protocol without a compiled
-    twin, a link it cannot draw, crash windows, transmitters shared between estimators)."""
+    twin, a link it cannot draw, crash windows, transmitters shared between estimators, a
+    ``fusion_centre`` whose packets wait in the DKF's rate-limited queues: decision 221)."""
     backend = Backend.from_environment()
     if backend.compiled_exchange:
         links = [network.link(u, v) for u, v in plan.exchange_arcs]
-        shared = network.shared_transmitters is not None and plan.rate_limited
+        centre = any(p.kind == "fusion_centre" for p in plan.scenario.estimators)
+        shared = (network.shared_transmitters is not None or centre) and plan.rate_limited
         if shared or not tree_compiled.usable(plan.protocol, links, crashes):
             backend = backend.python_exchange()
     return backend
@@ -84,6 +86,7 @@ class Run:
         self.ctx = RunContext(scenario=scenario, plan=plan, backend=self.backend, system=system, truth=truth, ys=ys,
                               info=system.information(ys), crashes=crashes, env=env, network=network)
         self.dkf = AntiDelayDKF(AntiDelayParams(), self.ctx, main=True)
+        self.ctx.dkf = self.dkf
         self.estimators = [self.dkf] + [ESTIMATORS.get(p.kind).implementation(p, self.ctx)
                                         for p in scenario.estimators]
         self.k = 0

@@ -10,6 +10,7 @@ from dkfsim.estimators import (  # noqa: F401
                                centralized_delayed,
                                ci_consensus,
                                diffusion_kf,
+                               fusion_centre,
                                hcmci,
                                icf,
                                kcf,

@@ -94,6 +94,9 @@ class RunContext:
     env: simpy.Environment
     #: The links of the run, shared by every estimator (open a port with ``network.port``).
     network: Network
+    #: The scenario's own anti-delay DKF (set by the engine before any ``start``): what a
+    #: fusion centre fuses.  None outside a run.
+    dkf: Any = None
 
     @property
     def save(self) -> SaveMode:

@@ -64,6 +64,9 @@ from dkfsim.network.transmitter import BackgroundArrivals, Transmitter, backgrou
 PRIORITY_DELIVER = NORMAL
 PRIORITY_FLUSH = NORMAL + 1
 PRIORITY_UPDATE = NORMAL + 2
+#: A fusion centre fuses the tick's row after the update, its packets and their zero-latency
+#: relays (docs/design.md §2).
+PRIORITY_FUSE = NORMAL + 3
 
 #: Counters of a port, per link:
 #: ``sent + copies = delivered + lost + queue_dropped + crash_dropped + in_flight``.

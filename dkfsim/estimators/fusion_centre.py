@@ -1,0 +1,275 @@
+"""``fusion_centre``: the DKF's fusion run at one node, fed over the network (issue 22 §2).
+
+The idealised ``fused`` estimate combines every node's estimate at the instant it is
+computed, with no packets.  A fusion centre at node ``at`` does the same from what reaches
+it: right after the scenario's DKF computes row ``r = k-1`` at tick ``k``, every other node
+sends the centre its estimate ``x_i[r]`` and its held-origin masks of the last ``W = L + M``
+rows (its window, and the last ``M`` final rows; ``M = L``), plus the information matrix
+``omega_o[row]`` of each measurement-dependent origin (a radar) it holds and has not carried
+before.  Packets are relayed hop by hop along a shortest path of the DKF's exchange graph,
+through the DKF's own transmitters and channel (docs/design.md §7, "The fusion centre").
+
+The centre keeps each node's newest estimate (an older one arriving later is ignored) and a
+*shadow* of the nodes' covariance recursion: a :class:`~dkfsim.model.holdings.Holdings`,
+:class:`~dkfsim.estimators.window.WindowFilter` and
+:class:`~dkfsim.estimators.fusion.CrossCovariance` of buffer length ``W``, fed with the masks
+the packets carried (never the measurements: the shadow's information vectors are zero, and a
+radar's ``omega`` is known only for entries a packet carried).  A node whose newest estimate is
+of an older row ``r_i`` enters as ``Phi^(r - r_i) x_i``: that node's filter with empty holdings
+for the later rows, which is what the shadow runs for it, so the fusion of design §7 is exact
+for what the centre holds.  When the shadow must make a row final before it knows that node's
+final holdings of it (more than ``M`` ticks without a packet), the node leaves the fusion for
+the rest of the run (``nodes_excluded``; docs/decisions.md #220).  The centre fuses row ``k-1``
+in an event of priority :data:`~dkfsim.network.links.PRIORITY_FUSE`, after the packets sent at
+the update and their zero-latency relays: at zero latency and no rate limit it equals ``fused``.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+from simpy.events import Event
+
+from dkfsim.components.estimators import FusionCentreParams
+from dkfsim.core.resources import B_FLOAT, C_FLOP, C_FUSION_ROW, C_NODE_ROW, C_PACKET, C_ROW, C_TICK, Cost
+from dkfsim.estimators.base import Estimate, Estimator, EstimatorResult
+from dkfsim.estimators.fusion import FUSERS, CrossCovariance
+from dkfsim.estimators.window import WindowFilter
+from dkfsim.model.holdings import Holdings
+from dkfsim.model.system import Information
+from dkfsim.network.links import PRIORITY_FUSE, Link, Port, Scheduled
+from dkfsim.protocols.base import PACKET_HEADER
+
+
+def next_hops(arcs: list[tuple[int, int]], n: int, at: int) -> np.ndarray:
+    """Each node's next hop toward ``at`` on a shortest path over the directed ``arcs`` (the
+    lowest-index neighbour among equals; a breadth-first search from ``at`` over the reversed
+    arcs); -1 for ``at`` itself and for a node that cannot reach it."""
+    into: list[list[int]] = [[] for _ in range(n)]
+    for u, v in arcs:
+        into[v].append(u)
+    dist = np.full(n, -1, dtype=np.intp)
+    dist[at] = 0
+    frontier = [at]
+    while frontier:
+        nxt = []
+        for v in frontier:
+            for u in into[v]:
+                if dist[u] < 0:
+                    dist[u] = dist[v] + 1
+                    nxt.append(u)
+        frontier = nxt
+    hop = np.full(n, -1, dtype=np.intp)
+    for u, v in sorted(arcs):
+        if u != at and dist[u] > 0 and dist[v] == dist[u] - 1 and hop[u] < 0:
+            hop[u] = v
+    return hop
+
+
+def packet_bytes(nx: int, n: int, rows: int, omegas: int) -> int:
+    """Nominal bytes of a node's packet to the centre: header, row number, the estimate,
+    ``rows`` origin masks and the upper triangles of ``omegas`` carried ``omega`` matrices."""
+    return PACKET_HEADER + 8 + 8 * nx + rows * (-(-n // 8)) + omegas * 8 * (nx * (nx + 1) // 2)
+
+
+def _bits(mask: np.ndarray) -> int:
+    """A boolean origin vector as the int bitmask :meth:`Holdings.add` takes."""
+    return int.from_bytes(np.packbits(mask, bitorder="little").tobytes(), "little")
+
+
+class FusionCentre(Estimator, params=FusionCentreParams):
+    """The scenario DKF's matrix-weighted fusion at node ``at``, from packets only."""
+
+    #: Its packets and their nominal sizes (bytes; docs/estimators.md, "Packet sizes").
+    packets = ("one per node but `at` and tick, relayed hop by hop to `at`: 16-byte header + 8 (row) "
+               "+ 8 nx (the estimate) + W ceil(n/8) (held-origin masks of the last W = 2L rows) "
+               "+ 8 nx(nx+1)/2 per measurement-dependent omega carried the first time")
+
+    params: FusionCentreParams
+    port: Port
+
+    def __init__(self, params: FusionCentreParams, ctx):
+        super().__init__(params, ctx)
+        self.at = int(params.at)
+        #: optional log for tests: per fuse ``(k, newest, excluded, known masks of the
+        #: shadow's rows k-W .. k-1, Xi of row k-1)``; None: not kept
+        self.log: list[tuple] | None = None
+
+    @classmethod
+    def cost(cls, params, plan) -> Cost:
+        sc = plan.scenario
+        n, nx, K = sc.n, sc.nx, int(sc.steps)
+        L, _ = plan.buffer_length_bound(plan.dkf().buffer_length)
+        W = 2 * L
+        S, N = min(W, K) + 1, n * nx
+        c = Cost(params.label)
+        c.seconds = K * (C_TICK + min(W, K) * (C_ROW + n * C_NODE_ROW + C_FUSION_ROW) + 2 * n * C_PACKET
+                         + N ** 3 * C_FLOP)
+        c.memory["fusion centre"] = (S * (N * N + n * (2 * nx + 3 * nx * nx)) * B_FLOAT + 3 * S * n * n
+                                     + K * n * nx * B_FLOAT + K * (nx + nx * nx) * B_FLOAT)
+        return c
+
+    # -- running -------------------------------------------------------------------
+    def start(self) -> None:
+        ctx = self.ctx
+        dkf = ctx.dkf
+        if dkf is None or dkf.xcov is None:        # (validation refuses fusion: none)
+            raise RuntimeError("a fusion centre needs the scenario's DKF with its fusion")
+        self.dkf = dkf
+        sys_, K, n, nx = ctx.system, ctx.K, ctx.n, ctx.nx
+        self.Phi = sys_.Phi
+        self.L = L = int(dkf.L)
+        self.M = L                                    # the margin of final rows a packet repeats
+        self.W = W = L + self.M
+        self.fuser = FUSERS[dkf.fusion]
+        info = ctx.info
+        # Which origins' information depends on the measurement (radar): only entries a packet
+        # carried are known to the centre.  Linear sensors' omega is the model's.
+        self.varying = np.array([info.varying and getattr(s, "convert", None) is not None
+                                 for s in sys_.sensors], dtype=bool)
+        self.cols = [np.flatnonzero(info.column_sensor == o) for o in range(n)]
+        omega, factor = info.omega, info.factor
+        if self.varying.any():
+            omega, factor = omega.copy(), factor.copy()
+            omega[:, self.varying] = 0.0
+            for o in np.flatnonzero(self.varying):
+                factor[:, :, self.cols[o]] = 0.0
+        self.info = Information(theta=np.zeros_like(info.theta), omega=omega, factor=factor,
+                                column_sensor=info.column_sensor)
+        #: (K, n): the centre has origin o's omega of row r (always for a linear sensor)
+        self.have_omega = np.broadcast_to(~self.varying, (K, n)).copy()
+        self.holdings = Holdings(self.info, dkf.A, W, per_origin=True, backend=ctx.backend)
+        self.window = WindowFilter(sys_.Phi, sys_.Q, sys_.x0_mean, sys_.P0, self.holdings, ctx.backend)
+        self.xcov = CrossCovariance(self.window, sys_.P0)
+        S = self.holdings.S
+        #: what the centre knows node i holds of each shadow row (folded or pending)
+        self.known = np.zeros((S, n, n), dtype=bool)
+        self.newest = np.full(n, -1, dtype=np.int64)
+        self.x_newest = np.broadcast_to(np.asarray(sys_.x0_mean, float), (n, nx)).copy()
+        self.excluded = np.zeros(n, dtype=bool)
+        # The senders' side: what each node held of the last W rows, what omegas it carried.
+        self.sent_held = np.zeros((W, n, n), dtype=bool)
+        self.carried = np.zeros((W, n, n), dtype=bool)
+        self.hop = next_hops(ctx.plan.exchange_arcs, n, self.at)
+        net = ctx.network
+        self.out: list[Link | None] = [net.link(i, int(h)) if h >= 0 else None for i, h in enumerate(self.hop)]
+        links = [l for l in self.out if l is not None]
+        # Through the DKF's transmitters (and channel): the centre's load is part of the DKF's
+        # cost; its own counters and keyed draws (sequence numbers from 1 << 32).
+        self.port = net.port(self.name, self.receive, links, share_with=dkf.port)
+        self.x = np.empty((K, nx))
+        self.P = np.empty((K, nx, nx))
+        self.k = 0
+        self.received = self.ignored = self.stale_rows = 0
+
+    def on_measure(self, row: int) -> None:
+        self.holdings.open_row(row)
+        self.known[row % self.holdings.S] = False
+        self.carried[row % self.W] = False
+
+    def on_update(self, k: int) -> None:
+        """Every node sends its estimate of row ``k-1`` (the DKF has just computed it)."""
+        self.k = k
+        r = k - 1
+        W, n, nx = self.W, self.ctx.n, self.ctx.nx
+        held = self.dkf.holdings.held
+        Sd = held.shape[0]
+        for s in range(max(r - self.L + 1, 0), r + 1):     # the DKF's window as of this tick
+            self.sent_held[s % W] = held[s % Sd]
+        lo = max(r - W + 1, 0)
+        idx = np.arange(lo, r + 1) % W
+        masks = self.sent_held[idx]                          # (rows, n, n)
+        x = self.dkf.x_local[r]
+        vary = self.varying.any()
+        for i in range(n):
+            entries: list[tuple[int, int, np.ndarray, np.ndarray]] = []
+            if vary:
+                new = masks[:, i] & self.varying & ~self.carried[idx, i]
+                if new.any():
+                    self.carried[idx, i] |= new
+                    info = self.ctx.info
+                    for j, o in zip(*np.nonzero(new)):
+                        row = lo + int(j)
+                        entries.append((row, int(o), info.omega[row, o], info.factor[row][:, self.cols[o]]))
+            nbytes = packet_bytes(nx, n, len(idx), len(entries))
+            payload = (i, r, x[i].copy(), lo, masks[:, i].copy(), entries, nbytes)
+            if i == self.at:
+                self.accept(payload)
+            elif self.out[i] is not None:
+                self.port.send(self.out[i], payload, nbytes)
+        Scheduled(self.ctx.env, self._fuse, PRIORITY_FUSE)
+
+    def receive(self, link: Link, payload: Any) -> None:
+        """A packet reaches ``link.dst``: the centre takes it, a relay forwards it at once."""
+        node = link.dst
+        if node == self.at:
+            self.received += 1
+            self.accept(payload)
+            return
+        out = self.out[node]
+        if out is not None:
+            self.port.send(out, payload, payload[-1])
+
+    def accept(self, payload: tuple) -> None:
+        """Node ``i``'s estimate of ``row`` and its holdings, into the centre's state."""
+        i, row, x, lo, masks, entries, _ = payload
+        if self.excluded[i] or row <= self.newest[i]:
+            self.ignored += 1                    # older than what the centre has, or left out
+            return
+        for r_e, o, om, fac in entries:
+            self.info.omega[r_e, o] = om
+            self.info.factor[r_e][:, self.cols[o]] = fac
+            self.have_omega[r_e, o] = True
+        T_ns = self.ctx.T_ns
+        k_now = -(-int(self.ctx.env.now) // T_ns)      # the tick this instant belongs to
+        first = max(lo, k_now - self.W)                # shadow rows that can still change
+        S = self.holdings.S
+        for s in range(first, row + 1):
+            m = masks[s - lo]
+            new = m & ~self.known[s % S, i]
+            if not new.any():
+                continue
+            if not self.have_omega[s, new].all():      # a radar's omega this centre never got
+                self.excluded[i] = True
+                return
+            self.known[s % S, i] |= new
+            self.holdings.add(i, _bits(new), s)
+        self.newest[i] = row
+        self.x_newest[i] = x
+
+    def _fuse(self, _event: Event) -> None:
+        k = self.k
+        r = k - 1
+        done = k - self.W                 # the shadow's row that becomes final now
+        if done >= 0:
+            # a node whose final holdings of that row the centre does not know leaves the fusion
+            self.excluded |= (self.newest + 1 - self.L) < done
+        self.window.update(k, on_rows=self.xcov.on_rows)
+        Xi = self.xcov.Xi[r % self.holdings.S]
+        xs = self.x_newest.copy()
+        use = ~self.excluded
+        for i in np.flatnonzero((self.newest < r) & use):
+            self.stale_rows += 1
+            for _ in range(r - int(self.newest[i])):
+                xs[i] = self.Phi @ xs[i]
+        if use.all():
+            self.x[r], self.P[r] = self.fuser(Xi, xs)
+        else:
+            sel = np.flatnonzero(use)
+            self.x[r], self.P[r] = self.fuser(_sub(Xi, sel, self.ctx.nx), xs[sel])
+        if self.log is not None:
+            idx = np.arange(max(k - self.W, 0), k) % self.holdings.S
+            self.log.append((k, self.newest.copy(), self.excluded.copy(), self.known[idx].copy(), Xi.copy()))
+
+    def finish(self) -> EstimatorResult:
+        facts = {"packets_received": self.received, "packets_ignored": self.ignored,
+                 "stale_rows_used": self.stale_rows, "nodes_excluded": int(self.excluded.sum()),
+                 "at": self.at, "rows_carried": self.W}
+        return EstimatorResult({self.name: Estimate(self.x, self.P)}, traffic=self.port.counts(), facts=facts)
+
+
+def _sub(Xi: np.ndarray, nodes: np.ndarray, nx: int) -> np.ndarray:
+    """The cross-covariances of ``nodes`` only."""
+    idx = (nodes[:, None] * nx + np.arange(nx)).reshape(-1)
+    return Xi[np.ix_(idx, idx)]
