@@ -21,6 +21,8 @@ Two kinds of generator:
   a study's blocks are computed from are kept in ``docs/numbers/<study>.csv``; the drift test
   renders the blocks from those rows (normal suite) and, in its slow tier, re-runs runs 0 and 1
   of each study and checks they equal the stored rows.
+* ``channel`` (docs/channel.md): ``scenarios/sweep_channel.yaml``, one study per channel rate
+  (its stored rows keep ``lost`` and ``bytes_per_tick`` too), like ``sweep``.
 * ``radar`` (docs/radar.md, docs/figures.md): 200 runs of 21 ticks, recomputed whole by the
   slow tier (``--check`` recomputes it only when named in ``--only``); ``mobility``
   (docs/mobility.md: the shipped mobility scenarios, the range sweep and the range x speed
@@ -170,10 +172,10 @@ class Rows:
         return p["mse_ratio"][component], lo, hi
 
 
-def save_rows(path: Path, rows: Iterable[dict]) -> None:
+def save_rows(path: Path, rows: Iterable[dict], columns: tuple[str, ...] = COLUMNS) -> None:
     path.parent.mkdir(parents=True, exist_ok=True)
-    write_csv(path, COLUMNS, ([r[c] if c in ("run", "estimate", "component") else float(r[c])
-                               for c in COLUMNS] for r in rows))
+    write_csv(path, columns, ([r[c] if c in ("run", "estimate", "component") else float(r[c])
+                               for c in columns] for r in rows))
 
 
 def read_rows(path: Path) -> list[dict]:
@@ -190,6 +192,8 @@ class Study:
     scenario: str
     overrides: tuple[str, ...]
     runs: int
+    #: the columns of ``runs.csv`` it stores (a study may keep more than :data:`COLUMNS`)
+    columns: tuple[str, ...] = COLUMNS
 
     def load(self):
         return dkfsim.load_scenario(ROOT / self.scenario, overrides=list(self.overrides))
@@ -201,7 +205,7 @@ class Study:
 
     def compute(self, jobs: int) -> list[dict]:
         res = dkfsim.montecarlo(self.load(), self.runs, jobs=jobs, yes=True)
-        return [{c: r[c] for c in COLUMNS} for r in res.rows]
+        return [{c: r[c] for c in self.columns} for r in res.rows]
 
     def spot(self, runs: Iterable[int] = SPOT_RUNS) -> list[dict]:
         """Runs ``runs`` alone (run r is the same run whatever ``--runs``), as stored."""
@@ -210,7 +214,7 @@ class Study:
         out = []
         for r in runs:
             rows, _ = run_rows(tpl, derive_seed(sc.seed, r), curves=False)
-            out += [{**{c: row[c] for c in COLUMNS}, "run": r} for row in rows]
+            out += [{**{c: row[c] for c in self.columns}, "run": r} for row in rows]
         return out
 
     @property
@@ -519,6 +523,53 @@ def render_mobility() -> dict[str, str]:
             "mobility-speed": mobility_table.speed_table()}
 
 
+# --------------------------------------------------------------------------- the channel sweep
+CHANNEL_FILE = "scenarios/sweep_channel.yaml"
+#: the channel sweep's estimates, in the table's order (those a run has)
+CHANNEL_ESTIMATES = ("fused", "fusion_centre", "centralized", "centralized_delayed", *CONSENSUS_FAMILY[:-1])
+
+
+def channel_studies() -> tuple[Study, ...]:
+    """One study per channel rate of ``scenarios/sweep_channel.yaml`` (run r of a grid point is
+    run r of ``dkfsim sweep``), keeping ``lost`` (collisions: the scenario loses nothing else)
+    and ``bytes_per_tick`` beside the usual columns."""
+    spec = yaml.safe_load((ROOT / CHANNEL_FILE).read_text())
+    (key, values), = spec["grid"].items()
+    scenario = str((Path(CHANNEL_FILE).parent / spec["scenario"]).as_posix())
+    return tuple(Study(f"sweep_channel_{float(v):g}", scenario, (*spec.get("set", []), f"{key}={v}"),
+                       int(spec["runs"]), (*COLUMNS, "lost", "bytes_per_tick")) for v in values)
+
+
+CHANNEL = channel_studies()
+
+
+def rate_label(bits: float) -> str:
+    return f"{bits / 1e6:g} Mbit/s" if bits >= 1e6 else f"{bits / 1e3:g} kbit/s"
+
+
+def render_channel(rows: dict[str, Rows]) -> dict[str, str]:
+    """docs/channel.md's table: position MSE per channel rate and estimate, and per run the
+    collisions and late items of the DKF and the fusion centres."""
+    points = [rows[s.name] for s in CHANNEL]
+    rates = [float(s.overrides[-1].split("=")[1]) for s in CHANNEL]
+    first = points[0]
+    names = [n for n in CHANNEL_ESTIMATES if n in first.estimates]
+    lines = ["```", f".venv/bin/dkfsim sweep {CHANNEL_FILE} --jobs 1 --db out/channel.sqlite", "```", "",
+             f"Position MSE, mean and 95 % t-interval over {first.runs} runs of "
+             f"{CHANNEL[0].load().steps} ticks per channel rate:", "",
+             "| estimate | " + " | ".join(rate_label(r) for r in rates) + " |",
+             "|---" * (len(rates) + 1) + "|"]
+    for name in names:
+        lines.append(f"| `{name}` | " + " | ".join(interval(r.col(name, "mse", "position"))
+                                                    for r in points) + " |")
+    counted = [n for n in ("fused", "fusion_centre", "centralized_delayed", "ci_consensus") if n in names]
+    for label, key in (("frames lost in collisions per run", "lost"), ("late items per run", "late"),
+                       ("messages per tick", "messages_per_tick")):
+        for name in counted:
+            lines.append(f"| `{name}`: {label} | " + " | ".join(f"{r.mean(name, key):.4g}" for r in points) + " |")
+    return {"channel-table": "\n".join(lines)}
+
+
 GENERATORS = (
     Generator("quickstart", ("quickstart", "quickstart-reading"), render_quickstart, cheap=True),
     Generator("paper", ("fig4", "fig5", "fig6"), render_paper, PAPER),
@@ -528,6 +579,7 @@ GENERATORS = (
     Generator("sweep", ("sweep-table", "sweep-reading"), render_sweep, SWEEP),
     Generator("radar", ("radar-table", "radar-summary", "radar-reading"), render_radar),
     Generator("mobility", ("mobility-scenarios", "mobility-range", "mobility-speed"), render_mobility),
+    Generator("channel", ("channel-table",), render_channel, CHANNEL),
 )
 
 
@@ -542,7 +594,7 @@ def compute(gen: Generator, jobs: int) -> dict[str, str]:
         return gen.render()
     for study in gen.studies:
         print(f"  {study.name}: {study.runs} runs", flush=True)
-        save_rows(study.path, study.compute(jobs))
+        save_rows(study.path, study.compute(jobs), study.columns)
     return stored(gen)
 
 
