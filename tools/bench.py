@@ -34,6 +34,11 @@
    without these keys, both on the backend's defaults (the compiled tree on the numba path),
    alternated in this process, min of ``--repeats``; the issue asks at most 2x.
    ``--traffic-only`` runs this line alone.
+9. A shared channel (issue 22): ``scenarios/channel_its_g5.yaml`` (every estimator on one
+   CSMA channel with background, the Python exchange) against the same scenario without
+   ``medium:``, on the backend's defaults (the compiled tree) and on the Python exchange,
+   alternated in this process, min of ``--repeats``; the issue asks at most 2x.
+   ``--channel-only`` runs this line alone.
 
 Before/after (``--base REF``): the runs of sections 1, 2 and 4 that exercise the kernels
 (paper_case1 on the three kernel paths, a 50-node tree with matrix fusion, a 200-node tree
@@ -44,7 +49,7 @@ the same kind) and the ratio this / base.  Nothing else runs in that mode.
 
 Usage: ``python tools/bench.py [--ticks 1000] [--sizes 12 50 200] [--fit-sizes 12 50 200 1000]
 [--skip-sweep] [--big-ticks 200] [--skip-threads] [--skip-executors] [--skip-traffic]``,
-``python tools/bench.py --traffic-only [--ticks 1000] [--repeats 3]``, or
+``python tools/bench.py --traffic-only [--ticks 1000] [--repeats 3]`` (``--channel-only`` likewise), or
 ``python tools/bench.py --base REF [--repeats 3]``.
 Timing lives here, never in the tests.
 """
@@ -242,6 +247,49 @@ def print_traffic_cost(ticks: int, repeats: int) -> None:
           f"({t['rated_sent']} packets, exchange '{t['exchange']}')   ratio {t['ratio']:.2f} x (issue: <= 2)")
 
 
+def channel_cost(ticks: int, repeats: int) -> dict:
+    """Section 9: CPU seconds of ``scenarios/channel_its_g5.yaml`` (every estimator on the shared
+    channel, the Python exchange) against the same scenario without ``medium:``, once on the
+    backend's defaults (the compiled tree on the numba path) and once with the Python exchange
+    (the same protocol code as the channel run); each warmed up once, then alternated
+    ``repeats`` times in this process; the min of each and the ratios."""
+    import yaml
+    path = ROOT / "scenarios" / "channel_its_g5.yaml"
+    spec = yaml.safe_load(path.read_text())
+    spec.pop("medium")
+    channel = dkfsim.load_scenario(path, overrides=[f"steps={ticks}"])
+    plain = dkfsim.load_scenario(spec, overrides=[f"steps={ticks}"])
+    runs = {"channel": (channel, None), "plain": (plain, None), "plain_python": (plain, "python")}
+
+    def one(sc, exchange):
+        return timed_with(sc, EXCHANGE_ENV, exchange) if exchange else timed(sc)
+    for sc, exchange in runs.values():                # kernels compiled or loaded: not counted
+        one(dkfsim.load_scenario(sc, overrides=["steps=20"]), exchange)
+    cpu: dict[str, list[float]] = {name: [] for name in runs}
+    last = {}
+    for _ in range(max(1, repeats)):
+        for name, (sc, exchange) in runs.items():
+            _, c, last[name] = one(sc, exchange)
+            cpu[name].append(c)
+    out: dict = {name: min(v) for name, v in cpu.items()}
+    out["ratio"] = out["channel"] / out["plain"]
+    out["ratio_python"] = out["channel"] / out["plain_python"]
+    out.update({f"{name}_exchange": r.info["backend"]["exchange"] for name, r in last.items()})
+    out["channel_sent"] = last["channel"].counts["sent"]
+    return out
+
+
+def print_channel_cost(ticks: int, repeats: int) -> None:
+    t = channel_cost(ticks, repeats)
+    print(f"a shared channel (issue 22): scenarios/channel_its_g5.yaml, {ticks} ticks, every estimator, "
+          f"against the same scenario without medium:; CPU s, min of {repeats} alternated")
+    print(f"  without medium {t['plain']:8.3f} s (exchange '{t['plain_exchange']}'), "
+          f"{t['plain_python']:8.3f} s (exchange '{t['plain_python_exchange']}')   "
+          f"channel {t['channel']:8.3f} s (exchange '{t['channel_exchange']}', {t['channel_sent']} packets)")
+    print(f"  ratio {t['ratio']:.2f} x against the default path (issue: <= 2), "
+          f"{t['ratio_python']:.2f} x against the same Python exchange")
+
+
 def kernel_workloads(ticks: int, scale_ticks: int, big_nodes: int, big_ticks: int) -> dict:
     """The kernel-heavy runs of ``--base``: name -> (scenario, save, environment variable or None)."""
     case1 = dkfsim.load_scenario(ROOT / "scenarios" / "paper_case1.yaml", overrides=[f"steps={ticks}"])
@@ -393,6 +441,9 @@ def main(argv=None) -> int:
     ap.add_argument("--mobility-only", action="store_true", help="run section 7 (a changing graph) alone")
     ap.add_argument("--skip-traffic", action="store_true", help="skip the rate-limited links' cost (section 8)")
     ap.add_argument("--traffic-only", action="store_true", help="only the rate-limited links' cost (section 8)")
+    ap.add_argument("--skip-channel", action="store_true", help="skip the shared channel's cost (section 9)")
+    ap.add_argument("--channel-only", action="store_true",
+                    help="only the shared channel's cost (section 9: the shipped channel scenario)")
     ap.add_argument("--probe", action="store_true", help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
     if args.probe:
@@ -404,6 +455,9 @@ def main(argv=None) -> int:
         return 0
     if args.traffic_only:
         print_traffic_cost(args.ticks, args.repeats)
+        return 0
+    if args.channel_only:
+        print_channel_cost(args.ticks, args.repeats)
         return 0
 
     sc = dkfsim.load_scenario(ROOT / "scenarios" / "paper_case1.yaml", overrides=[f"steps={args.ticks}"])
@@ -518,6 +572,9 @@ def main(argv=None) -> int:
     if not args.skip_traffic:
         print()
         print_traffic_cost(args.ticks, args.repeats)
+    if not args.skip_channel:
+        print()
+        print_channel_cost(args.ticks, args.repeats)
     return 0
 
 
