@@ -560,7 +560,7 @@ def render_channel(rows: dict[str, Rows]) -> dict[str, str]:
              "| estimate | " + " | ".join(rate_label(r) for r in rates) + " |",
              "|---" * (len(rates) + 1) + "|"]
     for name in names:
-        lines.append(f"| `{name}` | " + " | ".join(interval(r.col(name, "mse", "position"))
+        lines.append(f"| `{name}` | " + " | ".join(interval(r.col(name, "mse", "position"), ".3g")
                                                     for r in points) + " |")
     counted = [n for n in ("fused", "fusion_centre", "centralized_delayed", "ci_consensus") if n in names]
     for label, key in (("frames lost in collisions per run", "lost"), ("late items per run", "late"),
