@@ -563,7 +563,7 @@ def render_channel(rows: dict[str, Rows]) -> dict[str, str]:
         lines.append(f"| `{name}` | " + " | ".join(interval(r.col(name, "mse", "position"), ".3g")
                                                     for r in points) + " |")
     counted = [n for n in ("fused", "fusion_centre", "centralized_delayed", "ci_consensus") if n in names]
-    for label, key in (("frames lost in collisions per run", "lost"), ("late items per run", "late"),
+    for label, key in (("packets lost in collisions per run", "lost"), ("late items per run", "late"),
                        ("messages per tick", "messages_per_tick")):
         for name in counted:
             lines.append(f"| `{name}`: {label} | " + " | ".join(f"{r.mean(name, key):.4g}" for r in points) + " |")
