@@ -11,6 +11,7 @@ contents are recomputed here from the packets, not read from the protocols.
 from __future__ import annotations
 
 from collections import defaultdict
+from pathlib import Path
 
 import pytest
 import reference as ref
@@ -19,6 +20,8 @@ from test_exactness import check_against_window_reference, check_common, expecte
 
 from dkfsim.network.links import Port
 from dkfsim.protocols.base import PACKET_HEADER, PART_HEADER, row_bytes
+
+ROOT = Path(__file__).resolve().parents[1]
 
 
 @pytest.fixture
@@ -173,3 +176,38 @@ def test_with_collisions_the_dkf_is_exact_for_what_arrived():
     assert c["late"] == expected_late(r.arrays)
     check_common(r)
     check_against_window_reference(r)
+
+
+# ------------------------------------------------------------------ the shipped scenario and sweep
+def test_the_shipped_channel_scenario_validates_and_bad_overrides_name_the_key(capsys):
+    """``dkfsim validate`` accepts the shipped scenario; a bad channel value given to it exits 2
+    naming the file and the key, in one line."""
+    from dkfsim.cli.main import main
+    path = str(ROOT / "scenarios" / "channel_its_g5.yaml")
+    assert main(["validate", path]) == 0
+    for override, key in (("medium.rate=0", "medium.rate"), ("medium.access.cw=-1", "medium.access.cw"),
+                          ("medium.access.slot=0", "medium.access.slot")):
+        capsys.readouterr()
+        assert main(["validate", path, "--set", override]) == 2, override
+        err = capsys.readouterr().err
+        assert "channel_its_g5.yaml" in err and key in err and "Traceback" not in err, err
+
+
+def test_the_channel_sweep_reaches_medium_rate_and_refuses_a_bad_rate(tmp_path, capsys):
+    """The shipped sweep's grid key is the channel's rate (each grid point's run has it), and a
+    sweep whose grid gives a rate of 0 stops with exit 2 naming the key, before any run."""
+    import yaml
+
+    from dkfsim.experiments.sweep.definition import load_sweep
+    spec = yaml.safe_load((ROOT / "scenarios" / "sweep_channel.yaml").read_text())
+    assert list(spec["grid"]) == ["medium.rate"]
+    sweep = load_sweep(ROOT / "scenarios" / "sweep_channel.yaml")
+    rates = sorted(p.scenario.medium.rate for p in sweep.parameter_sets)
+    assert rates == sorted(spec["grid"]["medium.rate"])
+    from dkfsim.cli.main import main
+    bad = dict(spec, scenario=str(ROOT / "scenarios" / "channel_its_g5.yaml"), grid={"medium.rate": [1.0e6, 0.0]})
+    (tmp_path / "s.yaml").write_text(yaml.safe_dump(bad))
+    capsys.readouterr()
+    assert main(["sweep", str(tmp_path / "s.yaml"), "--jobs", "1", "--quiet", "--db", str(tmp_path / "s.sqlite")]) == 2
+    err = capsys.readouterr().err
+    assert "medium.rate" in err and "Traceback" not in err, err
