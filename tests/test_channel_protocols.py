@@ -81,11 +81,11 @@ def test_flood_broadcasts_the_union_once(frames, monkeypatch):
     run_scenario(sc)
     mine = [f for f in frames if f[0] == "anti_delay_dkf"]
     rb = row_bytes(2, 6)
-    for _, now, size, parts in mine:
+    for _, _now, size, parts in mine:
         src = parts[0][0].src
         assert all(link.src == src for link, _, _ in parts)
         union: dict[int, int] = defaultdict(int)
-        for link, (seq, items), n in parts:
+        for _link, (_seq, items), n in parts:
             assert n == PACKET_HEADER + len(items) * rb
             for row, mask in items:
                 union[row] |= mask
@@ -103,7 +103,7 @@ def test_tree_combines_each_neighbours_message(frames, monkeypatch):
     mine = [f for f in frames if f[0] == "anti_delay_dkf"]
     rb = row_bytes(2, 6)
     last = defaultdict(int)
-    for _, now, size, parts in mine:
+    for _, _now, size, parts in mine:
         src = parts[0][0].src
         assert all(link.src == src for link, _, _ in parts)
         assert len({link.dst for link, _, _ in parts}) == len(parts)

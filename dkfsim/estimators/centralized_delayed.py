@@ -69,14 +69,14 @@ class CentralizedDelayed(Estimator, params=CentralizedDelayedParams):
         self._ticks = np.zeros((s.n, K), dtype=np.int64)
         self._measured = ctx.measured()
         self._size = self.packet_bytes()
-        self.open_port(self._receive, self._direct, until=K * ctx.T_ns)
+        self._port = self.open_port(self._receive, self._direct, until=K * ctx.T_ns)
 
     def on_measure(self, row: int) -> None:
         """Row ``row``'s tick: every sensor that measured sends its packet to the centre (on a
         shared channel only)."""
         if not self._on_channel:
             return
-        m, send, size = self._measured, self.port.send, self._size
+        m, send, size = self._measured, self._port.send, self._size
         for i, link in enumerate(self._direct):
             if m is None or m[row, i]:                     # a crashed sensor sends nothing
                 send(link, (i, row), size)
@@ -149,7 +149,7 @@ class CentralizedDelayed(Estimator, params=CentralizedDelayedParams):
             x[k - 1], P[k - 1] = w.state.x[slot, 0], w.state.P[slot, 0]
         late = int(((ticks > rows + L) & (ticks <= K)).sum())
         if self._on_channel:
-            return EstimatorResult({self.name: Estimate(x, P)}, traffic={**self.port.counts(), "late": late})
+            return EstimatorResult({self.name: Estimate(x, P)}, traffic={**self._port.counts(), "late": late})
         per = {**counts, "delivered": ((ticks > 0) & (ticks <= K)).sum(axis=1)}   # first copy, by t_K
         per["in_flight"] = per["sent"] - per["lost"] - per["queue_dropped"] - per["delivered"]
         per["bytes"] = per["sent"] * self.packet_bytes()
