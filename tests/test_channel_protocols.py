@@ -143,13 +143,14 @@ def test_on_a_channel_frames_are_nodes_times_instants_not_links(frames):
     assert dkf["channel"]["frames"] == len(flushes) == len(flood) < dkf["sent"]
 
 
-def test_the_tree_is_exact_on_a_collision_free_slow_channel():
+@pytest.mark.parametrize("protocol", ["tree", "flood"])
+def test_the_dkf_is_exact_on_a_collision_free_slow_channel(protocol):
     """A slow channel (300 kbit/s: frames of milliseconds, queues) whose backoffs never coincide
     (this seed, asserted), a buffer longer than any wait: nothing lost or late, every final row
     of every node is the centralized filter, and the estimates follow the window rule on the
-    arrival log.  Combined frames deliver each neighbour's own message intact."""
+    arrival log.  The tree's combined frames deliver each neighbour's own message intact."""
     sc = _on_channel(5, 60, seed=3, latency={"model": "constant", "value": 5.0e-6}, buffer_length=12,
-                     medium={"rate": 3.0e5, "access": {"kind": "csma", "slot": 1.0e-6, "aifs": 10.0e-6, "cw": 1023}})
+                     protocol=protocol, medium={"rate": 3.0e5, "access": {"kind": "csma", "slot": 1.0e-6, "aifs": 10.0e-6, "cw": 1023}})
     r = run_scenario(sc)
     assert r.res.info["backend"]["exchange"] == "python"
     ch = r.counts["channel"]
