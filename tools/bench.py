@@ -66,7 +66,9 @@ import subprocess
 import sys
 import tempfile
 import time
+from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 import simpy
 
@@ -217,6 +219,18 @@ def executors_compared(steps: int, runs: int) -> list[tuple[str, float, bool]]:
     return out
 
 
+def alternated(runs: dict[str, Callable[[], tuple]], repeats: int) -> tuple[dict[str, Any], dict]:
+    """Each of ``runs`` (name -> a call returning :func:`timed`'s triple) once per round, the
+    rounds ``repeats`` times: the min CPU seconds of each and the last result of each."""
+    cpu: dict[str, list[float]] = {name: [] for name in runs}
+    last = {}
+    for _ in range(max(1, repeats)):
+        for name, call in runs.items():
+            _, c, last[name] = call()
+            cpu[name].append(c)
+    return {name: min(v) for name, v in cpu.items()}, last
+
+
 def traffic_cost(ticks: int, repeats: int) -> dict:
     """Section 8: CPU seconds of ``paper_case1`` with :data:`TRAFFIC` and without (``dkfsim.run``,
     ``save="estimates"``, the environment's backend), each warmed up once, then alternated
@@ -226,13 +240,7 @@ def traffic_cost(ticks: int, repeats: int) -> dict:
     runs = {"plain": plain, "rated": rated}
     for sc in runs.values():                          # kernels compiled or loaded: not counted
         dkfsim.run(dkfsim.load_scenario(sc, overrides=["steps=20"]), save="estimates")
-    cpu: dict[str, list[float]] = {name: [] for name in runs}
-    last = {}
-    for _ in range(max(1, repeats)):
-        for name, sc in runs.items():
-            _, c, last[name] = timed(sc)
-            cpu[name].append(c)
-    out = {name: min(v) for name, v in cpu.items()}
+    out, last = alternated({name: (lambda sc=sc: timed(sc)) for name, sc in runs.items()}, repeats)
     out["ratio"] = out["rated"] / out["plain"]
     out.update({f"{name}_sent": r.counts["sent"] for name, r in last.items()})
     out["exchange"] = last["rated"].info["backend"]["exchange"]
@@ -265,13 +273,8 @@ def channel_cost(ticks: int, repeats: int) -> dict:
         return timed_with(sc, EXCHANGE_ENV, exchange) if exchange else timed(sc)
     for sc, exchange in runs.values():                # kernels compiled or loaded: not counted
         one(dkfsim.load_scenario(sc, overrides=["steps=20"]), exchange)
-    cpu: dict[str, list[float]] = {name: [] for name in runs}
-    last = {}
-    for _ in range(max(1, repeats)):
-        for name, (sc, exchange) in runs.items():
-            _, c, last[name] = one(sc, exchange)
-            cpu[name].append(c)
-    out: dict = {name: min(v) for name, v in cpu.items()}
+    out, last = alternated({name: (lambda sc=sc, ex=exchange: one(sc, ex)) for name, (sc, exchange) in runs.items()},
+                           repeats)
     out["ratio"] = out["channel"] / out["plain"]
     out["ratio_python"] = out["channel"] / out["plain_python"]
     out.update({f"{name}_exchange": r.info["backend"]["exchange"] for name, r in last.items()})
