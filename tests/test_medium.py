@@ -20,7 +20,7 @@ from conftest import scenario, tree_edges
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from dkfsim.components.faults import LinkSpec
+from dkfsim.components.faults import Crash, CrashSchedule, Faults, LinkSpec
 from dkfsim.components.latency import Constant
 from dkfsim.components.medium import Csma, Medium
 from dkfsim.components.traffic import Background, Queue
@@ -63,11 +63,11 @@ def medium(**kw) -> Medium:
     return Medium(rate=RATE, access=Csma(slot=SLOT / 1e9, aifs=AIFS / 1e9, cw=CW), preamble=PRE / 1e9, **kw)
 
 
-def network(seed: int, med: Medium, n: int = 4, loss: float = 0.0):
+def network(seed: int, med: Medium, n: int = 4, loss: float = 0.0, crashes: CrashSchedule | None = None):
     env = simpy.Environment()
     arcs = [(u, v) for u in range(n) for v in range(n) if u != v]
     net = Network(env, arcs, lambda u, v: LinkSpec(latency=Constant(value=LAT[(u, v)] / 1e9), loss=loss),
-                  seed=seed, T_ns=10 * MS, medium=med)
+                  seed=seed, T_ns=10 * MS, medium=med, crashes=crashes)
     got: list = []
     port = net.port("p", lambda link, payload: got.append((env.now, link.src, link.dst, payload)))
     return env, net, port, got
@@ -281,10 +281,10 @@ def test_the_channel_never_carries_two_frames_unless_they_collide(offers, cw, sl
     assert sorted([e[0] for e in ended] + dropped) == list(range(len(offers)))
     for i, (a, sa, ea, oka) in enumerate(ended):
         assert sa >= offers[a][1] * US and ea == sa + int(offers[a][2] * 8 * 1000 + 0.5)
-        for b, sb, eb, okb in ended[i + 1:]:
+        for _, sb, eb, okb in ended[i + 1:]:
             if sa < eb and sb < ea:            # overlap: only a collision
                 assert sa == sb and not oka and not okb
-    for a, sa, ea, ok in ended:
+    for a, sa, _, ok in ended:
         together = [b for b, sb, _, _ in ended if sb == sa and b != a]
         assert ok == (not together) or background      # background frames may collide with it
 
@@ -336,3 +336,18 @@ def test_a_link_rate_on_the_channel_is_refused_with_exit_2(tmp_path):
     out = subprocess.run([sys.executable, "-m", "dkfsim", "validate", str(path)], capture_output=True, text=True)
     assert out.returncode == 2, out.stderr
     assert "links.default.rate" in out.stderr and "shared channel" in out.stderr and "Traceback" not in out.stderr
+
+
+def test_a_link_to_a_centre_outside_the_graph_is_on_the_channel():
+    """``centralized_delayed``'s direct link from a member to the centre (dst -1) goes as a frame
+    (decision 216): it arrives at the frame's end plus its latency."""
+    seed = 4
+    # node 3 (the last) is down the whole time: the centre's deliveries are not its
+    down = CrashSchedule(Faults(crashes=(Crash(node=3, start=0.0, end=1.0),)), 4)
+    env, net, port, got = network(seed, medium(), crashes=down)
+    link = net.extra_link(("direct", 2), LinkSpec(latency=Constant(value=0.0005)), 2, -1)
+    assert net.on_channel(link)
+    at(env, T0, lambda: port.send(link, "c", 100))
+    env.run()
+    end = boundary(0, first_boundary(0, T0) + backoff(seed, 2, T0)) + airtime(100)
+    assert got == [(end + 500 * US, 2, -1, "c")]
