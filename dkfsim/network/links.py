@@ -333,8 +333,10 @@ class Network:
         return self.index[(u, v)]
 
     def on_channel(self, link: Link) -> bool:
-        """Whether ``link`` joins two nodes of the shared channel (its packets go as frames)."""
-        return link.src in self.members and link.dst in self.members
+        """Whether ``link`` is on the shared channel (its packets go as frames): it joins two of
+        its nodes, or goes from one of them to a centre outside the graph (``dst < 0``, e.g.
+        ``centralized_delayed``'s, which listens on the channel; decision 216)."""
+        return link.src in self.members and (link.dst in self.members or link.dst < 0)
 
     def channel(self) -> Channel | None:
         """A copy of the shared channel for a new port (the one copy with ``shared_queues``);
@@ -593,7 +595,7 @@ class Port:
             raise RuntimeError(f"port {self.name!r} has no receiver: its owner delivers its own packets")
         for k in range(0, len(due), 2):
             link = due[k]
-            if crashes is not None and crashes.down(link.dst, now):
+            if crashes is not None and link.dst >= 0 and crashes.down(link.dst, now):
                 self._count["crash_dropped"][link.id] += 1
                 continue
             delivered[link.id] += 1

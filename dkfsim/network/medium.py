@@ -35,12 +35,17 @@ from typing import Any
 from simpy.events import URGENT, Event
 
 from dkfsim.components.medium import Medium
-from dkfsim.core.params import MAX_NS
+from dkfsim.components.traffic import transmission_ns
+from dkfsim.core.params import MAX_NS, seconds_to_ns
 from dkfsim.core.streams import key64, keyed_uniform
 from dkfsim.network.events import Scheduled
 from dkfsim.network.transmitter import BackgroundArrivals, busy_within
 
 _NEVER = MAX_NS + 1
+
+
+def _node(radio: Radio) -> int:
+    return radio.node
 
 
 class Frame:
@@ -88,9 +93,12 @@ class Channel:
         self.env = env
         self.spec = spec
         self.slot, self.aifs, self.cw = spec.access.slot_ns, spec.access.aifs_ns, int(spec.access.cw)
+        self.rate, self.preamble = float(spec.rate), seconds_to_ns(spec.preamble)
         self.max_packets = spec.queue.packets if spec.queue is not None else None
         self.max_bytes = spec.queue.bytes if spec.queue is not None else None
         self.radios: dict[int, Radio] = {}
+        #: the radios whose head contends (a frame waiting, none on the air)
+        self._heads: set[Radio] = set()
         #: (instant of the next background frame, node) of every member with background
         self._arrivals: list[tuple[int, int]] = []
         for node in members:
@@ -104,6 +112,8 @@ class Channel:
         #: the frames on the air (one, or several colliding) and when the last of them ends
         self.on_air: list[Frame] = []
         self.busy_end = 0
+        #: when the first frame on the air ends (never: none on the air)
+        self._next_end = _NEVER
         self.collided = False
         #: the instant processed up to (ends and arrivals at it included, starts before it)
         self.now = -1
@@ -143,8 +153,14 @@ class Channel:
             self._head(radio, now)
         return True
 
+    def airtime(self, size: int) -> int:
+        """ns a frame of ``size`` bytes is on the air: the preamble plus ``size * 8 / rate``
+        (:func:`~dkfsim.components.traffic.transmission_ns`), at least 1 ns."""
+        return max(1, min(self.preamble + transmission_ns(size, self.rate), MAX_NS))
+
     def _head(self, radio: Radio, t: int) -> None:
         """The radio's first waiting frame becomes head at ``t``: a fresh backoff."""
+        self._heads.add(radio)
         if radio.drawn_at != t:
             radio.drawn_at, radio.drawn = t, 0
         u = keyed_uniform(radio.key, t, radio.drawn)
@@ -167,13 +183,14 @@ class Channel:
         if self.on_air:
             return _NEVER
         if self._next_start is None:
+            first, slot = self.t_idle + self.aifs, self.slot
             best = _NEVER
-            for radio in self.radios.values():
-                if radio.queue and radio.on_air is None:
-                    t = self.t_idle + self.aifs + self._target(radio) * self.slot
-                    if t < best:
-                        best = t
-            self._next_start = best
+            for radio in self._heads:
+                h = radio.head_at
+                m = (0 if h <= first else -(-(h - first) // slot)) + radio.count
+                if m < best:
+                    best = m
+            self._next_start = _NEVER if best == _NEVER else first + best * slot
         return self._next_start
 
     def advance(self, t: int) -> None:
@@ -183,7 +200,7 @@ class Channel:
             return
         arrivals = self._arrivals
         while True:
-            te = min(f.end for f in self.on_air) if self.on_air else _NEVER
+            te = self._next_end
             ta = arrivals[0][0] if arrivals else _NEVER
             ts = self.next_start()
             if te <= t and te <= ta:
@@ -210,22 +227,23 @@ class Channel:
     def _start(self, ts: int) -> None:
         first = self.t_idle + self.aifs
         s = (ts - first) // self.slot
-        frame_ns = self.spec.frame_ns
         end = ts
-        for radio in self.radios.values():
-            if not radio.queue or radio.on_air is not None:
-                continue
+        for radio in sorted(self._heads, key=_node):
             m = self._target(radio)
             if m == s:
                 frame = radio.queue.popleft()
                 radio.queued_bytes -= frame.size
-                frame.start, frame.end = ts, ts + frame_ns(frame.size)
+                frame.start, frame.end = ts, ts + self.airtime(frame.size)
                 radio.on_air = frame
                 self.on_air.append(frame)
+                self._heads.discard(radio)
                 end = max(end, frame.end)
             else:                               # frozen: the boundaries it passed are spent
                 radio.count = m - s
                 radio.head_at = ts
+        if not self.on_air:
+            raise RuntimeError(f"channel: no head is due at the boundary {ts} ns")
+        self._next_end = min(f.end for f in self.on_air)
         self.collided = len(self.on_air) > 1
         self.collisions += self.collided
         self.frames_sent += len(self.on_air)
@@ -236,6 +254,7 @@ class Channel:
     def _end(self, te: int) -> None:
         done = [f for f in self.on_air if f.end == te]
         self.on_air = [f for f in self.on_air if f.end != te]
+        self._next_end = min(f.end for f in self.on_air) if self.on_air else _NEVER
         ok = not self.collided
         for frame in done:
             radio = self.radios[frame.node]
@@ -260,7 +279,7 @@ class Channel:
         just after the next start (once every frame handed over at that boundary has joined)."""
         if not self.pending:
             return
-        t = min(f.end for f in self.on_air) if self.on_air else self.next_start() + 1
+        t = self._next_end if self.on_air else self.next_start() + 1
         if t in self._wakes or t > MAX_NS:
             return
         self._wakes.add(t)
