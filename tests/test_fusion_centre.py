@@ -46,7 +46,38 @@ def run(sc, log=False):
     centre = sim.estimators[1]
     if log:
         centre.log = []
+        # the DKF's holdings after each update: what each node held when it computed x_i[k-1]
+        dkf, update = sim.dkf, sim.dkf.on_update
+        centre.dkf_held = {}
+
+        def hooked(k):
+            update(k)
+            centre.dkf_held[k] = dkf.holdings.held.copy()
+        dkf.on_update = hooked
     return sim.run(), centre
+
+
+def check_masks_are_the_nodes_holdings(centre):
+    """The masks the centre holds for node i are what node i held when it computed its newest
+    estimate (row r_i, tick r_i + 1): rows still in its window then as they were, final rows as
+    they became final, nothing after r_i."""
+    L, W, held = centre.L, centre.W, centre.dkf_held
+    Sd = held[1].shape[0]
+    checked = 0
+    for k, newest, excluded, known, _Xi in centre.log:
+        lo = max(k - W, 0)
+        for i in np.flatnonzero(~excluded):
+            ri = int(newest[i])
+            for s in range(lo, k):
+                if s > ri:
+                    want = np.zeros_like(known[0, i])
+                elif s >= ri + 1 - L:
+                    want = held[ri + 1][s % Sd, i]
+                else:
+                    want = held[s + L][s % Sd, i]
+                assert np.array_equal(known[s - lo, i], want), (k, i, s)
+                checked += 1
+    return checked
 
 
 def rel(a, b):
@@ -151,6 +182,7 @@ def test_cross_covariances_equal_the_recursion_from_the_held_masks(make, overrid
     info = ctx.info
     omega_of = (lambda r: info.omega[r]) if info.varying else (lambda r: info.omega)
     want = independent_xi(centre.log, s.Phi, s.Q, s.P0, centre.dkf.A, omega_of, centre.W)
+    assert check_masks_are_the_nodes_holdings(centre) > 0
     stale = 0
     for k, newest, _excluded, _known, Xi in centre.log:
         assert rel(Xi, want[k]) <= 1e-8, k
