@@ -34,6 +34,10 @@
    without these keys, both on the backend's defaults (the compiled tree on the numba path),
    alternated in this process, min of ``--repeats``; the issue asks at most 2x.
    ``--traffic-only`` runs this line alone.
+9. A fusion centre over the network (issue 22): ``paper_case1`` with ``{kind: fusion_centre,
+   at: 0}`` against the same scenario without it, on the compiled path (the tree compiled, numba
+   kernels), alternated in this process, min CPU of ``--repeats``; the issue asks at most 2x.
+   ``--centre-only`` runs this line alone.
 
 Before/after (``--base REF``): the runs of sections 1, 2 and 4 that exercise the kernels
 (paper_case1 on the three kernel paths, a 50-node tree with matrix fusion, a 200-node tree
@@ -44,7 +48,8 @@ the same kind) and the ratio this / base.  Nothing else runs in that mode.
 
 Usage: ``python tools/bench.py [--ticks 1000] [--sizes 12 50 200] [--fit-sizes 12 50 200 1000]
 [--skip-sweep] [--big-ticks 200] [--skip-threads] [--skip-executors] [--skip-traffic]``,
-``python tools/bench.py --traffic-only [--ticks 1000] [--repeats 3]``, or
+``python tools/bench.py --traffic-only [--ticks 1000] [--repeats 3]``,
+``python tools/bench.py --centre-only [--ticks 1000] [--repeats 3]``, or
 ``python tools/bench.py --base REF [--repeats 3]``.
 Timing lives here, never in the tests.
 """
@@ -242,6 +247,37 @@ def print_traffic_cost(ticks: int, repeats: int) -> None:
           f"({t['rated_sent']} packets, exchange '{t['exchange']}')   ratio {t['ratio']:.2f} x (issue: <= 2)")
 
 
+def centre_cost(ticks: int, repeats: int) -> dict:
+    """Section 9: CPU seconds of ``paper_case1`` with a fusion centre at node 0 and without
+    (``dkfsim.run``, ``save="estimates"``), each warmed up once, then alternated ``repeats`` times
+    in this process; the min of each, their ratio, and the exchange each ran."""
+    plain = dkfsim.load_scenario(ROOT / "scenarios" / "paper_case1.yaml", overrides=[f"steps={ticks}"])
+    centre = dkfsim.load_scenario(plain, overrides=["estimators=[{kind: centralized}, {kind: fusion_centre, at: 0}]"])
+    runs = {"plain": plain, "centre": centre}
+    for sc in runs.values():                          # kernels compiled or loaded: not counted
+        dkfsim.run(dkfsim.load_scenario(sc, overrides=["steps=20"]), save="estimates")
+    cpu: dict[str, list[float]] = {name: [] for name in runs}
+    last = {}
+    for _ in range(max(1, repeats)):
+        for name, sc in runs.items():
+            _, c, last[name] = timed(sc)
+            cpu[name].append(c)
+    out: dict = {name: min(v) for name, v in cpu.items()}
+    out["ratio"] = out["centre"] / out["plain"]
+    out["exchange"] = {name: r.info["backend"]["exchange"] for name, r in last.items()}
+    out["centre_sent"] = last["centre"].traffic["fusion_centre"]["sent"]
+    return out
+
+
+def print_centre_cost(ticks: int, repeats: int) -> None:
+    t = centre_cost(ticks, repeats)
+    print(f"fusion centre (issue 22): paper_case1, {ticks} ticks, with {{kind: fusion_centre, at: 0}} against "
+          f"without; CPU s, min of {repeats} alternated")
+    print(f"  without {t['plain']:8.3f} s ('{t['exchange']['plain']}')   with {t['centre']:8.3f} s "
+          f"('{t['exchange']['centre']}', {t['centre_sent']} centre packets)   ratio {t['ratio']:.2f} x "
+          "(issue: <= 2)")
+
+
 def kernel_workloads(ticks: int, scale_ticks: int, big_nodes: int, big_ticks: int) -> dict:
     """The kernel-heavy runs of ``--base``: name -> (scenario, save, environment variable or None)."""
     case1 = dkfsim.load_scenario(ROOT / "scenarios" / "paper_case1.yaml", overrides=[f"steps={ticks}"])
@@ -393,6 +429,8 @@ def main(argv=None) -> int:
     ap.add_argument("--mobility-only", action="store_true", help="run section 7 (a changing graph) alone")
     ap.add_argument("--skip-traffic", action="store_true", help="skip the rate-limited links' cost (section 8)")
     ap.add_argument("--traffic-only", action="store_true", help="only the rate-limited links' cost (section 8)")
+    ap.add_argument("--skip-centre", action="store_true", help="skip the fusion centre's cost (section 9)")
+    ap.add_argument("--centre-only", action="store_true", help="only the fusion centre's cost (section 9)")
     ap.add_argument("--probe", action="store_true", help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
     if args.probe:
@@ -404,6 +442,9 @@ def main(argv=None) -> int:
         return 0
     if args.traffic_only:
         print_traffic_cost(args.ticks, args.repeats)
+        return 0
+    if args.centre_only:
+        print_centre_cost(args.ticks, args.repeats)
         return 0
 
     sc = dkfsim.load_scenario(ROOT / "scenarios" / "paper_case1.yaml", overrides=[f"steps={args.ticks}"])
@@ -518,6 +559,9 @@ def main(argv=None) -> int:
     if not args.skip_traffic:
         print()
         print_traffic_cost(args.ticks, args.repeats)
+    if not args.skip_centre:
+        print()
+        print_centre_cost(args.ticks, args.repeats)
     return 0
 
 

@@ -73,11 +73,6 @@ def packet_bytes(nx: int, n: int, rows: int, omegas: int) -> int:
     return PACKET_HEADER + 8 + 8 * nx + rows * (-(-n // 8)) + omegas * 8 * (nx * (nx + 1) // 2)
 
 
-def _bits(mask: np.ndarray) -> int:
-    """A boolean origin vector as the int bitmask :meth:`Holdings.add` takes."""
-    return int.from_bytes(np.packbits(mask, bitorder="little").tobytes(), "little")
-
-
 class FusionCentre(Estimator, params=FusionCentreParams):
     """The scenario DKF's matrix-weighted fusion at node ``at``, from packets only."""
 
@@ -224,17 +219,20 @@ class FusionCentre(Estimator, params=FusionCentreParams):
         T_ns = self.ctx.T_ns
         k_now = -(-int(self.ctx.env.now) // T_ns)      # the tick this instant belongs to
         first = max(lo, k_now - self.W)                # shadow rows that can still change
-        S = self.holdings.S
-        for s in range(first, row + 1):
-            m = masks[s - lo]
-            new = m & ~self.known[s % S, i]
-            if not new.any():
-                continue
-            if not self.have_omega[s, new].all():      # a radar's omega this centre never got
-                self.excluded[i] = True
-                return
-            self.known[s % S, i] |= new
-            self.holdings.add(i, _bits(new), s)
+        if first <= row:
+            slots = np.arange(first, row + 1) % self.holdings.S
+            new = masks[first - lo:] & ~self.known[slots, i]         # (rows, origins)
+            changed = np.flatnonzero(new.any(axis=1))
+            if len(changed):
+                new = new[changed]
+                rows = first + changed
+                if not self.have_omega[rows][new].all():   # a radar's omega the centre never got
+                    self.excluded[i] = True
+                    return
+                self.known[slots[changed], i] |= new
+                packed = np.packbits(new, axis=1, bitorder="little")
+                for s, bits in zip(rows.tolist(), packed):
+                    self.holdings.add(i, int.from_bytes(bits.tobytes(), "little"), s)
         self.newest[i] = row
         self.x_newest[i] = x
 
