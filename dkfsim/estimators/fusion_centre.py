@@ -157,6 +157,8 @@ class FusionCentre(Estimator, params=FusionCentreParams):
         self.P = np.empty((K, nx, nx))
         self.k = 0
         self.received = self.ignored = self.stale_rows = 0
+        #: node -> (first row, masks) of its newest packet since the last fusion
+        self.pending: dict[int, tuple[int, np.ndarray]] = {}
 
     def on_measure(self, row: int) -> None:
         self.holdings.open_row(row)
@@ -209,36 +211,21 @@ class FusionCentre(Estimator, params=FusionCentreParams):
     def accept(self, payload: tuple) -> None:
         """Node ``i``'s estimate of ``row`` and its holdings, into the centre's state."""
         i, row, x, lo, masks, entries, _ = payload
-        if self.excluded[i] or row <= self.newest[i]:
-            self.ignored += 1                    # older than what the centre has, or left out
-            return
-        for r_e, o, om, fac in entries:
+        for r_e, o, om, fac in entries:         # an omega is the same whoever brings it, whenever
             self.info.omega[r_e, o] = om
             self.info.factor[r_e][:, self.cols[o]] = fac
             self.have_omega[r_e, o] = True
-        T_ns = self.ctx.T_ns
-        k_now = -(-int(self.ctx.env.now) // T_ns)      # the tick this instant belongs to
-        first = max(lo, k_now - self.W)                # shadow rows that can still change
-        if first <= row:
-            slots = np.arange(first, row + 1) % self.holdings.S
-            new = masks[first - lo:] & ~self.known[slots, i]         # (rows, origins)
-            changed = np.flatnonzero(new.any(axis=1))
-            if len(changed):
-                new = new[changed]
-                rows = first + changed
-                if not self.have_omega[rows][new].all():   # a radar's omega the centre never got
-                    self.excluded[i] = True
-                    return
-                self.known[slots[changed], i] |= new
-                packed = np.packbits(new, axis=1, bitorder="little")
-                for s, bits in zip(rows.tolist(), packed):
-                    self.holdings.add(i, int.from_bytes(bits.tobytes(), "little"), s)
+        if self.excluded[i] or row <= self.newest[i]:
+            self.ignored += 1                    # older than what the centre has, or left out
+            return
+        self.pending[i] = (lo, masks)           # folded at the fusion: the newest masks hold the rest
         self.newest[i] = row
         self.x_newest[i] = x
 
     def _fuse(self, _event: Event) -> None:
         k = self.k
         r = k - 1
+        self._fold(k)
         done = k - self.W                 # the shadow's row that becomes final now
         if done >= 0:
             # a node whose final holdings of that row the centre does not know leaves the fusion
@@ -259,6 +246,39 @@ class FusionCentre(Estimator, params=FusionCentreParams):
         if self.log is not None:
             idx = np.arange(max(k - self.W, 0), k) % self.holdings.S
             self.log.append((k, self.newest.copy(), self.excluded.copy(), self.known[idx].copy(), Xi.copy()))
+
+    def _fold(self, k: int) -> None:
+        """Add what the newest packets of this tick taught the centre to the shadow's holdings:
+        for each node, the origins its masks hold that the centre did not know, for the shadow's
+        rows that can still change (``k - W .. k - 1``).  A node's masks only grow, so its newest
+        packet says everything the older ones of this tick said."""
+        if not self.pending:
+            return
+        k0 = max(k - self.W, 0)
+        nodes = np.fromiter(self.pending, dtype=np.intp, count=len(self.pending))
+        stack = np.zeros((len(nodes), k - k0, self.known.shape[2]), dtype=bool)
+        for j, (lo, masks) in enumerate(self.pending.values()):
+            a, b = max(lo, k0), lo + len(masks)
+            if a < b:
+                stack[j, a - k0:b - k0] = masks[a - lo:]
+        self.pending.clear()
+        slots = np.arange(k0, k) % self.holdings.S
+        new = stack & ~self.known[slots][:, nodes].transpose(1, 0, 2)
+        jj, rr = np.nonzero(new.any(axis=2))
+        if not len(jj):
+            return
+        sel, rows, who = new[jj, rr], k0 + rr, nodes[jj]
+        if self.varying.any():
+            # a node that holds a radar entry whose omega no packet brought leaves the fusion
+            bad = np.unique(who[(sel & ~self.have_omega[rows]).any(axis=1)])
+            if len(bad):
+                self.excluded[bad] = True
+                keep = ~np.isin(who, bad)
+                sel, rows, who, rr = sel[keep], rows[keep], who[keep], rr[keep]
+        self.known[slots[rr], who] |= sel
+        packed = np.packbits(sel, axis=1, bitorder="little")
+        for i, s, bits in zip(who.tolist(), rows.tolist(), packed):
+            self.holdings.add(i, int.from_bytes(bits.tobytes(), "little"), s)
 
     def finish(self) -> EstimatorResult:
         facts = {"packets_received": self.received, "packets_ignored": self.ignored,
