@@ -157,7 +157,8 @@ class FusionCentre(Estimator, params=FusionCentreParams):
         self.P = np.empty((K, nx, nx))
         self.k = 0
         self.received = self.ignored = self.stale_rows = 0
-        #: node -> (first row, masks) of its newest packet since the last fusion
+        self.Phi_pow = np.eye(nx)[None]
+        #: node -> (first row, masks of every node) of its newest packet since the last fusion
         self.pending: dict[int, tuple[int, np.ndarray]] = {}
 
     def on_measure(self, row: int) -> None:
@@ -190,7 +191,7 @@ class FusionCentre(Estimator, params=FusionCentreParams):
                         row = lo + int(j)
                         entries.append((row, int(o), info.omega[row, o], info.factor[row][:, self.cols[o]]))
             nbytes = packet_bytes(nx, n, len(idx), len(entries))
-            payload = (i, r, x[i].copy(), lo, masks[:, i].copy(), entries, nbytes)
+            payload = (i, r, x[i], lo, masks, entries, nbytes)     # (read-only from here on)
             if i == self.at:
                 self.accept(payload)
             elif self.out[i] is not None:
@@ -234,10 +235,10 @@ class FusionCentre(Estimator, params=FusionCentreParams):
         Xi = self.xcov.Xi[r % self.holdings.S]
         xs = self.x_newest.copy()
         use = ~self.excluded
-        for i in np.flatnonzero((self.newest < r) & use):
-            self.stale_rows += 1
-            for _ in range(r - int(self.newest[i])):
-                xs[i] = self.Phi @ xs[i]
+        stale = np.flatnonzero((self.newest < r) & use)
+        if len(stale):
+            self.stale_rows += len(stale)
+            xs[stale] = np.einsum("sij,sj->si", self._powers(r - self.newest[stale]), xs[stale])
         if use.all():
             self.x[r], self.P[r] = self.fuser(Xi, xs)
         else:
@@ -246,6 +247,17 @@ class FusionCentre(Estimator, params=FusionCentreParams):
         if self.log is not None:
             idx = np.arange(max(k - self.W, 0), k) % self.holdings.S
             self.log.append((k, self.newest.copy(), self.excluded.copy(), self.known[idx].copy(), Xi.copy()))
+
+    def _powers(self, ages: np.ndarray) -> np.ndarray:
+        """``Phi^age`` for each of ``ages`` (cached)."""
+        pw = self.Phi_pow
+        top = int(ages.max())
+        if top >= len(pw):
+            more = [pw[-1]]
+            for _ in range(len(pw), top + 1):
+                more.append(self.Phi @ more[-1])
+            self.Phi_pow = pw = np.concatenate([pw, np.stack(more[1:])])
+        return pw[ages]
 
     def _fold(self, k: int) -> None:
         """Add what the newest packets of this tick taught the centre to the shadow's holdings:
@@ -256,11 +268,12 @@ class FusionCentre(Estimator, params=FusionCentreParams):
             return
         k0 = max(k - self.W, 0)
         nodes = np.fromiter(self.pending, dtype=np.intp, count=len(self.pending))
+        who_sent = nodes
         stack = np.zeros((len(nodes), k - k0, self.known.shape[2]), dtype=bool)
         for j, (lo, masks) in enumerate(self.pending.values()):
             a, b = max(lo, k0), lo + len(masks)
             if a < b:
-                stack[j, a - k0:b - k0] = masks[a - lo:]
+                stack[j, a - k0:b - k0] = masks[a - lo:, who_sent[j]]
         self.pending.clear()
         slots = np.arange(k0, k) % self.holdings.S
         new = stack & ~self.known[slots][:, nodes].transpose(1, 0, 2)
