@@ -192,10 +192,11 @@ class FusionCentre(Estimator, params=FusionCentreParams):
                         entries.append((row, int(o), info.omega[row, o], info.factor[row][:, self.cols[o]]))
             nbytes = packet_bytes(nx, n, len(idx), len(entries))
             payload = (i, r, x[i], lo, masks, entries, nbytes)     # (read-only from here on)
+            out = self.out[i]
             if i == self.at:
                 self.accept(payload)
-            elif self.out[i] is not None:
-                self.port.send(self.out[i], payload, nbytes)
+            elif out is not None:
+                self.port.send(out, payload, nbytes)
         Scheduled(self.ctx.env, self._fuse, PRIORITY_FUSE)
 
     def receive(self, link: Link, payload: Any) -> None:
