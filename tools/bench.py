@@ -217,14 +217,11 @@ def executors_compared(steps: int, runs: int) -> list[tuple[str, float, bool]]:
     return out
 
 
-def traffic_cost(ticks: int, repeats: int) -> dict:
-    """Section 8: CPU seconds of ``paper_case1`` with :data:`TRAFFIC` and without (``dkfsim.run``,
-    ``save="estimates"``, the environment's backend), each warmed up once, then alternated
-    ``repeats`` times in this process; the min of each, their ratio, packets and exchange."""
-    plain = dkfsim.load_scenario(ROOT / "scenarios" / "paper_case1.yaml", overrides=[f"steps={ticks}"])
-    rated = dkfsim.load_scenario(plain, overrides=list(TRAFFIC))
-    runs = {"plain": plain, "rated": rated}
-    for sc in runs.values():                          # kernels compiled or loaded: not counted
+def alternated(runs: dict, repeats: int) -> tuple[dict, dict]:
+    """The min CPU seconds of each scenario of ``runs`` (name -> scenario), each warmed up once
+    (kernels compiled or loaded: not counted), then alternated ``repeats`` times in this process;
+    and each one's last result."""
+    for sc in runs.values():
         dkfsim.run(dkfsim.load_scenario(sc, overrides=["steps=20"]), save="estimates")
     cpu: dict[str, list[float]] = {name: [] for name in runs}
     last = {}
@@ -232,7 +229,16 @@ def traffic_cost(ticks: int, repeats: int) -> dict:
         for name, sc in runs.items():
             _, c, last[name] = timed(sc)
             cpu[name].append(c)
-    out = {name: min(v) for name, v in cpu.items()}
+    return {name: min(v) for name, v in cpu.items()}, last
+
+
+def traffic_cost(ticks: int, repeats: int) -> dict:
+    """Section 8: CPU seconds of ``paper_case1`` with :data:`TRAFFIC` and without (``dkfsim.run``,
+    ``save="estimates"``, the environment's backend), each warmed up once, then alternated
+    ``repeats`` times in this process; the min of each, their ratio, packets and exchange."""
+    plain = dkfsim.load_scenario(ROOT / "scenarios" / "paper_case1.yaml", overrides=[f"steps={ticks}"])
+    rated = dkfsim.load_scenario(plain, overrides=list(TRAFFIC))
+    out, last = alternated({"plain": plain, "rated": rated}, repeats)
     out["ratio"] = out["rated"] / out["plain"]
     out.update({f"{name}_sent": r.counts["sent"] for name, r in last.items()})
     out["exchange"] = last["rated"].info["backend"]["exchange"]
@@ -247,35 +253,18 @@ def print_traffic_cost(ticks: int, repeats: int) -> None:
           f"({t['rated_sent']} packets, exchange '{t['exchange']}')   ratio {t['ratio']:.2f} x (issue: <= 2)")
 
 
-def centre_cost(ticks: int, repeats: int) -> dict:
+def print_centre_cost(ticks: int, repeats: int) -> None:
     """Section 9: CPU seconds of ``paper_case1`` with a fusion centre at node 0 and without
-    (``dkfsim.run``, ``save="estimates"``), each warmed up once, then alternated ``repeats`` times
-    in this process; the min of each, their ratio, and the exchange each ran."""
+    (``dkfsim.run``, ``save="estimates"``, :func:`alternated`), their ratio and the exchange each ran."""
     plain = dkfsim.load_scenario(ROOT / "scenarios" / "paper_case1.yaml", overrides=[f"steps={ticks}"])
     centre = dkfsim.load_scenario(plain, overrides=["estimators=[{kind: centralized}, {kind: fusion_centre, at: 0}]"])
-    runs = {"plain": plain, "centre": centre}
-    for sc in runs.values():                          # kernels compiled or loaded: not counted
-        dkfsim.run(dkfsim.load_scenario(sc, overrides=["steps=20"]), save="estimates")
-    cpu: dict[str, list[float]] = {name: [] for name in runs}
-    last = {}
-    for _ in range(max(1, repeats)):
-        for name, sc in runs.items():
-            _, c, last[name] = timed(sc)
-            cpu[name].append(c)
-    out: dict = {name: min(v) for name, v in cpu.items()}
-    out["ratio"] = out["centre"] / out["plain"]
-    out["exchange"] = {name: r.info["backend"]["exchange"] for name, r in last.items()}
-    out["centre_sent"] = last["centre"].traffic["fusion_centre"]["sent"]
-    return out
-
-
-def print_centre_cost(ticks: int, repeats: int) -> None:
-    t = centre_cost(ticks, repeats)
+    cpu, last = alternated({"without": plain, "with": centre}, repeats)
+    exchange = {name: r.info["backend"]["exchange"] for name, r in last.items()}
     print(f"fusion centre (issue 22): paper_case1, {ticks} ticks, with {{kind: fusion_centre, at: 0}} against "
           f"without; CPU s, min of {repeats} alternated")
-    print(f"  without {t['plain']:8.3f} s ('{t['exchange']['plain']}')   with {t['centre']:8.3f} s "
-          f"('{t['exchange']['centre']}', {t['centre_sent']} centre packets)   ratio {t['ratio']:.2f} x "
-          "(issue: <= 2)")
+    print("  " + "   ".join(f"{name} {cpu[name]:8.3f} s ('{exchange[name]}')" for name in cpu)
+          + f"   {last['with'].traffic['fusion_centre']['sent']} centre packets   "
+          f"ratio {cpu['with'] / cpu['without']:.2f} x (issue: <= 2)")
 
 
 def kernel_workloads(ticks: int, scale_ticks: int, big_nodes: int, big_ticks: int) -> dict:

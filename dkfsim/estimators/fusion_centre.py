@@ -28,6 +28,7 @@ from __future__ import annotations
 
 from typing import Any
 
+import networkx as nx
 import numpy as np
 from simpy.events import Event
 
@@ -46,20 +47,12 @@ def next_hops(arcs: list[tuple[int, int]], n: int, at: int) -> np.ndarray:
     """Each node's next hop toward ``at`` on a shortest path over the directed ``arcs`` (the
     lowest-index neighbour among equals; a breadth-first search from ``at`` over the reversed
     arcs); -1 for ``at`` itself and for a node that cannot reach it."""
-    into: list[list[int]] = [[] for _ in range(n)]
-    for u, v in arcs:
-        into[v].append(u)
+    graph = nx.DiGraph()
+    graph.add_nodes_from(range(n))
+    graph.add_edges_from((v, u) for u, v in arcs)              # reversed: distances *to* at
     dist = np.full(n, -1, dtype=np.intp)
-    dist[at] = 0
-    frontier = [at]
-    while frontier:
-        nxt = []
-        for v in frontier:
-            for u in into[v]:
-                if dist[u] < 0:
-                    dist[u] = dist[v] + 1
-                    nxt.append(u)
-        frontier = nxt
+    for node, d in nx.single_source_shortest_path_length(graph, at).items():
+        dist[node] = d
     hop = np.full(n, -1, dtype=np.intp)
     for u, v in sorted(arcs):
         if u != at and dist[u] > 0 and dist[v] == dist[u] - 1 and hop[u] < 0:
