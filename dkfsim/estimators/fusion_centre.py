@@ -262,19 +262,18 @@ class FusionCentre(Estimator, params=FusionCentreParams):
             return
         k0 = max(k - self.W, 0)
         nodes = np.fromiter(self.pending, dtype=np.intp, count=len(self.pending))
-        who_sent = nodes
-        stack = np.zeros((len(nodes), k - k0, self.known.shape[2]), dtype=bool)
-        for j, (lo, masks) in enumerate(self.pending.values()):
+        stack = np.zeros((k - k0, len(nodes), self.known.shape[2]), dtype=bool)   # (rows, nodes, origins)
+        for j, (i, (lo, masks)) in enumerate(self.pending.items()):
             a, b = max(lo, k0), lo + len(masks)
             if a < b:
-                stack[j, a - k0:b - k0] = masks[a - lo:, who_sent[j]]
+                stack[a - k0:b - k0, j] = masks[a - lo:, i]
         self.pending.clear()
         slots = np.arange(k0, k) % self.holdings.S
-        new = stack & ~self.known[slots][:, nodes].transpose(1, 0, 2)
-        jj, rr = np.nonzero(new.any(axis=2))
+        new = stack & ~self.known[slots[:, None], nodes]
+        rr, jj = np.nonzero(new.any(axis=2))
         if not len(jj):
             return
-        sel, rows, who = new[jj, rr], k0 + rr, nodes[jj]
+        sel, rows, who = new[rr, jj], k0 + rr, nodes[jj]
         if self.varying.any():
             # a node that holds a radar entry whose omega no packet brought leaves the fusion
             bad = np.unique(who[(sel & ~self.have_omega[rows]).any(axis=1)])
