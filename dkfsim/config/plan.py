@@ -204,7 +204,7 @@ class RunPlan:
         """True when a link the protocol uses has a ``rate``: its packets queue, so an arrival
         has no bound however bounded the latency models are (``d_t`` ignores it)."""
         sc = self.scenario
-        if sc.mobility is not None and sc.mobility.rate_from_distance:
+        if sc.medium is not None or (sc.mobility is not None and sc.mobility.rate_from_distance):
             return True
         if not sc.links.overrides:
             return sc.link_spec(-1, -1).rate is not None

@@ -56,6 +56,7 @@ from dkfsim.components import topology as topo
 from dkfsim.components.estimators import BufferLength, CentralizedParams, EstimatorParams
 from dkfsim.components.faults import Faults, LinkSpec, Schedule, Window
 from dkfsim.components.latency import Constant, LatencyModel
+from dkfsim.components.medium import Medium
 from dkfsim.components.mobility import SCHEDULE_LIMIT, Mobility
 from dkfsim.components.sensors import SensorParams
 from dkfsim.components.traffic import TRAFFIC_KEYS, TrafficKeys
@@ -184,6 +185,8 @@ class Scenario(StrictModel):
     faults: Faults | None = None
     #: Vehicles that move: links up only while in range (:mod:`dkfsim.components.mobility`).
     mobility: Mobility | None = None
+    #: A shared radio channel (:mod:`dkfsim.components.medium`).
+    medium: Medium | None = None
 
     _source: str | None = PrivateAttr(default=None)
     _base_dir: str | None = PrivateAttr(default=None)
@@ -362,6 +365,8 @@ class Scenario(StrictModel):
                 raise custom_error(f"[{u}, {v}] is not {what} of the topology",
                                    f"links.overrides.{i}.link")
         self._check_traffic()
+        if self.medium is not None:
+            self._check_medium(plan)
         if self.faults is not None:
             self.faults.check(n)
         if self.mobility is not None:
@@ -417,6 +422,32 @@ class Scenario(StrictModel):
             if self.mobility.sinr_at(u) is None:
                 raise custom_error(f"'track' takes the sender's recorded SINR, but node {u} (sender on link "
                                    f"{u} -> {v}) is not a 'track' vehicle of mobility:; give a number (dB)", key)
+
+    def _check_medium(self, plan: RunPlan) -> None:
+        """``medium.nodes`` are nodes, and a link on the channel has no transmitter of its own:
+        no ``rate`` (nor ``queue``/``background``) on it, no rate from distance."""
+        assert self.medium is not None
+        self.medium.check(self.n)
+        if self.medium.queue is not None and self.medium.queue.packets == 0:
+            raise custom_error("a frame waits in its radio's waiting room for its slot, so it must hold "
+                               "at least one frame: give packets >= 1", "medium.queue.packets")
+        if self.mobility is not None and self.mobility.rate_from_distance:
+            raise custom_error("a link on the shared channel is sent at the channel's rate, so it cannot "
+                               "take a rate from distance; remove mobility.links.rate or medium",
+                               "mobility.links.rate")
+        members = set(self.medium.members(self.n))
+        entries = [("links.default", self.links.default, None)] + [
+            (f"links.overrides.{i}", ov, tuple(ov.link)) for i, ov in enumerate(self.links.overrides)]
+        for key, entry, link in entries:
+            arcs = plan.arcs if link is None else \
+                [a for a in plan.arcs if a == link or (not self.topology.directed and a == link[::-1])]
+            on = next(((u, v) for u, v in arcs if u in members and v in members), None)
+            what = next((w for w in ("rate", "queue", "background") if getattr(entry, w) is not None), None)
+            if on is not None and what is not None:
+                raise custom_error(f"link {on[0]} -> {on[1]} is on the shared channel (medium:), which "
+                                   "sends its frames at the channel's rate through each node's radio; a "
+                                   f"link on it takes no {what} of its own: remove it (the channel's are "
+                                   f"medium.rate, medium.queue, medium.background)", f"{key}.{what}")
 
     def _check_traffic(self) -> None:
         """A queue limit or background load acts through the transmitter: it needs a rate."""

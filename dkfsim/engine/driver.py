@@ -48,13 +48,14 @@ def run_backend(plan: RunPlan, network: Network, crashes: CrashSchedule | None) 
     """The backend of a run: what the environment asks for (:meth:`Backend.from_environment`),
     with the Python exchange where the compiled one cannot run (a protocol without a compiled
     twin, a link it cannot draw, crash windows, transmitters shared between estimators, a
-    ``fusion_centre`` whose packets wait in the DKF's rate-limited queues: decision 221)."""
+    ``fusion_centre`` whose packets wait in the DKF's rate-limited queues (decision 221), a shared
+    radio channel: the compiled tree cannot draw the channel, decision 214)."""
     backend = Backend.from_environment()
     if backend.compiled_exchange:
         links = [network.link(u, v) for u, v in plan.exchange_arcs]
         centre = any(p.kind == "fusion_centre" for p in plan.scenario.estimators)
         shared = (network.shared_transmitters is not None or centre) and plan.rate_limited
-        if shared or not tree_compiled.usable(plan.protocol, links, crashes):
+        if shared or network.medium is not None or not tree_compiled.usable(plan.protocol, links, crashes):
             backend = backend.python_exchange()
     return backend
 
@@ -81,7 +82,8 @@ class Run:
         crashes = CrashSchedule(scenario.faults, system.n) or None
         env = simpy.Environment()
         network = Network(env, plan.arcs, scenario.link_spec, seed, system.T_ns, crashes=crashes,
-                          shared_queues=bool(scenario.links.shared_queues), schedule=plan.link_schedule)
+                          shared_queues=bool(scenario.links.shared_queues), schedule=plan.link_schedule,
+                          medium=scenario.medium)
         self.backend = run_backend(plan, network, crashes)
         self.ctx = RunContext(scenario=scenario, plan=plan, backend=self.backend, system=system, truth=truth, ys=ys,
                               info=system.information(ys), crashes=crashes, env=env, network=network)

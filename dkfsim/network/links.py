@@ -55,9 +55,12 @@ from simpy.events import NORMAL, Event
 
 from dkfsim.components.faults import CrashSchedule, LinkSpec, ScaleSchedule, Windows
 from dkfsim.components.latency import TrackSinrSampler
+from dkfsim.components.medium import Medium
 from dkfsim.components.mobility import LinkSchedule
 from dkfsim.core.params import MAX_NS, NS_PER_S, seconds_to_ns
 from dkfsim.core.streams import key64, keyed_uniform
+from dkfsim.network.events import Scheduled
+from dkfsim.network.medium import Channel, Frame
 from dkfsim.network.occupancy import mean_waiting, per_tick
 from dkfsim.network.transmitter import BackgroundArrivals, Transmitter, background_keys, link_stats
 
@@ -88,17 +91,6 @@ class Clock(Protocol):
     def now(self) -> int: ...
 
     def schedule(self, event: Event, priority: int = ..., delay: int = ...) -> None: ...
-
-
-class Scheduled(Event):
-    """An event that fires at ``now + delay`` with a given priority and callback."""
-
-    def __init__(self, env: Any, callback: Callable[[Event], None], priority: int, delay: int = 0):
-        super().__init__(env)
-        self._ok = True
-        self._value = None
-        self.callbacks.append(callback)
-        env.schedule(self, priority, delay)
 
 
 def _as_spec(spec: Any) -> LinkSpec:
@@ -303,16 +295,25 @@ class Network:
         rate-limited link (default: each port its own, the same background in each).
     :param schedule: a :class:`~dkfsim.components.mobility.LinkSchedule` of ``arcs``
         (``mobility:``): which links are up at each tick; None: every link always up.
+    :param medium: the shared radio channel (``medium:``, :mod:`dkfsim.network.medium`): a
+        link between two of its nodes is on it.  Each port has its own copy of it (the same
+        background and draws in each) unless ``shared_queues``.
     """
 
     def __init__(self, env: simpy.Environment, arcs: list[tuple[int, int]],
                  link_spec: Callable[[int, int], Any], seed: int, T_ns: int,
                  crashes: CrashSchedule | None = None, shared_queues: bool = False,
-                 schedule: LinkSchedule | None = None):
+                 schedule: LinkSchedule | None = None, medium: Medium | None = None):
         self.env = cast(Clock, env)         # (SimPy types time as int | float; here it is ns)
         #: link id -> the transmitter every port uses, when queues are shared (else each port
         #: keeps its own)
         self.shared_transmitters: dict[int, Transmitter] | None = {} if shared_queues else None
+        self.medium = medium
+        n = 1 + max((max(u, v) for u, v in arcs), default=-1)
+        #: the nodes on the channel (none without ``medium``)
+        self.members: frozenset[int] = frozenset(medium.members(n)) if medium is not None else frozenset()
+        self._shared_channel: Channel | None = None
+        self._shared_queues = shared_queues
         self.seed, self.T_ns = int(seed), int(T_ns)
         self.links = [Link(i, u, v, link_spec(u, v), seed, T_ns) for i, (u, v) in enumerate(arcs)]
         self.index = {(l.src, l.dst): l for l in self.links}
@@ -330,6 +331,21 @@ class Network:
 
     def link(self, u: int, v: int) -> Link:
         return self.index[(u, v)]
+
+    def on_channel(self, link: Link) -> bool:
+        """Whether ``link`` joins two nodes of the shared channel (its packets go as frames)."""
+        return link.src in self.members and link.dst in self.members
+
+    def channel(self) -> Channel | None:
+        """A copy of the shared channel for a new port (the one copy with ``shared_queues``);
+        None without ``medium``."""
+        if self.medium is None:
+            return None
+        if self._shared_queues:
+            if self._shared_channel is None:
+                self._shared_channel = Channel(self.env, self.medium, tuple(sorted(self.members)), self.seed)
+            return self._shared_channel
+        return Channel(self.env, self.medium, tuple(sorted(self.members)), self.seed)
 
     def extra_link(self, key: tuple, spec: Any, src: int, dst: int) -> Link:
         """A link outside the graph (e.g. a sensor's direct link to a fusion centre),
@@ -373,8 +389,10 @@ class Port:
         self.until = until
         self._receive = receive
         self._links = None if links is None else [l.id for l in links]
-        #: ``range_lost`` (a part of ``lost``) only on a network whose links come and go
-        names = COUNTERS + (("range_lost",) if network.schedule is not None else ())
+        #: ``range_lost`` (a part of ``lost``) only on a network whose links come and go,
+        #: ``collision_lost`` (a part of ``lost``) only on one with a shared channel
+        names = COUNTERS + (("range_lost",) if network.schedule is not None else ()) \
+            + (("collision_lost",) if network.medium is not None else ())
         self._count: dict[str, list[int]] = {k: [] for k in names}
         self._late = 0
         self._grow()
@@ -394,6 +412,12 @@ class Port:
         #: link id -> (own, background) interval logs as the port's owner reported them
         #: (:meth:`set_link_log`)
         self._logs: dict[int, tuple[np.ndarray, np.ndarray]] = {}
+        #: the shared channel as this port sees it (``share_with``'s copy; None without one)
+        self.channel: Channel | None = share_with.channel if share_with is not None else network.channel()
+        #: this port's frames on the channel: sent (started), lost in a collision, dropped by a
+        #: full waiting room, and their access delays (hand-over to start, ns)
+        self._frames = [0, 0, 0]
+        self._access: list[int] = []
 
     def _grow(self) -> None:
         """One counter slot per link of the network (links may be added after the port)."""
@@ -402,7 +426,11 @@ class Port:
             c.extend([0] * (size - len(c)))
 
     def send(self, link: Link, payload: Any, nbytes: int = 0) -> None:
-        """Hand ``payload`` to ``link`` now (``nbytes``: its nominal size, for traffic)."""
+        """Hand ``payload`` to ``link`` now (``nbytes``: its nominal size, for traffic); on
+        the shared channel, a frame of one part (:meth:`send_frame`)."""
+        if self.channel is not None and self.net.on_channel(link):
+            self._send_on_channel(((link, payload, nbytes),), nbytes)
+            return
         now = self.env.now
         if now != self._instant:
             self._instant, self._seq = now, {}
@@ -431,15 +459,74 @@ class Port:
             return
         self._fly(now, 0, link, seq, payload)
 
-    def send_frame(self, parts: Sequence[tuple[Link, Any, int]], frame_bytes: int) -> None:  # noqa: ARG002
+    def send_frame(self, parts: Sequence[tuple[Link, Any, int]], frame_bytes: int) -> None:
         """Hand one frame now carrying ``parts``, each ``(link, payload, nbytes)``, all links
         from one sender; ``frame_bytes`` is the frame's size (a broadcast of one message of
         ``n`` bytes to ``k`` neighbours: ``k`` parts of ``n`` and a frame of ``n``; a combined
         frame of different messages: the sum of their sizes).  Each part is counted on its link
-        (``sent``, ``bytes`` += its ``nbytes``).  Without a shared channel: each part is sent on
-        its own link, :meth:`send`."""
+        (``sent``, ``bytes`` += its ``nbytes``).  The parts on the shared channel go as one frame
+        of ``frame_bytes`` (:mod:`dkfsim.network.medium`); every other part (no channel, or a
+        link off it) is sent on its own link, :meth:`send`."""
+        channel = self.channel
+        if channel is None:
+            for link, payload, nbytes in parts:
+                self.send(link, payload, nbytes)
+            return
+        on = self.net.on_channel
+        framed = [part for part in parts if on(part[0])]
+        for part in parts:
+            if not on(part[0]):
+                self.send(*part)
+        if framed:
+            self._send_on_channel(framed, frame_bytes)
+
+    def _send_on_channel(self, parts: Sequence[tuple[Link, Any, int]], frame_bytes: int) -> None:
+        """One frame of ``frame_bytes`` on the shared channel carrying ``parts``: each part
+        counted and numbered on its link; a part whose link is down is lost at once
+        (``range_lost``); the rest offered as one frame (dropped as a whole by a full waiting
+        room, ``queue_dropped`` per part)."""
+        now = self.env.now
+        if now != self._instant:
+            self._instant, self._seq = now, {}
+        count = self._count
+        held = []
         for link, payload, nbytes in parts:
-            self.send(link, payload, nbytes)
+            lid = link.id
+            seq = self._seq.get(lid, self._seq0)
+            self._seq[lid] = seq + 1
+            if lid >= len(count["sent"]):
+                self._grow()
+            count["sent"][lid] += 1
+            count["bytes"][lid] += nbytes
+            if link.up is not None and not link.is_up(now):
+                count["lost"][lid] += 1
+                count["range_lost"][lid] += 1
+                continue
+            held.append((link, payload, seq))
+        if not held:
+            return
+        assert self.channel is not None
+        if not self.channel.offer(Frame(held[0][0].src, int(frame_bytes), now, held, self._frame_done)):
+            self._frames[2] += 1
+            for link, _, _ in held:
+                count["queue_dropped"][link.id] += 1
+
+    def _frame_done(self, frame: Frame, ok: bool) -> None:
+        """A frame of this port ended at ``frame.end`` (now): lost in a collision, or each part's
+        fate drawn on its link as for any packet (keyed by the hand-over instant and its seq),
+        its arrivals counted from the frame's end."""
+        self._frames[0] += 1
+        self._access.append(frame.start - frame.handed)
+        count = self._count
+        if not ok:
+            self._frames[1] += 1
+            for link, _, _ in frame.parts:
+                count["lost"][link.id] += 1
+                count["collision_lost"][link.id] += 1
+            return
+        handed = frame.handed
+        for link, payload, seq in frame.parts:
+            self._fly(handed, frame.end - handed, link, seq, payload)
 
     def _fly(self, now: int, wait: int, link: Link, seq: int, payload: Any) -> None:
         """A packet handed over ``now`` and leaving the sender ``wait`` ns later: its fate
@@ -479,10 +566,12 @@ class Port:
         self._fly(now, end - now, link, seq, payload)
 
     def _enqueue(self, now: int, lat: int, link: Link, payload: Any) -> None:
-        due = self._due.get(now + lat)
+        """Deliver ``payload`` at ``now + lat`` (``now``: its hand-over, not before the present)."""
+        at = now + lat
+        due = self._due.get(at)
         if due is None:
-            due = self._due[now + lat] = []
-            Scheduled(self.env, self._deliver, PRIORITY_DELIVER, lat)
+            due = self._due[at] = []
+            Scheduled(self.env, self._deliver, PRIORITY_DELIVER, at - self.env.now)
         due.append(link)
         due.append(payload)
 
@@ -618,4 +707,18 @@ class Port:
             per_link.append(row)
         totals["per_link"] = per_link
         totals["late"] = self._late
+        if self.channel is not None:
+            totals["channel"] = self.channel_stats(end)
         return totals
+
+    def channel_stats(self, end: int) -> dict[str, Any]:
+        """The shared channel over ``[0, end]`` as this port saw it (:meth:`Channel.stats`:
+        every frame, background included) and this port's frames: ``frames`` sent (collided
+        or not), ``frames_collided``, ``frames_dropped`` (a full waiting room) and
+        ``access_delay_mean`` (s, hand-over to start of transmission)."""
+        assert self.channel is not None
+        stats: dict[str, Any] = dict(self.channel.stats(end))
+        sent, collided, dropped = self._frames
+        stats.update(frames=sent, frames_collided=collided, frames_dropped=dropped,
+                     access_delay_mean=float(np.mean(self._access)) / NS_PER_S if self._access else 0.0)
+        return stats

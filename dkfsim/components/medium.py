@@ -1,0 +1,85 @@
+"""A shared radio channel (``medium:``, issue 22; docs/design.md §3, "A shared radio channel").
+
+Vehicles do not have a private wire per neighbour: the scenario's ``medium:`` puts its
+``nodes`` on one channel of ``rate`` bits per second.  They transmit one frame at a time under
+``access`` (a simplified IEEE 802.11p / ITS-G5 broadcast CSMA: a backoff for every frame, no
+acknowledgement, no retransmission), and a frame reaches every neighbour on the channel at once.
+Every member has one radio: a first-in-first-out waiting room (``queue``, drop-tail) fed by its
+estimators' frames and its own ``background`` (awareness messages: per vehicle, keyed draws).
+
+``medium: {rate, access: {kind: csma, slot, aifs, cw}, preamble, queue, background, nodes}``;
+a frame of ``size`` bytes is on the air ``preamble + size * 8 / rate`` seconds (:meth:`Medium.frame_ns`).
+"""
+
+from __future__ import annotations
+
+from typing import Annotated, Literal
+
+from pydantic import Field, model_validator
+
+from dkfsim.components.traffic import Background, Queue, Rate, transmission_ns
+from dkfsim.core.params import MAX_NS, NonNegSeconds, StrictModel, custom_error, seconds_to_ns
+
+#: Largest contention window (slots): IEEE 802.11's largest, CWmax = 1023.
+MAX_CW = 1023
+#: Largest slot and AIFS (seconds): far beyond any radio (802.11p: 13 us and 110 us).
+MAX_SLOT_S = 1.0
+
+
+class Csma(StrictModel):
+    """Slotted CSMA with a backoff for every frame (docs/design.md §3): the channel's slot
+    boundaries after it last became idle at ``t`` are ``t + aifs + m * slot``; a node's head
+    frame draws a backoff uniform in ``0 .. cw`` slots and is sent that many boundaries after
+    the first one at or after it became head, while the channel stays idle."""
+
+    kind: Literal["csma"] = "csma"
+    slot: Annotated[float, Field(strict=True, gt=0, le=MAX_SLOT_S, allow_inf_nan=False)] = 13.0e-6
+    aifs: Annotated[float, Field(strict=True, ge=0, le=MAX_SLOT_S, allow_inf_nan=False)] = 110.0e-6
+    cw: Annotated[int, Field(strict=True, ge=0, le=MAX_CW)] = 15
+
+    @property
+    def slot_ns(self) -> int:
+        return seconds_to_ns(self.slot)
+
+    @property
+    def aifs_ns(self) -> int:
+        return seconds_to_ns(self.aifs)
+
+    @model_validator(mode="after")
+    def _whole_slot(self):
+        if self.slot_ns < 1:
+            raise custom_error(f"a slot of {self.slot!r} s is under one nanosecond (the clock's unit); "
+                               "give at least 1e-9 (802.11p: 13.0e-6)", "slot")
+        return self
+
+
+class Medium(StrictModel):
+    """The scenario's shared channel: who is on it, its rate, its access rule, each radio's
+    waiting room and each vehicle's background frames."""
+
+    rate: Rate
+    access: Csma = Field(default_factory=Csma)
+    preamble: NonNegSeconds = 40.0e-6
+    queue: Queue | None = None
+    background: Background | None = None
+    nodes: Literal["all"] | Annotated[tuple[Annotated[int, Field(strict=True, ge=0)], ...],
+                                      Field(min_length=2)] = "all"
+
+    def members(self, n: int) -> tuple[int, ...]:
+        """The nodes on the channel, in increasing order."""
+        return tuple(range(n)) if self.nodes == "all" else tuple(sorted(set(self.nodes)))
+
+    def frame_ns(self, size: int) -> int:
+        """ns a frame of ``size`` bytes is on the air: the preamble plus ``size * 8 / rate``
+        (:func:`~dkfsim.components.traffic.transmission_ns`), at least 1 ns."""
+        return max(1, min(seconds_to_ns(self.preamble) + transmission_ns(size, self.rate), MAX_NS))
+
+    def check(self, n: int) -> None:
+        """``nodes`` against the scenario's ``n`` nodes (a
+        error naming ``medium.nodes.<i>``)."""
+        if self.nodes != "all":
+            for i, node in enumerate(self.nodes):
+                if node >= n:
+                    raise custom_error(f"node {node} is out of range 0..{n - 1}", f"medium.nodes.{i}")
+                if node in self.nodes[:i]:
+                    raise custom_error(f"node {node} is listed twice", f"medium.nodes.{i}")

@@ -1,0 +1,285 @@
+"""The shared radio channel (``medium:``; docs/design.md §3, "A shared radio channel").
+
+One :class:`Channel` is one collision domain: every member senses every other.  Each member
+has one radio, a first-in-first-out waiting room of frames (its estimators' and its
+background's) whose head contends for the channel under slotted CSMA with a backoff for every
+frame:
+
+- the channel's slot boundaries after it last became idle at ``t_idle`` are
+  ``t_idle + aifs + m * slot``, ``m = 0, 1, ...`` (``t_idle = 0`` at the start);
+- a frame that becomes its radio's head at ``h`` draws a backoff ``b`` uniform in
+  ``0 .. cw`` (the keyed draw ``("channel", c, node, "backoff")`` at ``(h, attempt)``,
+  ``attempt`` the number of earlier draws of that node at ``h``), joins at the first boundary
+  at or after ``h`` and is sent ``b`` boundaries later if the channel stays idle;
+- a transmission that starts first freezes the other heads' remaining counts (boundaries
+  not yet passed), which resume from the next idle period's boundaries;
+- frames that start at one boundary collide: each is lost for every receiver; the channel
+  is busy until the longest ends;
+- when its frame ends, a radio with more frames draws a fresh backoff (keyed by that instant).
+
+The engine is event driven over the run's SimPy environment, and lazy: its state is brought
+up to date (:meth:`Channel.advance`) when a frame is offered and by one wake-up event per
+contention decision and per transmission end while an estimator's frame is on the channel
+(never one per slot).  At one instant it takes the transmission ends, then the arrivals
+(background first, then the estimators' frames as they are handed over), then a start at a
+boundary -- so a frame handed over exactly at a boundary joins it.
+"""
+
+from __future__ import annotations
+
+import heapq
+from collections import deque
+from collections.abc import Callable
+from typing import Any
+
+from simpy.events import URGENT, Event
+
+from dkfsim.components.medium import Medium
+from dkfsim.core.params import MAX_NS
+from dkfsim.core.streams import key64, keyed_uniform
+from dkfsim.network.events import Scheduled
+from dkfsim.network.transmitter import BackgroundArrivals, busy_within
+
+_NEVER = MAX_NS + 1
+
+
+class Frame:
+    """One frame on the channel: its sender, size, hand-over instant and, for an estimator's
+    frame, what it carries and whom to tell when it ends (``done(frame, ok)``; None: a
+    background frame)."""
+
+    __slots__ = ("node", "size", "handed", "parts", "done", "start", "end")
+
+    def __init__(self, node: int, size: int, handed: int, parts: Any = None,
+                 done: Callable[[Frame, bool], None] | None = None):
+        self.node, self.size, self.handed, self.parts, self.done = node, size, handed, parts, done
+        self.start = self.end = -1
+
+
+class Radio:
+    """One member's radio: its waiting room (the head contending, the frame on the air apart),
+    its backoff state and its background."""
+
+    __slots__ = ("node", "queue", "queued_bytes", "on_air", "head_at", "count", "key", "drawn_at",
+                 "drawn", "background")
+
+    def __init__(self, node: int, key: int, background: BackgroundArrivals | None):
+        self.node = node
+        self.queue: deque[Frame] = deque()
+        self.queued_bytes = 0
+        self.on_air: Frame | None = None
+        #: when the head became head (or was frozen), and its remaining backoff (boundaries)
+        self.head_at = 0
+        self.count = 0
+        self.key = key
+        self.drawn_at, self.drawn = -1, 0
+        self.background = background
+
+
+class Channel:
+    """One copy of the shared channel (each estimator's port has its own unless shared).
+
+    :param spec: the scenario's :class:`~dkfsim.components.medium.Medium`.
+    :param members: the nodes on the channel.
+    :param index: the channel's number ``c`` in its draws' keys (one channel: 0).
+    """
+
+    def __init__(self, env: Any, spec: Medium, members: tuple[int, ...], seed: int, index: int = 0):
+        self.env = env
+        self.spec = spec
+        self.slot, self.aifs, self.cw = spec.access.slot_ns, spec.access.aifs_ns, int(spec.access.cw)
+        self.max_packets = spec.queue.packets if spec.queue is not None else None
+        self.max_bytes = spec.queue.bytes if spec.queue is not None else None
+        self.radios: dict[int, Radio] = {}
+        #: (instant of the next background frame, node) of every member with background
+        self._arrivals: list[tuple[int, int]] = []
+        for node in members:
+            prefix = ("channel", index, node)
+            bg = BackgroundArrivals(spec.background, prefix, seed) if spec.background is not None else None
+            self.radios[node] = Radio(node, key64(seed, *prefix, "backoff"), bg)
+            if bg is not None:
+                self._arrivals.append((bg.next_time(), node))
+        heapq.heapify(self._arrivals)
+        self.t_idle = 0
+        #: the frames on the air (one, or several colliding) and when the last of them ends
+        self.on_air: list[Frame] = []
+        self.busy_end = 0
+        self.collided = False
+        #: the instant processed up to (ends and arrivals at it included, starts before it)
+        self.now = -1
+        self._next_start: int | None = None
+        #: estimators' frames waiting or on the air (wake-ups are needed only while any is)
+        self.pending = 0
+        self._wakes: set[int] = set()
+        # statistics
+        self.busy_ns = 0
+        self.frames_sent = 0            # every frame that started, background included
+        self.collisions = 0             # boundaries at which two or more frames started
+        self.background_sent = 0
+        self.background_dropped = 0
+        self.background_collided = 0
+
+    # ------------------------------------------------------------------ offering
+    def offer(self, frame: Frame) -> bool:
+        """Hand over ``frame`` now at its node's radio: False when the waiting room is full
+        (drop-tail: nothing of it is sent)."""
+        now = self.env.now
+        self.advance(now)
+        ok = self._arrive(self.radios[frame.node], frame, now)
+        if ok:
+            self.pending += 1
+        self._wake()
+        return ok
+
+    def _arrive(self, radio: Radio, frame: Frame, now: int) -> bool:
+        queue = radio.queue
+        if self.max_packets is not None and len(queue) >= self.max_packets:
+            return False
+        if self.max_bytes is not None and radio.queued_bytes + frame.size > self.max_bytes:
+            return False
+        queue.append(frame)
+        radio.queued_bytes += frame.size
+        if len(queue) == 1 and radio.on_air is None:
+            self._head(radio, now)
+        return True
+
+    def _head(self, radio: Radio, t: int) -> None:
+        """The radio's first waiting frame becomes head at ``t``: a fresh backoff."""
+        if radio.drawn_at != t:
+            radio.drawn_at, radio.drawn = t, 0
+        u = keyed_uniform(radio.key, t, radio.drawn)
+        radio.drawn += 1
+        radio.head_at = t
+        radio.count = min(int(u * (self.cw + 1)), self.cw)
+        self._next_start = None
+
+    # ------------------------------------------------------------------ the engine
+    def _target(self, radio: Radio) -> int:
+        """The boundary index at which ``radio``'s head is sent if the channel stays idle."""
+        first = self.t_idle + self.aifs
+        h = radio.head_at
+        join = 0 if h <= first else -(-(h - first) // self.slot)
+        return join + radio.count
+
+    def next_start(self) -> int:
+        """When the next transmission starts if nothing more is handed over (never: no head,
+        or the channel busy)."""
+        if self.on_air:
+            return _NEVER
+        if self._next_start is None:
+            best = _NEVER
+            for radio in self.radios.values():
+                if radio.queue and radio.on_air is None:
+                    t = self.t_idle + self.aifs + self._target(radio) * self.slot
+                    if t < best:
+                        best = t
+            self._next_start = best
+        return self._next_start
+
+    def advance(self, t: int) -> None:
+        """Bring the channel up to instant ``t``: every transmission end and arrival at or
+        before ``t`` and every start before ``t``, in time order."""
+        if t < self.now:
+            return
+        arrivals = self._arrivals
+        while True:
+            te = min(f.end for f in self.on_air) if self.on_air else _NEVER
+            ta = arrivals[0][0] if arrivals else _NEVER
+            ts = self.next_start()
+            if te <= t and te <= ta:
+                self._end(te)
+            elif ta <= t and ta <= ts:
+                self._background(ta)
+            elif ts < t:
+                self._start(ts)
+            else:
+                break
+        self.now = t
+
+    def _background(self, ta: int) -> None:
+        _, node = heapq.heappop(self._arrivals)
+        radio = self.radios[node]
+        bg = radio.background
+        assert bg is not None
+        _, sizes = bg.until(ta)
+        for size in sizes:
+            if not self._arrive(radio, Frame(node, int(size), ta), ta):
+                self.background_dropped += 1
+        heapq.heappush(self._arrivals, (bg.next_time(), node))
+
+    def _start(self, ts: int) -> None:
+        first = self.t_idle + self.aifs
+        s = (ts - first) // self.slot
+        frame_ns = self.spec.frame_ns
+        end = ts
+        for radio in self.radios.values():
+            if not radio.queue or radio.on_air is not None:
+                continue
+            m = self._target(radio)
+            if m == s:
+                frame = radio.queue.popleft()
+                radio.queued_bytes -= frame.size
+                frame.start, frame.end = ts, ts + frame_ns(frame.size)
+                radio.on_air = frame
+                self.on_air.append(frame)
+                end = max(end, frame.end)
+            else:                               # frozen: the boundaries it passed are spent
+                radio.count = m - s
+                radio.head_at = ts
+        self.collided = len(self.on_air) > 1
+        self.collisions += self.collided
+        self.frames_sent += len(self.on_air)
+        self.busy_ns += end - ts
+        self.busy_end = end
+        self._next_start = None
+
+    def _end(self, te: int) -> None:
+        done = [f for f in self.on_air if f.end == te]
+        self.on_air = [f for f in self.on_air if f.end != te]
+        ok = not self.collided
+        for frame in done:
+            radio = self.radios[frame.node]
+            radio.on_air = None
+            if frame.done is None:
+                if ok:
+                    self.background_sent += 1
+                else:
+                    self.background_collided += 1
+            else:
+                self.pending -= 1
+                frame.done(frame, ok)
+            if radio.queue:
+                self._head(radio, te)
+        if not self.on_air:
+            self.t_idle = te
+            self._next_start = None
+
+    # ------------------------------------------------------------------ wake-ups
+    def _wake(self) -> None:
+        """While an estimator's frame waits or is on the air: a wake-up at the next end, or
+        just after the next start (once every frame handed over at that boundary has joined)."""
+        if not self.pending:
+            return
+        t = min(f.end for f in self.on_air) if self.on_air else self.next_start() + 1
+        if t in self._wakes or t > MAX_NS:
+            return
+        self._wakes.add(t)
+        Scheduled(self.env, self._woken, URGENT, t - self.env.now)
+
+    def _woken(self, _event: Event) -> None:
+        now = self.env.now
+        self._wakes.discard(now)
+        self.advance(now)
+        self._wake()
+
+    # ------------------------------------------------------------------ statistics
+    def stats(self, end_ns: int) -> dict[str, float | int]:
+        """The channel over ``[0, end_ns]`` (brought up to ``end_ns``, or to now if that is
+        earlier): utilisation (busy, collisions included), frames started, collisions and the
+        background frames sent, lost in collisions and dropped by a full waiting room."""
+        self.advance(min(end_ns, self.env.now))
+        busy = busy_within(self.busy_ns, self.busy_end, end_ns)
+        return {"utilisation": busy / end_ns if end_ns > 0 else 0.0,
+                "frames_on_air": self.frames_sent, "collisions": self.collisions,
+                "background_sent": self.background_sent, "background_collided": self.background_collided,
+                "background_dropped": self.background_dropped}
