@@ -238,6 +238,11 @@ def test_a_node_silent_beyond_the_margin_leaves_the_fusion():
     assert np.allclose(a["x_fusion_centre"][9:], a["x_local"][9:, 0], rtol=1e-10, atol=1e-12)
     assert np.allclose(a["P_fusion_centre"][9:], a["P_local"][9:, 0], rtol=1e-10, atol=0)
     assert not np.allclose(a["x_fusion_centre"][8], a["x_local"][8, 0], rtol=1e-6, atol=0)
+    # a margin of 6 final rows covers the 6 silent ticks: nobody leaves
+    res, _ = run(_path3(["links.overrides.0.outages=[[0.055, 0.115]]",
+                         "estimators=[{kind: fusion_centre, at: 0, margin: 6}]"]))
+    assert res.facts["fusion_centre"]["nodes_excluded"] == 0
+    assert res.facts["fusion_centre"]["rows_carried"] == 4 + 6
 
 
 # ---------------------------------------------------------------------------- NEES
@@ -285,6 +290,7 @@ def test_bad_at_messages():
         ({"kind": "fusion_centre", "at": 12}, ["estimators.0.at", "node 12 does not exist"]),
         ({"kind": "fusion_centre", "at": "one"}, ["estimators.0.at"]),
         ({"kind": "fusion_centre", "at": 1.5}, ["estimators.0.at"]),
+        ({"kind": "fusion_centre", "at": 1, "margin": -1}, ["estimators.0.margin"]),
     ]:
         with pytest.raises(dkfsim.ScenarioError) as err:
             paper([f"estimators=[{yaml.safe_dump(entry, default_flow_style=True).strip()}]"])

@@ -4,7 +4,7 @@ The idealised ``fused`` estimate combines every node's estimate at the instant i
 computed, with no packets.  A fusion centre at node ``at`` does the same from what reaches
 it: right after the scenario's DKF computes row ``r = k-1`` at tick ``k``, every other node
 sends the centre its estimate ``x_i[r]`` and its held-origin masks of the last ``W = L + M``
-rows (its window, and the last ``M`` final rows; ``M = L``), plus the information matrix
+rows (its window, and the last ``M`` final rows; ``M``: ``margin``, default ``L``), plus the information matrix
 ``omega_o[row]`` of each measurement-dependent origin (a radar) it holds and has not carried
 before.  Packets are relayed hop by hop along a shortest path of the DKF's exchange graph,
 through the DKF's own transmitters and channel (docs/design.md §7, "The fusion centre").
@@ -71,7 +71,7 @@ class FusionCentre(Estimator, params=FusionCentreParams):
 
     #: Its packets and their nominal sizes (bytes; docs/estimators.md, "Packet sizes").
     packets = ("one per node but `at` and tick, relayed hop by hop to `at`: 16-byte header + 8 (row) "
-               "+ 8 nx (the estimate) + W ceil(n/8) (held-origin masks of the last W = 2L rows) "
+               "+ 8 nx (the estimate) + W ceil(n/8) (held-origin masks of the last W = L + margin rows) "
                "+ 8 nx(nx+1)/2 per measurement-dependent omega carried the first time")
 
     params: FusionCentreParams
@@ -89,7 +89,7 @@ class FusionCentre(Estimator, params=FusionCentreParams):
         sc = plan.scenario
         n, nx, K = sc.n, sc.nx, int(sc.steps)
         L, _ = plan.buffer_length_bound(plan.dkf().buffer_length)
-        W = 2 * L
+        W = L + (L if params.margin is None else params.margin)
         S, N = min(W, K) + 1, n * nx
         c = Cost(params.label)
         c.seconds = K * (C_TICK + min(W, K) * (C_ROW + n * C_NODE_ROW + C_FUSION_ROW) + 2 * n * C_PACKET
@@ -108,7 +108,8 @@ class FusionCentre(Estimator, params=FusionCentreParams):
         sys_, K, n, nx = ctx.system, ctx.K, ctx.n, ctx.nx
         self.Phi = sys_.Phi
         self.L = L = int(dkf.L)
-        self.M = L                                    # the margin of final rows a packet repeats
+        margin = self.params.margin
+        self.M = L if margin is None else int(margin)   # the final rows a packet repeats
         self.W = W = L + self.M
         self.fuser = FUSERS[dkf.fusion]
         info = ctx.info
