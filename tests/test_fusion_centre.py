@@ -302,3 +302,26 @@ def test_bad_at_messages():
     with pytest.raises(dkfsim.ScenarioError) as err:
         paper(["fusion=none"])
     assert "estimators.0" in str(err.value) and "fusion: none" in str(err.value)
+
+
+# ------------------------------------------------------------- the DKF's queues and channel
+@pytest.mark.parametrize("extra, shares", [
+    ([], False),                                       # no rate, no channel: nothing to share
+    (["links.default.rate=300000"], True),             # the DKF's transmitters
+    (["medium={rate: 6e6}"], True),                    # the DKF's channel
+])
+def test_the_centre_waits_in_the_dkfs_queues(extra, shares):
+    """Without a rate or a channel adding a centre changes none of the DKF's numbers (its draws
+    are its own); with them its packets wait in the DKF's queues or contend on its channel, so
+    the DKF's estimate changes: the centre's load is part of the DKF's cost."""
+    base = [ZERO, "buffer_length=3", *extra, "estimators=[{kind: centralized}]"]
+    alone = dkfsim.run(dkfsim.load_scenario(ROOT / "scenarios" / "paper_case1.yaml",
+                                            overrides=["steps=120", *base]))
+    res, _ = run(paper([ZERO, "buffer_length=3", *extra]))
+    same = np.array_equal(res.arrays["x_fused"], alone.arrays["x_fused"])
+    assert same is not shares
+    assert res.info["backend"]["exchange"] == ("python" if shares else "compiled")
+    t = res.traffic["fusion_centre"]
+    assert t["sent"] == t["delivered"] + t["lost"] + t["queue_dropped"] + t["crash_dropped"] + t["in_flight"]
+    if extra and extra[0].startswith("medium"):
+        assert t["collision_lost"] > 0
