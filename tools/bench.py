@@ -34,11 +34,15 @@
    without these keys, both on the backend's defaults (the compiled tree on the numba path),
    alternated in this process, min of ``--repeats``; the issue asks at most 2x.
    ``--traffic-only`` runs this line alone.
-9. A shared channel (issue 22): ``scenarios/channel_its_g5.yaml`` (every estimator on one
-   CSMA channel with background, the Python exchange) against the same scenario without
-   ``medium:``, on the backend's defaults (the compiled tree) and on the Python exchange,
-   alternated in this process, min of ``--repeats``; the issue asks at most 2x.
-   ``--channel-only`` runs this line alone.
+9. A fusion centre over the network (issue 22): ``paper_case1`` with ``{kind: fusion_centre,
+   at: 0}`` against the same scenario without it, on the compiled path (the tree compiled, numba
+   kernels), alternated in this process, min CPU of ``--repeats``; the issue asks at most 2x.
+   ``--centre-only`` runs this line alone.
+10. A shared channel (issue 22): ``scenarios/channel_its_g5.yaml`` (every estimator on one
+    CSMA channel with background, the Python exchange) against the same scenario without
+    ``medium:``, alternated on the backend's defaults (the compiled tree), then alternated with
+    the Python exchange for both (the same protocol code); min CPU of ``--repeats``; the issue
+    asks at most 2x.  ``--channel-only`` runs this line alone.
 
 Before/after (``--base REF``): the runs of sections 1, 2 and 4 that exercise the kernels
 (paper_case1 on the three kernel paths, a 50-node tree with matrix fusion, a 200-node tree
@@ -49,7 +53,8 @@ the same kind) and the ratio this / base.  Nothing else runs in that mode.
 
 Usage: ``python tools/bench.py [--ticks 1000] [--sizes 12 50 200] [--fit-sizes 12 50 200 1000]
 [--skip-sweep] [--big-ticks 200] [--skip-threads] [--skip-executors] [--skip-traffic]``,
-``python tools/bench.py --traffic-only [--ticks 1000] [--repeats 3]`` (``--channel-only`` likewise), or
+``python tools/bench.py --traffic-only [--ticks 1000] [--repeats 3]``,
+``python tools/bench.py --centre-only [--ticks 1000] [--repeats 3]`` (``--channel-only`` likewise), or
 ``python tools/bench.py --base REF [--repeats 3]``.
 Timing lives here, never in the tests.
 """
@@ -66,9 +71,7 @@ import subprocess
 import sys
 import tempfile
 import time
-from collections.abc import Callable
 from pathlib import Path
-from typing import Any
 
 import simpy
 
@@ -219,14 +222,17 @@ def executors_compared(steps: int, runs: int) -> list[tuple[str, float, bool]]:
     return out
 
 
-def alternated(runs: dict[str, Callable[[], tuple]], repeats: int) -> tuple[dict[str, Any], dict]:
-    """Each of ``runs`` (name -> a call returning :func:`timed`'s triple) once per round, the
-    rounds ``repeats`` times: the min CPU seconds of each and the last result of each."""
+def alternated(runs: dict, repeats: int) -> tuple[dict, dict]:
+    """The min CPU seconds of each scenario of ``runs`` (name -> scenario), each warmed up once
+    (kernels compiled or loaded: not counted), then alternated ``repeats`` times in this process;
+    and each one's last result."""
+    for sc in runs.values():
+        dkfsim.run(dkfsim.load_scenario(sc, overrides=["steps=20"]), save="estimates")
     cpu: dict[str, list[float]] = {name: [] for name in runs}
     last = {}
     for _ in range(max(1, repeats)):
-        for name, call in runs.items():
-            _, c, last[name] = call()
+        for name, sc in runs.items():
+            _, c, last[name] = timed(sc)
             cpu[name].append(c)
     return {name: min(v) for name, v in cpu.items()}, last
 
@@ -237,10 +243,7 @@ def traffic_cost(ticks: int, repeats: int) -> dict:
     ``repeats`` times in this process; the min of each, their ratio, packets and exchange."""
     plain = dkfsim.load_scenario(ROOT / "scenarios" / "paper_case1.yaml", overrides=[f"steps={ticks}"])
     rated = dkfsim.load_scenario(plain, overrides=list(TRAFFIC))
-    runs = {"plain": plain, "rated": rated}
-    for sc in runs.values():                          # kernels compiled or loaded: not counted
-        dkfsim.run(dkfsim.load_scenario(sc, overrides=["steps=20"]), save="estimates")
-    out, last = alternated({name: (lambda sc=sc: timed(sc)) for name, sc in runs.items()}, repeats)
+    out, last = alternated({"plain": plain, "rated": rated}, repeats)
     out["ratio"] = out["rated"] / out["plain"]
     out.update({f"{name}_sent": r.counts["sent"] for name, r in last.items()})
     out["exchange"] = last["rated"].info["backend"]["exchange"]
@@ -255,29 +258,42 @@ def print_traffic_cost(ticks: int, repeats: int) -> None:
           f"({t['rated_sent']} packets, exchange '{t['exchange']}')   ratio {t['ratio']:.2f} x (issue: <= 2)")
 
 
+def print_centre_cost(ticks: int, repeats: int) -> None:
+    """Section 9: CPU seconds of ``paper_case1`` with a fusion centre at node 0 and without
+    (``dkfsim.run``, ``save="estimates"``, :func:`alternated`), their ratio and the exchange each ran."""
+    plain = dkfsim.load_scenario(ROOT / "scenarios" / "paper_case1.yaml", overrides=[f"steps={ticks}"])
+    centre = dkfsim.load_scenario(plain, overrides=["estimators=[{kind: centralized}, {kind: fusion_centre, at: 0}]"])
+    cpu, last = alternated({"without": plain, "with": centre}, repeats)
+    exchange = {name: r.info["backend"]["exchange"] for name, r in last.items()}
+    print(f"fusion centre (issue 22): paper_case1, {ticks} ticks, with {{kind: fusion_centre, at: 0}} against "
+          f"without; CPU s, min of {repeats} alternated")
+    print("  " + "   ".join(f"{name} {cpu[name]:8.3f} s ('{exchange[name]}')" for name in cpu)
+          + f"   {last['with'].traffic['fusion_centre']['sent']} centre packets   "
+          f"ratio {cpu['with'] / cpu['without']:.2f} x (issue: <= 2)")
+
+
 def channel_cost(ticks: int, repeats: int) -> dict:
-    """Section 9: CPU seconds of ``scenarios/channel_its_g5.yaml`` (every estimator on the shared
-    channel, the Python exchange) against the same scenario without ``medium:``, once on the
-    backend's defaults (the compiled tree on the numba path) and once with the Python exchange
-    (the same protocol code as the channel run); each warmed up once, then alternated
-    ``repeats`` times in this process; the min of each and the ratios."""
+    """Section 10: CPU seconds of ``scenarios/channel_its_g5.yaml`` and of the same scenario
+    without ``medium:`` (:func:`alternated`), on the backend's defaults (the scenario without a
+    channel runs the compiled tree on the numba path) and then both with the Python exchange (the
+    protocol code the channel run uses); the min of each and the ratios."""
     import yaml
     path = ROOT / "scenarios" / "channel_its_g5.yaml"
     spec = yaml.safe_load(path.read_text())
     spec.pop("medium")
-    channel = dkfsim.load_scenario(path, overrides=[f"steps={ticks}"])
-    plain = dkfsim.load_scenario(spec, overrides=[f"steps={ticks}"])
-    runs = {"channel": (channel, None), "plain": (plain, None), "plain_python": (plain, "python")}
-
-    def one(sc, exchange):
-        return timed_with(sc, EXCHANGE_ENV, exchange) if exchange else timed(sc)
-    for sc, exchange in runs.values():                # kernels compiled or loaded: not counted
-        one(dkfsim.load_scenario(sc, overrides=["steps=20"]), exchange)
-    out, last = alternated({name: (lambda sc=sc, ex=exchange: one(sc, ex)) for name, (sc, exchange) in runs.items()},
-                           repeats)
+    runs = {"channel": dkfsim.load_scenario(path, overrides=[f"steps={ticks}"]),
+            "plain": dkfsim.load_scenario(spec, overrides=[f"steps={ticks}"])}
+    out, last = alternated(runs, repeats)
+    os.environ[EXCHANGE_ENV] = "python"
+    try:
+        python, last_python = alternated(runs, repeats)
+    finally:
+        del os.environ[EXCHANGE_ENV]
     out["ratio"] = out["channel"] / out["plain"]
-    out["ratio_python"] = out["channel"] / out["plain_python"]
-    out.update({f"{name}_exchange": r.info["backend"]["exchange"] for name, r in last.items()})
+    out["ratio_python"] = python["channel"] / python["plain"]
+    out["plain_python"] = python["plain"]
+    out["exchange"] = {name: r.info["backend"]["exchange"] for name, r in last.items()}
+    out["exchange_python"] = last_python["plain"].info["backend"]["exchange"]
     out["channel_sent"] = last["channel"].counts["sent"]
     return out
 
@@ -286,9 +302,9 @@ def print_channel_cost(ticks: int, repeats: int) -> None:
     t = channel_cost(ticks, repeats)
     print(f"a shared channel (issue 22): scenarios/channel_its_g5.yaml, {ticks} ticks, every estimator, "
           f"against the same scenario without medium:; CPU s, min of {repeats} alternated")
-    print(f"  without medium {t['plain']:8.3f} s (exchange '{t['plain_exchange']}'), "
-          f"{t['plain_python']:8.3f} s (exchange '{t['plain_python_exchange']}')   "
-          f"channel {t['channel']:8.3f} s (exchange '{t['channel_exchange']}', {t['channel_sent']} packets)")
+    print(f"  channel {t['channel']:8.3f} s (exchange '{t['exchange']['channel']}', {t['channel_sent']} packets)"
+          f"   without medium {t['plain']:8.3f} s (exchange '{t['exchange']['plain']}'), "
+          f"{t['plain_python']:8.3f} s (exchange '{t['exchange_python']}')")
     print(f"  ratio {t['ratio']:.2f} x against the default path (issue: <= 2), "
           f"{t['ratio_python']:.2f} x against the same Python exchange")
 
@@ -444,9 +460,10 @@ def main(argv=None) -> int:
     ap.add_argument("--mobility-only", action="store_true", help="run section 7 (a changing graph) alone")
     ap.add_argument("--skip-traffic", action="store_true", help="skip the rate-limited links' cost (section 8)")
     ap.add_argument("--traffic-only", action="store_true", help="only the rate-limited links' cost (section 8)")
-    ap.add_argument("--skip-channel", action="store_true", help="skip the shared channel's cost (section 9)")
-    ap.add_argument("--channel-only", action="store_true",
-                    help="only the shared channel's cost (section 9: the shipped channel scenario)")
+    ap.add_argument("--skip-centre", action="store_true", help="skip the fusion centre's cost (section 9)")
+    ap.add_argument("--centre-only", action="store_true", help="only the fusion centre's cost (section 9)")
+    ap.add_argument("--skip-channel", action="store_true", help="skip the shared channel's cost (section 10)")
+    ap.add_argument("--channel-only", action="store_true", help="only the shared channel's cost (section 10)")
     ap.add_argument("--probe", action="store_true", help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
     if args.probe:
@@ -458,6 +475,9 @@ def main(argv=None) -> int:
         return 0
     if args.traffic_only:
         print_traffic_cost(args.ticks, args.repeats)
+        return 0
+    if args.centre_only:
+        print_centre_cost(args.ticks, args.repeats)
         return 0
     if args.channel_only:
         print_channel_cost(args.ticks, args.repeats)
@@ -575,6 +595,9 @@ def main(argv=None) -> int:
     if not args.skip_traffic:
         print()
         print_traffic_cost(args.ticks, args.repeats)
+    if not args.skip_centre:
+        print()
+        print_centre_cost(args.ticks, args.repeats)
     if not args.skip_channel:
         print()
         print_channel_cost(args.ticks, args.repeats)

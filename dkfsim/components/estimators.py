@@ -86,6 +86,9 @@ class FusionCentreParams(EstimatorParams, kind="fusion_centre"):
     #: The node (index, 0-based) where the centre runs; the nodes' packets are relayed to it
     #: over the scenario's DKF exchange graph, through the DKF's own queues.
     at: Annotated[int, Field(strict=True, ge=0)]
+    #: ``M``: the final rows a node's packet repeats beyond its window, i.e. how many ticks in a
+    #: row a node may go unheard before it leaves the fusion (default: the DKF's ``L``).
+    margin: Annotated[int, Field(strict=True, ge=0, le=100_000)] | None = None
 
     def check(self, scenario) -> None:
         if self.at >= scenario.n:

@@ -48,7 +48,7 @@ def run_backend(plan: RunPlan, network: Network, crashes: CrashSchedule | None) 
     """The backend of a run: what the environment asks for (:meth:`Backend.from_environment`),
     with the Python exchange where the compiled one cannot run (a protocol without a compiled
     twin, a link it cannot draw, crash windows, transmitters shared between estimators, a
-    ``fusion_centre`` whose packets wait in the DKF's rate-limited queues: decision 221; a shared
+    ``fusion_centre`` whose packets wait in the DKF's rate-limited queues (decision 221), a shared
     radio channel: the compiled tree cannot draw the channel, decision 214)."""
     backend = Backend.from_environment()
     if backend.compiled_exchange:

@@ -4,7 +4,7 @@ The idealised ``fused`` estimate combines every node's estimate at the instant i
 computed, with no packets.  A fusion centre at node ``at`` does the same from what reaches
 it: right after the scenario's DKF computes row ``r = k-1`` at tick ``k``, every other node
 sends the centre its estimate ``x_i[r]`` and its held-origin masks of the last ``W = L + M``
-rows (its window, and the last ``M`` final rows; ``M = L``), plus the information matrix
+rows (its window, and the last ``M`` final rows; ``M``: ``margin``, default ``L``), plus the information matrix
 ``omega_o[row]`` of each measurement-dependent origin (a radar) it holds and has not carried
 before.  Packets are relayed hop by hop along a shortest path of the DKF's exchange graph,
 through the DKF's own transmitters and channel (docs/design.md §7, "The fusion centre").
@@ -28,6 +28,7 @@ from __future__ import annotations
 
 from typing import Any
 
+import networkx as nx
 import numpy as np
 from simpy.events import Event
 
@@ -46,20 +47,12 @@ def next_hops(arcs: list[tuple[int, int]], n: int, at: int) -> np.ndarray:
     """Each node's next hop toward ``at`` on a shortest path over the directed ``arcs`` (the
     lowest-index neighbour among equals; a breadth-first search from ``at`` over the reversed
     arcs); -1 for ``at`` itself and for a node that cannot reach it."""
-    into: list[list[int]] = [[] for _ in range(n)]
-    for u, v in arcs:
-        into[v].append(u)
+    graph = nx.DiGraph()
+    graph.add_nodes_from(range(n))
+    graph.add_edges_from((v, u) for u, v in arcs)              # reversed: distances *to* at
     dist = np.full(n, -1, dtype=np.intp)
-    dist[at] = 0
-    frontier = [at]
-    while frontier:
-        nxt = []
-        for v in frontier:
-            for u in into[v]:
-                if dist[u] < 0:
-                    dist[u] = dist[v] + 1
-                    nxt.append(u)
-        frontier = nxt
+    for node, d in nx.single_source_shortest_path_length(graph, at).items():
+        dist[node] = d
     hop = np.full(n, -1, dtype=np.intp)
     for u, v in sorted(arcs):
         if u != at and dist[u] > 0 and dist[v] == dist[u] - 1 and hop[u] < 0:
@@ -73,17 +66,12 @@ def packet_bytes(nx: int, n: int, rows: int, omegas: int) -> int:
     return PACKET_HEADER + 8 + 8 * nx + rows * (-(-n // 8)) + omegas * 8 * (nx * (nx + 1) // 2)
 
 
-def _bits(mask: np.ndarray) -> int:
-    """A boolean origin vector as the int bitmask :meth:`Holdings.add` takes."""
-    return int.from_bytes(np.packbits(mask, bitorder="little").tobytes(), "little")
-
-
 class FusionCentre(Estimator, params=FusionCentreParams):
     """The scenario DKF's matrix-weighted fusion at node ``at``, from packets only."""
 
     #: Its packets and their nominal sizes (bytes; docs/estimators.md, "Packet sizes").
     packets = ("one per node but `at` and tick, relayed hop by hop to `at`: 16-byte header + 8 (row) "
-               "+ 8 nx (the estimate) + W ceil(n/8) (held-origin masks of the last W = 2L rows) "
+               "+ 8 nx (the estimate) + W ceil(n/8) (held-origin masks of the last W = L + margin rows) "
                "+ 8 nx(nx+1)/2 per measurement-dependent omega carried the first time")
 
     params: FusionCentreParams
@@ -101,7 +89,7 @@ class FusionCentre(Estimator, params=FusionCentreParams):
         sc = plan.scenario
         n, nx, K = sc.n, sc.nx, int(sc.steps)
         L, _ = plan.buffer_length_bound(plan.dkf().buffer_length)
-        W = 2 * L
+        W = L + (L if params.margin is None else params.margin)
         S, N = min(W, K) + 1, n * nx
         c = Cost(params.label)
         c.seconds = K * (C_TICK + min(W, K) * (C_ROW + n * C_NODE_ROW + C_FUSION_ROW) + 2 * n * C_PACKET
@@ -120,7 +108,8 @@ class FusionCentre(Estimator, params=FusionCentreParams):
         sys_, K, n, nx = ctx.system, ctx.K, ctx.n, ctx.nx
         self.Phi = sys_.Phi
         self.L = L = int(dkf.L)
-        self.M = L                                    # the margin of final rows a packet repeats
+        margin = self.params.margin
+        self.M = L if margin is None else int(margin)   # the final rows a packet repeats
         self.W = W = L + self.M
         self.fuser = FUSERS[dkf.fusion]
         info = ctx.info
@@ -162,6 +151,9 @@ class FusionCentre(Estimator, params=FusionCentreParams):
         self.P = np.empty((K, nx, nx))
         self.k = 0
         self.received = self.ignored = self.stale_rows = 0
+        self.Phi_pow = np.eye(nx)[None]
+        #: node -> (first row, masks of every node) of its newest packet since the last fusion
+        self.pending: dict[int, tuple[int, np.ndarray]] = {}
 
     def on_measure(self, row: int) -> None:
         self.holdings.open_row(row)
@@ -193,11 +185,12 @@ class FusionCentre(Estimator, params=FusionCentreParams):
                         row = lo + int(j)
                         entries.append((row, int(o), info.omega[row, o], info.factor[row][:, self.cols[o]]))
             nbytes = packet_bytes(nx, n, len(idx), len(entries))
-            payload = (i, r, x[i].copy(), lo, masks[:, i].copy(), entries, nbytes)
+            payload = (i, r, x[i], lo, masks, entries, nbytes)     # (read-only from here on)
+            out = self.out[i]
             if i == self.at:
                 self.accept(payload)
-            elif self.out[i] is not None:
-                self.port.send(self.out[i], payload, nbytes)
+            elif out is not None:
+                self.port.send(out, payload, nbytes)
         Scheduled(self.ctx.env, self._fuse, PRIORITY_FUSE)
 
     def receive(self, link: Link, payload: Any) -> None:
@@ -214,33 +207,21 @@ class FusionCentre(Estimator, params=FusionCentreParams):
     def accept(self, payload: tuple) -> None:
         """Node ``i``'s estimate of ``row`` and its holdings, into the centre's state."""
         i, row, x, lo, masks, entries, _ = payload
-        if self.excluded[i] or row <= self.newest[i]:
-            self.ignored += 1                    # older than what the centre has, or left out
-            return
-        for r_e, o, om, fac in entries:
+        for r_e, o, om, fac in entries:         # an omega is the same whoever brings it, whenever
             self.info.omega[r_e, o] = om
             self.info.factor[r_e][:, self.cols[o]] = fac
             self.have_omega[r_e, o] = True
-        T_ns = self.ctx.T_ns
-        k_now = -(-int(self.ctx.env.now) // T_ns)      # the tick this instant belongs to
-        first = max(lo, k_now - self.W)                # shadow rows that can still change
-        S = self.holdings.S
-        for s in range(first, row + 1):
-            m = masks[s - lo]
-            new = m & ~self.known[s % S, i]
-            if not new.any():
-                continue
-            if not self.have_omega[s, new].all():      # a radar's omega this centre never got
-                self.excluded[i] = True
-                return
-            self.known[s % S, i] |= new
-            self.holdings.add(i, _bits(new), s)
+        if self.excluded[i] or row <= self.newest[i]:
+            self.ignored += 1                    # older than what the centre has, or left out
+            return
+        self.pending[i] = (lo, masks)           # folded at the fusion: the newest masks hold the rest
         self.newest[i] = row
         self.x_newest[i] = x
 
     def _fuse(self, _event: Event) -> None:
         k = self.k
         r = k - 1
+        self._fold(k)
         done = k - self.W                 # the shadow's row that becomes final now
         if done >= 0:
             # a node whose final holdings of that row the centre does not know leaves the fusion
@@ -249,10 +230,10 @@ class FusionCentre(Estimator, params=FusionCentreParams):
         Xi = self.xcov.Xi[r % self.holdings.S]
         xs = self.x_newest.copy()
         use = ~self.excluded
-        for i in np.flatnonzero((self.newest < r) & use):
-            self.stale_rows += 1
-            for _ in range(r - int(self.newest[i])):
-                xs[i] = self.Phi @ xs[i]
+        stale = np.flatnonzero((self.newest < r) & use)
+        if len(stale):
+            self.stale_rows += len(stale)
+            xs[stale] = np.einsum("sij,sj->si", self._powers(r - self.newest[stale]), xs[stale])
         if use.all():
             self.x[r], self.P[r] = self.fuser(Xi, xs)
         else:
@@ -261,6 +242,50 @@ class FusionCentre(Estimator, params=FusionCentreParams):
         if self.log is not None:
             idx = np.arange(max(k - self.W, 0), k) % self.holdings.S
             self.log.append((k, self.newest.copy(), self.excluded.copy(), self.known[idx].copy(), Xi.copy()))
+
+    def _powers(self, ages: np.ndarray) -> np.ndarray:
+        """``Phi^age`` for each of ``ages`` (cached)."""
+        pw = self.Phi_pow
+        top = int(ages.max())
+        if top >= len(pw):
+            more = [pw[-1]]
+            for _ in range(len(pw), top + 1):
+                more.append(self.Phi @ more[-1])
+            self.Phi_pow = pw = np.concatenate([pw, np.stack(more[1:])])
+        return pw[ages]
+
+    def _fold(self, k: int) -> None:
+        """Add what the newest packets of this tick taught the centre to the shadow's holdings:
+        for each node, the origins its masks hold that the centre did not know, for the shadow's
+        rows that can still change (``k - W .. k - 1``).  A node's masks only grow, so its newest
+        packet says everything the older ones of this tick said."""
+        if not self.pending:
+            return
+        k0 = max(k - self.W, 0)
+        nodes = np.fromiter(self.pending, dtype=np.intp, count=len(self.pending))
+        stack = np.zeros((k - k0, len(nodes), self.known.shape[2]), dtype=bool)   # (rows, nodes, origins)
+        for j, (i, (lo, masks)) in enumerate(self.pending.items()):
+            a, b = max(lo, k0), lo + len(masks)
+            if a < b:
+                stack[a - k0:b - k0, j] = masks[a - lo:, i]
+        self.pending.clear()
+        slots = np.arange(k0, k) % self.holdings.S
+        new = stack & ~self.known[slots[:, None], nodes]
+        rr, jj = np.nonzero(new.any(axis=2))
+        if not len(jj):
+            return
+        sel, rows, who = new[rr, jj], k0 + rr, nodes[jj]
+        if self.varying.any():
+            # a node that holds a radar entry whose omega no packet brought leaves the fusion
+            bad = np.unique(who[(sel & ~self.have_omega[rows]).any(axis=1)])
+            if len(bad):
+                self.excluded[bad] = True
+                keep = ~np.isin(who, bad)
+                sel, rows, who, rr = sel[keep], rows[keep], who[keep], rr[keep]
+        self.known[slots[rr], who] |= sel
+        packed = np.packbits(sel, axis=1, bitorder="little")
+        for i, s, bits in zip(who.tolist(), rows.tolist(), packed):
+            self.holdings.add(i, int.from_bytes(bits.tobytes(), "little"), s)
 
     def finish(self) -> EstimatorResult:
         facts = {"packets_received": self.received, "packets_ignored": self.ignored,

@@ -10,6 +10,7 @@ DESCRIPTIONS = {
     "local": "the DKF nodes' own estimates (mean over nodes)",
     "local_only": "each node alone (mean over nodes)",
     "centralized": "every measurement on time",
+    "fusion_centre": "the DKF's fusion at one node, fed over the network",
 }
 
 
