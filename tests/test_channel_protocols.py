@@ -212,3 +212,23 @@ def test_the_channel_sweep_reaches_medium_rate_and_refuses_a_bad_rate(tmp_path, 
     assert main(["sweep", str(tmp_path / "s.yaml"), "--jobs", "1", "--quiet", "--db", str(tmp_path / "s.sqlite")]) == 2
     err = capsys.readouterr().err
     assert "medium.rate" in err and "Traceback" not in err, err
+
+
+def test_centralized_delayed_sends_one_unicast_frame_per_sensor_and_tick():
+    """On a channel the sensors' packets to the centre are frames on it, one part each: ``n K``
+    handed over; every frame that left carried one packet (each delivered or collided packet is
+    one frame; a collided frame loses one packet), those still waiting at ``t_K`` in flight;
+    the counting identity holds per direct link."""
+    n, K = 6, 40
+    sc = _on_channel(n, K, latency={"model": "constant", "value": 5.0e-6},
+                     medium={"background": {"arrivals": "periodic", "packets_per_second": 50, "size": 300}})
+    sc["estimators"] = [{"kind": "centralized_delayed"}]
+    t = run_scenario(sc).res.traffic["centralized_delayed"]
+    ch = t["channel"]
+    assert t["sent"] == n * K
+    assert t["delivered"] + t["lost"] <= ch["frames"] <= t["sent"]
+    assert t["lost"] == t["collision_lost"] == ch["frames_collided"] > 0
+    for row in t["per_link"]:
+        assert row["link"][1] == -1 and row["sent"] == K
+        assert row["sent"] + row["copies"] == (row["delivered"] + row["lost"] + row["queue_dropped"]
+                                               + row["crash_dropped"] + row["in_flight"])
