@@ -60,7 +60,7 @@ class CentralizedDelayed(Estimator, params=CentralizedDelayedParams):
         Without a channel nothing runs during the run (:meth:`arrival_ticks` works them out at
         the end, in closed form)."""
         ctx = self.ctx
-        self._on_channel = getattr(ctx.scenario, "medium", None) is not None
+        self._on_channel = ctx.scenario.medium is not None
         if not self._on_channel:
             return
         s, K = ctx.system, ctx.K
