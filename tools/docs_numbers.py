@@ -576,6 +576,7 @@ def render_channel(rows: dict[str, Rows]) -> dict[str, str]:
     family = [n for n in CONSENSUS_FAMILY[:-1] if n in names]
     worst = max(family, key=lambda n: pos(first, n))
     near = [r for r, p in zip(rates, points) if all(pos(p, n) <= 1.5 * pos(last, n) for n in family)]
+    on_time = [r for r, p in zip(rates, points) if p.mean("centralized_delayed", "late") == 0]
     reading = (
         f"How to read it: the fused anti-delay DKF stays within "
         f"{max(pos(p, 'fused') / pos(p, 'centralized') for p in points):.2f}× of the centralized filter at "
@@ -590,8 +591,13 @@ def render_channel(rows: dict[str, Rows]) -> dict[str, str]:
         f"of its own error at {rate_label(rates[-1])} only from {rate_label(min(near))} up. `fusion_centre` "
         "fuses at each tick "
         "the newest estimate it has received from every node, which with any propagation delay is the "
-        f"tick before's, predicted ({pos(points[i6], 'fusion_centre'):.3g} at {rate_label(rates[i6])}); "
-        "`centralized_delayed` likewise holds each measurement one tick after it was taken.")
+        f"tick before's, predicted ({pos(points[i6], 'fusion_centre'):.3g} at {rate_label(rates[i6])}). "
+        "`centralized_delayed` likewise holds each measurement a tick after it was taken "
+        f"({pos(points[i6], 'centralized_delayed'):.3g} at {rate_label(rates[i6])}); its twelve frames per "
+        f"tick reach the centre in time from {rate_label(min(on_time))} up; below that the channel cannot "
+        "carry them, they wait ever longer in the radios' queues and arrive after their rows became final "
+        "(late), and its error grows with them "
+        f"({pos(first, 'centralized_delayed'):.3g} at {rate_label(rates[0])}).")
     return {"channel-table": "\n".join(lines), "channel-reading": para(reading)}
 
 
