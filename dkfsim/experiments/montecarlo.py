@@ -302,12 +302,9 @@ def check_reference(sc, relative_to: str | None) -> None:
     """``--relative-to NAME`` names an estimate of the scenario: checked before any run."""
     if relative_to is None:
         return
-    names = scenario_estimates(sc)
-    if not isinstance(relative_to, str) or relative_to not in names:
-        why = "; the scenario has fusion: none, so there is no fused estimate" \
-            if relative_to == "fused" and sc.fusion == "none" else ""
-        raise DkfsimError(f"--relative-to {relative_to}: not an estimate of {sc.name} "
-                          f"(estimates: {', '.join(names)}){why}")
+    why = "; the scenario has fusion: none, so there is no fused estimate" \
+        if relative_to == "fused" and sc.fusion == "none" else ""
+    reference_of(scenario_estimates(sc), relative_to, sc.name, why=why)
 
 
 def load_montecarlo(folder) -> "MonteCarloResult":

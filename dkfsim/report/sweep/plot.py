@@ -22,7 +22,7 @@ from pathlib import Path
 import numpy as np
 
 from dkfsim.analysis.metrics import paired_interval
-from dkfsim.analysis.paired import pair_values
+from dkfsim.analysis.paired import pair_values, reference_of
 from dkfsim.config.keys import key_label
 from dkfsim.core.errors import DkfsimError
 from dkfsim.core.extras import pyplot
@@ -216,9 +216,7 @@ def _check_reference(ref: str, names, gs, hue_key, grid) -> None:
     """``--relative-to``: an estimate, or with ``--hue`` a value of the hue key, and then runs
     must pair by run index (the same seeds at every grid point: ``seed`` is not a grid key)."""
     if hue_key is None:
-        if ref not in names:
-            raise DkfsimError(f"--relative-to {ref}: not an estimate of the sweep{suggest(ref, names)} "
-                              f"(estimates: {', '.join(names)})")
+        reference_of(names, ref, "the sweep", suggestion=True)
         return
     seeds = [k for k in grid if k.removeprefix("param:") == "seed"]
     if seeds:
