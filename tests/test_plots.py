@@ -212,6 +212,10 @@ def test_errors(run_dir, tmp_path, capsys):
     fails(capsys, ["plot", str(run_dir), "--compare"], "at least two folders")
     fails(capsys, ["plot", str(run_dir), "--labels", "a"], "--labels", "--compare")
     fails(capsys, ["plot", str(run_dir), "--component", "jerk"], "'jerk'", "position")
+    # one --component rule for a folder and a sweep (report.plots.style.select_components)
+    fails(capsys, ["plot", str(run_dir), "--component", "veloctiy"],
+          f"is not a component of {run_dir} (did you mean 'velocity'?) (components: position, "
+          "velocity, acceleration, or 0..2)")
     fails(capsys, ["plot", str(run_dir), "--smooth", "0"], "--smooth")
     fails(capsys, ["plot", str(run_dir), "--relative"], "--relative", "--compare")
     no_central = write_montecarlo(tmp_path / "nocentral", estimates=("fused", "ci_consensus"))

@@ -72,7 +72,7 @@ def plot_compare(folders: list[Folder], stem, labels=None, formats=DEFAULT_FORMA
     if relative and "centralized" not in first.mse:
         raise DkfsimError(f"--relative: the first folder ({first.path}) has no centralized estimate "
                           f"to divide by; run it with estimators including {{kind: centralized}}")
-    idx = select_components(first, components)
+    idx = select_components(first.components, components, first.path)
     w = default_smooth(first) if smooth is None else max(1, int(smooth))
     if smooth is None and any(f.kind == "run" for f in folders):
         w = max(default_smooth(f) for f in folders)

@@ -17,6 +17,7 @@ import numpy as np
 from dkfsim.core.errors import DkfsimError
 from dkfsim.core.extras import available, optional, pyplot
 from dkfsim.core.folders import file_mode
+from dkfsim.core.params import suggest
 from dkfsim.report.plots.folders import Folder
 
 FORMATS = ("png", "pdf", "svg")
@@ -109,20 +110,22 @@ def default_smooth(folder: Folder) -> int:
     return max(1, folder.K // 50) if folder.kind == "run" else 1
 
 
-def select_components(folder: Folder, wanted) -> list[int]:
-    """Indices of the components named (or numbered) in ``wanted``; all when empty."""
+def select_components(have, wanted, of) -> list[int]:
+    """``--component``: indices into ``have`` (the components of ``of``, a run folder or "the
+    sweep") of the components named (or numbered) in ``wanted``, in the order given; all when
+    empty.  A name that is neither is refused with the closest one."""
+    have = [str(c) for c in have]
     if not wanted:
-        return list(range(folder.nx))
+        return list(range(len(have)))
     out = []
-    for w in wanted:
-        s = str(w)
-        if s in folder.components:
-            out.append(folder.components.index(s))
-        elif s.isdigit() and int(s) < folder.nx:
+    for s in map(str, wanted):
+        if s in have:
+            out.append(have.index(s))
+        elif s.isdigit() and int(s) < len(have):
             out.append(int(s))
         else:
-            raise DkfsimError(f"--component: {s!r} is not a component of {folder.path} "
-                              f"(components: {', '.join(folder.components)}, or 0..{folder.nx - 1})")
+            raise DkfsimError(f"--component: {s!r} is not a component of {of}{suggest(s, have)} "
+                              f"(components: {', '.join(have)}, or 0..{len(have) - 1})")
     return out
 
 

@@ -44,6 +44,7 @@ from dkfsim.report.plots.style import (
     plain,
     plain_log_ticks,
     save_figure,
+    select_components,
     unit_label,
 )
 
@@ -171,7 +172,7 @@ def sweep_curves(path, x: str | None = None, hue: str | None = None, metric: str
                               "state component (--component is for mse)")
         components = components[:1]       # scalar metrics repeat on every component row
     elif wanted_components:
-        components = _select(components, wanted_components)
+        components = [components[i] for i in select_components(components, wanted_components, "the sweep")]
     nx = {}
     for g in gs:
         nx.setdefault(g["estimate"], set()).add(g["component"])
@@ -196,20 +197,6 @@ def sweep_curves(path, x: str | None = None, hue: str | None = None, metric: str
     return {"x": x, "hue": hue_key, "estimate": estimate if hue_key else None, "xs": xs,
             "estimates": sorted({g["estimate"] for g in found.values()}), "lines": lines, "components": components, "metric": metric, "fixed": fixed,
             "nx": {e: len(c) for e, c in nx.items()}, "relative_to": relative_to}
-
-
-def _select(have: list, wanted: list) -> list:
-    """``--component`` for a sweep: names or indices of the sweep's components, in the order given."""
-    out = []
-    for w in map(str, wanted):
-        if w in have:
-            out.append(w)
-        elif w.isdigit() and int(w) < len(have):
-            out.append(have[int(w)])
-        else:
-            raise DkfsimError(f"--component: {w!r} is not a component of the sweep{suggest(w, have)} "
-                              f"(components: {', '.join(have)}, or 0..{len(have) - 1})")
-    return out
 
 
 def _check_reference(ref: str, names, gs, hue_key, grid) -> None:
