@@ -267,6 +267,27 @@ def test_a_figure_file_gets_the_mode_of_the_umask_like_every_other_output(tmp_pa
     assert all((p.stat().st_mode & 0o777) == 0o644 for p in paths)
 
 
+def test_a_figure_that_fails_midway_leaves_the_previous_file_and_no_temporary(tmp_path):
+    """Figures are replaced like every other output (core.folders.replacing): a format that
+    fails while writing keeps the previous file whole and leaves nothing beside it."""
+    from dkfsim.core.extras import pyplot
+    from dkfsim.report.plots.style import save_figure
+    (tmp_path / "f.pdf").write_bytes(b"the previous figure")
+    fig = pyplot().figure()
+    real = fig.savefig
+
+    def half_then_fail(fh, **kw):
+        if kw.get("format") == "pdf":
+            fh.write(b"%PDF- half")
+            raise OSError(28, "No space left on device")
+        return real(fh, **kw)
+    fig.savefig = half_then_fail
+    with pytest.raises(DkfsimError, match=r"f\.pdf: cannot write the figure \(No space left on device\)"):
+        save_figure(fig, tmp_path / "f", ("png", "pdf"))
+    assert (tmp_path / "f.pdf").read_bytes() == b"the previous figure"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["f.pdf", "f.png"]
+
+
 # ----------------------------------------------------------------------------
 # colours: built-in names fixed, other names from a palette without those colours
 # (issue 24 §2, decision 197)

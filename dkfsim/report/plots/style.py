@@ -8,15 +8,13 @@ from __future__ import annotations
 import contextlib
 import io
 import math
-import os
-import tempfile
 from pathlib import Path
 
 import numpy as np
 
 from dkfsim.core.errors import DkfsimError
 from dkfsim.core.extras import available, optional, pyplot
-from dkfsim.core.folders import file_mode
+from dkfsim.core.folders import replacing
 from dkfsim.core.params import suggest
 from dkfsim.report.plots.folders import Folder
 
@@ -168,17 +166,18 @@ def png_resolution(dpi: int):
         PNG_DPI.pop()
 
 
-def _save_png(fig, path: Path, dpi: int | None = None) -> None:
-    """PNG with a 256-colour palette: a third of the size of matplotlib's RGBA, same look."""
+def _save_png(fig, fh, dpi: int | None = None) -> None:
+    """PNG with a 256-colour palette, into the binary file ``fh``: a third of the size of
+    matplotlib's RGBA, same look."""
     dpi = PNG_DPI[-1] if dpi is None else dpi
     buf = io.BytesIO()
     fig.savefig(buf, format="png", dpi=dpi, bbox_inches="tight")
     if available("PIL"):
         Image = optional("PIL.Image")
         img = Image.open(buf).convert("RGB").quantize(colors=256, method=Image.Quantize.MEDIANCUT)
-        img.save(path, format="PNG", optimize=True, dpi=(dpi, dpi))   # the resolution, for layout programs
+        img.save(fh, format="PNG", optimize=True, dpi=(dpi, dpi))   # the resolution, for layout programs
     else:                 # Pillow ships with matplotlib; keep the plain file if it is missing
-        Path(path).write_bytes(buf.getvalue())
+        fh.write(buf.getvalue())
 
 
 def save_figure(fig, stem: Path, formats) -> list[Path]:
@@ -191,23 +190,14 @@ def save_figure(fig, stem: Path, formats) -> list[Path]:
     try:
         for fmt in formats:
             path = stem.with_name(f"{stem.name}.{fmt}")
-            tmp = None
             try:                       # written beside (a new file, never through a link), then renamed
-                fd, tmp = tempfile.mkstemp(prefix=".fig-", suffix=f".{fmt}.tmp", dir=path.parent)
-                os.close(fd)
-                if fmt == "png":
-                    _save_png(fig, Path(tmp))
-                else:
-                    fig.savefig(tmp, bbox_inches="tight", format=fmt)
-                os.chmod(tmp, file_mode())
-                os.replace(tmp, path)
-                tmp = None
+                with replacing(path, "wb") as fh:
+                    if fmt == "png":
+                        _save_png(fig, fh)
+                    else:
+                        fig.savefig(fh, bbox_inches="tight", format=fmt)
             except OSError as exc:
                 raise DkfsimError(f"{path}: cannot write the figure ({exc.strerror or exc})") from None
-            finally:
-                if tmp is not None:
-                    with contextlib.suppress(OSError):
-                        os.unlink(tmp)
             out.append(path)
     finally:
         fig.clf()
