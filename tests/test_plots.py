@@ -189,6 +189,55 @@ def test_compare_default_output_and_one_component(run_dir, tmp_path):
     assert_figures(mc / "figures", ["compare_mse"], formats=("png",))
 
 
+def test_compare_tells_folders_apart_by_line_style_never_by_another_estimate_colour(run_dir, tmp_path,
+                                                                                      monkeypatch):
+    """Colours mean estimates in every figure: the folders of --compare are the compared
+    estimate's colour (lighter for later folders) in one line style each, and no folder line
+    takes another built-in estimate's colour (they were C0, C1, C2: fused, no_buffer,
+    centralized_delayed)."""
+    from matplotlib.colors import to_rgb
+
+    from dkfsim.report.plots import compare, style
+    seen: list = []
+
+    def capture(fig, stem, formats):
+        seen.extend((ax, [(ln.get_label(), to_rgb(ln.get_color()), ln.get_linestyle())
+                          for ln in ax.get_lines()]) for ax in fig.axes)
+        seen.append(("legend", fig.legends[0].get_title().get_text()))
+        return []
+    monkeypatch.setattr(compare, "save_figure", capture)
+    folders = [write_montecarlo(tmp_path / f"mc{j}") for j in range(4)]
+    labels = ["a", "b", "c", "d"]
+    compare.plot_compare([plots.load_folder(f) for f in folders], tmp_path / "c", labels=labels,
+                         components=["position"], relative=True)
+    main_ax = seen[0][1]
+    lines = {lab: (rgb, ls) for lab, rgb, ls in main_ax if lab in labels}
+    assert list(lines) == labels
+    fused = to_rgb(style.color_of("fused"))
+    assert lines["a"] == (pytest.approx(fused), "-")
+    assert all(ls != "-" for _rgb, ls in list(lines.values())[1:])     # dashed in their own patterns
+    others = [to_rgb(style.color_of(a)) for a in style.ESTIMATES if a != "fused"]
+    for lab, (rgb, _ls) in lines.items():
+        assert min(rgb_distance(rgb, o) for o in others) >= DISTINCT, (lab, rgb)
+        # a shade of fused's blue: on the segment from it to white
+        t = (np.array(rgb) - fused) / (1 - np.array(fused))
+        assert np.allclose(t, t[0]) and 0 <= t[0] <= 0.6, (lab, rgb)
+    centre = [(rgb, ls) for lab, rgb, ls in main_ax if lab.startswith("centralized")]
+    assert centre == [(to_rgb(style.color_of("centralized")), "-")]
+    assert "line style per folder" in seen[-1][1]
+
+
+def test_every_compared_folder_has_its_own_look():
+    """(colour, line style) pairs of --compare's folders are all different, the line styles
+    too up to six folders (then the shade tells them apart)."""
+    from dkfsim.report.plots.compare import folder_looks
+    for n in range(1, 13):
+        colors, styles = folder_looks("C0", n)
+        assert len(colors) == len(styles) == n
+        assert len({(c, str(s)) for c, s in zip(colors, styles)}) == n
+        assert len({str(s) for s in styles}) == min(n, 6)
+
+
 def fails(capsys, argv, *words):
     assert main(argv) == 2
     err = capsys.readouterr().err

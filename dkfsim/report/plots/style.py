@@ -226,9 +226,10 @@ def average_text(folder: Folder, estimate: str, i: int) -> str:
     return f"{m:.4g}" if ci is None else f"{m:.4g} ± {(ci[1] - ci[0]) / 2:.2g}"
 
 
-def legend_below(fig, ax, ncol=2, fontsize=8.5):
+def legend_below(fig, ax, ncol=2, fontsize=8.5, title=None):
     """One legend for all panels, under them, so that it never hides a curve.  ``ax``: the
-    panel whose entries it lists, or a list of panels (their entries one after the other)."""
+    panel whose entries it lists, or a list of panels (their entries one after the other);
+    ``title``: a line above the entries (what line styles or colours mean)."""
     handles, labels = [], []
     for a in (ax if isinstance(ax, (list, tuple)) else [ax]):
         h, lab = a.get_legend_handles_labels()
@@ -236,7 +237,7 @@ def legend_below(fig, ax, ncol=2, fontsize=8.5):
         labels += lab
     fig.tight_layout()
     fig.legend(handles, labels, loc="upper center", bbox_to_anchor=(0.5, 0.0), ncol=ncol,
-               fontsize=fontsize, frameon=False)
+               fontsize=fontsize, frameon=False, title=title, title_fontsize=fontsize)
 
 
 def check_formats(formats) -> tuple[str, ...]:
