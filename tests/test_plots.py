@@ -189,42 +189,64 @@ def test_compare_default_output_and_one_component(run_dir, tmp_path):
     assert_figures(mc / "figures", ["compare_mse"], formats=("png",))
 
 
-def test_compare_tells_folders_apart_by_line_style_never_by_another_estimate_colour(run_dir, tmp_path,
-                                                                                      monkeypatch):
+def test_compare_tells_folders_apart_by_line_style_never_by_another_estimate_colour(tmp_path, monkeypatch):
     """Colours mean estimates in every figure: the folders of --compare are the compared
     estimate's colour (lighter for later folders) in one line style each, and no folder line
     takes another built-in estimate's colour (they were C0, C1, C2: fused, no_buffer,
     centralized_delayed)."""
+    from matplotlib.axes import Axes
     from matplotlib.colors import to_rgb
 
     from dkfsim.report.plots import compare, style
-    seen: list = []
+    drawn: list = []                       # (label, rgb, ls as asked) of every line, in order
+    real_plot = Axes.plot
 
-    def capture(fig, stem, formats):
-        seen.extend((ax, [(ln.get_label(), to_rgb(ln.get_color()), ln.get_linestyle())
-                          for ln in ax.get_lines()]) for ax in fig.axes)
-        seen.append(("legend", fig.legends[0].get_title().get_text()))
-        return []
-    monkeypatch.setattr(compare, "save_figure", capture)
+    def plot(ax, *a, **kw):
+        drawn.append((kw.get("label", ""), to_rgb(kw["color"]), str(kw.get("ls", "-"))))
+        return real_plot(ax, *a, **kw)
+    monkeypatch.setattr(Axes, "plot", plot)
+    titles: list = []
+    monkeypatch.setattr(compare, "save_figure",
+                        lambda fig, _s, _f: titles.append(fig.legends[0].get_title().get_text()) or [])
     folders = [write_montecarlo(tmp_path / f"mc{j}") for j in range(4)]
     labels = ["a", "b", "c", "d"]
     compare.plot_compare([plots.load_folder(f) for f in folders], tmp_path / "c", labels=labels,
                          components=["position"], relative=True)
-    main_ax = seen[0][1]
-    lines = {lab: (rgb, ls) for lab, rgb, ls in main_ax if lab in labels}
+    lines = {lab: (rgb, ls) for lab, rgb, ls in drawn if lab in labels}
     assert list(lines) == labels
     fused = to_rgb(style.color_of("fused"))
     assert lines["a"] == (pytest.approx(fused), "-")
-    assert all(ls != "-" for _rgb, ls in list(lines.values())[1:])     # dashed in their own patterns
+    assert len({ls for _rgb, ls in lines.values()}) == 4              # one line style per folder
     others = [to_rgb(style.color_of(a)) for a in style.ESTIMATES if a != "fused"]
     for lab, (rgb, _ls) in lines.items():
         assert min(rgb_distance(rgb, o) for o in others) >= DISTINCT, (lab, rgb)
         # a shade of fused's blue: on the segment from it to white
         t = (np.array(rgb) - fused) / (1 - np.array(fused))
         assert np.allclose(t, t[0]) and 0 <= t[0] <= 0.6, (lab, rgb)
-    centre = [(rgb, ls) for lab, rgb, ls in main_ax if lab.startswith("centralized")]
-    assert centre == [(to_rgb(style.color_of("centralized")), "-")]
-    assert "line style per folder" in seen[-1][1]
+    centre = [(rgb, ls) for lab, rgb, ls in drawn if lab.startswith("centralized")]
+    assert centre == [(to_rgb(style.color_of("centralized")), "--")]      # as in every figure
+    assert all(ls != "--" for _rgb, ls in lines.values())
+    ratios = [(rgb, ls) for lab, rgb, ls in drawn if not lab]          # the ratio column, same looks
+    assert ratios == list(lines.values())
+    assert "line style per folder" in titles[0]
+
+
+def test_compare_escapes_a_label_once(tmp_path, monkeypatch):
+    """A --labels value is plain text: its "$" is escaped once, in the legend and in the column
+    of averages (that column escaped the escaped label again and drew its backslashes)."""
+    from dkfsim.report.plots import compare
+    texts: list = []
+
+    def capture(fig, _stem, _formats):
+        texts.extend(t.get_text() for ax in fig.axes for t in ax.texts)
+        texts.extend(t.get_text() for t in fig.legends[0].get_texts())
+        return []
+    monkeypatch.setattr(compare, "save_figure", capture)
+    folders = [plots.load_folder(write_montecarlo(tmp_path / f"mc{j}")) for j in range(2)]
+    compare.plot_compare(folders, tmp_path / "c", labels=["$d_t$ = 1", "two"], components=["position"])
+    assert "\\$d_t\\$ = 1" in texts                                   # the legend entry
+    assert any(t.startswith("\\$d_t\\$ = 1: ") for t in texts), texts     # the averages column
+    assert not any("\\\\" in t for t in texts), texts
 
 
 def test_every_compared_folder_has_its_own_look():

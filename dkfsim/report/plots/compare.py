@@ -34,8 +34,8 @@ from dkfsim.report.plots.style import (
 
 #: Line styles of the folders, in order (``--compare``): the colour says which estimate a line is
 #: (one vocabulary in every figure), the line style which folder.  Beyond six they repeat,
-#: told apart by their shade.
-FOLDER_STYLES = ("-", (0, (5, 2)), (0, (5, 1.5, 1, 1.5)), (0, (1, 1.2)), (0, (8, 2, 1, 2, 1, 2)), (0, (2, 3)))
+#: told apart by their shade.  None is ``--``, the centralized filter's style in every figure.
+FOLDER_STYLES = ("-", (0, (5, 1.5, 1, 1.5)), (0, (1, 1.2)), (0, (8, 2, 1, 2, 1, 2)), (0, (10, 3)), (0, (2, 3)))
 #: The per-tick bands of the first folders (drawn for two folders unless asked): filled, then hatched.
 BAND_HATCHES = (None, "////", "\\\\\\\\", "xxxx")
 
@@ -79,7 +79,8 @@ def plot_compare(folders: list[Folder], stem, labels=None, formats=DEFAULT_FORMA
         raise DkfsimError("--compare: give at least two folders")
     if labels is None:
         labels = [f.path.name or str(f.path) for f in folders]
-    labels = [plain(lab) for lab in labels]
+    names = [str(lab) for lab in labels]           # as given: cut and escaped once where drawn
+    labels = [plain(lab) for lab in names]
     if len(labels) != len(folders):
         raise DkfsimError(f"--labels: {len(labels)} labels for {len(folders)} folders; give one label per folder")
     check_comparable(folders)
@@ -108,10 +109,10 @@ def plot_compare(folders: list[Folder], stem, labels=None, formats=DEFAULT_FORMA
     for row, i in enumerate(idx):
         ax = axes[row, 0]
         drawn, entries = [], []
-        for j, (f, lab, col, ls) in enumerate(zip(folders, labels, colors, styles)):
+        for j, (f, lab, name, col, ls) in enumerate(zip(folders, labels, names, colors, styles)):
             y = positive_only(moving_average(f.mse[estimate][:, i], w))
             drawn.append(y)
-            entries.append((f"{plain(lab, 16)}: {average_text(f, estimate, i)}", col))
+            entries.append((f"{plain(name, 16)}: {average_text(f, estimate, i)}", col))
             ax.plot(f.t, y, color=col, lw=1.1, ls=ls, label=lab)
             if bands and estimate in f.ci:
                 lo, hi = f.ci[estimate]
@@ -123,7 +124,7 @@ def plot_compare(folders: list[Folder], stem, labels=None, formats=DEFAULT_FORMA
             y = positive_only(moving_average(first.mse["centralized"][:, i], w))
             drawn.append(y)
             entries.append((f"centralized: {average_text(first, 'centralized', i)}", central))
-            ax.plot(first.t, y, color=central, lw=1.0, ls=styles[0],
+            ax.plot(first.t, y, color=central, lw=1.0, ls="--",
                     label="centralized KF (all data on time)" + (f", from {labels[0]}" if len(labels[0]) < 12 else ""))
         ax.set_yscale("log")
         log_limits(ax, drawn)
@@ -135,7 +136,7 @@ def plot_compare(folders: list[Folder], stem, labels=None, formats=DEFAULT_FORMA
             den = moving_average(first.mse["centralized"][:, i], wr)
             for f, col, ls in zip(folders, colors, styles):
                 ar.plot(f.t, moving_average(f.mse[estimate][:, i], wr) / den, color=col, lw=1.2, ls=ls)
-            ar.axhline(1.0, color=central, lw=1.0, ls=styles[0])
+            ar.axhline(1.0, color=central, lw=1.0, ls="--")
             ar.set_ylabel(f"{plain(first.components[i])} MSE / centralized")
             ar.grid(True, alpha=0.3)
             ar.margins(x=0)
