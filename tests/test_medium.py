@@ -351,3 +351,11 @@ def test_a_link_to_a_centre_outside_the_graph_is_on_the_channel():
     env.run()
     end = boundary(0, first_boundary(0, T0) + backoff(seed, 2, T0)) + airtime(100)
     assert got == [(end + 500 * US, 2, -1, "c")]
+
+
+def test_validate_says_the_scenario_has_a_channel(tmp_path):
+    path = tmp_path / "s.yaml"
+    path.write_text(yaml.safe_dump(_with_medium(nodes=[0, 1, 2])))
+    out = subprocess.run([sys.executable, "-m", "dkfsim", "validate", str(path)], capture_output=True, text=True)
+    assert out.returncode == 0, out.stderr
+    assert "3 nodes on one shared channel of 1e+06 bit/s (csma, cw 15" in out.stdout
