@@ -267,7 +267,7 @@ def test_the_channel_never_carries_two_frames_unless_they_collide(offers, cw, sl
                   background=Background(arrivals="periodic", packets_per_second=3000.0, size=50)
                   if background else None)
     env = simpy.Environment()
-    ch = Channel(env, spec, (0, 1, 2, 3), seed)
+    ch = Channel(env, spec, (0, 1, 2, 3), seed, record=True)
     ended: list = []
     dropped: list = []
 
@@ -284,9 +284,20 @@ def test_the_channel_never_carries_two_frames_unless_they_collide(offers, cw, sl
         for _, sb, eb, okb in ended[i + 1:]:
             if sa < eb and sb < ea:            # overlap: only a collision
                 assert sa == sb and not oka and not okb
-    for a, sa, _, ok in ended:
-        together = [b for b, sb, _, _ in ended if sb == sa and b != a]
-        assert ok == (not together) or background      # background frames may collide with it
+    # every frame that ended, background included: none starts while another is on the air
+    # unless both start at once, and then all of them are lost; a lone frame is never lost
+    ch.advance(env.now)
+    assert ch.ended is not None
+    air = sorted(ch.ended + [(f.node, f.start, f.end, not ch.collided, f.done is None) for f in ch.on_air],
+                 key=lambda e: (e[1], e[0]))
+    for i, (_, s1, e1, ok1, _) in enumerate(air):
+        together = [e for e in air if e[1] == s1]
+        assert ok1 == (len(together) == 1)
+        for _, s2, _, ok2, _ in air[i + 1:]:
+            if s2 < e1:
+                assert s2 == s1 and not ok1 and not ok2
+    assert ch.collisions == len({e[1] for e in air if not e[3]})
+    assert ch.frames_sent == len(air)
 
 
 # ------------------------------------------------------------------ runs

@@ -87,9 +87,12 @@ class Channel:
     :param spec: the scenario's :class:`~dkfsim.components.medium.Medium`.
     :param members: the nodes on the channel.
     :param index: the channel's number ``c`` in its draws' keys (one channel: 0).
+    :param record: keep ``(node, start, end, ok, background)`` of every frame that ended
+        (:attr:`ended`; for the checks of the access rule).
     """
 
-    def __init__(self, env: Any, spec: Medium, members: tuple[int, ...], seed: int, index: int = 0):
+    def __init__(self, env: Any, spec: Medium, members: tuple[int, ...], seed: int, index: int = 0,
+                 record: bool = False):
         self.env = env
         self.spec = spec
         self.slot, self.aifs, self.cw = spec.access.slot_ns, spec.access.aifs_ns, int(spec.access.cw)
@@ -128,6 +131,8 @@ class Channel:
         self.background_sent = 0
         self.background_dropped = 0
         self.background_collided = 0
+        #: with ``record``: (node, start, end, ok, background) of every frame that ended
+        self.ended: list[tuple[int, int, int, bool, bool]] | None = [] if record else None
 
     # ------------------------------------------------------------------ offering
     def offer(self, frame: Frame) -> bool:
@@ -259,6 +264,8 @@ class Channel:
         for frame in done:
             radio = self.radios[frame.node]
             radio.on_air = None
+            if self.ended is not None:
+                self.ended.append((frame.node, frame.start, frame.end, ok, frame.done is None))
             if frame.done is None:
                 if ok:
                     self.background_sent += 1
