@@ -261,7 +261,7 @@ def test_the_counting_identity_holds_per_link_over_a_random_run():
 def test_the_channel_never_carries_two_frames_unless_they_collide(offers, cw, slot, aifs, background, seed):
     """Offers (node, instant us, bytes) at 1 Mbit/s: no frame starts while another is on the
     air, only frames starting together overlap (and all of them are lost), every successful
-    frame is alone on the air, and each frame offered is dropped or ends exactly once."""
+    frame is alone on the air, and each frame offered is dropped or ends exactly once, and its sender is told at its end."""
     spec = Medium(rate=1e6, access=Csma(slot=slot * 1e-6, aifs=aifs * 1e-6, cw=cw), preamble=0.0,
                   queue=Queue(packets=4),
                   background=Background(arrivals="periodic", packets_per_second=3000.0, size=50)
@@ -272,16 +272,17 @@ def test_the_channel_never_carries_two_frames_unless_they_collide(offers, cw, sl
     dropped: list = []
 
     def offer(i, node, size):
-        frame = Frame(node, size, env.now, i, lambda f, ok: ended.append((f.parts, f.start, f.end, ok)))
+        frame = Frame(node, size, env.now, i, lambda f, ok: ended.append((f.parts, f.start, f.end, ok, env.now)))
         if not ch.offer(frame):
             dropped.append(i)
     for i, (node, t, size) in enumerate(offers):
         at(env, t * US, lambda i=i, node=node, size=size: offer(i, node, size))
     env.run()
     assert sorted([e[0] for e in ended] + dropped) == list(range(len(offers)))
-    for i, (a, sa, ea, oka) in enumerate(ended):
+    for i, (a, sa, ea, oka, told) in enumerate(ended):
+        assert told == ea                     # its sender hears of its end at that instant
         assert sa >= offers[a][1] * US and ea == sa + int(offers[a][2] * 8 * 1000 + 0.5)
-        for _, sb, eb, okb in ended[i + 1:]:
+        for _, sb, eb, okb, _ in ended[i + 1:]:
             if sa < eb and sb < ea:            # overlap: only a collision
                 assert sa == sb and not oka and not okb
     # every frame that ended, background included: none starts while another is on the air

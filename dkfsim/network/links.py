@@ -524,8 +524,17 @@ class Port:
                 count["collision_lost"][link.id] += 1
             return
         handed = frame.handed
+        wait = frame.end - handed
         for link, payload, seq in frame.parts:
-            self._fly(handed, frame.end - handed, link, seq, payload)
+            plain = link.plain
+            if plain is None:
+                self._fly(handed, wait, link, seq, payload)
+                continue
+            lat, lost = plain(handed, seq)      # (the fast path of send: nothing else acts)
+            if lost:
+                count["lost"][link.id] += 1
+            else:
+                self._enqueue(handed, wait + lat, link, payload)
 
     def _fly(self, now: int, wait: int, link: Link, seq: int, payload: Any) -> None:
         """A packet handed over ``now`` and leaving the sender ``wait`` ns later: its fate

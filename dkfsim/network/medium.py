@@ -44,10 +44,6 @@ from dkfsim.network.transmitter import BackgroundArrivals, busy_within
 _NEVER = MAX_NS + 1
 
 
-def _node(radio: Radio) -> int:
-    return radio.node
-
-
 class Frame:
     """One frame on the channel: its sender, size, hand-over instant and, for an estimator's
     frame, what it carries and whom to tell when it ends (``done(frame, ok)``; None: a
@@ -101,7 +97,7 @@ class Channel:
         self.max_bytes = spec.queue.bytes if spec.queue is not None else None
         self.radios: dict[int, Radio] = {}
         #: the radios whose head contends (a frame waiting, none on the air)
-        self._heads: set[Radio] = set()
+        self._heads: dict[int, Radio] = {}
         #: (instant of the next background frame, node) of every member with background
         self._arrivals: list[tuple[int, int]] = []
         for node in members:
@@ -121,6 +117,8 @@ class Channel:
         #: the instant processed up to (ends and arrivals at it included, starts before it)
         self.now = -1
         self._next_start: int | None = None
+        #: the shortest airtime of the heads due at :meth:`next_start`
+        self._next_air = 1
         #: estimators' frames waiting or on the air (wake-ups are needed only while any is)
         self.pending = 0
         self._wakes: set[int] = set()
@@ -165,7 +163,7 @@ class Channel:
 
     def _head(self, radio: Radio, t: int) -> None:
         """The radio's first waiting frame becomes head at ``t``: a fresh backoff."""
-        self._heads.add(radio)
+        self._heads[radio.node] = radio
         if radio.drawn_at != t:
             radio.drawn_at, radio.drawn = t, 0
         u = keyed_uniform(radio.key, t, radio.drawn)
@@ -189,13 +187,16 @@ class Channel:
             return _NEVER
         if self._next_start is None:
             first, slot = self.t_idle + self.aifs, self.slot
-            best = _NEVER
-            for radio in self._heads:
+            best, size = _NEVER, 0
+            for radio in self._heads.values():
                 h = radio.head_at
                 m = (0 if h <= first else -(-(h - first) // slot)) + radio.count
                 if m < best:
-                    best = m
+                    best, size = m, radio.queue[0].size
+                elif m == best and radio.queue[0].size < size:
+                    size = radio.queue[0].size
             self._next_start = _NEVER if best == _NEVER else first + best * slot
+            self._next_air = self.airtime(size)
         return self._next_start
 
     def advance(self, t: int) -> None:
@@ -233,23 +234,28 @@ class Channel:
         first = self.t_idle + self.aifs
         s = (ts - first) // self.slot
         end = ts
-        for radio in sorted(self._heads, key=_node):
-            m = self._target(radio)
+        slot, heads, on_air = self.slot, self._heads, self.on_air
+        for node in sorted(heads):              # (in node order: the order of their ends' news)
+            radio = heads[node]
+            h = radio.head_at
+            m = (0 if h <= first else -(-(h - first) // slot)) + radio.count
             if m == s:
                 frame = radio.queue.popleft()
                 radio.queued_bytes -= frame.size
-                frame.start, frame.end = ts, ts + self.airtime(frame.size)
+                frame.start = ts
+                frame.end = fe = ts + self.airtime(frame.size)
                 radio.on_air = frame
-                self.on_air.append(frame)
-                self._heads.discard(radio)
-                end = max(end, frame.end)
+                on_air.append(frame)
+                del heads[node]
+                if fe > end:
+                    end = fe
             else:                               # frozen: the boundaries it passed are spent
                 radio.count = m - s
                 radio.head_at = ts
         if not self.on_air:
             raise RuntimeError(f"channel: no head is due at the boundary {ts} ns")
-        self._next_end = min(f.end for f in self.on_air)
-        self.collided = len(self.on_air) > 1
+        self._next_end = on_air[0].end if len(on_air) == 1 else min(f.end for f in on_air)
+        self.collided = len(on_air) > 1
         self.collisions += self.collided
         self.frames_sent += len(self.on_air)
         self.busy_ns += end - ts
@@ -257,8 +263,11 @@ class Channel:
         self._next_start = None
 
     def _end(self, te: int) -> None:
-        done = [f for f in self.on_air if f.end == te]
-        self.on_air = [f for f in self.on_air if f.end != te]
+        if len(self.on_air) == 1:
+            done, self.on_air = self.on_air, []
+        else:
+            done = [f for f in self.on_air if f.end == te]
+            self.on_air = [f for f in self.on_air if f.end != te]
         self._next_end = min(f.end for f in self.on_air) if self.on_air else _NEVER
         ok = not self.collided
         for frame in done:
@@ -282,11 +291,15 @@ class Channel:
 
     # ------------------------------------------------------------------ wake-ups
     def _wake(self) -> None:
-        """While an estimator's frame waits or is on the air: a wake-up at the next end, or
-        just after the next start (once every frame handed over at that boundary has joined)."""
+        """While an estimator's frame waits or is on the air: a wake-up at the next end, that
+        of the frame on the air or of the first frame due to start if nothing more is handed
+        over.  A frame handed over before that start can only make a frame start and end
+        earlier through :meth:`offer`, which wakes earlier; background that starts earlier delays
+        every estimator's frame.  So every end of an estimator's frame is seen at its instant
+        (its deliveries are scheduled then), with one wake-up per frame when nothing interferes."""
         if not self.pending:
             return
-        t = self._next_end if self.on_air else self.next_start() + 1
+        t = self._next_end if self.on_air else self.next_start() + self._next_air
         if t in self._wakes or t > MAX_NS:
             return
         self._wakes.add(t)
