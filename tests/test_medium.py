@@ -213,6 +213,9 @@ def test_periodic_background_is_ahead_and_contends():
     stats = port.channel.stats(end)
     assert (stats["background_sent"], stats["collisions"]) == (2, 0)
     assert stats["utilisation"] == pytest.approx((2 * airtime(300) + airtime(100)) / end)
+    # as of end, however far the channel is brought afterwards (the next background: 1.0005 s)
+    port.channel.advance(1_200 * MS)
+    assert port.channel.stats(end) == stats and port.channel.stats(1_200 * MS)["background_sent"] == 4
 
 
 def test_each_port_has_its_own_copy_with_the_same_draws_and_share_with_shares_it():
@@ -297,8 +300,9 @@ def test_the_channel_never_carries_two_frames_unless_they_collide(offers, cw, sl
         for _, s2, _, ok2, _ in air[i + 1:]:
             if s2 < e1:
                 assert s2 == s1 and not ok1 and not ok2
-    assert ch.collisions == len({e[1] for e in air if not e[3]})
-    assert ch.frames_sent == len(air)
+    stats = ch.stats(env.now)
+    assert stats["collisions"] == len({e[1] for e in air if not e[3]})
+    assert stats["frames_on_air"] == len(air)
 
 
 # ------------------------------------------------------------------ runs

@@ -18,9 +18,10 @@ frame:
 - when its frame ends, a radio with more frames draws a fresh backoff (keyed by that instant).
 
 The engine is event driven over the run's SimPy environment, and lazy: its state is brought
-up to date (:meth:`Channel.advance`) when a frame is offered and by one wake-up event per
-contention decision and per transmission end while an estimator's frame is on the channel
-(never one per slot).  At one instant it takes the transmission ends, then the arrivals
+up to date (:meth:`Channel.advance`) when a frame is offered and by wake-up events while an
+estimator's frame waits or is on the air, about one per frame, at a transmission's end (never
+one per slot; :meth:`Channel._wake`).  Its statistics come from a log of busy periods, so they
+are those of any instant however far the channel has been brought.  At one instant it takes the transmission ends, then the arrivals
 (background first, then the estimators' frames as they are handed over), then a start at a
 boundary -- so a frame handed over exactly at a boundary joins it.
 """
@@ -28,10 +29,12 @@ boundary -- so a frame handed over exactly at a boundary joins it.
 from __future__ import annotations
 
 import heapq
+from array import array
 from collections import deque
 from collections.abc import Callable
 from typing import Any
 
+import numpy as np
 from simpy.events import URGENT, Event
 
 from dkfsim.components.medium import Medium
@@ -39,7 +42,7 @@ from dkfsim.components.traffic import transmission_ns
 from dkfsim.core.params import MAX_NS, seconds_to_ns
 from dkfsim.core.streams import key64, keyed_uniform
 from dkfsim.network.events import Scheduled
-from dkfsim.network.transmitter import BackgroundArrivals, busy_within
+from dkfsim.network.transmitter import BackgroundArrivals
 
 _NEVER = MAX_NS + 1
 
@@ -123,12 +126,11 @@ class Channel:
         self.pending = 0
         self._wakes: set[int] = set()
         # statistics
-        self.busy_ns = 0
-        self.frames_sent = 0            # every frame that started, background included
-        self.collisions = 0             # boundaries at which two or more frames started
-        self.background_sent = 0
-        self.background_dropped = 0
-        self.background_collided = 0
+        #: every busy period: (start, end, frames, background frames, collided), flat; and
+        #: the instants of background frames a full waiting room dropped (:meth:`stats` reads
+        #: them as of any instant, however far the channel has been brought)
+        self._periods = array("q")
+        self._dropped = array("q")
         #: with ``record``: (node, start, end, ok, background) of every frame that ended
         self.ended: list[tuple[int, int, int, bool, bool]] | None = [] if record else None
 
@@ -227,7 +229,7 @@ class Channel:
         _, sizes = bg.until(ta)
         for size in sizes:
             if not self._arrive(radio, Frame(node, int(size), ta), ta):
-                self.background_dropped += 1
+                self._dropped.append(ta)
         heapq.heappush(self._arrivals, (bg.next_time(), node))
 
     def _start(self, ts: int) -> None:
@@ -256,10 +258,7 @@ class Channel:
             raise RuntimeError(f"channel: no head is due at the boundary {ts} ns")
         self._next_end = on_air[0].end if len(on_air) == 1 else min(f.end for f in on_air)
         self.collided = len(on_air) > 1
-        self.collisions += self.collided
-        self.frames_sent += len(self.on_air)
-        self.busy_ns += end - ts
-        self.busy_end = end
+        self._periods.extend((ts, end, len(on_air), sum(f.done is None for f in on_air), self.collided))
         self._next_start = None
 
     def _end(self, te: int) -> None:
@@ -275,12 +274,7 @@ class Channel:
             radio.on_air = None
             if self.ended is not None:
                 self.ended.append((frame.node, frame.start, frame.end, ok, frame.done is None))
-            if frame.done is None:
-                if ok:
-                    self.background_sent += 1
-                else:
-                    self.background_collided += 1
-            else:
+            if frame.done is not None:
                 self.pending -= 1
                 frame.done(frame, ok)
             if radio.queue:
@@ -314,11 +308,17 @@ class Channel:
     # ------------------------------------------------------------------ statistics
     def stats(self, end_ns: int) -> dict[str, float | int]:
         """The channel over ``[0, end_ns]`` (brought up to ``end_ns``, or to now if that is
-        earlier): utilisation (busy, collisions included), frames started, collisions and the
-        background frames sent, lost in collisions and dropped by a full waiting room."""
+        earlier), whatever happened after it: the busy fraction of it (collisions included),
+        the frames that started before ``end_ns`` (all, and the background's that collided or
+        not), the collisions among them, and the background frames a full waiting room dropped
+        up to ``end_ns``."""
         self.advance(min(end_ns, self.env.now))
-        busy = busy_within(self.busy_ns, self.busy_end, end_ns)
+        p = np.frombuffer(self._periods, dtype=np.int64).reshape(-1, 5)
+        p = p[p[:, 0] < end_ns]
+        busy = int((np.minimum(p[:, 1], end_ns) - p[:, 0]).sum())
+        collided = p[:, 4] > 0
+        dropped = np.frombuffer(self._dropped, dtype=np.int64)
         return {"utilisation": busy / end_ns if end_ns > 0 else 0.0,
-                "frames_on_air": self.frames_sent, "collisions": self.collisions,
-                "background_sent": self.background_sent, "background_collided": self.background_collided,
-                "background_dropped": self.background_dropped}
+                "frames_on_air": int(p[:, 2].sum()), "collisions": int(collided.sum()),
+                "background_sent": int(p[~collided, 3].sum()), "background_collided": int(p[collided, 3].sum()),
+                "background_dropped": int((dropped <= end_ns).sum())}
