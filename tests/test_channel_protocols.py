@@ -140,7 +140,12 @@ def test_on_a_channel_frames_are_nodes_times_instants_not_links(frames):
     flood = [f for f in frames if f[0] == "anti_delay_dkf"]
     flushes = {(parts[0][0].src, now) for _, now, _, parts in flood}
     dkf = r.res.traffic["fused"]
-    assert dkf["channel"]["frames"] == len(flushes) == len(flood) < dkf["sent"]
+    assert len(flushes) == len(flood) < dkf["sent"]                     # one frame per flush
+    # the channel counts the frames that ended by t_K: every frame handed over a tick before
+    # the end (this light load never waits that long), at most every frame
+    T_ns = 10**9 * sc["model"]["T"]
+    early = sum(1 for _, now, _, _ in flood if now <= (K - 1) * T_ns)
+    assert early <= dkf["channel"]["frames"] <= len(flood)
 
 
 @pytest.mark.parametrize("protocol", ["tree", "flood"])

@@ -213,6 +213,9 @@ def test_periodic_background_is_ahead_and_contends():
     stats = port.channel.stats(end)
     assert (stats["background_sent"], stats["collisions"]) == (2, 0)
     assert stats["utilisation"] == pytest.approx((2 * airtime(300) + airtime(100)) / end)
+    # as of end, however far the channel is brought afterwards (the next background: 1.0005 s)
+    port.channel.advance(1_200 * MS)
+    assert port.channel.stats(end) == stats and port.channel.stats(1_200 * MS)["background_sent"] == 4
 
 
 def test_each_port_has_its_own_copy_with_the_same_draws_and_share_with_shares_it():
@@ -261,32 +264,45 @@ def test_the_counting_identity_holds_per_link_over_a_random_run():
 def test_the_channel_never_carries_two_frames_unless_they_collide(offers, cw, slot, aifs, background, seed):
     """Offers (node, instant us, bytes) at 1 Mbit/s: no frame starts while another is on the
     air, only frames starting together overlap (and all of them are lost), every successful
-    frame is alone on the air, and each frame offered is dropped or ends exactly once."""
+    frame is alone on the air, and each frame offered is dropped or ends exactly once, and its sender is told at its end."""
     spec = Medium(rate=1e6, access=Csma(slot=slot * 1e-6, aifs=aifs * 1e-6, cw=cw), preamble=0.0,
                   queue=Queue(packets=4),
                   background=Background(arrivals="periodic", packets_per_second=3000.0, size=50)
                   if background else None)
     env = simpy.Environment()
-    ch = Channel(env, spec, (0, 1, 2, 3), seed)
+    ch = Channel(env, spec, (0, 1, 2, 3), seed, record=True)
     ended: list = []
     dropped: list = []
 
     def offer(i, node, size):
-        frame = Frame(node, size, env.now, i, lambda f, ok: ended.append((f.parts, f.start, f.end, ok)))
+        frame = Frame(node, size, env.now, i, lambda f, ok: ended.append((f.parts, f.start, f.end, ok, env.now)))
         if not ch.offer(frame):
             dropped.append(i)
     for i, (node, t, size) in enumerate(offers):
         at(env, t * US, lambda i=i, node=node, size=size: offer(i, node, size))
     env.run()
     assert sorted([e[0] for e in ended] + dropped) == list(range(len(offers)))
-    for i, (a, sa, ea, oka) in enumerate(ended):
+    for i, (a, sa, ea, oka, told) in enumerate(ended):
+        assert told == ea                     # its sender hears of its end at that instant
         assert sa >= offers[a][1] * US and ea == sa + int(offers[a][2] * 8 * 1000 + 0.5)
-        for _, sb, eb, okb in ended[i + 1:]:
+        for _, sb, eb, okb, _ in ended[i + 1:]:
             if sa < eb and sb < ea:            # overlap: only a collision
                 assert sa == sb and not oka and not okb
-    for a, sa, _, ok in ended:
-        together = [b for b, sb, _, _ in ended if sb == sa and b != a]
-        assert ok == (not together) or background      # background frames may collide with it
+    # every frame that ended, background included: none starts while another is on the air
+    # unless both start at once, and then all of them are lost; a lone frame is never lost
+    ch.advance(env.now)
+    assert ch.ended is not None
+    air = sorted(ch.ended + [(f.node, f.start, f.end, not ch.collided, f.done is None) for f in ch.on_air],
+                 key=lambda e: (e[1], e[0]))
+    for i, (_, s1, e1, ok1, _) in enumerate(air):
+        together = [e for e in air if e[1] == s1]
+        assert ok1 == (len(together) == 1)
+        for _, s2, _, ok2, _ in air[i + 1:]:
+            if s2 < e1:
+                assert s2 == s1 and not ok1 and not ok2
+    stats = ch.stats(env.now)
+    assert stats["collisions"] == len({e[1] for e in air if not e[3]})
+    assert stats["frames_on_air"] == len(air)
 
 
 # ------------------------------------------------------------------ runs
@@ -351,3 +367,11 @@ def test_a_link_to_a_centre_outside_the_graph_is_on_the_channel():
     env.run()
     end = boundary(0, first_boundary(0, T0) + backoff(seed, 2, T0)) + airtime(100)
     assert got == [(end + 500 * US, 2, -1, "c")]
+
+
+def test_validate_says_the_scenario_has_a_channel(tmp_path):
+    path = tmp_path / "s.yaml"
+    path.write_text(yaml.safe_dump(_with_medium(nodes=[0, 1, 2])))
+    out = subprocess.run([sys.executable, "-m", "dkfsim", "validate", str(path)], capture_output=True, text=True)
+    assert out.returncode == 0, out.stderr
+    assert "3 nodes on one shared channel of 1e+06 bit/s (csma, cw 15" in out.stdout

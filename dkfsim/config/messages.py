@@ -49,7 +49,7 @@ _LITERAL_FIELDS = {"weights": ("weights", ("unit", "paper")),
                    "kind": ("model kind", ("constant_acceleration", "constant_velocity", "linear"))}
 
 #: ... and those whose meaning depends on the key above them.
-_LITERAL_PATHS = {("access", "kind"): ("access kind", ("csma",))}
+_LITERAL_PATHS: dict[tuple[str, ...], tuple[str, tuple[str, ...]]] = {("access", "kind"): ("access kind", ("csma",))}
 
 _BOUND_WORDS = {"greater_than_equal": (">=", "ge"), "greater_than": (">", "gt"),
                 "less_than_equal": ("<=", "le"), "less_than": ("<", "lt")}
