@@ -72,6 +72,26 @@ def test_consensus_broadcasts_one_frame_per_node_and_instant(kind, frames, monke
     assert sum(len(f[3]) for f in mine) == r.res.traffic[kind]["sent"]
 
 
+def test_without_a_channel_consensus_sends_per_link_in_the_links_order(monkeypatch):
+    """No ``medium:``: the frames are the per-link sends, and at every instant they go in the
+    network's link order (every arc, ascending ids), as the per-link loop sent them."""
+    monkeypatch.setenv("DKFSIM_EXCHANGE", "python")
+    sent = defaultdict(list)
+    original = Port.send
+
+    def spy(self, link, payload, nbytes=0):
+        if self.name == "ci_consensus":
+            sent[self.env.now].append(link.id)
+        original(self, link, payload, nbytes)
+    monkeypatch.setattr(Port, "send", spy)
+    sc = dict(scenario(6, edges=tree_edges(6, 51), steps=10), estimators=[{"kind": "ci_consensus", "rounds": 2}])
+    r = run_scenario(sc)
+    ids = sorted(row["link"] for row in r.res.traffic["ci_consensus"]["per_link"])
+    assert len(sent) == 20
+    for now, order in sent.items():
+        assert order == sorted(order) and len(order) == len(ids), (now, order)
+
+
 def test_flood_broadcasts_the_union_once(frames, monkeypatch):
     """Flood: one frame per flush; its size is one header and the union of the parts' rows; no
     part goes back to the neighbour its contributions came from (a leaf's relays are empty)."""
