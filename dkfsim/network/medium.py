@@ -196,7 +196,13 @@ class Channel:
             else:
                 best = heads[0][0]
                 self._next_start = self.t_idle + self.aifs + (best - self.passed) * self.slot
-                self._next_air = min(air for b, _, air in heads if b == best) if len(heads) > 1 else heads[0][2]
+                # the heads tied with the first are a subtree at the top of the heap: none when
+                # neither child of the root is
+                n = len(heads)
+                if (n > 1 and heads[1][0] == best) or (n > 2 and heads[2][0] == best):
+                    self._next_air = min(air for b, _, air in heads if b == best)
+                else:
+                    self._next_air = heads[0][2]
         return self._next_start
 
     def advance(self, t: int) -> None:
@@ -250,7 +256,8 @@ class Channel:
             raise RuntimeError(f"channel: no head is due at the boundary {ts} ns")
         self._next_end = on_air[0].end if len(on_air) == 1 else min(f.end for f in on_air)
         self.collided = len(on_air) > 1
-        self._periods.extend((ts, end, len(on_air), sum(f.done is None for f in on_air), self.collided))
+        background = sum(f.done is None for f in on_air) if len(on_air) > 1 else int(on_air[0].done is None)
+        self._periods.extend((ts, end, len(on_air), background, self.collided))
         self._next_start = None
 
     def _end(self, te: int) -> None:
