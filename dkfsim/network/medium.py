@@ -113,9 +113,8 @@ class Channel:
                 self._arrivals.append((bg.next_time(), node))
         heapq.heapify(self._arrivals)
         self.t_idle = 0
-        #: the frames on the air (one, or several colliding) and when the last of them ends
+        #: the frames on the air (one, or several colliding)
         self.on_air: list[Frame] = []
-        self.busy_end = 0
         #: when the first frame on the air ends (never: none on the air)
         self._next_end = _NEVER
         self.collided = False
