@@ -64,17 +64,13 @@ class Radio:
     """One member's radio: its waiting room (the head contending, the frame on the air apart),
     its backoff state and its background."""
 
-    __slots__ = ("node", "queue", "queued_bytes", "on_air", "head_at", "count", "key", "drawn_at",
-                 "drawn", "background")
+    __slots__ = ("node", "queue", "queued_bytes", "on_air", "key", "drawn_at", "drawn", "background")
 
     def __init__(self, node: int, key: int, background: BackgroundArrivals | None):
         self.node = node
         self.queue: deque[Frame] = deque()
         self.queued_bytes = 0
         self.on_air: Frame | None = None
-        #: when the head became head (or was frozen), and its remaining backoff (boundaries)
-        self.head_at = 0
-        self.count = 0
         self.key = key
         self.drawn_at, self.drawn = -1, 0
         self.background = background
@@ -99,8 +95,14 @@ class Channel:
         self.max_packets = spec.queue.packets if spec.queue is not None else None
         self.max_bytes = spec.queue.bytes if spec.queue is not None else None
         self.radios: dict[int, Radio] = {}
-        #: the radios whose head contends (a frame waiting, none on the air)
-        self._heads: dict[int, Radio] = {}
+        #: the contending heads (a frame waiting, none on the air): ``(boundary, node, airtime)``,
+        #: a heap; ``boundary`` counts the idle boundaries of the whole run (:attr:`passed` of
+        #: earlier idle periods, then this one's), so freezing changes no entry
+        self._heads: list[tuple[int, int, int]] = []
+        #: the boundaries of the earlier idle periods that passed (each period: those before the
+        #: boundary at which its transmission started)
+        self.passed = 0
+        self._airtimes: dict[int, int] = {}
         #: (instant of the next background frame, node) of every member with background
         self._arrivals: list[tuple[int, int]] = []
         for node in members:
@@ -111,9 +113,8 @@ class Channel:
                 self._arrivals.append((bg.next_time(), node))
         heapq.heapify(self._arrivals)
         self.t_idle = 0
-        #: the frames on the air (one, or several colliding) and when the last of them ends
+        #: the frames on the air (one, or several colliding)
         self.on_air: list[Frame] = []
-        self.busy_end = 0
         #: when the first frame on the air ends (never: none on the air)
         self._next_end = _NEVER
         self.collided = False
@@ -161,26 +162,26 @@ class Channel:
     def airtime(self, size: int) -> int:
         """ns a frame of ``size`` bytes is on the air: the preamble plus ``size * 8 / rate``
         (:func:`~dkfsim.components.traffic.transmission_ns`), at least 1 ns."""
-        return max(1, min(self.preamble + transmission_ns(size, self.rate), MAX_NS))
+        air = self._airtimes.get(size)
+        if air is None:
+            air = self._airtimes[size] = max(1, min(self.preamble + transmission_ns(size, self.rate), MAX_NS))
+        return air
 
     def _head(self, radio: Radio, t: int) -> None:
-        """The radio's first waiting frame becomes head at ``t``: a fresh backoff."""
-        self._heads[radio.node] = radio
+        """The radio's first waiting frame becomes head at ``t``: a fresh backoff, counted from
+        the first boundary at or after ``t`` (the next idle period's first while the channel is
+        busy)."""
         if radio.drawn_at != t:
             radio.drawn_at, radio.drawn = t, 0
         u = keyed_uniform(radio.key, t, radio.drawn)
         radio.drawn += 1
-        radio.head_at = t
-        radio.count = min(int(u * (self.cw + 1)), self.cw)
+        count = min(int(u * (self.cw + 1)), self.cw)
+        first = self.t_idle + self.aifs
+        join = 0 if self.on_air or t <= first else -(-(t - first) // self.slot)
+        heapq.heappush(self._heads, (self.passed + join + count, radio.node, self.airtime(radio.queue[0].size)))
         self._next_start = None
 
     # ------------------------------------------------------------------ the engine
-    def _target(self, radio: Radio) -> int:
-        """The boundary index at which ``radio``'s head is sent if the channel stays idle."""
-        first = self.t_idle + self.aifs
-        h = radio.head_at
-        join = 0 if h <= first else -(-(h - first) // self.slot)
-        return join + radio.count
 
     def next_start(self) -> int:
         """When the next transmission starts if nothing more is handed over (never: no head,
@@ -188,17 +189,19 @@ class Channel:
         if self.on_air:
             return _NEVER
         if self._next_start is None:
-            first, slot = self.t_idle + self.aifs, self.slot
-            best, size = _NEVER, 0
-            for radio in self._heads.values():
-                h = radio.head_at
-                m = (0 if h <= first else -(-(h - first) // slot)) + radio.count
-                if m < best:
-                    best, size = m, radio.queue[0].size
-                elif m == best and radio.queue[0].size < size:
-                    size = radio.queue[0].size
-            self._next_start = _NEVER if best == _NEVER else first + best * slot
-            self._next_air = self.airtime(size)
+            heads = self._heads
+            if not heads:
+                self._next_start = _NEVER
+            else:
+                best = heads[0][0]
+                self._next_start = self.t_idle + self.aifs + (best - self.passed) * self.slot
+                # the heads tied with the first are a subtree at the top of the heap: none when
+                # neither child of the root is
+                n = len(heads)
+                if (n > 1 and heads[1][0] == best) or (n > 2 and heads[2][0] == best):
+                    self._next_air = min(air for b, _, air in heads if b == best)
+                else:
+                    self._next_air = heads[0][2]
         return self._next_start
 
     def advance(self, t: int) -> None:
@@ -233,32 +236,27 @@ class Channel:
         heapq.heappush(self._arrivals, (bg.next_time(), node))
 
     def _start(self, ts: int) -> None:
-        first = self.t_idle + self.aifs
-        s = (ts - first) // self.slot
+        heads, on_air = self._heads, self.on_air
+        best = heads[0][0]
         end = ts
-        slot, heads, on_air = self.slot, self._heads, self.on_air
-        for node in sorted(heads):              # (in node order: the order of their ends' news)
-            radio = heads[node]
-            h = radio.head_at
-            m = (0 if h <= first else -(-(h - first) // slot)) + radio.count
-            if m == s:
-                frame = radio.queue.popleft()
-                radio.queued_bytes -= frame.size
-                frame.start = ts
-                frame.end = fe = ts + self.airtime(frame.size)
-                radio.on_air = frame
-                on_air.append(frame)
-                del heads[node]
-                if fe > end:
-                    end = fe
-            else:                               # frozen: the boundaries it passed are spent
-                radio.count = m - s
-                radio.head_at = ts
+        while heads and heads[0][0] == best:    # (in node order: the order of their ends' news)
+            radio = self.radios[heapq.heappop(heads)[1]]
+            frame = radio.queue.popleft()
+            radio.queued_bytes -= frame.size
+            frame.start = ts
+            frame.end = fe = ts + self.airtime(frame.size)
+            radio.on_air = frame
+            on_air.append(frame)
+            if fe > end:
+                end = fe
+        # the others are frozen: the boundaries before this one are spent, the rest count on
+        self.passed = best
         if not self.on_air:
             raise RuntimeError(f"channel: no head is due at the boundary {ts} ns")
         self._next_end = on_air[0].end if len(on_air) == 1 else min(f.end for f in on_air)
         self.collided = len(on_air) > 1
-        self._periods.extend((ts, end, len(on_air), sum(f.done is None for f in on_air), self.collided))
+        background = sum(f.done is None for f in on_air) if len(on_air) > 1 else int(on_air[0].done is None)
+        self._periods.extend((ts, end, len(on_air), background, self.collided))
         self._next_start = None
 
     def _end(self, te: int) -> None:
@@ -268,6 +266,9 @@ class Channel:
             done = [f for f in self.on_air if f.end == te]
             self.on_air = [f for f in self.on_air if f.end != te]
         self._next_end = min(f.end for f in self.on_air) if self.on_air else _NEVER
+        if not self.on_air:                 # idle from now: the new heads count from here
+            self.t_idle = te
+            self._next_start = None
         ok = not self.collided
         for frame in done:
             radio = self.radios[frame.node]
@@ -279,9 +280,6 @@ class Channel:
                 frame.done(frame, ok)
             if radio.queue:
                 self._head(radio, te)
-        if not self.on_air:
-            self.t_idle = te
-            self._next_start = None
 
     # ------------------------------------------------------------------ wake-ups
     def _wake(self) -> None:
