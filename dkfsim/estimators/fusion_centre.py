@@ -174,7 +174,7 @@ class FusionCentre(Estimator, params=FusionCentreParams):
         masks = self.sent_held[idx]                          # (rows, n, n)
         x = self.dkf.x_local[r]
         vary = self.varying.any()
-        crashes, now = self.ctx.crashes, self.ctx.env.now
+        crashes, now = self.ctx.crashes, int(self.ctx.env.now)
         for i in range(n):
             if crashes is not None and i != self.at and crashes.down(i, now):
                 continue                          # a node that is down sends nothing
