@@ -101,10 +101,7 @@ class FusionCentre(Estimator, params=FusionCentreParams):
     # -- running -------------------------------------------------------------------
     def start(self) -> None:
         ctx = self.ctx
-        dkf = ctx.dkf
-        if dkf is None or dkf.xcov is None:        # (validation refuses fusion: none)
-            raise RuntimeError("a fusion centre needs the scenario's DKF with its fusion")
-        self.dkf = dkf
+        self.dkf = dkf = ctx.dkf          # the scenario's DKF, with its fusion (validation checked)
         sys_, K, n, nx = ctx.system, ctx.K, ctx.n, ctx.nx
         self.Phi = sys_.Phi
         self.L = L = int(dkf.L)
