@@ -89,7 +89,8 @@ def rel(a, b):
     (paper, [ZERO], "compiled"),
     (paper, [ZERO], "python"),
     (paper, [ZERO, "protocol=flood"], "python"),
-    (paper, [ZERO, "protocol=flood", "weights=unit"], "python"),
+    (paper, [ZERO, "fusion=diagonal"], "compiled"),
+    (paper, [ZERO, "weights=paper"], "compiled"),
     (radar, [ZERO], "python"),
 ])
 def test_zero_latency_equals_fused(make, overrides, exchange, monkeypatch):
