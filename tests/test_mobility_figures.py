@@ -131,6 +131,38 @@ def test_plot_and_report_draw_the_mobility_figures_only_for_a_moving_run(folders
     assert "mobility" not in json.loads((plain / "summary.json").read_text())
 
 
+def test_a_montecarlo_folder_draws_the_network_its_runs_moved_on(folders, tmp_path):
+    """A Monte Carlo folder keeps no positions, but every run moves the same (no draw moves a
+    vehicle): the folder read back holds the single run's positions and links up, equal to
+    that run's run.npz, and `dkfsim plot` draws both mobility figures from it (decision 231)."""
+    import yaml
+    spec = tmp_path / "moving.yaml"
+    spec.write_text(yaml.safe_dump(moving_scenario()))
+    mc = tmp_path / "mc"
+    assert main(["montecarlo", str(spec), "--runs", "2", "--jobs", "1", "--quiet", "--out", str(mc)]) == 0
+    run = load_folder(folders["moving"][0]).mobility
+    replayed = load_folder(mc).mobility
+    assert replayed.keys() == run.keys()
+    for key in run:
+        np.testing.assert_array_equal(replayed[key], run[key], err_msg=key)
+    assert main(["plot", str(mc), "--format", "png", "--at", "1", "30"]) == 0
+    for f in ("network_over_time.png", "topology_errors.png"):
+        assert (mc / "figures" / f).stat().st_size > 1000
+    # a stored scenario of other runs is refused before it is replayed
+    summary = json.loads((mc / "summary.json").read_text())
+    summary["scenario_config"]["steps"] = 10**9
+    (mc / "summary.json").write_text(json.dumps(summary))
+    with pytest.raises(DkfsimError, match="scenario_config has steps 1000000000 but curves.npz has 60 ticks"):
+        load_folder(mc)
+    # a Monte Carlo folder of a scenario without mobility: none
+    plain = copy.deepcopy(moving_scenario())
+    del plain["mobility"]
+    spec.write_text(yaml.safe_dump(plain))
+    assert main(["montecarlo", str(spec), "--runs", "2", "--jobs", "1", "--quiet", "--out", str(tmp_path / "p")]) == 0
+    assert load_folder(tmp_path / "p").mobility == {}
+    assert main(["plot", str(tmp_path / "p"), "--format", "png", "--at", "3"]) == 2
+
+
 def _tampered(src, tmp_path, name, change_arrays=None, change_summary=None):
     dst = tmp_path / name
     dst.mkdir()

@@ -205,6 +205,23 @@ def test_output_contract(tmp_path):
     assert A_["ci_consensus"]["disagreement"] > 0
 
 
+def test_cli_pools_each_estimate_once_for_the_file_and_the_table(tmp_path, monkeypatch, capsys):
+    """summary.json and the printed table come from one pooling per estimate (it walks every
+    runs.csv row per component; doing it twice doubled the cost), and show the same numbers."""
+    from dkfsim.experiments.montecarlo import MonteCarloResult
+    calls: list[str] = []
+    pool = MonteCarloResult.estimate_summary
+    monkeypatch.setattr(MonteCarloResult, "estimate_summary",
+                        lambda self, name: calls.append(name) or pool(self, name))
+    out = tmp_path / "mc"
+    assert cli.main(["montecarlo", str(CASE1), "--runs", "2", "--steps", "20", "--burn-in", "2",
+                     "--jobs", "1", "--out", str(out)]) == 0
+    s = json.loads((out / "summary.json").read_text())
+    assert sorted(calls) == sorted(s["estimates"])
+    fused = s["estimates"]["fused"]
+    assert f"{fused['mse']['position']:.4g}" in capsys.readouterr().out
+
+
 def test_without_fusion_and_with_a_generic_model():
     res = montecarlo(load_scenario(scenario(3, steps=20, fusion="none")), 2, burn_in=0)
     assert res.estimates == ["local", "centralized"]

@@ -189,6 +189,77 @@ def test_compare_default_output_and_one_component(run_dir, tmp_path):
     assert_figures(mc / "figures", ["compare_mse"], formats=("png",))
 
 
+def test_compare_tells_folders_apart_by_line_style_never_by_another_estimate_colour(tmp_path, monkeypatch):
+    """Colours mean estimates in every figure: the folders of --compare are the compared
+    estimate's colour (lighter for later folders) in one line style each, and no folder line
+    takes another built-in estimate's colour (they were C0, C1, C2: fused, no_buffer,
+    centralized_delayed)."""
+    from matplotlib.axes import Axes
+    from matplotlib.colors import to_rgb
+
+    from dkfsim.report.plots import compare, style
+    drawn: list = []                       # (label, rgb, ls as asked) of every line, in order
+    real_plot = Axes.plot
+
+    def plot(ax, *a, **kw):
+        drawn.append((kw.get("label", ""), to_rgb(kw["color"]), str(kw.get("ls", "-"))))
+        return real_plot(ax, *a, **kw)
+    monkeypatch.setattr(Axes, "plot", plot)
+    titles: list = []
+    monkeypatch.setattr(compare, "save_figure",
+                        lambda fig, _s, _f: titles.append(fig.legends[0].get_title().get_text()) or [])
+    folders = [write_montecarlo(tmp_path / f"mc{j}") for j in range(4)]
+    labels = ["a", "b", "c", "d"]
+    compare.plot_compare([plots.load_folder(f) for f in folders], tmp_path / "c", labels=labels,
+                         components=["position"], relative=True)
+    lines = {lab: (rgb, ls) for lab, rgb, ls in drawn if lab in labels}
+    assert list(lines) == labels
+    fused = to_rgb(style.color_of("fused"))
+    assert lines["a"] == (pytest.approx(fused), "-")
+    assert len({ls for _rgb, ls in lines.values()}) == 4              # one line style per folder
+    others = [to_rgb(style.color_of(a)) for a in style.ESTIMATES if a != "fused"]
+    for lab, (rgb, _ls) in lines.items():
+        assert min(rgb_distance(rgb, o) for o in others) >= DISTINCT, (lab, rgb)
+        # a shade of fused's blue: on the segment from it to white
+        t = (np.array(rgb) - fused) / (1 - np.array(fused))
+        assert np.allclose(t, t[0]) and 0 <= t[0] <= 0.6, (lab, rgb)
+    centre = [(rgb, ls) for lab, rgb, ls in drawn if lab.startswith("centralized")]
+    assert centre == [(to_rgb(style.color_of("centralized")), "--")]      # as in every figure
+    assert all(ls != "--" for _rgb, ls in lines.values())
+    ratios = [(rgb, ls) for lab, rgb, ls in drawn if not lab]          # the ratio column, same looks
+    assert ratios == list(lines.values())
+    assert "line style per folder" in titles[0]
+
+
+def test_compare_escapes_a_label_once(tmp_path, monkeypatch):
+    """A --labels value is plain text: its "$" is escaped once, in the legend and in the column
+    of averages (that column escaped the escaped label again and drew its backslashes)."""
+    from dkfsim.report.plots import compare
+    texts: list = []
+
+    def capture(fig, _stem, _formats):
+        texts.extend(t.get_text() for ax in fig.axes for t in ax.texts)
+        texts.extend(t.get_text() for t in fig.legends[0].get_texts())
+        return []
+    monkeypatch.setattr(compare, "save_figure", capture)
+    folders = [plots.load_folder(write_montecarlo(tmp_path / f"mc{j}")) for j in range(2)]
+    compare.plot_compare(folders, tmp_path / "c", labels=["$d_t$ = 1", "two"], components=["position"])
+    assert "\\$d_t\\$ = 1" in texts                                   # the legend entry
+    assert any(t.startswith("\\$d_t\\$ = 1: ") for t in texts), texts     # the averages column
+    assert not any("\\\\" in t for t in texts), texts
+
+
+def test_every_compared_folder_has_its_own_look():
+    """(colour, line style) pairs of --compare's folders are all different, the line styles
+    too up to six folders (then the shade tells them apart)."""
+    from dkfsim.report.plots.compare import folder_looks
+    for n in range(1, 13):
+        colors, styles = folder_looks("C0", n)
+        assert len(colors) == len(styles) == n
+        assert len({(c, str(s)) for c, s in zip(colors, styles)}) == n
+        assert len({str(s) for s in styles}) == min(n, 6)
+
+
 def fails(capsys, argv, *words):
     assert main(argv) == 2
     err = capsys.readouterr().err
@@ -212,6 +283,10 @@ def test_errors(run_dir, tmp_path, capsys):
     fails(capsys, ["plot", str(run_dir), "--compare"], "at least two folders")
     fails(capsys, ["plot", str(run_dir), "--labels", "a"], "--labels", "--compare")
     fails(capsys, ["plot", str(run_dir), "--component", "jerk"], "'jerk'", "position")
+    # one --component rule for a folder and a sweep (report.plots.style.select_components)
+    fails(capsys, ["plot", str(run_dir), "--component", "veloctiy"],
+          f"is not a component of {run_dir} (did you mean 'velocity'?) (components: position, "
+          "velocity, acceleration, or 0..2)")
     fails(capsys, ["plot", str(run_dir), "--smooth", "0"], "--smooth")
     fails(capsys, ["plot", str(run_dir), "--relative"], "--relative", "--compare")
     no_central = write_montecarlo(tmp_path / "nocentral", estimates=("fused", "ci_consensus"))
@@ -261,6 +336,27 @@ def test_a_figure_file_gets_the_mode_of_the_umask_like_every_other_output(tmp_pa
         os.umask(old)
     assert [p.name for p in paths] == ["f.png", "f.pdf"]
     assert all((p.stat().st_mode & 0o777) == 0o644 for p in paths)
+
+
+def test_a_figure_that_fails_midway_leaves_the_previous_file_and_no_temporary(tmp_path):
+    """Figures are replaced like every other output (core.folders.replacing): a format that
+    fails while writing keeps the previous file whole and leaves nothing beside it."""
+    from dkfsim.core.extras import pyplot
+    from dkfsim.report.plots.style import save_figure
+    (tmp_path / "f.pdf").write_bytes(b"the previous figure")
+    fig = pyplot().figure()
+    real = fig.savefig
+
+    def half_then_fail(fh, **kw):
+        if kw.get("format") == "pdf":
+            fh.write(b"%PDF- half")
+            raise OSError(28, "No space left on device")
+        return real(fh, **kw)
+    fig.savefig = half_then_fail
+    with pytest.raises(DkfsimError, match=r"f\.pdf: cannot write the figure \(No space left on device\)"):
+        save_figure(fig, tmp_path / "f", ("png", "pdf"))
+    assert (tmp_path / "f.pdf").read_bytes() == b"the previous figure"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["f.pdf", "f.png"]
 
 
 # ----------------------------------------------------------------------------

@@ -204,3 +204,36 @@ def test_hue_pairing_is_refused_when_seed_is_a_grid_key(tmp_path, capsys):
     assert main(["plot", str(tmp_path / "s.sqlite"), "--x", "seed", "--hue", "protocol",
                  "--relative-to", "tree", "--format", "png"]) == 2
     assert "seed is a grid key" in capsys.readouterr().err
+
+
+def test_an_unknown_reference_is_refused_with_the_same_words_everywhere(tmp_path):
+    """``--relative-to`` is checked in one place (analysis.paired.reference_of) for a scenario,
+    a sweep's summary and a sweep's plot; each message names what was searched and its estimates."""
+    from dkfsim.experiments.montecarlo import check_reference
+    from dkfsim.experiments.sweep.grid import summarize
+    from dkfsim.report.sweep.plot import sweep_curves
+
+    case1 = dkfsim.load_scenario(CASE1)
+    with pytest.raises(DkfsimError) as e:
+        check_reference(case1, "nobuffer")
+    assert str(e.value) == ("--relative-to nobuffer: not an estimate of paper_case1 "
+                            "(estimates: fused, local, centralized)")
+    alone = dkfsim.load_scenario(CASE1, overrides=["fusion=none"])
+    with pytest.raises(DkfsimError) as e:
+        check_reference(alone, "fused")
+    assert str(e.value) == ("--relative-to fused: not an estimate of paper_case1 (estimates: local, "
+                            "centralized); the scenario has fusion: none, so there is no fused estimate")
+    check_reference(case1, "local")                      # an estimate of the scenario: accepted
+    columns = ["d_t", "param_hash", "run", "seed", "estimate", "component", "mse"]
+    rows = [[d, f"h{d}", r, 7 + r, est, "position", 1.0 + r + d] for d in (0, 2) for r in (0, 1)
+            for est in ("fused", "local")]
+    with pytest.raises(DkfsimError) as e:
+        summarize(columns, rows, relative_to="fuse")
+    assert str(e.value) == "--relative-to fuse: not an estimate of the sweep (estimates: fused, local)"
+    table = tmp_path / "s.csv"
+    table.write_text("\n".join(",".join(map(str, r)) for r in [columns, *rows]) + "\n")
+    with pytest.raises(DkfsimError) as e:
+        sweep_curves(table, x="d_t", relative_to="fuse")
+    assert str(e.value) == ("--relative-to fuse: not an estimate of the sweep (did you mean 'fused'?) "
+                            "(estimates: fused, local)")
+    assert sweep_curves(table, x="d_t", relative_to="local")["lines"]

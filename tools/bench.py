@@ -363,12 +363,10 @@ def probe(args) -> int:
 
 def before_after(args) -> int:
     """``--base``: :func:`probe` alternated between the commit ``args.base`` and this checkout."""
+    from fingerprint import unpack  # (tools/, this script's folder): one git-archive rule
+
     with tempfile.TemporaryDirectory(prefix="dkfsim-bench-base-") as tmp:
-        base = Path(tmp) / "base"
-        base.mkdir()
-        archive = subprocess.run(["git", "-C", str(ROOT), "archive", args.base], check=True,
-                                 capture_output=True).stdout
-        subprocess.run(["tar", "-x", "-C", str(base)], input=archive, check=True)
+        base = unpack(args.base, Path(tmp) / "base")
         trees = {"base": base, "this": ROOT}
         flags = ["--ticks", str(args.ticks), "--scale-ticks", str(args.scale_ticks), "--big-nodes",
                  str(args.big_nodes), "--big-ticks", str(args.big_ticks)]

@@ -134,23 +134,23 @@ def main(argv=None) -> int:
     written = []
     written += plots.plot_tracking(
         c1, out / "fig3_tracking", args.formats,
-        title="Fig. 3: tracking with delay bound $d_t$ = 3, case 1 (undirected tree); "
+        title="Fig. 3: tracking with delay bound d_t = 3, case 1 (undirected tree); "
               "run 0 of the Monte Carlo")
     fig4_estimates = ["fused", "local", "ci_consensus", "centralized"]
     written += plots.plot_mse(
         c1, out / "fig4_mse", args.formats, smooth=args.smooth, estimates=fig4_estimates,
-        title="Fig. 4: MSE with delay bound $d_t$ = 3, case 1 (undirected tree)")
+        title="Fig. 4: MSE with delay bound d_t = 3, case 1 (undirected tree)")
     pair = [f["case1_d4"], f["case2_d4"]]
     written += plots.plot_compare(
         pair, out / "fig5_case1_vs_case2", formats=args.formats, smooth=args.smooth, relative=True,
         labels=["case 1: undirected tree (protocol tree)",
                 "case 2: directed graph (protocol flood)"],
-        title="Fig. 5: fused MSE, undirected (case 1) vs directed (case 2) graph, $d_t$ = 4")
+        title="Fig. 5: fused MSE, undirected (case 1) vs directed (case 2) graph, d_t = 4")
     sweep = [f[f"case1_d{d}"] for d in DELAY_BOUNDS]
     written += plots.plot_compare(
         sweep, out / "fig6_delay_bounds", formats=args.formats, smooth=args.smooth, relative=True,
-        labels=[f"$d_t$ = {d}" for d in DELAY_BOUNDS], components=["position"],
-        title="Fig. 6: fused position MSE for delay bounds $d_t$ = 0..4, case 1")
+        labels=[f"d_t = {d}" for d in DELAY_BOUNDS], components=["position"],
+        title="Fig. 6: fused position MSE for delay bounds d_t = 0..4, case 1")
     print(f"figures from {what} per case, {time.perf_counter() - t_start:.0f} s in all:")
     for p in written:
         print(f"  {p}")

@@ -19,19 +19,24 @@ import numpy as np
 
 from dkfsim.analysis.metrics import paired_interval
 from dkfsim.core.errors import DkfsimError
+from dkfsim.core.params import suggest
 
 #: The reference estimate when none is named (``--relative-to``).
 DEFAULT_REFERENCE = "centralized"
 
 
-def reference_of(names, relative_to: str | None, of: str = "these runs") -> str | None:
+def reference_of(names, relative_to: str | None, of: str = "these runs", *,
+                 suggestion: bool = False, why: str = "") -> str | None:
     """The reference estimate of the paired comparisons: ``relative_to`` (refused when not among
-    ``names``, the estimates ``of`` a result), else ``centralized`` when present, else None."""
+    ``names``, the estimates ``of`` a result or scenario), else ``centralized`` when present, else
+    None.  The one check of ``--relative-to`` (a scenario before its runs, a sweep's summary and
+    plot); the refusal adds the closest name when ``suggestion``, and ``why`` at its end."""
     names = list(names)
     if relative_to is not None:
         if relative_to not in names:
-            raise DkfsimError(f"--relative-to {relative_to}: not an estimate of {of} "
-                              f"(estimates: {', '.join(dict.fromkeys(names))})")
+            hint = suggest(relative_to, names) if suggestion else ""
+            raise DkfsimError(f"--relative-to {relative_to}: not an estimate of {of}{hint} "
+                              f"(estimates: {', '.join(dict.fromkeys(names))}){why}")
         return relative_to
     return DEFAULT_REFERENCE if DEFAULT_REFERENCE in names else None
 

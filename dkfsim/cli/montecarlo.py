@@ -66,8 +66,9 @@ def cmd_montecarlo(args) -> int:
     finally:
         if bar is not None:
             bar.close()
-    out = res.save(args.out)
+    summary = res.summary()                # the per-estimate pooling once, for the file and the table
+    out = res.save(args.out, summary=summary)
     if not args.quiet:
-        say(res.table())
+        say(res.table(summary["estimates"]))
         say(f"wrote {out / 'runs.csv'}, {out / 'curves.npz'} and {out / 'summary.json'}")
     return 0

@@ -567,17 +567,43 @@ def sinr_fit() -> dict:
     return _SINR_FIT
 
 
+class SinrTable:
+    """A fit's SINR-binned quantile functions as arrays, built once (a ``track`` link draws one
+    packet at a time, and rebuilding them from the JSON lists cost more than the draw)."""
+
+    __slots__ = ("edges", "levels", "quantiles")
+
+    def __init__(self, fit: dict):
+        self.edges = np.asarray(fit["bin_edges_db"], float)
+        self.levels = np.asarray(fit["levels"], float)
+        self.quantiles = [np.asarray(entry["quantiles_ms"], float) for entry in fit["bins"]]
+
+    def latency_ms(self, u, sinr_db) -> np.ndarray:
+        """Round-trip latencies (ms) for uniforms ``u`` at SINRs ``sinr_db`` (broadcast): the
+        quantile function of the SINR's bin, linear between the fit's quantile levels."""
+        u, sinr = np.broadcast_arrays(np.asarray(u, float), np.asarray(sinr_db, float))
+        which = np.searchsorted(self.edges, sinr, side="right")
+        out = np.empty(u.shape)
+        for b, q in enumerate(self.quantiles):
+            sel = which == b
+            out[sel] = np.interp(u[sel], self.levels, q)
+        return out
+
+
+_SINR_TABLE: list[SinrTable] = []
+
+
+def sinr_table() -> SinrTable:
+    """:class:`SinrTable` of the shipped fit (built once)."""
+    if not _SINR_TABLE:
+        _SINR_TABLE.append(SinrTable(sinr_fit()))
+    return _SINR_TABLE[0]
+
+
 def sinr_latency_ms(u, sinr_db, fit: dict) -> np.ndarray:
-    """Round-trip latencies (ms) for uniforms ``u`` at SINRs ``sinr_db`` (broadcast): the
-    quantile function of the SINR's bin, linear between the fit's quantile levels."""
-    u, sinr = np.broadcast_arrays(np.asarray(u, float), np.asarray(sinr_db, float))
-    which = np.searchsorted(np.asarray(fit["bin_edges_db"], float), sinr, side="right")
-    levels = np.asarray(fit["levels"], float)
-    out = np.empty(u.shape)
-    for b, entry in enumerate(fit["bins"]):
-        sel = which == b
-        out[sel] = np.interp(u[sel], levels, np.asarray(entry["quantiles_ms"], float))
-    return out
+    """Round-trip latencies (ms) for uniforms ``u`` at SINRs ``sinr_db`` under ``fit`` (a fit
+    being made, as tools/fit_sinr_latency.py checks it; runs use :func:`sinr_table`)."""
+    return SinrTable(fit).latency_ms(u, sinr_db)
 
 
 @LATENCY_MODELS.register("cellular_sinr")
@@ -598,7 +624,7 @@ class CellularSinr(LatencyParams):
 
     def at_sinr(self, u, sinr_db) -> np.ndarray:
         """Latencies (int64 ns) for uniforms ``u`` at SINRs ``sinr_db`` (dB)."""
-        return _clamped(sinr_latency_ms(u, sinr_db, sinr_fit()) * self.factor() * NS_PER_S)
+        return _clamped(sinr_table().latency_ms(u, sinr_db) * self.factor() * NS_PER_S)
 
     @override
     def from_uniform(self, u, T_ns):
@@ -611,7 +637,7 @@ class CellularSinr(LatencyParams):
     def sup_ns(self, T_ns):
         if self.sinr != "track":
             return int(self.from_uniform(1.0, T_ns))
-        edges = [float(e) for e in sinr_fit()["bin_edges_db"]]
+        edges = [float(e) for e in sinr_table().edges]
         probes = [edges[0] - 1.0] + edges                  # one SINR in every bin
         return int(np.max(self.at_sinr(np.ones(len(probes)), probes)))
 

@@ -174,19 +174,17 @@ class RunPlan:
         unbounded), whatever ``links.d_t`` assumes.  Without overrides every link has the
         default settings, so the exchange graph is not built."""
         sc = self.scenario
+        T_ns = int(sc.T_ns)
+        # a packet leaves only while its pair is in range: at most latency_per_m x radius more
         extra = self._distance_latency_ns()
-        if extra:
-            # a packet leaves only while its pair is in range: at most latency_per_m x radius more
-            sups = [sc.link_spec(u, v).sup_ns(sc.T_ns) for u, v in
-                    (self.exchange_arcs if sc.links.overrides else [(-1, -1)])]
-            if any(s is None for s in sups):
-                return None
-            return -(-(max(sups, default=0) + extra) // int(sc.T_ns))
-        if not sc.links.overrides:
-            return sc.link_spec(-1, -1).bound_steps(sc.T_ns)
-        bound = 0
-        for u, v in self.exchange_arcs:
-            b = sc.link_spec(u, v).bound_steps(sc.T_ns)
+        bound = -(-extra // T_ns)
+        for u, v in (self.exchange_arcs if sc.links.overrides else [(-1, -1)]):
+            spec = sc.link_spec(u, v)
+            if extra:
+                sup = spec.sup_ns(T_ns)
+                b = None if sup is None else -(-(sup + extra) // T_ns)
+            else:
+                b = spec.bound_steps(T_ns)
             if b is None:
                 return None
             bound = max(bound, b)

@@ -278,8 +278,9 @@ class Scenario(StrictModel):
         if self.truth is not None:
             self._check_truth()
         plan = RunPlan(self)            # what the run would derive: checked here, never at its start
-        self._check_network(plan)
-        self._check_time_range(plan)
+        places = self._link_places()
+        self._check_network(plan, places)
+        self._check_time_range(plan, places)
         self._check_estimators(plan)
         return self
 
@@ -326,7 +327,13 @@ class Scenario(StrictModel):
                 f"{self.steps} steps x {self.model.T:g} s) but {named} covers {have:g} s; use at "
                 f"most {int((have - self.truth.start) / self.model.T + 1e-9)} steps", "steps")
 
-    def _check_network(self, plan: RunPlan) -> None:
+    def _link_places(self) -> list[tuple[str, LinkSpec]]:
+        """``(key, settings)`` of ``links.default`` and of each override's link as the run sees
+        it (the default merged with every override matching that link): what the link checks walk."""
+        return [("links.default", self.link_spec(-1, -1))] + [
+            (f"links.overrides.{i}", self.link_spec(*ov.link)) for i, ov in enumerate(self.links.overrides)]
+
+    def _check_network(self, plan: RunPlan, places: list[tuple[str, LinkSpec]]) -> None:
         top = self.topology
         tree = plan.protocol_graph == "tree"
         if self.weights == "paper" and not tree:
@@ -364,14 +371,14 @@ class Scenario(StrictModel):
                 what = "an arc" if graph.is_directed() else "an edge"
                 raise custom_error(f"[{u}, {v}] is not {what} of the topology",
                                    f"links.overrides.{i}.link")
-        self._check_traffic()
+        self._check_traffic(places)
         if self.medium is not None:
             self._check_medium(plan)
         if self.faults is not None:
             self.faults.check(n)
         if self.mobility is not None:
             self._check_mobility(plan)
-        self._check_sinr_track(plan)
+        self._check_sinr_track(plan, places)
         if self.buffer_length in ("auto", "paper") and plan.d_t is None:
             raise custom_error(
                 f"{self.buffer_length!r} needs a delay bound, but latency model "
@@ -404,18 +411,16 @@ class Scenario(StrictModel):
                 f"connected union graph; with these trajectories and range the union of all {self.steps} "
                 "ticks is not connected, so no B exists: give an integer buffer_length", "buffer_length")
 
-    def _check_sinr_track(self, plan: RunPlan) -> None:
+    def _check_sinr_track(self, plan: RunPlan, places: list[tuple[str, LinkSpec]]) -> None:
         """``cellular_sinr`` with ``sinr: track`` draws at the sender's recorded SINR: every
-        sender on such a link is a ``track`` vehicle of ``mobility:`` (decision 181)."""
-        places = [("links.default", None)] + [(f"links.overrides.{i}", tuple(ov.link))
-                                              for i, ov in enumerate(self.links.overrides)]
-        if not any(getattr(self.link_spec(*(link or (-1, -1))).latency, "sinr", None) == "track"
-                   for _, link in places):
+        sender on such a link is a ``track`` vehicle of ``mobility:`` (decision 181).  A refusal
+        names the override whose latency the link takes (the last matching one that gives it)."""
+        if not any(getattr(spec.latency, "sinr", None) == "track" for _, spec in places):
             return
         for u, v in plan.arcs:
             if getattr(self.link_spec(u, v).latency, "sinr", None) != "track":
                 continue
-            key = next((k for k, link in places[1:] if link == (u, v)), "links.default") + ".latency.sinr"
+            key = self._key_of(u, v, "latency") + ".latency.sinr"
             if self.mobility is None:
                 raise custom_error("'track' takes the sender's recorded SINR, which needs a mobility: key "
                                    "with 'track' vehicles; give a number (dB)", key)
@@ -449,12 +454,9 @@ class Scenario(StrictModel):
                                    f"link on it takes no {what} of its own: remove it (the channel's are "
                                    f"medium.rate, medium.queue, medium.background)", f"{key}.{what}")
 
-    def _check_traffic(self) -> None:
+    def _check_traffic(self, places: list[tuple[str, LinkSpec]]) -> None:
         """A queue limit or background load acts through the transmitter: it needs a rate."""
-        places = [("links.default", None)] + [(f"links.overrides.{i}", tuple(ov.link))
-                                              for i, ov in enumerate(self.links.overrides)]
-        for key, link in places:
-            spec = self.link_spec(*link) if link is not None else self.link_spec(-1, -1)
+        for key, spec in places:
             if spec.rate is None and not (self.mobility is not None and self.mobility.rate_from_distance):
                 for what in ("queue", "background"):
                     if getattr(spec, what) is not None:
@@ -462,7 +464,7 @@ class Scenario(StrictModel):
                                            "has no rate (bits per second); give rate here or in "
                                            "links.default", f"{key}.{what}")
 
-    def _check_time_range(self, plan: RunPlan) -> None:
+    def _check_time_range(self, plan: RunPlan, places: list[tuple[str, LinkSpec]]) -> None:
         """Every time the run can reach fits the int64 nanosecond clock (:data:`MAX_NS`)."""
         T_ns = self.T_ns
         limit = f"the {MAX_SECONDS:.4g} s (2^62 ns, about 146 years) an int64 nanosecond clock can hold"
@@ -472,10 +474,7 @@ class Scenario(StrictModel):
             raise custom_error(f"{self.steps} steps of T = {self.model.T:g} s reach "
                                f"{(self.steps + 1) * self.model.T:.4g} s of simulated time, beyond {limit}; "
                                f"{fix}", "steps")
-        places = [("links.default", None)] + [(f"links.overrides.{i}", tuple(ov.link))
-                                              for i, ov in enumerate(self.links.overrides)]
-        for key, link in places:
-            spec = self.link_spec(*link) if link is not None else self.link_spec(-1, -1)
+        for key, spec in places:
             sup = spec.sup_ns(T_ns)
             if sup is not None and sup > MAX_NS:
                 raise custom_error(f"the largest latency it can produce, {sup / 1e9:.4g} s (after "
@@ -537,13 +536,26 @@ class Scenario(StrictModel):
         keys = ("latency", "loss", "duplicate", "jitter", "schedule", "outages") + TRAFFIC_KEYS
         spec = {k: getattr(self.links.default, k) for k in keys}
         for ov in self.links.overrides:
-            a, b = ov.link
-            if (a, b) == (u, v) or (not self.topology.directed and (b, a) == (u, v)):
+            if self._matches(ov, u, v):
                 spec.update({k: getattr(ov, k) for k in keys if getattr(ov, k) is not None})
         return LinkSpec(latency=spec["latency"], loss=float(spec["loss"]),
                         duplicate=float(spec["duplicate"] or 0.0), jitter=spec["jitter"],
                         schedule=tuple(spec["schedule"] or ()),
                         outages=tuple(spec["outages"] or ()), **{k: spec[k] for k in TRAFFIC_KEYS})
+
+    def _matches(self, override, u: int, v: int) -> bool:
+        """``link: [a, b]`` of ``override`` matches ``u -> v``, and ``v -> u`` when undirected."""
+        a, b = override.link
+        return (a, b) == (u, v) or (not self.topology.directed and (b, a) == (u, v))
+
+    def _key_of(self, u: int, v: int, what: str) -> str:
+        """Where link ``u -> v`` takes its ``what`` from (as :meth:`link_spec` merges): the last
+        matching override that gives it (``links.overrides.I``), else ``links.default``."""
+        found = "links.default"
+        for i, ov in enumerate(self.links.overrides):
+            if self._matches(ov, u, v) and getattr(ov, what) is not None:
+                found = f"links.overrides.{i}"
+        return found
 
     # ------------------------------------------------------------------ identity
     def to_dict(self) -> dict:

@@ -53,13 +53,15 @@ def write_json(path, obj) -> None:
 
 
 @contextlib.contextmanager
-def _replacing(path: Path, newline: str | None = None):
-    """A text file opened for writing beside ``path`` and renamed over it when the block ends
-    without an error: readers see the old file or the whole new one.  The temporary file is
-    created exclusively (``mkstemp``), so a link planted under its name is never written through."""
+def replacing(path, mode: str = "w", newline: str | None = None):
+    """A file opened for writing beside ``path`` and renamed over it when the block ends
+    without an error (removed otherwise): readers see the old file or the whole new one.  The
+    temporary file is created exclusively (``mkstemp``), so a link planted under its name is
+    never written through.  ``mode``: ``"w"`` (UTF-8 text) or ``"wb"`` (bytes, e.g. a figure)."""
+    path = Path(path)
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name[:100]}.", suffix=".tmp", dir=path.parent)
     try:
-        with os.fdopen(fd, "w", newline=newline, encoding="utf-8") as fh:
+        with os.fdopen(fd, mode, newline=newline, encoding=None if "b" in mode else "utf-8") as fh:
             yield fh
         os.chmod(tmp, file_mode())
         os.replace(tmp, path)
@@ -72,7 +74,7 @@ def _replacing(path: Path, newline: str | None = None):
 def write_csv(path, columns, rows) -> None:
     """Write a CSV table atomically: a header, then ``rows`` (sequences of cells, encoded by
     :func:`dkfsim.core.encoding.csv_cell`)."""
-    with _replacing(Path(path), newline="") as fh:
+    with replacing(path, newline="") as fh:
         w = csv.writer(fh, lineterminator="\n")
         w.writerow(columns)
         for row in rows:
@@ -81,7 +83,7 @@ def write_csv(path, columns, rows) -> None:
 
 def write_text(path, text: str) -> None:
     """Write a text file atomically."""
-    with _replacing(Path(path)) as fh:
+    with replacing(path) as fh:
         fh.write(text)
 
 

@@ -302,12 +302,9 @@ def check_reference(sc, relative_to: str | None) -> None:
     """``--relative-to NAME`` names an estimate of the scenario: checked before any run."""
     if relative_to is None:
         return
-    names = scenario_estimates(sc)
-    if not isinstance(relative_to, str) or relative_to not in names:
-        why = "; the scenario has fusion: none, so there is no fused estimate" \
-            if relative_to == "fused" and sc.fusion == "none" else ""
-        raise DkfsimError(f"--relative-to {relative_to}: not an estimate of {sc.name} "
-                          f"(estimates: {', '.join(names)}){why}")
+    why = "; the scenario has fusion: none, so there is no fused estimate" \
+        if relative_to == "fused" and sc.fusion == "none" else ""
+    reference_of(scenario_estimates(sc), relative_to, sc.name, why=why)
 
 
 def load_montecarlo(folder) -> "MonteCarloResult":
@@ -506,7 +503,14 @@ class MonteCarloResult:
             out[key] = None if math.isnan(mean) else mean      # NaN rows: not modelled for it
         return out
 
-    def summary(self) -> dict:
+    def estimate_summaries(self) -> dict[str, dict]:
+        """:meth:`estimate_summary` of every estimate, in order: the ``estimates`` block of
+        :meth:`summary`, which :meth:`table` prints too (computed once by the CLI, passed to both)."""
+        return {name: self.estimate_summary(name) for name in self.estimates}
+
+    def summary(self, estimates: dict[str, dict] | None = None) -> dict:
+        """The ``summary.json`` content; ``estimates``: :meth:`estimate_summaries` when the
+        caller already has them (default: computed here)."""
         sc = self.scenario
         return {
             "scenario": sc.name,
@@ -550,14 +554,15 @@ class MonteCarloResult:
                            "contributions (the DKF) or stale packets; means over runs; null = "
                            "not modelled for that estimate",
             },
-            "estimates": {name: self.estimate_summary(name) for name in self.estimates},
+            "estimates": self.estimate_summaries() if estimates is None else estimates,
             "scenario_config": sc.to_dict(),
         }
 
     # ------------------------------------------------------------------ output
-    def save(self, out_dir) -> Path:
-        """Write ``runs.csv``, ``curves.npz`` and ``summary.json`` into ``out_dir``."""
-        summary = self.summary()
+    def save(self, out_dir, summary: dict | None = None) -> Path:
+        """Write ``runs.csv``, ``curves.npz`` and ``summary.json`` into ``out_dir``;
+        ``summary``: :meth:`summary` when the caller already has it (default: computed here)."""
+        summary = self.summary() if summary is None else summary
         examples = {k: v for k, v in self.example.items() if v is not None}
         with staged(out_dir, "montecarlo") as tmp:
             write_rows(tmp / "runs.csv", self.rows)
@@ -568,12 +573,13 @@ class MonteCarloResult:
             write_json(tmp / "summary.json", summary)
         return Path(out_dir)
 
-    def table(self) -> str:
+    def table(self, estimates: dict[str, dict] | None = None) -> str:
         """Algorithm x component: MSE with its 95 % CI; ANEES with its 95 % t-interval over runs
-        and the consistency verdict; then the paired comparison with the reference estimate."""
+        and the consistency verdict; then the paired comparison with the reference estimate.
+        ``estimates``: :meth:`estimate_summaries` when the caller already has them."""
         head: tuple[str, ...] = ("estimate", "component", "MSE", "95% CI", "ANEES", "95% CI (runs)",
                                  "consistent")
-        summaries = {name: self.estimate_summary(name) for name in self.estimates}
+        summaries = self.estimate_summaries() if estimates is None else estimates
         body: list[tuple[str, ...]] = []
         for name, s in summaries.items():
             for c, comp in enumerate(self.components):

@@ -70,7 +70,8 @@ CAPTIONS = {
     "links": "The rate-limited links: the DKF's queueing delay per link, utilisation and "
              "time-averaged queue length per tick (run.npz).",
     "network_over_time": "The vehicles and the links up at six evenly spaced ticks; grey: their "
-                         "paths over the whole run (run.npz).",
+                         "paths over the whole run (run.npz; for Monte Carlo runs, replayed from "
+                         "the scenario: every run moves alike).",
     "topology_errors": "Squared position error over time; dotted: the ticks at which the links up "
                        "change; below: the number of links up per tick.",
 }

@@ -72,7 +72,7 @@ def plot_mse(folder: Folder, stem, formats=DEFAULT_FORMATS, components=None, smo
     one on the log scale; the others are named in the panel with their factor.
     """
     formats = check_formats(formats)
-    idx = select_components(folder, components)
+    idx = select_components(folder.components, components, folder.path)
     w = default_smooth(folder) if smooth is None else max(1, int(smooth))
     names = estimate_order(folder.mse) if estimates is None else [a for a in estimates if a in folder.mse]
     if not names:

@@ -12,8 +12,11 @@ from pathlib import Path
 
 import numpy as np
 
+from dkfsim.components.mobility import link_pairs, link_uptime
 from dkfsim.config.dynamics import component_names as names_of
 from dkfsim.config.dynamics import component_units as units_of
+from dkfsim.config.load import stored_scenario
+from dkfsim.config.plan import RunPlan
 from dkfsim.config.results import (
     NAME_LIMIT,
     MonteCarloSummary,
@@ -73,7 +76,9 @@ class Folder:
     #: ``utilisation`` (K, E), ``queueing_delay_quantiles`` (E, 101); empty otherwise
     links: dict[str, np.ndarray] = field(default_factory=dict)
     #: a run with ``mobility:`` (run.npz): ``mobility_links`` (E, 2), ``positions`` (K, n, 2),
-    #: ``links_up`` (K, E) and ``link_uptime`` (E,) from summary.json; empty otherwise
+    #: ``links_up`` (K, E) and ``link_uptime`` (E,) from summary.json; a Monte Carlo folder of
+    #: such a scenario: the same, replayed from its stored scenario (:func:`_replayed_mobility`);
+    #: empty otherwise
     mobility: dict[str, np.ndarray] = field(default_factory=dict)
 
     def fraction_in_band(self, estimate: str) -> float | None:
@@ -318,7 +323,32 @@ def _load_montecarlo(p: Path) -> Folder:
     return Folder(path=p, kind="montecarlo", scenario=str(summary.get("scenario", p.name)), t=t,
                   components=comps, units=component_units(comps, kind), mse=mse, ci=ci, truth=truth,
                   examples=examples, node0=node0, n_runs=n_runs or 0, d_t=_d_t(summary), nees=nees,
-                  nees_band=band, burn_in=summary.get("burn_in"), mse_ci95=ci95, stats=stats)
+                  nees_band=band, burn_in=summary.get("burn_in"), mse_ci95=ci95, stats=stats,
+                  mobility=_replayed_mobility(p / "summary.json", summary, len(t)))
+
+
+def _replayed_mobility(f: Path, summary: dict, K: int) -> dict:
+    """A Monte Carlo folder of a scenario with ``mobility:`` keeps no positions, but they and
+    the links up follow from its trajectories and range alone, the same in every run (no draw
+    moves a vehicle): replayed here from the stored scenario, validated as data (decision 231).
+    Empty without ``mobility:``, and when the stored scenario cannot be read back (a trajectory
+    file that is gone): the folder's other figures do not need it."""
+    cfg = summary.get("scenario_config")
+    if not isinstance(cfg, dict) or cfg.get("mobility") is None:
+        return {}
+    if cfg.get("steps") != K:             # before any work: a scenario of other runs is not replayed
+        raise DkfsimError(f"{f}: scenario_config has steps {clip(cfg.get('steps'))} but curves.npz has "
+                          f"{K} ticks (the files do not belong together)")
+    try:
+        plan = RunPlan(stored_scenario(cfg, source=summary.get("source"), label=str(f)))
+        schedule = plan.link_schedule
+    except DkfsimError:
+        return {}
+    if schedule is None or plan.positions is None:
+        return {}
+    pairs, up = link_pairs(schedule)
+    return {"mobility_links": pairs, "positions": np.asarray(plan.positions[1:], dtype=float),
+            "links_up": up[1:], "link_uptime": np.array([r[2] for r in link_uptime(pairs, up[1:])])}
 
 
 def _dims(shape: tuple, **sizes) -> tuple:

@@ -40,14 +40,15 @@ ERROR_ESTIMATES = ("fused", "local", "centralized")
 
 
 def has_mobility(folder: Folder) -> bool:
-    """True when the folder is a run with ``mobility:`` (its run.npz keeps positions and links)."""
+    """True when the folder is a run with ``mobility:`` (its run.npz keeps positions and links),
+    or a Monte Carlo folder of such a scenario (replayed from it: the same in every run)."""
     return bool(folder.mobility)
 
 
 def _require(folder: Folder) -> None:
     if not has_mobility(folder):
-        raise DkfsimError(f"{folder.path}: not a run with mobility: (no positions in run.npz): "
-                          "no network-over-time figure")
+        raise DkfsimError(f"{folder.path}: not a run or Monte Carlo folder of a scenario with mobility: "
+                          "(no positions): no network-over-time figure")
 
 
 def instants(folder: Folder, at=None) -> list[int]:
@@ -169,8 +170,10 @@ def plot_topology_errors(folder: Folder, stem, formats=DEFAULT_FORMATS, smooth=N
     top.set_ylabel(ylabel)
     top.plot([], [], color="0.6", lw=0.6, ls=":", label="the links up change")
     top.legend(fontsize=8, loc="upper right")
+    over = f", mean over {folder.n_runs} runs" if folder.kind == "montecarlo" else ""
     top.set_title(plain(f"{folder.scenario}: estimate errors and the links up") +
-                  (f" (moving average over {w} ticks)" if w > 1 else ""), fontsize=10)
+                  (f" (moving average over {w} ticks{over})" if w > 1 else f" ({over[2:]})" if over else ""),
+                  fontsize=10)
     top.grid(alpha=0.3)
     bot.step(t, up.sum(axis=1), where="post", color="C0", lw=1.0)
     bot.set_ylabel("links up")

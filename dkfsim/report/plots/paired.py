@@ -64,7 +64,7 @@ def plot_paired(folder: Folder, stem, formats=DEFAULT_FORMATS, components=None) 
         raise DkfsimError(f"{folder.path}: summary.json has no paired comparison (no reference "
                           "estimate in these runs; dkfsim montecarlo --relative-to NAME)")
     names = [a for a in estimate_order(folder.stats) if a != ref and (folder.stats[a] or {}).get("paired")]
-    idx = select_components(folder, components)
+    idx = select_components(folder.components, components, folder.path)
     plt = pyplot()
     fig, axes = plt.subplots(1, len(idx), figsize=(3.2 * len(idx) + 1.6, 0.32 * len(names) + 1.5),
                              sharey=True, squeeze=False)

@@ -8,15 +8,14 @@ from __future__ import annotations
 import contextlib
 import io
 import math
-import os
-import tempfile
 from pathlib import Path
 
 import numpy as np
 
 from dkfsim.core.errors import DkfsimError
 from dkfsim.core.extras import available, optional, pyplot
-from dkfsim.core.folders import file_mode
+from dkfsim.core.folders import replacing
+from dkfsim.core.params import suggest
 from dkfsim.report.plots.folders import Folder
 
 FORMATS = ("png", "pdf", "svg")
@@ -110,20 +109,22 @@ def default_smooth(folder: Folder) -> int:
     return max(1, folder.K // 50) if folder.kind == "run" else 1
 
 
-def select_components(folder: Folder, wanted) -> list[int]:
-    """Indices of the components named (or numbered) in ``wanted``; all when empty."""
+def select_components(have, wanted, of) -> list[int]:
+    """``--component``: indices into ``have`` (the components of ``of``, a run folder or "the
+    sweep") of the components named (or numbered) in ``wanted``, in the order given; all when
+    empty.  A name that is neither is refused with the closest one."""
+    have = [str(c) for c in have]
     if not wanted:
-        return list(range(folder.nx))
+        return list(range(len(have)))
     out = []
-    for w in wanted:
-        s = str(w)
-        if s in folder.components:
-            out.append(folder.components.index(s))
-        elif s.isdigit() and int(s) < folder.nx:
+    for s in map(str, wanted):
+        if s in have:
+            out.append(have.index(s))
+        elif s.isdigit() and int(s) < len(have):
             out.append(int(s))
         else:
-            raise DkfsimError(f"--component: {s!r} is not a component of {folder.path} "
-                              f"(components: {', '.join(folder.components)}, or 0..{folder.nx - 1})")
+            raise DkfsimError(f"--component: {s!r} is not a component of {of}{suggest(s, have)} "
+                              f"(components: {', '.join(have)}, or 0..{len(have) - 1})")
     return out
 
 
@@ -166,17 +167,18 @@ def png_resolution(dpi: int):
         PNG_DPI.pop()
 
 
-def _save_png(fig, path: Path, dpi: int | None = None) -> None:
-    """PNG with a 256-colour palette: a third of the size of matplotlib's RGBA, same look."""
+def _save_png(fig, fh, dpi: int | None = None) -> None:
+    """PNG with a 256-colour palette, into the binary file ``fh``: a third of the size of
+    matplotlib's RGBA, same look."""
     dpi = PNG_DPI[-1] if dpi is None else dpi
     buf = io.BytesIO()
     fig.savefig(buf, format="png", dpi=dpi, bbox_inches="tight")
     if available("PIL"):
         Image = optional("PIL.Image")
         img = Image.open(buf).convert("RGB").quantize(colors=256, method=Image.Quantize.MEDIANCUT)
-        img.save(path, format="PNG", optimize=True, dpi=(dpi, dpi))   # the resolution, for layout programs
+        img.save(fh, format="PNG", optimize=True, dpi=(dpi, dpi))   # the resolution, for layout programs
     else:                 # Pillow ships with matplotlib; keep the plain file if it is missing
-        Path(path).write_bytes(buf.getvalue())
+        fh.write(buf.getvalue())
 
 
 def save_figure(fig, stem: Path, formats) -> list[Path]:
@@ -189,23 +191,14 @@ def save_figure(fig, stem: Path, formats) -> list[Path]:
     try:
         for fmt in formats:
             path = stem.with_name(f"{stem.name}.{fmt}")
-            tmp = None
             try:                       # written beside (a new file, never through a link), then renamed
-                fd, tmp = tempfile.mkstemp(prefix=".fig-", suffix=f".{fmt}.tmp", dir=path.parent)
-                os.close(fd)
-                if fmt == "png":
-                    _save_png(fig, Path(tmp))
-                else:
-                    fig.savefig(tmp, bbox_inches="tight", format=fmt)
-                os.chmod(tmp, file_mode())
-                os.replace(tmp, path)
-                tmp = None
+                with replacing(path, "wb") as fh:
+                    if fmt == "png":
+                        _save_png(fig, fh)
+                    else:
+                        fig.savefig(fh, bbox_inches="tight", format=fmt)
             except OSError as exc:
                 raise DkfsimError(f"{path}: cannot write the figure ({exc.strerror or exc})") from None
-            finally:
-                if tmp is not None:
-                    with contextlib.suppress(OSError):
-                        os.unlink(tmp)
             out.append(path)
     finally:
         fig.clf()
@@ -234,9 +227,10 @@ def average_text(folder: Folder, estimate: str, i: int) -> str:
     return f"{m:.4g}" if ci is None else f"{m:.4g} ± {(ci[1] - ci[0]) / 2:.2g}"
 
 
-def legend_below(fig, ax, ncol=2, fontsize=8.5):
+def legend_below(fig, ax, ncol=2, fontsize=8.5, title=None):
     """One legend for all panels, under them, so that it never hides a curve.  ``ax``: the
-    panel whose entries it lists, or a list of panels (their entries one after the other)."""
+    panel whose entries it lists, or a list of panels (their entries one after the other);
+    ``title``: a line above the entries (what line styles or colours mean)."""
     handles, labels = [], []
     for a in (ax if isinstance(ax, (list, tuple)) else [ax]):
         h, lab = a.get_legend_handles_labels()
@@ -244,7 +238,7 @@ def legend_below(fig, ax, ncol=2, fontsize=8.5):
         labels += lab
     fig.tight_layout()
     fig.legend(handles, labels, loc="upper center", bbox_to_anchor=(0.5, 0.0), ncol=ncol,
-               fontsize=fontsize, frameon=False)
+               fontsize=fontsize, frameon=False, title=title, title_fontsize=fontsize)
 
 
 def check_formats(formats) -> tuple[str, ...]:

@@ -45,7 +45,7 @@ def plot_tracking(folder: Folder, stem, formats=DEFAULT_FORMATS, components=None
     formats = check_formats(formats)
     if folder.truth is None:
         raise DkfsimError(f"{folder.path}: no example run (example_truth) to draw the tracking figure from")
-    idx = select_components(folder, components)
+    idx = select_components(folder.components, components, folder.path)
     plt = pyplot()
     ncols = 2 if zoom and folder.K >= 20 else 1
     fig, axes = plt.subplots(len(idx), ncols, figsize=(9.0 if ncols == 2 else 7.5, 2.3 * len(idx) + 0.6),

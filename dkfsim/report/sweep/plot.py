@@ -22,7 +22,7 @@ from pathlib import Path
 import numpy as np
 
 from dkfsim.analysis.metrics import paired_interval
-from dkfsim.analysis.paired import pair_values
+from dkfsim.analysis.paired import pair_values, reference_of
 from dkfsim.config.keys import key_label
 from dkfsim.core.errors import DkfsimError
 from dkfsim.core.extras import pyplot
@@ -44,6 +44,7 @@ from dkfsim.report.plots.style import (
     plain,
     plain_log_ticks,
     save_figure,
+    select_components,
     unit_label,
 )
 
@@ -171,7 +172,7 @@ def sweep_curves(path, x: str | None = None, hue: str | None = None, metric: str
                               "state component (--component is for mse)")
         components = components[:1]       # scalar metrics repeat on every component row
     elif wanted_components:
-        components = _select(components, wanted_components)
+        components = [components[i] for i in select_components(components, wanted_components, "the sweep")]
     nx = {}
     for g in gs:
         nx.setdefault(g["estimate"], set()).add(g["component"])
@@ -198,27 +199,11 @@ def sweep_curves(path, x: str | None = None, hue: str | None = None, metric: str
             "nx": {e: len(c) for e, c in nx.items()}, "relative_to": relative_to}
 
 
-def _select(have: list, wanted: list) -> list:
-    """``--component`` for a sweep: names or indices of the sweep's components, in the order given."""
-    out = []
-    for w in map(str, wanted):
-        if w in have:
-            out.append(w)
-        elif w.isdigit() and int(w) < len(have):
-            out.append(have[int(w)])
-        else:
-            raise DkfsimError(f"--component: {w!r} is not a component of the sweep{suggest(w, have)} "
-                              f"(components: {', '.join(have)}, or 0..{len(have) - 1})")
-    return out
-
-
 def _check_reference(ref: str, names, gs, hue_key, grid) -> None:
     """``--relative-to``: an estimate, or with ``--hue`` a value of the hue key, and then runs
     must pair by run index (the same seeds at every grid point: ``seed`` is not a grid key)."""
     if hue_key is None:
-        if ref not in names:
-            raise DkfsimError(f"--relative-to {ref}: not an estimate of the sweep{suggest(ref, names)} "
-                              f"(estimates: {', '.join(names)})")
+        reference_of(names, ref, "the sweep", suggestion=True)
         return
     seeds = [k for k in grid if k.removeprefix("param:") == "seed"]
     if seeds:
