@@ -76,8 +76,9 @@ def check_scenario(steps: int = STEPS, *, diverging: bool = False) -> dict[str, 
     }
 
 
-def check_estimator(kind: str) -> None:
-    """Run the checks' scenario with estimator ``kind`` (its default parameters) and check:
+def check_estimator(kind: str, params: dict[str, Any] | None = None) -> None:
+    """Run the checks' scenario with estimator ``kind`` (its default parameters, and ``params``
+    for the keys it requires, e.g. ``{"at": 0}`` for ``fusion_centre``) and check:
 
     * **registration**: the kind has a parameter model and an :class:`Estimator`
       implementation that names it;
@@ -106,12 +107,13 @@ def check_estimator(kind: str) -> None:
     label = kind
     base = check_scenario()
 
-    first = _run(base, [{"kind": kind}])
+    spec = {**(params or {}), "kind": kind}
+    first = _run(base, [spec])
     names = _estimate_names(first, label)
     _check_shapes(kind, first, names)
     _check_traffic(kind, first, names)
 
-    again = _run(base, [{"kind": kind}])
+    again = _run(base, [spec])
     _same(kind, "determinism: a second run with the same seed", first, again, names, facts=label)
 
     alone = _without_it()
@@ -121,15 +123,15 @@ def check_estimator(kind: str) -> None:
                 f"the same draws as the DKF: listing it changed {key}")
     _assert(_dump(alone.counts) == _dump(first.counts), kind,
             "the same draws as the DKF: listing it changed the DKF's packet counts")
-    beside = _run(base, [{"kind": kind, "name": "check_other"}, {"kind": kind}])
+    beside = _run(base, [{**spec, "name": "check_other"}, spec])
     _same(kind, "the same draws as the DKF: another instance running beside it", first, beside, names)
-    other_seed = _run({**base, "seed": base["seed"] + 1}, [{"kind": kind}])
+    other_seed = _run({**base, "seed": base["seed"] + 1}, [spec])
     _assert(any(not np.array_equal(first.arrays[f"x_{n}"], other_seed.arrays[f"x_{n}"]) for n in names),
             kind, "the same draws as the DKF: another seed gives the same estimates (the run's truth, "
                   "measurements and links are not what it estimates from)")
 
-    _check_cost(kind, entry.implementation, base)
-    _check_divergence(kind, names)
+    _check_cost(spec, entry.implementation, base)
+    _check_divergence(spec, names)
 
 
 # --------------------------------------------------------------------------- the checks
@@ -267,17 +269,18 @@ def _peak(base: dict, estimators: list[dict], steps: int) -> int:
         tracemalloc.stop()
 
 
-def _planned(impl: type[Estimator], base: dict, kind: str, steps: int) -> float:
-    sc: Scenario = load_scenario({**copy.deepcopy(base), "estimators": [{"kind": kind}], "steps": steps})
+def _planned(impl: type[Estimator], base: dict, spec: dict, steps: int) -> float:
+    sc: Scenario = load_scenario({**copy.deepcopy(base), "estimators": [spec], "steps": steps})
     return impl.cost(sc.estimators[0], RunPlan(sc, "estimates")).bytes
 
 
-def _check_cost(kind: str, impl: type[Estimator], base: dict) -> None:
-    run(load_scenario({**copy.deepcopy(base), "estimators": [{"kind": kind}], "steps": 2}))  # first-call caches
+def _check_cost(spec: dict, impl: type[Estimator], base: dict) -> None:
+    kind = spec["kind"]
+    run(load_scenario({**copy.deepcopy(base), "estimators": [spec], "steps": 2}))  # first-call caches
     measured = []
     for steps in (STEPS, STEPS_LARGE):
-        measured.append(_peak(base, [{"kind": kind}], steps) - _peak_without_it(steps))
-    planned = [_planned(impl, base, kind, steps) for steps in (STEPS, STEPS_LARGE)]
+        measured.append(_peak(base, [spec], steps) - _peak_without_it(steps))
+    planned = [_planned(impl, base, spec, steps) for steps in (STEPS, STEPS_LARGE)]
     grew, plans = measured[1] - measured[0], planned[1] - planned[0]
     _assert(plans * (1 + GROWTH_SLACK) + GROWTH_SLACK_BYTES >= grew, kind,
             f"cost >= measured allocation: from {STEPS} to {STEPS_LARGE} ticks a run with it allocates "
@@ -285,13 +288,14 @@ def _check_cost(kind: str, impl: type[Estimator], base: dict) -> None:
             f"({planned[1] / 1e3:.0f} kB in all at {STEPS_LARGE} ticks, {measured[1] / 1e3:.0f} kB measured)")
 
 
-def _check_divergence(kind: str, names: list[str]) -> None:
+def _check_divergence(spec: dict, names: list[str]) -> None:
+    kind = spec["kind"]
     what = "NaN handling: on a model whose state overflows"
     base = check_scenario(20, diverging=True)
     with warnings.catch_warnings():
         warnings.simplefilter("error")             # nothing may leak out as a warning either
         try:
-            res = _run(base, [{"kind": kind}])
+            res = _run(base, [spec])
         except Exception as exc:   # noqa: BLE001  (any exception is the finding)
             raise AssertionError(f"check_estimator({kind!r}): {what} the run failed: "
                                  f"{type(exc).__name__}: {exc}") from exc

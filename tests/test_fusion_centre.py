@@ -89,7 +89,8 @@ def rel(a, b):
     (paper, [ZERO], "compiled"),
     (paper, [ZERO], "python"),
     (paper, [ZERO, "protocol=flood"], "python"),
-    (paper, [ZERO, "protocol=flood", "weights=unit"], "python"),
+    (paper, [ZERO, "fusion=diagonal"], "compiled"),
+    (paper, [ZERO, "weights=paper"], "compiled"),
     (radar, [ZERO], "python"),
 ])
 def test_zero_latency_equals_fused(make, overrides, exchange, monkeypatch):
@@ -299,6 +300,9 @@ def test_bad_at_messages():
     with pytest.raises(dkfsim.ScenarioError) as err:
         paper(["estimators=[{kind: fusion_centre, at: 0}, {kind: fusion_centre, at: 3}]"])
     assert "estimators.1" in str(err.value) and "taken" in str(err.value)
+    with pytest.raises(dkfsim.ScenarioError) as err:        # links that come and go: refused
+        dkfsim.load_scenario(ROOT / "scenarios" / "mobility_crossing.yaml", overrides=[CENTRE % 0])
+    assert "estimators.0.kind" in str(err.value) and "does not change" in str(err.value)
     with pytest.raises(dkfsim.ScenarioError) as err:
         paper(["fusion=none"])
     assert "estimators.0" in str(err.value) and "fusion: none" in str(err.value)

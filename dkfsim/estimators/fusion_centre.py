@@ -101,10 +101,7 @@ class FusionCentre(Estimator, params=FusionCentreParams):
     # -- running -------------------------------------------------------------------
     def start(self) -> None:
         ctx = self.ctx
-        dkf = ctx.dkf
-        if dkf is None or dkf.xcov is None:        # (validation refuses fusion: none)
-            raise RuntimeError("a fusion centre needs the scenario's DKF with its fusion")
-        self.dkf = dkf
+        self.dkf = dkf = ctx.dkf          # the scenario's DKF, with its fusion (validation checked)
         sys_, K, n, nx = ctx.system, ctx.K, ctx.n, ctx.nx
         self.Phi = sys_.Phi
         self.L = L = int(dkf.L)
@@ -174,7 +171,10 @@ class FusionCentre(Estimator, params=FusionCentreParams):
         masks = self.sent_held[idx]                          # (rows, n, n)
         x = self.dkf.x_local[r]
         vary = self.varying.any()
+        crashes, now = self.ctx.crashes, int(self.ctx.env.now)
         for i in range(n):
+            if crashes is not None and i != self.at and crashes.down(i, now):
+                continue                          # a node that is down sends nothing
             entries: list[tuple[int, int, np.ndarray, np.ndarray]] = []
             if vary:
                 new = masks[:, i] & self.varying & ~self.carried[idx, i]
@@ -201,7 +201,7 @@ class FusionCentre(Estimator, params=FusionCentreParams):
             self.accept(payload)
             return
         out = self.out[node]
-        if out is not None:
+        if out is not None:                      # (a node that is down received nothing: crash_dropped)
             self.port.send(out, payload, payload[-1])
 
     def accept(self, payload: tuple) -> None:

@@ -40,7 +40,8 @@ Event priorities at one instant (SimPy pops ``(time, priority, id)``):
 deliveries (``NORMAL``) first, then the protocols' flushes
 (:data:`PRIORITY_FLUSH`), then the filters' tick update
 (:data:`PRIORITY_UPDATE`), so a packet arriving exactly at ``t_k``, and any
-chain of zero-latency relays it starts, counts for tick ``k``.
+chain of zero-latency relays it starts, counts for tick ``k``; last a fusion centre's
+fusion (:data:`PRIORITY_FUSE`), after the packets the update sent and their relays.
 """
 
 from __future__ import annotations

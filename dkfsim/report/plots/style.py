@@ -29,6 +29,7 @@ ESTIMATES: dict[str, tuple[str, str]] = {
     "local": ("local: DKF node estimates (mean over nodes)", "C9"),
     "centralized": ("centralized: all data on time", "k"),
     "centralized_delayed": ("centralized_delayed: over delayed direct links", "C2"),
+    "fusion_centre": ("fusion_centre: the DKF's fusion at one node, over the network", "#000080"),
     "no_buffer": ("no_buffer: L = 1, fused", "C1"),
     "ci_consensus": ("ci_consensus: consensus on information", "C3"),
     "local_only": ("local_only: own sensor", "C7"),
