@@ -206,14 +206,23 @@ class Channel:
 
     def advance(self, t: int) -> None:
         """Bring the channel up to instant ``t``: every transmission end and arrival at or
-        before ``t`` and every start before ``t``, in time order."""
-        if t < self.now:
+        before ``t`` and every start before ``t``, in time order.
+
+        Brought to ``t`` once, it has nothing more to do at ``t`` (so a second call returns at
+        once; many frames are offered at one instant): what is handed over at ``t`` joins a
+        boundary at or after ``t``, so it adds no start before ``t`` and no end or arrival at it."""
+        if t <= self.now:
             return
         arrivals = self._arrivals
         while True:
             te = self._next_end
             ta = arrivals[0][0] if arrivals else _NEVER
-            ts = self.next_start()
+            if self.on_air:
+                ts = _NEVER
+            else:
+                ts = self._next_start
+                if ts is None:
+                    ts = self.next_start()
             if te <= t and te <= ta:
                 self._end(te)
             elif ta <= t and ta <= ts:
@@ -236,27 +245,32 @@ class Channel:
         heapq.heappush(self._arrivals, (bg.next_time(), node))
 
     def _start(self, ts: int) -> None:
-        heads, on_air = self._heads, self.on_air
+        heads, on_air, radios = self._heads, self.on_air, self.radios
         best = heads[0][0]
-        end = ts
+        end, first_end = ts, -1
+        background = 0
         while heads and heads[0][0] == best:    # (in node order: the order of their ends' news)
-            radio = self.radios[heapq.heappop(heads)[1]]
+            _, node, air = heapq.heappop(heads)   # (air: the airtime of the frame at the head)
+            radio = radios[node]
             frame = radio.queue.popleft()
             radio.queued_bytes -= frame.size
             frame.start = ts
-            frame.end = fe = ts + self.airtime(frame.size)
+            frame.end = fe = ts + air
             radio.on_air = frame
             on_air.append(frame)
             if fe > end:
                 end = fe
+            if first_end < 0 or fe < first_end:
+                first_end = fe
+            if frame.done is None:
+                background += 1
         # the others are frozen: the boundaries before this one are spent, the rest count on
         self.passed = best
-        if not self.on_air:
+        if not on_air:
             raise RuntimeError(f"channel: no head is due at the boundary {ts} ns")
-        self._next_end = on_air[0].end if len(on_air) == 1 else min(f.end for f in on_air)
-        self.collided = len(on_air) > 1
-        background = sum(f.done is None for f in on_air) if len(on_air) > 1 else int(on_air[0].done is None)
-        self._periods.extend((ts, end, len(on_air), background, self.collided))
+        self._next_end = first_end
+        self.collided = collided = len(on_air) > 1
+        self._periods.extend((ts, end, len(on_air), background, collided))
         self._next_start = None
 
     def _end(self, te: int) -> None:
