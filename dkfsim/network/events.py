@@ -13,8 +13,10 @@ class Scheduled(Event):
     """An event that fires at ``now + delay`` with a given priority and callback."""
 
     def __init__(self, env: Any, callback: Callable[[Event], None], priority: int, delay: int = 0):
-        super().__init__(env)
+        # (Event.__init__'s two attributes set here: one call less per event, the network
+        # schedules one or two per packet)
+        self.env = env
+        self.callbacks = [callback]
         self._ok = True
         self._value = None
-        self.callbacks.append(callback)
         env.schedule(self, priority, delay)

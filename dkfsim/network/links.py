@@ -477,9 +477,10 @@ class Port:
             return
         on = self.net.on_channel
         framed = [part for part in parts if on(part[0])]
-        for part in parts:
-            if not on(part[0]):
-                self.send(*part)
+        if len(framed) < len(parts):
+            for part in parts:
+                if not on(part[0]):
+                    self.send(*part)
         if framed:
             self._send_on_channel(framed, frame_bytes)
 
@@ -491,16 +492,17 @@ class Port:
         now = self.env.now
         if now != self._instant:
             self._instant, self._seq = now, {}
-        count = self._count
+        count, seqs, seq0 = self._count, self._seq, self._seq0
+        sent, sent_bytes = count["sent"], count["bytes"]     # (_grow extends these in place)
         held = []
         for link, payload, nbytes in parts:
             lid = link.id
-            seq = self._seq.get(lid, self._seq0)
-            self._seq[lid] = seq + 1
-            if lid >= len(count["sent"]):
+            seq = seqs.get(lid, seq0)
+            seqs[lid] = seq + 1
+            if lid >= len(sent):
                 self._grow()
-            count["sent"][lid] += 1
-            count["bytes"][lid] += nbytes
+            sent[lid] += 1
+            sent_bytes[lid] += nbytes
             if link.up is not None and not link.is_up(now):
                 count["lost"][lid] += 1
                 count["range_lost"][lid] += 1
@@ -525,18 +527,23 @@ class Port:
                 count["lost"][link.id] += 1
                 count["collision_lost"][link.id] += 1
             return
-        handed = frame.handed
-        wait = frame.end - handed
+        handed, end = frame.handed, frame.end
         for link, payload, seq in frame.parts:
             plain = link.plain
             if plain is None:
-                self._fly(handed, wait, link, seq, payload)
+                self._fly(handed, end - handed, link, seq, payload)
                 continue
             lat, lost = plain(handed, seq)      # (the fast path of send: nothing else acts)
             if lost:
                 count["lost"][link.id] += 1
-            else:
-                self._enqueue(handed, wait + lat, link, payload)
+                continue
+            at = end + lat                      # (_enqueue, written out: once per part)
+            due = self._due.get(at)
+            if due is None:
+                due = self._due[at] = []
+                Scheduled(self.env, self._deliver, PRIORITY_DELIVER, at - self.env.now)
+            due.append(link)
+            due.append(payload)
 
     def _fly(self, now: int, wait: int, link: Link, seq: int, payload: Any) -> None:
         """A packet handed over ``now`` and leaving the sender ``wait`` ns later: its fate

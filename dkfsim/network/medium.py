@@ -94,6 +94,7 @@ class Channel:
         self.rate, self.preamble = float(spec.rate), seconds_to_ns(spec.preamble)
         self.max_packets = spec.queue.packets if spec.queue is not None else None
         self.max_bytes = spec.queue.bytes if spec.queue is not None else None
+        self._bounded = spec.queue is not None
         self.radios: dict[int, Radio] = {}
         #: the contending heads (a frame waiting, none on the air): ``(boundary, node, airtime)``,
         #: a heap; ``boundary`` counts the idle boundaries of the whole run (:attr:`passed` of
@@ -140,7 +141,8 @@ class Channel:
         """Hand over ``frame`` now at its node's radio: False when the waiting room is full
         (drop-tail: nothing of it is sent)."""
         now = self.env.now
-        self.advance(now)
+        if now > self.now:                  # (already brought to now: nothing to do, advance)
+            self.advance(now)
         ok = self._arrive(self.radios[frame.node], frame, now)
         if ok:
             self.pending += 1
@@ -149,13 +151,14 @@ class Channel:
 
     def _arrive(self, radio: Radio, frame: Frame, now: int) -> bool:
         queue = radio.queue
-        if self.max_packets is not None and len(queue) >= self.max_packets:
-            return False
-        if self.max_bytes is not None and radio.queued_bytes + frame.size > self.max_bytes:
-            return False
+        if self._bounded:
+            if self.max_packets is not None and len(queue) >= self.max_packets:
+                return False
+            if self.max_bytes is not None and radio.queued_bytes + frame.size > self.max_bytes:
+                return False
         queue.append(frame)
         radio.queued_bytes += frame.size
-        if len(queue) == 1 and radio.on_air is None:
+        if radio.on_air is None and len(queue) == 1:
             self._head(radio, now)
         return True
 
@@ -175,10 +178,14 @@ class Channel:
             radio.drawn_at, radio.drawn = t, 0
         u = keyed_uniform(radio.key, t, radio.drawn)
         radio.drawn += 1
-        count = min(int(u * (self.cw + 1)), self.cw)
+        cw = self.cw
+        count = min(int(u * (cw + 1)), cw)
         first = self.t_idle + self.aifs
         join = 0 if self.on_air or t <= first else -(-(t - first) // self.slot)
-        heapq.heappush(self._heads, (self.passed + join + count, radio.node, self.airtime(radio.queue[0].size)))
+        size = radio.queue[0].size
+        air = self._airtimes.get(size)
+        heapq.heappush(self._heads, (self.passed + join + count, radio.node,
+                                     air if air is not None else self.airtime(size)))
         self._next_start = None
 
     # ------------------------------------------------------------------ the engine
@@ -274,21 +281,26 @@ class Channel:
         self._next_start = None
 
     def _end(self, te: int) -> None:
-        if len(self.on_air) == 1:
-            done, self.on_air = self.on_air, []
+        on_air = self.on_air
+        if len(on_air) == 1:
+            done, on_air = on_air, []
         else:
-            done = [f for f in self.on_air if f.end == te]
-            self.on_air = [f for f in self.on_air if f.end != te]
-        self._next_end = min(f.end for f in self.on_air) if self.on_air else _NEVER
-        if not self.on_air:                 # idle from now: the new heads count from here
+            done = [f for f in on_air if f.end == te]
+            on_air = [f for f in on_air if f.end != te]
+        self.on_air = on_air
+        if on_air:
+            self._next_end = min(f.end for f in on_air)
+        else:                               # idle from now: the new heads count from here
+            self._next_end = _NEVER
             self.t_idle = te
             self._next_start = None
         ok = not self.collided
+        radios, ended = self.radios, self.ended
         for frame in done:
-            radio = self.radios[frame.node]
+            radio = radios[frame.node]
             radio.on_air = None
-            if self.ended is not None:
-                self.ended.append((frame.node, frame.start, frame.end, ok, frame.done is None))
+            if ended is not None:
+                ended.append((frame.node, frame.start, frame.end, ok, frame.done is None))
             if frame.done is not None:
                 self.pending -= 1
                 frame.done(frame, ok)
@@ -314,7 +326,8 @@ class Channel:
     def _woken(self, _event: Event) -> None:
         now = self.env.now
         self._wakes.discard(now)
-        self.advance(now)
+        if now > self.now:
+            self.advance(now)
         self._wake()
 
     # ------------------------------------------------------------------ statistics
