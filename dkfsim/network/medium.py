@@ -317,7 +317,11 @@ class Channel:
         (its deliveries are scheduled then), with one wake-up per frame when nothing interferes."""
         if not self.pending:
             return
-        t = self._next_end if self.on_air else self.next_start() + self._next_air
+        if self.on_air:
+            t = self._next_end
+        else:
+            ts = self._next_start
+            t = (ts if ts is not None else self.next_start()) + self._next_air
         if t in self._wakes or t > MAX_NS:
             return
         self._wakes.add(t)
