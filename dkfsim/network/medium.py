@@ -29,6 +29,7 @@ boundary -- so a frame handed over exactly at a boundary joins it.
 from __future__ import annotations
 
 import heapq
+from heapq import heappop, heappush
 from array import array
 from collections import deque
 from collections.abc import Callable
@@ -175,17 +176,21 @@ class Channel:
         the first boundary at or after ``t`` (the next idle period's first while the channel is
         busy)."""
         if radio.drawn_at != t:
-            radio.drawn_at, radio.drawn = t, 0
-        u = keyed_uniform(radio.key, t, radio.drawn)
-        radio.drawn += 1
+            radio.drawn_at = t
+            drawn = 0
+        else:
+            drawn = radio.drawn
+        radio.drawn = drawn + 1
         cw = self.cw
-        count = min(int(u * (cw + 1)), cw)
+        count = int(keyed_uniform(radio.key, t, drawn) * (cw + 1))
+        if count > cw:                      # (a draw next to 1 may round up to cw + 1)
+            count = cw
         first = self.t_idle + self.aifs
         join = 0 if self.on_air or t <= first else -(-(t - first) // self.slot)
         size = radio.queue[0].size
         air = self._airtimes.get(size)
-        heapq.heappush(self._heads, (self.passed + join + count, radio.node,
-                                     air if air is not None else self.airtime(size)))
+        heappush(self._heads, (self.passed + join + count, radio.node,
+                               air if air is not None else self.airtime(size)))
         self._next_start = None
 
     # ------------------------------------------------------------------ the engine
@@ -241,7 +246,7 @@ class Channel:
         self.now = t
 
     def _background(self, ta: int) -> None:
-        _, node = heapq.heappop(self._arrivals)
+        _, node = heappop(self._arrivals)
         radio = self.radios[node]
         bg = radio.background
         assert bg is not None
@@ -249,7 +254,7 @@ class Channel:
         for size in sizes:
             if not self._arrive(radio, Frame(node, int(size), ta), ta):
                 self._dropped.append(ta)
-        heapq.heappush(self._arrivals, (bg.next_time(), node))
+        heappush(self._arrivals, (bg.next_time(), node))
 
     def _start(self, ts: int) -> None:
         heads, on_air, radios = self._heads, self.on_air, self.radios
@@ -257,7 +262,7 @@ class Channel:
         end, first_end = ts, -1
         background = 0
         while heads and heads[0][0] == best:    # (in node order: the order of their ends' news)
-            _, node, air = heapq.heappop(heads)   # (air: the airtime of the frame at the head)
+            _, node, air = heappop(heads)   # (air: the airtime of the frame at the head)
             radio = radios[node]
             frame = radio.queue.popleft()
             radio.queued_bytes -= frame.size
