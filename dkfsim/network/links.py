@@ -499,9 +499,11 @@ class Port:
             lid = link.id
             seq = seqs.get(lid, seq0)
             seqs[lid] = seq + 1
-            if lid >= len(sent):
+            try:
+                sent[lid] += 1
+            except IndexError:                  # (a link added after the port: rare)
                 self._grow()
-            sent[lid] += 1
+                sent[lid] += 1
             sent_bytes[lid] += nbytes
             if link.up is not None and not link.is_up(now):
                 count["lost"][lid] += 1
@@ -541,7 +543,7 @@ class Port:
             due = self._due.get(at)
             if due is None:
                 due = self._due[at] = []
-                Scheduled(self.env, self._deliver, PRIORITY_DELIVER, at - self.env.now)
+                Scheduled(self.env, self.deliver_now, PRIORITY_DELIVER, at - self.env.now)
             due.append(link)
             due.append(payload)
 
@@ -588,15 +590,13 @@ class Port:
         due = self._due.get(at)
         if due is None:
             due = self._due[at] = []
-            Scheduled(self.env, self._deliver, PRIORITY_DELIVER, at - self.env.now)
+            Scheduled(self.env, self.deliver_now, PRIORITY_DELIVER, at - self.env.now)
         due.append(link)
         due.append(payload)
 
-    def _deliver(self, _event: Event) -> None:
-        self.deliver_now()
-
-    def deliver_now(self) -> None:
-        """Deliver what is due now (the instant's event finds nothing left afterwards)."""
+    def deliver_now(self, _event: Event | None = None) -> None:
+        """Deliver what is due now (the instant's event finds nothing left afterwards; it calls
+        this with itself as ``_event``, unused: one call less per delivery instant)."""
         now = self.env.now
         due = self._due.pop(now, None)
         if due is None:
@@ -608,13 +608,13 @@ class Port:
         receive = self._receive
         if receive is None:
             raise RuntimeError(f"port {self.name!r} has no receiver: its owner delivers its own packets")
-        for k in range(0, len(due), 2):
-            link = due[k]
+        pairs = iter(due)                   # (link, payload, link, payload, ...)
+        for link, payload in zip(pairs, pairs):
             if crashes is not None and link.dst >= 0 and crashes.down(link.dst, now):
                 self._count["crash_dropped"][link.id] += 1
                 continue
             delivered[link.id] += 1
-            receive(link, due[k + 1])
+            receive(link, payload)
 
     def set_counts(self, link: Link, **counts: int) -> None:
         """Set counters of ``link`` (names of :data:`COUNTERS`): for a protocol whose packets

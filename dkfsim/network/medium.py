@@ -281,8 +281,9 @@ class Channel:
         if not on_air:
             raise RuntimeError(f"channel: no head is due at the boundary {ts} ns")
         self._next_end = first_end
-        self.collided = collided = len(on_air) > 1
-        self._periods.extend((ts, end, len(on_air), background, collided))
+        n = len(on_air)
+        self.collided = n > 1
+        self._periods.extend((ts, end, n, background, n > 1))
         self._next_start = None
 
     def _end(self, te: int) -> None:
@@ -330,7 +331,7 @@ class Channel:
         if t in self._wakes or t > MAX_NS:
             return
         self._wakes.add(t)
-        Scheduled(self.env, self._woken, URGENT, t - self.env.now)
+        Scheduled(self.env, self._woken, URGENT, t - self.now)     # (now: brought to the present)
 
     def _woken(self, _event: Event) -> None:
         now = self.env.now
