@@ -305,6 +305,46 @@ def test_the_channel_never_carries_two_frames_unless_they_collide(offers, cw, sl
     assert stats["frames_on_air"] == len(air)
 
 
+@settings(max_examples=60, deadline=None)
+@given(offers=st.lists(st.tuples(st.integers(0, 3), st.integers(0, 60), st.integers(1, 300)),
+                       min_size=1, max_size=30),
+       looks=st.lists(st.integers(0, 400), max_size=40), cw=st.integers(0, 7),
+       background=st.booleans(), seed=st.integers(0, 50))
+def test_the_timeline_is_the_same_however_often_the_channel_is_brought_up_to_date(offers, looks, cw,
+                                                                                 background, seed):
+    """The engine is lazy (decision 235): a copy also brought up to date at other instants
+    (``looks``, us), several times at each, and again before every offer (many frames offered
+    at one instant, as a broadcast round does) carries every frame at the same instants with
+    the same fate, and tells its senders at the same instants, as a copy brought up to date
+    only by its own offers and wake-ups."""
+    spec = Medium(rate=1e6, access=Csma(slot=9e-6, aifs=20e-6, cw=cw), preamble=0.0, queue=Queue(packets=3),
+                  background=Background(arrivals="periodic", packets_per_second=4000.0, size=40)
+                  if background else None)
+
+    def timeline(eager: bool):
+        env = simpy.Environment()
+        ch = Channel(env, spec, (0, 1, 2, 3), seed, record=True)
+        told: list = []
+
+        def offer(i, node, size):
+            if eager:
+                ch.advance(env.now)
+                ch.advance(env.now)
+            ch.offer(Frame(node, size, env.now, i, lambda f, ok: told.append((f.parts, f.start, f.end, ok, env.now))))
+        for i, (node, t, size) in enumerate(offers):
+            at(env, t * 10 * US, lambda i=i, node=node, size=size: offer(i, node, size))
+        if eager:
+            for t in looks:
+                for _ in range(2):
+                    at(env, t * 10 * US, lambda: ch.advance(env.now))
+        at(env, 5 * MS, lambda: None)          # (both end at 5 ms: after every frame and look)
+        env.run()
+        return told, ch.ended, ch.stats(env.now)
+    lazy, eager = timeline(False), timeline(True)
+    assert lazy == eager
+    assert len(lazy[0]) > 0
+
+
 # ------------------------------------------------------------------ runs
 def _with_medium(**over):
     sc = scenario(5, edges=tree_edges(5, 1), latency={"model": "constant", "value": 0.002}, steps=40)
