@@ -421,6 +421,9 @@ class Port:
         #: flat; and how many a full waiting room dropped
         self._ended = array("q")
         self._frames_dropped = 0
+        #: link id -> whether the link is on the shared channel (:meth:`Network.on_channel`,
+        #: which never changes for a link), as :meth:`send_frame` met it
+        self._on_channel: dict[int, bool] = {}
 
     def _grow(self) -> None:
         """One counter slot per link of the network (links may be added after the port)."""
@@ -475,11 +478,18 @@ class Port:
             for link, payload, nbytes in parts:
                 self.send(link, payload, nbytes)
             return
-        on = self.net.on_channel
-        framed = [part for part in parts if on(part[0])]
+        on = self._on_channel
+        framed = []
+        for part in parts:
+            lid = part[0].id
+            here = on.get(lid)
+            if here is None:
+                here = on[lid] = self.net.on_channel(part[0])
+            if here:
+                framed.append(part)
         if len(framed) < len(parts):
             for part in parts:
-                if not on(part[0]):
+                if not on[part[0].id]:
                     self.send(*part)
         if framed:
             self._send_on_channel(framed, frame_bytes)
