@@ -461,6 +461,21 @@ def test_new_models_round_trip(spec):
     assert parse_latency(m.to_dict()) == m
 
 
+def test_the_scalar_keyed_draw_is_the_vectorised_one_bit_for_bit():
+    """``keyed_uniform`` (pure Python, once per packet or frame; its constants bound as
+    defaults, decision 237) and ``keyed_uniforms`` (numpy uint64) are the same function: equal
+    floats over keys across the 64-bit range, instants up to the latest and large seqs."""
+    g = np.random.default_rng(5)
+    keys = [0, 1, (1 << 63) - 1, 1 << 63, (1 << 64) - 1, key64(3, "channel", 0, 2, "backoff")]
+    ts = np.concatenate([[0, 1, (1 << 62) - 1], g.integers(0, 1 << 62, size=500)])
+    seqs = np.concatenate([[0, 1, 1 << 30], g.integers(0, 1 << 20, size=500)])
+    for key in keys:
+        want = keyed_uniforms(key, ts, seqs)
+        got = np.array([keyed_uniform(key, int(t), int(q)) for t, q in zip(ts, seqs)])
+        assert np.array_equal(got, want)
+        assert 0.0 < got.min() and got.max() < 1.0
+
+
 def test_iid_sampler_draws_are_keyed_quantiles():
     """A link draws i.i.d. models through ``sampler``: the model's quantile function of
     one keyed uniform per (send instant, seq) -- a pure function of the link, the
