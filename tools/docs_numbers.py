@@ -595,8 +595,8 @@ def render_channel(rows: dict[str, Rows]) -> dict[str, str]:
         "`centralized_delayed` likewise holds each measurement a tick after it was taken "
         f"({pos(points[i6], 'centralized_delayed'):.3g} at {rate_label(rates[i6])}); its twelve frames per "
         f"tick reach the centre in time from {rate_label(min(on_time))} up; below that the channel cannot "
-        "carry them, they wait ever longer in the radios' queues and arrive after their rows became final "
-        "(late), and its error grows with them "
+        "carry them: they are dropped when a radio's two-frame queue is full, or wait and arrive after "
+        "their rows became final (late), and its error grows with them "
         f"({pos(first, 'centralized_delayed'):.3g} at {rate_label(rates[0])}).")
     return {"channel-table": "\n".join(lines), "channel-reading": para(reading)}
 
