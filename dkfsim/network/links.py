@@ -548,14 +548,8 @@ class Port:
             lat, lost = plain(handed, seq)      # (the fast path of send: nothing else acts)
             if lost:
                 count["lost"][link.id] += 1
-                continue
-            at = end + lat                      # (_enqueue, written out: once per part)
-            due = self._due.get(at)
-            if due is None:
-                due = self._due[at] = []
-                Scheduled(self.env, self.deliver_now, PRIORITY_DELIVER, at - self.env.now)
-            due.append(link)
-            due.append(payload)
+            else:
+                self._enqueue(handed, end - handed + lat, link, payload)
 
     def _fly(self, now: int, wait: int, link: Link, seq: int, payload: Any) -> None:
         """A packet handed over ``now`` and leaving the sender ``wait`` ns later: its fate

@@ -28,11 +28,10 @@ boundary -- so a frame handed over exactly at a boundary joins it.
 
 from __future__ import annotations
 
-import heapq
-from heapq import heappop, heappush
 from array import array
 from collections import deque
 from collections.abc import Callable
+from heapq import heapify, heappop, heappush
 from typing import Any
 
 import numpy as np
@@ -113,7 +112,7 @@ class Channel:
             self.radios[node] = Radio(node, key64(seed, *prefix, "backoff"), bg)
             if bg is not None:
                 self._arrivals.append((bg.next_time(), node))
-        heapq.heapify(self._arrivals)
+        heapify(self._arrivals)
         self.t_idle = 0
         #: the frames on the air (one, or several colliding)
         self.on_air: list[Frame] = []
@@ -232,9 +231,8 @@ class Channel:
             if self.on_air:
                 ts = _NEVER
             else:
-                ts = self._next_start
-                if ts is None:
-                    ts = self.next_start()
+                cached = self._next_start
+                ts = cached if cached is not None else self.next_start()
             if te <= t and te <= ta:
                 self._end(te)
             elif ta <= t and ta <= ts:
