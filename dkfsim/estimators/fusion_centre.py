@@ -26,6 +26,7 @@ the update and their zero-latency relays: at zero latency and no rate limit it e
 
 from __future__ import annotations
 
+import heapq
 from typing import Any
 
 import networkx as nx
@@ -39,7 +40,7 @@ from dkfsim.estimators.fusion import FUSERS, CrossCovariance
 from dkfsim.estimators.window import WindowFilter
 from dkfsim.model.holdings import Holdings
 from dkfsim.model.system import Information
-from dkfsim.network.links import PRIORITY_FUSE, Link, Port, Scheduled
+from dkfsim.network.links import PRIORITY_FUSE, SHARED_SEQ0, Link, Port, Scheduled
 from dkfsim.protocols.base import PACKET_HEADER
 
 
@@ -60,6 +61,89 @@ def next_hops(arcs: list[tuple[int, int]], n: int, at: int) -> np.ndarray:
     return hop
 
 
+class DirectRelay:
+    """The centre's packets on links without a transmitter or a channel, moved without a SimPy
+    event: what :class:`~dkfsim.network.links.Port` would do with them, hop for hop (decision 232).
+
+    On such a link nothing but the packet's own keyed draws of ``(link, hand-over instant,
+    sequence number)`` acts on it, and the centre's packets have a sequence space of their own
+    (``share_with``: from :data:`~dkfsim.network.links.SHARED_SEQ0`): no other packet can
+    change their fate.  The relay keeps the port's calendar (instant -> packets due, in the order
+    sent), numbers each link's packets per instant as the port does, draws with
+    ``Link.plain`` / ``Link.transmit`` as the port does, drops a packet reaching a node that is
+    down (``crash_dropped``), and hands the owner what reaches it in the port's order;
+    :meth:`deliver_until` runs the instants up to ``t`` (the centre calls it before its sends and
+    before it fuses, so every packet is in place by the time the port's events would have
+    delivered it).  The counts go to the port (:meth:`Port.set_counts`) at the end.
+    """
+
+    def __init__(self, port: Port, links: list[Link], receive, crashes):
+        self.port, self.links, self.receive, self.crashes = port, links, receive, crashes
+        size = 1 + max((l.id for l in links), default=0)
+        self.count = {name: [0] * size for name in ("sent", "bytes", "delivered", "lost", "copies",
+                                                    "crash_dropped", "outage_lost")}
+        self.due: dict[int, list] = {}
+        self.instants: list[int] = []          # a heap of the keys of ``due``
+        self.instant = -1
+        self.seq: dict[int, int] = {}
+
+    def send(self, now: int, link: Link, payload: Any, nbytes: int) -> None:
+        """:meth:`Port.send` of ``payload`` on ``link`` at ``now``."""
+        if now != self.instant:
+            self.instant, self.seq = now, {}
+        lid = link.id
+        seq = self.seq.get(lid, SHARED_SEQ0)
+        self.seq[lid] = seq + 1
+        count = self.count
+        count["sent"][lid] += 1
+        count["bytes"][lid] += nbytes
+        plain = link.plain
+        if plain is not None:
+            lat, lost = plain(now, seq)
+            if lost:
+                count["lost"][lid] += 1
+                return
+            self._enqueue(now + lat, link, payload)
+            return
+        arrivals, why = link.transmit(now, seq)
+        if why is not None:
+            count["lost"][lid] += 1
+            if why == "outage":
+                count["outage_lost"][lid] += 1
+            return
+        if len(arrivals) > 1:
+            count["copies"][lid] += 1
+        for lat in arrivals:
+            self._enqueue(now + lat, link, payload)
+
+    def _enqueue(self, at: int, link: Link, payload: Any) -> None:
+        due = self.due.get(at)
+        if due is None:
+            due = self.due[at] = []
+            heapq.heappush(self.instants, at)
+        due.append((link, payload))
+
+    def deliver_until(self, t: int) -> None:
+        """Deliver every packet due at an instant up to ``t``, instant by instant, each instant's
+        packets in the order they were sent (and those sent at that instant with zero latency
+        after them, as the port's next event of the instant would)."""
+        instants, crashes = self.instants, self.crashes
+        delivered, dropped = self.count["delivered"], self.count["crash_dropped"]
+        while instants and instants[0] <= t:
+            now = heapq.heappop(instants)
+            for link, payload in self.due.pop(now):
+                if crashes is not None and crashes.down(link.dst, now):
+                    dropped[link.id] += 1
+                    continue
+                delivered[link.id] += 1
+                self.receive(now, link, payload)
+
+    def report(self) -> None:
+        """The counts, into the port (what :meth:`Port.counts` reports)."""
+        for link in self.links:
+            self.port.set_counts(link, **{name: c[link.id] for name, c in self.count.items()})
+
+
 def packet_bytes(nx: int, n: int, rows: int, omegas: int) -> int:
     """Nominal bytes of a node's packet to the centre: header, row number, the estimate,
     ``rows`` origin masks and the upper triangles of ``omegas`` carried ``omega`` matrices."""
@@ -76,6 +160,9 @@ class FusionCentre(Estimator, params=FusionCentreParams):
 
     params: FusionCentreParams
     port: Port
+    #: move the packets on links without a transmitter or channel without SimPy events
+    #: (:class:`DirectRelay`); False: always through the port (the tests compare both)
+    direct_relay = True
 
     def __init__(self, params: FusionCentreParams, ctx):
         super().__init__(params, ctx)
@@ -144,6 +231,11 @@ class FusionCentre(Estimator, params=FusionCentreParams):
         # Through the DKF's transmitters (and channel): the centre's load is part of the DKF's
         # cost; its own counters and keyed draws (sequence numbers from 1 << 32).
         self.port = net.port(self.name, self.receive, links, share_with=dkf.port)
+        #: links without a transmitter or a channel: the packets move without SimPy events
+        #: (:class:`DirectRelay`, decision 232); None: through the port, hop by hop
+        self.relay: DirectRelay | None = None
+        if self.direct_relay and self.port.channel is None and all(l.rate is None and l.up is None for l in links):
+            self.relay = DirectRelay(self.port, links, self._arrive, net.crashes)
         self.x = np.empty((K, nx))
         self.P = np.empty((K, nx, nx))
         self.k = 0
@@ -172,6 +264,9 @@ class FusionCentre(Estimator, params=FusionCentreParams):
         x = self.dkf.x_local[r]
         vary = self.varying.any()
         crashes, now = self.ctx.crashes, int(self.ctx.env.now)
+        relay = self.relay
+        if relay is not None:
+            relay.deliver_until(now)             # what the port would have delivered by now
         for i in range(n):
             if crashes is not None and i != self.at and crashes.down(i, now):
                 continue                          # a node that is down sends nothing
@@ -190,7 +285,12 @@ class FusionCentre(Estimator, params=FusionCentreParams):
             if i == self.at:
                 self.accept(payload)
             elif out is not None:
-                self.port.send(out, payload, nbytes)
+                if relay is not None:
+                    relay.send(now, out, payload, nbytes)
+                else:
+                    self.port.send(out, payload, nbytes)
+        if relay is not None:
+            relay.deliver_until(now)             # the zero-latency relays of these packets
         Scheduled(self.ctx.env, self._fuse, PRIORITY_FUSE)
 
     def receive(self, link: Link, payload: Any) -> None:
@@ -203,6 +303,17 @@ class FusionCentre(Estimator, params=FusionCentreParams):
         out = self.out[node]
         if out is not None:                      # (a node that is down received nothing: crash_dropped)
             self.port.send(out, payload, payload[-1])
+
+    def _arrive(self, now: int, link: Link, payload: Any) -> None:
+        """:meth:`receive` for the :class:`DirectRelay`."""
+        node = link.dst
+        if node == self.at:
+            self.received += 1
+            self.accept(payload)
+            return
+        out = self.out[node]
+        if out is not None:
+            self.relay.send(now, out, payload, payload[-1])
 
     def accept(self, payload: tuple) -> None:
         """Node ``i``'s estimate of ``row`` and its holdings, into the centre's state."""
@@ -288,6 +399,8 @@ class FusionCentre(Estimator, params=FusionCentreParams):
             self.holdings.add(i, int.from_bytes(bits.tobytes(), "little"), s)
 
     def finish(self) -> EstimatorResult:
+        if self.relay is not None:
+            self.relay.report()
         facts = {"packets_received": self.received, "packets_ignored": self.ignored,
                  "stale_rows_used": self.stale_rows, "nodes_excluded": int(self.excluded.sum()),
                  "at": self.at, "rows_carried": self.W}
