@@ -394,9 +394,7 @@ class FusionCentre(Estimator, params=FusionCentreParams):
                 keep = ~np.isin(who, bad)
                 sel, rows, who, rr = sel[keep], rows[keep], who[keep], rr[keep]
         self.known[slots[rr], who] |= sel
-        packed = np.packbits(sel, axis=1, bitorder="little")
-        for i, s, bits in zip(who.tolist(), rows.tolist(), packed):
-            self.holdings.add(i, int.from_bytes(bits.tobytes(), "little"), s)
+        self.holdings.add_held(who, rows, sel)
 
     def finish(self) -> EstimatorResult:
         if self.relay is not None:
