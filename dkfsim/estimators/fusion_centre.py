@@ -201,6 +201,7 @@ class FusionCentre(Estimator, params=FusionCentreParams):
         # carried are known to the centre.  Linear sensors' omega is the model's.
         self.varying = np.array([info.varying and getattr(s, "convert", None) is not None
                                  for s in sys_.sensors], dtype=bool)
+        self.vary = bool(self.varying.any())
         self.cols = [np.flatnonzero(info.column_sensor == o) for o in range(n)]
         omega, factor = info.omega, info.factor
         if self.varying.any():
@@ -255,23 +256,24 @@ class FusionCentre(Estimator, params=FusionCentreParams):
         r = k - 1
         W, n, nx = self.W, self.ctx.n, self.ctx.nx
         held = self.dkf.holdings.held
-        Sd = held.shape[0]
-        for s in range(max(r - self.L + 1, 0), r + 1):     # the DKF's window as of this tick
-            self.sent_held[s % W] = held[s % Sd]
+        window = np.arange(max(r - self.L + 1, 0), r + 1)  # the DKF's window as of this tick
+        self.sent_held[window % W] = held[window % held.shape[0]]
         lo = max(r - W + 1, 0)
         idx = np.arange(lo, r + 1) % W
         masks = self.sent_held[idx]                          # (rows, n, n)
         x = self.dkf.x_local[r]
-        vary = self.varying.any()
+        vary = self.vary
         crashes, now = self.ctx.crashes, int(self.ctx.env.now)
-        relay = self.relay
+        relay, out_links, at = self.relay, self.out, self.at
         if relay is not None:
             relay.deliver_until(now)             # what the port would have delivered by now
+        entries: list[tuple[int, int, np.ndarray, np.ndarray]] = []
+        nbytes = packet_bytes(nx, n, len(idx), 0)
         for i in range(n):
-            if crashes is not None and i != self.at and crashes.down(i, now):
+            if crashes is not None and i != at and crashes.down(i, now):
                 continue                          # a node that is down sends nothing
-            entries: list[tuple[int, int, np.ndarray, np.ndarray]] = []
             if vary:
+                entries = []
                 new = masks[:, i] & self.varying & ~self.carried[idx, i]
                 if new.any():
                     self.carried[idx, i] |= new
@@ -279,10 +281,10 @@ class FusionCentre(Estimator, params=FusionCentreParams):
                     for j, o in zip(*np.nonzero(new)):
                         row = lo + int(j)
                         entries.append((row, int(o), info.omega[row, o], info.factor[row][:, self.cols[o]]))
-            nbytes = packet_bytes(nx, n, len(idx), len(entries))
+                nbytes = packet_bytes(nx, n, len(idx), len(entries))
             payload = (i, r, x[i], lo, masks, entries, nbytes)     # (read-only from here on)
-            out = self.out[i]
-            if i == self.at:
+            out = out_links[i]
+            if i == at:
                 self.accept(payload)
             elif out is not None:
                 if relay is not None:
@@ -386,7 +388,7 @@ class FusionCentre(Estimator, params=FusionCentreParams):
         if not len(jj):
             return
         sel, rows, who = new[rr, jj], k0 + rr, nodes[jj]
-        if self.varying.any():
+        if self.vary:
             # a node that holds a radar entry whose omega no packet brought leaves the fusion
             bad = np.unique(who[(sel & ~self.have_omega[rows]).any(axis=1)])
             if len(bad):
