@@ -77,8 +77,9 @@ class DirectRelay:
     delivered it).  The counts go to the port (:meth:`Port.set_counts`) at the end.
     """
 
-    def __init__(self, port: Port, links: list[Link], receive, crashes):
-        self.port, self.links, self.receive, self.crashes = port, links, receive, crashes
+    def __init__(self, port: Port, links: list[Link], out: list[Link | None], at: int, accept, crashes):
+        self.port, self.links, self.out, self.at, self.accept, self.crashes = port, links, out, at, accept, crashes
+        self.arrived = 0
         size = 1 + max((l.id for l in links), default=0)
         self.count = {name: [0] * size for name in ("sent", "bytes", "delivered", "lost", "copies",
                                                     "crash_dropped", "outage_lost")}
@@ -123,6 +124,20 @@ class DirectRelay:
             heapq.heappush(self.instants, at)
         due.append((link, payload))
 
+    def tick(self, now: int, sends: list[tuple[Link, Any, int]], own: Any) -> int:
+        """The centre's packets at the tick ``now``: what is due up to ``now`` delivered (the
+        port's deliveries come before the update), then ``own`` (the centre node's packet, or
+        None) to the owner, then ``sends`` (``(link, payload, bytes)``), then their zero-latency
+        hops.  Returns how many packets reached the centre (``own`` not counted)."""
+        got = self.arrived
+        self.deliver_until(now)
+        if own is not None:
+            self.accept(own)
+        for link, payload, nbytes in sends:
+            self.send(now, link, payload, nbytes)
+        self.deliver_until(now)
+        return self.arrived - got
+
     def deliver_until(self, t: int) -> None:
         """Deliver every packet due at an instant up to ``t``, instant by instant, each instant's
         packets in the order they were sent (and those sent at that instant with zero latency
@@ -136,12 +151,86 @@ class DirectRelay:
                     dropped[link.id] += 1
                     continue
                 delivered[link.id] += 1
-                self.receive(now, link, payload)
+                node = link.dst
+                if node == self.at:
+                    self.arrived += 1
+                    self.accept(payload)
+                elif self.out[node] is not None:
+                    self.send(now, self.out[node], payload, payload[-1])
 
     def report(self) -> None:
         """The counts, into the port (what :meth:`Port.counts` reports)."""
         for link in self.links:
             self.port.set_counts(link, **{name: c[link.id] for name, c in self.count.items()})
+
+
+class CompiledRelay:
+    """:class:`DirectRelay` in one compiled call per tick
+    (:mod:`dkfsim.estimators.fusion_centre_kernels`), for links on which nothing but a
+    ``constant`` or ``uniform_steps`` latency acts and a network without crashes: the same
+    hops, numbers, draws, order and counts (decision 232)."""
+
+    def __init__(self, port: Port, links: list[Link], out: list[Link | None], at: int, accept, T_ns: int):
+        from dkfsim.core.jit import entry_point
+        from dkfsim.estimators import fusion_centre_kernels as fk
+        self.port, self.links, self.accept, self.fk = port, links, accept, fk.compiled()
+        size = 1 + max((l.id for l in links), default=0)
+        kind, key, par = np.zeros(size, np.int64), np.zeros(size, np.uint64), np.zeros(size, np.int64)
+        dst = np.full(size, -1, np.int64)
+        longest = 0                                       # ns: the longest latency of one hop
+        for l in links:
+            f = l.compiled_latency()
+            assert f is not None
+            kind[l.id], key[l.id], par[l.id], dst[l.id] = f[0], f[1], f[2], l.dst
+            longest = max(longest, f[2] if f[0] == 0 else f[2] * T_ns)
+        hops = []                                         # each node's hops to the centre
+        for i in range(len(out)):
+            h, node = 0, i
+            while out[node] is not None and h <= len(out):
+                node, h = out[node].dst, h + 1
+            hops.append(h)
+        # A packet is in flight at most max(hops) x the longest latency: no more than the
+        # packets sent in that many ticks (and the one now) can be on the heap at once.
+        cap = 2 * len(out) * (max(hops, default=0) * (-(-longest // T_ns)) + 2) + 16
+        z = np.zeros
+        self.R = fk.Relay(z(3, np.int64), kind, key, par, int(T_ns), dst,
+                          np.array([-1 if o is None else o.id for o in out], np.int64), int(at), SHARED_SEQ0,
+                          np.full(size, -1, np.int64), z(size, np.int64), z(size, np.int64), z(size, np.int64),
+                          z(size, np.int64), z(cap, np.int64), z(cap, np.int64), z(cap, np.int64),
+                          z(cap, np.int64), z(cap, np.int64), z(cap, np.int64))
+        none = z(0, np.int64)
+        self.kernel = entry_point(self.fk.tick, self.R, -1, none, none, none)
+        self.payloads: dict[int, Any] = {}
+        self.next_id = 0
+
+    def tick(self, now: int, sends: list[tuple[Link, Any, int]], own: Any) -> int:
+        """:meth:`DirectRelay.tick`."""
+        m, p0 = len(sends), self.next_id
+        self.next_id = p0 + m
+        payloads = self.payloads
+        for j, (_, payload, _) in enumerate(sends):
+            payloads[p0 + j] = payload
+        links = np.fromiter((s[0].id for s in sends), np.int64, m)
+        sizes = np.fromiter((s[2] for s in sends), np.int64, m)
+        before = self.kernel(self.R, now, links, np.arange(p0, p0 + m, dtype=np.int64), sizes)
+        if before < 0:
+            raise RuntimeError("fusion centre relay: more packets in flight than its bound")
+        arrived = self.R.arrived[:self.R.CT[self.fk.NOUT]].tolist()
+        accept = self.accept
+        for p in arrived[:before]:
+            accept(payloads.pop(p))
+        if own is not None:
+            accept(own)
+        for p in arrived[before:]:
+            accept(payloads.pop(p))
+        return len(arrived)
+
+    def report(self) -> None:
+        """:meth:`DirectRelay.report`."""
+        R = self.R
+        for l in self.links:
+            self.port.set_counts(l, sent=int(R.sent[l.id]), bytes=int(R.nbytes[l.id]),
+                                 delivered=int(R.delivered[l.id]))
 
 
 def packet_bytes(nx: int, n: int, rows: int, omegas: int) -> int:
@@ -234,9 +323,13 @@ class FusionCentre(Estimator, params=FusionCentreParams):
         self.port = net.port(self.name, self.receive, links, share_with=dkf.port)
         #: links without a transmitter or a channel: the packets move without SimPy events
         #: (:class:`DirectRelay`, decision 232); None: through the port, hop by hop
-        self.relay: DirectRelay | None = None
+        self.relay: DirectRelay | CompiledRelay | None = None
         if self.direct_relay and self.port.channel is None and all(l.rate is None and l.up is None for l in links):
-            self.relay = DirectRelay(self.port, links, self._arrive, net.crashes)
+            if ctx.backend.compiled and net.crashes is None and all(
+                    l.plain is not None and l.compiled_latency() is not None for l in links):
+                self.relay = CompiledRelay(self.port, links, self.out, self.at, self.accept, ctx.T_ns)
+            else:
+                self.relay = DirectRelay(self.port, links, self.out, self.at, self.accept, net.crashes)
         self.x = np.empty((K, nx))
         self.P = np.empty((K, nx, nx))
         self.k = 0
@@ -265,10 +358,10 @@ class FusionCentre(Estimator, params=FusionCentreParams):
         vary = self.vary
         crashes, now = self.ctx.crashes, int(self.ctx.env.now)
         relay, out_links, at = self.relay, self.out, self.at
-        if relay is not None:
-            relay.deliver_until(now)             # what the port would have delivered by now
         entries: list[tuple[int, int, np.ndarray, np.ndarray]] = []
         nbytes = packet_bytes(nx, n, len(idx), 0)
+        sends: list[tuple[Link, tuple, int]] = []
+        own = None
         for i in range(n):
             if crashes is not None and i != at and crashes.down(i, now):
                 continue                          # a node that is down sends nothing
@@ -285,14 +378,16 @@ class FusionCentre(Estimator, params=FusionCentreParams):
             payload = (i, r, x[i], lo, masks, entries, nbytes)     # (read-only from here on)
             out = out_links[i]
             if i == at:
-                self.accept(payload)
+                own = payload
+                if relay is None:
+                    self.accept(payload)
             elif out is not None:
-                if relay is not None:
-                    relay.send(now, out, payload, nbytes)
-                else:
+                if relay is None:
                     self.port.send(out, payload, nbytes)
+                else:
+                    sends.append((out, payload, nbytes))
         if relay is not None:
-            relay.deliver_until(now)             # the zero-latency relays of these packets
+            self.received += relay.tick(now, sends, own)
         Scheduled(self.ctx.env, self._fuse, PRIORITY_FUSE)
 
     def receive(self, link: Link, payload: Any) -> None:
@@ -305,17 +400,6 @@ class FusionCentre(Estimator, params=FusionCentreParams):
         out = self.out[node]
         if out is not None:                      # (a node that is down received nothing: crash_dropped)
             self.port.send(out, payload, payload[-1])
-
-    def _arrive(self, now: int, link: Link, payload: Any) -> None:
-        """:meth:`receive` for the :class:`DirectRelay`."""
-        node = link.dst
-        if node == self.at:
-            self.received += 1
-            self.accept(payload)
-            return
-        out = self.out[node]
-        if out is not None:
-            self.relay.send(now, out, payload, payload[-1])
 
     def accept(self, payload: tuple) -> None:
         """Node ``i``'s estimate of ``row`` and its holdings, into the centre's state."""

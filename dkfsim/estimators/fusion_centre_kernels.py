@@ -1,0 +1,137 @@
+"""Compiled relay of the fusion centre's packets (decision 232): hop by hop what
+:class:`~dkfsim.network.links.Port` does with them on links whose only act on a packet is
+their keyed latency draw (``constant`` or ``uniform_steps``, no loss, no transmitter, no
+channel, no crash), in one kernel call per tick instead of Python per hop.
+
+A packet is an id (the caller keeps its payload); the heap orders the hops in flight by
+arrival instant, then by the order they were sent: the port's order (its packets due at one
+instant are delivered in the order sent, those sent at that instant with zero latency after
+them).  Each link numbers its packets per hand-over instant from ``SEQ0`` (the centre's port
+shares the DKF's: :data:`~dkfsim.network.links.SHARED_SEQ0`) and draws their latency with the
+compiled tree's :func:`~dkfsim.protocols.tree_compiled_kernels.keyed_uniform` (the same bits as
+:meth:`Link.plain`).
+"""
+
+from __future__ import annotations
+
+from collections import namedtuple
+
+from dkfsim.core.jit import LazyKernels
+from dkfsim.protocols import tree_compiled_kernels as tck
+
+_KERNELS = ("_push", "_pop", "_hop", "_deliver", "tick")
+_INLINE = ("_push", "_pop", "_hop", "_deliver")
+#: :func:`tck.keyed_uniform` is called from here (docs/decisions.md 131).
+BORROWS = {"dkfsim.protocols.tree_compiled_kernels": "7bd833072cbd7c854c046d3f59d276c2dc09d31825f7f06b20d97a59bda530d9"}
+_lazy = LazyKernels(__name__, _KERNELS, inline=_INLINE, borrows=BORROWS)
+
+#: ``CT`` indices: hops on the heap, hops pushed so far (the send order), arrivals written.
+SIZE, ORDER, NOUT = range(3)
+#: Returned by :func:`tick` when the heap or the arrivals would overflow (a bound was wrong).
+FULL = -1
+
+#: The relay's state.  Per link ``l``: ``kind`` (0 constant ``par`` ns, 1 uniform steps
+#: ``0..par`` times ``T_ns``), ``key`` (uint64), ``dst``, the instant its sequence numbers
+#: were last counted from (``seq_t``) and the next one (``seq``), counts ``sent``, ``nbytes``,
+#: ``delivered``.  Per node ``out``: the link toward the centre (-1: none).  The heap:
+#: arrival ``ht``, send order ``ho``, packet ``hp``, link ``hl``, size ``hb``; ``arrived``:
+#: the packets that reached the centre, in order.
+Relay = namedtuple("Relay", "CT kind key par T_ns dst out at seq0 seq_t seq sent nbytes delivered "
+                            "ht ho hp hl hb arrived")
+
+
+def compiled():
+    """This module with its kernels compiled (loaded from numba's disk cache)."""
+    return _lazy.get()
+
+
+def _push(R, t, p, link, size):
+    """Put packet ``p`` arriving over ``link`` at ``t`` on the heap (ties: send order)."""
+    k = R.CT[SIZE]
+    R.CT[SIZE] = k + 1
+    o = R.CT[ORDER]
+    R.CT[ORDER] = o + 1
+    while k > 0:
+        up = (k - 1) // 2
+        if R.ht[up] < t or (R.ht[up] == t and R.ho[up] < o):
+            break
+        R.ht[k], R.ho[k], R.hp[k], R.hl[k], R.hb[k] = R.ht[up], R.ho[up], R.hp[up], R.hl[up], R.hb[up]
+        k = up
+    R.ht[k], R.ho[k], R.hp[k], R.hl[k], R.hb[k] = t, o, p, link, size
+
+
+def _pop(R):
+    """Remove the heap's first hop; its ``(packet, link, size)``."""
+    top = (R.hp[0], R.hl[0], R.hb[0])
+    n = R.CT[SIZE] - 1
+    R.CT[SIZE] = n
+    t, o, p, link, size = R.ht[n], R.ho[n], R.hp[n], R.hl[n], R.hb[n]
+    k = 0
+    while True:
+        c = 2 * k + 1
+        if c >= n:
+            break
+        if c + 1 < n and (R.ht[c + 1] < R.ht[c] or (R.ht[c + 1] == R.ht[c] and R.ho[c + 1] < R.ho[c])):
+            c += 1
+        if t < R.ht[c] or (t == R.ht[c] and o < R.ho[c]):
+            break
+        R.ht[k], R.ho[k], R.hp[k], R.hl[k], R.hb[k] = R.ht[c], R.ho[c], R.hp[c], R.hl[c], R.hb[c]
+        k = c
+    R.ht[k], R.ho[k], R.hp[k], R.hl[k], R.hb[k] = t, o, p, link, size
+    return top
+
+
+def _hop(R, now, link, p, size):
+    """Hand packet ``p`` to ``link`` at ``now``: its number at this instant, its count, its
+    keyed latency; False when the heap is full."""
+    if R.CT[SIZE] >= R.ht.shape[0]:
+        return False
+    if R.seq_t[link] != now:
+        R.seq_t[link] = now
+        R.seq[link] = R.seq0
+    seq = R.seq[link]
+    R.seq[link] = seq + 1
+    R.sent[link] += 1
+    R.nbytes[link] += size
+    if R.kind[link] == 0:
+        lat = R.par[link]
+    else:
+        v = int(tck.keyed_uniform(R.key[link], now, seq) * (R.par[link] + 1))
+        lat = min(v, R.par[link]) * R.T_ns
+    _push(R, now + lat, p, link, size)
+    return True
+
+
+def _deliver(R, limit):
+    """Deliver every hop due up to ``limit``; a relay forwards at once.  False when full."""
+    while R.CT[SIZE] > 0 and R.ht[0] <= limit:
+        now = R.ht[0]
+        p, link, size = _pop(R)
+        R.delivered[link] += 1
+        node = R.dst[link]
+        if node == R.at:
+            if R.CT[NOUT] >= R.arrived.shape[0]:
+                return False
+            R.arrived[R.CT[NOUT]] = p
+            R.CT[NOUT] += 1
+        elif R.out[node] >= 0:
+            if not _hop(R, now, R.out[node], p, size):
+                return False
+    return True
+
+
+def tick(R, now, links, packets, sizes):
+    """The centre's packets at a tick ``now``: deliver what is due up to ``now`` (the port's
+    deliveries come before the update), send ``packets`` on ``links`` (``sizes`` bytes), then
+    deliver their zero-latency hops.  Returns the number of arrivals before the sends (they
+    are ``arrived[:k]``; ``CT[NOUT]`` all of them), or :data:`FULL`."""
+    R.CT[NOUT] = 0
+    if not _deliver(R, now):
+        return FULL
+    before = R.CT[NOUT]
+    for j in range(links.shape[0]):
+        if not _hop(R, now, links[j], packets[j], sizes[j]):
+            return FULL
+    if not _deliver(R, now):
+        return FULL
+    return before
