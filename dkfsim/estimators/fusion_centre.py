@@ -308,6 +308,13 @@ class FusionCentre(Estimator, params=FusionCentreParams):
         S = self.holdings.S
         #: what the centre knows node i holds of each shadow row (folded or pending)
         self.known = np.zeros((S, n, n), dtype=bool)
+        #: the compiled fold (without radars: their exclusion stays in numpy), None: numpy
+        self.fold_kernel = None
+        if ctx.backend.compiled and not self.vary:
+            from dkfsim.core.jit import entry_point
+            from dkfsim.estimators import fusion_centre_kernels as fk
+            self.fold_kernel = entry_point(fk.compiled().fold_new, np.zeros((0, 0, n), dtype=bool),
+                                           np.zeros(0, dtype=np.intp), 0, self.known, self.holdings.fold_target)
         self.newest = np.full(n, -1, dtype=np.int64)
         self.x_newest = np.broadcast_to(np.asarray(sys_.x0_mean, float), (n, nx)).copy()
         self.excluded = np.zeros(n, dtype=bool)
@@ -466,6 +473,9 @@ class FusionCentre(Estimator, params=FusionCentreParams):
             if a < b:
                 stack[a - k0:b - k0, j] = masks[a - lo:, i]
         self.pending.clear()
+        if self.fold_kernel is not None:
+            self.fold_kernel(stack, nodes, k0, self.known, self.holdings.fold_target)
+            return
         slots = np.arange(k0, k) % self.holdings.S
         new = stack & ~self.known[slots[:, None], nodes]
         rr, jj = np.nonzero(new.any(axis=2))

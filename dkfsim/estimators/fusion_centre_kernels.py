@@ -1,4 +1,5 @@
-"""Compiled relay of the fusion centre's packets (decision 232): hop by hop what
+"""The fusion centre's compiled steps: the fold of what its packets taught it (decision 233)
+and the relay of its packets (decision 232), hop by hop what
 :class:`~dkfsim.network.links.Port` does with them on links whose only act on a packet is
 their keyed latency draw (``constant`` or ``uniform_steps``, no loss, no transmitter, no
 channel, no crash), in one kernel call per tick instead of Python per hop.
@@ -16,13 +17,17 @@ from __future__ import annotations
 
 from collections import namedtuple
 
+import numpy as np
+
 from dkfsim.core.jit import LazyKernels
+from dkfsim.model import holdings_kernels as hk
 from dkfsim.protocols import tree_compiled_kernels as tck
 
-_KERNELS = ("_push", "_pop", "_hop", "_deliver", "tick")
+_KERNELS = ("_push", "_pop", "_hop", "_deliver", "tick", "fold_new")
 _INLINE = ("_push", "_pop", "_hop", "_deliver")
-#: :func:`tck.keyed_uniform` is called from here (docs/decisions.md 131).
-BORROWS = {"dkfsim.protocols.tree_compiled_kernels": "7bd833072cbd7c854c046d3f59d276c2dc09d31825f7f06b20d97a59bda530d9"}
+#: :func:`tck.keyed_uniform` and :func:`hk.fold` are called from here (docs/decisions.md 131).
+BORROWS = {"dkfsim.protocols.tree_compiled_kernels": "7bd833072cbd7c854c046d3f59d276c2dc09d31825f7f06b20d97a59bda530d9",
+           "dkfsim.model.holdings_kernels": "f5ba9bd99b4d6598cc258c4188fda9f3e2d0e1645766f96dd735e008fe277ffd"}
 _lazy = LazyKernels(__name__, _KERNELS, inline=_INLINE, borrows=BORROWS)
 
 #: ``CT`` indices: hops on the heap, hops pushed so far (the send order), arrivals written.
@@ -135,3 +140,29 @@ def tick(R, now, links, packets, sizes):
     if not _deliver(R, now):
         return FULL
     return before
+
+
+def fold_new(stack, nodes, k0, known, F):
+    """The centre's fold (``FusionCentre._fold`` without radars): ``stack[a, j]`` are the
+    origins node ``nodes[j]``'s newest packet holds of row ``k0 + a``; those ``known`` (the
+    centre's ring of what each node holds) lacks are marked known and folded into the shadow's
+    sums (:func:`hk.fold`, origins ascending; each (row, node) once, so the order of the
+    contributions changes no sum)."""
+    rows, m, no = stack.shape
+    S = known.shape[0]
+    bits = np.zeros((no + 63) // 64, dtype=np.uint64)
+    for a in range(rows):
+        row = k0 + a
+        slot = row % S
+        for j in range(m):
+            i = nodes[j]
+            new = False
+            for o in range(no):
+                if stack[a, j, o] and not known[slot, i, o]:
+                    if not new:
+                        bits[:] = 0
+                        new = True
+                    known[slot, i, o] = True
+                    bits[o >> 6] |= np.uint64(1) << np.uint64(o & 63)
+            if new:
+                hk.fold(i, row, bits, F)
