@@ -316,7 +316,11 @@ class FusionCentre(Estimator, params=FusionCentreParams):
             self.fold_kernel = entry_point(fk.compiled().fold_new, np.zeros((0, 0, n), dtype=bool),
                                            np.zeros(0, dtype=np.intp), 0, self.known, self.holdings.fold_target)
         self.newest = np.full(n, -1, dtype=np.int64)
-        self.x_newest = np.broadcast_to(np.asarray(sys_.x0_mean, float), (n, nx)).copy()
+        #: per node: the row and the estimate of its newest packet (Python lists: one packet
+        #: costs no numpy call; ``newest`` is their array as of the last fusion)
+        self.newest_rows = [-1] * n
+        x0 = np.asarray(sys_.x0_mean, float)
+        self.x_newest: list[np.ndarray] = [x0] * n
         self.excluded = np.zeros(n, dtype=bool)
         # The senders' side: what each node held of the last W rows, what omegas it carried.
         self.sent_held = np.zeros((W, n, n), dtype=bool)
@@ -394,7 +398,11 @@ class FusionCentre(Estimator, params=FusionCentreParams):
                 else:
                     sends.append((out, payload, nbytes))
         if relay is not None:
+            # every packet due by now is in place (the relay's hops are no port events): the
+            # fusion of PRIORITY_FUSE can run now, without an event
             self.received += relay.tick(now, sends, own)
+            self._fuse(None)
+            return
         Scheduled(self.ctx.env, self._fuse, PRIORITY_FUSE)
 
     def receive(self, link: Link, payload: Any) -> None:
@@ -415,16 +423,17 @@ class FusionCentre(Estimator, params=FusionCentreParams):
             self.info.omega[r_e, o] = om
             self.info.factor[r_e][:, self.cols[o]] = fac
             self.have_omega[r_e, o] = True
-        if self.excluded[i] or row <= self.newest[i]:
+        if self.excluded[i] or row <= self.newest_rows[i]:
             self.ignored += 1                    # older than what the centre has, or left out
             return
         self.pending[i] = (lo, masks)           # folded at the fusion: the newest masks hold the rest
-        self.newest[i] = row
-        self.x_newest[i] = x
+        self.newest_rows[i] = row
+        self.x_newest[i] = x                    # (the DKF's row r, never written again)
 
-    def _fuse(self, _event: Event) -> None:
+    def _fuse(self, _event: Event | None) -> None:
         k = self.k
         r = k - 1
+        self.newest = np.array(self.newest_rows, dtype=np.int64)
         self._fold(k)
         done = k - self.W                 # the shadow's row that becomes final now
         if done >= 0:
@@ -432,7 +441,7 @@ class FusionCentre(Estimator, params=FusionCentreParams):
             self.excluded |= (self.newest + 1 - self.L) < done
         self.window.update(k, on_rows=self.xcov.on_rows)
         Xi = self.xcov.Xi[r % self.holdings.S]
-        xs = self.x_newest.copy()
+        xs = np.array(self.x_newest)
         use = ~self.excluded
         stale = np.flatnonzero((self.newest < r) & use)
         if len(stale):
