@@ -170,10 +170,10 @@ class CompiledRelay:
     ``constant`` or ``uniform_steps`` latency acts and a network without crashes: the same
     hops, numbers, draws, order and counts (decision 232)."""
 
-    def __init__(self, port: Port, links: list[Link], out: list[Link | None], at: int, accept, T_ns: int):
+    def __init__(self, port: Port, links: list[Link], out: list[Link | None], at: int, accept_all, T_ns: int):
         from dkfsim.core.jit import entry_point
         from dkfsim.estimators import fusion_centre_kernels as fk
-        self.port, self.links, self.accept, self.fk = port, links, accept, fk.compiled()
+        self.port, self.links, self.accept_all, self.fk = port, links, accept_all, fk.compiled()
         size = 1 + max((l.id for l in links), default=0)
         kind, key, par = np.zeros(size, np.int64), np.zeros(size, np.uint64), np.zeros(size, np.int64)
         dst = np.full(size, -1, np.int64)
@@ -208,22 +208,17 @@ class CompiledRelay:
         m, p0 = len(sends), self.next_id
         self.next_id = p0 + m
         payloads = self.payloads
-        for j, (_, payload, _) in enumerate(sends):
-            payloads[p0 + j] = payload
-        links = np.fromiter((s[0].id for s in sends), np.int64, m)
-        sizes = np.fromiter((s[2] for s in sends), np.int64, m)
-        before = self.kernel(self.R, now, links, np.arange(p0, p0 + m, dtype=np.int64), sizes)
+        links, items, sizes = zip(*sends) if m else ((), (), ())
+        payloads.update(zip(range(p0, p0 + m), items))
+        before = self.kernel(self.R, now, np.array([l.id for l in links], dtype=np.int64),
+                             np.arange(p0, p0 + m, dtype=np.int64), np.array(sizes, dtype=np.int64))
         if before < 0:
             raise RuntimeError("fusion centre relay: more packets in flight than its bound")
-        arrived = self.R.arrived[:self.R.CT[self.fk.NOUT]].tolist()
-        accept = self.accept
-        for p in arrived[:before]:
-            accept(payloads.pop(p))
+        arrived = [payloads.pop(p) for p in self.R.arrived[:self.R.CT[self.fk.NOUT]].tolist()]
         if own is not None:
-            accept(own)
-        for p in arrived[before:]:
-            accept(payloads.pop(p))
-        return len(arrived)
+            arrived.insert(before, own)
+        self.accept_all(arrived)
+        return len(arrived) - (own is not None)
 
     def report(self) -> None:
         """:meth:`DirectRelay.report`."""
@@ -338,7 +333,7 @@ class FusionCentre(Estimator, params=FusionCentreParams):
         if self.direct_relay and self.port.channel is None and all(l.rate is None and l.up is None for l in links):
             if ctx.backend.compiled and net.crashes is None and all(
                     l.plain is not None and l.compiled_latency() is not None for l in links):
-                self.relay = CompiledRelay(self.port, links, self.out, self.at, self.accept, ctx.T_ns)
+                self.relay = CompiledRelay(self.port, links, self.out, self.at, self.accept_all, ctx.T_ns)
             else:
                 self.relay = DirectRelay(self.port, links, self.out, self.at, self.accept, net.crashes)
         self.x = np.empty((K, nx))
@@ -415,6 +410,23 @@ class FusionCentre(Estimator, params=FusionCentreParams):
         out = self.out[node]
         if out is not None:                      # (a node that is down received nothing: crash_dropped)
             self.port.send(out, payload, payload[-1])
+
+    def accept_all(self, payloads: list[tuple]) -> None:
+        """:meth:`accept` of each of ``payloads``, in order."""
+        if self.vary:
+            for payload in payloads:
+                self.accept(payload)
+            return
+        excluded, rows, xs, pending = self.excluded, self.newest_rows, self.x_newest, self.pending
+        ignored = 0
+        for i, row, x, lo, masks, _, _ in payloads:    # (no radar: no omega carried)
+            if excluded[i] or row <= rows[i]:
+                ignored += 1
+                continue
+            pending[i] = (lo, masks)
+            rows[i] = row
+            xs[i] = x
+        self.ignored += ignored
 
     def accept(self, payload: tuple) -> None:
         """Node ``i``'s estimate of ``row`` and its holdings, into the centre's state."""
