@@ -165,15 +165,19 @@ class DirectRelay:
 
 
 class CompiledRelay:
-    """:class:`DirectRelay` in one compiled call per tick
-    (:mod:`dkfsim.estimators.fusion_centre_kernels`), for links on which nothing but a
-    ``constant`` or ``uniform_steps`` latency acts and a network without crashes: the same
-    hops, numbers, draws, order and counts (decision 232)."""
+    """:class:`DirectRelay` and the centre's :meth:`~FusionCentre.accept` in one compiled call
+    per tick (:mod:`dkfsim.estimators.fusion_centre_kernels`), for links on which nothing but
+    a ``constant`` or ``uniform_steps`` latency acts, a network without crashes and no radar:
+    the same hops, numbers, draws, order, counts and accepted packets (decision 232).  A packet
+    is its node and row; the masks it carries stay in :attr:`ring` (one slot per tick, as many
+    ticks as a packet can be in flight) for the compiled fold."""
 
-    def __init__(self, port: Port, links: list[Link], out: list[Link | None], at: int, accept_all, T_ns: int):
+    def __init__(self, port: Port, links: list[Link], out: list[Link | None], at: int, T_ns: int,
+                 newest: np.ndarray, excluded: np.ndarray, W: int, n_origins: int):
         from dkfsim.core.jit import entry_point
         from dkfsim.estimators import fusion_centre_kernels as fk
-        self.port, self.links, self.accept_all, self.fk = port, links, accept_all, fk.compiled()
+        self.port, self.links, self.fk = port, links, fk.compiled()
+        n = len(out)
         size = 1 + max((l.id for l in links), default=0)
         kind, key, par = np.zeros(size, np.int64), np.zeros(size, np.uint64), np.zeros(size, np.int64)
         dst = np.full(size, -1, np.int64)
@@ -184,41 +188,49 @@ class CompiledRelay:
             kind[l.id], key[l.id], par[l.id], dst[l.id] = f[0], f[1], f[2], l.dst
             longest = max(longest, f[2] if f[0] == 0 else f[2] * T_ns)
         hops = []                                         # each node's hops to the centre
-        for i in range(len(out)):
+        for i in range(n):
             h, node = 0, i
-            while out[node] is not None and h <= len(out):
+            while out[node] is not None and h <= n:
                 node, h = out[node].dst, h + 1
             hops.append(h)
-        # A packet is in flight at most max(hops) x the longest latency: no more than the
-        # packets sent in that many ticks (and the one now) can be on the heap at once.
-        cap = 2 * len(out) * (max(hops, default=0) * (-(-longest // T_ns)) + 2) + 16
+        # A packet is in flight at most max(hops) x the longest latency: it was sent in one of
+        # that many ticks before now (or now), and each tick sends fewer than n packets.
+        ticks = max(hops, default=0) * (-(-longest // T_ns)) + 2
+        cap = 2 * n * ticks + 16
         z = np.zeros
-        self.R = fk.Relay(z(3, np.int64), kind, key, par, int(T_ns), dst,
-                          np.array([-1 if o is None else o.id for o in out], np.int64), int(at), SHARED_SEQ0,
+        self.R = fk.Relay(z(4, np.int64), kind, key, par, int(T_ns), dst,
+                          np.array([-1 if o is None else o.id for o in out], np.int64), int(at), n, SHARED_SEQ0,
                           np.full(size, -1, np.int64), z(size, np.int64), z(size, np.int64), z(size, np.int64),
                           z(size, np.int64), z(cap, np.int64), z(cap, np.int64), z(cap, np.int64),
-                          z(cap, np.int64), z(cap, np.int64), z(cap, np.int64))
-        none = z(0, np.int64)
-        self.kernel = entry_point(self.fk.tick, self.R, -1, none, none, none)
-        self.payloads: dict[int, Any] = {}
-        self.next_id = 0
+                          z(cap, np.int64), z(cap, np.int64), newest, z(n, np.bool_), excluded)
+        #: the nodes that send (all but the centre's, with a route)
+        self.senders = np.array([i for i in range(n) if i != at and out[i] is not None], np.int64)
+        #: the masks each tick's packets carry, slot ``row % len(ring)``
+        self.ring = z((ticks + 1, W, n, n_origins), np.bool_)
+        self.kernel = entry_point(self.fk.tick, self.R, -1, 0, self.senders[:0], 0)
+        self.R.CT[:] = 0                  # (what that first call took: nothing happened yet)
+        newest[:] = -1
+        self.R.pend[:] = False
+        self.fold = None
 
-    def tick(self, now: int, sends: list[tuple[Link, Any, int]], own: Any) -> int:
-        """:meth:`DirectRelay.tick`."""
-        m, p0 = len(sends), self.next_id
-        self.next_id = p0 + m
-        payloads = self.payloads
-        links, items, sizes = zip(*sends) if m else ((), (), ())
-        payloads.update(zip(range(p0, p0 + m), items))
-        before = self.kernel(self.R, now, np.array([l.id for l in links], dtype=np.int64),
-                             np.arange(p0, p0 + m, dtype=np.int64), np.array(sizes, dtype=np.int64))
-        if before < 0:
+    def tick(self, now: int, row: int, nbytes: int) -> None:
+        """The tick ``now`` whose update computed ``row``: the relay's deliveries, the centre's
+        own estimate and every other node's packet of ``nbytes`` (masks in :attr:`ring`)."""
+        if self.kernel(self.R, now, row, self.senders, nbytes) < 0:
             raise RuntimeError("fusion centre relay: more packets in flight than its bound")
-        arrived = [payloads.pop(p) for p in self.R.arrived[:self.R.CT[self.fk.NOUT]].tolist()]
-        if own is not None:
-            arrived.insert(before, own)
-        self.accept_all(arrived)
-        return len(arrived) - (own is not None)
+
+    def fold_into(self, k0: int, W: int, known: np.ndarray, target) -> None:
+        """Fold what the accepted packets taught the centre (``fold_ring``)."""
+        R = self.R
+        if self.fold is None:
+            from dkfsim.core.jit import entry_point
+            self.fold = entry_point(self.fk.fold_ring, self.ring, R.pend, R.newest, k0, W, known, target)
+            return                 # (the entry point's first call was the fold)
+        self.fold(self.ring, R.pend, R.newest, k0, W, known, target)
+
+    def counts(self) -> tuple[int, int]:
+        """``(packets that reached the centre, packets it ignored)``."""
+        return int(self.R.CT[self.fk.RECEIVED]), int(self.R.CT[self.fk.IGNORED])
 
     def report(self) -> None:
         """:meth:`DirectRelay.report`."""
@@ -314,8 +326,9 @@ class FusionCentre(Estimator, params=FusionCentreParams):
         #: per node: the row and the estimate of its newest packet (Python lists: one packet
         #: costs no numpy call; ``newest`` is their array as of the last fusion)
         self.newest_rows = [-1] * n
-        x0 = np.asarray(sys_.x0_mean, float)
+        self.x0 = x0 = np.asarray(sys_.x0_mean, float)
         self.x_newest: list[np.ndarray] = [x0] * n
+        self._nodes = np.arange(n)
         self.excluded = np.zeros(n, dtype=bool)
         # The senders' side: what each node held of the last W rows, what omegas it carried.
         self.sent_held = np.zeros((W, n, n), dtype=bool)
@@ -331,9 +344,10 @@ class FusionCentre(Estimator, params=FusionCentreParams):
         #: (:class:`DirectRelay`, decision 232); None: through the port, hop by hop
         self.relay: DirectRelay | CompiledRelay | None = None
         if self.direct_relay and self.port.channel is None and all(l.rate is None and l.up is None for l in links):
-            if ctx.backend.compiled and net.crashes is None and all(
+            if ctx.backend.compiled and net.crashes is None and not self.vary and all(
                     l.plain is not None and l.compiled_latency() is not None for l in links):
-                self.relay = CompiledRelay(self.port, links, self.out, self.at, self.accept_all, ctx.T_ns)
+                self.relay = CompiledRelay(self.port, links, self.out, self.at, ctx.T_ns, self.newest,
+                                           self.excluded, W, n)
             else:
                 self.relay = DirectRelay(self.port, links, self.out, self.at, self.accept, net.crashes)
         self.x = np.empty((K, nx))
@@ -359,11 +373,18 @@ class FusionCentre(Estimator, params=FusionCentreParams):
         self.sent_held[window % W] = held[window % held.shape[0]]
         lo = max(r - W + 1, 0)
         idx = np.arange(lo, r + 1) % W
+        relay = self.relay
+        if isinstance(relay, CompiledRelay):
+            ring = relay.ring
+            ring[r % len(ring), :len(idx)] = self.sent_held[idx]
+            relay.tick(int(self.ctx.env.now), r, packet_bytes(nx, n, len(idx), 0))
+            self._fuse(None)
+            return
         masks = self.sent_held[idx]                          # (rows, n, n)
         x = self.dkf.x_local[r]
         vary = self.vary
         crashes, now = self.ctx.crashes, int(self.ctx.env.now)
-        relay, out_links, at = self.relay, self.out, self.at
+        out_links, at = self.out, self.at
         entries: list[tuple[int, int, np.ndarray, np.ndarray]] = []
         nbytes = packet_bytes(nx, n, len(idx), 0)
         sends: list[tuple[Link, tuple, int]] = []
@@ -411,23 +432,6 @@ class FusionCentre(Estimator, params=FusionCentreParams):
         if out is not None:                      # (a node that is down received nothing: crash_dropped)
             self.port.send(out, payload, payload[-1])
 
-    def accept_all(self, payloads: list[tuple]) -> None:
-        """:meth:`accept` of each of ``payloads``, in order."""
-        if self.vary:
-            for payload in payloads:
-                self.accept(payload)
-            return
-        excluded, rows, xs, pending = self.excluded, self.newest_rows, self.x_newest, self.pending
-        ignored = 0
-        for i, row, x, lo, masks, _, _ in payloads:    # (no radar: no omega carried)
-            if excluded[i] or row <= rows[i]:
-                ignored += 1
-                continue
-            pending[i] = (lo, masks)
-            rows[i] = row
-            xs[i] = x
-        self.ignored += ignored
-
     def accept(self, payload: tuple) -> None:
         """Node ``i``'s estimate of ``row`` and its holdings, into the centre's state."""
         i, row, x, lo, masks, entries, _ = payload
@@ -445,15 +449,23 @@ class FusionCentre(Estimator, params=FusionCentreParams):
     def _fuse(self, _event: Event | None) -> None:
         k = self.k
         r = k - 1
-        self.newest = np.array(self.newest_rows, dtype=np.int64)
-        self._fold(k)
+        fast = isinstance(self.relay, CompiledRelay)
+        if fast:                          # newest: the relay's kernel keeps it
+            self.relay.fold_into(max(k - self.W, 0), self.W, self.known, self.holdings.fold_target)
+        else:
+            self.newest[:] = self.newest_rows
+            self._fold(k)
         done = k - self.W                 # the shadow's row that becomes final now
         if done >= 0:
             # a node whose final holdings of that row the centre does not know leaves the fusion
             self.excluded |= (self.newest + 1 - self.L) < done
         self.window.update(k, on_rows=self.xcov.on_rows)
         Xi = self.xcov.Xi[r % self.holdings.S]
-        xs = np.array(self.x_newest)
+        if fast:
+            xs = self.dkf.x_local[np.maximum(self.newest, 0), self._nodes]
+            xs[self.newest < 0] = self.x0
+        else:
+            xs = np.array(self.x_newest)
         use = ~self.excluded
         stale = np.flatnonzero((self.newest < r) & use)
         if len(stale):
@@ -516,6 +528,10 @@ class FusionCentre(Estimator, params=FusionCentreParams):
     def finish(self) -> EstimatorResult:
         if self.relay is not None:
             self.relay.report()
+        if isinstance(self.relay, CompiledRelay):
+            received, ignored = self.relay.counts()
+            self.received += received
+            self.ignored += ignored
         facts = {"packets_received": self.received, "packets_ignored": self.ignored,
                  "stale_rows_used": self.stale_rows, "nodes_excluded": int(self.excluded.sum()),
                  "at": self.at, "rows_carried": self.W}

@@ -23,26 +23,29 @@ from dkfsim.core.jit import LazyKernels
 from dkfsim.model import holdings_kernels as hk
 from dkfsim.protocols import tree_compiled_kernels as tck
 
-_KERNELS = ("_push", "_pop", "_hop", "_deliver", "tick", "fold_new")
-_INLINE = ("_push", "_pop", "_hop", "_deliver")
+_KERNELS = ("_push", "_pop", "_hop", "_accept", "_deliver", "tick", "fold_new", "fold_ring")
+_INLINE = ("_push", "_pop", "_hop", "_accept", "_deliver")
 #: :func:`tck.keyed_uniform` and :func:`hk.fold` are called from here (docs/decisions.md 131).
 BORROWS = {"dkfsim.protocols.tree_compiled_kernels": "7bd833072cbd7c854c046d3f59d276c2dc09d31825f7f06b20d97a59bda530d9",
            "dkfsim.model.holdings_kernels": "f5ba9bd99b4d6598cc258c4188fda9f3e2d0e1645766f96dd735e008fe277ffd"}
 _lazy = LazyKernels(__name__, _KERNELS, inline=_INLINE, borrows=BORROWS)
 
-#: ``CT`` indices: hops on the heap, hops pushed so far (the send order), arrivals written.
-SIZE, ORDER, NOUT = range(3)
-#: Returned by :func:`tick` when the heap or the arrivals would overflow (a bound was wrong).
+#: ``CT`` indices: hops on the heap, hops pushed so far (the send order), packets that reached
+#: the centre, packets it ignored (older than its newest of that node, or a node left out).
+SIZE, ORDER, RECEIVED, IGNORED = range(4)
+#: Returned by :func:`tick` when the heap would overflow (its bound was wrong).
 FULL = -1
 
 #: The relay's state.  Per link ``l``: ``kind`` (0 constant ``par`` ns, 1 uniform steps
 #: ``0..par`` times ``T_ns``), ``key`` (uint64), ``dst``, the instant its sequence numbers
 #: were last counted from (``seq_t``) and the next one (``seq``), counts ``sent``, ``nbytes``,
 #: ``delivered``.  Per node ``out``: the link toward the centre (-1: none).  The heap:
-#: arrival ``ht``, send order ``ho``, packet ``hp``, link ``hl``, size ``hb``; ``arrived``:
-#: the packets that reached the centre, in order.
-Relay = namedtuple("Relay", "CT kind key par T_ns dst out at seq0 seq_t seq sent nbytes delivered "
-                            "ht ho hp hl hb arrived")
+#: arrival ``ht``, send order ``ho``, packet ``hp``, link ``hl``, size ``hb``.  A packet is
+#: ``row * n + node``: node's estimate of ``row``; what the centre took of it: per node the
+#: newest row (``newest``, -1: none), whether that packet is still to fold (``pend``), and
+#: ``excluded`` (the centre's own array: a node left out).
+Relay = namedtuple("Relay", "CT kind key par T_ns dst out at n seq0 seq_t seq sent nbytes delivered "
+                            "ht ho hp hl hb newest pend excluded")
 
 
 def compiled():
@@ -107,6 +110,18 @@ def _hop(R, now, link, p, size):
     return True
 
 
+def _accept(R, p):
+    """The centre takes packet ``p`` (``FusionCentre.accept`` without radars): a node's newer
+    row replaces what it had; an older one, or one of a node left out, is ignored."""
+    i = p % R.n
+    row = p // R.n
+    if R.excluded[i] or row <= R.newest[i]:
+        R.CT[IGNORED] += 1
+        return
+    R.newest[i] = row
+    R.pend[i] = True
+
+
 def _deliver(R, limit):
     """Deliver every hop due up to ``limit``; a relay forwards at once.  False when full."""
     while R.CT[SIZE] > 0 and R.ht[0] <= limit:
@@ -115,31 +130,29 @@ def _deliver(R, limit):
         R.delivered[link] += 1
         node = R.dst[link]
         if node == R.at:
-            if R.CT[NOUT] >= R.arrived.shape[0]:
-                return False
-            R.arrived[R.CT[NOUT]] = p
-            R.CT[NOUT] += 1
+            R.CT[RECEIVED] += 1
+            _accept(R, p)
         elif R.out[node] >= 0:
             if not _hop(R, now, R.out[node], p, size):
                 return False
     return True
 
 
-def tick(R, now, links, packets, sizes):
-    """The centre's packets at a tick ``now``: deliver what is due up to ``now`` (the port's
-    deliveries come before the update), send ``packets`` on ``links`` (``sizes`` bytes), then
-    deliver their zero-latency hops.  Returns the number of arrivals before the sends (they
-    are ``arrived[:k]``; ``CT[NOUT]`` all of them), or :data:`FULL`."""
-    R.CT[NOUT] = 0
+def tick(R, now, row, senders, size):
+    """The centre's packets at the tick ``now`` whose update computed ``row``: deliver what is
+    due up to ``now`` (the port's deliveries come before the update), the centre's own
+    estimate, then each of ``senders`` sends its packet (``size`` bytes) on its link toward the
+    centre, then their zero-latency hops are delivered.  0, or :data:`FULL`."""
     if not _deliver(R, now):
         return FULL
-    before = R.CT[NOUT]
-    for j in range(links.shape[0]):
-        if not _hop(R, now, links[j], packets[j], sizes[j]):
+    _accept(R, row * R.n + R.at)
+    for j in range(senders.shape[0]):
+        i = senders[j]
+        if not _hop(R, now, R.out[i], row * R.n + i, size):
             return FULL
     if not _deliver(R, now):
         return FULL
-    return before
+    return 0
 
 
 def fold_new(stack, nodes, k0, known, F):
@@ -159,6 +172,36 @@ def fold_new(stack, nodes, k0, known, F):
             new = False
             for o in range(no):
                 if stack[a, j, o] and not known[slot, i, o]:
+                    if not new:
+                        bits[:] = 0
+                        new = True
+                    known[slot, i, o] = True
+                    bits[o >> 6] |= np.uint64(1) << np.uint64(o & 63)
+            if new:
+                hk.fold(i, row, bits, F)
+
+
+def fold_ring(ring, pend, newest, k0, W, known, F):
+    """:func:`fold_new` for the packets the compiled relay accepted: node ``i`` with
+    ``pend[i]`` holds what its packet of row ``r = newest[i]`` says, the masks of rows
+    ``max(r - W + 1, 0) .. r`` in ``ring[r % len(ring)]`` (the tick's masks, kept while such a
+    packet can be in flight); rows before ``k0`` are final in the shadow and skipped."""
+    n = pend.shape[0]
+    no = known.shape[2]
+    S = known.shape[0]
+    bits = np.zeros((no + 63) // 64, dtype=np.uint64)
+    for i in range(n):
+        if not pend[i]:
+            continue
+        pend[i] = False
+        r = newest[i]
+        lo = max(r - W + 1, 0)
+        masks = ring[r % ring.shape[0]]
+        for row in range(max(lo, k0), r + 1):
+            slot = row % S
+            new = False
+            for o in range(no):
+                if masks[row - lo, i, o] and not known[slot, i, o]:
                     if not new:
                         bits[:] = 0
                         new = True
