@@ -22,6 +22,10 @@ final holdings of it (more than ``M`` ticks without a packet), the node leaves t
 the rest of the run (``nodes_excluded``; docs/decisions.md #220).  The centre fuses row ``k-1``
 in an event of priority :data:`~dkfsim.network.links.PRIORITY_FUSE`, after the packets sent at
 the update and their zero-latency relays: at zero latency and no rate limit it equals ``fused``.
+Where nothing but a packet's own keyed draws acts on it (no rate, no channel) the centre moves its
+packets itself, hop for hop what the port would do (:class:`DirectRelay`, or
+:class:`CompiledRelay` in one kernel call per tick), and fuses at the end of its update
+(decisions 232-234).
 """
 
 from __future__ import annotations
