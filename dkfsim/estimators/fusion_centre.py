@@ -194,8 +194,10 @@ class CompiledRelay:
         hops = []                                         # each node's hops to the centre
         for i in range(n):
             h, node = 0, i
-            while out[node] is not None and h <= n:
-                node, h = out[node].dst, h + 1
+            nxt = out[node]
+            while nxt is not None and h <= n:
+                node, h = nxt.dst, h + 1
+                nxt = out[node]
             hops.append(h)
         # A packet is in flight at most max(hops) x the longest latency: it was sent in one of
         # that many ticks before now (or now), and each tick sends fewer than n packets.
@@ -453,9 +455,10 @@ class FusionCentre(Estimator, params=FusionCentreParams):
     def _fuse(self, _event: Event | None) -> None:
         k = self.k
         r = k - 1
-        fast = isinstance(self.relay, CompiledRelay)
-        if fast:                          # newest: the relay's kernel keeps it
-            self.relay.fold_into(max(k - self.W, 0), self.W, self.known, self.holdings.fold_target)
+        relay = self.relay
+        fast = isinstance(relay, CompiledRelay)
+        if isinstance(relay, CompiledRelay):      # newest: the relay's kernel keeps it
+            relay.fold_into(max(k - self.W, 0), self.W, self.known, self.holdings.fold_target)
         else:
             self.newest[:] = self.newest_rows
             self._fold(k)
