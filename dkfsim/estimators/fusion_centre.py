@@ -44,7 +44,7 @@ from dkfsim.estimators.fusion import FUSERS, CrossCovariance
 from dkfsim.estimators.window import WindowFilter
 from dkfsim.model.holdings import Holdings
 from dkfsim.model.system import Information
-from dkfsim.network.links import PRIORITY_FUSE, SHARED_SEQ0, Link, Port, Scheduled
+from dkfsim.network.links import PRIORITY_FUSE, SHARED_SEQ0, Link, Port, Scheduled, count_fate
 from dkfsim.protocols.base import PACKET_HEADER
 
 
@@ -73,8 +73,8 @@ class DirectRelay:
     sequence number)`` acts on it, and the centre's packets have a sequence space of their own
     (``share_with``: from :data:`~dkfsim.network.links.SHARED_SEQ0`): no other packet can
     change their fate.  The relay keeps the port's calendar (instant -> packets due, in the order
-    sent), numbers each link's packets per instant as the port does, draws with
-    ``Link.plain`` / ``Link.transmit`` as the port does, drops a packet reaching a node that is
+    sent), numbers each link's packets per instant as the port does, draws and counts with
+    :func:`~dkfsim.network.links.count_fate` as the port does, drops a packet reaching a node that is
     down (``crash_dropped``), and hands the owner what reaches it in the port's order;
     :meth:`deliver_until` runs the instants up to ``t`` (the centre calls it before its sends and
     before it fuses, so every packet is in place by the time the port's events would have
@@ -102,23 +102,7 @@ class DirectRelay:
         count = self.count
         count["sent"][lid] += 1
         count["bytes"][lid] += nbytes
-        plain = link.plain
-        if plain is not None:
-            lat, lost = plain(now, seq)
-            if lost:
-                count["lost"][lid] += 1
-                return
-            self._enqueue(now + lat, link, payload)
-            return
-        arrivals, why = link.transmit(now, seq)
-        if why is not None:
-            count["lost"][lid] += 1
-            if why == "outage":
-                count["outage_lost"][lid] += 1
-            return
-        if len(arrivals) > 1:
-            count["copies"][lid] += 1
-        for lat in arrivals:
+        for lat in count_fate(link, now, seq, count):      # (Link.plain's draw where it has one)
             self._enqueue(now + lat, link, payload)
 
     def _enqueue(self, at: int, link: Link, payload: Any) -> None:

@@ -23,8 +23,8 @@ from dkfsim.core.jit import LazyKernels
 from dkfsim.model import holdings_kernels as hk
 from dkfsim.protocols import tree_compiled_kernels as tck
 
-_KERNELS = ("_push", "_pop", "_hop", "_accept", "_deliver", "tick", "fold_new", "fold_ring")
-_INLINE = ("_push", "_pop", "_hop", "_accept", "_deliver")
+_KERNELS = ("_push", "_pop", "_hop", "_accept", "_deliver", "tick", "_fold_origins", "fold_new", "fold_ring")
+_INLINE = ("_push", "_pop", "_hop", "_accept", "_deliver", "_fold_origins")
 #: :func:`tck.keyed_uniform` and :func:`hk.fold` are called from here (docs/decisions.md 131).
 BORROWS = {"dkfsim.protocols.tree_compiled_kernels": "7bd833072cbd7c854c046d3f59d276c2dc09d31825f7f06b20d97a59bda530d9",
            "dkfsim.model.holdings_kernels": "f5ba9bd99b4d6598cc258c4188fda9f3e2d0e1645766f96dd735e008fe277ffd"}
@@ -155,30 +155,33 @@ def tick(R, now, row, senders, size):
     return 0
 
 
+def _fold_origins(i, row, have, known, bits, F):
+    """Fold the origins flagged in ``have`` that ``known`` (the centre's ring of what each node
+    holds) lacks for node ``i`` and ``row`` into the shadow's sums (:func:`hk.fold`, origins
+    ascending), and mark them known."""
+    slot = row % known.shape[0]
+    new = False
+    for o in range(have.shape[0]):
+        if have[o] and not known[slot, i, o]:
+            if not new:
+                bits[:] = 0
+                new = True
+            known[slot, i, o] = True
+            bits[o >> 6] |= np.uint64(1) << np.uint64(o & 63)
+    if new:
+        hk.fold(i, row, bits, F)
+
+
 def fold_new(stack, nodes, k0, known, F):
     """The centre's fold (``FusionCentre._fold`` without radars): ``stack[a, j]`` are the
-    origins node ``nodes[j]``'s newest packet holds of row ``k0 + a``; those ``known`` (the
-    centre's ring of what each node holds) lacks are marked known and folded into the shadow's
-    sums (:func:`hk.fold`, origins ascending; each (row, node) once, so the order of the
+    origins node ``nodes[j]``'s newest packet holds of row ``k0 + a``; what the centre did not
+    know is folded (:func:`_fold_origins`; each (row, node) once, so the order of the
     contributions changes no sum)."""
     rows, m, no = stack.shape
-    S = known.shape[0]
     bits = np.zeros((no + 63) // 64, dtype=np.uint64)
     for a in range(rows):
-        row = k0 + a
-        slot = row % S
         for j in range(m):
-            i = nodes[j]
-            new = False
-            for o in range(no):
-                if stack[a, j, o] and not known[slot, i, o]:
-                    if not new:
-                        bits[:] = 0
-                        new = True
-                    known[slot, i, o] = True
-                    bits[o >> 6] |= np.uint64(1) << np.uint64(o & 63)
-            if new:
-                hk.fold(i, row, bits, F)
+            _fold_origins(nodes[j], k0 + a, stack[a, j], known, bits, F)
 
 
 def fold_ring(ring, pend, newest, k0, W, known, F):
@@ -186,11 +189,8 @@ def fold_ring(ring, pend, newest, k0, W, known, F):
     ``pend[i]`` holds what its packet of row ``r = newest[i]`` says, the masks of rows
     ``max(r - W + 1, 0) .. r`` in ``ring[r % len(ring)]`` (the tick's masks, kept while such a
     packet can be in flight); rows before ``k0`` are final in the shadow and skipped."""
-    n = pend.shape[0]
-    no = known.shape[2]
-    S = known.shape[0]
-    bits = np.zeros((no + 63) // 64, dtype=np.uint64)
-    for i in range(n):
+    bits = np.zeros((known.shape[2] + 63) // 64, dtype=np.uint64)
+    for i in range(pend.shape[0]):
         if not pend[i]:
             continue
         pend[i] = False
@@ -198,14 +198,4 @@ def fold_ring(ring, pend, newest, k0, W, known, F):
         lo = max(r - W + 1, 0)
         masks = ring[r % ring.shape[0]]
         for row in range(max(lo, k0), r + 1):
-            slot = row % S
-            new = False
-            for o in range(no):
-                if masks[row - lo, i, o] and not known[slot, i, o]:
-                    if not new:
-                        bits[:] = 0
-                        new = True
-                    known[slot, i, o] = True
-                    bits[o >> 6] |= np.uint64(1) << np.uint64(o & 63)
-            if new:
-                hk.fold(i, row, bits, F)
+            _fold_origins(i, row, masks[row - lo, i], known, bits, F)
