@@ -38,6 +38,11 @@
    at: 0}`` against the same scenario without it, on the compiled path (the tree compiled, numba
    kernels), alternated in this process, min CPU of ``--repeats``; the issue asks at most 2x.
    ``--centre-only`` runs this line alone.
+10. A shared channel (issue 22): ``scenarios/channel_its_g5.yaml`` (every estimator on one
+    CSMA channel with background, the Python exchange) against the same scenario without
+    ``medium:``, alternated on the backend's defaults (the compiled tree), then alternated with
+    the Python exchange for both (the same protocol code); min CPU of ``--repeats``; the issue
+    asks at most 2x.  ``--channel-only`` runs this line alone.
 
 Before/after (``--base REF``): the runs of sections 1, 2 and 4 that exercise the kernels
 (paper_case1 on the three kernel paths, a 50-node tree with matrix fusion, a 200-node tree
@@ -49,7 +54,7 @@ the same kind) and the ratio this / base.  Nothing else runs in that mode.
 Usage: ``python tools/bench.py [--ticks 1000] [--sizes 12 50 200] [--fit-sizes 12 50 200 1000]
 [--skip-sweep] [--big-ticks 200] [--skip-threads] [--skip-executors] [--skip-traffic]``,
 ``python tools/bench.py --traffic-only [--ticks 1000] [--repeats 3]``,
-``python tools/bench.py --centre-only [--ticks 1000] [--repeats 3]``, or
+``python tools/bench.py --centre-only [--ticks 1000] [--repeats 3]`` (``--channel-only`` likewise), or
 ``python tools/bench.py --base REF [--repeats 3]``.
 Timing lives here, never in the tests.
 """
@@ -267,6 +272,43 @@ def print_centre_cost(ticks: int, repeats: int) -> None:
           f"ratio {cpu['with'] / cpu['without']:.2f} x (issue: <= 2)")
 
 
+def channel_cost(ticks: int, repeats: int) -> dict:
+    """Section 10: CPU seconds of ``scenarios/channel_its_g5.yaml`` and of the same scenario
+    without ``medium:`` (:func:`alternated`), on the backend's defaults (the scenario without a
+    channel runs the compiled tree on the numba path) and then both with the Python exchange (the
+    protocol code the channel run uses); the min of each and the ratios."""
+    import yaml
+    path = ROOT / "scenarios" / "channel_its_g5.yaml"
+    spec = yaml.safe_load(path.read_text())
+    spec.pop("medium")
+    runs = {"channel": dkfsim.load_scenario(path, overrides=[f"steps={ticks}"]),
+            "plain": dkfsim.load_scenario(spec, overrides=[f"steps={ticks}"])}
+    out, last = alternated(runs, repeats)
+    os.environ[EXCHANGE_ENV] = "python"
+    try:
+        python, last_python = alternated(runs, repeats)
+    finally:
+        del os.environ[EXCHANGE_ENV]
+    out["ratio"] = out["channel"] / out["plain"]
+    out["ratio_python"] = python["channel"] / python["plain"]
+    out["plain_python"] = python["plain"]
+    out["exchange"] = {name: r.info["backend"]["exchange"] for name, r in last.items()}
+    out["exchange_python"] = last_python["plain"].info["backend"]["exchange"]
+    out["channel_sent"] = last["channel"].counts["sent"]
+    return out
+
+
+def print_channel_cost(ticks: int, repeats: int) -> None:
+    t = channel_cost(ticks, repeats)
+    print(f"a shared channel (issue 22): scenarios/channel_its_g5.yaml, {ticks} ticks, every estimator, "
+          f"against the same scenario without medium:; CPU s, min of {repeats} alternated")
+    print(f"  channel {t['channel']:8.3f} s (exchange '{t['exchange']['channel']}', {t['channel_sent']} packets)"
+          f"   without medium {t['plain']:8.3f} s (exchange '{t['exchange']['plain']}'), "
+          f"{t['plain_python']:8.3f} s (exchange '{t['exchange_python']}')")
+    print(f"  ratio {t['ratio']:.2f} x against the default path (issue: <= 2), "
+          f"{t['ratio_python']:.2f} x against the same Python exchange")
+
+
 def kernel_workloads(ticks: int, scale_ticks: int, big_nodes: int, big_ticks: int) -> dict:
     """The kernel-heavy runs of ``--base``: name -> (scenario, save, environment variable or None)."""
     case1 = dkfsim.load_scenario(ROOT / "scenarios" / "paper_case1.yaml", overrides=[f"steps={ticks}"])
@@ -418,6 +460,8 @@ def main(argv=None) -> int:
     ap.add_argument("--traffic-only", action="store_true", help="only the rate-limited links' cost (section 8)")
     ap.add_argument("--skip-centre", action="store_true", help="skip the fusion centre's cost (section 9)")
     ap.add_argument("--centre-only", action="store_true", help="only the fusion centre's cost (section 9)")
+    ap.add_argument("--skip-channel", action="store_true", help="skip the shared channel's cost (section 10)")
+    ap.add_argument("--channel-only", action="store_true", help="only the shared channel's cost (section 10)")
     ap.add_argument("--probe", action="store_true", help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
     if args.probe:
@@ -432,6 +476,9 @@ def main(argv=None) -> int:
         return 0
     if args.centre_only:
         print_centre_cost(args.ticks, args.repeats)
+        return 0
+    if args.channel_only:
+        print_channel_cost(args.ticks, args.repeats)
         return 0
 
     sc = dkfsim.load_scenario(ROOT / "scenarios" / "paper_case1.yaml", overrides=[f"steps={args.ticks}"])
@@ -549,6 +596,9 @@ def main(argv=None) -> int:
     if not args.skip_centre:
         print()
         print_centre_cost(args.ticks, args.repeats)
+    if not args.skip_channel:
+        print()
+        print_channel_cost(args.ticks, args.repeats)
     return 0
 
 

@@ -56,9 +56,14 @@ def cmd_validate(args) -> int:
         xg = plan.exchange
         shape = (f"{len(xg.arcs)} directed links (d_g = {xg.d_g}), buffer length "
                  f"L = {plan.buffer_length()}")
+    channel = ""
+    if sc.medium is not None:         # a shared radio channel (docs/design.md §3)
+        m = sc.medium
+        channel = (f"; {len(m.members(sc.n))} nodes on one shared channel of {m.rate:g} bit/s "
+                   f"({m.access.kind}, cw {m.access.cw}; the Python exchange)")
     say(f"{args.scenario}: ok — {sc.name}: {len(sc.sensors)} sensors, nx = {sc.nx}, "
           f"{sc.steps} ticks of {sc.model.T} s, protocol {sc.protocol} on {shape} "
-          f"(d_t = {plan.d_t}), fusion {sc.fusion}; a run needs about "
+          f"(d_t = {plan.d_t}), fusion {sc.fusion}{channel}; a run needs about "
           f"{human_bytes(est.bytes)} and {human_seconds(est.seconds)} (rough estimate)")
     return 0
 

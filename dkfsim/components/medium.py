@@ -8,7 +8,9 @@ Every member has one radio: a first-in-first-out waiting room (``queue``, drop-t
 estimators' frames and its own ``background`` (awareness messages: per vehicle, keyed draws).
 
 ``medium: {rate, access: {kind: csma, slot, aifs, cw}, preamble, queue, background, nodes}``;
-a frame of ``size`` bytes is on the air ``preamble + size * 8 / rate`` seconds (:meth:`Medium.frame_ns`).
+a frame of ``size`` bytes is on the air ``preamble + size * 8 / rate`` seconds, the second
+term rounded as :func:`~dkfsim.components.traffic.transmission_ns`, at least 1 ns
+(:meth:`dkfsim.network.medium.Channel.airtime`).
 """
 
 from __future__ import annotations
@@ -17,8 +19,8 @@ from typing import Annotated, Literal
 
 from pydantic import Field, model_validator
 
-from dkfsim.components.traffic import Background, Queue, Rate, transmission_ns
-from dkfsim.core.params import MAX_NS, NonNegSeconds, StrictModel, custom_error, seconds_to_ns
+from dkfsim.components.traffic import Background, Queue, Rate
+from dkfsim.core.params import NonNegSeconds, StrictModel, custom_error, seconds_to_ns
 
 #: Largest contention window (slots): IEEE 802.11's largest, CWmax = 1023.
 MAX_CW = 1023
@@ -68,11 +70,6 @@ class Medium(StrictModel):
     def members(self, n: int) -> tuple[int, ...]:
         """The nodes on the channel, in increasing order."""
         return tuple(range(n)) if self.nodes == "all" else tuple(sorted(set(self.nodes)))
-
-    def frame_ns(self, size: int) -> int:
-        """ns a frame of ``size`` bytes is on the air: the preamble plus ``size * 8 / rate``
-        (:func:`~dkfsim.components.traffic.transmission_ns`), at least 1 ns."""
-        return max(1, min(seconds_to_ns(self.preamble) + transmission_ns(size, self.rate), MAX_NS))
 
     def check(self, n: int) -> None:
         """``nodes`` against the scenario's ``n`` nodes (a

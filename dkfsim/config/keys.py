@@ -24,6 +24,7 @@ KEY_LABELS: dict[str, tuple[str, str]] = {
     "latency.offset": ("latency offset", "s"),
     "latency.low": ("least link latency", "s"),
     "latency.high": ("largest link latency", "s"),
+    "medium.rate": ("channel rate", "bit/s"),
     "rate": ("link rate", "bit/s"),
     "queue.packets": ("queue limit", "packets"),
     "queue.bytes": ("queue limit", "bytes"),

@@ -48,6 +48,9 @@ _LITERAL_FIELDS = {"weights": ("weights", ("unit", "paper")),
                    "fusion": ("fusion", ("matrix", "diagonal", "none")),
                    "kind": ("model kind", ("constant_acceleration", "constant_velocity", "linear"))}
 
+#: ... and those whose meaning depends on the key above them.
+_LITERAL_PATHS: dict[tuple[str, ...], tuple[str, tuple[str, ...]]] = {("access", "kind"): ("access kind", ("csma",))}
+
 _BOUND_WORDS = {"greater_than_equal": (">=", "ge"), "greater_than": (">", "gt"),
                 "less_than_equal": ("<=", "le"), "less_than": ("<", "lt")}
 
@@ -65,7 +68,7 @@ def _reason(err: dict, path: list[str]) -> tuple[str, list[str]]:
     if etype == "extra_forbidden":
         return "unknown key", path
     if etype == "literal_error" and field in _LITERAL_FIELDS:
-        what, valid = _LITERAL_FIELDS[field]
+        what, valid = _LITERAL_PATHS.get(tuple(path[-2:]), _LITERAL_FIELDS[field])
         return (f"unknown {what} {clip(inp)}{suggest(inp, valid)}; valid: " + ", ".join(valid)), path
     if etype in _BOUND_WORDS:
         word, k = _BOUND_WORDS[etype]

@@ -13,6 +13,11 @@ anti-delay window filter with the DKF's buffer length ``L``: a row arriving
 after it became final is late.  A crashed sensor sends nothing.  Traffic:
 ``sent = delivered + lost + queue_dropped + in_flight`` (a duplicated packet
 counts once, by its first copy).
+
+On a shared channel (``medium:``) the packets go through a port instead, during the run: each
+sensor's packet is a unicast frame on the channel, contending with every other frame and the
+background (its port's copy of the channel); the counts are the port's
+(``sent + copies = delivered + lost + queue_dropped + crash_dropped + in_flight``).
 """
 
 from __future__ import annotations
@@ -31,6 +36,9 @@ from dkfsim.protocols.base import info_bytes
 class CentralizedDelayed(Estimator, params=CentralizedDelayedParams):
     """The window filter of a fusion centre that receives every sensor over its own link."""
 
+    #: whether the sensors' packets go through a port on the scenario's shared channel
+    _on_channel = False
+
     #: Its packets and their nominal sizes (bytes; docs/estimators.md, "Packet sizes").
     packets = ("one per sensor and tick on its direct link: 16 + 8 (nx + nx(nx+1)/2) "
                "(the measurement's information vector and matrix)")
@@ -45,6 +53,38 @@ class CentralizedDelayed(Estimator, params=CentralizedDelayedParams):
         return Cost(params.label, memory={"centralized_delayed": K * n * (7 * 8 + 2 * nx * B_FLOAT)
                                           + (L + 1) * (2 * nx + 3 * nx * nx) * B_FLOAT},
                     seconds=K * (C_TICK + L * (C_ROW + C_NODE_ROW) + n * C_PACKET))
+
+    def start(self) -> None:
+        """On a shared channel (``medium:``) the sensors' packets go through a port: each is a
+        unicast frame that contends with the others' frames and the background (decision 229).
+        Without a channel nothing runs during the run (:meth:`arrival_ticks` works them out at
+        the end, in closed form)."""
+        ctx = self.ctx
+        self._on_channel = ctx.scenario.medium is not None
+        if not self._on_channel:
+            return
+        s, K = ctx.system, ctx.K
+        spec = ctx.scenario.link_spec(-1, -1)              # the default settings
+        self._direct = [ctx.network.extra_link(("direct", name), spec, i, -1) for i, name in enumerate(s.names)]
+        self._ticks = np.zeros((s.n, K), dtype=np.int64)
+        self._measured = ctx.measured()
+        self._size = self.packet_bytes()
+        self._port = self.open_port(self._receive, self._direct, until=K * ctx.T_ns)
+
+    def on_measure(self, row: int) -> None:
+        """Row ``row``'s tick: every sensor that measured sends its packet to the centre (on a
+        shared channel only)."""
+        if not self._on_channel:
+            return
+        m, send, size = self._measured, self._port.send, self._size
+        for i, link in enumerate(self._direct):
+            if m is None or m[row, i]:                     # a crashed sensor sends nothing
+                send(link, (i, row), size)
+
+    def _receive(self, _link, payload) -> None:
+        i, row = payload
+        if self._ticks[i, row] == 0:                       # the first copy counts
+            self._ticks[i, row] = -(-self.ctx.env.now // self.ctx.T_ns)
 
     def arrival_ticks(self) -> tuple[np.ndarray, dict]:
         """Tick (1-based) at which the centre holds sensor i's row r, 0 if never
@@ -88,7 +128,10 @@ class CentralizedDelayed(Estimator, params=CentralizedDelayedParams):
         L = ctx.plan.buffer_length()
         held = Holdings(ctx.info, np.ones((1, s.n)), L, backend=ctx.backend)
         w = WindowFilter(s.Phi, s.Q, s.x0_mean, s.P0, held, ctx.backend)
-        ticks, counts = self.arrival_ticks()
+        if self._on_channel:
+            ticks = self._ticks
+        else:
+            ticks, counts = self.arrival_ticks()
         rows = np.arange(K)
         usable = (ticks > 0) & (ticks <= rows + L) & (ticks <= K)
         order = np.argsort(ticks[usable], kind="stable")
@@ -105,6 +148,8 @@ class CentralizedDelayed(Estimator, params=CentralizedDelayedParams):
             slot = (k - 1) % w.S
             x[k - 1], P[k - 1] = w.state.x[slot, 0], w.state.P[slot, 0]
         late = int(((ticks > rows + L) & (ticks <= K)).sum())
+        if self._on_channel:
+            return EstimatorResult({self.name: Estimate(x, P)}, traffic={**self._port.counts(), "late": late})
         per = {**counts, "delivered": ((ticks > 0) & (ticks <= K)).sum(axis=1)}   # first copy, by t_K
         per["in_flight"] = per["sent"] - per["lost"] - per["queue_dropped"] - per["delivered"]
         per["bytes"] = per["sent"] * self.packet_bytes()

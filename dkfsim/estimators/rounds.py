@@ -12,7 +12,8 @@ module holds what they share:
   begun (:meth:`RoundBased.begin_tick`), otherwise :meth:`RoundBased.step`
   runs; then the node's message goes out (:meth:`RoundBased.message`).
   The last tick is finished at ``t_{K+1}``;
-* the links (one packet per arc, a crashed sender sends nothing), the
+* the links (one packet per arc, a crashed sender sends nothing; on a shared channel one
+  broadcast frame per node carries them), the
   receive side (per arc and per *box* -- a kind of message -- the newest
   stamp is kept; a message whose last usable instant has passed is dropped
   and counted ``late``; an older stamp than the one held is ``superseded``);
@@ -201,6 +202,12 @@ class RoundBased(Estimator):
         self.links = list(links) if slots > 0 else []
         arcs = [(link.src, link.dst) for link in self.links]
         self.lid = {link.id: a for a, link in enumerate(self.links)}
+        # Per sending node, its arcs (index, link) in the links' order: one broadcast frame each.
+        # The network's arcs are sorted, so the frames' parts are the links in their order.
+        out: dict[int, list[tuple[int, Link]]] = {}
+        for a, link in enumerate(self.links):
+            out.setdefault(link.src, []).append((a, link))
+        self._out_arcs = list(out.items())
         E = self.E = len(self.links)
         n = self.n
         self.src = np.array([u for u, _ in arcs], dtype=np.intp)
@@ -306,14 +313,20 @@ class RoundBased(Estimator):
         return (self.A @ nbm).reshape((self.n,) + nb.shape[1:])
 
     def _send(self, g: int) -> None:
+        """Every node's message of round ``g``, broadcast: one frame per node carrying the same
+        content to each of its out-links that is up (a crashed node sends nothing).  Without a
+        shared channel, one packet per link, in the links' order (decision 227)."""
         box, fields, nbytes = self.message(g)
         state = (g, box, fields)
-        send = self.port.send
+        send_frame = self.port.send_frame
         down = set(self._down().tolist())
         up = self.up_now
-        for a, link in enumerate(self.links):
-            if link.src not in down and up[a]:      # a crashed node sends nothing; nor a down arc
-                send(link, state, nbytes)
+        for node, arcs in self._out_arcs:
+            if node in down:
+                continue
+            parts = [(link, state, nbytes) for a, link in arcs if up[a]]   # nothing on a down arc
+            if parts:
+                send_frame(parts, nbytes)
 
     def _receive(self, link, payload) -> None:
         g, box, fields = payload

@@ -334,8 +334,10 @@ class Network:
         return self.index[(u, v)]
 
     def on_channel(self, link: Link) -> bool:
-        """Whether ``link`` joins two nodes of the shared channel (its packets go as frames)."""
-        return link.src in self.members and link.dst in self.members
+        """Whether ``link`` is on the shared channel (its packets go as frames): it joins two of
+        its nodes, or goes from one of them to a centre outside the graph (``dst < 0``, e.g.
+        ``centralized_delayed``'s, which listens on the channel; decision 216)."""
+        return link.src in self.members and (link.dst in self.members or link.dst < 0)
 
     def channel(self) -> Channel | None:
         """A copy of the shared channel for a new port (the one copy with ``shared_queues``);
@@ -431,10 +433,10 @@ class Port:
         self._logs: dict[int, tuple[np.ndarray, np.ndarray]] = {}
         #: the shared channel as this port sees it (``share_with``'s copy; None without one)
         self.channel: Channel | None = share_with.channel if share_with is not None else network.channel()
-        #: this port's frames on the channel: sent (started), lost in a collision, dropped by a
-        #: full waiting room, and their access delays (hand-over to start, ns)
-        self._frames = [0, 0, 0]
-        self._access: list[int] = []
+        #: this port's frames on the channel that ended: (end, collided, hand-over to start ns),
+        #: flat; and how many a full waiting room dropped
+        self._ended = array("q")
+        self._frames_dropped = 0
 
     def _grow(self) -> None:
         """One counter slot per link of the network (links may be added after the port)."""
@@ -524,7 +526,7 @@ class Port:
             return
         assert self.channel is not None
         if not self.channel.offer(Frame(held[0][0].src, int(frame_bytes), now, held, self._frame_done)):
-            self._frames[2] += 1
+            self._frames_dropped += 1
             for link, _, _ in held:
                 count["queue_dropped"][link.id] += 1
 
@@ -532,18 +534,25 @@ class Port:
         """A frame of this port ended at ``frame.end`` (now): lost in a collision, or each part's
         fate drawn on its link as for any packet (keyed by the hand-over instant and its seq),
         its arrivals counted from the frame's end."""
-        self._frames[0] += 1
-        self._access.append(frame.start - frame.handed)
+        self._ended.extend((frame.end, not ok, frame.start - frame.handed))
         count = self._count
         if not ok:
-            self._frames[1] += 1
             for link, _, _ in frame.parts:
                 count["lost"][link.id] += 1
                 count["collision_lost"][link.id] += 1
             return
         handed = frame.handed
+        wait = frame.end - handed
         for link, payload, seq in frame.parts:
-            self._fly(handed, frame.end - handed, link, seq, payload)
+            plain = link.plain
+            if plain is None:
+                self._fly(handed, wait, link, seq, payload)
+                continue
+            lat, lost = plain(handed, seq)      # (the fast path of send: nothing else acts)
+            if lost:
+                count["lost"][link.id] += 1
+            else:
+                self._enqueue(handed, wait + lat, link, payload)
 
     def _fly(self, now: int, wait: int, link: Link, seq: int, payload: Any) -> None:
         """A packet handed over ``now`` and leaving the sender ``wait`` ns later: its fate
@@ -601,7 +610,7 @@ class Port:
             raise RuntimeError(f"port {self.name!r} has no receiver: its owner delivers its own packets")
         for k in range(0, len(due), 2):
             link = due[k]
-            if crashes is not None and crashes.down(link.dst, now):
+            if crashes is not None and link.dst >= 0 and crashes.down(link.dst, now):
                 self._count["crash_dropped"][link.id] += 1
                 continue
             delivered[link.id] += 1
@@ -721,12 +730,13 @@ class Port:
 
     def channel_stats(self, end: int) -> dict[str, Any]:
         """The shared channel over ``[0, end]`` as this port saw it (:meth:`Channel.stats`:
-        every frame, background included) and this port's frames: ``frames`` sent (collided
-        or not), ``frames_collided``, ``frames_dropped`` (a full waiting room) and
-        ``access_delay_mean`` (s, hand-over to start of transmission)."""
+        every frame, background included) and this port's frames that ended by ``end``:
+        ``frames`` (collided or not), ``frames_collided`` and ``access_delay_mean`` (s, hand-over
+        to start of transmission); ``frames_dropped``: those a full waiting room refused."""
         assert self.channel is not None
         stats: dict[str, Any] = dict(self.channel.stats(end))
-        sent, collided, dropped = self._frames
-        stats.update(frames=sent, frames_collided=collided, frames_dropped=dropped,
-                     access_delay_mean=float(np.mean(self._access)) / NS_PER_S if self._access else 0.0)
+        done = np.frombuffer(self._ended, dtype=np.int64).reshape(-1, 3)
+        done = done[done[:, 0] <= end]
+        stats.update(frames=len(done), frames_collided=int(done[:, 1].sum()), frames_dropped=self._frames_dropped,
+                     access_delay_mean=float(done[:, 2].mean()) / NS_PER_S if len(done) else 0.0)
         return stats

@@ -18,9 +18,10 @@ frame:
 - when its frame ends, a radio with more frames draws a fresh backoff (keyed by that instant).
 
 The engine is event driven over the run's SimPy environment, and lazy: its state is brought
-up to date (:meth:`Channel.advance`) when a frame is offered and by one wake-up event per
-contention decision and per transmission end while an estimator's frame is on the channel
-(never one per slot).  At one instant it takes the transmission ends, then the arrivals
+up to date (:meth:`Channel.advance`) when a frame is offered and by wake-up events while an
+estimator's frame waits or is on the air, about one per frame, at a transmission's end (never
+one per slot; :meth:`Channel._wake`).  Its statistics come from a log of busy periods, so they
+are those of any instant however far the channel has been brought.  At one instant it takes the transmission ends, then the arrivals
 (background first, then the estimators' frames as they are handed over), then a start at a
 boundary -- so a frame handed over exactly at a boundary joins it.
 """
@@ -28,17 +29,20 @@ boundary -- so a frame handed over exactly at a boundary joins it.
 from __future__ import annotations
 
 import heapq
+from array import array
 from collections import deque
 from collections.abc import Callable
 from typing import Any
 
+import numpy as np
 from simpy.events import URGENT, Event
 
 from dkfsim.components.medium import Medium
-from dkfsim.core.params import MAX_NS
+from dkfsim.components.traffic import transmission_ns
+from dkfsim.core.params import MAX_NS, seconds_to_ns
 from dkfsim.core.streams import key64, keyed_uniform
 from dkfsim.network.events import Scheduled
-from dkfsim.network.transmitter import BackgroundArrivals, busy_within
+from dkfsim.network.transmitter import BackgroundArrivals
 
 _NEVER = MAX_NS + 1
 
@@ -60,17 +64,13 @@ class Radio:
     """One member's radio: its waiting room (the head contending, the frame on the air apart),
     its backoff state and its background."""
 
-    __slots__ = ("node", "queue", "queued_bytes", "on_air", "head_at", "count", "key", "drawn_at",
-                 "drawn", "background")
+    __slots__ = ("node", "queue", "queued_bytes", "on_air", "key", "drawn_at", "drawn", "background")
 
     def __init__(self, node: int, key: int, background: BackgroundArrivals | None):
         self.node = node
         self.queue: deque[Frame] = deque()
         self.queued_bytes = 0
         self.on_air: Frame | None = None
-        #: when the head became head (or was frozen), and its remaining backoff (boundaries)
-        self.head_at = 0
-        self.count = 0
         self.key = key
         self.drawn_at, self.drawn = -1, 0
         self.background = background
@@ -82,15 +82,27 @@ class Channel:
     :param spec: the scenario's :class:`~dkfsim.components.medium.Medium`.
     :param members: the nodes on the channel.
     :param index: the channel's number ``c`` in its draws' keys (one channel: 0).
+    :param record: keep ``(node, start, end, ok, background)`` of every frame that ended
+        (:attr:`ended`; for the checks of the access rule).
     """
 
-    def __init__(self, env: Any, spec: Medium, members: tuple[int, ...], seed: int, index: int = 0):
+    def __init__(self, env: Any, spec: Medium, members: tuple[int, ...], seed: int, index: int = 0,
+                 record: bool = False):
         self.env = env
         self.spec = spec
         self.slot, self.aifs, self.cw = spec.access.slot_ns, spec.access.aifs_ns, int(spec.access.cw)
+        self.rate, self.preamble = float(spec.rate), seconds_to_ns(spec.preamble)
         self.max_packets = spec.queue.packets if spec.queue is not None else None
         self.max_bytes = spec.queue.bytes if spec.queue is not None else None
         self.radios: dict[int, Radio] = {}
+        #: the contending heads (a frame waiting, none on the air): ``(boundary, node, airtime)``,
+        #: a heap; ``boundary`` counts the idle boundaries of the whole run (:attr:`passed` of
+        #: earlier idle periods, then this one's), so freezing changes no entry
+        self._heads: list[tuple[int, int, int]] = []
+        #: the boundaries of the earlier idle periods that passed (each period: those before the
+        #: boundary at which its transmission started)
+        self.passed = 0
+        self._airtimes: dict[int, int] = {}
         #: (instant of the next background frame, node) of every member with background
         self._arrivals: list[tuple[int, int]] = []
         for node in members:
@@ -101,23 +113,27 @@ class Channel:
                 self._arrivals.append((bg.next_time(), node))
         heapq.heapify(self._arrivals)
         self.t_idle = 0
-        #: the frames on the air (one, or several colliding) and when the last of them ends
+        #: the frames on the air (one, or several colliding)
         self.on_air: list[Frame] = []
-        self.busy_end = 0
+        #: when the first frame on the air ends (never: none on the air)
+        self._next_end = _NEVER
         self.collided = False
         #: the instant processed up to (ends and arrivals at it included, starts before it)
         self.now = -1
         self._next_start: int | None = None
+        #: the shortest airtime of the heads due at :meth:`next_start`
+        self._next_air = 1
         #: estimators' frames waiting or on the air (wake-ups are needed only while any is)
         self.pending = 0
         self._wakes: set[int] = set()
         # statistics
-        self.busy_ns = 0
-        self.frames_sent = 0            # every frame that started, background included
-        self.collisions = 0             # boundaries at which two or more frames started
-        self.background_sent = 0
-        self.background_dropped = 0
-        self.background_collided = 0
+        #: every busy period: (start, end, frames, background frames, collided), flat; and
+        #: the instants of background frames a full waiting room dropped (:meth:`stats` reads
+        #: them as of any instant, however far the channel has been brought)
+        self._periods = array("q")
+        self._dropped = array("q")
+        #: with ``record``: (node, start, end, ok, background) of every frame that ended
+        self.ended: list[tuple[int, int, int, bool, bool]] | None = [] if record else None
 
     # ------------------------------------------------------------------ offering
     def offer(self, frame: Frame) -> bool:
@@ -143,23 +159,29 @@ class Channel:
             self._head(radio, now)
         return True
 
+    def airtime(self, size: int) -> int:
+        """ns a frame of ``size`` bytes is on the air: the preamble plus ``size * 8 / rate``
+        (:func:`~dkfsim.components.traffic.transmission_ns`), at least 1 ns."""
+        air = self._airtimes.get(size)
+        if air is None:
+            air = self._airtimes[size] = max(1, min(self.preamble + transmission_ns(size, self.rate), MAX_NS))
+        return air
+
     def _head(self, radio: Radio, t: int) -> None:
-        """The radio's first waiting frame becomes head at ``t``: a fresh backoff."""
+        """The radio's first waiting frame becomes head at ``t``: a fresh backoff, counted from
+        the first boundary at or after ``t`` (the next idle period's first while the channel is
+        busy)."""
         if radio.drawn_at != t:
             radio.drawn_at, radio.drawn = t, 0
         u = keyed_uniform(radio.key, t, radio.drawn)
         radio.drawn += 1
-        radio.head_at = t
-        radio.count = min(int(u * (self.cw + 1)), self.cw)
+        count = min(int(u * (self.cw + 1)), self.cw)
+        first = self.t_idle + self.aifs
+        join = 0 if self.on_air or t <= first else -(-(t - first) // self.slot)
+        heapq.heappush(self._heads, (self.passed + join + count, radio.node, self.airtime(radio.queue[0].size)))
         self._next_start = None
 
     # ------------------------------------------------------------------ the engine
-    def _target(self, radio: Radio) -> int:
-        """The boundary index at which ``radio``'s head is sent if the channel stays idle."""
-        first = self.t_idle + self.aifs
-        h = radio.head_at
-        join = 0 if h <= first else -(-(h - first) // self.slot)
-        return join + radio.count
 
     def next_start(self) -> int:
         """When the next transmission starts if nothing more is handed over (never: no head,
@@ -167,13 +189,19 @@ class Channel:
         if self.on_air:
             return _NEVER
         if self._next_start is None:
-            best = _NEVER
-            for radio in self.radios.values():
-                if radio.queue and radio.on_air is None:
-                    t = self.t_idle + self.aifs + self._target(radio) * self.slot
-                    if t < best:
-                        best = t
-            self._next_start = best
+            heads = self._heads
+            if not heads:
+                self._next_start = _NEVER
+            else:
+                best = heads[0][0]
+                self._next_start = self.t_idle + self.aifs + (best - self.passed) * self.slot
+                # the heads tied with the first are a subtree at the top of the heap: none when
+                # neither child of the root is
+                n = len(heads)
+                if (n > 1 and heads[1][0] == best) or (n > 2 and heads[2][0] == best):
+                    self._next_air = min(air for b, _, air in heads if b == best)
+                else:
+                    self._next_air = heads[0][2]
         return self._next_start
 
     def advance(self, t: int) -> None:
@@ -183,7 +211,7 @@ class Channel:
             return
         arrivals = self._arrivals
         while True:
-            te = min(f.end for f in self.on_air) if self.on_air else _NEVER
+            te = self._next_end
             ta = arrivals[0][0] if arrivals else _NEVER
             ts = self.next_start()
             if te <= t and te <= ta:
@@ -204,63 +232,66 @@ class Channel:
         _, sizes = bg.until(ta)
         for size in sizes:
             if not self._arrive(radio, Frame(node, int(size), ta), ta):
-                self.background_dropped += 1
+                self._dropped.append(ta)
         heapq.heappush(self._arrivals, (bg.next_time(), node))
 
     def _start(self, ts: int) -> None:
-        first = self.t_idle + self.aifs
-        s = (ts - first) // self.slot
-        frame_ns = self.spec.frame_ns
+        heads, on_air = self._heads, self.on_air
+        best = heads[0][0]
         end = ts
-        for radio in self.radios.values():
-            if not radio.queue or radio.on_air is not None:
-                continue
-            m = self._target(radio)
-            if m == s:
-                frame = radio.queue.popleft()
-                radio.queued_bytes -= frame.size
-                frame.start, frame.end = ts, ts + frame_ns(frame.size)
-                radio.on_air = frame
-                self.on_air.append(frame)
-                end = max(end, frame.end)
-            else:                               # frozen: the boundaries it passed are spent
-                radio.count = m - s
-                radio.head_at = ts
-        self.collided = len(self.on_air) > 1
-        self.collisions += self.collided
-        self.frames_sent += len(self.on_air)
-        self.busy_ns += end - ts
-        self.busy_end = end
+        while heads and heads[0][0] == best:    # (in node order: the order of their ends' news)
+            radio = self.radios[heapq.heappop(heads)[1]]
+            frame = radio.queue.popleft()
+            radio.queued_bytes -= frame.size
+            frame.start = ts
+            frame.end = fe = ts + self.airtime(frame.size)
+            radio.on_air = frame
+            on_air.append(frame)
+            if fe > end:
+                end = fe
+        # the others are frozen: the boundaries before this one are spent, the rest count on
+        self.passed = best
+        if not self.on_air:
+            raise RuntimeError(f"channel: no head is due at the boundary {ts} ns")
+        self._next_end = on_air[0].end if len(on_air) == 1 else min(f.end for f in on_air)
+        self.collided = len(on_air) > 1
+        background = sum(f.done is None for f in on_air) if len(on_air) > 1 else int(on_air[0].done is None)
+        self._periods.extend((ts, end, len(on_air), background, self.collided))
         self._next_start = None
 
     def _end(self, te: int) -> None:
-        done = [f for f in self.on_air if f.end == te]
-        self.on_air = [f for f in self.on_air if f.end != te]
+        if len(self.on_air) == 1:
+            done, self.on_air = self.on_air, []
+        else:
+            done = [f for f in self.on_air if f.end == te]
+            self.on_air = [f for f in self.on_air if f.end != te]
+        self._next_end = min(f.end for f in self.on_air) if self.on_air else _NEVER
+        if not self.on_air:                 # idle from now: the new heads count from here
+            self.t_idle = te
+            self._next_start = None
         ok = not self.collided
         for frame in done:
             radio = self.radios[frame.node]
             radio.on_air = None
-            if frame.done is None:
-                if ok:
-                    self.background_sent += 1
-                else:
-                    self.background_collided += 1
-            else:
+            if self.ended is not None:
+                self.ended.append((frame.node, frame.start, frame.end, ok, frame.done is None))
+            if frame.done is not None:
                 self.pending -= 1
                 frame.done(frame, ok)
             if radio.queue:
                 self._head(radio, te)
-        if not self.on_air:
-            self.t_idle = te
-            self._next_start = None
 
     # ------------------------------------------------------------------ wake-ups
     def _wake(self) -> None:
-        """While an estimator's frame waits or is on the air: a wake-up at the next end, or
-        just after the next start (once every frame handed over at that boundary has joined)."""
+        """While an estimator's frame waits or is on the air: a wake-up at the next end, that
+        of the frame on the air or of the first frame due to start if nothing more is handed
+        over.  A frame handed over before that start can only make a frame start and end
+        earlier through :meth:`offer`, which wakes earlier; background that starts earlier delays
+        every estimator's frame.  So every end of an estimator's frame is seen at its instant
+        (its deliveries are scheduled then), with one wake-up per frame when nothing interferes."""
         if not self.pending:
             return
-        t = min(f.end for f in self.on_air) if self.on_air else self.next_start() + 1
+        t = self._next_end if self.on_air else self.next_start() + self._next_air
         if t in self._wakes or t > MAX_NS:
             return
         self._wakes.add(t)
@@ -275,11 +306,17 @@ class Channel:
     # ------------------------------------------------------------------ statistics
     def stats(self, end_ns: int) -> dict[str, float | int]:
         """The channel over ``[0, end_ns]`` (brought up to ``end_ns``, or to now if that is
-        earlier): utilisation (busy, collisions included), frames started, collisions and the
-        background frames sent, lost in collisions and dropped by a full waiting room."""
+        earlier), whatever happened after it: the busy fraction of it (collisions included),
+        the frames that started before ``end_ns`` (all, and the background's that collided or
+        not), the collisions among them, and the background frames a full waiting room dropped
+        up to ``end_ns``."""
         self.advance(min(end_ns, self.env.now))
-        busy = busy_within(self.busy_ns, self.busy_end, end_ns)
+        p = np.frombuffer(self._periods, dtype=np.int64).reshape(-1, 5)
+        p = p[p[:, 0] < end_ns]
+        busy = int((np.minimum(p[:, 1], end_ns) - p[:, 0]).sum())
+        collided = p[:, 4] > 0
+        dropped = np.frombuffer(self._dropped, dtype=np.int64)
         return {"utilisation": busy / end_ns if end_ns > 0 else 0.0,
-                "frames_on_air": self.frames_sent, "collisions": self.collisions,
-                "background_sent": self.background_sent, "background_collided": self.background_collided,
-                "background_dropped": self.background_dropped}
+                "frames_on_air": int(p[:, 2].sum()), "collisions": int(collided.sum()),
+                "background_sent": int(p[~collided, 3].sum()), "background_collided": int(p[collided, 3].sum()),
+                "background_dropped": int((dropped <= end_ns).sum())}

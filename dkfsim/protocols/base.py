@@ -49,6 +49,9 @@ from dkfsim.network.links import PRIORITY_FLUSH, Clock, Link, Port, Scheduled
 
 #: Bytes of a packet's header (sequence number, sender, receiver, length).
 PACKET_HEADER = 16
+#: Bytes a combined frame (``tree`` on a shared channel) adds per part behind its one
+#: ``PACKET_HEADER``: the part's receiver and sequence number (decision 228).
+PART_HEADER = 8
 
 
 def info_bytes(nx: int, vectors: int = 1, matrices: int = 1) -> int:
@@ -181,6 +184,20 @@ class Exchange:
         i = self.lid[link.id]
         self.seq[i] += 1
         self.port.send(link, (self.seq[i], items), PACKET_HEADER + len(items) * self.row_bytes)
+
+    def send_frame(self, parts: Sequence[tuple[Link, Sequence[tuple[int, int]]]], frame_bytes: int) -> None:
+        """Send one frame of ``frame_bytes`` bytes from one node carrying ``parts``,
+        ``(link, items)`` pairs: each part is the packet :meth:`send` would put on its link
+        (numbered per link, counted with its own size).  Without a shared channel it is
+        exactly those packets, in order; on one, a single frame contends for the channel
+        (:meth:`dkfsim.network.links.Port.send_frame`)."""
+        seq, lid, size = self.seq, self.lid, self.row_bytes
+        out = []
+        for link, items in parts:
+            i = lid[link.id]
+            seq[i] += 1
+            out.append((link, (seq[i], items), PACKET_HEADER + len(items) * size))
+        self.port.send_frame(out, frame_bytes)
 
     def _make_flush(self, j: int) -> Callable[[Event], None]:
         def cb(_event: Event, j: int = j) -> None:

@@ -9,6 +9,9 @@ On a graph that changes (``mobility:``) nothing is sent on a link that is down, 
 link that comes up at tick ``k`` carries, at ``t_k``, everything its sender holds for the
 window's rows: a contribution is relayed once, when first held, so without this resend a
 link that appears later would never carry it (docs/design.md §5, §6 "Time-varying graphs").
+
+On a shared channel (``medium:``) a node's flush is one broadcast frame: its pending
+contributions once, each neighbour taking the part addressed to it (docs/design.md §5).
 """
 
 from __future__ import annotations
@@ -16,7 +19,7 @@ from __future__ import annotations
 from typing_extensions import override
 
 from dkfsim.core.registry import PROTOCOLS
-from dkfsim.protocols.base import Exchange
+from dkfsim.protocols.base import PACKET_HEADER, Exchange
 
 
 @PROTOCOLS.register("flood")
@@ -64,7 +67,13 @@ class FloodExchange(Exchange):
         self.schedule_flush(j)
 
     def flush(self, j: int) -> None:
+        """Send ``j``'s pending contributions: one broadcast frame carrying their union, from
+        which each out-link's receiver gets the part addressed to it (the union minus what came
+        from that neighbour, which it holds already); without a channel, one packet per
+        out-link as before (decision 227)."""
         now = self.env.now
+        parts = []
+        union: dict[int, int] = {}
         for link in self.out_links[j]:
             p = self._pending[self.lid[link.id]]
             if p and link.up is not None and not link.is_up(now):
@@ -73,4 +82,8 @@ class FloodExchange(Exchange):
                 items = tuple((row, m) for row, m in sorted(p.items()) if row in self.rows)
                 p.clear()
                 if items:
-                    self.send(link, items)
+                    parts.append((link, items))
+                    for row, m in items:
+                        union[row] = union.get(row, 0) | m
+        if parts:
+            self.send_frame(parts, PACKET_HEADER + len(union) * self.row_bytes)

@@ -15,12 +15,17 @@ at once everything it holds for the window's rows but what came from that neighb
 arc's last sent message is forgotten).  Holdings are sets, so nothing is counted twice
 whatever the tree was; packets in flight on an arc that left the tree are still accepted
 (docs/design.md §5).
+
+On a shared channel (``medium:``) a node's flush is one combined frame carrying every
+neighbour's message (each different: a message to ``j`` leaves out ``j``'s subtree) behind
+one header, each part with its receiver and number (:data:`~dkfsim.protocols.base.PART_HEADER`):
+one contention and one preamble per flush instead of one per neighbour (decision 228).
 """
 
 from __future__ import annotations
 
 from dkfsim.core.registry import PROTOCOLS
-from dkfsim.protocols.base import PACKET_HEADER, Exchange
+from dkfsim.protocols.base import PACKET_HEADER, PART_HEADER, Exchange
 
 
 @PROTOCOLS.register("tree")
@@ -127,8 +132,15 @@ class TreeExchange(Exchange):
                 if out != sent[e]:
                     sent[e] = out
                     items[k].append((row, out))
-        send, seq, size, header = self.port.send, self.seq, self.row_bytes, PACKET_HEADER
+        # One combined frame: every neighbour's message, each with its own number (decision 228).
+        seq, size, header = self.seq, self.row_bytes, PACKET_HEADER
+        parts = []
+        frame = header
         for (e, _rev, link), its in zip(outs, items):
             if its:
                 seq[e] += 1
-                send(link, (seq[e], its), header + len(its) * size)
+                nbytes = header + len(its) * size
+                parts.append((link, (seq[e], its), nbytes))
+                frame += PART_HEADER + len(its) * size
+        if parts:
+            self.port.send_frame(parts, frame)
