@@ -38,7 +38,9 @@ import numpy as np
 from simpy.events import Event
 
 from dkfsim.components.estimators import FusionCentreParams
+from dkfsim.core.jit import entry_point
 from dkfsim.core.resources import B_FLOAT, C_FLOP, C_FUSION_ROW, C_NODE_ROW, C_PACKET, C_ROW, C_TICK, Cost
+from dkfsim.estimators import fusion_centre_kernels as fk
 from dkfsim.estimators.base import Estimate, Estimator, EstimatorResult
 from dkfsim.estimators.fusion import FUSERS, CrossCovariance
 from dkfsim.estimators.window import WindowFilter
@@ -162,8 +164,6 @@ class CompiledRelay:
 
     def __init__(self, port: Port, links: list[Link], out: list[Link | None], at: int, T_ns: int,
                  newest: np.ndarray, excluded: np.ndarray, W: int, n_origins: int):
-        from dkfsim.core.jit import entry_point
-        from dkfsim.estimators import fusion_centre_kernels as fk
         self.port, self.links, self.fk = port, links, fk.compiled()
         n = len(out)
         size = 1 + max((l.id for l in links), default=0)
@@ -213,7 +213,6 @@ class CompiledRelay:
         """Fold what the accepted packets taught the centre (``fold_ring``)."""
         R = self.R
         if self.fold is None:
-            from dkfsim.core.jit import entry_point
             self.fold = entry_point(self.fk.fold_ring, self.ring, R.pend, R.newest, k0, W, known, target)
             return                 # (the entry point's first call was the fold)
         self.fold(self.ring, R.pend, R.newest, k0, W, known, target)
@@ -308,8 +307,6 @@ class FusionCentre(Estimator, params=FusionCentreParams):
         #: the compiled fold (without radars: their exclusion stays in numpy), None: numpy
         self.fold_kernel = None
         if ctx.backend.compiled and not self.vary:
-            from dkfsim.core.jit import entry_point
-            from dkfsim.estimators import fusion_centre_kernels as fk
             self.fold_kernel = entry_point(fk.compiled().fold_new, np.zeros((0, 0, n), dtype=bool),
                                            np.zeros(0, dtype=np.intp), 0, self.known, self.holdings.fold_target)
         self.newest = np.full(n, -1, dtype=np.int64)
