@@ -443,26 +443,30 @@ class FusionCentre(Estimator, params=FusionCentreParams):
         else:
             self.newest[:] = self.newest_rows
             self._fold(k)
+        newest, excluded = self.newest, self.excluded
         done = k - self.W                 # the shadow's row that becomes final now
-        if done >= 0:
+        low = int(newest.min())
+        if done >= 0 and low + 1 - self.L < done:
             # a node whose final holdings of that row the centre does not know leaves the fusion
-            self.excluded |= (self.newest + 1 - self.L) < done
+            excluded |= (newest + 1 - self.L) < done
         self.window.update(k, on_rows=self.xcov.on_rows)
         Xi = self.xcov.Xi[r % self.holdings.S]
         if fast:
-            xs = self.dkf.x_local[np.maximum(self.newest, 0), self._nodes]
-            xs[self.newest < 0] = self.x0
+            xs = self.dkf.x_local[np.maximum(newest, 0), self._nodes]
+            if low < 0:
+                xs[newest < 0] = self.x0
         else:
             xs = np.array(self.x_newest)
-        use = ~self.excluded
-        stale = np.flatnonzero((self.newest < r) & use)
-        if len(stale):
-            self.stale_rows += len(stale)
-            xs[stale] = np.einsum("sij,sj->si", self._powers(r - self.newest[stale]), xs[stale])
-        if use.all():
+        everyone = not excluded.any()
+        if low < r:                       # (else no estimate is older than row r)
+            stale = np.flatnonzero(newest < r) if everyone else np.flatnonzero((newest < r) & ~excluded)
+            if len(stale):
+                self.stale_rows += len(stale)
+                xs[stale] = np.einsum("sij,sj->si", self._powers(r - newest[stale]), xs[stale])
+        if everyone:
             self.x[r], self.P[r] = self.fuser(Xi, xs)
         else:
-            sel = np.flatnonzero(use)
+            sel = np.flatnonzero(~excluded)
             self.x[r], self.P[r] = self.fuser(_sub(Xi, sel, self.ctx.nx), xs[sel])
         if self.log is not None:
             idx = np.arange(max(k - self.W, 0), k) % self.holdings.S
