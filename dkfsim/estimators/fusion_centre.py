@@ -169,24 +169,12 @@ class CompiledRelay:
         size = 1 + max((l.id for l in links), default=0)
         kind, key, par = np.zeros(size, np.int64), np.zeros(size, np.uint64), np.zeros(size, np.int64)
         dst = np.full(size, -1, np.int64)
-        longest = 0                                       # ns: the longest latency of one hop
         for l in links:
             f = l.compiled_latency()
             assert f is not None
             kind[l.id], key[l.id], par[l.id], dst[l.id] = f[0], f[1], f[2], l.dst
-            longest = max(longest, f[2] if f[0] == 0 else f[2] * T_ns)
-        hops = []                                         # each node's hops to the centre
-        for i in range(n):
-            h, node = 0, i
-            nxt = out[node]
-            while nxt is not None and h <= n:
-                node, h = nxt.dst, h + 1
-                nxt = out[node]
-            hops.append(h)
-        # A packet is in flight at most max(hops) x the longest latency: it was sent in one of
-        # that many ticks before now (or now), and each tick sends fewer than n packets.
-        ticks = max(hops, default=0) * (-(-longest // T_ns)) + 2
-        cap = 2 * n * ticks + 16
+        ticks = self.in_flight_ticks(out, links, T_ns)
+        cap = 2 * n * ticks + 16              # each tick sends fewer than n packets
         z = np.zeros
         self.R = fk.Relay(z(4, np.int64), kind, key, par, int(T_ns), dst,
                           np.array([-1 if o is None else o.id for o in out], np.int64), int(at), n, SHARED_SEQ0,
@@ -202,6 +190,23 @@ class CompiledRelay:
         newest[:] = -1
         self.R.pend[:] = False
         self.fold = None
+
+    @staticmethod
+    def in_flight_ticks(out: list[Link | None], links: list[Link], T_ns: int) -> int:
+        """A bound of the ticks a packet can be in flight (plus two): its hops to the centre
+        times the longest latency of one hop (``links`` of :meth:`Link.compiled_latency`)."""
+        longest = 0
+        for l in links:
+            f = l.compiled_latency()
+            if f is not None:
+                longest = max(longest, f[2] if f[0] == 0 else f[2] * T_ns)
+        hops = 0
+        for i in range(len(out)):
+            h, nxt = 0, out[i]
+            while nxt is not None and h <= len(out):
+                h, nxt = h + 1, out[nxt.dst]
+            hops = max(hops, h)
+        return hops * (-(-longest // T_ns)) + 2
 
     def tick(self, now: int, row: int, nbytes: int) -> None:
         """The tick ``now`` whose update computed ``row``: the relay's deliveries, the centre's
@@ -227,6 +232,10 @@ class CompiledRelay:
         for l in self.links:
             self.port.set_counts(l, sent=int(R.sent[l.id]), bytes=int(R.nbytes[l.id]),
                                  delivered=int(R.delivered[l.id]))
+
+
+#: The largest ring of masks (bytes) a :class:`CompiledRelay` keeps (64 MiB).
+RING_BYTES = 1 << 26
 
 
 def packet_bytes(nx: int, n: int, rows: int, omegas: int) -> int:
@@ -331,8 +340,10 @@ class FusionCentre(Estimator, params=FusionCentreParams):
         #: (:class:`DirectRelay`, decision 232); None: through the port, hop by hop
         self.relay: DirectRelay | CompiledRelay | None = None
         if self.direct_relay and self.port.channel is None and all(l.rate is None and l.up is None for l in links):
-            if ctx.backend.compiled and net.crashes is None and not self.vary and all(
-                    l.plain is not None and l.compiled_latency() is not None for l in links):
+            # (the ring of masks stays small: else the Python relay, whose masks live in flight)
+            if ctx.backend.compiled and net.crashes is None and ctx.crashes is None and not self.vary and all(
+                    l.plain is not None and l.compiled_latency() is not None for l in links) and \
+                    (CompiledRelay.in_flight_ticks(self.out, links, ctx.T_ns) + 1) * W * n * n <= RING_BYTES:
                 self.relay = CompiledRelay(self.port, links, self.out, self.at, ctx.T_ns, self.newest,
                                            self.excluded, W, n)
             else:
