@@ -78,9 +78,9 @@ class DirectRelay:
     sent), numbers each link's packets per instant as the port does, draws and counts with
     :func:`~dkfsim.network.links.count_fate` as the port does, drops a packet reaching a node that is
     down (``crash_dropped``), and hands the owner what reaches it in the port's order;
-    :meth:`deliver_until` runs the instants up to ``t`` (the centre calls it before its sends and
-    before it fuses, so every packet is in place by the time the port's events would have
-    delivered it).  The counts go to the port (:meth:`Port.set_counts`) at the end.
+    :meth:`tick` runs the instants up to the tick before its sends and again after them, so
+    every packet is in place by the time the port's events would have delivered it.  The counts
+    go to the port (:meth:`Port.set_counts`) at the end.
     """
 
     def __init__(self, port: Port, links: list[Link], out: list[Link | None], at: int, accept, crashes):
