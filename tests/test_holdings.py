@@ -42,7 +42,10 @@ def _reports(rng, n_nodes, n_origins, rows, count):
 
 @pytest.mark.parametrize("kernels", ["numpy", "numba"])
 @pytest.mark.parametrize("varying", [False, True])
-def test_the_folds_add_the_definition_in_the_reported_order(kernels, varying):
+@pytest.mark.parametrize("bulk", [False, True])
+def test_the_folds_add_the_definition_in_the_reported_order(kernels, varying, bulk):
+    """``bulk``: the reports alternate, in runs of 7, between :meth:`Holdings.add` and
+    :meth:`Holdings.add_held` (flags, folded at once after what ``add`` left pending)."""
     rng = np.random.default_rng(4)
     K, n, nx, L = 12, 70, 2, 4                          # 70 origins: masks of two words
     info = _info(rng, K, n, nx, varying)
@@ -53,8 +56,14 @@ def test_the_folds_add_the_definition_in_the_reported_order(kernels, varying):
     for r in rows:
         h.open_row(r)
     reports = _reports(rng, 5, n, rows, 60)
-    for node, mask, row in reports:
-        h.add(node, mask, row)
+    for start in range(0, len(reports), 7):
+        run = reports[start:start + 7]
+        if bulk and start % 14:
+            flags = np.array([[(mask >> o) & 1 for o in range(n)] for _, mask, _ in run], dtype=bool)
+            h.add_held(np.array([r[0] for r in run]), np.array([r[2] for r in run]), flags)
+        else:
+            for node, mask, row in run:
+                h.add(node, mask, row)
     Omega = np.zeros_like(h.Omega)
     Theta = np.zeros_like(h.Theta)
     held = np.zeros_like(h.held)

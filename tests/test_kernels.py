@@ -234,19 +234,26 @@ print(json.dumps(stats))
     assert all(hits > 0 and misses == 0 for hits, misses in stats.values()), stats
 
 
-def test_the_compiled_tree_pins_the_file_of_the_fold_step_it_inlines():
-    """numba's disk cache keys a kernel by its own file only: the compiled tree's kernels inline
-    the holdings' fold step from another file, so they pin that file's sha256.  An edit there
-    must come with a new pin (which edits the tree's kernel file, and so renews its cache)."""
+def test_every_kernel_module_pins_the_files_of_the_steps_it_inlines():
+    """numba's disk cache keys a kernel by its own file only: kernels that inline steps from
+    another file (the compiled tree, the fusion centre's relay and fold) pin that file's sha256.
+    An edit there must come with a new pin (which edits the borrowing kernel file, and so renews
+    its cache).  Every module of the package that declares ``BORROWS`` is checked, so a new
+    borrower cannot be forgotten."""
     import hashlib
+    import importlib
 
     from dkfsim.core.jit import LazyKernels
-    from dkfsim.protocols import tree_compiled_kernels as tk
     root = Path(__file__).resolve().parents[1]
-    for module, pin in tk.BORROWS.items():
-        path = root / (module.replace(".", "/") + ".py")
-        assert hashlib.sha256(path.read_bytes()).hexdigest() == pin, \
-            f"{path.name} changed: set tree_compiled_kernels.BORROWS[{module!r}] to its new sha256"
-    assert LazyKernels("dkfsim.protocols.tree_compiled_kernels", (), borrows=tk.BORROWS).stale_borrows() == []
+    borrowers = sorted(str(p.relative_to(root))[:-3].replace("/", ".")
+                       for p in (root / "dkfsim").rglob("*.py") if "\nBORROWS = " in p.read_text())
+    assert {"dkfsim.protocols.tree_compiled_kernels", "dkfsim.estimators.fusion_centre_kernels"} <= set(borrowers)
+    for name in borrowers:
+        borrows = importlib.import_module(name).BORROWS
+        for module, pin in borrows.items():
+            path = root / (module.replace(".", "/") + ".py")
+            assert hashlib.sha256(path.read_bytes()).hexdigest() == pin, \
+                f"{path.name} changed: set {name}.BORROWS[{module!r}] to its new sha256"
+        assert LazyKernels(name, (), borrows=borrows).stale_borrows() == []
     stale = LazyKernels("x", (), borrows={"dkfsim.model.holdings_kernels": "0" * 64})
     assert stale.stale_borrows() == ["dkfsim.model.holdings_kernels"]      # compiled without the cache

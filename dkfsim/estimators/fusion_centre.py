@@ -22,10 +22,15 @@ final holdings of it (more than ``M`` ticks without a packet), the node leaves t
 the rest of the run (``nodes_excluded``; docs/decisions.md #220).  The centre fuses row ``k-1``
 in an event of priority :data:`~dkfsim.network.links.PRIORITY_FUSE`, after the packets sent at
 the update and their zero-latency relays: at zero latency and no rate limit it equals ``fused``.
+Where nothing but a packet's own keyed draws acts on it (no rate, no channel) the centre moves its
+packets itself, hop for hop what the port would do (:class:`DirectRelay`, or
+:class:`CompiledRelay` in one kernel call per tick), and fuses at the end of its update
+(decisions 232-234).
 """
 
 from __future__ import annotations
 
+import heapq
 from typing import Any
 
 import networkx as nx
@@ -33,13 +38,15 @@ import numpy as np
 from simpy.events import Event
 
 from dkfsim.components.estimators import FusionCentreParams
+from dkfsim.core.jit import entry_point
 from dkfsim.core.resources import B_FLOAT, C_FLOP, C_FUSION_ROW, C_NODE_ROW, C_PACKET, C_ROW, C_TICK, Cost
+from dkfsim.estimators import fusion_centre_kernels as fk
 from dkfsim.estimators.base import Estimate, Estimator, EstimatorResult
 from dkfsim.estimators.fusion import FUSERS, CrossCovariance
 from dkfsim.estimators.window import WindowFilter
 from dkfsim.model.holdings import Holdings
 from dkfsim.model.system import Information
-from dkfsim.network.links import PRIORITY_FUSE, Link, Port, Scheduled
+from dkfsim.network.links import PRIORITY_FUSE, SHARED_SEQ0, Link, Port, Scheduled, count_fate
 from dkfsim.protocols.base import PACKET_HEADER
 
 
@@ -60,6 +67,177 @@ def next_hops(arcs: list[tuple[int, int]], n: int, at: int) -> np.ndarray:
     return hop
 
 
+class DirectRelay:
+    """The centre's packets on links without a transmitter or a channel, moved without a SimPy
+    event: what :class:`~dkfsim.network.links.Port` would do with them, hop for hop (decision 232).
+
+    On such a link nothing but the packet's own keyed draws of ``(link, hand-over instant,
+    sequence number)`` acts on it, and the centre's packets have a sequence space of their own
+    (``share_with``: from :data:`~dkfsim.network.links.SHARED_SEQ0`): no other packet can
+    change their fate.  The relay keeps the port's calendar (instant -> packets due, in the order
+    sent), numbers each link's packets per instant as the port does, draws and counts with
+    :func:`~dkfsim.network.links.count_fate` as the port does, drops a packet reaching a node that is
+    down (``crash_dropped``), and hands the owner what reaches it in the port's order;
+    :meth:`tick` runs the instants up to the tick before its sends and again after them, so
+    every packet is in place by the time the port's events would have delivered it.  The counts
+    go to the port (:meth:`Port.set_counts`) at the end.
+    """
+
+    def __init__(self, port: Port, links: list[Link], out: list[Link | None], at: int, accept, crashes):
+        self.port, self.links, self.out, self.at, self.accept, self.crashes = port, links, out, at, accept, crashes
+        self.arrived = 0
+        size = 1 + max((l.id for l in links), default=0)
+        self.count = {name: [0] * size for name in ("sent", "bytes", "delivered", "lost", "copies",
+                                                    "crash_dropped", "outage_lost")}
+        self.due: dict[int, list] = {}
+        self.instants: list[int] = []          # a heap of the keys of ``due``
+        self.instant = -1
+        self.seq: dict[int, int] = {}
+
+    def send(self, now: int, link: Link, payload: Any, nbytes: int) -> None:
+        """:meth:`Port.send` of ``payload`` on ``link`` at ``now``."""
+        if now != self.instant:
+            self.instant, self.seq = now, {}
+        lid = link.id
+        seq = self.seq.get(lid, SHARED_SEQ0)
+        self.seq[lid] = seq + 1
+        count = self.count
+        count["sent"][lid] += 1
+        count["bytes"][lid] += nbytes
+        for lat in count_fate(link, now, seq, count):      # (Link.plain's draw where it has one)
+            self._enqueue(now + lat, link, payload)
+
+    def _enqueue(self, at: int, link: Link, payload: Any) -> None:
+        due = self.due.get(at)
+        if due is None:
+            due = self.due[at] = []
+            heapq.heappush(self.instants, at)
+        due.append((link, payload))
+
+    def tick(self, now: int, sends: list[tuple[Link, Any, int]], own: Any) -> int:
+        """The centre's packets at the tick ``now``: what is due up to ``now`` delivered (the
+        port's deliveries come before the update), then ``own`` (the centre node's packet, or
+        None) to the owner, then ``sends`` (``(link, payload, bytes)``), then their zero-latency
+        hops.  Returns how many packets reached the centre (``own`` not counted)."""
+        got = self.arrived
+        self.deliver_until(now)
+        if own is not None:
+            self.accept(own)
+        for link, payload, nbytes in sends:
+            self.send(now, link, payload, nbytes)
+        self.deliver_until(now)
+        return self.arrived - got
+
+    def deliver_until(self, t: int) -> None:
+        """Deliver every packet due at an instant up to ``t``, instant by instant, each instant's
+        packets in the order they were sent (and those sent at that instant with zero latency
+        after them, as the port's next event of the instant would)."""
+        instants, crashes = self.instants, self.crashes
+        delivered, dropped = self.count["delivered"], self.count["crash_dropped"]
+        while instants and instants[0] <= t:
+            now = heapq.heappop(instants)
+            for link, payload in self.due.pop(now):
+                if crashes is not None and crashes.down(link.dst, now):
+                    dropped[link.id] += 1
+                    continue
+                delivered[link.id] += 1
+                node = link.dst
+                if node == self.at:
+                    self.arrived += 1
+                    self.accept(payload)
+                elif self.out[node] is not None:
+                    self.send(now, self.out[node], payload, payload[-1])
+
+    def report(self) -> None:
+        """The counts, into the port (what :meth:`Port.counts` reports)."""
+        for link in self.links:
+            self.port.set_counts(link, **{name: c[link.id] for name, c in self.count.items()})
+
+
+class CompiledRelay:
+    """:class:`DirectRelay` and the centre's :meth:`~FusionCentre.accept` in one compiled call
+    per tick (:mod:`dkfsim.estimators.fusion_centre_kernels`), for links on which nothing but
+    a ``constant`` or ``uniform_steps`` latency acts, a network without crashes and no radar:
+    the same hops, numbers, draws, order, counts and accepted packets (decision 232).  A packet
+    is its node and row; the masks it carries stay in :attr:`ring` (one slot per tick, as many
+    ticks as a packet can be in flight) for the compiled fold."""
+
+    def __init__(self, port: Port, links: list[Link], out: list[Link | None], at: int, T_ns: int,
+                 newest: np.ndarray, excluded: np.ndarray, W: int, n_origins: int):
+        self.port, self.links, self.fk = port, links, fk.compiled()
+        n = len(out)
+        size = 1 + max((l.id for l in links), default=0)
+        kind, key, par = np.zeros(size, np.int64), np.zeros(size, np.uint64), np.zeros(size, np.int64)
+        dst = np.full(size, -1, np.int64)
+        for l in links:
+            f = l.compiled_latency()
+            assert f is not None
+            kind[l.id], key[l.id], par[l.id], dst[l.id] = f[0], f[1], f[2], l.dst
+        ticks = self.in_flight_ticks(out, links, T_ns)
+        cap = 2 * n * ticks + 16              # each tick sends fewer than n packets
+        z = np.zeros
+        self.R = fk.Relay(z(4, np.int64), kind, key, par, int(T_ns), dst,
+                          np.array([-1 if o is None else o.id for o in out], np.int64), int(at), n, SHARED_SEQ0,
+                          np.full(size, -1, np.int64), z(size, np.int64), z(size, np.int64), z(size, np.int64),
+                          z(size, np.int64), z(cap, np.int64), z(cap, np.int64), z(cap, np.int64),
+                          z(cap, np.int64), z(cap, np.int64), newest, z(n, np.bool_), excluded)
+        #: the nodes that send (all but the centre's, with a route)
+        self.senders = np.array([i for i in range(n) if i != at and out[i] is not None], np.int64)
+        #: the masks each tick's packets carry, slot ``row % len(ring)``
+        self.ring = z((ticks + 1, W, n, n_origins), np.bool_)
+        self.kernel = entry_point(self.fk.tick, self.R, -1, 0, self.senders[:0], 0)
+        self.R.CT[:] = 0                  # (what that first call took: nothing happened yet)
+        newest[:] = -1
+        self.R.pend[:] = False
+        self.fold = None
+
+    @staticmethod
+    def in_flight_ticks(out: list[Link | None], links: list[Link], T_ns: int) -> int:
+        """A bound of the ticks a packet can be in flight (plus two): its hops to the centre
+        times the longest latency of one hop (``links`` of :meth:`Link.compiled_latency`)."""
+        longest = 0
+        for l in links:
+            f = l.compiled_latency()
+            if f is not None:
+                longest = max(longest, f[2] if f[0] == 0 else f[2] * T_ns)
+        hops = 0
+        for i in range(len(out)):
+            h, nxt = 0, out[i]
+            while nxt is not None and h <= len(out):
+                h, nxt = h + 1, out[nxt.dst]
+            hops = max(hops, h)
+        return hops * (-(-longest // T_ns)) + 2
+
+    def tick(self, now: int, row: int, nbytes: int) -> None:
+        """The tick ``now`` whose update computed ``row``: the relay's deliveries, the centre's
+        own estimate and every other node's packet of ``nbytes`` (masks in :attr:`ring`)."""
+        if self.kernel(self.R, now, row, self.senders, nbytes) < 0:
+            raise RuntimeError("fusion centre relay: more packets in flight than its bound")
+
+    def fold_into(self, k0: int, W: int, known: np.ndarray, target) -> None:
+        """Fold what the accepted packets taught the centre (``fold_ring``)."""
+        R = self.R
+        if self.fold is None:
+            self.fold = entry_point(self.fk.fold_ring, self.ring, R.pend, R.newest, k0, W, known, target)
+            return                 # (the entry point's first call was the fold)
+        self.fold(self.ring, R.pend, R.newest, k0, W, known, target)
+
+    def counts(self) -> tuple[int, int]:
+        """``(packets that reached the centre, packets it ignored)``."""
+        return int(self.R.CT[self.fk.RECEIVED]), int(self.R.CT[self.fk.IGNORED])
+
+    def report(self) -> None:
+        """:meth:`DirectRelay.report`."""
+        R = self.R
+        for l in self.links:
+            self.port.set_counts(l, sent=int(R.sent[l.id]), bytes=int(R.nbytes[l.id]),
+                                 delivered=int(R.delivered[l.id]))
+
+
+#: The largest ring of masks (bytes) a :class:`CompiledRelay` keeps (64 MiB).
+RING_BYTES = 1 << 26
+
+
 def packet_bytes(nx: int, n: int, rows: int, omegas: int) -> int:
     """Nominal bytes of a node's packet to the centre: header, row number, the estimate,
     ``rows`` origin masks and the upper triangles of ``omegas`` carried ``omega`` matrices."""
@@ -76,6 +254,9 @@ class FusionCentre(Estimator, params=FusionCentreParams):
 
     params: FusionCentreParams
     port: Port
+    #: move the packets on links without a transmitter or channel without SimPy events
+    #: (:class:`DirectRelay`); False: always through the port (the tests compare both)
+    direct_relay = True
 
     def __init__(self, params: FusionCentreParams, ctx):
         super().__init__(params, ctx)
@@ -114,6 +295,7 @@ class FusionCentre(Estimator, params=FusionCentreParams):
         # carried are known to the centre.  Linear sensors' omega is the model's.
         self.varying = np.array([info.varying and getattr(s, "convert", None) is not None
                                  for s in sys_.sensors], dtype=bool)
+        self.vary = bool(self.varying.any())
         self.cols = [np.flatnonzero(info.column_sensor == o) for o in range(n)]
         omega, factor = info.omega, info.factor
         if self.varying.any():
@@ -131,8 +313,18 @@ class FusionCentre(Estimator, params=FusionCentreParams):
         S = self.holdings.S
         #: what the centre knows node i holds of each shadow row (folded or pending)
         self.known = np.zeros((S, n, n), dtype=bool)
+        #: the compiled fold (without radars: their exclusion stays in numpy), None: numpy
+        self.fold_kernel = None
+        if ctx.backend.compiled and not self.vary:
+            self.fold_kernel = entry_point(fk.compiled().fold_new, np.zeros((0, 0, n), dtype=bool),
+                                           np.zeros(0, dtype=np.intp), 0, self.known, self.holdings.fold_target)
         self.newest = np.full(n, -1, dtype=np.int64)
-        self.x_newest = np.broadcast_to(np.asarray(sys_.x0_mean, float), (n, nx)).copy()
+        #: per node: the row and the estimate of its newest packet (Python lists: one packet
+        #: costs no numpy call; ``newest`` is their array as of the last fusion)
+        self.newest_rows = [-1] * n
+        self.x0 = x0 = np.asarray(sys_.x0_mean, float)
+        self.x_newest: list[np.ndarray] = [x0] * n
+        self._nodes = np.arange(n)
         self.excluded = np.zeros(n, dtype=bool)
         # The senders' side: what each node held of the last W rows, what omegas it carried.
         self.sent_held = np.zeros((W, n, n), dtype=bool)
@@ -144,6 +336,18 @@ class FusionCentre(Estimator, params=FusionCentreParams):
         # Through the DKF's transmitters (and channel): the centre's load is part of the DKF's
         # cost; its own counters and keyed draws (sequence numbers from 1 << 32).
         self.port = net.port(self.name, self.receive, links, share_with=dkf.port)
+        #: links without a transmitter or a channel: the packets move without SimPy events
+        #: (:class:`DirectRelay`, decision 232); None: through the port, hop by hop
+        self.relay: DirectRelay | CompiledRelay | None = None
+        if self.direct_relay and self.port.channel is None and all(l.rate is None and l.up is None for l in links):
+            # (the ring of masks stays small: else the Python relay, whose masks live in flight)
+            if ctx.backend.compiled and net.crashes is None and ctx.crashes is None and not self.vary and all(
+                    l.plain is not None and l.compiled_latency() is not None for l in links) and \
+                    (CompiledRelay.in_flight_ticks(self.out, links, ctx.T_ns) + 1) * W * n * n <= RING_BYTES:
+                self.relay = CompiledRelay(self.port, links, self.out, self.at, ctx.T_ns, self.newest,
+                                           self.excluded, W, n)
+            else:
+                self.relay = DirectRelay(self.port, links, self.out, self.at, self.accept, net.crashes)
         self.x = np.empty((K, nx))
         self.P = np.empty((K, nx, nx))
         self.k = 0
@@ -163,20 +367,31 @@ class FusionCentre(Estimator, params=FusionCentreParams):
         r = k - 1
         W, n, nx = self.W, self.ctx.n, self.ctx.nx
         held = self.dkf.holdings.held
-        Sd = held.shape[0]
-        for s in range(max(r - self.L + 1, 0), r + 1):     # the DKF's window as of this tick
-            self.sent_held[s % W] = held[s % Sd]
+        window = np.arange(max(r - self.L + 1, 0), r + 1)  # the DKF's window as of this tick
+        self.sent_held[window % W] = held[window % held.shape[0]]
         lo = max(r - W + 1, 0)
         idx = np.arange(lo, r + 1) % W
+        relay = self.relay
+        if isinstance(relay, CompiledRelay):
+            ring = relay.ring
+            ring[r % len(ring), :len(idx)] = self.sent_held[idx]
+            relay.tick(int(self.ctx.env.now), r, packet_bytes(nx, n, len(idx), 0))
+            self._fuse(None)
+            return
         masks = self.sent_held[idx]                          # (rows, n, n)
         x = self.dkf.x_local[r]
-        vary = self.varying.any()
+        vary = self.vary
         crashes, now = self.ctx.crashes, int(self.ctx.env.now)
+        out_links, at = self.out, self.at
+        entries: list[tuple[int, int, np.ndarray, np.ndarray]] = []
+        nbytes = packet_bytes(nx, n, len(idx), 0)
+        sends: list[tuple[Link, tuple, int]] = []
+        own = None
         for i in range(n):
-            if crashes is not None and i != self.at and crashes.down(i, now):
+            if crashes is not None and i != at and crashes.down(i, now):
                 continue                          # a node that is down sends nothing
-            entries: list[tuple[int, int, np.ndarray, np.ndarray]] = []
             if vary:
+                entries = []
                 new = masks[:, i] & self.varying & ~self.carried[idx, i]
                 if new.any():
                     self.carried[idx, i] |= new
@@ -184,13 +399,24 @@ class FusionCentre(Estimator, params=FusionCentreParams):
                     for j, o in zip(*np.nonzero(new)):
                         row = lo + int(j)
                         entries.append((row, int(o), info.omega[row, o], info.factor[row][:, self.cols[o]]))
-            nbytes = packet_bytes(nx, n, len(idx), len(entries))
+                nbytes = packet_bytes(nx, n, len(idx), len(entries))
             payload = (i, r, x[i], lo, masks, entries, nbytes)     # (read-only from here on)
-            out = self.out[i]
-            if i == self.at:
-                self.accept(payload)
+            out = out_links[i]
+            if i == at:
+                own = payload
+                if relay is None:
+                    self.accept(payload)
             elif out is not None:
-                self.port.send(out, payload, nbytes)
+                if relay is None:
+                    self.port.send(out, payload, nbytes)
+                else:
+                    sends.append((out, payload, nbytes))
+        if relay is not None:
+            # every packet due by now is in place (the relay's hops are no port events): the
+            # fusion of PRIORITY_FUSE can run now, without an event
+            self.received += relay.tick(now, sends, own)
+            self._fuse(None)
+            return
         Scheduled(self.ctx.env, self._fuse, PRIORITY_FUSE)
 
     def receive(self, link: Link, payload: Any) -> None:
@@ -211,33 +437,47 @@ class FusionCentre(Estimator, params=FusionCentreParams):
             self.info.omega[r_e, o] = om
             self.info.factor[r_e][:, self.cols[o]] = fac
             self.have_omega[r_e, o] = True
-        if self.excluded[i] or row <= self.newest[i]:
+        if self.excluded[i] or row <= self.newest_rows[i]:
             self.ignored += 1                    # older than what the centre has, or left out
             return
         self.pending[i] = (lo, masks)           # folded at the fusion: the newest masks hold the rest
-        self.newest[i] = row
-        self.x_newest[i] = x
+        self.newest_rows[i] = row
+        self.x_newest[i] = x                    # (the DKF's row r, never written again)
 
-    def _fuse(self, _event: Event) -> None:
+    def _fuse(self, _event: Event | None) -> None:
         k = self.k
         r = k - 1
-        self._fold(k)
+        relay = self.relay
+        fast = isinstance(relay, CompiledRelay)
+        if isinstance(relay, CompiledRelay):      # newest: the relay's kernel keeps it
+            relay.fold_into(max(k - self.W, 0), self.W, self.known, self.holdings.fold_target)
+        else:
+            self.newest[:] = self.newest_rows
+            self._fold(k)
+        newest, excluded = self.newest, self.excluded
         done = k - self.W                 # the shadow's row that becomes final now
-        if done >= 0:
+        low = int(newest.min())
+        if done >= 0 and low + 1 - self.L < done:
             # a node whose final holdings of that row the centre does not know leaves the fusion
-            self.excluded |= (self.newest + 1 - self.L) < done
+            excluded |= (newest + 1 - self.L) < done
         self.window.update(k, on_rows=self.xcov.on_rows)
         Xi = self.xcov.Xi[r % self.holdings.S]
-        xs = self.x_newest.copy()
-        use = ~self.excluded
-        stale = np.flatnonzero((self.newest < r) & use)
-        if len(stale):
-            self.stale_rows += len(stale)
-            xs[stale] = np.einsum("sij,sj->si", self._powers(r - self.newest[stale]), xs[stale])
-        if use.all():
+        if fast:
+            xs = self.dkf.x_local[np.maximum(newest, 0), self._nodes]
+            if low < 0:
+                xs[newest < 0] = self.x0
+        else:
+            xs = np.array(self.x_newest)
+        everyone = not excluded.any()
+        if low < r:                       # (else no estimate is older than row r)
+            stale = np.flatnonzero(newest < r) if everyone else np.flatnonzero((newest < r) & ~excluded)
+            if len(stale):
+                self.stale_rows += len(stale)
+                xs[stale] = np.einsum("sij,sj->si", self._powers(r - newest[stale]), xs[stale])
+        if everyone:
             self.x[r], self.P[r] = self.fuser(Xi, xs)
         else:
-            sel = np.flatnonzero(use)
+            sel = np.flatnonzero(~excluded)
             self.x[r], self.P[r] = self.fuser(_sub(Xi, sel, self.ctx.nx), xs[sel])
         if self.log is not None:
             idx = np.arange(max(k - self.W, 0), k) % self.holdings.S
@@ -269,13 +509,16 @@ class FusionCentre(Estimator, params=FusionCentreParams):
             if a < b:
                 stack[a - k0:b - k0, j] = masks[a - lo:, i]
         self.pending.clear()
+        if self.fold_kernel is not None:
+            self.fold_kernel(stack, nodes, k0, self.known, self.holdings.fold_target)
+            return
         slots = np.arange(k0, k) % self.holdings.S
         new = stack & ~self.known[slots[:, None], nodes]
         rr, jj = np.nonzero(new.any(axis=2))
         if not len(jj):
             return
         sel, rows, who = new[rr, jj], k0 + rr, nodes[jj]
-        if self.varying.any():
+        if self.vary:
             # a node that holds a radar entry whose omega no packet brought leaves the fusion
             bad = np.unique(who[(sel & ~self.have_omega[rows]).any(axis=1)])
             if len(bad):
@@ -283,11 +526,15 @@ class FusionCentre(Estimator, params=FusionCentreParams):
                 keep = ~np.isin(who, bad)
                 sel, rows, who, rr = sel[keep], rows[keep], who[keep], rr[keep]
         self.known[slots[rr], who] |= sel
-        packed = np.packbits(sel, axis=1, bitorder="little")
-        for i, s, bits in zip(who.tolist(), rows.tolist(), packed):
-            self.holdings.add(i, int.from_bytes(bits.tobytes(), "little"), s)
+        self.holdings.add_held(who, rows, sel)
 
     def finish(self) -> EstimatorResult:
+        if self.relay is not None:
+            self.relay.report()
+        if isinstance(self.relay, CompiledRelay):
+            received, ignored = self.relay.counts()
+            self.received += received
+            self.ignored += ignored
         facts = {"packets_received": self.received, "packets_ignored": self.ignored,
                  "stale_rows_used": self.stale_rows, "nodes_excluded": int(self.excluded.sum()),
                  "at": self.at, "rows_carried": self.W}

@@ -74,6 +74,22 @@ class Holdings:
         new to it."""
         self._pend.extend((node, origins, row))
 
+    def add_held(self, nodes: np.ndarray, rows: np.ndarray, held: np.ndarray) -> None:
+        """:meth:`add` for many contributions at once, folded now: node ``nodes[k]`` now holds
+        the origins flagged in ``held[k]`` (bool, one flag per origin) for ``rows[k]``, new to
+        it.  The same sums, in the same order, as ``add`` of each then a fold (what is pending
+        is folded first); no Python int per mask (the fusion centre's shadow, decision 233)."""
+        self._flush()
+        packed = np.packbits(held, axis=1, bitorder="little")
+        words = np.zeros((len(packed), 8 * self._words), dtype=np.uint8)
+        words[:, :packed.shape[1]] = packed
+        words = words.view(np.uint64)
+        i, r = np.asarray(nodes, dtype=np.intp), np.asarray(rows, dtype=np.intp)
+        if self._compiled:
+            holdings_kernels.compiled().fold_masks(i, r, words, self.fold_target)
+        else:
+            self._fold_words(i, r, words)
+
     # -- what the window calls -------------------------------------------------------
     def open_row(self, row: int) -> None:
         """Clear the slot that ``row`` (a new row) will use."""
@@ -85,17 +101,21 @@ class Holdings:
     def take_changes(self) -> np.ndarray | None:
         """Fold what is pending; each node's earliest row changed since the last call (``n``
         ints, :data:`NO_ROW` for a node without news), or None when no node changed."""
-        if self._pend:
-            if self._compiled:
-                i, r, words = self._pending_arrays()
-                holdings_kernels.compiled().fold_masks(i, r, words, self.fold_target)
-            else:
-                self._fold_numpy()
+        self._flush()
         starts = self.starts.copy()
         self.starts.fill(NO_ROW)           # in place: a protocol's kernels hold a reference
         return None if starts.min() == NO_ROW else starts
 
     # -- folding -------------------------------------------------------------------------
+    def _flush(self) -> None:
+        """Fold what :meth:`add` reported since the last fold."""
+        if self._pend:
+            i, r, words = self._pending_arrays()
+            if self._compiled:
+                holdings_kernels.compiled().fold_masks(i, r, words, self.fold_target)
+            else:
+                self._fold_words(i, r, words)
+
     def _pending_arrays(self):
         """The pending contributions as arrays: nodes, rows and the masks as little-endian
         64-bit words (one row of ``words`` per contribution)."""
@@ -103,10 +123,9 @@ class Holdings:
         return (np.array(pend[0::3], dtype=np.intp), np.array(pend[2::3], dtype=np.intp),
                 mask_words(pend[1::3], self._words))
 
-    def _fold_numpy(self) -> None:
-        """The pending contributions added in numpy, in the order reported (origins ascending
-        within one mask)."""
-        i, r, words = self._pending_arrays()
+    def _fold_words(self, i: np.ndarray, r: np.ndarray, words: np.ndarray) -> None:
+        """Contributions added in numpy, in the order given (origins ascending within one
+        mask): node ``i[k]`` gained the origins of ``words[k]`` for row ``r[k]``."""
         k, o = set_bits(words)
         i, r = i[k], r[k]
         slot = r % self.S

@@ -369,6 +369,22 @@ class Network:
         return p
 
 
+def count_fate(link: Link, now: int, seq: int, count: dict[str, list[int]]) -> tuple[int, ...]:
+    """The latencies of the arrivals of a packet handed to ``link`` at ``now`` as number
+    ``seq`` (:meth:`Link.transmit`; none when it is lost), counting its loss (``lost``,
+    ``outage_lost``) or copy (``copies``) in ``count`` (counter name -> per link id)."""
+    lid = link.id
+    arrivals, why = link.transmit(now, seq)
+    if why is not None:
+        count["lost"][lid] += 1
+        if why == "outage":
+            count["outage_lost"][lid] += 1
+        return ()
+    if len(arrivals) > 1:
+        count["copies"][lid] += 1
+    return arrivals
+
+
 class Port:
     """One estimator's attachment to the network: what it sends, what it receives, counts.
 
@@ -554,16 +570,7 @@ class Port:
     def _fly(self, now: int, wait: int, link: Link, seq: int, payload: Any) -> None:
         """A packet handed over ``now`` and leaving the sender ``wait`` ns later: its fate
         (loss, outage, copies, latencies) drawn at ``now``, its arrivals ``wait`` later."""
-        lid, count = link.id, self._count
-        arrivals, why = link.transmit(now, seq)
-        if why is not None:                   # (lost in the air: it occupied the transmitter)
-            count["lost"][lid] += 1
-            if why == "outage":
-                count["outage_lost"][lid] += 1
-            return
-        if len(arrivals) > 1:
-            count["copies"][lid] += 1
-        for lat in arrivals:
+        for lat in count_fate(link, now, seq, self._count):   # (a lost one occupied the transmitter)
             self._enqueue(now, wait + lat, link, payload)
 
     def _transmitter(self, link: Link) -> Transmitter:
