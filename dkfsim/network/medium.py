@@ -141,7 +141,7 @@ class Channel:
         """Hand over ``frame`` now at its node's radio: False when the waiting room is full
         (drop-tail: nothing of it is sent)."""
         now = self.env.now
-        if now > self.now:                  # (already brought to now: nothing to do, advance)
+        if now > self.now:                  # (brought to now already: nothing to do, decision 235)
             self.advance(now)
         ok = self._arrive(self.radios[frame.node], frame, now)
         if ok:
