@@ -319,11 +319,11 @@ class FusionCentre(Estimator, params=FusionCentreParams):
             self.fold_kernel = entry_point(fk.compiled().fold_new, np.zeros((0, 0, n), dtype=bool),
                                            np.zeros(0, dtype=np.intp), 0, self.known, self.holdings.fold_target)
         self.newest = np.full(n, -1, dtype=np.int64)
-        #: per node: the row and the estimate of its newest packet (Python lists: one packet
-        #: costs no numpy call; ``newest`` is their array as of the last fusion)
+        #: per node: the row of its newest packet (a Python list: one packet costs no numpy
+        #: call; ``newest`` is its array as of the last fusion).  The estimate of that row is
+        #: the DKF's ``x_local[row, i]`` (never written again), read at the fusion.
         self.newest_rows = [-1] * n
-        self.x0 = x0 = np.asarray(sys_.x0_mean, float)
-        self.x_newest: list[np.ndarray] = [x0] * n
+        self.x0 = np.asarray(sys_.x0_mean, float)
         self._nodes = np.arange(n)
         self.excluded = np.zeros(n, dtype=bool)
         # The senders' side: what each node held of the last W rows, what omegas it carried.
@@ -379,7 +379,6 @@ class FusionCentre(Estimator, params=FusionCentreParams):
             self._fuse(None)
             return
         masks = self.sent_held[idx]                          # (rows, n, n)
-        x = self.dkf.x_local[r]
         vary = self.vary
         crashes, now = self.ctx.crashes, int(self.ctx.env.now)
         out_links, at = self.out, self.at
@@ -400,7 +399,10 @@ class FusionCentre(Estimator, params=FusionCentreParams):
                         row = lo + int(j)
                         entries.append((row, int(o), info.omega[row, o], info.factor[row][:, self.cols[o]]))
                 nbytes = packet_bytes(nx, n, len(idx), len(entries))
-            payload = (i, r, x[i], lo, masks, entries, nbytes)     # (read-only from here on)
+            # (read-only from here on) The packet models carrying node i's estimate x_i[r] too
+            # (its nominal size ``nbytes`` counts it); the centre reads that estimate from the
+            # DKF's x_local[r, i] once the packet is accepted, so the tuple leaves it out.
+            payload = (i, r, lo, masks, entries, nbytes)
             out = out_links[i]
             if i == at:
                 own = payload
@@ -432,7 +434,7 @@ class FusionCentre(Estimator, params=FusionCentreParams):
 
     def accept(self, payload: tuple) -> None:
         """Node ``i``'s estimate of ``row`` and its holdings, into the centre's state."""
-        i, row, x, lo, masks, entries, _ = payload
+        i, row, lo, masks, entries, _ = payload
         for r_e, o, om, fac in entries:         # an omega is the same whoever brings it, whenever
             self.info.omega[r_e, o] = om
             self.info.factor[r_e][:, self.cols[o]] = fac
@@ -441,14 +443,12 @@ class FusionCentre(Estimator, params=FusionCentreParams):
             self.ignored += 1                    # older than what the centre has, or left out
             return
         self.pending[i] = (lo, masks)           # folded at the fusion: the newest masks hold the rest
-        self.newest_rows[i] = row
-        self.x_newest[i] = x                    # (the DKF's row r, never written again)
+        self.newest_rows[i] = row               # (its estimate: the DKF's x_local[row, i])
 
     def _fuse(self, _event: Event | None) -> None:
         k = self.k
         r = k - 1
         relay = self.relay
-        fast = isinstance(relay, CompiledRelay)
         if isinstance(relay, CompiledRelay):      # newest: the relay's kernel keeps it
             relay.fold_into(max(k - self.W, 0), self.W, self.known, self.holdings.fold_target)
         else:
@@ -462,12 +462,10 @@ class FusionCentre(Estimator, params=FusionCentreParams):
             excluded |= (newest + 1 - self.L) < done
         self.window.update(k, on_rows=self.xcov.on_rows)
         Xi = self.xcov.Xi[r % self.holdings.S]
-        if fast:
-            xs = self.dkf.x_local[np.maximum(newest, 0), self._nodes]
-            if low < 0:
-                xs[newest < 0] = self.x0
-        else:
-            xs = np.array(self.x_newest)
+        # each node's newest estimate (the prior mean before its first packet)
+        xs = self.dkf.x_local[np.maximum(newest, 0), self._nodes]
+        if low < 0:
+            xs[newest < 0] = self.x0
         everyone = not excluded.any()
         if low < r:                       # (else no estimate is older than row r)
             stale = np.flatnonzero(newest < r) if everyone else np.flatnonzero((newest < r) & ~excluded)
