@@ -50,10 +50,11 @@ from dkfsim.network.links import PRIORITY_FUSE, SHARED_SEQ0, Link, Port, Schedul
 from dkfsim.protocols.base import PACKET_HEADER
 
 
-def next_hops(arcs: list[tuple[int, int]], n: int, at: int) -> np.ndarray:
+def next_hops(arcs: list[tuple[int, int]], n: int, at: int) -> tuple[np.ndarray, np.ndarray]:
     """Each node's next hop toward ``at`` on a shortest path over the directed ``arcs`` (the
     lowest-index neighbour among equals; a breadth-first search from ``at`` over the reversed
-    arcs); -1 for ``at`` itself and for a node that cannot reach it."""
+    arcs), -1 for ``at`` itself and for a node that cannot reach it; and each node's hops to
+    ``at`` on that path (0 for ``at``, -1 for a node that cannot reach it)."""
     graph = nx.DiGraph()
     graph.add_nodes_from(range(n))
     graph.add_edges_from((v, u) for u, v in arcs)              # reversed: distances *to* at
@@ -64,7 +65,7 @@ def next_hops(arcs: list[tuple[int, int]], n: int, at: int) -> np.ndarray:
     for u, v in sorted(arcs):
         if u != at and dist[u] > 0 and dist[v] == dist[u] - 1 and hop[u] < 0:
             hop[u] = v
-    return hop
+    return hop, dist
 
 
 class DirectRelay:
@@ -162,18 +163,17 @@ class CompiledRelay:
     is its node and row; the masks it carries stay in :attr:`ring` (one slot per tick, as many
     ticks as a packet can be in flight) for the compiled fold."""
 
-    def __init__(self, port: Port, links: list[Link], out: list[Link | None], at: int, T_ns: int,
-                 newest: np.ndarray, excluded: np.ndarray, W: int, n_origins: int):
+    def __init__(self, port: Port, links: list[Link], forms: list[tuple[int, int, int]], ticks: int,
+                 out: list[Link | None], at: int, T_ns: int, newest: np.ndarray, excluded: np.ndarray,
+                 W: int, n_origins: int):
+        """``forms``: each link's :meth:`Link.compiled_latency`; ``ticks``: :meth:`in_flight_ticks`."""
         self.port, self.links, self.fk = port, links, fk.compiled()
         n = len(out)
         size = 1 + max((l.id for l in links), default=0)
         kind, key, par = np.zeros(size, np.int64), np.zeros(size, np.uint64), np.zeros(size, np.int64)
         dst = np.full(size, -1, np.int64)
-        for l in links:
-            f = l.compiled_latency()
-            assert f is not None
+        for l, f in zip(links, forms):
             kind[l.id], key[l.id], par[l.id], dst[l.id] = f[0], f[1], f[2], l.dst
-        ticks = self.in_flight_ticks(out, links, T_ns)
         cap = 2 * n * ticks + 16              # each tick sends fewer than n packets
         z = np.zeros
         self.R = fk.Relay(z(4, np.int64), kind, key, par, int(T_ns), dst,
@@ -192,20 +192,13 @@ class CompiledRelay:
         self.fold = None
 
     @staticmethod
-    def in_flight_ticks(out: list[Link | None], links: list[Link], T_ns: int) -> int:
-        """A bound of the ticks a packet can be in flight (plus two): its hops to the centre
-        times the longest latency of one hop (``links`` of :meth:`Link.compiled_latency`)."""
+    def in_flight_ticks(forms: list[tuple[int, int, int]], hops: int, T_ns: int) -> int:
+        """A bound of the ticks a packet can be in flight (plus two): ``hops``, the most hops
+        of a route to the centre, times the longest latency of one hop (``forms``: the links'
+        :meth:`Link.compiled_latency`)."""
         longest = 0
-        for l in links:
-            f = l.compiled_latency()
-            if f is not None:
-                longest = max(longest, f[2] if f[0] == 0 else f[2] * T_ns)
-        hops = 0
-        for i in range(len(out)):
-            h, nxt = 0, out[i]
-            while nxt is not None and h <= len(out):
-                h, nxt = h + 1, out[nxt.dst]
-            hops = max(hops, h)
+        for f in forms:
+            longest = max(longest, f[2] if f[0] == 0 else f[2] * T_ns)
         return hops * (-(-longest // T_ns)) + 2
 
     def tick(self, now: int, row: int, nbytes: int) -> None:
@@ -329,7 +322,7 @@ class FusionCentre(Estimator, params=FusionCentreParams):
         # The senders' side: what each node held of the last W rows, what omegas it carried.
         self.sent_held = np.zeros((W, n, n), dtype=bool)
         self.carried = np.zeros((W, n, n), dtype=bool)
-        self.hop = next_hops(ctx.plan.exchange_arcs, n, self.at)
+        self.hop, dist = next_hops(ctx.plan.exchange_arcs, n, self.at)
         net = ctx.network
         self.out: list[Link | None] = [net.link(i, int(h)) if h >= 0 else None for i, h in enumerate(self.hop)]
         links = [l for l in self.out if l is not None]
@@ -340,13 +333,16 @@ class FusionCentre(Estimator, params=FusionCentreParams):
         #: (:class:`DirectRelay`, decision 232); None: through the port, hop by hop
         self.relay: DirectRelay | CompiledRelay | None = None
         if self.direct_relay and self.port.channel is None and all(l.rate is None and l.up is None for l in links):
-            # (the ring of masks stays small: else the Python relay, whose masks live in flight)
             if ctx.backend.compiled and net.crashes is None and ctx.crashes is None and not self.vary and all(
-                    l.plain is not None and l.compiled_latency() is not None for l in links) and \
-                    (CompiledRelay.in_flight_ticks(self.out, links, ctx.T_ns) + 1) * W * n * n <= RING_BYTES:
-                self.relay = CompiledRelay(self.port, links, self.out, self.at, ctx.T_ns, self.newest,
-                                           self.excluded, W, n)
-            else:
+                    l.plain is not None for l in links):
+                forms = [f for f in (l.compiled_latency() for l in links) if f is not None]
+                if len(forms) == len(links):             # (every link's latency compiles)
+                    ticks = CompiledRelay.in_flight_ticks(forms, int(dist.max()), ctx.T_ns)
+                    # (the ring of masks stays small: else the Python relay, whose masks live in flight)
+                    if (ticks + 1) * W * n * n <= RING_BYTES:
+                        self.relay = CompiledRelay(self.port, links, forms, ticks, self.out, self.at, ctx.T_ns,
+                                                   self.newest, self.excluded, W, n)
+            if self.relay is None:
                 self.relay = DirectRelay(self.port, links, self.out, self.at, self.accept, net.crashes)
         self.x = np.empty((K, nx))
         self.P = np.empty((K, nx, nx))
