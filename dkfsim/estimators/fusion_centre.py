@@ -247,6 +247,7 @@ class FusionCentre(Estimator, params=FusionCentreParams):
 
     params: FusionCentreParams
     port: Port
+    shares_dkf_port = True                # its packets wait in the DKF's queues (decision 221)
     #: move the packets on links without a transmitter or channel without SimPy events
     #: (:class:`DirectRelay`); False: always through the port (the tests compare both)
     direct_relay = True
