@@ -19,7 +19,8 @@ of an older row ``r_i`` enters as ``Phi^(r - r_i) x_i``: that node's filter with
 for the later rows, which is what the shadow runs for it, so the fusion of design §7 is exact
 for what the centre holds.  When the shadow must make a row final before it knows that node's
 final holdings of it (more than ``M`` ticks without a packet), the node leaves the fusion for
-the rest of the run (``nodes_excluded``; docs/decisions.md #220).  The centre fuses row ``k-1``
+the rest of the run (``nodes_excluded``; docs/decisions.md #220); so does a node whose masks hold
+a radar entry whose ``omega`` no packet delivered (each node carries a given one once).  The centre fuses row ``k-1``
 in an event of priority :data:`~dkfsim.network.links.PRIORITY_FUSE`, after the packets sent at
 the update and their zero-latency relays: at zero latency and no rate limit it equals ``fused``.
 Where nothing but a packet's own keyed draws acts on it (no rate, no channel) the centre moves its
