@@ -93,11 +93,13 @@ def test_without_a_channel_consensus_sends_per_link_in_the_links_order(monkeypat
 
 
 def test_flood_broadcasts_the_union_once(frames, monkeypatch):
-    """Flood: one frame per flush; its size is one header and the union of the parts' rows; no
-    part goes back to the neighbour its contributions came from (a leaf's relays are empty)."""
+    """Flood on a channel: one frame per flush; its size is one header and the union of the
+    parts' rows; no part goes back to the neighbour its contributions came from (a leaf's relays
+    are empty).  (Without a channel the frame's size is not computed: nothing reads it.)"""
     monkeypatch.setenv("DKFSIM_EXCHANGE", "python")
     sc = scenario(6, edges=tree_edges(6, 51), steps=20, protocol="flood",
                   latency={"model": "uniform_steps", "d_t": 2})
+    sc["medium"] = {"rate": 1.0e6}
     run_scenario(sc)
     mine = [f for f in frames if f[0] == "anti_delay_dkf"]
     rb = row_bytes(2, 6)

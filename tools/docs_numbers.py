@@ -412,14 +412,19 @@ def render_statistics(s: Rows) -> dict[str, str]:
 SWEEP_FILE = "scenarios/sweep_algorithms.yaml"
 
 
-def sweep_studies() -> tuple[Study, ...]:
-    """One study per grid value of ``scenarios/sweep_algorithms.yaml`` (a sweep's run r of a grid
-    point uses ``derive_seed(seed, r)``, as a Monte Carlo of that point does)."""
-    spec = yaml.safe_load((ROOT / SWEEP_FILE).read_text())
+def grid_studies(file: str, name_of, columns: tuple[str, ...] = COLUMNS) -> tuple[Study, ...]:
+    """One study per grid value of the one-key sweep ``file`` (a sweep's run r of a grid point
+    uses ``derive_seed(seed, r)``, as a Monte Carlo of that point does), named ``name_of(value)``."""
+    spec = yaml.safe_load((ROOT / file).read_text())
     (key, values), = spec["grid"].items()
-    scenario = str((Path(SWEEP_FILE).parent / spec["scenario"]).as_posix())
-    return tuple(Study(f"sweep_algorithms_d{v}", scenario, (*spec.get("set", []), f"{key}={v}"),
-                       int(spec["runs"])) for v in values)
+    scenario = str((Path(file).parent / spec["scenario"]).as_posix())
+    return tuple(Study(name_of(v), scenario, (*spec.get("set", []), f"{key}={v}"), int(spec["runs"]), columns)
+                 for v in values)
+
+
+def sweep_studies() -> tuple[Study, ...]:
+    """One study per grid value of ``scenarios/sweep_algorithms.yaml``."""
+    return grid_studies(SWEEP_FILE, lambda v: f"sweep_algorithms_d{v}")
 
 
 SWEEP = sweep_studies()
@@ -531,14 +536,10 @@ CHANNEL_ESTIMATES = ("fused", "fusion_centre", "centralized", "centralized_delay
 
 
 def channel_studies() -> tuple[Study, ...]:
-    """One study per channel rate of ``scenarios/sweep_channel.yaml`` (run r of a grid point is
-    run r of ``dkfsim sweep``), keeping ``lost`` (collisions: the scenario loses nothing else)
-    and ``bytes_per_tick`` beside the usual columns."""
-    spec = yaml.safe_load((ROOT / CHANNEL_FILE).read_text())
-    (key, values), = spec["grid"].items()
-    scenario = str((Path(CHANNEL_FILE).parent / spec["scenario"]).as_posix())
-    return tuple(Study(f"sweep_channel_{float(v):g}", scenario, (*spec.get("set", []), f"{key}={v}"),
-                       int(spec["runs"]), (*COLUMNS, "lost", "bytes_per_tick")) for v in values)
+    """One study per channel rate of ``scenarios/sweep_channel.yaml``, keeping ``lost``
+    (collisions: the scenario loses nothing else in the air) and ``bytes_per_tick`` beside the
+    usual columns."""
+    return grid_studies(CHANNEL_FILE, lambda v: f"sweep_channel_{float(v):g}", (*COLUMNS, "lost", "bytes_per_tick"))
 
 
 CHANNEL = channel_studies()
@@ -554,10 +555,11 @@ def render_channel(rows: dict[str, Rows]) -> dict[str, str]:
     points = [rows[s.name] for s in CHANNEL]
     rates = [float(s.overrides[-1].split("=")[1]) for s in CHANNEL]
     first = points[0]
+    K = CHANNEL[0].load().steps
     names = [n for n in CHANNEL_ESTIMATES if n in first.estimates]
     lines = ["```", f".venv/bin/dkfsim sweep {CHANNEL_FILE} --jobs 1 --db out/channel.sqlite", "```", "",
              f"Position MSE, mean and 95 % t-interval over {first.runs} runs of "
-             f"{CHANNEL[0].load().steps} ticks per channel rate:", "",
+             f"{K} ticks per channel rate:", "",
              "| estimate | " + " | ".join(rate_label(r) for r in rates) + " |",
              "|---" * (len(rates) + 1) + "|"]
     for name in names:
@@ -568,7 +570,6 @@ def render_channel(rows: dict[str, Rows]) -> dict[str, str]:
                        ("messages per tick", "messages_per_tick")):
         for name in counted:
             lines.append(f"| `{name}`: {label} | " + " | ".join(f"{r.mean(name, key):.4g}" for r in points) + " |")
-    K = CHANNEL[0].load().steps
     pos = lambda r, n: r.mean(n, "mse", "position")  # noqa: E731
     share = lambda r, n: r.mean(n, "lost") / (r.mean(n, "messages_per_tick") * K)  # noqa: E731
     last = points[-1]

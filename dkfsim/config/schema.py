@@ -442,10 +442,9 @@ class Scenario(StrictModel):
                                "mobility.links.rate")
         members = set(self.medium.members(self.n))
         entries = [("links.default", self.links.default, None)] + [
-            (f"links.overrides.{i}", ov, tuple(ov.link)) for i, ov in enumerate(self.links.overrides)]
-        for key, entry, link in entries:
-            arcs = plan.arcs if link is None else \
-                [a for a in plan.arcs if a == link or (not self.topology.directed and a == link[::-1])]
+            (f"links.overrides.{i}", ov, ov) for i, ov in enumerate(self.links.overrides)]
+        for key, entry, override in entries:
+            arcs = plan.arcs if override is None else [a for a in plan.arcs if self._matches(override, *a)]
             on = next(((u, v) for u, v in arcs if u in members and v in members), None)
             what = next((w for w in ("rate", "queue", "background") if getattr(entry, w) is not None), None)
             if on is not None and what is not None:

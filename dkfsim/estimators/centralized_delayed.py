@@ -64,8 +64,7 @@ class CentralizedDelayed(Estimator, params=CentralizedDelayedParams):
         if not self._on_channel:
             return
         s, K = ctx.system, ctx.K
-        spec = ctx.scenario.link_spec(-1, -1)              # the default settings
-        self._direct = [ctx.network.extra_link(("direct", name), spec, i, -1) for i, name in enumerate(s.names)]
+        self._direct = self._direct_links()
         self._ticks = np.zeros((s.n, K), dtype=np.int64)
         self._measured = ctx.measured()
         self._size = self.packet_bytes()
@@ -81,6 +80,13 @@ class CentralizedDelayed(Estimator, params=CentralizedDelayedParams):
             if m is None or m[row, i]:                     # a crashed sensor sends nothing
                 send(link, (i, row), size)
 
+    def _direct_links(self) -> list:
+        """Each sensor's direct link to the centre (``("direct", name)``, the default link
+        settings), added to the network in sensor order."""
+        ctx = self.ctx
+        spec = ctx.scenario.link_spec(-1, -1)              # the default settings
+        return [ctx.network.extra_link(("direct", name), spec, i, -1) for i, name in enumerate(ctx.system.names)]
+
     def _receive(self, _link, payload) -> None:
         i, row = payload
         if self._ticks[i, row] == 0:                       # the first copy counts
@@ -92,13 +98,11 @@ class CentralizedDelayed(Estimator, params=CentralizedDelayedParams):
         per sensor (``sent``, ``lost``, ``queue_dropped``: ``(n,)`` ints)."""
         ctx = self.ctx
         s, K, T_ns = ctx.system, ctx.K, ctx.T_ns
-        spec = ctx.scenario.link_spec(-1, -1)              # the default settings
         ticks = np.zeros((s.n, K), dtype=np.int64)
         m = ctx.measured()
         sent, lost, dropped = (np.zeros(s.n, dtype=np.int64) for _ in range(3))   # per sensor
         size = self.packet_bytes()
-        for i, name in enumerate(s.names):
-            link = ctx.network.extra_link(("direct", name), spec, i, -1)
+        for i, link in enumerate(self._direct_links()):
             tx = link.transmitter() if link.rate is not None else None
             for r in range(K):
                 if m is not None and not m[r, i]:          # a crashed sensor sends nothing

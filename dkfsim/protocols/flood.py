@@ -73,7 +73,8 @@ class FloodExchange(Exchange):
         out-link as before (decision 227)."""
         now = self.env.now
         parts = []
-        union: dict[int, int] = {}
+        # The union sizes the frame on a channel only (without one, each part is its own packet).
+        union: dict[int, int] | None = {} if self.port.channel is not None else None
         for link in self.out_links[j]:
             p = self._pending[self.lid[link.id]]
             if p and link.up is not None and not link.is_up(now):
@@ -83,7 +84,8 @@ class FloodExchange(Exchange):
                 p.clear()
                 if items:
                     parts.append((link, items))
-                    for row, m in items:
-                        union[row] = union.get(row, 0) | m
+                    if union is not None:
+                        for row, m in items:
+                            union[row] = union.get(row, 0) | m
         if parts:
-            self.send_frame(parts, PACKET_HEADER + len(union) * self.row_bytes)
+            self.send_frame(parts, PACKET_HEADER + len(union or ()) * self.row_bytes)

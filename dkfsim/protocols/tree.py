@@ -133,14 +133,12 @@ class TreeExchange(Exchange):
                     sent[e] = out
                     items[k].append((row, out))
         # One combined frame: every neighbour's message, each with its own number (decision 228).
-        seq, size, header = self.seq, self.row_bytes, PACKET_HEADER
+        size = self.row_bytes
         parts = []
-        frame = header
-        for (e, _rev, link), its in zip(outs, items):
+        frame = PACKET_HEADER
+        for (_e, _rev, link), its in zip(outs, items):
             if its:
-                seq[e] += 1
-                nbytes = header + len(its) * size
-                parts.append((link, (seq[e], its), nbytes))
+                parts.append((link, its))
                 frame += PART_HEADER + len(its) * size
         if parts:
-            self.port.send_frame(parts, frame)
+            self.send_frame(parts, frame)
