@@ -113,7 +113,7 @@ def test_zero_latency_equals_fused(make, overrides, exchange, monkeypatch):
     assert facts["packets_received"] == (n - 1) * K and facts["stale_rows_used"] == 0
     assert facts["nodes_excluded"] == 0
     # every packet reached the centre over the hops of the shortest paths (the only relays)
-    hop = next_hops(centre.ctx.plan.exchange_arcs, n, 1)
+    hop, _ = next_hops(centre.ctx.plan.exchange_arcs, n, 1)
     hops = 0
     for i in range(n):
         j = i
@@ -135,7 +135,9 @@ def test_radar_omega_only_from_packets():
 
 def test_next_hops_on_the_paper_tree():
     arcs = [(0, 1), (1, 0), (0, 2), (2, 0), (1, 4), (4, 1), (2, 5), (5, 2)]
-    assert next_hops(arcs, 6, 4).tolist() == [1, 4, 0, -1, -1, 2]   # 3 is not connected
+    hop, dist = next_hops(arcs, 6, 4)
+    assert hop.tolist() == [1, 4, 0, -1, -1, 2]        # 3 is not connected
+    assert dist.tolist() == [2, 1, 3, -1, 0, 4]
 
 
 # ------------------------------------------------------------------------ Xi by hand

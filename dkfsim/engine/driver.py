@@ -47,14 +47,16 @@ from dkfsim.protocols import tree_compiled
 def run_backend(plan: RunPlan, network: Network, crashes: CrashSchedule | None) -> Backend:
     """The backend of a run: what the environment asks for (:meth:`Backend.from_environment`),
     with the Python exchange where the compiled one cannot run (a protocol without a compiled
-    twin, a link it cannot draw, crash windows, transmitters shared between estimators, a
-    ``fusion_centre`` whose packets wait in the DKF's rate-limited queues (decision 221), a shared
-    radio channel: the compiled tree cannot draw the channel, decision 214)."""
+    twin, a link it cannot draw, crash windows, transmitters shared between estimators, an
+    estimator whose packets wait in the DKF's rate-limited queues (``shares_dkf_port``, the
+    ``fusion_centre``: decision 221), a shared radio channel: the compiled tree cannot draw the
+    channel, decision 214)."""
     backend = Backend.from_environment()
     if backend.compiled_exchange:
         links = [network.link(u, v) for u, v in plan.exchange_arcs]
-        centre = any(p.kind == "fusion_centre" for p in plan.scenario.estimators)
-        shared = (network.shared_transmitters is not None or centre) and plan.rate_limited
+        on_dkf_port = any(getattr(ESTIMATORS.get(p.kind).implementation, "shares_dkf_port", False)
+                          for p in plan.scenario.estimators)
+        shared = (network.shared_transmitters is not None or on_dkf_port) and plan.rate_limited
         if shared or network.medium is not None or not tree_compiled.usable(plan.protocol, links, crashes):
             backend = backend.python_exchange()
     return backend

@@ -177,6 +177,10 @@ class Estimator:
     #: False for an idealised estimator with no network model (the centralized filter): its
     #: traffic is "not applicable" (None, ``null`` in summary.json), not zero.
     network_model: ClassVar[bool] = True
+    #: True for an estimator whose packets share the DKF's transmitters (``share_with`` the DKF's
+    #: port, the fusion centre): with rate-limited links the run needs the Python exchange, the
+    #: compiled tree cannot see those packets in its queues (decision 221).
+    shares_dkf_port: ClassVar[bool] = False
     #: What it sends and the nominal size of each packet kind (``dkfsim list estimators``,
     #: docs/estimators.md "Packet sizes"); a link's ``rate`` transmits these bytes.
     packets: ClassVar[str] = ""

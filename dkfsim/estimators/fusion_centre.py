@@ -19,7 +19,8 @@ of an older row ``r_i`` enters as ``Phi^(r - r_i) x_i``: that node's filter with
 for the later rows, which is what the shadow runs for it, so the fusion of design §7 is exact
 for what the centre holds.  When the shadow must make a row final before it knows that node's
 final holdings of it (more than ``M`` ticks without a packet), the node leaves the fusion for
-the rest of the run (``nodes_excluded``; docs/decisions.md #220).  The centre fuses row ``k-1``
+the rest of the run (``nodes_excluded``; docs/decisions.md #220); so does a node whose masks hold
+a radar entry whose ``omega`` no packet delivered (each node carries a given one once).  The centre fuses row ``k-1``
 in an event of priority :data:`~dkfsim.network.links.PRIORITY_FUSE`, after the packets sent at
 the update and their zero-latency relays: at zero latency and no rate limit it equals ``fused``.
 Where nothing but a packet's own keyed draws acts on it (no rate, no channel) the centre moves its
@@ -50,10 +51,11 @@ from dkfsim.network.links import PRIORITY_FUSE, SHARED_SEQ0, Link, Port, Schedul
 from dkfsim.protocols.base import PACKET_HEADER
 
 
-def next_hops(arcs: list[tuple[int, int]], n: int, at: int) -> np.ndarray:
+def next_hops(arcs: list[tuple[int, int]], n: int, at: int) -> tuple[np.ndarray, np.ndarray]:
     """Each node's next hop toward ``at`` on a shortest path over the directed ``arcs`` (the
     lowest-index neighbour among equals; a breadth-first search from ``at`` over the reversed
-    arcs); -1 for ``at`` itself and for a node that cannot reach it."""
+    arcs), -1 for ``at`` itself and for a node that cannot reach it; and each node's hops to
+    ``at`` on that path (0 for ``at``, -1 for a node that cannot reach it)."""
     graph = nx.DiGraph()
     graph.add_nodes_from(range(n))
     graph.add_edges_from((v, u) for u, v in arcs)              # reversed: distances *to* at
@@ -64,7 +66,7 @@ def next_hops(arcs: list[tuple[int, int]], n: int, at: int) -> np.ndarray:
     for u, v in sorted(arcs):
         if u != at and dist[u] > 0 and dist[v] == dist[u] - 1 and hop[u] < 0:
             hop[u] = v
-    return hop
+    return hop, dist
 
 
 class DirectRelay:
@@ -162,18 +164,17 @@ class CompiledRelay:
     is its node and row; the masks it carries stay in :attr:`ring` (one slot per tick, as many
     ticks as a packet can be in flight) for the compiled fold."""
 
-    def __init__(self, port: Port, links: list[Link], out: list[Link | None], at: int, T_ns: int,
-                 newest: np.ndarray, excluded: np.ndarray, W: int, n_origins: int):
+    def __init__(self, port: Port, links: list[Link], forms: list[tuple[int, int, int]], ticks: int,
+                 out: list[Link | None], at: int, T_ns: int, newest: np.ndarray, excluded: np.ndarray,
+                 W: int, n_origins: int):
+        """``forms``: each link's :meth:`Link.compiled_latency`; ``ticks``: :meth:`in_flight_ticks`."""
         self.port, self.links, self.fk = port, links, fk.compiled()
         n = len(out)
         size = 1 + max((l.id for l in links), default=0)
         kind, key, par = np.zeros(size, np.int64), np.zeros(size, np.uint64), np.zeros(size, np.int64)
         dst = np.full(size, -1, np.int64)
-        for l in links:
-            f = l.compiled_latency()
-            assert f is not None
+        for l, f in zip(links, forms):
             kind[l.id], key[l.id], par[l.id], dst[l.id] = f[0], f[1], f[2], l.dst
-        ticks = self.in_flight_ticks(out, links, T_ns)
         cap = 2 * n * ticks + 16              # each tick sends fewer than n packets
         z = np.zeros
         self.R = fk.Relay(z(4, np.int64), kind, key, par, int(T_ns), dst,
@@ -192,20 +193,13 @@ class CompiledRelay:
         self.fold = None
 
     @staticmethod
-    def in_flight_ticks(out: list[Link | None], links: list[Link], T_ns: int) -> int:
-        """A bound of the ticks a packet can be in flight (plus two): its hops to the centre
-        times the longest latency of one hop (``links`` of :meth:`Link.compiled_latency`)."""
+    def in_flight_ticks(forms: list[tuple[int, int, int]], hops: int, T_ns: int) -> int:
+        """A bound of the ticks a packet can be in flight (plus two): ``hops``, the most hops
+        of a route to the centre, times the longest latency of one hop (``forms``: the links'
+        :meth:`Link.compiled_latency`)."""
         longest = 0
-        for l in links:
-            f = l.compiled_latency()
-            if f is not None:
-                longest = max(longest, f[2] if f[0] == 0 else f[2] * T_ns)
-        hops = 0
-        for i in range(len(out)):
-            h, nxt = 0, out[i]
-            while nxt is not None and h <= len(out):
-                h, nxt = h + 1, out[nxt.dst]
-            hops = max(hops, h)
+        for f in forms:
+            longest = max(longest, f[2] if f[0] == 0 else f[2] * T_ns)
         return hops * (-(-longest // T_ns)) + 2
 
     def tick(self, now: int, row: int, nbytes: int) -> None:
@@ -254,6 +248,7 @@ class FusionCentre(Estimator, params=FusionCentreParams):
 
     params: FusionCentreParams
     port: Port
+    shares_dkf_port = True                # its packets wait in the DKF's queues (decision 221)
     #: move the packets on links without a transmitter or channel without SimPy events
     #: (:class:`DirectRelay`); False: always through the port (the tests compare both)
     direct_relay = True
@@ -319,17 +314,17 @@ class FusionCentre(Estimator, params=FusionCentreParams):
             self.fold_kernel = entry_point(fk.compiled().fold_new, np.zeros((0, 0, n), dtype=bool),
                                            np.zeros(0, dtype=np.intp), 0, self.known, self.holdings.fold_target)
         self.newest = np.full(n, -1, dtype=np.int64)
-        #: per node: the row and the estimate of its newest packet (Python lists: one packet
-        #: costs no numpy call; ``newest`` is their array as of the last fusion)
+        #: per node: the row of its newest packet (a Python list: one packet costs no numpy
+        #: call; ``newest`` is its array as of the last fusion).  The estimate of that row is
+        #: the DKF's ``x_local[row, i]`` (never written again), read at the fusion.
         self.newest_rows = [-1] * n
-        self.x0 = x0 = np.asarray(sys_.x0_mean, float)
-        self.x_newest: list[np.ndarray] = [x0] * n
+        self.x0 = np.asarray(sys_.x0_mean, float)
         self._nodes = np.arange(n)
         self.excluded = np.zeros(n, dtype=bool)
         # The senders' side: what each node held of the last W rows, what omegas it carried.
         self.sent_held = np.zeros((W, n, n), dtype=bool)
         self.carried = np.zeros((W, n, n), dtype=bool)
-        self.hop = next_hops(ctx.plan.exchange_arcs, n, self.at)
+        self.hop, dist = next_hops(ctx.plan.exchange_arcs, n, self.at)
         net = ctx.network
         self.out: list[Link | None] = [net.link(i, int(h)) if h >= 0 else None for i, h in enumerate(self.hop)]
         links = [l for l in self.out if l is not None]
@@ -340,13 +335,16 @@ class FusionCentre(Estimator, params=FusionCentreParams):
         #: (:class:`DirectRelay`, decision 232); None: through the port, hop by hop
         self.relay: DirectRelay | CompiledRelay | None = None
         if self.direct_relay and self.port.channel is None and all(l.rate is None and l.up is None for l in links):
-            # (the ring of masks stays small: else the Python relay, whose masks live in flight)
             if ctx.backend.compiled and net.crashes is None and ctx.crashes is None and not self.vary and all(
-                    l.plain is not None and l.compiled_latency() is not None for l in links) and \
-                    (CompiledRelay.in_flight_ticks(self.out, links, ctx.T_ns) + 1) * W * n * n <= RING_BYTES:
-                self.relay = CompiledRelay(self.port, links, self.out, self.at, ctx.T_ns, self.newest,
-                                           self.excluded, W, n)
-            else:
+                    l.plain is not None for l in links):
+                forms = [f for f in (l.compiled_latency() for l in links) if f is not None]
+                if len(forms) == len(links):             # (every link's latency compiles)
+                    ticks = CompiledRelay.in_flight_ticks(forms, int(dist.max()), ctx.T_ns)
+                    # (the ring of masks stays small: else the Python relay, whose masks live in flight)
+                    if (ticks + 1) * W * n * n <= RING_BYTES:
+                        self.relay = CompiledRelay(self.port, links, forms, ticks, self.out, self.at, ctx.T_ns,
+                                                   self.newest, self.excluded, W, n)
+            if self.relay is None:
                 self.relay = DirectRelay(self.port, links, self.out, self.at, self.accept, net.crashes)
         self.x = np.empty((K, nx))
         self.P = np.empty((K, nx, nx))
@@ -379,7 +377,6 @@ class FusionCentre(Estimator, params=FusionCentreParams):
             self._fuse(None)
             return
         masks = self.sent_held[idx]                          # (rows, n, n)
-        x = self.dkf.x_local[r]
         vary = self.vary
         crashes, now = self.ctx.crashes, int(self.ctx.env.now)
         out_links, at = self.out, self.at
@@ -400,7 +397,10 @@ class FusionCentre(Estimator, params=FusionCentreParams):
                         row = lo + int(j)
                         entries.append((row, int(o), info.omega[row, o], info.factor[row][:, self.cols[o]]))
                 nbytes = packet_bytes(nx, n, len(idx), len(entries))
-            payload = (i, r, x[i], lo, masks, entries, nbytes)     # (read-only from here on)
+            # (read-only from here on) The packet models carrying node i's estimate x_i[r] too
+            # (its nominal size ``nbytes`` counts it); the centre reads that estimate from the
+            # DKF's x_local[r, i] once the packet is accepted, so the tuple leaves it out.
+            payload = (i, r, lo, masks, entries, nbytes)
             out = out_links[i]
             if i == at:
                 own = payload
@@ -432,7 +432,7 @@ class FusionCentre(Estimator, params=FusionCentreParams):
 
     def accept(self, payload: tuple) -> None:
         """Node ``i``'s estimate of ``row`` and its holdings, into the centre's state."""
-        i, row, x, lo, masks, entries, _ = payload
+        i, row, lo, masks, entries, _ = payload
         for r_e, o, om, fac in entries:         # an omega is the same whoever brings it, whenever
             self.info.omega[r_e, o] = om
             self.info.factor[r_e][:, self.cols[o]] = fac
@@ -441,14 +441,12 @@ class FusionCentre(Estimator, params=FusionCentreParams):
             self.ignored += 1                    # older than what the centre has, or left out
             return
         self.pending[i] = (lo, masks)           # folded at the fusion: the newest masks hold the rest
-        self.newest_rows[i] = row
-        self.x_newest[i] = x                    # (the DKF's row r, never written again)
+        self.newest_rows[i] = row               # (its estimate: the DKF's x_local[row, i])
 
     def _fuse(self, _event: Event | None) -> None:
         k = self.k
         r = k - 1
         relay = self.relay
-        fast = isinstance(relay, CompiledRelay)
         if isinstance(relay, CompiledRelay):      # newest: the relay's kernel keeps it
             relay.fold_into(max(k - self.W, 0), self.W, self.known, self.holdings.fold_target)
         else:
@@ -462,12 +460,10 @@ class FusionCentre(Estimator, params=FusionCentreParams):
             excluded |= (newest + 1 - self.L) < done
         self.window.update(k, on_rows=self.xcov.on_rows)
         Xi = self.xcov.Xi[r % self.holdings.S]
-        if fast:
-            xs = self.dkf.x_local[np.maximum(newest, 0), self._nodes]
-            if low < 0:
-                xs[newest < 0] = self.x0
-        else:
-            xs = np.array(self.x_newest)
+        # each node's newest estimate (the prior mean before its first packet)
+        xs = self.dkf.x_local[np.maximum(newest, 0), self._nodes]
+        if low < 0:
+            xs[newest < 0] = self.x0
         everyone = not excluded.any()
         if low < r:                       # (else no estimate is older than row r)
             stale = np.flatnonzero(newest < r) if everyone else np.flatnonzero((newest < r) & ~excluded)

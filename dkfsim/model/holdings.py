@@ -80,15 +80,8 @@ class Holdings:
         it.  The same sums, in the same order, as ``add`` of each then a fold (what is pending
         is folded first); no Python int per mask (the fusion centre's shadow, decision 233)."""
         self._flush()
-        packed = np.packbits(held, axis=1, bitorder="little")
-        words = np.zeros((len(packed), 8 * self._words), dtype=np.uint8)
-        words[:, :packed.shape[1]] = packed
-        words = words.view(np.uint64)
-        i, r = np.asarray(nodes, dtype=np.intp), np.asarray(rows, dtype=np.intp)
-        if self._compiled:
-            holdings_kernels.compiled().fold_masks(i, r, words, self.fold_target)
-        else:
-            self._fold_words(i, r, words)
+        self._fold(np.asarray(nodes, dtype=np.intp), np.asarray(rows, dtype=np.intp),
+                   np.asarray(held, dtype=bool))
 
     # -- what the window calls -------------------------------------------------------
     def open_row(self, row: int) -> None:
@@ -110,11 +103,7 @@ class Holdings:
     def _flush(self) -> None:
         """Fold what :meth:`add` reported since the last fold."""
         if self._pend:
-            i, r, words = self._pending_arrays()
-            if self._compiled:
-                holdings_kernels.compiled().fold_masks(i, r, words, self.fold_target)
-            else:
-                self._fold_words(i, r, words)
+            self._fold(*self._pending_arrays())
 
     def _pending_arrays(self):
         """The pending contributions as arrays: nodes, rows and the masks as little-endian
@@ -123,10 +112,22 @@ class Holdings:
         return (np.array(pend[0::3], dtype=np.intp), np.array(pend[2::3], dtype=np.intp),
                 mask_words(pend[1::3], self._words))
 
-    def _fold_words(self, i: np.ndarray, r: np.ndarray, words: np.ndarray) -> None:
-        """Contributions added in numpy, in the order given (origins ascending within one
-        mask): node ``i[k]`` gained the origins of ``words[k]`` for row ``r[k]``."""
-        k, o = set_bits(words)
+    def _fold(self, i: np.ndarray, r: np.ndarray, words: np.ndarray) -> None:
+        """Fold contributions in, in the order given (origins ascending within one mask): node
+        ``i[k]`` gained the origins of ``words[k]`` for row ``r[k]``.  ``words``: each mask as
+        little-endian 64-bit words, or (bool) one flag per origin.  Compiled:
+        :func:`~dkfsim.model.holdings_kernels.fold_masks` (of words); else in numpy, which
+        reads the flags as they are (no packing to unpack again)."""
+        flags = words.dtype == np.bool_
+        if self._compiled:
+            if flags:
+                packed = np.packbits(words, axis=1, bitorder="little")
+                words = np.zeros((len(packed), 8 * self._words), dtype=np.uint8)
+                words[:, :packed.shape[1]] = packed
+                words = words.view(np.uint64)
+            holdings_kernels.compiled().fold_masks(i, r, words, self.fold_target)
+            return
+        k, o = np.nonzero(words) if flags else set_bits(words)   # (rows, then origins, ascending)
         i, r = i[k], r[k]
         slot = r % self.S
         a = self.A[i, o]
