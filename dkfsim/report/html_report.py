@@ -10,7 +10,7 @@ seeds.  Figures are inline base64 PNG, styles inline: the one file opens anywher
 and can be mailed.  Every number in a table is read from the folder's files
 (``summary.json``, ``rows.csv``, ``runs.csv``, a sweep database and its summary,
 :mod:`dkfsim.experiments.sweep.grid`), printed with 6 significant digits; tables carry
-``id`` attributes (``facts``, ``mse``, ``nees``, ``packets``, ``versions``,
+``id`` attributes (``facts``, ``mse``, ``nees``, ``packets``, ``channel``, ``versions``,
 ``seeds``) so that tests and scripts can read them back with any HTML parser.
 """
 
@@ -57,6 +57,7 @@ from dkfsim.report.plots import (
 from dkfsim.report.plots.folders import NothingToPlot
 from dkfsim.report.plots.style import png_resolution
 from dkfsim.report.sweep.page import sweep_page
+from dkfsim.report.tables import collided_percent
 
 # =========================================================================== sections
 #: Captions of the figures of ``dkfsim plot`` in a report, by file stem.
@@ -106,6 +107,29 @@ def _links_section(per_link: list[dict]) -> list[tuple[str, str]]:
                             "from hand-over to the start of transmission"))]
 
 
+def _channel_section(packets: dict, traffic: dict) -> list[tuple[str, str]]:
+    """A run with ``medium:``: one row per estimator whose traffic has a ``channel`` block
+    (summary.json ``packets.channel`` for the DKF, ``traffic.<estimate>.channel`` for the others;
+    ``fused`` and ``local`` are the DKF's), none otherwise."""
+    blocks = [("DKF (anti-delay)", packets.get("channel"))]
+    blocks += [(name, t.get("channel")) for name, t in traffic.items()
+               if t is not None and name not in ("fused", "local")]
+    rows = [(name, ch["utilisation"], ch["frames"], collided_percent(ch), ch["frames_dropped"],
+             ch["background_sent"], ch["background_collided"], 1e3 * ch["access_delay_mean"])
+            for name, ch in blocks if ch]
+    if not rows:
+        return []
+    return [("Shared channel", table("channel", (
+        "estimator", "utilisation", "frames", "collided [%]", "dropped [frames]", "background sent",
+        "background collided", "mean access delay [ms]"), rows,
+        "the shared radio channel (summary.json traffic.<estimate>.channel): utilisation of the "
+        "channel over the run, background included; the estimator's own frames, the percentage of "
+        "them that collided and those its full radio queues refused; the background frames sent "
+        "and collided; the mean access delay of its frames, from hand-over to the start of "
+        "transmission. Each estimator has its own copy of the channel unless links.shared_queues "
+        "(the fusion centre shares the DKF's)"))]
+
+
 def _uptime_section(record: dict | None) -> list[tuple[str, str]]:
     """A run with ``mobility:``: the fraction of the ticks each pair's link was up (summary.json
     ``mobility.link_uptime``), none otherwise."""
@@ -150,6 +174,7 @@ def run_page(folder: Path) -> str:
                           pk, f"totals over the whole run ({s.get('steps')} ticks); late items: "
                               "contributions or (packet, row) pairs for the DKF, stale packets for the others")),
         *_links_section(s.get("per_link") or []),
+        *_channel_section(p, s.get("traffic") or {}),
         *_uptime_section(s.get("mobility")),
         ("Figures", "\n".join(_figures(folder))),
         ("Versions and seeds", versions_table(s.get("versions"), [("seed", str(s.get("seed")))])),

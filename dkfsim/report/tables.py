@@ -1,4 +1,5 @@
-"""Tables printed for a person: a run's MSE per estimate and its packet counts."""
+"""Tables printed for a person: a run's MSE per estimate, its packet counts and, on a shared
+radio channel (``medium:``), what the channel did."""
 
 from __future__ import annotations
 
@@ -34,8 +35,27 @@ def run_table(res, burn_in: int | None = None) -> str:
     lines.append(f"packets: sent {c['sent']}, delivered {c['delivered']}, lost {c['lost']}, "
                  f"in flight at end {c['in_flight']}{extra}; late "
                  f"{'packet rows' if c.get('late_unit') == 'packet_rows' else 'contributions'} {c['late']}")
+    if c.get("channel"):                 # a run with ``medium:`` (docs/channel.md)
+        lines.append(channel_line(c["channel"]))
     if res.diverged:
         lines.append("DIVERGED: " + ", ".join(res.diverged) + " hold non-finite values (the "
                      "model or the numbers overflow float64); their MSE is inf or nan")
     lines.append(f"wall time {res.info['wall_time_s']:.2f} s")
     return "\n".join(lines)
+
+
+def collided_percent(ch: dict) -> float:
+    """The share of an estimator's frames that collided, in percent (0 without frames)."""
+    return 100.0 * ch["frames_collided"] / ch["frames"] if ch["frames"] else 0.0
+
+
+def channel_line(ch: dict) -> str:
+    """One line on the shared channel as an estimator's copy of it saw it (summary.json
+    ``traffic.<estimate>.channel``): the channel's utilisation (background included), the
+    estimator's own frames, collided and refused by full radio queues, their mean access delay,
+    and the background's frames."""
+    dropped = f", {ch['background_dropped']} dropped" if ch.get("background_dropped") else ""
+    return (f"channel: utilisation {ch['utilisation']:.3g}, {ch['frames']} frames "
+            f"({collided_percent(ch):.3g} % collided, {ch['frames_dropped']} dropped by full radio queues), "
+            f"mean access delay {1e3 * ch['access_delay_mean']:.3g} ms; background {ch['background_sent']} "
+            f"sent, {ch['background_collided']} collided{dropped}")
