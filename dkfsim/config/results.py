@@ -102,6 +102,33 @@ class MobilityRecord(Model):
     link_uptime: list[tuple[Count, Count, Annotated[float, Field(ge=0, le=1)]]]
 
 
+class ChannelRecord(Model):
+    """An estimator's ``channel`` block (a run with ``medium:``, docs/channel.md): the shared
+    channel as its copy saw it; what ``dkfsim report`` shows of it."""
+
+    utilisation: Annotated[float, Field(strict=True, ge=0)]
+    frames: Count
+    frames_collided: Count
+    frames_dropped: Count
+    background_sent: Count
+    background_collided: Count
+    background_dropped: Count = 0
+    access_delay_mean: Annotated[float, Field(strict=True, ge=0)]
+
+
+def _check_channel(block: Any, key: str) -> None:
+    """``block`` (None: no channel) as a :class:`ChannelRecord`, its first problem raised
+    under ``key`` (a dotted path in summary.json)."""
+    if block is None:
+        return
+    try:
+        ChannelRecord.model_validate(block)
+    except ValidationError as exc:
+        err = exc.errors()[0]
+        where = ".".join([key, *(str(p) for p in err["loc"])])
+        raise custom_error(f"{err['msg']} (the channel block of a run with medium:)", where) from None
+
+
 class RunSummary(Model):
     """``summary.json`` of ``dkfsim run``: what ``load_run``, ``plot`` and ``report`` use of it."""
 
@@ -133,6 +160,14 @@ class RunSummary(Model):
                 if (e, c) not in have:
                     raise custom_error(f"no row for estimate {clip(e)}, component {clip(c)} (the "
                                        "rows do not match the estimates)", "rows")
+        return self
+
+    @model_validator(mode="after")
+    def _channel_blocks_hold_counts(self):
+        _check_channel(self.packets.get("channel"), "packets.channel")
+        for name, t in self.traffic.items():
+            if t is not None:
+                _check_channel(t.get("channel"), f"traffic.{name}.channel")
         return self
 
 
