@@ -449,3 +449,14 @@ def test_a_regular_install_runs_copies_of_the_data_scenarios_anywhere(tmp_path):
     from dkfsim.core.version import __version__
     assert f"\nVersion: {__version__}\n" in meta.read_text()
     assert (site / "dkfsim" / "py.typed").is_file()
+
+
+def test_a_number_too_long_to_read_is_refused_in_a_file_and_an_override(tmp_path):
+    """Python refuses to convert an integer of more than 4300 digits (a ValueError inside the
+    YAML loader, which was a traceback): the event check refuses it first, with its place."""
+    path = tmp_path / "huge.yaml"
+    path.write_text(CASE1.read_text().replace("seed: 1\n", "seed: 1" + "0" * 5000 + "\n"))
+    err = one_paragraph(cli("validate", path), str(path), "5,001 characters")
+    assert "line" in err and len(err) < 1000
+    with pytest.raises(ScenarioError, match="characters"):
+        dkfsim.load_scenario(CASE1, overrides=["steps=1" + "0" * 5000])

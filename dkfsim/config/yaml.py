@@ -30,6 +30,12 @@ class _TooBig(yaml.YAMLError):
         self.problem_mark = mark
 
 
+#: Longest plain number read: Python refuses to convert integers of more than 4300 digits (a
+#: ValueError deep in the loader), and no setting needs more than a few dozen characters.
+MAX_NUMBER_CHARS = 1000
+_NUMBER = re.compile(r"[-+]?[0-9_.,:eExXoObBa-fA-F]+")
+
+
 def _check_events(text: str, base) -> None:
     """Walk the YAML events once, refusing deep nesting and large alias expansion.
 
@@ -50,6 +56,9 @@ def _check_events(text: str, base) -> None:
             size, anchor = stack.pop()
             size += 1
         elif isinstance(ev, yaml.ScalarEvent):
+            if ev.implicit[0] and len(ev.value) > MAX_NUMBER_CHARS and _NUMBER.fullmatch(ev.value):
+                raise _TooBig(f"a number written with {len(ev.value):,} characters (at most "
+                              f"{MAX_NUMBER_CHARS:,} are read)", ev.start_mark)
             size, anchor = 1, ev.anchor
         elif isinstance(ev, yaml.AliasEvent):
             if ev.anchor not in sizes:
