@@ -20,8 +20,8 @@ CHANNEL = ROOT / "scenarios" / "channel_its_g5.yaml"
 CASE1 = ROOT / "scenarios" / "paper_case1.yaml"
 
 LINE = re.compile(r"^channel: utilisation (\S+), (\d+) frames \((\S+) % collided, (\d+) dropped by full "
-                  r"radio queues\), mean access delay (\S+) ms; background (\d+) sent, (\d+) collided"
-                  r"(?:, (\d+) dropped)?$", re.M)
+                  r"radio queues\), mean access delay (\S+) ms; background (\d+) frames on the air "
+                  r"\((\d+) collided\)(?:, (\d+) refused by full queues)?$", re.M)
 
 
 def run_cli(scenario: Path, out: Path) -> str:
@@ -50,14 +50,16 @@ def test_console_channel_line_holds_the_dkfs_channel_numbers(runs):
     assert ch == s["packets"]["channel"]
     lines = LINE.findall(text)
     assert len(lines) == 1, text
-    util, frames, collided, dropped, delay, bg_sent, bg_collided, bg_dropped = lines[0]
+    util, frames, collided, dropped, delay, bg_air, bg_collided, bg_dropped = lines[0]
     assert ch["frames"] > 0 and ch["frames_collided"] > 0    # a run that exercises the line
     assert float(util) == pytest.approx(ch["utilisation"], rel=5e-3)      # 3 significant digits
     assert int(frames) == ch["frames"]
     assert float(collided) == pytest.approx(100 * ch["frames_collided"] / ch["frames"], rel=5e-3)
     assert int(dropped) == ch["frames_dropped"]
     assert float(delay) == pytest.approx(1e3 * ch["access_delay_mean"], rel=5e-3)
-    assert (int(bg_sent), int(bg_collided)) == (ch["background_sent"], ch["background_collided"])
+    # on the air: the background frames that were sent whole and those that collided
+    assert (int(bg_air), int(bg_collided)) == (ch["background_sent"] + ch["background_collided"],
+                                               ch["background_collided"])
     assert int(bg_dropped or 0) == ch["background_dropped"]
     # the channel line follows the packets line, as its companion
     assert text.index("packets: sent") < text.index("channel: utilisation")
@@ -71,7 +73,7 @@ def test_report_shows_each_estimators_channel(runs):
     assert "Shared channel" in html_text
     head, *body = page.tables["channel"]
     assert head == ["estimator", "utilisation", "frames", "collided [%]", "dropped [frames]",
-                    "background sent", "background collided", "mean access delay [ms]"]
+                    "background on air", "background collided", "mean access delay [ms]"]
     s = summary(folder)
     blocks = {"DKF (anti-delay)": s["packets"]["channel"]}
     blocks.update((name, t["channel"]) for name, t in s["traffic"].items()
@@ -81,7 +83,7 @@ def test_report_shows_each_estimators_channel(runs):
     for row in body:
         ch = blocks[row[0]]
         want = (ch["utilisation"], ch["frames"], 100 * ch["frames_collided"] / ch["frames"],
-                ch["frames_dropped"], ch["background_sent"], ch["background_collided"],
+                ch["frames_dropped"], ch["background_sent"] + ch["background_collided"], ch["background_collided"],
                 1e3 * ch["access_delay_mean"])
         assert all(close(cell, v) for cell, v in zip(row[1:], want, strict=True)), (row, want)
     # the DKF's utilisation as the page prints every number: 6 significant digits

@@ -57,7 +57,7 @@ from dkfsim.report.plots import (
 from dkfsim.report.plots.folders import NothingToPlot
 from dkfsim.report.plots.style import png_resolution
 from dkfsim.report.sweep.page import sweep_page
-from dkfsim.report.tables import collided_percent
+from dkfsim.report.tables import background_on_air, collided_percent
 
 # =========================================================================== sections
 #: Captions of the figures of ``dkfsim plot`` in a report, by file stem.
@@ -115,17 +115,17 @@ def _channel_section(packets: dict, traffic: dict) -> list[tuple[str, str]]:
     blocks += [(name, t.get("channel")) for name, t in traffic.items()
                if t is not None and name not in ("fused", "local")]
     rows = [(name, ch["utilisation"], ch["frames"], collided_percent(ch), ch["frames_dropped"],
-             ch["background_sent"], ch["background_collided"], 1e3 * ch["access_delay_mean"])
+             background_on_air(ch), ch["background_collided"], 1e3 * ch["access_delay_mean"])
             for name, ch in blocks if ch]
     if not rows:
         return []
     return [("Shared channel", table("channel", (
-        "estimator", "utilisation", "frames", "collided [%]", "dropped [frames]", "background sent",
+        "estimator", "utilisation", "frames", "collided [%]", "dropped [frames]", "background on air",
         "background collided", "mean access delay [ms]"), rows,
         "the shared radio channel (summary.json traffic.<estimate>.channel): utilisation of the "
         "channel over the run, background included; the estimator's own frames, the percentage of "
-        "them that collided and those its full radio queues refused; the background frames sent "
-        "and collided; the mean access delay of its frames, from hand-over to the start of "
+        "them that collided and those its full radio queues refused; the background frames that "
+        "went on the air and how many of them collided; the mean access delay of its frames, from hand-over to the start of "
         "transmission. Each estimator has its own copy of the channel unless links.shared_queues "
         "(the fusion centre shares the DKF's)"))]
 

@@ -53,9 +53,15 @@ def channel_line(ch: dict) -> str:
     """One line on the shared channel as an estimator's copy of it saw it (summary.json
     ``traffic.<estimate>.channel``): the channel's utilisation (background included), the
     estimator's own frames, collided and refused by full radio queues, their mean access delay,
-    and the background's frames."""
-    dropped = f", {ch['background_dropped']} dropped" if ch.get("background_dropped") else ""
+    and the background's frames on the air (and collided, and refused)."""
+    dropped = f", {ch['background_dropped']} refused by full queues" if ch.get("background_dropped") else ""
     return (f"channel: utilisation {ch['utilisation']:.3g}, {ch['frames']} frames "
             f"({collided_percent(ch):.3g} % collided, {ch['frames_dropped']} dropped by full radio queues), "
-            f"mean access delay {1e3 * ch['access_delay_mean']:.3g} ms; background {ch['background_sent']} "
-            f"sent, {ch['background_collided']} collided{dropped}")
+            f"mean access delay {1e3 * ch['access_delay_mean']:.3g} ms; background "
+            f"{background_on_air(ch)} frames on the air ({ch['background_collided']} collided){dropped}")
+
+
+def background_on_air(ch: dict) -> int:
+    """The background frames that went on the air (``background_sent`` counts those that did not
+    collide, ``background_collided`` those that did)."""
+    return int(ch["background_sent"]) + int(ch["background_collided"])
