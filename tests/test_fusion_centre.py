@@ -380,3 +380,18 @@ def test_relays_equal_the_port_hop_by_hop(overrides, relay):
         assert fast.facts["fusion_centre"]["packets_ignored"] > 0
     for key in ("x_fusion_centre", "P_fusion_centre", "x_fused"):
         assert np.array_equal(fast.arrays[key], slow.arrays[key]), key
+
+
+def test_the_run_table_says_when_the_centre_lost_nodes():
+    """``dkfsim run``'s table names a centre that left nodes out (only summary.json said so),
+    and says nothing when it kept them all."""
+    from dkfsim.report.tables import run_table
+    base = ["steps=60", "estimators=[{kind: fusion_centre, at: 0, margin: 0}]"]
+    lost = dkfsim.run(dkfsim.load_scenario(ROOT / "scenarios" / "paper_case1.yaml", overrides=base))
+    n = lost.facts["fusion_centre"]["nodes_excluded"]
+    assert n > 0
+    assert f"fusion_centre: {n} of 11 nodes left its fusion" in run_table(lost)
+    kept = dkfsim.run(dkfsim.load_scenario(ROOT / "scenarios" / "paper_case1.yaml",
+                                           overrides=[*base[:1], "estimators=[{kind: fusion_centre, at: 0}]"]))
+    assert kept.facts["fusion_centre"]["nodes_excluded"] == 0
+    assert "left its fusion" not in run_table(kept)

@@ -37,6 +37,11 @@ def run_table(res, burn_in: int | None = None) -> str:
                  f"{'packet rows' if c.get('late_unit') == 'packet_rows' else 'contributions'} {c['late']}")
     if c.get("channel"):                 # a run with ``medium:`` (docs/channel.md)
         lines.append(channel_line(c["channel"]))
+    for name, facts in res.facts.items():     # a fusion centre that lost nodes says so (decision 220)
+        if isinstance(facts, dict) and facts.get("nodes_excluded"):
+            lines.append(f"{name}: {facts['nodes_excluded']} of {sc.n - 1} nodes left its fusion (unheard for "
+                         "longer than its margin, or a radar's omega never reached it): its estimate "
+                         "uses the others only; a larger margin keeps them (docs/fusion_centre.md)")
     if res.diverged:
         lines.append("DIVERGED: " + ", ".join(res.diverged) + " hold non-finite values (the "
                      "model or the numbers overflow float64); their MSE is inf or nan")
