@@ -219,6 +219,13 @@ def test_the_shipped_channel_scenario_validates_and_bad_overrides_name_the_key(c
         assert main(["validate", path, "--set", override]) == 2, override
         err = capsys.readouterr().err
         assert "channel_its_g5.yaml" in err and key in err and "Traceback" not in err, err
+    # a link queue on the channel points to the radios' queue, not to a link rate it may not have
+    for what in ("queue={packets: 3}", "background={packets_per_second: 5, size: 10}"):
+        capsys.readouterr()
+        assert main(["validate", path, "--set", f"links.default.{what}"]) == 2
+        err = capsys.readouterr().err
+        name = what.split("=")[0]
+        assert f"links.default.{name}" in err and f"medium.{name}" in err and "give rate here" not in err, err
 
 
 def test_the_channel_sweep_reaches_medium_rate_and_refuses_a_bad_rate(tmp_path, capsys):

@@ -459,9 +459,12 @@ class Scenario(StrictModel):
             if spec.rate is None and not (self.mobility is not None and self.mobility.rate_from_distance):
                 for what in ("queue", "background"):
                     if getattr(spec, what) is not None:
+                        advice = (f"on the shared channel (medium:) frames wait in each node's radio, "
+                                  f"whose {what} is medium.{what}: give it there (a link off the channel "
+                                  "takes a rate first)" if self.medium is not None else
+                                  "give rate here or in links.default")
                         raise custom_error(f"a {what} acts through the link's transmitter, but the link "
-                                           "has no rate (bits per second); give rate here or in "
-                                           "links.default", f"{key}.{what}")
+                                           f"has no rate (bits per second); {advice}", f"{key}.{what}")
 
     def _check_time_range(self, plan: RunPlan, places: list[tuple[str, LinkSpec]]) -> None:
         """Every time the run can reach fits the int64 nanosecond clock (:data:`MAX_NS`)."""
