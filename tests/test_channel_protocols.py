@@ -214,7 +214,8 @@ def test_the_shipped_channel_scenario_validates_and_bad_overrides_name_the_key(c
     path = str(ROOT / "scenarios" / "channel_its_g5.yaml")
     assert main(["validate", path]) == 0
     for override, key in (("medium.rate=0", "medium.rate"), ("medium.access.cw=-1", "medium.access.cw"),
-                          ("medium.access.slot=0", "medium.access.slot")):
+                          ("medium.access.slot=0", "medium.access.slot"),
+                          ("medium.preamble=1e9", "medium.preamble")):
         capsys.readouterr()
         assert main(["validate", path, "--set", override]) == 2, override
         err = capsys.readouterr().err

@@ -20,11 +20,11 @@ from typing import Annotated, Literal
 from pydantic import Field, model_validator
 
 from dkfsim.components.traffic import Background, Queue, Rate
-from dkfsim.core.params import NonNegSeconds, StrictModel, custom_error, seconds_to_ns
+from dkfsim.core.params import StrictModel, custom_error, seconds_to_ns
 
 #: Largest contention window (slots): IEEE 802.11's largest, CWmax = 1023.
 MAX_CW = 1023
-#: Largest slot and AIFS (seconds): far beyond any radio (802.11p: 13 us and 110 us).
+#: Largest slot, AIFS and preamble (seconds): far beyond any radio (802.11p: 13 us and 110 us).
 MAX_SLOT_S = 1.0
 
 
@@ -61,7 +61,7 @@ class Medium(StrictModel):
 
     rate: Rate
     access: Csma = Field(default_factory=Csma)
-    preamble: NonNegSeconds = 40.0e-6
+    preamble: Annotated[float, Field(strict=True, ge=0, le=MAX_SLOT_S, allow_inf_nan=False)] = 40.0e-6
     queue: Queue | None = None
     background: Background | None = None
     nodes: Literal["all"] | Annotated[tuple[Annotated[int, Field(strict=True, ge=0)], ...],
