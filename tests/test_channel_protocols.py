@@ -18,6 +18,7 @@ import reference as ref
 from conftest import run_scenario, scenario, tree_edges
 from test_exactness import check_against_window_reference, check_common, expected_late
 
+import dkfsim
 from dkfsim.network.links import Port
 from dkfsim.protocols.base import PACKET_HEADER, PART_HEADER, row_bytes
 
@@ -267,3 +268,22 @@ def test_centralized_delayed_sends_one_unicast_frame_per_sensor_and_tick():
         assert row["link"][1] == -1 and row["sent"] == K
         assert row["sent"] + row["copies"] == (row["delivered"] + row["lost"] + row["queue_dropped"]
                                                + row["crash_dropped"] + row["in_flight"])
+
+
+def test_a_channel_background_too_heavy_to_simulate_is_refused_before_it_starts(tmp_path, capsys):
+    """Every background frame is an event of the channel engine in each estimator's copy, so the
+    run's estimate counts them: 1e9 frames per second and vehicle is refused (exit 2, the
+    estimate and --yes named) at once instead of running for days; the shipped load adds little."""
+    from dkfsim.cli.main import main
+    from dkfsim.engine.estimate import estimate_run
+    path = ROOT / "scenarios" / "channel_its_g5.yaml"
+    shipped = estimate_run(dkfsim.load_scenario(path)).seconds
+    quiet = estimate_run(dkfsim.load_scenario(path, overrides=["medium.background=null"])).seconds
+    heavy = estimate_run(dkfsim.load_scenario(path, overrides=["medium.background.packets_per_second=1e9"])).seconds
+    assert quiet < shipped < 1.05 * quiet and heavy > 1e6
+    capsys.readouterr()
+    code = main(["run", str(path), "--steps", "30", "--out", str(tmp_path / "out"),
+                 "--set", "medium.background.packets_per_second=1e9"])
+    err = capsys.readouterr().err
+    assert code == 2 and "would take about" in err and "--yes" in err and "background" in err, err
+    assert not (tmp_path / "out").exists()

@@ -14,7 +14,7 @@ from __future__ import annotations
 from dkfsim.components.estimators import AntiDelayParams
 from dkfsim.config.plan import RunPlan
 from dkfsim.core.registry import ESTIMATORS
-from dkfsim.core.resources import B_FLOAT, Cost, check
+from dkfsim.core.resources import B_FLOAT, C_PACKET, Cost, check
 from dkfsim.estimators.anti_delay import AntiDelayDKF
 
 
@@ -32,6 +32,11 @@ def estimate_run(run, save: str = "auto") -> Cost:
     total.memory["information contributions"] = K * n * nx * B_FLOAT * (1 + (nx if varying else 0))
     total.memory["graph and bookkeeping"] = (n + arcs) * 200 + min(L, K) * (n + 3 * arcs) * 40
     total.seconds = plan.search_seconds
+    medium = scenario.medium
+    if medium is not None and medium.background is not None:
+        # every background frame is an event of the channel engine, in each estimator's copy
+        frames = (medium.background.packets_per_second * len(medium.members(n)) * K * float(scenario.model.T))
+        total.seconds += frames * (1 + len(scenario.estimators)) * C_PACKET
     parts = [AntiDelayDKF.cost(AntiDelayParams(), plan)]
     for p in scenario.estimators:
         parts.append(ESTIMATORS.get(p.kind).implementation.cost(p, plan))
@@ -47,5 +52,5 @@ def check_run(run, *, save: str = "auto", yes: bool = False) -> Cost:
     ``save``); returns its estimate."""
     est = estimate_run(run, save)
     check(est, yes=yes, hint="fewer steps or nodes, a shorter buffer_length, fusion: none, "
-                             "or --save estimates (no n x n x K arrival log)")
+                             "less background load, or --save estimates (no n x n x K arrival log)")
     return est
