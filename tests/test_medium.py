@@ -376,6 +376,9 @@ def test_a_run_on_the_channel_counts_and_reports_it():
     ({"rate": 1e6, "access": {"kind": "tdma"}}, "medium.access.kind", "csma"),
     ({"rate": 1e6, "nodes": [0, 9]}, "medium.nodes.1", "out of range"),
     ({"rate": 1e6, "queue": {"packets": 0}}, "medium.queue.packets", "at least one"),
+    ({"rate": 1e6, "nodes": [0]}, "medium.nodes", "at least two nodes"),
+    ({"rate": 1e6, "nodes": "some"}, "medium.nodes", "give 'all' or a list"),
+    ({"rate": 1e6, "preamble": 2.0}, "medium.preamble", "<= 1"),
 ])
 def test_bad_medium_keys_are_clear_errors(medium, key, words):
     sc = _with_medium()
@@ -384,6 +387,7 @@ def test_bad_medium_keys_are_clear_errors(medium, key, words):
         load_scenario(sc)
     text = str(err.value)
     assert key in text and words in text, text
+    assert "literal[" not in text and "tuple[" not in text, text      # no validation internals
 
 
 def test_a_link_rate_on_the_channel_is_refused_with_exit_2(tmp_path):

@@ -17,7 +17,7 @@ from __future__ import annotations
 
 from typing import Annotated, Literal
 
-from pydantic import Field, model_validator
+from pydantic import Field, field_validator, model_validator
 
 from dkfsim.components.traffic import Background, Queue, Rate
 from dkfsim.core.params import StrictModel, custom_error, seconds_to_ns
@@ -66,6 +66,18 @@ class Medium(StrictModel):
     background: Background | None = None
     nodes: Literal["all"] | Annotated[tuple[Annotated[int, Field(strict=True, ge=0)], ...],
                                       Field(min_length=2)] = "all"
+
+    @field_validator("nodes", mode="before")
+    @classmethod
+    def _nodes_shape(cls, value):
+        """One plain message for a ``nodes`` that is neither ``all`` nor a list of two or more
+        nodes (the union type's own message lists both alternatives' internals)."""
+        if isinstance(value, str) and value != "all":
+            raise custom_error(f"give 'all' or a list of at least two node numbers, got {value!r}")
+        if isinstance(value, (list, tuple)) and len(value) < 2:
+            raise custom_error("a channel needs at least two nodes: give 'all' or a list of two or "
+                               f"more node numbers, got {list(value)!r}")
+        return value
 
     def members(self, n: int) -> tuple[int, ...]:
         """The nodes on the channel, in increasing order."""
