@@ -14,7 +14,7 @@ import numpy as np
 
 from dkfsim.components.mobility import link_pairs, link_uptime
 from dkfsim.config.dynamics import component_names as names_of
-from dkfsim.config.dynamics import component_units as units_of
+from dkfsim.config.dynamics import component_units
 from dkfsim.config.load import stored_scenario
 from dkfsim.config.plan import RunPlan
 from dkfsim.config.results import (
@@ -130,11 +130,6 @@ class Folder:
 
 def component_names(nx: int, model_kind: str | None) -> list[str]:
     return names_of(model_kind, nx)
-
-
-def component_units(components, model_kind) -> list[str]:
-    """Units of the components (:func:`dkfsim.config.dynamics.component_units`)."""
-    return units_of(components, model_kind)
 
 
 def _model_kind(summary: dict) -> str | None:

@@ -23,6 +23,7 @@ import numpy as np
 
 from dkfsim.analysis.metrics import paired_interval
 from dkfsim.analysis.paired import pair_values, reference_of
+from dkfsim.config.dynamics import component_units
 from dkfsim.config.keys import key_label
 from dkfsim.core.errors import DkfsimError
 from dkfsim.core.extras import pyplot
@@ -30,7 +31,6 @@ from dkfsim.core.params import suggest
 from dkfsim.core.registry import METRICS
 from dkfsim.experiments.sweep.grid import grid_columns, groups, interval
 from dkfsim.experiments.sweep.summary import read_table
-from dkfsim.report.plots.folders import component_units
 from dkfsim.report.plots.style import (
     DEFAULT_FORMATS,
     OPEN_BELOW,
