@@ -454,18 +454,19 @@ def tasks_done(path: Path, sweep: Sweep) -> set:
         problem = growth_problem(store.conn, store.definition, sweep)
         if problem:
             raise DkfsimError(f"{path} was made by a different sweep definition ({problem})")
-        check_shared_growth(path, store, sweep)
-        return whole_tasks(store, sweep)
+        missing = missing_estimates(store, sweep)
+        check_shared_growth(path, sweep, missing)
+        return {t for t in store.done() if t not in missing}
     finally:
         store.close()
 
 
-def check_shared_growth(path, store: "SweepDB", sweep: Sweep) -> None:
+def check_shared_growth(path, sweep: Sweep, missing: dict[tuple[str, int], list[str]]) -> None:
     """Refuse to grow a sweep by estimators when its queues are shared (``links.shared_queues``,
     docs/traffic.md): the added estimators would run alone on the stored runs, whereas with
     shared queues every estimator's packets wait behind the others', so their rows would not
-    be those of a run of the whole list (and the stored rows would no longer be either)."""
-    missing = missing_estimates(store, sweep)
+    be those of a run of the whole list (and the stored rows would no longer be either).
+    ``missing``: :func:`missing_estimates` of the stored runs."""
     shared = {p.param_hash: p for p in sweep.parameter_sets if p.scenario.links.shared_queues}
     for (h, _run), added in missing.items():
         if h in shared:
@@ -489,8 +490,3 @@ def missing_estimates(store: "SweepDB", sweep: Sweep) -> dict[tuple[str, int], l
                 out[(h, r)] = missing
     return out
 
-
-def whole_tasks(store: "SweepDB", sweep: Sweep) -> set:
-    """Tasks of ``sweep`` done with every estimate it asks for."""
-    missing = missing_estimates(store, sweep)
-    return {t for t in store.done() if t not in missing}
