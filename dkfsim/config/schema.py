@@ -444,7 +444,7 @@ class Scenario(StrictModel):
         entries = [("links.default", self.links.default, None)] + [
             (f"links.overrides.{i}", ov, ov) for i, ov in enumerate(self.links.overrides)]
         for key, entry, override in entries:
-            arcs = plan.arcs if override is None else [a for a in plan.arcs if self._matches(override, *a)]
+            arcs = plan.arcs if override is None else [a for a in plan.arcs if self.link_matches(override.link, *a)]
             on = next(((u, v) for u, v in arcs if u in members and v in members), None)
             what = next((w for w in ("rate", "queue", "background") if getattr(entry, w) is not None), None)
             if on is not None and what is not None:
@@ -538,16 +538,17 @@ class Scenario(StrictModel):
         keys = ("latency", "loss", "duplicate", "jitter", "schedule", "outages") + TRAFFIC_KEYS
         spec = {k: getattr(self.links.default, k) for k in keys}
         for ov in self.links.overrides:
-            if self._matches(ov, u, v):
+            if self.link_matches(ov.link, u, v):
                 spec.update({k: getattr(ov, k) for k in keys if getattr(ov, k) is not None})
         return LinkSpec(latency=spec["latency"], loss=float(spec["loss"]),
                         duplicate=float(spec["duplicate"] or 0.0), jitter=spec["jitter"],
                         schedule=tuple(spec["schedule"] or ()),
                         outages=tuple(spec["outages"] or ()), **{k: spec[k] for k in TRAFFIC_KEYS})
 
-    def _matches(self, override, u: int, v: int) -> bool:
-        """``link: [a, b]`` of ``override`` matches ``u -> v``, and ``v -> u`` when undirected."""
-        a, b = override.link
+    def link_matches(self, pair, u: int, v: int) -> bool:
+        """The link named ``pair`` (``[a, b]``, e.g. an override's ``link``) is ``u -> v``, or
+        ``v -> u`` when the topology is undirected."""
+        a, b = pair
         return (a, b) == (u, v) or (not self.topology.directed and (b, a) == (u, v))
 
     def _key_of(self, u: int, v: int, what: str) -> str:
@@ -555,7 +556,7 @@ class Scenario(StrictModel):
         matching override that gives it (``links.overrides.I``), else ``links.default``."""
         found = "links.default"
         for i, ov in enumerate(self.links.overrides):
-            if self._matches(ov, u, v) and getattr(ov, what) is not None:
+            if self.link_matches(ov.link, u, v) and getattr(ov, what) is not None:
                 found = f"links.overrides.{i}"
         return found
 

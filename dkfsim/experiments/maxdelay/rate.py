@@ -161,8 +161,7 @@ def rate_lower_bound(axis: RateAxis, estimate: str) -> dict:
     best = None
     for row in traffic["per_link"]:
         u, v = row["link"]
-        if axis.link is not None and (u, v) != axis.link and \
-                (sc.topology.directed or (v, u) != axis.link):
+        if axis.link is not None and not sc.link_matches(axis.link, u, v):
             continue
         spec = sc.link_spec(u, v)
         bg = spec.background
@@ -193,7 +192,6 @@ def _share(sc, u: int, v: int, ratios: dict) -> float:
     override's ratio, else 1."""
     f = 1.0
     for i, ov in enumerate(sc.links.overrides):
-        a, b = ov.link
-        if ((a, b) == (u, v) or (not sc.topology.directed and (b, a) == (u, v))) and i in ratios:
+        if i in ratios and sc.link_matches(ov.link, u, v):
             f = ratios[i]
     return f
