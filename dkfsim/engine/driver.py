@@ -85,7 +85,7 @@ class Run:
         env = simpy.Environment()
         network = Network(env, plan.arcs, scenario.link_spec, seed, system.T_ns, crashes=crashes,
                           shared_queues=bool(scenario.links.shared_queues), schedule=plan.link_schedule,
-                          medium=scenario.medium)
+                          medium=scenario.medium, n=system.n)
         self.backend = run_backend(plan, network, crashes)
         self.ctx = RunContext(scenario=scenario, plan=plan, backend=self.backend, system=system, truth=truth, ys=ys,
                               info=system.information(ys), crashes=crashes, env=env, network=network)

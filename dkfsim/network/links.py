@@ -142,7 +142,7 @@ class Link:
     :param key: the prefix of the link's draw names, ``("link", src, dst)`` by default.
     """
 
-    __slots__ = ("id", "src", "dst", "spec", "loss", "duplicate", "plain", "rate", "up", "changes", "T_ns",
+    __slots__ = ("id", "src", "dst", "spec", "loss", "duplicate", "plain", "rate", "up", "changes", "T_ns", "on_channel",
                  "near", "_near_loss", "_near_extra", "_near_rate", "_main", "_copy", "_loss_key", "_dup_key", "_outages", "_prefix", "_seed", "_faultless")
 
     def __init__(self, link_id: int, src: int, dst: int, spec: Any, seed: int, T_ns: int,
@@ -157,6 +157,8 @@ class Link:
         #: whether its quality follows its pair's distance (:meth:`set_distance`); per tick
         #: ``0 .. K``: loss probability, extra latency ns, rate bit/s (each None when not given)
         self.near = False
+        #: whether its packets go as frames on the shared channel (set by its :class:`Network`)
+        self.on_channel = False
         self._near_loss: list[float] | None = None
         self._near_extra: list[int] | None = None
         self._near_rate: list[float] | None = None
@@ -304,20 +306,24 @@ class Network:
     def __init__(self, env: simpy.Environment, arcs: list[tuple[int, int]],
                  link_spec: Callable[[int, int], Any], seed: int, T_ns: int,
                  crashes: CrashSchedule | None = None, shared_queues: bool = False,
-                 schedule: LinkSchedule | None = None, medium: Medium | None = None):
+                 schedule: LinkSchedule | None = None, medium: Medium | None = None, n: int | None = None):
         self.env = cast(Clock, env)         # (SimPy types time as int | float; here it is ns)
         #: link id -> the transmitter every port uses, when queues are shared (else each port
         #: keeps its own)
         self.shared_transmitters: dict[int, Transmitter] | None = {} if shared_queues else None
         self.medium = medium
-        n = 1 + max((max(u, v) for u, v in arcs), default=-1)
-        #: the nodes on the channel (none without ``medium``)
-        self.members: frozenset[int] = frozenset(medium.members(n)) if medium is not None else frozenset()
+        if n is None:
+            n = 1 + max((max(u, v) for u, v in arcs), default=-1)
+        #: the nodes on the channel, in increasing order (none without ``medium``), and as a set
+        self._member_order: tuple[int, ...] = medium.members(n) if medium is not None else ()
+        self.members: frozenset[int] = frozenset(self._member_order)
         self._shared_channel: Channel | None = None
         self._shared_queues = shared_queues
         self.seed, self.T_ns = int(seed), int(T_ns)
         self.links = [Link(i, u, v, link_spec(u, v), seed, T_ns) for i, (u, v) in enumerate(arcs)]
         self.index = {(l.src, l.dst): l for l in self.links}
+        for link in self.links:
+            link.on_channel = self.on_channel(link)
         #: which links are up at each tick (None: all, always)
         self.schedule = schedule
         if schedule is not None:
@@ -344,16 +350,18 @@ class Network:
         None without ``medium``."""
         if self.medium is None:
             return None
-        if self._shared_queues:
-            if self._shared_channel is None:
-                self._shared_channel = Channel(self.env, self.medium, tuple(sorted(self.members)), self.seed)
+        if self._shared_queues and self._shared_channel is not None:
             return self._shared_channel
-        return Channel(self.env, self.medium, tuple(sorted(self.members)), self.seed)
+        channel = Channel(self.env, self.medium, self._member_order, self.seed)
+        if self._shared_queues:
+            self._shared_channel = channel
+        return channel
 
     def extra_link(self, key: tuple, spec: Any, src: int, dst: int) -> Link:
         """A link outside the graph (e.g. a sensor's direct link to a fusion centre),
         its draws named ``key``; it joins the network's link list."""
         link = Link(len(self.links), src, dst, spec, self.seed, self.T_ns, key=key)
+        link.on_channel = self.on_channel(link)
         self.links.append(link)
         return link
 
@@ -437,9 +445,6 @@ class Port:
         #: flat; and how many a full waiting room dropped
         self._ended = array("q")
         self._frames_dropped = 0
-        #: link id -> whether the link is on the shared channel (:meth:`Network.on_channel`,
-        #: which never changes for a link), as :meth:`send_frame` met it
-        self._on_channel: dict[int, bool] = {}
 
     def _grow(self) -> None:
         """One counter slot per link of the network (links may be added after the port)."""
@@ -450,7 +455,7 @@ class Port:
     def send(self, link: Link, payload: Any, nbytes: int = 0) -> None:
         """Hand ``payload`` to ``link`` now (``nbytes``: its nominal size, for traffic); on
         the shared channel, a frame of one part (:meth:`send_frame`)."""
-        if self.channel is not None and self.net.on_channel(link):
+        if self.channel is not None and link.on_channel:
             self._send_on_channel(((link, payload, nbytes),), nbytes)
             return
         now = self.env.now
@@ -494,19 +499,12 @@ class Port:
             for link, payload, nbytes in parts:
                 self.send(link, payload, nbytes)
             return
-        on = self._on_channel
         framed = []
         for part in parts:
-            lid = part[0].id
-            here = on.get(lid)
-            if here is None:
-                here = on[lid] = self.net.on_channel(part[0])
-            if here:
+            if part[0].on_channel:
                 framed.append(part)
-        if len(framed) < len(parts):
-            for part in parts:
-                if not on[part[0].id]:
-                    self.send(*part)
+            else:                               # (sent before the frame is offered, in order)
+                self.send(*part)
         if framed:
             self._send_on_channel(framed, frame_bytes)
 
