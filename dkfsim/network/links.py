@@ -222,7 +222,7 @@ class Link:
     def is_up(self, t_ns: int) -> bool:
         """Whether the link is up at instant ``t_ns`` (the state of the tick ``t_ns`` is in)."""
         up = self.up
-        return up is None or bool(up[min(t_ns // self.T_ns, len(up) - 1)])
+        return up is None or bool(up[self._tick(t_ns, len(up))])
 
     def compiled_latency(self) -> tuple[int, int, int] | None:
         """The latency model's :meth:`~dkfsim.components.latency.Sampler.compiled_form` when
