@@ -66,9 +66,8 @@ def cmd_montecarlo(args) -> int:
     finally:
         if bar is not None:
             bar.close()
-    summary = res.summary()                # the per-estimate pooling once, for the file and the table
-    out = res.save(args.out, summary=summary)
+    out = res.save(args.out)               # (the per-estimate pooling is cached: once for both)
     if not args.quiet:
-        say(res.table(summary["estimates"]))
+        say(res.table())
         say(f"wrote {out / 'runs.csv'}, {out / 'curves.npz'} and {out / 'summary.json'}")
     return 0

@@ -34,6 +34,7 @@ from __future__ import annotations
 
 import math
 import time
+from functools import cached_property
 from pathlib import Path
 
 import numpy as np
@@ -503,14 +504,14 @@ class MonteCarloResult:
             out[key] = None if math.isnan(mean) else mean      # NaN rows: not modelled for it
         return out
 
+    @cached_property
     def estimate_summaries(self) -> dict[str, dict]:
         """:meth:`estimate_summary` of every estimate, in order: the ``estimates`` block of
-        :meth:`summary`, which :meth:`table` prints too (computed once by the CLI, passed to both)."""
+        :meth:`summary`, which :meth:`table` prints too (pooled once per result)."""
         return {name: self.estimate_summary(name) for name in self.estimates}
 
-    def summary(self, estimates: dict[str, dict] | None = None) -> dict:
-        """The ``summary.json`` content; ``estimates``: :meth:`estimate_summaries` when the
-        caller already has them (default: computed here)."""
+    def summary(self) -> dict:
+        """The ``summary.json`` content."""
         sc = self.scenario
         return {
             "scenario": sc.name,
@@ -554,15 +555,14 @@ class MonteCarloResult:
                            "contributions (the DKF) or stale packets; means over runs; null = "
                            "not modelled for that estimate",
             },
-            "estimates": self.estimate_summaries() if estimates is None else estimates,
+            "estimates": self.estimate_summaries,
             "scenario_config": sc.to_dict(),
         }
 
     # ------------------------------------------------------------------ output
-    def save(self, out_dir, summary: dict | None = None) -> Path:
-        """Write ``runs.csv``, ``curves.npz`` and ``summary.json`` into ``out_dir``;
-        ``summary``: :meth:`summary` when the caller already has it (default: computed here)."""
-        summary = self.summary() if summary is None else summary
+    def save(self, out_dir) -> Path:
+        """Write ``runs.csv``, ``curves.npz`` and ``summary.json`` into ``out_dir``."""
+        summary = self.summary()
         examples = {k: v for k, v in self.example.items() if v is not None}
         with staged(out_dir, "montecarlo") as tmp:
             write_rows(tmp / "runs.csv", self.rows)
@@ -573,13 +573,12 @@ class MonteCarloResult:
             write_json(tmp / "summary.json", summary)
         return Path(out_dir)
 
-    def table(self, estimates: dict[str, dict] | None = None) -> str:
+    def table(self) -> str:
         """Algorithm x component: MSE with its 95 % CI; ANEES with its 95 % t-interval over runs
-        and the consistency verdict; then the paired comparison with the reference estimate.
-        ``estimates``: :meth:`estimate_summaries` when the caller already has them."""
+        and the consistency verdict; then the paired comparison with the reference estimate."""
         head: tuple[str, ...] = ("estimate", "component", "MSE", "95% CI", "ANEES", "95% CI (runs)",
                                  "consistent")
-        summaries = self.estimate_summaries() if estimates is None else estimates
+        summaries = self.estimate_summaries
         body: list[tuple[str, ...]] = []
         for name, s in summaries.items():
             for c, comp in enumerate(self.components):
