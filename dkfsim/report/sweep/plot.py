@@ -110,13 +110,14 @@ def per_component(metric: str) -> bool:
 
 def sweep_curves(path, x: str | None = None, hue: str | None = None, metric: str = "mse",
                  estimate: str | None = None, where=(), relative_to: str | None = None,
-                 components=None) -> dict:
+                 components=None, table: tuple | None = None) -> dict:
     """The points to draw: ``{"x": key, "hue": key or None, "xs": values, "lines": {label:
     {component: [(x, n, mean, lo, hi), ...]}}, "components": [...], "nx": {estimate: nx},
     "estimates": every estimate name of the sweep (for :func:`~dkfsim.report.plots.style.color_of`)}``;
     with ``relative_to`` the points are paired ratios to the reference (:func:`_paired`);
-    ``components``: the state components kept, by name or index (``--component``; default all)."""
-    columns, rows = read_table(path)
+    ``components``: the state components kept, by name or index (``--component``; default all);
+    ``table``: :func:`read_table` of ``path`` when the caller has read it already."""
+    columns, rows = read_table(path) if table is None else table
     if metric not in columns:
         metrics = [c for c in columns if c in METRICS]
         raise DkfsimError(f"--metric {metric}: not a column of {path}{suggest(metric, metrics)} "
@@ -358,14 +359,15 @@ def plot_sweep(path, stem, x=None, hue=None, metric="mse", estimate=None, where=
     another metric with ``relative_to`` is drawn as the ratio alone.  ``xlabel`` replaces the
     x label made from the key (:func:`axis_label`)."""
     formats = check_formats(formats)
-    absolute = sweep_curves(path, x, hue, metric, estimate, where, None, components)
+    table = read_table(path)               # once for both columns of panels
+    absolute = sweep_curves(path, x, hue, metric, estimate, where, None, components, table)
     ref = relative_to
     if ref is None and metric == "mse" and absolute["hue"] is None and "centralized" in absolute["estimates"] \
             and len(absolute["lines"]) > 1:
         ref = "centralized"
     cols = [] if ref is not None and metric != "mse" else [absolute]
     if ref is not None:
-        cols.append(sweep_curves(path, x, hue, metric, estimate, where, ref, components))
+        cols.append(sweep_curves(path, x, hue, metric, estimate, where, ref, components, table))
     cur = cols[0]
     comps, xs = cur["components"], cur["xs"]
     numeric = _numeric(xs)
