@@ -45,6 +45,7 @@ model offers ``from_uniform(u, T_ns)`` (its quantile function, vectorised),
 
 from __future__ import annotations
 
+import functools
 import math
 import os
 from pathlib import Path
@@ -557,14 +558,6 @@ class _GESampler(Sampler):
 # =========================================================================== cellular (V2N) by SINR
 #: The shipped fit of ``cellular_sinr`` (tools/fit_sinr_latency.py writes it; a test recomputes it).
 SINR_FIT_FILE = DATA_DIR / "cicv5g" / "sinr_latency_fit.json"
-_SINR_FIT: dict = {}
-
-
-def sinr_fit() -> dict:
-    """The shipped SINR-binned latency quantiles (read once)."""
-    if not _SINR_FIT:
-        _SINR_FIT.update(read_json(SINR_FIT_FILE, what="the cellular_sinr fit"))
-    return _SINR_FIT
 
 
 class SinrTable:
@@ -590,14 +583,10 @@ class SinrTable:
         return out
 
 
-_SINR_TABLE: list[SinrTable] = []
-
-
+@functools.cache
 def sinr_table() -> SinrTable:
-    """:class:`SinrTable` of the shipped fit (built once)."""
-    if not _SINR_TABLE:
-        _SINR_TABLE.append(SinrTable(sinr_fit()))
-    return _SINR_TABLE[0]
+    """:class:`SinrTable` of the shipped fit (read and built once)."""
+    return SinrTable(read_json(SINR_FIT_FILE, what="the cellular_sinr fit"))
 
 
 def sinr_latency_ms(u, sinr_db, fit: dict) -> np.ndarray:
