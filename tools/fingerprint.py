@@ -53,6 +53,11 @@ ROOT = Path(__file__).resolve().parents[1]
 CASE1 = "scenarios/paper_case1.yaml"
 CASE2 = "scenarios/paper_case2.yaml"
 RADAR = "scenarios/radar_experiment.yaml"
+CHANNEL = "scenarios/channel_its_g5.yaml"
+#: The shipped scenarios not covered above, each run as it is (mobility: changing graphs).
+SHIPPED = ("scenarios/mobility_crossing.yaml", "scenarios/mobility_platoon.yaml", "scenarios/mobility_convoy.yaml",
+           "scenarios/cicv5g_track.yaml", "scenarios/stress_5g_empirical.yaml", "scenarios/stress_heavy_tail.yaml",
+           "scenarios/stress_outage.yaml", "scenarios/stress_ramp.yaml")
 #: 70 sensors, H cycling over the 3 states: origin bitmasks wider than one 64-bit word.
 SENSORS_70 = "[" + ", ".join(f"{{name: s{i}, H: [[{int(i % 3 == 0)}, {int(i % 3 == 1)}, {int(i % 3 == 2)}]], "
                              f"R: [[{1.0 + 0.1 * (i % 7):.1f}]]}}" for i in range(70)) + "]"
@@ -95,6 +100,17 @@ SCENARIOS: dict[str, tuple[str, list[str]]] = {
                                  "links.default.rate=2.0e5", "links.default.queue={packets: 2}",
                                  "links.default.background={packets_per_second: 40, size: 200, "
                                  "sizes: exponential}"]),
+    # the fusion centre relayed hop by hop: on plain links, and on rate-limited links with background
+    "centre": (CASE1, ["estimators=[{kind: fusion_centre, at: 0}, {kind: centralized_delayed}]"]),
+    "centre_traffic": (CASE1, ["links.default.rate=1.0e6", "links.default.queue={packets: 20}",
+                               "links.default.background={arrivals: poisson, packets_per_second: 50, size: 250}",
+                               "estimators=[{kind: fusion_centre, at: 0}, {kind: centralized_delayed}]"]),
+    # the shared channel (tree; flood; one queue per node shared by every estimator)
+    "channel_its_g5": (CHANNEL, []),
+    "channel_flood": (CHANNEL, ["protocol=flood"]),
+    "channel_shared_queues": (CHANNEL, ["links.shared_queues=true"]),
+    # every other shipped scenario as it is
+    **{Path(f).stem: (f, []) for f in SHIPPED},
 }
 
 #: Kernel paths: name -> environment variables of the run (DKFSIM_* not listed are unset).
