@@ -52,11 +52,13 @@ import functools  # noqa: E402
 import io  # noqa: E402
 import json  # noqa: E402
 import random  # noqa: E402
+import re  # noqa: E402
 import shutil  # noqa: E402
 import sqlite3  # noqa: E402
 import sys  # noqa: E402
 import tempfile  # noqa: E402
 import time  # noqa: E402
+import warnings  # noqa: E402
 import zipfile  # noqa: E402
 from collections import Counter  # noqa: E402
 from dataclasses import asdict  # noqa: E402
@@ -75,7 +77,13 @@ from dkfsim.core.errors import DkfsimError  # noqa: E402
 
 ROOT = TOOLS.parent
 CASE1 = ROOT / "scenarios" / "paper_case1.yaml"
-BASES = ("run", "mc", "sweep")
+BASES = ("run", "mc", "sweep", "channel", "mobility", "centre", "mobility_mc", "sweep_channel")
+#: The bases that are sweep databases (the others are folders).
+SWEEPS = ("sweep", "sweep_channel")
+#: Estimate names of the bases (the ``names_escape`` mutation renames ``centralized``).
+RENAMED = "centralized"
+#: A name holding terminal escapes: retitle the window, ring the bell, clear the screen.
+ESCAPED_NAME = "e\x1b]0;PWNED\x07\x1b[2J"
 #: Seconds a mutant may take, every command together.
 DEFAULT_TIMEOUT = 30.0
 #: Mutants checked by default (a seeded sample of the enumeration; every whole-file and
@@ -102,25 +110,45 @@ class ResultMutant(NamedTuple):
 # =========================================================================== the bases
 @functools.lru_cache(maxsize=None)
 def base_dir() -> Path:
-    """The three legitimate bases, made once per process in a temporary folder."""
+    """The legitimate bases, made once per process in a temporary folder: a run, a Monte Carlo
+    and a sweep of paper case 1; a run on the shared channel with the fusion centre
+    (``channel``), a run and a Monte Carlo of moving vehicles (``mobility``, ``mobility_mc``),
+    the fusion centre over rate-limited links with background (``centre``) and a sweep of the
+    channel's rate (``sweep_channel``)."""
     d = Path(tempfile.mkdtemp(prefix="fuzz_results_bases_"))
     sc = dkfsim.load_scenario(CASE1, overrides=["steps=20", "estimators=[{kind: centralized}, "
                                                 "{kind: ci_consensus, rounds: 1}]"])
     dkfsim.run(sc).save(d / "run")
-    dkfsim.montecarlo(sc, runs=2).save(d / "mc")
-    (d / "sweep").mkdir()
-    (d / "sweep" / "s.yaml").write_text(json.dumps({
-        "scenario": str(CASE1), "grid": {"links.default.latency.d_t": [0, 2]},
-        "set": ["steps=20", "estimators=[{kind: centralized}]"], "runs": 2}))
-    dkfsim.sweep(d / "sweep" / "s.yaml", jobs=1, progress=False)
-    for leftover in (d / "sweep").glob("s.sqlite-*"):
-        leftover.unlink()
+    dkfsim.montecarlo(sc, runs=2, jobs=1).save(d / "mc")
+    _sweep(d / "sweep", {"scenario": str(CASE1), "grid": {"links.default.latency.d_t": [0, 2]},
+                         "set": ["steps=20", "estimators=[{kind: centralized}]"], "runs": 2})
+    centre = "estimators=[{kind: fusion_centre, at: 0, margin: 5}, {kind: centralized}]"
+    channel = dkfsim.load_scenario(ROOT / "scenarios" / "channel_its_g5.yaml", overrides=["steps=20", centre])
+    dkfsim.run(channel).save(d / "channel")
+    mobility = dkfsim.load_scenario(ROOT / "scenarios" / "mobility_convoy.yaml",
+                                    overrides=["steps=20", "estimators=[{kind: centralized}]"])
+    dkfsim.run(mobility).save(d / "mobility")
+    dkfsim.montecarlo(mobility, runs=2, jobs=1).save(d / "mobility_mc")
+    rated = dkfsim.load_scenario(CASE1, overrides=[
+        "steps=20", centre, "links.default.rate=2.0e6", "links.default.queue={packets: 10}",
+        "links.default.background={arrivals: poisson, packets_per_second: 50.0, size: 250}"])
+    dkfsim.run(rated).save(d / "centre")
+    _sweep(d / "sweep_channel", {"scenario": str(ROOT / "scenarios" / "channel_its_g5.yaml"),
+                                 "grid": {"medium.rate": [1.0e6, 6.0e6]}, "set": ["steps=20", centre], "runs": 1})
     return d
+
+
+def _sweep(folder: Path, definition: dict) -> None:
+    folder.mkdir()
+    (folder / "s.yaml").write_text(json.dumps(definition))
+    dkfsim.sweep(folder / "s.yaml", jobs=1, progress=False)
+    for leftover in folder.glob("s.sqlite-*"):
+        leftover.unlink()
 
 
 def base_files(base: str) -> list[str]:
     folder = base_dir() / base
-    names = ["s.sqlite"] if base == "sweep" else sorted(p.name for p in folder.iterdir() if not p.name.startswith("."))
+    names = ["s.sqlite"] if base in SWEEPS else sorted(p.name for p in folder.iterdir() if not p.name.startswith("."))
     return names
 
 
@@ -155,6 +183,14 @@ SQL_VALUES = {"NULL": None, "text": "abc", "5MB_text": HUGE_TEXT, "-1": -1, "1e3
 JSON_CELLS = ("definition", "values_json", "scenario_json")
 JSON_CELL_VALUES = {"not_json": "{not json", "a_list": "[1, 2]", "nested_1000": "[" * 1000 + "]" * 1000,
                     "mathtext_names": None, "empty_object": "{}"}
+#: Whole-file mutations of a JSON file: a 40 MB string under a key of its own.
+BIG_JSON_MUTATIONS = ("json_40MB_string",)
+#: Edits of the stored scenario (summary.json's ``scenario_config``, a sweep's
+#: ``params.scenario_json``) naming files outside the result: reading must open none of them.
+STORED_MUTATIONS = ("stored_track_canary", "stored_track_fifo", "stored_fcd_fifo", "stored_track_dev_zero",
+                    "stored_empirical_canary", "stored_relative_canary")
+#: Names holding terminal escapes (a sensor, the scenario, an estimate): nothing raw on a terminal.
+NAME_MUTATIONS = ("names_escape",)
 
 
 def enumerate_mutants(bases=BASES) -> list[ResultMutant]:
@@ -163,6 +199,8 @@ def enumerate_mutants(bases=BASES) -> list[ResultMutant]:
     for base in bases:
         for name in base_files(base):
             out += [ResultMutant(base, (name,), m) for m in FILE_MUTATIONS]
+            if name == "summary.json":
+                out += [ResultMutant(base, (name,), m) for m in STORED_MUTATIONS + BIG_JSON_MUTATIONS]
             if name.endswith(".json"):
                 data = base_json(base, name)
                 for path, value in fz.walk(data):
@@ -176,17 +214,36 @@ def enumerate_mutants(bases=BASES) -> list[ResultMutant]:
             elif name.endswith(".csv"):
                 out += [ResultMutant(base, (name, col), m) for col in (0, 1, 3, 4) for m in CSV_MUTATIONS]
             elif name.endswith(".sqlite"):
-                for table, cols in base_tables().items():
+                out += [ResultMutant(base, (name, "scenario_json"), m) for m in STORED_MUTATIONS]
+                for table, cols in base_tables(base).items():
                     out.append(ResultMutant(base, (name, table), "drop_table"))
                     out += [ResultMutant(base, (name, table, col), f"set_{v}") for col in cols for v in SQL_VALUES]
                 for cell in JSON_CELLS:
                     out += [ResultMutant(base, (name, cell), f"json_{v}") for v in JSON_CELL_VALUES]
+        out += [ResultMutant(base, (base_files(base)[0],), m) for m in NAME_MUTATIONS]
     return out
+
+
+def family(spec: ResultMutant) -> str:
+    """What a mutant changes: ``file`` (whole-file damage), ``json``, ``npz``, ``csv``, ``sql``,
+    ``stored`` (files named by the stored scenario), ``names`` (terminal escapes), ``big``
+    (a huge JSON string)."""
+    m = spec.mutation
+    if m in FILE_MUTATIONS:
+        return "file"
+    if m in STORED_MUTATIONS:
+        return "stored"
+    if m in NAME_MUTATIONS:
+        return "names"
+    if m in BIG_JSON_MUTATIONS:
+        return "big"
+    return {".json": "json", ".npz": "npz", ".csv": "csv", ".sqlite": "sql"}[Path(spec.path[0]).suffix]
 
 
 def select(specs: list[ResultMutant], limit: int, seed: int) -> list[ResultMutant]:
     """Every file and database mutant plus a seeded sample of ``limit`` others (JSON and npz)."""
-    always = [i for i, s in enumerate(specs) if s.mutation in FILE_MUTATIONS or s.scenario == "sweep"]
+    always = [i for i, s in enumerate(specs) if family(s) in ("file", "stored", "names", "big")
+              or s.scenario in SWEEPS]
     always_set = set(always)
     rest = [i for i in range(len(specs)) if i not in always_set]
     if 0 < limit < len(rest):
@@ -321,9 +378,85 @@ def _mathtext(data: Any) -> Any:
     return "$\\nosuch$" + data if isinstance(data, str) else data
 
 
+def _stored(cfg: dict, mutation: str) -> dict:
+    """The stored scenario ``cfg`` naming a file outside the result (:data:`STORED_MUTATIONS`:
+    ``stored_<what>_<kind>``): every vehicle a ``track`` or ``sumo_fcd`` of that file, or the
+    default latency an ``empirical`` trace of it; ``relative``: a track named relative to the
+    scenario file the result names."""
+    _, what, kind = mutation.split("_", 2)
+    file = fz._special(kind)
+    if what == "relative":
+        file, what = os.path.relpath(file, ROOT / "scenarios"), "track"
+    cfg = copy.deepcopy(cfg)
+    if what == "empirical":
+        cfg.setdefault("links", {}).setdefault("default", {})["latency"] = {"model": "empirical", "file": file}
+        return cfg
+    traj = {"kind": "track", "file": file} if what == "track" else {"kind": "sumo_fcd", "file": file, "vehicle": "v0"}
+    mobility = cfg.get("mobility")
+    if isinstance(mobility, dict) and isinstance(mobility.get("vehicles"), dict):
+        mobility["vehicles"] = {k: dict(traj) for k in mobility["vehicles"]}
+    else:
+        cfg["mobility"] = {"vehicles": {"default": traj}, "range": {"model": "disk", "radius": 1000.0}}
+    return cfg
+
+
+def _renamed(data: Any, old: str, new: str) -> Any:
+    """``data`` with every key and string equal to ``old`` replaced by ``new`` (the stored
+    scenario left alone: ``centralized`` is an estimator kind there)."""
+    if isinstance(data, dict):
+        return {(new if k == old else k): (v if k == "scenario_config" else _renamed(v, old, new))
+                for k, v in data.items()}
+    if isinstance(data, list):
+        return [_renamed(v, old, new) for v in data]
+    return new if data == old else data
+
+
+def _escaped_scenario(sc: dict) -> dict:
+    return {**sc, "name": ESCAPED_NAME, "sensors": [{**sc["sensors"][0], "name": ESCAPED_NAME}, *sc["sensors"][1:]]}
+
+
+def _names(target: Path, base: str) -> None:
+    """The ``names_escape`` mutation: the scenario, its first sensor and the estimate
+    ``centralized`` named :data:`ESCAPED_NAME`, in every file that holds them."""
+    if base in SWEEPS:
+        with contextlib.closing(sqlite3.connect(target / "s.sqlite")) as conn:
+            conn.execute("UPDATE results SET estimate=? WHERE estimate=?", (ESCAPED_NAME, RENAMED))
+            for rowid, text in conn.execute("SELECT rowid, scenario_json FROM params").fetchall():
+                conn.execute("UPDATE params SET scenario_json=? WHERE rowid=?",
+                             (json.dumps(_escaped_scenario(json.loads(text))), rowid))
+            conn.commit()
+        return
+    data = _renamed(base_json(base, "summary.json"), RENAMED, ESCAPED_NAME)
+    data["scenario"], data["scenario_config"] = ESCAPED_NAME, _escaped_scenario(data["scenario_config"])
+    (target / "summary.json").write_text(json.dumps(data))
+    for name in ("rows.csv", "runs.csv"):
+        if (target / name).exists():
+            lines = (target / name).read_text().splitlines()
+            (target / name).write_text("\n".join(",".join(ESCAPED_NAME if c == RENAMED else c for c in line.split(","))
+                                                 for line in lines) + "\n")
+    for name in ("run.npz", "curves.npz"):
+        if (target / name).exists():
+            arrays = {(k[:-len(RENAMED)] + ESCAPED_NAME if k.endswith("_" + RENAMED) else k): v
+                      for k, v in base_npz(base, name).items()}
+            for key in ("estimates", "algorithms"):
+                if key in arrays:
+                    arrays[key] = np.array([ESCAPED_NAME if str(x) == RENAMED else str(x) for x in arrays[key]])
+            _savez(target / name, arrays)
+
+
+def _stored_sql(path: Path, mutation: str) -> None:
+    with contextlib.closing(sqlite3.connect(path)) as conn:
+        for rowid, text in conn.execute("SELECT rowid, scenario_json FROM params").fetchall():
+            conn.execute("UPDATE params SET scenario_json=? WHERE rowid=?",
+                         (json.dumps(_stored(json.loads(text), mutation)), rowid))
+        conn.commit()
+
+
 def build_mutant(spec: ResultMutant, into: Path) -> Path:
     """A copy of the base of ``spec`` inside ``into`` with the mutation applied; returns what the
-    commands read (the folder, or the database file)."""
+    commands read (the folder, or the database file).  Files a mutation names outside the
+    result (a canary, a FIFO) go to tools/fuzz_scenarios' :func:`mutant_dir`."""
+    shutil.rmtree(fz.mutant_dir(), ignore_errors=True)
     src = base_dir() / spec.scenario
     target = into / spec.scenario
     shutil.copytree(src, target)
@@ -334,6 +467,18 @@ def build_mutant(spec: ResultMutant, into: Path) -> Path:
         pass
     elif m in FILE_MUTATIONS:
         _file(path, m, seed=hash(spec.label) & 0xFFFF)
+    elif m in NAME_MUTATIONS:
+        _names(target, spec.scenario)
+    elif m in STORED_MUTATIONS and name.endswith(".sqlite"):
+        _stored_sql(path, m)
+    elif m in STORED_MUTATIONS:
+        data = copy.deepcopy(base_json(spec.scenario, name))
+        data["scenario_config"] = _stored(data["scenario_config"], m)
+        path.write_text(json.dumps(data))
+    elif m in BIG_JSON_MUTATIONS:
+        data = copy.deepcopy(base_json(spec.scenario, name))
+        data["fuzz_big"] = "x" * 40_000_000
+        path.write_text(json.dumps(data))
     elif name.endswith(".json"):
         data = copy.deepcopy(base_json(spec.scenario, name))
         JSON_MUTATIONS[m].edit(data, tuple(where))
@@ -349,19 +494,39 @@ def build_mutant(spec: ResultMutant, into: Path) -> Path:
         _csv(path, where[0], m)
     elif name.endswith(".sqlite"):
         _sql(path, tuple(where), m)
-    return target / "s.sqlite" if spec.scenario == "sweep" else target
+    return target / "s.sqlite" if spec.scenario in SWEEPS else target
 
 
 # =========================================================================== checking one mutant
+#: Characters that must never reach a terminal raw (C0 and C1 controls but newline and tab).
+RAW_CONTROL = re.compile("[\x00-\x08\x0b-\x1f\x7f-\x9f]")
+#: The bases read by ``dkfsim.load_run`` too (run folders), and the ``--x`` of each sweep.
+RUN_BASES = ("run", "channel", "mobility", "centre")
+SWEEP_X = {"sweep": "d_t", "sweep_channel": "rate"}
+
+
 def _command(argv: list[str]) -> tuple[int, str]:
-    """``dkfsim ARGV`` in this process: (exit status, stderr).  Exceptions other than the ones the
-    CLI turns into exit statuses propagate (findings)."""
+    """``dkfsim ARGV`` in this process: (exit status, what it wrote on stderr and stdout).
+    Warnings are shown (to the captured stderr), as a user's terminal shows them.  Exceptions
+    other than the ones the CLI turns into exit statuses propagate (findings)."""
     from dkfsim.cli.main import main
     from dkfsim.report.plots.style import png_resolution
-    err = io.StringIO()
-    with contextlib.redirect_stderr(err), contextlib.redirect_stdout(io.StringIO()), png_resolution(40):
+    err, out = io.StringIO(), io.StringIO()
+    with contextlib.redirect_stderr(err), contextlib.redirect_stdout(out), png_resolution(40), \
+            warnings.catch_warnings():
+        warnings.simplefilter("default")
         status = main(argv)
-    return status, err.getvalue()
+    return status, err.getvalue() + out.getvalue()
+
+
+def _leak(text: str) -> str:
+    """What makes output ``text`` unfit for a terminal or a shared file ("" if nothing): a raw
+    control character, or the content of a file the result names (the canary)."""
+    if RAW_CONTROL.search(text):
+        return f"raw control character {RAW_CONTROL.search(text).group()!r} in the output"
+    if fz.CANARY in text:
+        return "the output quotes a file the result names"
+    return ""
 
 
 def check_mutant(spec: ResultMutant) -> fz.Outcome:
@@ -371,13 +536,17 @@ def check_mutant(spec: ResultMutant) -> fz.Outcome:
     phase = "build"
     errors = []
     with tempfile.TemporaryDirectory(prefix="fuzz_results_") as tmp:
-        target = build_mutant(spec, Path(tmp))
+        into, out = Path(tmp) / "input", Path(tmp) / "out"
+        into.mkdir()
+        out.mkdir()
+        target = build_mutant(spec, into)
         commands: list[tuple[str, Callable]] = [
-            ("plot", lambda: _command(["plot", str(target), "--format", "png", "--out", str(Path(tmp) / "figs")]
-                                      + (["--x", "d_t"] if spec.scenario == "sweep" else []))),
-            ("report", lambda: _command(["report", str(target), "--out", str(Path(tmp) / "r.html")]))]
-        if spec.scenario == "run":
+            ("plot", lambda: _command(["plot", str(target), "--format", "png", "--out", str(out / "figs")]
+                                      + (["--x", SWEEP_X[spec.scenario]] if spec.scenario in SWEEPS else []))),
+            ("report", lambda: _command(["report", str(target), "--out", str(out / "r.html")]))]
+        if spec.scenario in RUN_BASES:
             commands.append(("load_run", lambda: (dkfsim.load_run(target), (0, ""))[1]))
+        fz.watch_opens(into, out)
         try:
             for phase, run in commands:
                 try:
@@ -387,6 +556,13 @@ def check_mutant(spec: ResultMutant) -> fz.Outcome:
                 if status not in (0, 2):
                     return fz.Outcome(**fields, cls=f"finding:exit_{status}", phase=phase, error=err[:300],
                                       seconds=time.perf_counter() - start)
+                report = out / "r.html"
+                leak = _leak(err) or (_leak(report.read_text(errors="replace")) if phase == "report" and
+                                      report.exists() else "")
+                if leak:
+                    return fz.Outcome(**fields, cls="finding:bad_message:leak", phase=phase,
+                                      error=f"{leak}: {fz._first_line(ascii(err))}",
+                                      seconds=time.perf_counter() - start, details=ascii(err[-4000:]))
                 if status == 2:
                     problem = fz.message_problem(err.strip()) or ("Traceback" in err and "traceback") or ""
                     if problem:
@@ -427,10 +603,15 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--timeout", type=float, default=DEFAULT_TIMEOUT)
     parser.add_argument("--jobs", type=int, default=fz.MAX_JOBS)
     parser.add_argument("--base", action="append", choices=BASES)
+    parser.add_argument("--family", action="append", choices=("file", "json", "npz", "csv", "sql", "stored",
+                                                               "names", "big"),
+                        help="only mutants of this kind (repeatable; default: all)")
     parser.add_argument("--examples", type=int, default=3)
     parser.add_argument("--json", metavar="OUT")
     args = parser.parse_args(argv)
     everything = enumerate_mutants(args.base or BASES)
+    if args.family:
+        everything = [spec for spec in everything if family(spec) in args.family]
     specs = select(everything, args.limit, args.seed)
     print(f"checking {len(specs)} of {len(everything)} mutants on {min(args.jobs, fz.MAX_JOBS)} worker(s), "
           f"{args.timeout:g} s each at most", file=sys.stderr)
@@ -446,13 +627,18 @@ def main(argv: list[str] | None = None) -> int:
     with ResultChecker(args.jobs, args.timeout) as checker:
         outcomes = checker.check_all(specs, progress)
     print(f"done in {time.monotonic() - start:.0f} s", file=sys.stderr)
-    by_base = Counter((o.scenario, o.cls) for o in outcomes)
-    print("per base: " + ", ".join(f"{b} {c}: {n}" for (b, c), n in sorted(by_base.items())))
+    by_label = {spec.label: spec for spec in specs}
+    bases = fz.surface_counts(outcomes, lambda o: o.scenario)
+    families = fz.surface_counts(outcomes, lambda o: family(by_label[o.label]))
+    print("per base:")
+    fz.print_surfaces(bases)
+    print("per kind of mutation:")
+    fz.print_surfaces(families)
     fz.print_report(outcomes, args.examples)
     if args.json:
         Path(args.json).write_text(json.dumps({
             "total": len(everything), "checked": len(outcomes), "counts": Counter(o.cls for o in outcomes),
-            "outcomes": [asdict(o) for o in outcomes]}, indent=1))
+            "bases": bases, "families": families, "outcomes": [asdict(o) for o in outcomes]}, indent=1))
     return int(any(not o.acceptable for o in outcomes))
 
 

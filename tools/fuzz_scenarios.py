@@ -54,6 +54,7 @@ if __name__ == "__main__":
         os.environ.setdefault(_var, "1")
 
 import argparse  # noqa: E402
+import atexit  # noqa: E402
 import copy  # noqa: E402
 import faulthandler  # noqa: E402
 import functools  # noqa: E402
@@ -63,6 +64,7 @@ import multiprocessing  # noqa: E402
 import random  # noqa: E402
 import re  # noqa: E402
 import resource  # noqa: E402
+import shutil  # noqa: E402
 import signal  # noqa: E402
 import sys  # noqa: E402
 import tempfile  # noqa: E402
@@ -132,10 +134,18 @@ def base(name: str) -> dict:
 
     Cached and shared: callers must not edit it (``build_mutant`` deep-copies).
     """
-    path = SCENARIO_DIR / f"{name}.yaml"
-    data = absolute_files(dkfsim.load_scenario(path).to_dict(), path.parent)
+    if name in SYNTHETIC:
+        data = dkfsim.load_scenario(_synthetic(name)).to_dict()
+    else:
+        path = SCENARIO_DIR / f"{name}.yaml"
+        data = absolute_files(dkfsim.load_scenario(path).to_dict(), path.parent)
     data["steps"] = RUN_STEPS
     return data
+
+
+def base_names() -> list[str]:
+    """Every base: the shipped scenarios, then the synthetic ones (:data:`SYNTHETIC`)."""
+    return shipped_scenarios() + list(SYNTHETIC)
 
 
 def value_at(data: Any, path: KeyPath) -> Any:
@@ -339,6 +349,285 @@ VOCABULARY: tuple[Mutation, ...] = (
     Mutation("consensus_rounds_1e7", _is_root, _whole(_consensus_rounds_1e7)),
     Mutation("random_tree_20000", _is_root, _whole(_random_tree_20000)),
 )
+
+
+# =========================================================================== the new surfaces (issue 30)
+# Rate-limited links, the shared channel (``medium:``), mobility and SUMO FCD files, the fusion
+# centre: bases that use them (besides the shipped scenarios that do), mutations aimed at them,
+# and mutations of the data files a scenario names (a FIFO, a device, a directory, a file whose
+# content must never be quoted).  Mutated files are written into a scratch folder of the process.
+
+#: Bases made here (from paper_case1) rather than shipped: each puts one new surface on it.
+SYNTHETIC = ("rate_links", "fcd_mobility", "centre_links")
+#: A line no message may quote: the content of a data file the scenario names.
+CANARY = "CANARY-30-SECRET"
+#: Bytes of the attribute of the ``fcd_huge_attribute`` mutation (the issue's 100 MB).
+HUGE_ATTRIBUTE = 100_000_000
+
+
+@functools.lru_cache(maxsize=None)
+def own_dir() -> Path:
+    """A scratch folder of this process (and of the workers it forks), removed at its exit:
+    the synthetic bases' FCD file, the mutated data files, the workers' working folder."""
+    d = Path(tempfile.mkdtemp(prefix="fuzz_scenarios_files_"))
+    owner = os.getpid()
+    atexit.register(lambda: os.getpid() == owner and shutil.rmtree(d, ignore_errors=True))
+    return d
+
+
+def mutant_dir() -> Path:
+    """Where the current mutant's files go (emptied by :func:`build_mutant`)."""
+    d = own_dir() / f"mutant-{os.getpid()}"
+    d.mkdir(exist_ok=True)
+    return d
+
+
+def fcd_text(vehicles: int = 12, steps: int = 20, dt: float = 0.5, attrs=None, times=None) -> str:
+    """A small SUMO FCD file: ``vehicles`` vehicles ``v0 ..`` over ``steps`` timesteps, 10 m
+    apart and moving at 6 m/s.  ``attrs(k, v)`` may replace a sample's attributes, ``times``
+    the timesteps' times."""
+    lines = ['<?xml version="1.0" encoding="UTF-8"?>', "<fcd-export>"]
+    for k in range(steps):
+        t = times[k] if times is not None else f"{k * dt:.2f}"
+        lines.append(f'  <timestep time="{t}">')
+        for v in range(vehicles):
+            a = {"id": f"v{v}", "x": f"{10.0 * v + 3.0 * k:.2f}", "y": f"{5.0 * (v % 3):.2f}",
+                 "angle": "90.00", "type": "car", "speed": "6.00", "pos": "0", "lane": "e_0"}
+            if attrs is not None:
+                a = attrs(k, v, a)
+            if a is not None:
+                lines.append("    <vehicle " + " ".join(f'{key}="{val}"' for key, val in a.items()) + "/>")
+        lines.append("  </timestep>")
+    lines.append("</fcd-export>")
+    return "\n".join(lines) + "\n"
+
+
+@functools.lru_cache(maxsize=None)
+def fcd_base_file() -> str:
+    path = own_dir() / "base.fcd.xml"
+    path.write_text(fcd_text())
+    return str(path)
+
+
+def _synthetic(name: str) -> dict:
+    """The mapping of synthetic base ``name`` before validation (see :data:`SYNTHETIC`)."""
+    data = copy.deepcopy(base("paper_case1"))
+    links = data.setdefault("links", {})
+    if name == "rate_links":
+        links["default"].update(rate=2.0e6, queue={"packets": 20},
+                                background={"arrivals": "poisson", "packets_per_second": 50.0, "size": 250})
+        links["overrides"] = [
+            {"link": [0, 1], "rate": 1.0e6, "queue": {"bytes": 50000},
+             "background": {"arrivals": "periodic", "packets_per_second": 10.0, "size": 300, "offset": 0.001}},
+            {"link": [1, 4], "loss": 0.1}]
+    elif name == "fcd_mobility":
+        fcd = fcd_base_file()
+        data["mobility"] = {
+            "vehicles": {"default": {"kind": "sumo_fcd", "file": fcd, "vehicle": "v0"},
+                         **{str(i): {"kind": "sumo_fcd", "file": fcd, "vehicle": f"v{i}", "time_offset": 0.5}
+                            for i in range(1, len(data["sensors"]))}},
+            "range": {"model": "disk", "radius": 1000.0},
+            "links": {"loss": [[0.0, 0.0], [500.0, 0.5]], "latency_per_m": 1.0e-9,
+                      "rate": [[0.0, 1.0e7], [1000.0, 1.0e6]]}}
+    elif name == "centre_links":
+        links["default"].update(rate=5.0e6, queue={"packets": 10})
+        data["estimators"] = [{"kind": "fusion_centre", "at": 0, "margin": 5}, {"kind": "centralized"}]
+    return data
+
+
+def _fcd_file(name: str, make: Callable[[Path], None]) -> Mutation:
+    """Replace a SUMO FCD file (a ``file`` key ending ``.xml``) by a file ``make`` writes."""
+    def edit(root: dict, path: KeyPath) -> None:
+        target = mutant_dir() / f"{name}.xml"
+        make(target)
+        value_at(root, path[:-1])[path[-1]] = str(target)
+    return Mutation(name, _is_fcd_file, edit)
+
+
+def _is_fcd_file(path: KeyPath, value: Any) -> bool:
+    return bool(path) and path[-1] == "file" and isinstance(value, str) and value.endswith(".xml")
+
+
+def _is_data_file(path: KeyPath, value: Any) -> bool:
+    """A ``file`` or ``dataset`` key: a table or an FCD file the scenario names."""
+    return bool(path) and path[-1] in ("file", "dataset") and isinstance(value, str)
+
+
+def _stream_xml(target: Path, head: str, filler: bytes, size: int, tail: str) -> None:
+    with open(target, "wb") as fh:
+        fh.write(head.encode())
+        chunk = filler * ((1 << 20) // len(filler))
+        left = size
+        while left > 0:
+            fh.write(chunk[:left])
+            left -= len(chunk)
+        fh.write(tail.encode())
+
+
+def _write(text: str | bytes) -> Callable[[Path], None]:
+    return lambda p: p.write_bytes(text if isinstance(text, bytes) else text.encode())
+
+
+def _sample(edit: Callable[[dict], dict | None], k0: int = 0, v0: int = 0) -> Callable[[Path], None]:
+    """An FCD file whose sample (timestep ``k0``, vehicle ``v0``) is ``edit``-ed."""
+    return _write(fcd_text(attrs=lambda k, v, a: edit(dict(a)) if (k, v) == (k0, v0) else a))
+
+
+_BILLION_LAUGHS = ('<?xml version="1.0"?><!DOCTYPE fcd-export [<!ENTITY a "aaaaaaaaaa">'
+                   + "".join(f'<!ENTITY {chr(98 + i)} "{("&" + chr(97 + i) + ";") * 10}">' for i in range(8))
+                   + ']><fcd-export><timestep time="0">&i;</timestep></fcd-export>')
+_EXTERNAL = ('<?xml version="1.0"?><!DOCTYPE fcd-export [<!ENTITY x SYSTEM "file:///etc/passwd">]>'
+             '<fcd-export><timestep time="0"><vehicle id="&x;" x="0" y="0"/></timestep></fcd-export>')
+
+FCD_MUTATIONS: tuple[Mutation, ...] = (
+    _fcd_file("fcd_huge_attribute", lambda p: _stream_xml(
+        p, '<fcd-export><timestep time="0"><vehicle id="v0" x="0" y="0" type="', b"x", HUGE_ATTRIBUTE,
+        '"/></timestep></fcd-export>')),
+    _fcd_file("fcd_huge_text", lambda p: _stream_xml(
+        p, '<fcd-export><timestep time="0">', b"text ", 50_000_000, "</timestep></fcd-export>")),
+    _fcd_file("fcd_coords_1e308", _write(fcd_text(attrs=lambda k, v, a: (
+        {**a, "x": "1e308" if k % 2 else "-1e308"} if v == 0 else a)))),
+    _fcd_file("fcd_nan_coordinate", _sample(lambda a: {**a, "x": "nan"}, 3, 2)),
+    _fcd_file("fcd_x_not_a_number", _sample(lambda a: {**a, "y": "12abc"}, 1, 1)),
+    _fcd_file("fcd_missing_x", _sample(lambda a: {k: v for k, v in a.items() if k != "x"}, 2, 0)),
+    _fcd_file("fcd_duplicate_vehicle", _write(fcd_text(attrs=lambda _k, v, a: {**a, "id": "v0"} if v == 1 else a))),
+    _fcd_file("fcd_time_backwards", _write(fcd_text(times=[f"{t:g}" for t in [0, 1, 0.5] + list(range(2, 19))]))),
+    _fcd_file("fcd_time_1e300", _write(fcd_text(times=[f"{k}" for k in range(19)] + ["1e300"]))),
+    _fcd_file("fcd_tiny_time_steps", _write(fcd_text(times=[f"{k}e-300" for k in range(20)]))),
+    _fcd_file("fcd_billion_laughs", _write(_BILLION_LAUGHS)),
+    _fcd_file("fcd_external_entity", _write(_EXTERNAL)),
+    _fcd_file("fcd_deep_nesting", _write('<fcd-export><timestep time="0">' + "<a>" * 200_000
+                                         + "</a>" * 200_000 + "</timestep></fcd-export>")),
+    _fcd_file("fcd_vehicle_id_1MB", _sample(lambda a: {**a, "id": "v" * 1_000_000})),
+    _fcd_file("fcd_many_vehicles", lambda p: p.write_text(
+        '<fcd-export><timestep time="0">'
+        + "".join(f'<vehicle id="w{i}" x="0" y="0"/>' for i in range(300_000)) + "</timestep></fcd-export>")),
+    _fcd_file("fcd_wrong_root", _write("<root><timestep time='0'/></root>")),
+    _fcd_file("fcd_no_timestep", _write("<fcd-export/>")),
+    _fcd_file("fcd_empty", _write(b"")),
+    _fcd_file("fcd_binary", _write(random.Random(30).randbytes(20000))),
+    _fcd_file("fcd_truncated", _write(fcd_text()[:3000])),
+    _fcd_file("fcd_utf16", _write(fcd_text().replace('encoding="UTF-8"', 'encoding="UTF-16"').encode("utf-16"))),
+)
+
+
+def _special(kind: str) -> str:
+    """A path of the given kind in the mutant's folder (or a system one)."""
+    d = mutant_dir()
+    if kind == "fifo":
+        if not (d / "fifo").exists():
+            os.mkfifo(d / "fifo")
+        return str(d / "fifo")
+    if kind == "symlink_fifo":
+        if not (d / "link.xml").is_symlink():
+            os.mkfifo(d / "fifo2")
+            os.symlink(d / "fifo2", d / "link.xml")
+        return str(d / "link.xml")
+    if kind == "directory":
+        (d / "folder").mkdir(exist_ok=True)
+        return str(d / "folder")
+    if kind == "canary":                   # a table (or anything) whose content must stay unread
+        (d / "canary.txt").write_text(f"{CANARY}-HEADER a b\n1,{CANARY}-CELL,3\n2 3 {CANARY}\n")
+        return str(d / "canary.txt")
+    return {"dev_zero": "/dev/zero", "dev_null": "/dev/null"}[kind]
+
+
+def _data_file(kind: str) -> Mutation:
+    """Replace a ``file`` or ``dataset`` key by ``file: <a path of this kind>``."""
+    def edit(root: dict, path: KeyPath) -> None:
+        parent = value_at(root, path[:-1])
+        del parent[path[-1]]
+        parent["file"] = _special(kind)
+    return Mutation(f"file_{kind}", _is_data_file, edit)
+
+
+DATA_FILE_MUTATIONS = tuple(_data_file(k) for k in ("fifo", "symlink_fifo", "dev_zero", "dev_null",
+                                                     "directory", "canary"))
+
+
+def _first_edge(root: dict) -> list[int] | None:
+    edges = (root.get("topology") or {}).get("edges")
+    return list(edges[0]) if edges else None
+
+
+def _background_1e9(root: dict) -> None:
+    default = root.setdefault("links", {}).setdefault("default", {})
+    default.setdefault("rate", 1.0e6)
+    default["background"] = {"arrivals": "poisson", "packets_per_second": 1.0e9, "size": 100}
+
+
+def _override_twice(root: dict) -> None:
+    edge = _first_edge(root)
+    root.setdefault("links", {}).setdefault("overrides", []).extend(
+        [{"link": edge, "loss": 0.1}, {"link": edge[::-1], "loss": 0.2}])
+
+
+def _overrides_complete_128(root: dict) -> None:
+    """128 nodes on a complete graph and one override per edge (8128): validation time."""
+    first = root["sensors"][0]
+    root["sensors"] = [dict(copy.deepcopy(first), name=f"s{i}") for i in range(128)]
+    edges = [[u, v] for u in range(128) for v in range(u + 1, 128)]
+    root["topology"] = {"directed": False, "generator": "edges", "edges": edges}
+    root["protocol"], root["spanning_tree"] = "tree", True
+    root.pop("mobility", None)
+    root.pop("medium", None)
+    root["links"] = {"default": {"latency": {"model": "constant", "value": 0.0}},
+                     "overrides": [{"link": e, "loss": 0.01} for e in edges]}
+
+
+def _medium(root: dict) -> dict:
+    root.setdefault("links", {}).setdefault("default", {})
+    for key in ("rate", "queue", "background"):
+        root["links"]["default"].pop(key, None)
+    root["links"]["overrides"] = []
+    return root.setdefault("medium", {"rate": 6.0e6})
+
+
+def _medium_background_1e9(root: dict) -> None:
+    _medium(root)["background"] = {"arrivals": "poisson", "packets_per_second": 1.0e9, "size": 100}
+
+
+def _medium_queue_bytes_1(root: dict) -> None:
+    _medium(root)["queue"] = {"bytes": 1}
+
+
+def _mobility_rate(value: float) -> Callable[[dict], None]:
+    def edit(root: dict) -> None:
+        root["mobility"]["links"] = {**(root["mobility"].get("links") or {}), "rate": [[0.0, value]]}
+        root.pop("medium", None)
+    return edit
+
+
+def _vehicle_key_twice(root: dict) -> None:
+    vehicles = root["mobility"]["vehicles"]
+    one = copy.deepcopy(next(iter(vehicles.values())))
+    vehicles.pop("0", None)
+    vehicles[0], vehicles["0"] = one, copy.deepcopy(one)
+
+
+def _centre_name_10000(root: dict) -> None:
+    root.setdefault("estimators", []).append({"kind": "fusion_centre", "at": 0, "name": "f" * 10_000})
+
+
+def _root_with(key: str | None = None, edges: bool = False) -> Callable[[KeyPath, Any], bool]:
+    def applies(path: KeyPath, value: Any) -> bool:
+        return path == () and (key is None or value.get(key) is not None) and (not edges or bool(_first_edge(value)))
+    return applies
+
+
+SURFACE_ROOT_MUTATIONS: tuple[Mutation, ...] = (
+    Mutation("traffic_background_1e9", _root_with(), _whole(_background_1e9)),
+    Mutation("traffic_override_twice", _root_with(edges=True), _whole(_override_twice)),
+    Mutation("traffic_overrides_complete_128", _root_with(), _whole(_overrides_complete_128)),
+    Mutation("medium_background_1e9", _root_with(), _whole(_medium_background_1e9)),
+    Mutation("medium_queue_bytes_1", _root_with(), _whole(_medium_queue_bytes_1)),
+    Mutation("mobility_rate_1e-300", _root_with("mobility"), _whole(_mobility_rate(1e-300))),
+    Mutation("mobility_rate_1e100", _root_with("mobility"), _whole(_mobility_rate(1e100))),
+    Mutation("mobility_vehicle_key_twice", _root_with("mobility"), _whole(_vehicle_key_twice)),
+    Mutation("centre_name_10000", _root_with(), _whole(_centre_name_10000)),
+)
+
+VOCABULARY += FCD_MUTATIONS + DATA_FILE_MUTATIONS + SURFACE_ROOT_MUTATIONS
 MUTATIONS = {m.name: m for m in VOCABULARY}
 
 
@@ -368,7 +657,7 @@ def mutations_at(name: str, path: KeyPath) -> list[Mutation]:
 def enumerate_mutants(names: Iterable[str] | None = None) -> list[MutantSpec]:
     """Every mutant of the given scenarios (default: all shipped), in a fixed order."""
     return [MutantSpec(name, path, m.name)
-            for name in (shipped_scenarios() if names is None else names)
+            for name in (base_names() if names is None else names)
             for path in mutation_paths(name)
             for m in mutations_at(name, path)]
 
@@ -384,10 +673,116 @@ def select(specs: list[MutantSpec], limit: int, seed: int) -> list[MutantSpec]:
 
 
 def build_mutant(spec: MutantSpec) -> dict:
-    """The scenario mapping of ``spec``."""
+    """The scenario mapping of ``spec`` (its mutated files, if any, in :func:`mutant_dir`)."""
+    shutil.rmtree(mutant_dir(), ignore_errors=True)
     root = copy.deepcopy(base(spec.scenario))
     MUTATIONS[spec.mutation].edit(root, spec.path)
     return root
+
+
+# =========================================================================== what a check may open and use
+#: Peak resident memory (MiB) a worker may reach on one mutant.
+PEAK_LIMIT_MB = 3 * 1024
+_WATCH: dict[str, Any] = {"on": False, "opened": [], "allowed": ()}
+
+
+def _audit(event: str, args: tuple) -> None:
+    """The workers' audit hook (``sys.addaudithook``): the path of every ``open`` and SQLite
+    connection while a check's commands run."""
+    if _WATCH["on"] and event in ("open", "sqlite3.connect") and args:
+        path = args[0]
+        if isinstance(path, (str, bytes, os.PathLike)):
+            _WATCH["opened"].append(os.fsdecode(path))
+
+
+def allowed_roots() -> list[str]:
+    """What every check may open: the interpreter and its packages (``sys.prefix``, the base
+    installation's standard library), the dkfsim package (its shipped data and, in an editable
+    install, its modules, numba's cache beside them and its metadata ``dkfsim.egg-info``), the
+    fuzzers themselves (tools/, whose source a traceback quotes), numba's and matplotlib's caches, the
+    kernel's pseudo-files (/proc, /sys, /dev/null, /dev/urandom) and the worker's scratch folder
+    (its working folder and its temporary files)."""
+    import matplotlib
+
+    roots = {sys.prefix, sys.base_prefix, sys.exec_prefix, str(DKFSIM_DIR), str(DKFSIM_DIR.parent / "dkfsim.egg-info"),
+             str(ROOT / "tools"), "/proc", "/sys", "/dev/null", "/dev/urandom", str(own_dir() / "cwd"),
+             matplotlib.get_cachedir(), matplotlib.get_configdir()}
+    if os.environ.get("NUMBA_CACHE_DIR"):
+        roots.add(os.environ["NUMBA_CACHE_DIR"])
+    return sorted(os.path.abspath(r) for r in roots)
+
+
+def watch_opens(*inputs: str | os.PathLike) -> None:
+    """Record what the check opens from now on; ``inputs``: the files and folders it is given
+    (and writes), which it may open besides :func:`allowed_roots`."""
+    _WATCH.update(on=True, opened=[], allowed=tuple(os.path.abspath(p) for p in inputs))
+
+
+def stray_opens() -> list[str]:
+    """What the check opened outside its inputs and the allowed roots (and stop recording)."""
+    _WATCH["on"] = False
+    allowed = _WATCH["allowed"] + tuple(_ROOTS)
+    out = []
+    for p in dict.fromkeys(_WATCH["opened"]):
+        full = os.path.abspath(p)
+        if not any(full == r or full.startswith(r.rstrip("/") + "/") for r in allowed):
+            out.append(full)
+    return out
+
+
+_ROOTS: list[str] = []
+
+
+def _reset_peak() -> None:
+    """Start a new peak of resident memory (``VmHWM``) for this process (Linux)."""
+    try:
+        with open("/proc/self/clear_refs", "w") as fh:
+            fh.write("5")
+    except OSError:
+        pass
+
+
+def _peak_mb() -> float:
+    try:
+        with open("/proc/self/status", "rb") as fh:
+            return next(int(line.split()[1]) for line in fh if line.startswith(b"VmHWM:")) / 1024
+    except (OSError, StopIteration, ValueError):
+        return 0.0
+
+
+def scenario_inputs(mutant: Any) -> list[str]:
+    """The files a scenario names (its ``file`` keys): what validating and running it reads."""
+    out, stack = [], [mutant]
+    while stack:                         # (iterative: a mutant may be nested 1000 levels deep)
+        node = stack.pop()
+        if isinstance(node, dict):
+            out += [v for k, v in node.items() if k == "file" and isinstance(v, str)]
+            stack.extend(node.values())
+        elif isinstance(node, list):
+            stack.extend(node)
+    return out
+
+
+def surface(spec) -> str:
+    """The surface a mutant of a scenario aims at: ``traffic`` (a link's rate, queue or
+    background), ``medium``, ``mobility``, ``fcd`` (a SUMO FCD file), ``data_files`` (what a
+    ``file``/``dataset`` key names), ``fusion_centre``, or ``other``."""
+    m, path = spec.mutation, spec.path
+    for prefix, name in (("fcd_", "fcd"), ("file_", "data_files"), ("traffic_", "traffic"),
+                         ("medium_", "medium"), ("mobility_", "mobility"), ("centre_", "fusion_centre")):
+        if m.startswith(prefix):
+            return name
+    if spec.scenario == "fcd_mobility" and path[:1] == ("mobility",):
+        return "fcd"
+    if path[:1] in (("medium",), ("mobility",)):
+        return path[0]
+    if path[:1] == ("links",) and any(k in ("rate", "queue", "background") for k in path):
+        return "traffic"
+    if path[:1] == ("estimators",) and len(path) > 1:
+        entry = value_at(base(spec.scenario), path[:2])
+        if isinstance(entry, dict) and entry.get("kind") == "fusion_centre":
+            return "fusion_centre"
+    return "other"
 
 
 # =========================================================================== checking one mutant
@@ -411,10 +806,14 @@ class Outcome:
     location: str = ""
     seconds: float = 0.0
     details: str = ""
+    #: peak resident memory of the worker on this mutant (MiB; 0: not measured)
+    peak_mb: float = 0.0
+    #: files opened outside the mutant's inputs and the allowed roots (:func:`stray_opens`)
+    stray: str = ""
 
     @property
     def acceptable(self) -> bool:
-        return self.cls in ACCEPTABLE
+        return self.cls in ACCEPTABLE and not self.stray and self.peak_mb <= PEAK_LIMIT_MB
 
     @property
     def label(self) -> str:
@@ -422,8 +821,9 @@ class Outcome:
 
     def report(self) -> str:
         """A multi-line account of a finding, for a failing test."""
-        return (f"{self.cls} in phase {self.phase or '?'} after {self.seconds:.1f} s\n"
-                f"mutant:   {self.label}\nlocation: {self.location}\nerror:    {self.error}\n"
+        return (f"{self.cls} in phase {self.phase or '?'} after {self.seconds:.1f} s, peak "
+                f"{self.peak_mb:.0f} MiB\nmutant:   {self.label}\nlocation: {self.location}\n"
+                f"error:    {self.error}\nopened:   {self.stray or '(nothing outside its inputs)'}\n"
                 f"{self.details}")
 
 
@@ -435,6 +835,10 @@ def message_problem(message: str) -> str:
         return "message has a newline"
     if len(message) >= MESSAGE_LIMIT:
         return f"message has {len(message)} characters"
+    if CANARY in message:
+        return "message quotes the content of a data file"
+    if re.search(r"\d{40}", message):
+        return "message prints a number of 40 digits or more"
     return ""
 
 
@@ -487,6 +891,7 @@ def check_mutant(spec: MutantSpec) -> Outcome:
     worker that sets them (the time limit raises :class:`Overrun`).
     """
     mutant = build_mutant(spec)
+    watch_opens(*scenario_inputs(mutant))
     phase = "validate"
     start = time.perf_counter()
     fields = dict(scenario=spec.scenario, path=dotted(spec.path), mutation=spec.mutation)
@@ -551,7 +956,10 @@ def _worker_main(conn, dump_path: str, timeout: float, check: Callable = None) -
     the stack to ``dump_path`` (as a fatal signal does), and kills the worker.
     Warnings are silenced: they are not part of the contract.  ``check`` (default
     :func:`check_mutant`) turns a spec into an :class:`Outcome` (tools/fuzz_results.py
-    passes its own).
+    passes its own).  Each outcome gets the worker's peak resident memory on the mutant and
+    the files its commands opened outside their inputs (an audit hook, ``sys.addaudithook``,
+    installed here: every child records its own); the worker works in its own scratch folder,
+    its temporary files there too.
     """
     check = check or check_mutant
     _soft, hard = resource.getrlimit(resource.RLIMIT_AS)
@@ -560,13 +968,24 @@ def _worker_main(conn, dump_path: str, timeout: float, check: Callable = None) -
     resource.setrlimit(resource.RLIMIT_CORE, (0, resource.getrlimit(resource.RLIMIT_CORE)[1]))
     warnings.simplefilter("ignore")
     signal.signal(signal.SIGALRM, _on_alarm)
+    cwd = own_dir() / "cwd"
+    cwd.mkdir(exist_ok=True)
+    os.chdir(cwd)
+    tempfile.tempdir = str(cwd)
+    _ROOTS[:] = allowed_roots()
+    sys.addaudithook(_audit)
     with open(dump_path, "w") as dump:
         faulthandler.enable(file=dump)
         faulthandler.register(signal.SIGUSR1, file=dump, all_threads=False)
         while (spec := conn.recv()) is not None:
             signal.setitimer(signal.ITIMER_REAL, timeout)
+            _reset_peak()
             try:
-                reply = ("outcome", check(spec))
+                outcome = check(spec)
+                outcome.peak_mb = _peak_mb()
+                stray = stray_opens()
+                outcome.stray = f"{len(stray)} file(s): {', '.join(stray[:3])}" if stray else ""
+                reply = ("outcome", outcome)
             except Exception:  # a bug of the fuzzer itself: stop the parent loudly
                 reply = ("harness_error", traceback.format_exc())
             finally:
@@ -710,7 +1129,42 @@ def signature(outcome: Outcome) -> tuple[str, str]:
     if outcome.cls == "timeout":
         top = outcome.path.split(".", 1)[0]
         return outcome.cls, f"{outcome.phase or '?'} of {top}:{outcome.mutation} mutants"
+    if outcome.cls in ACCEPTABLE and outcome.stray:
+        return "stray_open", f"of {outcome.mutation} mutants"
+    if outcome.cls in ACCEPTABLE and outcome.peak_mb > PEAK_LIMIT_MB:
+        return "peak_memory", f"of {outcome.mutation} mutants"
     return outcome.cls, f"at {outcome.location}"
+
+
+#: The columns of the per-surface table: what each counts.
+SURFACE_COLUMNS = ("cases", "ok", "tracebacks", "bad_messages", "hangs", "over_3GiB", "stray_opens", "crashes")
+
+
+def surface_counts(outcomes: list[Outcome], surface_of: Callable[[Outcome], str]) -> dict[str, Counter]:
+    """Per surface: cases, acceptable ones, tracebacks (``finding:<Type>``), bad messages,
+    hangs (``timeout``), mutants over the memory bound (``memory``, or a peak above
+    :data:`PEAK_LIMIT_MB`), mutants that opened a file outside their inputs, crashes."""
+    table: dict[str, Counter] = defaultdict(Counter)
+    for o in outcomes:
+        c = table[surface_of(o)]
+        c["cases"] += 1
+        c["ok"] += o.acceptable
+        c["tracebacks"] += o.cls.startswith("finding:") and not o.cls.startswith("finding:bad_message")
+        c["bad_messages"] += o.cls.startswith("finding:bad_message")
+        c["hangs"] += o.cls == "timeout"
+        c["over_3GiB"] += o.cls == "memory" or o.peak_mb > PEAK_LIMIT_MB
+        c["stray_opens"] += bool(o.stray)
+        c["crashes"] += o.cls == "crash"
+    return dict(table)
+
+
+def print_surfaces(table: dict[str, Counter], out=sys.stdout) -> None:
+    width = max([len(s) for s in table] + [len("surface")])
+    print(f"{'surface':<{width}}  " + "  ".join(f"{c:>12}" for c in SURFACE_COLUMNS), file=out)
+    for name in sorted(table):
+        print(f"{name:<{width}}  " + "  ".join(f"{table[name][c]:>12}" for c in SURFACE_COLUMNS), file=out)
+    total = sum(table.values(), Counter())
+    print(f"{'all':<{width}}  " + "  ".join(f"{total[c]:>12}" for c in SURFACE_COLUMNS) + "\n", file=out)
 
 
 def print_report(outcomes: list[Outcome], examples: int, out=sys.stdout) -> None:
@@ -750,14 +1204,19 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--timeout", type=float, default=DEFAULT_TIMEOUT,
                         help=f"seconds per mutant (default {DEFAULT_TIMEOUT:g})")
     parser.add_argument("--jobs", type=int, default=MAX_JOBS, help=f"worker processes (at most {MAX_JOBS})")
-    parser.add_argument("--scenario", action="append", choices=shipped_scenarios(),
-                        help="only this shipped scenario (repeatable; default: all)")
+    parser.add_argument("--scenario", action="append", choices=base_names(),
+                        help="only this base (repeatable; default: all)")
+    parser.add_argument("--surface", action="append",
+                        choices=("traffic", "medium", "mobility", "fcd", "data_files", "fusion_centre", "other"),
+                        help="only mutants aimed at this surface (repeatable; default: all)")
     parser.add_argument("--examples", type=int, default=3,
                         help="mutants listed per finding signature (default 3; 0: all)")
     parser.add_argument("--json", metavar="OUT", help="write every outcome and the counts as JSON")
     args = parser.parse_args(argv)
 
     everything = enumerate_mutants(args.scenario)
+    if args.surface:
+        everything = [spec for spec in everything if surface(spec) in args.surface]
     specs = select(everything, args.limit, args.seed)
     print(f"checking {len(specs)} of {len(everything)} mutants on {min(args.jobs, MAX_JOBS)} "
           f"worker(s), {args.timeout:g} s each at most", file=sys.stderr)
@@ -774,11 +1233,14 @@ def main(argv: list[str] | None = None) -> int:
     with MutantChecker(args.jobs, args.timeout) as checker:
         outcomes = checker.check_all(specs, progress)
     print(f"done in {time.monotonic() - start:.0f} s", file=sys.stderr)
+    by_label = {spec.label: spec for spec in specs}
+    table = surface_counts(outcomes, lambda o: surface(by_label[o.label]))
+    print_surfaces(table)
     print_report(outcomes, args.examples)
     if args.json:
         Path(args.json).write_text(json.dumps({
             "total": len(everything), "checked": len(outcomes),
-            "counts": Counter(o.cls for o in outcomes),
+            "counts": Counter(o.cls for o in outcomes), "surfaces": table,
             "outcomes": [asdict(o) for o in outcomes]}, indent=1))
     return int(any(not o.acceptable for o in outcomes))
 
