@@ -26,7 +26,7 @@ from typing import Self
 import numpy as np
 
 from dkfsim.core.errors import DkfsimError
-from dkfsim.core.files import check_regular_file, clip
+from dkfsim.core.files import clip, open_regular
 from dkfsim.core.resources import MEMORY_FRACTION, available_memory, human_bytes
 
 #: Largest npz file opened (bytes): a result folder's arrays, uncompressed.
@@ -114,11 +114,13 @@ class NpzFile:
 
     def __init__(self, path, what: str = "npz file"):
         self.path = Path(path)
-        check_regular_file(self.path, limit=MAX_NPZ_BYTES, what=what)
+        fh = open_regular(self.path, limit=MAX_NPZ_BYTES, what=what)
         try:
-            self._zip = zipfile.ZipFile(self.path)
+            self._zip = zipfile.ZipFile(fh)
         except _ZIP_ERRORS as exc:
+            fh.close()
             raise _bad(self.path, f"not a readable .npz file ({clip(str(exc), 120)})") from None
+        self._file = fh
         try:
             infos = self._zip.infolist()
             if len(infos) > MAX_MEMBERS:
@@ -133,7 +135,7 @@ class NpzFile:
                 self.headers[h.name] = h
                 self._infos[h.name] = info
         except BaseException:
-            self._zip.close()
+            self.close()
             raise
 
     def __enter__(self) -> Self:
@@ -144,6 +146,7 @@ class NpzFile:
 
     def close(self) -> None:
         self._zip.close()
+        self._file.close()          # (a ZipFile given an open file leaves it open)
 
     def __contains__(self, key: object) -> bool:
         return key in self.headers

@@ -24,6 +24,7 @@ from dkfsim.config.load import stored_scenario
 from dkfsim.config.plan import RunPlan
 from dkfsim.core.errors import DkfsimError
 from dkfsim.core.extras import pyplot
+from dkfsim.core.files import open_regular
 from dkfsim.core.version import __version__
 from dkfsim.report.network import draw_network
 
@@ -100,8 +101,14 @@ def verdict(ok) -> str | None:
     return None if ok is None else ("yes" if ok else "no")
 
 
+#: Largest figure inlined (bytes): a page of screen-resolution PNGs is a few hundred kB each.
+MAX_FIGURE_BYTES = 64 << 20
+
+
 def png_b64(path: Path) -> str:
-    return base64.b64encode(Path(path).read_bytes()).decode("ascii")
+    """A figure the report drew into its own temporary folder, inline."""
+    with open_regular(path, limit=MAX_FIGURE_BYTES, what="figure") as fh:
+        return base64.b64encode(fh.read()).decode("ascii")
 
 
 def figure(png: str, caption: str, alt: str) -> str:

@@ -13,7 +13,6 @@ import hashlib
 import itertools
 import math
 import os
-import stat
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Iterator, Mapping
@@ -26,7 +25,7 @@ from dkfsim.config.messages import convert
 from dkfsim.config.sweep import SWEEP_KEYS, SweepFile, canonical_json, short_json
 from dkfsim.config.yaml import parse_yaml, yaml_error_text
 from dkfsim.core.errors import DkfsimError, ScenarioError
-from dkfsim.core.files import MAX_YAML_BYTES, check_plain_data, read_text
+from dkfsim.core.files import MAX_YAML_BYTES, check_plain_data, open_regular, read_text
 from dkfsim.core.resources import C_VALIDATE, Cost, check
 
 #: Version of the database layout (``meta.format``).
@@ -37,6 +36,8 @@ DB_FORMAT = 2
 KEY_COLUMNS = ("param_hash", "run", "seed", "estimate", "component")
 
 _SQLITE_MAGIC = b"SQLite format 3\x00"
+#: Largest sweep database read (bytes): far beyond any sweep (a million tasks of a few rows).
+MAX_DATABASE_BYTES = 1 << 40
 
 
 
@@ -195,12 +196,11 @@ def _parameter_sets(label, scenario_path, grid, sets, burn_in) -> list[Parameter
 
 
 def is_database(path) -> bool:
-    """True when ``path`` is a regular SQLite file (by its header; a FIFO is never opened)."""
+    """True when ``path`` is a regular SQLite file (by its header; opened as every file dkfsim
+    reads, :func:`~dkfsim.core.files.open_regular`: a FIFO is never waited on)."""
     try:
-        if not stat.S_ISREG(os.stat(path).st_mode):
-            return False
-        with open(path, "rb") as fh:
+        with open_regular(path, limit=MAX_DATABASE_BYTES, what="sweep database") as fh:
             return fh.read(16) == _SQLITE_MAGIC
-    except OSError:
+    except (DkfsimError, OSError):
         return False
 

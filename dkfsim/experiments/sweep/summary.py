@@ -11,13 +11,14 @@ the paired difference and ratio of the MSE to a reference estimate.
 from __future__ import annotations
 
 import csv
+import io
 import json
 from pathlib import Path
 
 from dkfsim.config.results import sweep_rows, validate
 from dkfsim.core.errors import DkfsimError
 from dkfsim.core.extras import optional
-from dkfsim.core.files import check_regular_file
+from dkfsim.core.files import check_regular_file, open_regular
 from dkfsim.core.folders import write_csv
 from dkfsim.experiments.sweep.definition import KEY_COLUMNS, is_database
 from dkfsim.experiments.sweep.grid import summarize
@@ -64,10 +65,10 @@ def read_table(path) -> tuple[list[str], list[list]]:
     if is_database(p):
         return read_results(p)
     suffix = p.suffix.lower()
-    check_regular_file(p, limit=MAX_TABLE_BYTES, what="sweep export")
     if suffix == ".csv":
         try:
-            with open(p, newline="", encoding="utf-8") as fh:
+            with io.TextIOWrapper(open_regular(p, limit=MAX_TABLE_BYTES, what="sweep export"), newline="",
+                                  encoding="utf-8") as fh:
                 reader = csv.reader(fh)
                 columns = next(reader, None) or []
                 text = [c in TEXT_COLUMNS for c in columns]      # (a hash of digits stays text)
@@ -77,6 +78,7 @@ def read_table(path) -> tuple[list[str], list[list]]:
             raise DkfsimError(f"{path}: cannot read as CSV ({exc})") from None
     elif suffix in (".parquet", ".pq"):
         pq = optional("pyarrow.parquet")
+        check_regular_file(p, limit=MAX_TABLE_BYTES, what="sweep export")
         try:
             table = pq.read_table(p)
         except Exception as exc:             # pyarrow raises many kinds for a bad file
