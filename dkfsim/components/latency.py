@@ -356,10 +356,22 @@ _UNIT_S = {"ms": 1e-3, "s": 1.0}
 _COLUMNS: dict[tuple, np.ndarray] = {}
 
 
+#: Why a scenario read back from a result does not open a ``file:`` it names
+#: (:func:`dkfsim.config.load.stored_scenario`; docs/security.md).
+STORED_FILE_REFUSAL = ("a data file of a scenario read back from a result: reading a result never opens "
+                       "the files it names (they could be any file on this machine)")
+
+
 def located(file: str | None, dataset: str | None, info: ValidationInfo | None) -> tuple[Path, str]:
     """:func:`dkfsim.core.datafiles.locate` inside a validator: the path and the key it came
-    from; a validation error on the ``file`` / ``dataset`` key if there is none."""
-    base = (info.context or {}).get("base_dir") if info is not None else None
+    from; a validation error on the ``file`` / ``dataset`` key if there is none.  With
+    ``data_files: False`` in the validation context (a scenario read back from a result) a
+    ``file`` is refused before anything is looked up (:data:`STORED_FILE_REFUSAL`); a shipped
+    ``dataset`` is part of the package and is read."""
+    context = (info.context or {}) if info is not None else {}
+    base = context.get("base_dir")
+    if file is not None and context.get("data_files") is False:
+        raise custom_error(STORED_FILE_REFUSAL, "file")
     try:
         return locate(file, dataset, base)
     except DataFileError as err:

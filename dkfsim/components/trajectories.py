@@ -37,15 +37,15 @@ from dkfsim.components.latency import located
 from dkfsim.components.truth import TIME_UNITS, TrackError, read_track
 from dkfsim.core.datafiles import DataFileError, read_table
 from dkfsim.core.errors import DkfsimError
+from dkfsim.core.files import clip, printable
 from dkfsim.core.params import (
     MAX_SECONDS,
     Matrix,
-    Name,
     StrictModel,
+    Text,
     Vector,
     custom_error,
     registered,
-    suggest,
 )
 from dkfsim.core.registry import TRAJECTORIES
 
@@ -235,11 +235,11 @@ class RecordedTrack(TrajectoryParams):
     """A recorded drive (a shipped CICV5G track or a file), shifted in time and space per vehicle."""
 
     kind: Literal["track"] = "track"
-    file: Name | None = None
-    dataset: Name | None = None
-    x_column: Name = "utmX(m)"
-    y_column: Name = "utmY(m)"
-    time_column: Name = "pub_time(ms)"
+    file: Text | None = None
+    dataset: Text | None = None
+    x_column: Text = "utmX(m)"
+    y_column: Text = "utmY(m)"
+    time_column: Text = "pub_time(ms)"
     time_unit: Literal["s", "ms", "us", "ns"] = "ms"
     #: Seconds the vehicle runs behind the recording: at run time t it is where the
     #: recorded car was at t - time_offset (negative: ahead).
@@ -249,7 +249,7 @@ class RecordedTrack(TrajectoryParams):
     #: A fixed displacement added to every position (m).
     offset: Point = (0.0, 0.0)
     #: The column :meth:`sinr_db` reads (the cellular link quality the car saw).
-    sinr_column: Name = "sinr(db)"
+    sinr_column: Text = "sinr(db)"
 
     _path: str | None = PrivateAttr(default=None)
     _arc: ArcPath | None = PrivateAttr(default=None)
@@ -291,25 +291,34 @@ class RecordedTrack(TrajectoryParams):
         times, values = self._sinr_series()
         return _held(times, values, run_times(t_s) - self.time_offset)
 
-    def sinr_function(self, speed: float = 1.0):
+    def sinr_function(self, speed: float = 1.0) -> SinrAt:
         """:meth:`sinr_db` at one run time ``t`` evaluated at ``speed * t``: the column is read
         at the first call (a track that is never asked needs none) and kept, as a network asks
         once per packet."""
-        series: list[tuple[np.ndarray, np.ndarray]] = []
-        offset = self.time_offset
-
-        def at(t: float):
-            if not series:
-                series.append(self._sinr_series())
-            times, values = series[0]
-            return _held(times, values, np.asarray([t * speed]) - offset)[0]
-        return at
+        return SinrAt(self, speed)
 
     def _sinr_series(self) -> tuple[np.ndarray, np.ndarray]:
         try:
             return sampled_column(self._path, self.time_column, self.sinr_column, self.time_unit)
         except DataFileError as err:
             raise DkfsimError(f"trajectory track {self._path}: sinr_column: {err}") from None
+
+
+class SinrAt:
+    """A track's recorded SINR (dB) at one run time, ``speed`` applied (:meth:`RecordedTrack.sinr_function`).
+    An object rather than a closure so that a run plan holding it pickles: a Monte Carlo sends
+    the plan to its worker processes (a closure made ``dkfsim montecarlo`` of a ``track``
+    vehicle end in a traceback with ``--jobs`` above 1)."""
+
+    def __init__(self, track: RecordedTrack, speed: float):
+        self.track, self.speed = track, speed
+        self.series: tuple[np.ndarray, np.ndarray] | None = None
+
+    def __call__(self, t: float):
+        if self.series is None:
+            self.series = self.track._sinr_series()
+        times, values = self.series
+        return _held(times, values, np.asarray([t * self.speed]) - self.track.time_offset)[0]
 
 
 def _held(times: np.ndarray, values: np.ndarray, t: np.ndarray) -> np.ndarray:
@@ -324,10 +333,10 @@ def sampled_column(path, time_column: str, column: str, time_unit: str) -> tuple
     key = (str(table.path), id(table), time_column, column, time_unit)
     if key not in _COLUMNS:
         tcol, vcol = table.column_index(time_column), table.column_index(column)
-        t = np.array([v for _, v in table.floats(tcol, table.header[tcol] if table.header else "")])
-        v = np.array([v for _, v in table.floats(vcol, table.header[vcol] if table.header else "")])
+        t = np.array([v for _, v in table.floats(tcol)])
+        v = np.array([v for _, v in table.floats(vcol)])
         if not (np.isfinite(t).all() and np.isfinite(v).all()):
-            raise DataFileError(f"{table.path.name}: {column!r} and {time_column!r} must be finite")
+            raise DataFileError(f"{table.path.name}: {clip(column)} and {clip(time_column)} must be finite")
         order = np.argsort(t, kind="stable")
         _COLUMNS[key] = ((t[order] - t[order[0]]) * TIME_UNITS[time_unit], v[order])
     return _COLUMNS[key]
@@ -341,9 +350,9 @@ class SumoFcd(SampledTrajectory):
     """One vehicle of a SUMO floating-car-data file (sumo --fcd-output)."""
 
     kind: Literal["sumo_fcd"] = "sumo_fcd"
-    file: Name
+    file: Text
     #: The vehicle's id in the file (``<vehicle id="veh0">``).
-    vehicle: Name
+    vehicle: Text
     #: At run time t the vehicle is where the file puts it at SUMO time t - time_offset.
     time_offset: Shift = 0.0
     #: A fixed displacement added to every position (m).
@@ -357,10 +366,9 @@ class SumoFcd(SampledTrajectory):
         except DkfsimError as err:
             raise custom_error(str(err), "file") from None
         if self.vehicle not in data.vehicles:
-            names = sorted(data.vehicles)
-            raise custom_error(f"no vehicle {self.vehicle!r} in {path.name}{suggest(self.vehicle, names)}; "
-                               f"its vehicles: {', '.join(names[:20])}{' ...' if len(names) > 20 else ''}",
-                               "vehicle")
+            names = [clip(printable(v), 40) for v in sorted(data.vehicles)[:20]]
+            raise custom_error(f"no vehicle {clip(self.vehicle)} in {path.name}; its vehicles: "
+                               f"{', '.join(names)}{' ...' if len(data.vehicles) > 20 else ''}", "vehicle")
         self._line = Polyline(*data.vehicles[self.vehicle])
         return self
 

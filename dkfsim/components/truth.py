@@ -68,7 +68,7 @@ def read_track(path: str | os.PathLike, time_column: str, x_column: str, y_colum
                 cols.append(table.column_index(c))
             except DataFileError as err:
                 raise TrackError(str(err), k) from None
-        rows = np.array([[v for _, v in table.floats(col, table.header[col])] for col in cols]).T
+        rows = np.array([[v for _, v in table.floats(col)] for col in cols]).T
     except DataFileError as err:
         raise TrackError(str(err)) from None
     path = table.path

@@ -18,12 +18,14 @@ from typing import Any, Mapping, Sequence
 import yaml
 from pydantic import ValidationError
 
+from dkfsim.components.latency import STORED_FILE_REFUSAL
 from dkfsim.config.messages import convert
 from dkfsim.config.overrides import apply_override
 from dkfsim.config.schema import Scenario, scenario_hash  # noqa: F401  (re-exported)
 from dkfsim.config.yaml import parse_yaml, yaml_error_text
 from dkfsim.core.errors import DkfsimError, ScenarioError
 from dkfsim.core.files import MAX_YAML_BYTES, check_plain_data, clip, read_text
+from dkfsim.core.params import NAME_LIMIT
 from dkfsim.core.registry import load_plugin
 
 
@@ -52,7 +54,7 @@ def _load_plugins(data: dict, label: str, base_dir: str | os.PathLike | None) ->
 
 def load_scenario(source: str | os.PathLike | Mapping | Scenario,
                   overrides: Sequence[str] = (), *, base_dir: str | os.PathLike | None = None,
-                  import_plugins: bool = True) -> Scenario:
+                  import_plugins: bool = True, data_files: bool = True) -> Scenario:
     """Load, override and validate a scenario.
 
     ``source`` is a path to a YAML file, a mapping, or a Scenario (re-validated
@@ -67,6 +69,9 @@ def load_scenario(source: str | os.PathLike | Mapping | Scenario,
     read back from a result folder or sweep database: the key is kept as a
     value, and only the components already registered in this process (entry
     points included) are known -- reading results never imports anything.
+    ``data_files``: read the tables and FCD files its ``file:`` keys name (what running a
+    scenario does).  False for a scenario read back from a result: a ``file:`` key is then a
+    :class:`ScenarioError` naming it, and no file is opened (shipped ``dataset:`` keys are read).
     Raises :class:`ScenarioError` on any problem.
     """
     if isinstance(overrides, str):
@@ -107,7 +112,7 @@ def load_scenario(source: str | os.PathLike | Mapping | Scenario,
         key = apply_override(data, text, label)
         override_keys[key] = text
     if "name" not in data and path is not None:
-        data["name"] = Path(path).stem
+        data["name"] = Path(path).stem[:NAME_LIMIT]
     if path is not None and base_dir is None:
         # Relative data files (traces, tracks) resolve against the file's folder.
         base_dir = Path(path).resolve().parent
@@ -115,20 +120,23 @@ def load_scenario(source: str | os.PathLike | Mapping | Scenario,
     if import_plugins:
         _load_plugins(data, label, base_dir)
     try:
-        scenario = Scenario.model_validate(data, context={"base_dir": base_dir})
+        scenario = Scenario.model_validate(data, context={"base_dir": base_dir, "data_files": data_files})
     except ValidationError as exc:
         raise convert(exc, data, label, override_keys) from None
     scenario.set_source(path, base_dir)
     return scenario
 
 
-def stored_scenario(config: Any, *, source: Any = None, label: str) -> Scenario:
+def stored_scenario(config: Any, *, source: Any = None, label: str, data_files: bool = False) -> Scenario:
     """A scenario read back from a result (``summary.json``, a sweep database), validated as data.
 
     Its ``plugins:`` key is never acted on (reading results never imports anything,
     docs/security.md): only the components already registered in this process count,
-    those of installed entry-point plugins included.  Relative data files resolve
-    against the folder of ``source``, the scenario file the result names.  ``label``
+    those of installed entry-point plugins included.  Nor are the files its ``file:`` keys
+    name opened (a received result may name any file of the machine): such a scenario is a
+    :class:`ScenarioError` naming the key, unless ``data_files`` (the caller trusts the
+    result: :func:`dkfsim.load_run` with ``data_files=True``), when relative data files
+    resolve against the folder of ``source``, the scenario file the result names.  ``label``
     names the file the scenario was read from in messages.  Raises :class:`ScenarioError`;
     when a kind is unknown and the stored scenario lists plugins, the message says that
     they were not imported and how to read the result anyway.
@@ -143,8 +151,13 @@ def stored_scenario(config: Any, *, source: Any = None, label: str) -> Scenario:
         except (OSError, ValueError, RuntimeError):
             base_dir = None
     try:
-        return load_scenario(config, base_dir=base_dir, import_plugins=False)
+        return load_scenario(config, base_dir=base_dir, import_plugins=False, data_files=data_files)
     except ScenarioError as err:
+        if STORED_FILE_REFUSAL in err.reason:
+            raise ScenarioError(f"the stored scenario names a data file ({err.path}), and reading a result "
+                                "never opens the files it names (they could be any file on this machine); "
+                                "if you trust this result, read it with dkfsim.load_run(..., data_files=True)",
+                                source=label) from None
         plugins = config.get("plugins")
         if isinstance(plugins, (list, tuple)) and plugins:
             names = ", ".join(clip(p, 60) for p in plugins[:5]) + (", ..." if len(plugins) > 5 else "")

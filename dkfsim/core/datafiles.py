@@ -14,6 +14,12 @@ Tables are CSV (a comma in the first line) or whitespace separated, with
 an optional header line; blank lines and lines starting with ``#`` are
 skipped.  One reader (:func:`read_table`) serves every caller, so the
 ``empirical`` latency model and the ``truth`` track agree on what a table is.
+
+A message about the user's own file names the file, the line and the column (its index,
+or the name the scenario asked for) and quotes none of its content: a scenario may name
+any file of the machine (``file: /etc/passwd``), and its first line is not to appear in a
+terminal, a log or a report as "the columns".  A shipped dataset's header names are quoted
+(the file is public, part of the package).
 """
 
 from __future__ import annotations
@@ -24,7 +30,7 @@ import re
 from dataclasses import dataclass
 from pathlib import Path
 
-from dkfsim.core.files import MAX_DATA_BYTES, read_text
+from dkfsim.core.files import MAX_DATA_BYTES, clip, printable, read_text
 
 #: Where shipped datasets live: ``DATA_DIR / collection / (name + ".txt")``.
 DATA_DIR = Path(__file__).resolve().parents[1] / "data"
@@ -100,6 +106,15 @@ class Table:
     header: list[str] | None
     lines: list[tuple[int, list[str]]]          # (line number, fields)
 
+    @property
+    def shipped(self) -> bool:
+        """A dataset of the package (its content may be quoted in messages)."""
+        return self.path.resolve().is_relative_to(DATA_DIR)
+
+    def _quote(self, text: str) -> str:
+        """Text of a shipped dataset as a message quotes it: escaped, at most 40 characters."""
+        return clip(printable(text), 40)
+
     def column_index(self, column: str | int) -> int:
         """Index of a column by header name (exact, then ignoring case and
         punctuation, so ``delay_ms`` finds ``delay(ms)``) or by 0-based index."""
@@ -116,14 +131,18 @@ class Table:
         normed = [norm_name(h) for h in self.header]
         if norm_name(column) and norm_name(column) in normed:
             return normed.index(norm_name(column))
+        asked = clip(printable(column), 60)
+        if not self.shipped:
+            raise DataFileError(f"no column {asked} in {self.path.name}: its header line has {width} "
+                                f"name{'s' * (width != 1)} (a data file's content is not shown: open the "
+                                "file to see them), or give column as a 0-based index")
         close = difflib.get_close_matches(str(column), self.header, n=1)
-        hint = f" (did you mean '{close[0]}'?)" if close else ""
-        raise DataFileError(f"no column {column!r} in {self.path.name}; its columns are: "
-                            + ", ".join(self.header) + hint)
+        hint = f" (did you mean {self._quote(close[0])}?)" if close else ""
+        raise DataFileError(f"no column {asked} in {self.path.name}; its columns are: "
+                            + ", ".join(self._quote(h) for h in self.header[:20]) + hint)
 
-    def floats(self, idx: int, what: str = "") -> list[tuple[int, float]]:
-        """``(line number, float)`` of column ``idx`` in every data line (``what``
-        names the column in messages)."""
+    def floats(self, idx: int) -> list[tuple[int, float]]:
+        """``(line number, float)`` of column ``idx`` in every data line."""
         out = []
         for no, fields in self.lines:
             if idx >= len(fields):
@@ -132,8 +151,8 @@ class Table:
             try:
                 out.append((no, float(fields[idx])))
             except ValueError:
-                raise DataFileError(f"{self.path.name} line {no}: {what + ' ' if what else ''}"
-                                    f"{fields[idx]!r} is not a number") from None
+                value = f" ({self._quote(fields[idx])})" if self.shipped else ""
+                raise DataFileError(f"{self.path.name} line {no}: column {idx}{value} is not a number") from None
         return out
 
 

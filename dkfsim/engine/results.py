@@ -236,7 +236,7 @@ INFO_KEYS = ("buffer_length", "d_t", "d_g", "n_links", "wall_time_s", "save", "k
              "node_rows", "exchange", "backend", "mobility")
 
 
-def load_run(folder) -> RunResult:
+def load_run(folder, *, data_files: bool = False) -> RunResult:
     """Read a folder written by ``dkfsim run`` (or :meth:`RunResult.save`) back into a RunResult.
 
     Everything read is checked first (docs/security.md): ``summary.json`` against
@@ -244,9 +244,10 @@ def load_run(folder) -> RunResult:
     (numbers only, ``steps`` rows, within the memory budget) before its data.  The
     scenario is re-validated from the copy in ``summary.json`` as data
     (:func:`dkfsim.config.load.stored_scenario`: its ``plugins:`` key is never
-    imported; relative data files resolve against the original scenario file's folder); the
-    arrays are those of ``run.npz`` (none when the run was saved with
-    ``--save summary``).  Raises :class:`DkfsimError`.
+    imported, and a ``file:`` key it holds is an error unless ``data_files=True``: a result
+    you received may name any file of your machine; with it, relative data files resolve
+    against the original scenario file's folder); the arrays are those of ``run.npz`` (none
+    when the run was saved with ``--save summary``).  Raises :class:`DkfsimError`.
     """
     folder = Path(folder)
     if not folder.is_dir():
@@ -258,7 +259,7 @@ def load_run(folder) -> RunResult:
                           "folder? dkfsim.load reads every kind of result)")
     summary = validate(RunSummary, data, str(path)).model_dump()
     source = summary.get("source")
-    scenario = stored_scenario(summary["scenario_config"], source=source, label=str(path))
+    scenario = stored_scenario(summary["scenario_config"], source=source, label=str(path), data_files=data_files)
     scenario.set_source(source)
     if scenario.steps != summary["steps"]:
         raise DkfsimError(f"{path}: steps is {summary['steps']} but its scenario_config says "

@@ -50,20 +50,22 @@ class SweepResult:
         return rows_frame(rows, columns)
 
 
-def load(path):
+def load(path, *, data_files: bool = False):
     """The result at ``path``: a run folder (``RunResult``), a Monte Carlo folder
     (``MonteCarloResult``) or a sweep database / export file (:class:`SweepResult`).
+    ``data_files``: open the files the stored scenario's ``file:`` keys name (only for a
+    result you trust; :func:`~dkfsim.engine.results.load_run`).
     Raises :class:`DkfsimError` for anything else or anything damaged."""
     p = Path(path)
     if p.is_file() and (is_database(p) or p.suffix.lower() in (".csv", ".parquet", ".pq")):
         return SweepResult(p, *read_table(p))
     if p.is_dir():
         if (p / "runs.csv").is_file() or (p / "curves.npz").is_file():
-            return load_montecarlo(p)
+            return load_montecarlo(p, data_files=data_files)
         if (p / "rows.csv").is_file() or (p / "run.npz").is_file():
-            return load_run(p)
+            return load_run(p, data_files=data_files)
         if (p / "summary.json").is_file():
-            return load_run(p)           # says what the summary is if it is not a run's
+            return load_run(p, data_files=data_files)       # says what the summary is if it is not a run's
     if not p.exists():
         raise DkfsimError(f"{path}: no such file or folder")
     raise DkfsimError(f"{path}: not a result dkfsim wrote (a run folder: summary.json + rows.csv; "

@@ -56,7 +56,7 @@ from dkfsim.config.dynamics import component_names
 from dkfsim.config.load import load_scenario, scenario_hash, stored_scenario
 from dkfsim.config.plan import RunPlan
 from dkfsim.config.results import MonteCarloSummary, read_curves, read_record, read_rows
-from dkfsim.config.schema import Scenario
+from dkfsim.config.schema import Scenario, named
 from dkfsim.core.errors import DkfsimError
 from dkfsim.core.folders import staged, write_json
 from dkfsim.core.progress import progress_callback
@@ -308,15 +308,17 @@ def check_reference(sc, relative_to: str | None) -> None:
     reference_of(scenario_estimates(sc), relative_to, sc.name, why=why)
 
 
-def load_montecarlo(folder) -> "MonteCarloResult":
+def load_montecarlo(folder, *, data_files: bool = False) -> "MonteCarloResult":
     """Read a folder written by ``dkfsim montecarlo`` (or :meth:`MonteCarloResult.save`) back.
 
     Everything is checked before use (docs/security.md): ``summary.json`` against
     :class:`~dkfsim.config.results.MonteCarloSummary`, every row of ``runs.csv``
     (:func:`~dkfsim.config.results.read_rows`), every header of ``curves.npz`` before its
     data (:func:`~dkfsim.config.results.read_curves`); the scenario is re-validated from the
-    copy in ``summary.json`` as data (its ``plugins:`` are never imported).  Nothing is
-    unpickled or imported.  Raises :class:`DkfsimError`.
+    copy in ``summary.json`` as data (its ``plugins:`` are never imported, and the files its
+    ``file:`` keys name are not opened unless ``data_files=True``, as
+    :func:`~dkfsim.engine.results.load_run`).  Nothing is unpickled or imported.  Raises
+    :class:`DkfsimError`.
     """
     folder = Path(folder)
     if not folder.is_dir():
@@ -330,7 +332,7 @@ def load_montecarlo(folder) -> "MonteCarloResult":
     if not summary.get("scenario_config"):
         raise DkfsimError(f"{path}: no scenario_config (written by an older dkfsim?)")
     source = summary.get("source")
-    scenario = stored_scenario(summary["scenario_config"], source=source, label=str(path))
+    scenario = stored_scenario(summary["scenario_config"], source=source, label=str(path), data_files=data_files)
     scenario.set_source(source)
     rows = read_rows(folder / "runs.csv")
     curves = read_curves(folder / "curves.npz", scenario.steps, summary.get("components"))
@@ -346,7 +348,7 @@ def estimate_montecarlo(sc, runs: int, jobs: int) -> Cost:
     estimates = 2 + len(sc.estimators)
     K, nx = int(sc.steps), sc.nx
     kept = runs * estimates * nx * 600 + 6 * estimates * K * nx * 8     # rows; pooled curves
-    return repeat(one, f"{sc.name}: a Monte Carlo of {runs} runs x {K} ticks", runs,
+    return repeat(one, f"{named(sc)}: a Monte Carlo of {runs} runs x {K} ticks", runs,
                   min(jobs, runs), extra_bytes=kept)
 
 
