@@ -12,12 +12,13 @@ import contextlib
 import os
 import signal
 import sys
+import warnings
 
 from dkfsim.cli import list as list_cmd
 from dkfsim.cli import maxdelay, montecarlo, plot, report, run, sweep
 from dkfsim.cli.common import OutputError
 from dkfsim.core.errors import DkfsimError
-from dkfsim.core.files import printable
+from dkfsim.core.files import printable, shown
 from dkfsim.core.threads import pin_process
 from dkfsim.core.version import __version__
 
@@ -69,6 +70,25 @@ def _usable_streams() -> None:
                 stream.reconfigure(errors="backslashreplace")
 
 
+def _escaped_warnings() -> None:
+    """Warnings (a third-party one too: matplotlib's "Glyph 27 missing from font") are shown
+    through the one escaper, :func:`~dkfsim.core.files.printable`: a name holding ESC or BEL
+    that reaches a warning does not reach the terminal raw."""
+    shown = warnings.showwarning
+    if shown in _ESCAPING:             # (installed once: main may run twice in a process)
+        return
+
+    def show(message, category, filename, lineno, file=None, line=None):
+        shown(printable(message), category, printable(filename), lineno, file,
+              None if line is None else printable(line))
+    _ESCAPING.append(show)
+    warnings.showwarning = show
+
+
+#: The warning displays :func:`_escaped_warnings` installed.
+_ESCAPING: list = []
+
+
 def _discard_stdout() -> None:
     """Point stdout at /dev/null (its reader is gone or it cannot take more), so that the
     interpreter's final flush cannot fail after the command ended."""
@@ -85,6 +105,7 @@ def main(argv=None) -> int:
     pin_process()                     # one BLAS thread here and in every worker we start
     signal.signal(signal.SIGTERM, _on_sigterm)
     _usable_streams()
+    _escaped_warnings()
     parser = build_parser()
     args = parser.parse_args(argv)
     if not getattr(args, "command", None):
@@ -116,6 +137,13 @@ def main(argv=None) -> int:
         # The reader went away (``dkfsim ... | head``): end quietly, as Unix tools do.
         _discard_stdout()
         return 141
+    except OSError as exc:
+        # The last net for an I/O failure no layer above put into words (the readers and
+        # writers do: open_regular, staged, replacing, the sweep database): the file and the
+        # OS's reason, never a traceback.
+        where = f"{shown(exc.filename)}: " if exc.filename else ""
+        _error(f"dkfsim {args.command}: error: {where}{exc.strerror or exc}")
+        return 2
 
 
 if __name__ == "__main__":

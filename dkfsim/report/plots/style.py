@@ -14,6 +14,7 @@ import numpy as np
 
 from dkfsim.core.errors import DkfsimError
 from dkfsim.core.extras import available, optional, pyplot
+from dkfsim.core.files import printable, shown
 from dkfsim.core.folders import replacing
 from dkfsim.core.params import suggest
 from dkfsim.report.plots.folders import Folder
@@ -56,9 +57,11 @@ LABEL_LIMIT = 120
 def plain(text, limit: int = LABEL_LIMIT) -> str:
     """A name read from a file or given on the command line (an estimate, a component, a
     sensor, a grid value, ``--labels``, ``--title``) as matplotlib must draw it: plain text.
-    Every ``$`` is escaped, so ``$\\nosuch$`` is not parsed as mathtext (a ParseException),
-    and the text is cut at ``limit`` characters."""
-    s = str(text)
+    Control characters go through the one escaper (:func:`dkfsim.core.files.printable`: drawn
+    as ``\\x1b``, so no font lacks their glyph and no warning carries them raw to a
+    terminal), every ``$`` is escaped, so ``$\\nosuch$`` is not parsed as mathtext (a
+    ParseException), and the text is cut at ``limit`` characters."""
+    s = printable(text)
     if len(s) > limit:
         s = s[:limit - 1] + "…"
     return s.replace("$", "\\$")
@@ -182,24 +185,32 @@ def _save_png(fig, fh, dpi: int | None = None) -> None:
 
 
 def save_figure(fig, stem: Path, formats) -> list[Path]:
+    """Write ``fig`` as ``stem.<fmt>`` for each format, each file atomically; a folder made
+    here for them is removed again when nothing could be written into it (a full disk)."""
     stem = Path(stem)
+    made = None
     try:
+        if not stem.parent.exists():
+            made = stem.parent
         stem.parent.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
-        raise DkfsimError(f"{stem.parent}: cannot create the figure folder ({exc.strerror})") from None
+        raise DkfsimError(f"{shown(stem.parent)}: cannot create the figure folder ({exc.strerror})") from None
     out = []
     try:
         for fmt in formats:
             path = stem.with_name(f"{stem.name}.{fmt}")
-            try:                       # written beside (a new file, never through a link), then renamed
-                with replacing(path, "wb") as fh:
-                    if fmt == "png":
-                        _save_png(fig, fh)
-                    else:
-                        fig.savefig(fh, bbox_inches="tight", format=fmt)
-            except OSError as exc:
-                raise DkfsimError(f"{path}: cannot write the figure ({exc.strerror or exc})") from None
+            # written beside (a new file, never through a link), then renamed
+            with replacing(path, "wb") as fh:
+                if fmt == "png":
+                    _save_png(fig, fh)
+                else:
+                    fig.savefig(fh, bbox_inches="tight", format=fmt)
             out.append(path)
+    except BaseException:
+        if made is not None:
+            with contextlib.suppress(OSError):
+                made.rmdir()                 # (only if still empty)
+        raise
     finally:
         fig.clf()
         pyplot().close(fig)
