@@ -17,7 +17,7 @@ from pydantic import BeforeValidator, Field
 
 from dkfsim.components.topology import protocol_graph
 from dkfsim.core.files import clip
-from dkfsim.core.params import NonNegReal, StrictBool, StrictModel, custom_error, suggest
+from dkfsim.core.params import NAME_LIMIT, NonNegReal, StrictBool, StrictModel, custom_error, suggest
 from dkfsim.core.registry import ESTIMATORS
 
 
@@ -33,7 +33,8 @@ class EstimatorParams(StrictModel):
     """
 
     kind: str = ""                       # (each subclass: its literal kind)
-    name: Annotated[str, Field(strict=True, min_length=1, pattern=r"^[A-Za-z][A-Za-z0-9_]*$")] | None = None
+    name: Annotated[str, Field(strict=True, min_length=1, max_length=NAME_LIMIT,
+                               pattern=r"^[A-Za-z][A-Za-z0-9_]*$")] | None = None
 
     def __init_subclass__(cls, kind: str | None = None, aliases: tuple[str, ...] = (), **kwargs: Any):
         if kind is not None:

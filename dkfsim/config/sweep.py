@@ -20,7 +20,7 @@ from typing import Annotated, Any
 from pydantic import Field, ValidationInfo, field_validator, model_validator
 from pydantic_core import PydanticCustomError
 
-from dkfsim.core.params import StrictModel, custom_error, suggest
+from dkfsim.core.params import TEXT_LIMIT, StrictModel, Text, custom_error, suggest
 
 #: Keys a sweep file may have.
 SWEEP_KEYS = ("scenario", "grid", "set", "runs", "burn_in", "output")
@@ -68,6 +68,8 @@ def _grid_entry(key: Any, values: Any) -> tuple[str, tuple]:
     where = f"{key}"
     if not isinstance(key, str) or not key.strip() or any(p == "" for p in key.split(".")):
         raise custom_error("keys must be dotted scenario paths such as links.default.latency.d_t", where)
+    if len(key) > TEXT_LIMIT:
+        raise custom_error(f"a key of {len(key):,} characters; keys are at most {TEXT_LIMIT:,}", where[:40] + "...")
     if not isinstance(values, list):
         raise custom_error(f"must be a list of values (e.g. [0, 1, 2]), got {short_json(values)}", where)
     if not values:
@@ -96,7 +98,7 @@ class SweepFile(StrictModel):
 
     scenario: Path
     grid: tuple[tuple[str, tuple], ...] = ()
-    overrides: tuple[str, ...] = Field(default=(), alias="set")
+    overrides: tuple[Text, ...] = Field(default=(), alias="set")
     runs: Annotated[int, Field(strict=True, ge=1)] = 1
     burn_in: int | None = None
     output: Path | None = None

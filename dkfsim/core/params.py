@@ -145,7 +145,17 @@ NonNegReal = Annotated[float, Field(strict=True, ge=0, le=MAX_MAGNITUDE, allow_i
 Probability = Annotated[float, Field(strict=True, ge=0, le=1, allow_inf_nan=False)]
 StrictInt = Annotated[int, Field(strict=True)]
 StrictBool = Annotated[bool, Field(strict=True)]
-Name = Annotated[str, Field(strict=True, min_length=1)]
+#: Longest name (a scenario, a sensor, an estimator, an estimate, a component): a name becomes a
+#: table cell, a figure label, a file's column.  One rule, applied when a scenario is validated
+#: and when a result is read back (:mod:`dkfsim.config.results`), so that no run is written that
+#: its readers would refuse.
+NAME_LIMIT = 200
+#: Longest other text: a path, a column of a data file, a module, a ``--set`` entry.
+TEXT_LIMIT = 10_000
+#: A name (see :data:`NAME_LIMIT`).
+Name = Annotated[str, Field(strict=True, min_length=1, max_length=NAME_LIMIT)]
+#: A path, a column or other text (see :data:`TEXT_LIMIT`).
+Text = Annotated[str, Field(strict=True, min_length=1, max_length=TEXT_LIMIT)]
 
 
 def _number(x: Any) -> float:
