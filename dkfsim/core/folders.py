@@ -33,6 +33,7 @@ from pathlib import Path
 
 from dkfsim.core.encoding import csv_cell, to_json
 from dkfsim.core.errors import DkfsimError
+from dkfsim.core.files import open_regular, shown
 
 #: The file that marks a folder as written by dkfsim (safe to replace).
 MARKER = ".dkfsim-output"
@@ -59,16 +60,30 @@ def replacing(path, mode: str = "w", newline: str | None = None):
     temporary file is created exclusively (``mkstemp``), so a link planted under its name is
     never written through.  ``mode``: ``"w"`` (UTF-8 text) or ``"wb"`` (bytes, e.g. a figure)."""
     path = Path(path)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name[:100]}.", suffix=".tmp", dir=path.parent)
+    tmp = None
     try:
+        fd, tmp = tempfile.mkstemp(prefix=f".{path.name[:100]}.", suffix=".tmp", dir=path.parent)
         with os.fdopen(fd, mode, newline=newline, encoding=None if "b" in mode else "utf-8") as fh:
             yield fh
         os.chmod(tmp, file_mode())
         os.replace(tmp, path)
-    except BaseException:
-        with contextlib.suppress(OSError):
-            os.unlink(tmp)
+    except BaseException as exc:
+        if tmp is not None:
+            with contextlib.suppress(OSError):
+                os.unlink(tmp)
+        if isinstance(exc, OSError):       # a full disk, a name too long, no permission, ...
+            raise WriteFailed(path, exc) from None
         raise
+
+
+class WriteFailed(DkfsimError):
+    """A file could not be written (:func:`replacing`): the OS's reason, the file named; nothing
+    of it is left (the temporary file is removed, an earlier file of that name is untouched)."""
+
+    def __init__(self, path, exc: OSError):
+        self.strerror = exc.strerror or str(exc)
+        self.filename = str(path)
+        super().__init__(f"cannot write {shown(path)} ({self.strerror}); nothing was written there")
 
 
 def write_csv(path, columns, rows) -> None:
@@ -106,9 +121,14 @@ def _process_identity(pid: int) -> dict | None:
 
 
 def _stage_dir(target: Path, kind: str) -> Path:
-    """A new staging folder beside ``target`` (``.NAME.new-PID-XXXX``), marked with its owner."""
+    """A new staging folder beside ``target`` (``.NAME.new-PID-XXXX``), marked with its owner;
+    removed again if it cannot be marked (a full disk)."""
     stage = Path(tempfile.mkdtemp(prefix=f".{target.name}.{kind}-{os.getpid()}-", dir=target.absolute().parent))
-    _mark_owner(stage)
+    try:
+        _mark_owner(stage)
+    except BaseException:
+        shutil.rmtree(stage, ignore_errors=True)
+        raise
     return stage
 
 
@@ -123,9 +143,10 @@ def _provably_dead(stage: Path) -> bool:
     machine (same host name) and either the machine rebooted since, or no process with its pid
     and start time exists.  Anything else -- no owner file, another host -- is left alone."""
     try:
-        owner = json.loads((stage / OWNER).read_text())
+        with open_regular(stage / OWNER, limit=4096, what="staging owner file") as fh:   # (a FIFO: no)
+            owner = json.loads(fh.read())
         pid, host, boot, start = int(owner["pid"]), owner["host"], owner["boot"], owner["start"]
-    except (OSError, ValueError, KeyError, TypeError):
+    except (OSError, ValueError, KeyError, TypeError, DkfsimError):
         return False
     me = _process_identity(os.getpid())
     if me is None or host != me["host"]:
@@ -175,31 +196,38 @@ def check_target(out_dir, flag: str = "--out") -> Path:
     text = os.fspath(out_dir) if out_dir is not None else ""
     if not str(text).strip():
         raise DkfsimError(f"{flag}: empty path; give the folder to write into")
+    label = shown(text)
     out = Path(text)
+    try:
+        _check_existing(out, flag, label)
+        parent = out.absolute().parent
+        parent.mkdir(parents=True, exist_ok=True)
+        probe = tempfile.mkdtemp(prefix=f".{out.name[:100]}.probe-", dir=parent)
+        os.rmdir(probe)
+    except OSError as exc:           # a name too long, no permission, a full disk, ...
+        raise DkfsimError(f"{flag} {label}: cannot write there ({exc.strerror or exc}); nothing was "
+                          "written") from None
+    return out
+
+
+def _check_existing(out: Path, flag: str, label: str) -> None:
+    """An existing ``out`` must be a folder dkfsim wrote (or an empty one)."""
     remove_dead_staging(out)
     if out.exists() or out.is_symlink():
         if not out.is_dir():
-            raise DkfsimError(f"{flag} {text}: exists and is not a folder; give a folder name")
+            raise DkfsimError(f"{flag} {label}: exists and is not a folder; give a folder name")
         try:
             entries = sorted(os.listdir(out))
         except OSError as exc:
-            raise DkfsimError(f"{flag} {text}: cannot read the folder ({exc.strerror})") from None
+            raise DkfsimError(f"{flag} {label}: cannot read the folder ({exc.strerror})") from None
         if entries and not _owned(entries):
-            shown = ", ".join(entries[:5]) + (", ..." if len(entries) > 5 else "")
-            raise DkfsimError(f"{flag} {text}: the folder holds files dkfsim did not write ({shown}); "
+            names = ", ".join(shown(e, 60) for e in entries[:5]) + (", ..." if len(entries) > 5 else "")
+            raise DkfsimError(f"{flag} {label}: the folder holds files dkfsim did not write ({names}); "
                               "it would be replaced as a whole: choose a new or empty folder")
         for name in ("run.npz", "summary.json", "runs.csv", "curves.npz", "maxdelay.json"):
             if (out / name).is_dir():
-                raise DkfsimError(f"{flag} {text}: {name} inside it is a folder; remove it or "
+                raise DkfsimError(f"{flag} {label}: {name} inside it is a folder; remove it or "
                                   "choose another folder")
-    parent = out.absolute().parent
-    try:
-        parent.mkdir(parents=True, exist_ok=True)
-        probe = tempfile.mkdtemp(prefix=f".{out.name}.probe-", dir=parent)
-        os.rmdir(probe)
-    except OSError as exc:
-        raise DkfsimError(f"{flag} {text}: cannot write in {parent} ({exc.strerror})") from None
-    return out
 
 
 def _exchange(a: Path, b: Path) -> bool:
@@ -240,21 +268,24 @@ def staged(out_dir, what: str, flag: str = "--out"):
     """
     target = check_target(out_dir, flag)
     existed = target.exists()
-    stage = _stage_dir(target, "new")
+    stage: Path | None = None
     try:
         try:
+            stage = _stage_dir(target, "new")        # (a full disk may refuse its owner file already)
             yield stage
             (stage / OWNER).unlink(missing_ok=True)
             (stage / MARKER).write_text(f"written by dkfsim {what}; the folder is replaced as a whole "
                                         "by the next command that writes here\n")
             os.chmod(stage, 0o777 & ~_umask())
             _swap_in(stage, target)
-        except OSError as exc:          # a full disk (ENOSPC), a file-size limit (EFBIG), ...
-            kept = f"{out_dir} holds what it held before" if existed else "nothing was written"
-            raise DkfsimError(f"{flag} {out_dir}: cannot write the results ({exc.strerror or exc}"
-                              f"{': ' + Path(exc.filename).name if exc.filename else ''}); {kept}") from None
+        except (OSError, WriteFailed) as exc:     # a full disk (ENOSPC), a file-size limit (EFBIG), ...
+            kept = f"{shown(out_dir)} holds what it held before" if existed else "nothing was written"
+            name = f": {shown(Path(exc.filename).name, 60)}" if exc.filename else ""
+            raise DkfsimError(f"{flag} {shown(out_dir)}: cannot write the results ({exc.strerror or exc}"
+                              f"{name}); {kept}") from None
     except BaseException:
-        shutil.rmtree(stage, ignore_errors=True)
+        if stage is not None:
+            shutil.rmtree(stage, ignore_errors=True)
         raise
 
 

@@ -25,9 +25,17 @@ except ImportError:  # pragma: no cover  (Windows)
 
 from dkfsim.config.results import SweepDefinition, SweepParams, validate
 from dkfsim.core.errors import DkfsimError
-from dkfsim.core.files import parse_json
+from dkfsim.core.files import open_regular, parse_json
 from dkfsim.core.version import __version__
-from dkfsim.experiments.sweep.definition import DB_FORMAT, KEY_COLUMNS, Sweep, canonical_json, is_database, short_json
+from dkfsim.experiments.sweep.definition import (
+    DB_FORMAT,
+    KEY_COLUMNS,
+    MAX_DATABASE_BYTES,
+    Sweep,
+    canonical_json,
+    is_database,
+    short_json,
+)
 
 
 def _sql_value(v: Any) -> Any:
@@ -145,25 +153,31 @@ class SweepDB:
         if self.path.exists() and self.path.stat().st_size > 0 and not is_database(self.path):
             raise DkfsimError(f"{label}: exists and is not an SQLite file; refusing to "
                               "overwrite it (choose another output)")
+        self.created = False         # this object made the file (it removes it if it saves nothing)
+        self.written = 0             # tasks saved through it
         try:
             self.path.parent.mkdir(parents=True, exist_ok=True)
             if sweep is not None and (not self.path.exists() or self.path.stat().st_size == 0):
                 self._create(sweep)
             self._lock()
             self.conn = sqlite3.connect(self.path, isolation_level=None, timeout=30)
-            self.conn.execute("PRAGMA journal_mode=WAL")
+            # A rollback journal, not a write-ahead log: a transaction a full disk stops is rolled
+            # back and its journal deleted without needing new space, and a saved task lives in the
+            # database file alone -- nothing is left beside it (a WAL could hold saved tasks the
+            # disk had no room to fold in, and its -wal and -shm files stayed).
+            self.conn.execute("PRAGMA journal_mode=DELETE")
             self.conn.execute("PRAGMA synchronous=FULL")
-        except sqlite3.Error as exc:
-            self.close()
-            raise DkfsimError(f"{label}: cannot open the sweep database ({exc})") from None
-        except OSError as exc:
-            self.close()
-            raise DkfsimError(f"{label}: cannot create the sweep database "
-                              f"({exc.strerror})") from None
-        try:
             self._setup(sweep)
+        except sqlite3.Error as exc:
+            self._abandon()
+            raise DkfsimError(f"{label}: cannot open the sweep database ({exc}; a full disk?); "
+                              f"{self._left()}") from None
+        except OSError as exc:
+            self._abandon()
+            raise DkfsimError(f"{label}: cannot create the sweep database "
+                              f"({exc.strerror}); {self._left()}") from None
         except BaseException:
-            self.close()
+            self._abandon()
             raise
 
     # -- opening -----------------------------------------------------------------
@@ -185,12 +199,15 @@ class SweepDB:
                 conn.close()
             try:
                 os.link(tmp, self.path)
+                self.created = True
             except FileExistsError:
                 if self.path.stat().st_size == 0:           # an empty file (an older lock): ours
                     os.replace(tmp, self.path)
+                    self.created = True
             except OSError:               # a filesystem without hard links: a rename, if still free
                 if not self.path.exists():
                     os.replace(tmp, self.path)
+                    self.created = True
         finally:
             with contextlib.suppress(OSError):
                 os.unlink(tmp)
@@ -198,7 +215,7 @@ class SweepDB:
     def _lock(self) -> None:
         if fcntl is None:  # pragma: no cover  (no advisory locks: trust the user)
             return
-        fh = open(self.path, "rb")                 # (exists: never creates an empty database)
+        fh = open_regular(self.path, limit=MAX_DATABASE_BYTES, what="sweep database")   # (never creates one)
         try:
             fcntl.flock(fh.fileno(), fcntl.LOCK_EX | fcntl.LOCK_NB)
         except OSError:
@@ -357,11 +374,13 @@ class SweepDB:
                              [param_hash, run, seed, row["estimate"], row["component"],
                               *(_sql_value(row.get(m)) for m in metrics)])
             conn.execute("COMMIT")
+            self.written += 1
         except (sqlite3.OperationalError, OSError) as exc:      # a full disk, an I/O error
             _rollback(conn)
+            kept = ("the tasks saved before it are kept, re-run the same command to resume" if self.written
+                    or not self.created else "no task was saved, so the new database is removed")
             raise DkfsimError(f"{self.path}: cannot save the results of task ({param_hash}, run {run}) "
-                              f"({exc}; a full disk?): the tasks saved before it are kept, re-run "
-                              "the same command to resume") from None
+                              f"({exc}; a full disk?): {kept}") from None
         except BaseException:
             _rollback(conn)
             raise
@@ -375,11 +394,29 @@ class SweepDB:
             self._lock_fh.close()
             self._lock_fh = None
 
+    def _left(self) -> str:
+        """What a failed sweep leaves, in words (after :meth:`_abandon`)."""
+        if self.created and not self.path.exists():
+            return "nothing was written"
+        return "the database holds what it held before"
+
+    def _abandon(self) -> None:
+        """Close; a database this object created and saved no task into is removed (a sweep
+        stopped by a full disk leaves nothing behind; one that saved tasks keeps them)."""
+        self.close()
+        if getattr(self, "created", False) and not self.written:
+            for suffix in ("", "-journal", "-wal", "-shm"):
+                with contextlib.suppress(OSError):
+                    os.unlink(f"{self.path}{suffix}")
+
     def __enter__(self):
         return self
 
-    def __exit__(self, *exc):
-        self.close()
+    def __exit__(self, exc_type, *exc):
+        if exc_type is not None:
+            self._abandon()
+        else:
+            self.close()
         return False
 
 
