@@ -56,7 +56,7 @@ from dkfsim.components import topology as topo
 from dkfsim.components.estimators import BufferLength, CentralizedParams, EstimatorParams
 from dkfsim.components.faults import Faults, LinkSpec, Schedule, Window
 from dkfsim.components.latency import Constant, LatencyModel
-from dkfsim.components.medium import Medium
+from dkfsim.components.medium import Medium, smallest_frame
 from dkfsim.components.mobility import SCHEDULE_LIMIT, Mobility
 from dkfsim.components.sensors import SensorParams
 from dkfsim.components.traffic import TRAFFIC_KEYS, TrafficKeys
@@ -64,7 +64,7 @@ from dkfsim.components.truth import TruthParams
 from dkfsim.config.dynamics import Model, Prior
 from dkfsim.config.plan import RunPlan
 from dkfsim.config.sweep import canonical_json
-from dkfsim.core.files import clip
+from dkfsim.core.files import clip, shown
 from dkfsim.core.params import (
     MAX_NS,
     MAX_SECONDS,
@@ -73,6 +73,7 @@ from dkfsim.core.params import (
     StrictBool,
     StrictInt,
     StrictModel,
+    Text,
     custom_error,
     registered,
 )
@@ -162,7 +163,7 @@ def _fusion_none(value: Any) -> Any:
 class Scenario(StrictModel):
     """A validated, immutable scenario (see the module docstring)."""
 
-    name: Annotated[str, Field(strict=True, min_length=1)] = "unnamed"
+    name: Name = "unnamed"
     seed: Annotated[int, Field(strict=True, ge=0)] = 0
     steps: Annotated[int, Field(strict=True, ge=1)] = 1000
     model: Model
@@ -178,7 +179,7 @@ class Scenario(StrictModel):
     #: The algorithms run beside the anti-delay DKF, on the same draws and network.
     estimators: tuple[EstimatorField, ...] = (CentralizedParams(),)
     #: Modules or .py files that register components (imported before validation).
-    plugins: tuple[Name, ...] = ()
+    plugins: tuple[Text, ...] = ()
     #: Truth from a recorded track instead of the model (:mod:`dkfsim.model.trajectory`).
     truth: TruthParams | None = None
     #: Sensor faults (crash windows), see :mod:`dkfsim.components.faults`.
@@ -190,6 +191,8 @@ class Scenario(StrictModel):
 
     _source: str | None = PrivateAttr(default=None)
     _base_dir: str | None = PrivateAttr(default=None)
+    #: the override of each link (``(u, v)``; ``(min, max)`` on an undirected topology)
+    _override_of: dict[tuple[int, int], int] | None = PrivateAttr(default=None)
 
     # ------------------------------------------------------------------ validation
     @field_validator("sensors", mode="before")
@@ -277,6 +280,7 @@ class Scenario(StrictModel):
             names[s.name] = i
         if self.truth is not None:
             self._check_truth()
+        self._index_overrides()
         plan = RunPlan(self)            # what the run would derive: checked here, never at its start
         places = self._link_places()
         self._check_network(plan, places)
@@ -326,6 +330,33 @@ class Scenario(StrictModel):
                 f"the run needs {need:g} s of track (truth.start {self.truth.start:g} s + "
                 f"{self.steps} steps x {self.model.T:g} s) but {named} covers {have:g} s; use at "
                 f"most {int((have - self.truth.start) / self.model.T + 1e-9)} steps", "steps")
+
+    def _pair(self, u: int, v: int) -> tuple[int, int]:
+        """The key of link ``u -> v`` in the override index (either direction on an undirected
+        topology)."""
+        return (u, v) if self.topology.directed else (min(u, v), max(u, v))
+
+    def _index_overrides(self) -> None:
+        """One override per link: a second one of the same link (or of its reverse, on an
+        undirected topology) is refused, and each link finds its override in one look-up (a
+        scan of every override per link was quadratic: 8 000 overrides took minutes)."""
+        index: dict[tuple[int, int], int] = {}
+        for i, ov in enumerate(self.links.overrides):
+            key = self._pair(*ov.link)
+            if key in index:
+                j = index[key]
+                raise custom_error(f"link {list(ov.link)} already has an override (links.overrides.{j}: "
+                                   f"{list(self.links.overrides[j].link)}); give each link one override "
+                                   "with every key it changes", f"links.overrides.{i}.link")
+            index[key] = i
+        self._override_of = index
+
+    def _override(self, u: int, v: int) -> int | None:
+        """The index of the override of link ``u -> v``, if any."""
+        if self._override_of is None:
+            self._index_overrides()
+        assert self._override_of is not None
+        return self._override_of.get(self._pair(u, v))
 
     def _link_places(self) -> list[tuple[str, LinkSpec]]:
         """``(key, settings)`` of ``links.default`` and of each override's link as the run sees
@@ -433,9 +464,19 @@ class Scenario(StrictModel):
         no ``rate`` (nor ``queue``/``background``) on it, no rate from distance."""
         assert self.medium is not None
         self.medium.check(self.n)
-        if self.medium.queue is not None and self.medium.queue.packets == 0:
+        queue, background = self.medium.queue, self.medium.background
+        if queue is not None and queue.packets == 0:
             raise custom_error("a frame waits in its radio's waiting room for its slot, so it must hold "
                                "at least one frame: give packets >= 1", "medium.queue.packets")
+        if queue is not None and queue.bytes is not None:
+            least = max(smallest_frame(self.nx), background.size if background is not None else 0)
+            if queue.bytes < least:
+                kinds = f"the estimators' smallest, {smallest_frame(self.nx)} bytes (a header and one state vector)"
+                if background is not None:
+                    kinds = f"the background's {background.size} bytes and {kinds}"
+                raise custom_error(f"a frame waits in its radio's waiting room for its slot, so it must hold one "
+                                   f"frame of every kind the channel carries: {kinds}; give bytes >= {least}",
+                                   "medium.queue.bytes")
         if self.mobility is not None and self.mobility.rate_from_distance:
             raise custom_error("a link on the shared channel is sent at the channel's rate, so it cannot "
                                "take a rate from distance; remove mobility.links.rate or medium",
@@ -443,8 +484,11 @@ class Scenario(StrictModel):
         members = set(self.medium.members(self.n))
         entries = [("links.default", self.links.default, None)] + [
             (f"links.overrides.{i}", ov, ov) for i, ov in enumerate(self.links.overrides)]
+        arcs_set = set(plan.arcs)
         for key, entry, override in entries:
-            arcs = plan.arcs if override is None else [a for a in plan.arcs if self.link_matches(override.link, *a)]
+            arcs = plan.arcs if override is None else [
+                a for a in dict.fromkeys([tuple(override.link), tuple(override.link)[::-1]])
+                if a in arcs_set and self.link_matches(override.link, *a)]
             on = next(((u, v) for u, v in arcs if u in members and v in members), None)
             what = next((w for w in ("rate", "queue", "background") if getattr(entry, w) is not None), None)
             if on is not None and what is not None:
@@ -529,7 +573,7 @@ class Scenario(StrictModel):
     def link_spec(self, u: int, v: int) -> LinkSpec:
         """Settings of the directed link ``u -> v``.
 
-        The default merged with the last matching override; ``link: [u, v]``
+        The default merged with the link's override (a link has at most one); ``link: [u, v]``
         matches ``u -> v``, and also ``v -> u`` on an undirected topology.
         An override replaces the whole latency model, the loss, and each
         fault or traffic key it gives (duplicate, jitter, schedule, outages, rate, queue,
@@ -537,9 +581,10 @@ class Scenario(StrictModel):
         """
         keys = ("latency", "loss", "duplicate", "jitter", "schedule", "outages") + TRAFFIC_KEYS
         spec = {k: getattr(self.links.default, k) for k in keys}
-        for ov in self.links.overrides:
-            if self.link_matches(ov.link, u, v):
-                spec.update({k: getattr(ov, k) for k in keys if getattr(ov, k) is not None})
+        i = self._override(u, v)
+        if i is not None:
+            ov = self.links.overrides[i]
+            spec.update({k: getattr(ov, k) for k in keys if getattr(ov, k) is not None})
         return LinkSpec(latency=spec["latency"], loss=float(spec["loss"]),
                         duplicate=float(spec["duplicate"] or 0.0), jitter=spec["jitter"],
                         schedule=tuple(spec["schedule"] or ()),
@@ -554,11 +599,9 @@ class Scenario(StrictModel):
     def _key_of(self, u: int, v: int, what: str) -> str:
         """Where link ``u -> v`` takes its ``what`` from (as :meth:`link_spec` merges): the last
         matching override that gives it (``links.overrides.I``), else ``links.default``."""
-        found = "links.default"
-        for i, ov in enumerate(self.links.overrides):
-            if self.link_matches(ov.link, u, v) and getattr(ov, what) is not None:
-                found = f"links.overrides.{i}"
-        return found
+        i = self._override(u, v)
+        return f"links.overrides.{i}" if i is not None and getattr(self.links.overrides[i], what) is not None \
+            else "links.default"
 
     # ------------------------------------------------------------------ identity
     def to_dict(self) -> dict:
@@ -573,6 +616,11 @@ class Scenario(StrictModel):
 
     def __hash__(self) -> int:
         return hash(scenario_hash(self))
+
+
+def named(scenario: Scenario) -> str:
+    """How a message names a scenario: its file (where the user can fix it), else its name."""
+    return shown(scenario.source) if scenario.source else f"scenario {clip(scenario.name, 60)}"
 
 
 def scenario_hash(scenario: Scenario) -> str:

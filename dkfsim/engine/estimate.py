@@ -12,7 +12,9 @@ search to the time (:attr:`RunPlan.search_seconds <dkfsim.config.plan.RunPlan.se
 from __future__ import annotations
 
 from dkfsim.components.estimators import AntiDelayParams
+from dkfsim.components.traffic import background_packets
 from dkfsim.config.plan import RunPlan
+from dkfsim.config.schema import named
 from dkfsim.core.registry import ESTIMATORS
 from dkfsim.core.resources import B_FLOAT, C_PACKET, Cost, check
 from dkfsim.estimators.anti_delay import AntiDelayDKF
@@ -27,16 +29,11 @@ def estimate_run(run, save: str = "auto") -> Cost:
     L, arcs = plan.L_estimate, plan.n_exchange_links
     m_total = sum(s.m for s in scenario.sensors)
     varying = any(s.kind != "linear" for s in scenario.sensors)
-    total = Cost(f"{scenario.name}: a run of {K} ticks on {n} nodes")
+    total = Cost(f"{named(scenario)}: a run of {K} ticks on {n} nodes")
     total.memory["truth and measurements"] = K * (nx + m_total) * B_FLOAT
     total.memory["information contributions"] = K * n * nx * B_FLOAT * (1 + (nx if varying else 0))
     total.memory["graph and bookkeeping"] = (n + arcs) * 200 + min(L, K) * (n + 3 * arcs) * 40
-    total.seconds = plan.search_seconds
-    medium = scenario.medium
-    if medium is not None and medium.background is not None:
-        # every background frame is an event of the channel engine, in each estimator's copy
-        frames = (medium.background.packets_per_second * len(medium.members(n)) * K * float(scenario.model.T))
-        total.seconds += frames * (1 + len(scenario.estimators)) * C_PACKET
+    total.seconds = plan.search_seconds + background_packets(scenario, plan.arcs) * C_PACKET
     parts = [AntiDelayDKF.cost(AntiDelayParams(), plan)]
     for p in scenario.estimators:
         parts.append(ESTIMATORS.get(p.kind).implementation.cost(p, plan))

@@ -14,7 +14,7 @@ from dataclasses import dataclass
 from dkfsim.analysis.bounds import paper_bound_for_scenario
 from dkfsim.analysis.metrics import default_burn_in
 from dkfsim.config.load import load_scenario
-from dkfsim.config.schema import Scenario
+from dkfsim.config.schema import Scenario, named
 from dkfsim.core.errors import DkfsimError
 from dkfsim.core.resources import Cost, check, repeat
 from dkfsim.core.threads import single_thread
@@ -166,7 +166,7 @@ class MaxDelay:
         looks = 2 * math.ceil(math.log2(J + 2)) + 3
         runs = looks * st.max_runs + (J + 3)
         one = estimate_run(self.axis.base, "estimates")
-        return repeat(one, f"{self.sc.name}: maxdelay over {J + 1} candidates ({self.axis.name})",
+        return repeat(one, f"{named(self.sc)}: maxdelay over {J + 1} candidates ({self.axis.name})",
                       runs, self.workers, extra_bytes=(J + 1) * 2048)
 
     @property
