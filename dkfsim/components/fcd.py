@@ -7,8 +7,17 @@ memory as 24 bytes per vehicle sample) with defusedxml's expat parser, which
 refuses document type declarations, entity declarations and external
 references outright: a SUMO file has none, and they are how an XML file
 attacks its reader (entity expansion "bombs", reading local files or URLs).
+It is opened as every file dkfsim reads (:func:`~dkfsim.core.files.open_regular`:
+a FIFO or a device is refused, never waited on).  A SUMO element is a few hundred
+bytes: a stretch of :data:`MAX_ELEMENT_BYTES` without a ``>`` (an attribute or a text of
+megabytes, which expat would buffer and re-scan at every chunk: quadratic time,
+gigabytes) is refused before it is parsed; coordinates are at most :data:`MAX_COORDINATE`
+metres and times :data:`~dkfsim.core.params.MAX_SECONDS` in magnitude, and no speed
+between two samples may overflow.
 Every problem is a :class:`~dkfsim.core.errors.DkfsimError` naming the file,
-the line and what is wrong.
+the line and what is wrong; a message quotes nothing of the file but a vehicle's id (at
+most 40 characters, escaped) once the file has shown itself an FCD export: a scenario may
+name any file, and its content is not to appear in a terminal or a log.
 """
 
 from __future__ import annotations
@@ -25,8 +34,21 @@ import numpy as np
 from dkfsim.core.datafiles import DataFileError, file_key
 from dkfsim.core.errors import DkfsimError
 from dkfsim.core.extras import optional
+from dkfsim.core.files import open_regular, printable
+from dkfsim.core.params import MAX_SECONDS
 
 _CHUNK = 1 << 20
+#: Largest SUMO FCD file read (bytes): hours of a city's traffic.
+MAX_FCD_BYTES = 1 << 34
+#: Longest stretch of a file without a ``>`` (bytes): no element of a SUMO file comes near it.
+MAX_ELEMENT_BYTES = 1 << 16
+#: Largest coordinate (metres, either sign): beyond any road network's projection.
+MAX_COORDINATE = 1e9
+
+
+def _quoted(text: str) -> str:
+    """At most 40 characters of a vehicle's id, escaped, as a message quotes them."""
+    return repr(printable(text[:40]))
 
 
 @dataclass(frozen=True)
@@ -52,7 +74,7 @@ class _Collector:
         line = self.parser.CurrentLineNumber if self.parser is not None else "?"
         raise DkfsimError(f"SUMO FCD file {self.name} line {line}: {what}")
 
-    def number(self, attrib: dict, key: str, what: str) -> float:
+    def number(self, attrib: dict, key: str, what: str, bound: float) -> float:
         raw = attrib.get(key)
         if raw is None:
             self.fail(f"{what} has no {key!r} attribute")
@@ -61,15 +83,17 @@ class _Collector:
         except ValueError:
             value = math.nan
         if not math.isfinite(value):
-            self.fail(f"{what}: {key}={raw[:40]!r} is not a finite number")
+            self.fail(f"{what}: {key} is not a finite number")
+        if abs(value) > bound:
+            self.fail(f"{what}: {key} is beyond {bound:.3g} in magnitude")
         return value
 
     def start(self, tag: str, attrib: dict) -> None:
         self.depth += 1
         if self.depth == 1 and tag != "fcd-export":
-            self.fail(f"the root element is <{tag[:40]}>, not <fcd-export> (is this sumo --fcd-output?)")
+            self.fail("the root element is not <fcd-export> (is this sumo --fcd-output?)")
         if tag == "timestep" and self.depth == 2:
-            t = self.number(attrib, "time", "<timestep>")
+            t = self.number(attrib, "time", "<timestep>", MAX_SECONDS)
             if self.time is not None and t <= self.time:
                 self.fail(f"time goes backwards: timestep time={t!r} after time={self.time!r} "
                           "(timesteps must increase)")
@@ -78,11 +102,11 @@ class _Collector:
             vid = attrib.get("id")
             if not vid:
                 self.fail("a <vehicle> without an id")
-            what = f"vehicle {vid[:40]!r} at time {self.time!r}"
-            x, y = self.number(attrib, "x", what), self.number(attrib, "y", what)
+            what = f"vehicle {_quoted(vid)} at time {self.time!r}"
+            x, y = self.number(attrib, "x", what, MAX_COORDINATE), self.number(attrib, "y", what, MAX_COORDINATE)
             ts, xs, ys = self.samples.setdefault(vid, (array("d"), array("d"), array("d")))
             if ts and ts[-1] == self.time:
-                self.fail(f"vehicle {vid[:40]!r} appears twice in the timestep at time {self.time!r}")
+                self.fail(f"vehicle {_quoted(vid)} appears twice in the timestep at time {self.time!r}")
             ts.append(self.time)
             xs.append(x)
             ys.append(y)
@@ -122,8 +146,10 @@ def _parse(path: Path) -> FcdData:
                                       forbid_external=True)
     collector.parser = parser.parser
     try:
-        with open(path, "rb") as fh:
+        with open_regular(path, limit=MAX_FCD_BYTES, what="SUMO FCD file") as fh:
+            run = 0                               # bytes since the last '>'
             while chunk := fh.read(_CHUNK):
+                run = _check_elements(chunk, run, path.name)
                 parser.feed(chunk)
             parser.close()
     except errors.DefusedXmlException as err:
@@ -140,5 +166,22 @@ def _parse(path: Path) -> FcdData:
     vehicles = {}
     for vid, (ts, xs, ys) in collector.samples.items():
         t, xy = np.frombuffer(ts), np.column_stack([np.frombuffer(xs), np.frombuffer(ys)])
+        with np.errstate(all="ignore"):          # (checked here: no warning reaches the user)
+            speed = np.diff(xy, axis=0) / np.diff(t)[:, None]
+        if not np.isfinite(speed).all():
+            k = int(np.nonzero(~np.isfinite(speed).all(axis=1))[0][0])
+            raise DkfsimError(f"SUMO FCD file {path.name}: vehicle {_quoted(vid)} moves from time "
+                              f"{t[k]!r} to {t[k + 1]!r} at a speed beyond any number (the times are "
+                              "too close for the distance)")
         vehicles[vid] = (t, xy)
     return FcdData(str(path), vehicles)
+
+
+def _check_elements(chunk: bytes, run: int, name: str) -> int:
+    """Refuse a stretch of :data:`MAX_ELEMENT_BYTES` without a ``>`` (``run`` such bytes ended
+    the previous chunk); the bytes without one that end this chunk."""
+    pieces = chunk.split(b">")
+    if run + len(pieces[0]) >= MAX_ELEMENT_BYTES or max(map(len, pieces[1:]), default=0) >= MAX_ELEMENT_BYTES:
+        raise DkfsimError(f"SUMO FCD file {name}: {MAX_ELEMENT_BYTES:,} bytes or more without a '>' (an "
+                          "element, attribute or text that long); not a SUMO FCD file")
+    return run + len(chunk) if len(pieces) == 1 else len(pieces[-1])

@@ -22,6 +22,15 @@ from pydantic import Field, field_validator, model_validator
 from dkfsim.components.traffic import Background, Queue, Rate
 from dkfsim.core.params import StrictModel, custom_error, seconds_to_ns
 
+#: Bytes of a frame's header: :data:`dkfsim.protocols.base.PACKET_HEADER` (a test keeps them equal).
+FRAME_HEADER = 16
+
+
+def smallest_frame(nx: int) -> int:
+    """Bytes of the smallest frame an estimator sends: a header and one state vector."""
+    return FRAME_HEADER + 8 * nx
+
+
 #: Largest contention window (slots): IEEE 802.11's largest, CWmax = 1023.
 MAX_CW = 1023
 #: Largest slot, AIFS and preamble (seconds): far beyond any radio (802.11p: 13 us and 110 us).

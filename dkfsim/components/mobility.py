@@ -27,6 +27,7 @@ import scipy.sparse
 import scipy.sparse.csgraph
 from pydantic import field_validator
 
+from dkfsim.components.traffic import Rate
 from dkfsim.components.trajectories import Trajectory, TrajectoryParams
 from dkfsim.core.files import clip
 from dkfsim.core.params import NonNegReal, PosReal, Probability, StrictModel, custom_error
@@ -67,8 +68,9 @@ class DistanceLinks(StrictModel):
     loss: list[tuple[NonNegReal, Probability]] | None = None
     #: seconds per metre added to every latency draw (propagation, processing)
     latency_per_m: NonNegReal = 0.0
-    #: ``[[d, bit/s], ...]``: the link's transmitter rate, replacing ``links.*.rate``
-    rate: list[tuple[NonNegReal, PosReal]] | None = None
+    #: ``[[d, bit/s], ...]``: the link's transmitter rate, replacing ``links.*.rate`` (held to the
+    #: same range, :data:`~dkfsim.components.traffic.MIN_RATE` .. ``MAX_RATE``)
+    rate: list[tuple[NonNegReal, Rate]] | None = None
 
     @field_validator("loss")
     @classmethod
@@ -116,8 +118,12 @@ class Mobility(StrictModel):
         for key in v:
             if isinstance(key, bool) or not (key == "default" or isinstance(key, int)
                                              or (isinstance(key, str) and key.isdigit())):
-                raise custom_error(f"a vehicle key is a node number or 'default', got {clip(key)}", str(key))
-            out[str(key)] = v[key]
+                raise custom_error(f"a vehicle key is a node number or 'default', got {clip(key)}", clip(key, 40))
+            name = str(key) if not isinstance(key, str) else (key if key == "default" else key.lstrip("0") or "0")
+            if name in out:
+                raise custom_error(f"vehicle {name} is given twice (as {clip(key)} and as another key naming "
+                                   "the same node, e.g. 0 and '0'); give each node one trajectory", clip(key, 40))
+            out[name] = v[key]
         if not out:
             raise custom_error("give at least one vehicle (or a default trajectory)")
         return out
@@ -126,7 +132,7 @@ class Mobility(StrictModel):
         """Cross-checks that need the network size (called by the scenario): every key a node,
         every node a trajectory."""
         for key in self.vehicles:
-            if key != "default" and not 0 <= int(key) < n:
+            if key != "default" and (len(key) > 18 or not 0 <= int(key) < n):
                 raise custom_error(f"node {key} is out of range 0..{n - 1}", f"mobility.vehicles.{key}")
         if "default" not in self.vehicles:
             missing = [i for i in range(n) if str(i) not in self.vehicles]

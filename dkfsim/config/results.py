@@ -13,36 +13,33 @@ style (:func:`dkfsim.config.messages.convert`): ``<file>: <dotted.key>: <what is
 * :func:`read_curves` -- a Monte Carlo ``curves.npz``, every header checked before its data.
 
 Models accept keys they do not know (older and newer folders carry other facts), and check
-the types and the consistency of those the readers use.  Names (estimates, components,
-scenarios) are at most :data:`NAME_LIMIT` characters: they become table cells and figure labels.
+the type of every key dkfsim writes (a count is an integer >= 0, a list a list, wherever it
+sits: ``traffic.<estimate>.per_link.3.sent``) and the consistency of those the readers use.
+Names (estimates, components, scenarios) are at most :data:`NAME_LIMIT` characters, the
+limit the scenario schema puts on them when a run is written
+(:mod:`dkfsim.core.params`): they become table cells and figure labels.
 """
 
 from __future__ import annotations
 
 import csv
 import functools
-from pathlib import Path
+import io
 from typing import Annotated, Any
 
 from pydantic import BaseModel, ConfigDict, Field, TypeAdapter, ValidationError, create_model, model_validator
 
 from dkfsim.config.messages import convert
 from dkfsim.core.errors import DkfsimError, ScenarioError
-from dkfsim.core.files import check_regular_file, clip, read_json
+from dkfsim.core.files import clip, open_regular, read_json
 from dkfsim.core.npzfile import NpzFile
-from dkfsim.core.params import custom_error
-
-#: Longest estimate, component or scenario name read back.
-NAME_LIMIT = 200
-#: Longest other text read back (a source path, a note).
-TEXT_LIMIT = 10_000
+from dkfsim.core.params import NAME_LIMIT, TEXT_LIMIT, Name, custom_error
 
 #: Estimate names of folders written before the one vocabulary (``algorithms`` in Monte Carlo
 #: output), mapped to today's names.
 OLD_NAMES = {"anti_delay_dkf": "fused", "anti_delay_dkf_local": "local", "local": "local_only"}
 
-Name = Annotated[str, Field(strict=True, min_length=1, max_length=NAME_LIMIT)]
-Text = Annotated[str, Field(strict=True, max_length=TEXT_LIMIT)]
+Text = Annotated[str, Field(strict=True, max_length=TEXT_LIMIT)]     # (may be empty: a rule's note)
 Number = Annotated[float, Field(strict=True)]        # an int is read as a float; bool and text are not
 MaybeNumber = Number | None
 Count = Annotated[int, Field(strict=True, ge=0)]
@@ -77,12 +74,61 @@ class Row(Measures):
     mse: MaybeNumber = None
 
 
+_NUMBERS = TypeAdapter(list[MaybeNumber])
+
+
 class Metrics(Model):
+    """summary.json ``metrics``: the burn-in, then each estimate's MSE per component."""
+
     burn_in: Count | None = None
+
+    @model_validator(mode="after")
+    def _estimates_hold_numbers(self):
+        for name, values in (self.model_extra or {}).items():
+            try:
+                _NUMBERS.validate_python(values)
+            except ValidationError as exc:
+                err = exc.errors()[0]
+                raise custom_error(err["msg"], ".".join([name, *(str(p) for p in err["loc"])])) from None
+        return self
+
+
+NonNeg = Annotated[float, Field(strict=True, ge=0)]
+#: A value of an estimator's facts (summary.json ``facts.<estimate>.<key>``).
+Fact = Annotated[bool, Field(strict=True)] | Annotated[int, Field(strict=True)] | Number | Text | None
 
 
 class LinkCounts(Model):
+    """One link's counts (summary.json ``per_link`` and ``traffic.<estimate>.per_link`` rows);
+    a rate-limited link's row has its utilisation and queueing delays too."""
+
     link: tuple[Count, Count]
+    sent: Count | None = None
+    delivered: Count | None = None
+    lost: Count | None = None
+    copies: Count | None = None
+    crash_dropped: Count | None = None
+    outage_lost: Count | None = None
+    bytes: Count | None = None
+    queue_dropped: Count | None = None
+    collision_lost: Count | None = None
+    range_lost: Count | None = None
+    in_flight: Count | None = None
+    late_packets: Count | None = None
+    background_sent: Count | None = None
+    background_dropped: Count | None = None
+    utilisation: NonNeg | None = None
+    queue_length_mean: NonNeg | None = None
+    queueing_delay_mean: NonNeg | None = None
+    queueing_delay_p95: NonNeg | None = None
+
+    @model_validator(mode="after")
+    def _rated_rows_whole(self):
+        if self.utilisation is not None:
+            for key in ("queueing_delay_mean", "queueing_delay_p95"):
+                if getattr(self, key) is None:
+                    raise custom_error("a rate-limited link's row (it has utilisation) needs it", key)
+        return self
 
 
 def components_of(rows) -> list[str]:
@@ -116,39 +162,81 @@ class ChannelRecord(Model):
     access_delay_mean: Annotated[float, Field(strict=True, ge=0)]
 
 
-def _check_channel(block: Any, key: str) -> None:
-    """``block`` (None: no channel) as a :class:`ChannelRecord`, its first problem raised
-    under ``key`` (a dotted path in summary.json)."""
+class Counts(Model):
+    """An estimator's packet counts: summary.json ``packets`` (the DKF's) and each
+    ``traffic.<estimate>`` block."""
+
+    sent: Count | None = None
+    delivered: Count | None = None
+    lost: Count | None = None
+    copies: Count | None = None
+    crash_dropped: Count | None = None
+    outage_lost: Count | None = None
+    bytes: Count | None = None
+    queue_dropped: Count | None = None
+    collision_lost: Count | None = None
+    range_lost: Count | None = None
+    in_flight: Count | None = None
+    late: Count | None = None
+    late_per_node: list[Count] | None = None
+    late_unit: Text | None = None
+    duplicates: Count | None = None
+    stale: Count | None = None
+    per_link: list[LinkCounts] | None = None
+    channel: ChannelRecord | None = None
+
+
+def _check_block(model, block: Any, key: str, what: str = "") -> None:
+    """``block`` (None: none) checked with ``model`` and left as it is (no defaults added), its
+    first problem raised under ``key`` (a dotted path in summary.json)."""
     if block is None:
         return
     try:
-        ChannelRecord.model_validate(block)
+        model.model_validate(block)
     except ValidationError as exc:
         err = exc.errors()[0]
-        where = ".".join([key, *(str(p) for p in err["loc"])])
-        raise custom_error(f"{err['msg']} (the channel block of a run with medium:)", where) from None
+        ctx = err.get("ctx") or {}
+        where = ".".join([key, *(str(p) for p in err["loc"]), *([str(ctx["key"])] if ctx.get("key") else [])])
+        msg = ctx.get("reason") or err["msg"]
+        raise custom_error(msg + (f" ({what})" if what else ""), where) from None
+
+
+def _check_channel(block: Any, key: str) -> None:
+    _check_block(ChannelRecord, block, key, "the channel block of a run with medium:")
 
 
 class RunSummary(Model):
-    """``summary.json`` of ``dkfsim run``: what ``load_run``, ``plot`` and ``report`` use of it."""
+    """``summary.json`` of ``dkfsim run``: what ``load_run``, ``plot`` and ``report`` use of it,
+    and the type of every other key a run writes."""
 
     scenario: Text
+    scenario_hash: Text | None = None
     source: Text | None = None
     seed: Count
     steps: Positive
+    protocol: Text | None = None
+    weights: Text | None = None
+    fusion: Text | None = None
     estimates: Annotated[list[Name], Field(min_length=1)]
     metrics: Metrics = Field(default_factory=Metrics)
     rows: list[Row]
     packets: dict[str, Any]
-    per_link: list[LinkCounts] = []
-    traffic: dict[str, dict[str, Any] | None] = {}
-    facts: dict[str, Any] = {}
+    per_link: list[dict[str, Any]] = []
+    traffic: dict[Name, dict[str, Any] | None] = {}
+    facts: dict[Name, dict[Name, Fact | list[Fact]] | None] = {}
     diverged: list[Text] = []
     scenario_config: dict[str, Any]
-    versions: dict[str, Any] = {}
+    versions: dict[Name, Text] = {}
     buffer_length: Count | None = None
     d_t: Count | None = None
     d_g: Count | None = None
+    n_links: Count | None = None
+    wall_time_s: NonNeg | None = None
+    save: Text | None = None
+    kernels: Text | None = None
+    node_rows: Count | None = None
+    exchange: Text | None = None
+    backend: dict[Name, Text] = {}
     mobility: MobilityRecord | None = None
 
     @model_validator(mode="after")
@@ -163,11 +251,12 @@ class RunSummary(Model):
         return self
 
     @model_validator(mode="after")
-    def _channel_blocks_hold_counts(self):
-        _check_channel(self.packets.get("channel"), "packets.channel")
+    def _blocks_hold_counts(self):
+        _check_block(Counts, self.packets, "packets")
+        for i, row in enumerate(self.per_link):
+            _check_block(LinkCounts, row, f"per_link.{i}")
         for name, t in self.traffic.items():
-            if t is not None:
-                _check_channel(t.get("channel"), f"traffic.{name}.channel")
+            _check_block(Counts, t, f"traffic.{name}")
         return self
 
 
@@ -207,11 +296,17 @@ class MonteCarloSummary(Model):
     burn_in: Count | None = None
     relative_to: Name | None = None
     scenario_config: dict[str, Any] = {}
-    versions: dict[str, Any] = {}
+    versions: dict[Name, Text] = {}
     seed_rule: Text = ""
     buffer_length: Count | None = None
     d_t: Count | None = None
     d_g: Count | None = None
+    scenario_hash: Text | None = None
+    protocol: Text | None = None
+    fusion: Text | None = None
+    jobs: Count | None = None
+    wall_time_s: NonNeg | None = None
+    notes: dict[Name, Text] = {}
 
     @model_validator(mode="before")
     @classmethod
@@ -309,9 +404,9 @@ def _csv_lines(path, what: str, first: list[str], writer: str):
     wrote, read as a stream; the header must start with ``first``.  Every reading problem
     (size, encoding, CSV syntax) becomes a :class:`DkfsimError` naming the file."""
     label = str(path)
-    check_regular_file(Path(path), limit=MAX_CSV_BYTES, what=what)
+    raw = open_regular(path, limit=MAX_CSV_BYTES, what=what)
     try:
-        with open(path, newline="", encoding="utf-8") as fh:
+        with io.TextIOWrapper(raw, newline="", encoding="utf-8") as fh:
             reader = csv.reader(fh)
             head = next(reader, None)
             if not head or head[:len(first)] != first:

@@ -8,16 +8,27 @@ keeps its traceback.
 
 from __future__ import annotations
 
+import re
+
 #: Longest message an error carries; longer ones (hostile input echoed back) are cut.
 MAX_MESSAGE = 2000
+#: A run of more digits than this (a number no key takes, echoed back) is written in short.
+LONG_NUMBER = 24
+_LONG_NUMBER = re.compile(r"\d{%d,}" % (LONG_NUMBER + 1))
+
+
+def _short_number(m: re.Match) -> str:
+    digits = m.group()
+    return f"{digits[0]}.{digits[1:3]}e+{len(digits) - 1}"
 
 
 class DkfsimError(Exception):
     """Base class of errors caused by user input (one paragraph, at most
-    :data:`MAX_MESSAGE` characters)."""
+    :data:`MAX_MESSAGE` characters; a number of more than :data:`LONG_NUMBER` digits echoed
+    back, in a value or a key, is written as ``1.00e+300``)."""
 
     def __init__(self, message: str = ""):
-        message = str(message)
+        message = _LONG_NUMBER.sub(_short_number, str(message))
         if len(message) > MAX_MESSAGE:
             message = message[: MAX_MESSAGE - 40] + " ... (message cut)"
         super().__init__(message)
