@@ -26,6 +26,7 @@ that exists.  A new kind is one more registered subclass of
 
 from __future__ import annotations
 
+import difflib
 from typing import Annotated, Literal
 
 import numpy as np
@@ -366,9 +367,13 @@ class SumoFcd(SampledTrajectory):
         except DkfsimError as err:
             raise custom_error(str(err), "file") from None
         if self.vehicle not in data.vehicles:
-            names = [clip(printable(v), 40) for v in sorted(data.vehicles)[:20]]
-            raise custom_error(f"no vehicle {clip(self.vehicle)} in {path.name}; its vehicles: "
-                               f"{', '.join(names)}{' ...' if len(data.vehicles) > 20 else ''}", "vehicle")
+            # (an FCD export's vehicle ids are the one content of it a message shows: 40 characters, escaped)
+            names = sorted(data.vehicles)
+            close = difflib.get_close_matches(str(self.vehicle), names[:10_000], n=1)
+            hint = f" (did you mean {clip(printable(close[0]), 40)}?)" if close else ""
+            raise custom_error(f"no vehicle {clip(self.vehicle)} in {path.name}{hint}; its vehicles: "
+                               f"{', '.join(clip(printable(v), 40) for v in names[:20])}"
+                               f"{' ...' if len(names) > 20 else ''}", "vehicle")
         self._line = Polyline(*data.vehicles[self.vehicle])
         return self
 

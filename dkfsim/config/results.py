@@ -94,6 +94,8 @@ class Metrics(Model):
 
 
 NonNeg = Annotated[float, Field(strict=True, ge=0)]
+#: A node of a link's row: -1 is the centre of ``centralized_delayed`` (its sensors' links).
+Node = Annotated[int, Field(strict=True, ge=-1)]
 #: A value of an estimator's facts (summary.json ``facts.<estimate>.<key>``).
 Fact = Annotated[bool, Field(strict=True)] | Annotated[int, Field(strict=True)] | Number | Text | None
 
@@ -102,7 +104,7 @@ class LinkCounts(Model):
     """One link's counts (summary.json ``per_link`` and ``traffic.<estimate>.per_link`` rows);
     a rate-limited link's row has its utilisation and queueing delays too."""
 
-    link: tuple[Count, Count]
+    link: tuple[Node, Node]
     sent: Count | None = None
     delivered: Count | None = None
     lost: Count | None = None

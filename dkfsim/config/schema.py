@@ -47,6 +47,7 @@ Decisions where docs/design.md leaves a choice:
 from __future__ import annotations
 
 import hashlib
+from collections import OrderedDict
 from typing import TYPE_CHECKING, Annotated, Any, Literal
 
 from pydantic import AfterValidator, BaseModel, BeforeValidator, Field, PrivateAttr, field_validator, model_validator
@@ -191,8 +192,6 @@ class Scenario(StrictModel):
 
     _source: str | None = PrivateAttr(default=None)
     _base_dir: str | None = PrivateAttr(default=None)
-    #: the override of each link (``(u, v)``; ``(min, max)`` on an undirected topology)
-    _override_of: dict[tuple[int, int], int] | None = PrivateAttr(default=None)
 
     # ------------------------------------------------------------------ validation
     @field_validator("sensors", mode="before")
@@ -338,8 +337,7 @@ class Scenario(StrictModel):
 
     def _index_overrides(self) -> None:
         """One override per link: a second one of the same link (or of its reverse, on an
-        undirected topology) is refused, and each link finds its override in one look-up (a
-        scan of every override per link was quadratic: 8 000 overrides took minutes)."""
+        undirected topology) is refused naming both."""
         index: dict[tuple[int, int], int] = {}
         for i, ov in enumerate(self.links.overrides):
             key = self._pair(*ov.link)
@@ -349,14 +347,12 @@ class Scenario(StrictModel):
                                    f"{list(self.links.overrides[j].link)}); give each link one override "
                                    "with every key it changes", f"links.overrides.{i}.link")
             index[key] = i
-        self._override_of = index
 
     def _override(self, u: int, v: int) -> int | None:
-        """The index of the override of link ``u -> v``, if any."""
-        if self._override_of is None:
-            self._index_overrides()
-        assert self._override_of is not None
-        return self._override_of.get(self._pair(u, v))
+        """The index of the override of link ``u -> v``, if any: one look-up in the index of
+        :func:`_override_index` (a scan of every override per link was quadratic: 8 000
+        overrides took minutes to validate)."""
+        return _override_index(self.links, self.topology.directed).get(self._pair(u, v))
 
     def _link_places(self) -> list[tuple[str, LinkSpec]]:
         """``(key, settings)`` of ``links.default`` and of each override's link as the run sees
@@ -616,6 +612,29 @@ class Scenario(StrictModel):
 
     def __hash__(self) -> int:
         return hash(scenario_hash(self))
+
+
+#: The override index of the last few ``links`` read: ``(links, directed) -> {pair: index}``,
+#: keyed by the model's identity and holding it (so no id is reused while it is here).  The
+#: scenario keeps no derived state; this memo lets :meth:`Scenario.link_spec` find a link's
+#: override in one look-up for every link of a run.
+_OVERRIDE_INDEX: OrderedDict[tuple[int, bool], tuple[Links, dict[tuple[int, int], int]]] = OrderedDict()
+
+
+def _override_index(links: Links, directed: bool) -> dict[tuple[int, int], int]:
+    key = (id(links), directed)
+    hit = _OVERRIDE_INDEX.get(key)
+    if hit is not None and hit[0] is links:
+        _OVERRIDE_INDEX.move_to_end(key)
+        return hit[1]
+    index: dict[tuple[int, int], int] = {}
+    for i, ov in enumerate(links.overrides):
+        u, v = ov.link
+        index.setdefault((u, v) if directed else (min(u, v), max(u, v)), i)
+    _OVERRIDE_INDEX[key] = (links, index)
+    while len(_OVERRIDE_INDEX) > 16:
+        _OVERRIDE_INDEX.popitem(last=False)
+    return index
 
 
 def named(scenario: Scenario) -> str:
