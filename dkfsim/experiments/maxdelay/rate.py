@@ -52,9 +52,9 @@ class RateAxis:
 
     Every link (``link`` None): ``links.default.rate = r``, and each ``links.overrides`` entry
     that gives its own ``rate`` keeps its ratio to the scenario's default rate (set to ``r``
-    when the scenario has no default rate).  One link: an entry ``{link: [u, v], rate: r}``
-    appended to ``links.overrides`` (the last matching entry wins), both directions on an
-    undirected topology.
+    when the scenario has no default rate).  One link: its ``links.overrides`` entry gets
+    ``rate: r`` (a link has one entry), or an entry ``{link: [u, v], rate: r}`` is appended,
+    both directions on an undirected topology.
     """
 
     mode = "rate"
@@ -67,6 +67,8 @@ class RateAxis:
     overrides_list: list        # the scenario's links.overrides (one-link mode appends to it)
     T: float
     steps: int
+    #: one-link mode: the index of the link's own override (None: one is appended)
+    link_override: int | None = None
 
     def value(self, j: int) -> float:
         """Candidate ``j``'s rate (bits per second)."""
@@ -84,7 +86,11 @@ class RateAxis:
     def overrides(self, j: int) -> list[str]:
         r = self.value(j)
         if self.link is not None:
-            entries = self.overrides_list + [{"link": list(self.link), "rate": r}]
+            entries = [dict(e) for e in self.overrides_list]
+            if self.link_override is not None:
+                entries[self.link_override]["rate"] = r
+            else:
+                entries.append({"link": list(self.link), "rate": r})
             return ["links.overrides=" + json.dumps(entries)]
         return [f"links.default.rate={r!r}"] + \
             [f"links.overrides.{i}.rate={min(max(r * f, 1.0), 1e18)!r}" for i, f in self.ratios]
@@ -98,7 +104,8 @@ class RateAxis:
         return None
 
     def describe(self) -> dict:
-        keys = ([f"links.overrides (+ an entry {{link: [{self.link[0]}, {self.link[1]}], rate}})"]
+        keys = ([f"links.overrides.{self.link_override}.rate" if self.link_override is not None else
+                 f"links.overrides (+ an entry {{link: [{self.link[0]}, {self.link[1]}], rate}})"]
                 if self.link is not None else
                 ["links.default.rate"] + [f"links.overrides.{i}.rate (x {f:g})" for i, f in self.ratios])
         return {"mode": "rate", "name": self.name, "step": self.step, "max": self.max_rate,
@@ -136,9 +143,11 @@ def make_rate_axis(scenario, *, max_rate: float, min_rate: float, step: float, l
     overrides = list(links.get("overrides") or [])
     ratios = [(i, (ov["rate"] / default_rate) if default_rate else 1.0)
               for i, ov in enumerate(overrides) if ov.get("rate") is not None]
+    own = None if pair is None else next(
+        (i for i, ov in enumerate(scenario.links.overrides) if scenario.link_matches(ov.link, *pair)), None)
     return RateAxis(step=float(step), max_rate=float(max_rate), max_index=J, base=base, link=pair,
                     ratios=[] if pair is not None else ratios, overrides_list=overrides,
-                    T=float(scenario.model.T), steps=int(scenario.steps))
+                    T=float(scenario.model.T), steps=int(scenario.steps), link_override=own)
 
 
 def rate_lower_bound(axis: RateAxis, estimate: str) -> dict:
