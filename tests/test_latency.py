@@ -363,7 +363,7 @@ def test_empirical_csv_relative_path_and_errors(tmp_path):
     with pytest.raises(ValidationError, match="file not found"):
         parse_latency({"model": "empirical", "file": "trace.csv"}, base_dir=tmp_path)
     (sub / "bad.csv").write_text("lat\n0.01\nabc\n")
-    with pytest.raises(ValidationError, match="line 3: 'abc' is not a number"):
+    with pytest.raises(ValidationError, match="line 3: column 0 is not a number"):
         parse_latency({"model": "empirical", "file": "bad.csv", "column": "lat"}, base_dir=sub)
     with pytest.raises(ValidationError, match="only used with mode: replay"):
         parse_latency({"model": "empirical", "file": "trace.csv", "column": 1, "start": 0},

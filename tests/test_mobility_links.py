@@ -205,26 +205,24 @@ def test_cellular_sinr_track_needs_a_track_sender():
     assert "node 0" in str(e.value) and "not a 'track' vehicle" in str(e.value)
 
 
-def test_cellular_sinr_track_error_names_the_override_that_wins(tmp_path, capsys):
-    """Two overrides give link 0 - 1 its latency: the last one is in force (link_spec), so the
-    refusal names it; one that matches the link the other way round (undirected) counts, and
-    one that gives no latency does not."""
+def test_cellular_sinr_track_error_names_the_override_that_gives_it(tmp_path, capsys):
+    """Link 0 - 1 takes its latency from its override (a link has one, issue 30 §7), written the
+    other way round on an undirected topology: the refusal names it; an override that gives no
+    latency leaves the default's in force."""
     import yaml
 
     import dkfsim
     from dkfsim.cli.main import main
     track = {"model": "cellular_sinr", "sinr": "track"}
     sc = scenario(3, edges=[(0, 1), (1, 2)], protocol="flood", steps=10)
-    sc["links"]["overrides"] = [{"link": [0, 1], "latency": track},
-                                {"link": [1, 0], "latency": track},
-                                {"link": [0, 1], "loss": 0.1}]
-    path = tmp_path / "two_overrides.yaml"
+    sc["links"]["overrides"] = [{"link": [1, 2], "loss": 0.1}, {"link": [1, 0], "latency": track}]
+    path = tmp_path / "override.yaml"
     path.write_text(yaml.safe_dump(sc))
     assert main(["validate", str(path)]) == 2
     err = capsys.readouterr().err
-    assert "two_overrides.yaml" in err and "links.overrides.1.latency.sinr" in err and "mobility" in err
-    # the winner is not track: the earlier track override is not in force, nothing to refuse
-    sc["links"]["overrides"][1]["latency"] = {"model": "constant", "value": 0.001}
+    assert "override.yaml" in err and "links.overrides.1.latency.sinr" in err and "mobility" in err
+    # an override without a latency: the default's (constant) is in force, nothing to refuse
+    sc["links"]["overrides"][1] = {"link": [1, 0], "loss": 0.1}
     assert dkfsim.load_scenario(sc).link_spec(0, 1).latency.model == "constant"
 
 

@@ -538,15 +538,15 @@ def test_invalid_override_value_names_override(tmp_path):
 
 
 # =========================================================================== link specs
-def test_link_spec_last_matching_override_wins():
+def test_link_spec_takes_the_links_one_override():
+    """A link has one override (issue 30 §7: a second one of the same link, or of its reverse on
+    an undirected topology, is refused); it replaces the keys it gives, both ways."""
     d = put(base(), "links.overrides", [
-        {"link": [0, 1], "latency": {"model": "constant", "value": 0.02}},
-        {"link": [1, 0], "loss": 0.25},
+        {"link": [1, 0], "latency": {"model": "constant", "value": 0.03}, "loss": 0.25},
         {"link": [1, 2], "latency": {"model": "uniform", "low": 0.0, "high": 0.031}},
-        {"link": [1, 0], "latency": {"model": "constant", "value": 0.03}},
     ])
     sc = load_scenario(d)
-    # undirected: [1, 0] also matches 0 -> 1, and it comes last
+    # undirected: [1, 0] also matches 0 -> 1
     assert sc.link_spec(0, 1).latency == Constant(value=0.03)
     assert sc.link_spec(0, 1).loss == 0.25
     assert sc.link_spec(1, 0).latency == Constant(value=0.03)
@@ -554,6 +554,9 @@ def test_link_spec_last_matching_override_wins():
     assert sc.link_spec(2, 1).loss == 0.0
     assert sc.link_spec(2, 3).latency == UniformSteps(d_t=2)
     assert RunPlan(sc).d_t == 4  # ceil(0.031 / 0.01)
+    d["links"]["overrides"].append({"link": [0, 1], "loss": 0.5})
+    with pytest.raises(ScenarioError, match=r"links\.overrides\.2\.link: link \[0, 1\] already has an override"):
+        load_scenario(d)
 
 
 def test_link_spec_directed_matches_one_way():
