@@ -56,7 +56,7 @@ COMMON = dict(deadline=timedelta(seconds=20), derandomize=True, database=None,
 @st.composite
 def mutants(draw):
     """A shipped scenario, a key path in its base, and a mutation that applies there."""
-    name = draw(st.sampled_from(fuzz.shipped_scenarios()))
+    name = draw(st.sampled_from(fuzz.base_names()))
     path = draw(st.sampled_from(fuzz.mutation_paths(name)))
     mutation = draw(st.sampled_from(fuzz.mutations_at(name, path)))
     return fuzz.MutantSpec(name, path, mutation.name)
@@ -74,12 +74,29 @@ def assert_contract(checker, spec) -> None:
         pytest.fail(outcome.report(), pytrace=False)
 
 
-@pytest.mark.parametrize("name", fuzz.shipped_scenarios())
+@pytest.mark.parametrize("name", fuzz.base_names())
 def test_every_base_scenario_runs(name):
     """The bases the mutants start from are valid and run (else every mutant would be an error)."""
     base = fuzz.base(name)
     assert base["steps"] == fuzz.RUN_STEPS
     dkfsim.run(dkfsim.load_scenario(base), save="summary")
+
+
+@pytest.mark.parametrize("spec", [
+    fuzz.MutantSpec("rate_links", (), "traffic_background_1e9"),
+    fuzz.MutantSpec("rate_links", (), "traffic_override_twice"),
+    fuzz.MutantSpec("channel_its_g5", (), "medium_queue_bytes_1"),
+    fuzz.MutantSpec("mobility_crossing", (), "mobility_vehicle_key_twice"),
+    fuzz.MutantSpec("fcd_mobility", ("mobility", "vehicles", "default", "file"), "fcd_coords_1e308"),
+    fuzz.MutantSpec("fcd_mobility", ("mobility", "vehicles", "default", "file"), "file_fifo"),
+    fuzz.MutantSpec("fcd_mobility", ("mobility", "vehicles", "1", "file"), "file_canary"),
+    fuzz.MutantSpec("centre_links", (), "centre_name_10000"),
+], ids=lambda s: s.label)
+def test_known_hostile_mutants_of_the_new_surfaces(checker, spec):
+    """One mutant per surface of issue 30 (each a finding before it): clean, in seconds, opening
+    nothing but its inputs."""
+    assert spec in fuzz.enumerate_mutants([spec.scenario])
+    assert_contract(checker, spec)
 
 
 @settings(max_examples=60, **COMMON)

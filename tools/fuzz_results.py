@@ -1,13 +1,19 @@
 #!/usr/bin/env python
 """Mutation fuzzer for result folders and sweep databases: reading any of them ends cleanly.
 
-The sibling of tools/fuzz_scenarios.py for what dkfsim *reads back* (issue 20): a run folder,
-a Monte Carlo folder and a sweep database are made once, small and legitimate (the *bases*);
-a mutant is a copy of one with one mutation applied; the reading commands run on it:
+The sibling of tools/fuzz_scenarios.py for what dkfsim *reads back* (issues 20, 30): a run
+folder, a Monte Carlo folder and a sweep database of paper case 1, a run on the shared channel
+with the fusion centre (``channel``), a run and a Monte Carlo of moving vehicles (``mobility``,
+``mobility_mc``), the fusion centre over rate-limited links with background (``centre``) and a
+sweep of the channel's rate (``sweep_channel``) are made once, small and legitimate (the
+*bases*); a mutant is a copy of one with one mutation applied; the reading commands run on it:
 ``dkfsim plot`` (PNG only), ``dkfsim report`` and, for a run folder, ``dkfsim.load_run``.
 The contract, per mutant: every command either succeeds or ends in a
 :class:`dkfsim.DkfsimError` with a one-paragraph message -- no other exception (a traceback),
-no hang (the time limit), no MemoryError under the worker's address-space cap, no crash.
+no hang (the time limit), no MemoryError under the worker's address-space cap, no crash, no
+raw control character and no content of a file the result names in what it prints or writes
+(``finding:bad_message:leak``), no file opened outside the mutant and the output but the
+interpreter, the package and the caches (tools/fuzz_scenarios' audit hook), no peak above 3 GiB.
 Outcome classes are those of tools/fuzz_scenarios.py (``clean_error``, ``ran``,
 ``finding:<Type>``, ``finding:bad_message:<Type>``, ``memory``, ``timeout``, ``crash``); the
 phase is the command that ended it.
@@ -26,12 +32,20 @@ Mutations (every one deterministic):
 * the sweep database: every column of every table set to NULL, text, a 5 MB string, -1,
   1e300 or a blob; every table dropped; the JSON of ``meta.definition``,
   ``params.values_json`` and ``params.scenario_json`` replaced by non-JSON, a list, 1000
-  levels of nesting, names with mathtext.
+  levels of nesting, names with mathtext;
+* the stored scenario (``scenario_config``, ``params.scenario_json``) naming a file outside the
+  result: a track, an empirical trace (a canary whose content must not show), a SUMO FCD file
+  that is a FIFO, ``/dev/zero``, a path relative to the scenario file the result names;
+* names holding terminal escapes (the scenario, a sensor, the estimate ``centralized``, in
+  every file that holds them); a 40 MB string in ``summary.json``.
 
 Usage::
 
     python tools/fuzz_results.py [--limit N] [--seed S] [--timeout S] [--jobs J]
-                                 [--base run|mc|sweep ...] [--examples K] [--json OUT]
+                                 [--base NAME ...] [--family KIND ...] [--examples K] [--json OUT]
+
+It prints the counts per base and per kind of mutation (cases, tracebacks, bad messages, hangs,
+mutants over 3 GiB, mutants that opened a file outside their inputs).
 
 tests/test_fuzz_results.py draws mutants from the same enumeration with Hypothesis.  The exit
 status is 1 when there is any finding.
@@ -519,10 +533,11 @@ def _command(argv: list[str]) -> tuple[int, str]:
     return status, err.getvalue() + out.getvalue()
 
 
-def _leak(text: str) -> str:
-    """What makes output ``text`` unfit for a terminal or a shared file ("" if nothing): a raw
-    control character, or the content of a file the result names (the canary)."""
-    if RAW_CONTROL.search(text):
+def _leak(text: str, terminal: bool = True) -> str:
+    """What makes ``text`` unfit for a terminal (``terminal``: what a command printed) or a shared
+    file (a report) ("" if nothing): a raw control character on a terminal, or the content of a
+    file the result names (the canary) anywhere."""
+    if terminal and RAW_CONTROL.search(text):
         return f"raw control character {RAW_CONTROL.search(text).group()!r} in the output"
     if fz.CANARY in text:
         return "the output quotes a file the result names"
@@ -557,8 +572,8 @@ def check_mutant(spec: ResultMutant) -> fz.Outcome:
                     return fz.Outcome(**fields, cls=f"finding:exit_{status}", phase=phase, error=err[:300],
                                       seconds=time.perf_counter() - start)
                 report = out / "r.html"
-                leak = _leak(err) or (_leak(report.read_text(errors="replace")) if phase == "report" and
-                                      report.exists() else "")
+                leak = _leak(err) or (_leak(report.read_text(errors="replace"), terminal=False)
+                                      if phase == "report" and report.exists() else "")
                 if leak:
                     return fz.Outcome(**fields, cls="finding:bad_message:leak", phase=phase,
                                       error=f"{leak}: {fz._first_line(ascii(err))}",

@@ -29,6 +29,19 @@ containers alike, gets every mutation of ``VOCABULARY`` that applies to it
 (replacement by odd values, numeric scaling, matrix scaling, deletion, an
 unknown key); the root gets the whole-structure mutations (duplicated or no
 sensors, 10**12 steps, 10**7 consensus rounds, a 20000-node random tree).
+Besides the shipped scenarios, three synthetic bases put the surfaces of issue 30 on paper
+case 1 (``rate_links``: rate, queue and background on the default and on overrides;
+``fcd_mobility``: every vehicle a ``sumo_fcd`` of a generated FCD file, a link quality from
+distance; ``centre_links``: the fusion centre over rate-limited links), and mutations aim at
+them: every SUMO FCD file replaced by a hostile one (a 100 MB attribute, 50 MB of text, +-1e308
+coordinates, times 1e-300 apart, entity bombs, an external entity, deep nesting, ...), every
+``file``/``dataset`` key by a FIFO, a device, a directory or a canary file whose content no
+message may quote, and whole-scenario ones (a link background of 1e9 packets/s, two overrides
+of one link, 8128 overrides, a channel queue of one byte, rates from distance of 1e-300 and
+1e100 bit/s, a vehicle given as 0 and '0', a fusion centre named with 10 000 characters).
+Each worker records what it opens (an audit hook) and its peak memory per mutant: opening a
+file outside the mutant's inputs and the allowed roots, or a peak above 3 GiB, is a finding;
+the report counts them per surface (``--surface`` checks one).
 The enumeration is deterministic; ``--limit`` checks a seeded random subset
 of the leaf mutants plus every whole-structure one.
 
@@ -38,7 +51,8 @@ Hypothesis and asserts the contract.
 Usage::
 
     python tools/fuzz_scenarios.py [--limit N] [--seed S] [--timeout S] [--jobs J]
-                                   [--scenario NAME ...] [--examples K] [--json OUT]
+                                   [--scenario NAME ...] [--surface NAME ...] [--examples K]
+                                   [--json OUT]
 
 The exit status is 1 when there is any finding.
 """
