@@ -9,6 +9,7 @@ process's resident size into the child's record, so it would include the pytest 
 
 from __future__ import annotations
 
+import contextlib
 import os
 import resource
 import shutil
@@ -134,6 +135,25 @@ def dkfsim_cli(*args, cwd=None, env=None, timeout: float = 300, stdin=subprocess
                  b"".join(chunks["err"]).decode("utf-8", "replace"), usage.ru_utime + usage.ru_stime,
                  # killed before its exit handlers ran: only wait4's (inflated) figure is left
                  int(peak_kb) / 1024 if peak_kb.isdigit() else usage.ru_maxrss / 1024)
+
+
+class Hung(Exception):
+    """A call in this process did not answer within its time (a FIFO it waits on)."""
+
+
+@contextlib.contextmanager
+def answers_within(seconds: float = 60):
+    """Fail (raise :class:`Hung`) instead of waiting forever: SIGALRM interrupts even a blocked
+    ``open`` of a FIFO."""
+    def on_alarm(*_):
+        raise Hung(f"no answer within {seconds} s")
+    previous = signal.signal(signal.SIGALRM, on_alarm)
+    signal.setitimer(signal.ITIMER_REAL, seconds)
+    try:
+        yield
+    finally:
+        signal.setitimer(signal.ITIMER_REAL, 0)
+        signal.signal(signal.SIGALRM, previous)
 
 
 def small_scenario() -> dkfsim.Scenario:
