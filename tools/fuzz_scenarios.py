@@ -729,7 +729,8 @@ def allowed_roots() -> list[str]:
 def watch_opens(*inputs: str | os.PathLike) -> None:
     """Record what the check opens from now on; ``inputs``: the files and folders it is given
     (and writes), which it may open besides :func:`allowed_roots`."""
-    _WATCH.update(on=True, opened=[], allowed=tuple(os.path.abspath(p) for p in inputs))
+    allowed = [os.path.abspath(p) for p in inputs] + [os.path.realpath(p) for p in inputs]   # (a link's target)
+    _WATCH.update(on=True, opened=[], allowed=tuple(allowed))
 
 
 def stray_opens() -> list[str]:
