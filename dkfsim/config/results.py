@@ -96,8 +96,6 @@ class Metrics(Model):
 NonNeg = Annotated[float, Field(strict=True, ge=0)]
 #: A node of a link's row: -1 is the centre of ``centralized_delayed`` (its sensors' links).
 Node = Annotated[int, Field(strict=True, ge=-1)]
-#: A value of an estimator's facts (summary.json ``facts.<estimate>.<key>``).
-Fact = Annotated[bool, Field(strict=True)] | Annotated[int, Field(strict=True)] | Number | Text | None
 
 
 class LinkCounts(Model):
@@ -225,7 +223,7 @@ class RunSummary(Model):
     packets: dict[str, Any]
     per_link: list[dict[str, Any]] = []
     traffic: dict[Name, dict[str, Any] | None] = {}
-    facts: dict[Name, dict[Name, Fact | list[Fact]] | None] = {}
+    facts: dict[Name, dict[str, Any] | None] = {}        # (an estimator's own facts: any JSON)
     diverged: list[Text] = []
     scenario_config: dict[str, Any]
     versions: dict[Name, Text] = {}

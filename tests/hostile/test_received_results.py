@@ -461,7 +461,7 @@ RUN_TYPES = {
     "late_per_node a number": (lambda s: s["traffic"]["fused"].update(late_per_node=5), "traffic.fused.late_per_node"),
     "facts of an estimate a list": (lambda s: s["facts"].update(ci=[1, 2]), "facts.ci"),
     "metrics of an estimate a string": (lambda s: s["metrics"].update(fused="x"), "metrics.fused"),
-    "versions a list": (lambda s: s.update(versions=[1]), "versions"),
+    "a version a number": (lambda s: s["versions"].update(numpy=1), "versions.numpy"),
     "n_links a string": (lambda s: s.update(n_links="22"), "n_links"),
     "a per_link row of a rated link without its delays": (
         lambda s: s["per_link"][0].update(utilisation=0.5), "per_link.0.queueing_delay_mean"),

@@ -331,16 +331,18 @@ def test_a_rate_from_distance_is_held_to_link_rates(rate):
     refused(data, "mobility.links.rate.1.1")
 
 
-@pytest.mark.parametrize("keys", [(0, "0"), ("0", 0), (1, "01"), ("default", "default ")])
+@pytest.mark.parametrize("keys", [(0, "0"), ("0", 0), (1, "01"), ("05", 5)])
 def test_a_vehicle_given_twice_is_refused(keys):
-    """Vehicles given as both ``0:`` and ``'0':``: one was dropped silently."""
+    """Vehicles given as both ``0:`` and ``'0':``: one was dropped silently (every node still had
+    a trajectory, so nothing else complained)."""
     data = base(CROSSING)
     vehicles = data["mobility"]["vehicles"]
-    traj = copy.deepcopy(vehicles["1"])
-    for k in ("0", "1"):
-        vehicles.pop(k, None)
-    vehicles[keys[0]], vehicles[keys[1]] = copy.deepcopy(traj), copy.deepcopy(traj)
-    refused(data, "mobility.vehicles")
+    node = str(int(keys[1]))
+    first, second = copy.deepcopy(vehicles[node]), copy.deepcopy(vehicles[node])
+    second["start"] = [first["start"][0] + 1.0, first["start"][1]]
+    del vehicles[node]
+    vehicles[keys[0]], vehicles[keys[1]] = first, second
+    refused(data, "mobility.vehicles", "given twice")
 
 
 @pytest.mark.parametrize("edit", [
