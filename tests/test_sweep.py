@@ -56,7 +56,8 @@ def test_small_sweep_writes_one_row_per_parameter_set_seed_estimate_and_componen
     assert (rep.total, rep.skipped, rep.computed) == (6, 0, 6)
 
     db = sweep.output
-    assert table(db, "PRAGMA journal_mode")[0][0] == "wal"
+    # a rollback journal: a full disk leaves nothing beside the database (decision 252)
+    assert table(db, "PRAGMA journal_mode")[0][0] == "delete"
     tasks = table(db, "SELECT param_hash, run, seed FROM tasks")
     assert len(tasks) == 6 == len(set((h, r) for h, r, _ in tasks))
     base = {p.param_hash: p.base_seed for p in sweep.parameter_sets}

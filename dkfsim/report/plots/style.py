@@ -15,7 +15,7 @@ import numpy as np
 from dkfsim.core.errors import DkfsimError
 from dkfsim.core.extras import available, optional, pyplot
 from dkfsim.core.files import printable, shown
-from dkfsim.core.folders import replacing
+from dkfsim.core.folders import WriteFailed, replacing
 from dkfsim.core.params import suggest
 from dkfsim.report.plots.folders import Folder
 
@@ -199,12 +199,14 @@ def save_figure(fig, stem: Path, formats) -> list[Path]:
     try:
         for fmt in formats:
             path = stem.with_name(f"{stem.name}.{fmt}")
-            # written beside (a new file, never through a link), then renamed
-            with replacing(path, "wb") as fh:
-                if fmt == "png":
-                    _save_png(fig, fh)
-                else:
-                    fig.savefig(fh, bbox_inches="tight", format=fmt)
+            try:                       # written beside (a new file, never through a link), then renamed
+                with replacing(path, "wb") as fh:
+                    if fmt == "png":
+                        _save_png(fig, fh)
+                    else:
+                        fig.savefig(fh, bbox_inches="tight", format=fmt)
+            except WriteFailed as exc:
+                raise DkfsimError(f"{shown(path)}: cannot write the figure ({exc.strerror})") from None
             out.append(path)
     except BaseException:
         if made is not None:
