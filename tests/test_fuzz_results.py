@@ -43,7 +43,7 @@ MUTANTS = st.deferred(lambda: st.sampled_from(fuzz.enumerate_mutants()))
 
 @pytest.fixture(scope="module")
 def checker():
-    with fuzz.ResultChecker(jobs=1) as checker:
+    with fuzz.ResultChecker(jobs=1, timeout=120) as checker:      # (wall time: a shared machine)
         yield checker
 
 
