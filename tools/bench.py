@@ -44,6 +44,15 @@
     the Python exchange for both (the same protocol code); min CPU of ``--repeats``; the issue
     asks at most 2x.  ``--channel-only`` runs this line alone.
 
+11. Start-up (issue 34): ``import dkfsim`` (CPU), ``dkfsim --help``, ``dkfsim list`` and ``dkfsim
+    validate scenarios/paper_case1.yaml`` (wall and CPU), each a fresh process, with Python's
+    bytecode cache on (as a default Python has it: ``PYTHONDONTWRITEBYTECODE`` is removed from
+    the probes' environment, every command run once before it is measured), min of ``--repeats``.
+    ``--startup`` runs this section alone; with ``--base REF`` the commit ``REF`` (``git
+    archive``) and this checkout are alternated in the same rounds and their ratios printed.
+    The issue's targets on a quiet 2-core machine: ``import dkfsim`` below 0.4 s CPU, ``--help``
+    and ``list`` below 0.5 s wall, ``validate`` below 1 s wall.
+
 Before/after (``--base REF``): the runs of sections 1, 2 and 4 that exercise the kernels
 (paper_case1 on the three kernel paths, a 50-node tree with matrix fusion, a 200-node tree
 without, the 1000-node tree), each in a fresh process, alternating the commit ``REF``
@@ -55,7 +64,8 @@ Usage: ``python tools/bench.py [--ticks 1000] [--sizes 12 50 200] [--fit-sizes 1
 [--skip-sweep] [--big-ticks 200] [--skip-threads] [--skip-executors] [--skip-traffic]``,
 ``python tools/bench.py --traffic-only [--ticks 1000] [--repeats 3]``,
 ``python tools/bench.py --centre-only [--ticks 1000] [--repeats 3]`` (``--channel-only`` likewise), or
-``python tools/bench.py --base REF [--repeats 3]``.
+``python tools/bench.py --base REF [--repeats 3]``,
+``python tools/bench.py --startup [--base REF] [--repeats 5]``.
 Timing lives here, never in the tests.
 """
 
@@ -435,6 +445,66 @@ def before_after(args) -> int:
     return 0
 
 
+#: Section 11's commands: label -> the arguments of ``python`` (run in this checkout's folder).
+STARTUP = {
+    "import dkfsim": ["-c", "import dkfsim"],
+    "dkfsim --help": ["-m", "dkfsim", "--help"],
+    "dkfsim list": ["-m", "dkfsim", "list"],
+    "dkfsim validate paper_case1": ["-m", "dkfsim", "validate", "scenarios/paper_case1.yaml"],
+}
+
+
+def startup_probe(tree: Path, args: list[str]) -> tuple[float, float]:
+    """Wall and CPU seconds of ``python ARGS`` run in ``tree`` (so importing its dkfsim), with Python's
+    bytecode cache on (the probe checks which dkfsim it imported)."""
+    env = {k: v for k, v in os.environ.items() if k != "PYTHONDONTWRITEBYTECODE"}
+    env["PYTHONPATH"] = str(tree)
+    before = resource.getrusage(resource.RUSAGE_CHILDREN)
+    t0 = time.perf_counter()
+    done = subprocess.run([sys.executable, *args], cwd=tree, env=env, capture_output=True, text=True)
+    wall = time.perf_counter() - t0
+    after = resource.getrusage(resource.RUSAGE_CHILDREN)
+    if done.returncode != 0:
+        raise SystemExit(f"{' '.join(args)} failed in {tree}: {done.stderr[-2000:]}")
+    return wall, (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
+
+
+def startup(base: str | None, repeats: int) -> int:
+    """Section 11 (see the module docstring)."""
+    from fingerprint import unpack  # (tools/, this script's folder): one git-archive rule
+
+    with tempfile.TemporaryDirectory(prefix="dkfsim-bench-startup-") as tmp:
+        trees = {"this": ROOT} if base is None else {"base": unpack(base, Path(tmp) / "base"), "this": ROOT}
+        for tree in trees.values():              # which dkfsim a probe imports; bytecode written
+            env = {k: v for k, v in os.environ.items() if k != "PYTHONDONTWRITEBYTECODE"}
+            got = subprocess.run([sys.executable, "-c", "import dkfsim; print(dkfsim.__file__)"], cwd=tree,
+                                 env={**env, "PYTHONPATH": str(tree)}, capture_output=True, text=True,
+                                 check=True).stdout.strip()
+            if not got.startswith(str(tree)):
+                raise SystemExit(f"the probe imported {got}, not the dkfsim of {tree}")
+        times: dict = {(name, label): [] for name in trees for label in STARTUP}
+        for rep in range(max(1, repeats) + 1):   # round 0 warms up (bytecode, file cache): not counted
+            for label, cmd in STARTUP.items():
+                for name, tree in trees.items():
+                    wall, cpu = startup_probe(tree, cmd)
+                    if rep:
+                        times[name, label].append((wall, cpu))
+    load = os.getloadavg()
+    print(f"start-up, fresh processes, bytecode cache on, min of {repeats} "
+          + ("" if base is None else f"alternated with {base} (base) ")
+          + f"(load average {load[0]:.2f} {load[1]:.2f} {load[2]:.2f} on {os.cpu_count()} CPUs)")
+    head = f"  {'command':32s}" + "".join(f" {n + ' wall':>10s} {n + ' CPU':>10s}" for n in trees)
+    print(head + ("" if base is None else f" {'wall this/base':>15s} {'CPU this/base':>14s}"))
+    for label in STARTUP:
+        best = {name: (min(w for w, _ in times[name, label]), min(c for _, c in times[name, label]))
+                for name in trees}
+        line = f"  {label:32s}" + "".join(f" {best[n][0]:10.3f} {best[n][1]:10.3f}" for n in trees)
+        if base is not None:
+            line += (f" {best['this'][0] / best['base'][0]:15.3f} {best['this'][1] / best['base'][1]:14.3f}")
+        print(line)
+    return 0
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--ticks", type=int, default=1000)
@@ -462,10 +532,15 @@ def main(argv=None) -> int:
     ap.add_argument("--centre-only", action="store_true", help="only the fusion centre's cost (section 9)")
     ap.add_argument("--skip-channel", action="store_true", help="skip the shared channel's cost (section 10)")
     ap.add_argument("--channel-only", action="store_true", help="only the shared channel's cost (section 10)")
+    ap.add_argument("--startup", action="store_true",
+                    help="only the start-up of import dkfsim, --help, list and validate (section 11); "
+                         "with --base REF, against REF")
     ap.add_argument("--probe", action="store_true", help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
     if args.probe:
         return probe(args)
+    if args.startup:
+        return startup(args.base, args.repeats)
     if args.base:
         return before_after(args)
     if args.mobility_only:

@@ -4,35 +4,26 @@ from __future__ import annotations
 
 import sys
 
-from dkfsim.cli.common import (
-    add_executor_args,
-    add_scenario_args,
-    add_yes_arg,
-    executor_from_args,
-    load_from_args,
-    progress_bar,
-    say,
-)
+from dkfsim.cli.common import add_executor_args, add_scenario_args, add_yes_arg, say
+from dkfsim.cli.work import executor_from_args, load_from_args, progress_bar
 from dkfsim.core.files import printable
 from dkfsim.core.folders import check_target
 from dkfsim.experiments.maxdelay import METRICS, Candidate, MaxDelay, Settings
 from dkfsim.report.maxdelay import save_maxdelay
 
 
-def add_command(subparsers) -> None:
-    p = subparsers.add_parser(
-        "maxdelay", help="largest delay bound (or, --axis rate, least link rate) for which a metric "
-                         "stays within a tolerance (Monte Carlo, worst case, paper bound)",
-        description="Find the largest delay for which the anti-delay DKF's metric stays within a "
-                    "tolerance, three ways: (1) empirically, with a sequential Monte Carlo search "
-                    "(galloping then bisection over the delay; at each candidate, runs in batches "
-                    "until the confidence interval of the metric minus the tolerance is entirely "
-                    "below or above 0); (2) the deterministic worst case: every link at its largest "
-                    "latency, one run per candidate, covariance metric; (3) the paper's theoretical "
-                    "bound (Remark bound_of_delay, eq. delay_bound). The delay is d_t of a "
-                    "uniform_steps latency model, or a scale s multiplying the time parameters of "
-                    "continuous models (constant value, uniform low/high, exponential, lognormal, gamma, pareto time parameters, empirical scale, gilbert_elliott states, jitter). "
-                    "Writes DIR/maxdelay.json and DIR/maxdelay.png/.pdf and prints the three answers.")
+def configure(p) -> None:
+    """``dkfsim maxdelay``'s arguments (its parser made by :func:`dkfsim.cli.main.build_parser`)."""
+    p.description = ("Find the largest delay for which the anti-delay DKF's metric stays within a "
+                     "tolerance, three ways: (1) empirically, with a sequential Monte Carlo search "
+                     "(galloping then bisection over the delay; at each candidate, runs in batches "
+                     "until the confidence interval of the metric minus the tolerance is entirely "
+                     "below or above 0); (2) the deterministic worst case: every link at its largest "
+                     "latency, one run per candidate, covariance metric; (3) the paper's theoretical "
+                     "bound (Remark bound_of_delay, eq. delay_bound). The delay is d_t of a "
+                     "uniform_steps latency model, or a scale s multiplying the time parameters of "
+                     "continuous models (constant value, uniform low/high, exponential, lognormal, gamma, pareto time parameters, empirical scale, gilbert_elliott states, jitter). "
+                     "Writes DIR/maxdelay.json and DIR/maxdelay.png/.pdf and prints the three answers.")
     add_scenario_args(p)
     p.add_argument("--out", required=True, metavar="DIR", help="output folder (created if missing)")
     p.add_argument("--estimate", default="fused", metavar="NAME",

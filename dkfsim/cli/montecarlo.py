@@ -2,33 +2,24 @@
 
 from __future__ import annotations
 
-from dkfsim.cli.common import (
-    add_executor_args,
-    add_scenario_args,
-    add_yes_arg,
-    executor_from_args,
-    load_from_args,
-    progress_bar,
-    say,
-    workers_from_args,
-)
+from dkfsim.cli.common import add_executor_args, add_scenario_args, add_yes_arg, say
+from dkfsim.cli.work import executor_from_args, load_from_args, progress_bar, workers_from_args
 from dkfsim.core.errors import DkfsimError
 from dkfsim.core.folders import check_target
 from dkfsim.experiments import executors
 from dkfsim.experiments.montecarlo import check_burn_in, check_montecarlo, check_reference, montecarlo
 
 
-def add_command(subparsers) -> None:
-    p = subparsers.add_parser(
-        "montecarlo", help="N independent runs of a scenario: MSE with confidence intervals, ANEES, traffic",
-        description="Run a scenario N times with derived seeds (run r uses derive_seed(seed, r), "
-                    "the same whatever N and --jobs) and pool the results per estimate and state "
-                    "component: MSE over time with 95% confidence intervals, ANEES with its 95% "
-                    "t-interval over runs and the consistency verdict, the paired difference and "
-                    "ratio of the MSE to a reference estimate (--relative-to), disagreement between nodes, messages, bytes, lost packets and "
-                    "late information (packet rows). Writes DIR/runs.csv (one row per run x estimate x "
-                    "component), DIR/curves.npz (per-tick curves and one example run) and "
-                    "DIR/summary.json, and prints a table.")
+def configure(p) -> None:
+    """``dkfsim montecarlo``'s arguments (its parser made by :func:`dkfsim.cli.main.build_parser`)."""
+    p.description = ("Run a scenario N times with derived seeds (run r uses derive_seed(seed, r), "
+                     "the same whatever N and --jobs) and pool the results per estimate and state "
+                     "component: MSE over time with 95% confidence intervals, ANEES with its 95% "
+                     "t-interval over runs and the consistency verdict, the paired difference and "
+                     "ratio of the MSE to a reference estimate (--relative-to), disagreement between nodes, messages, bytes, lost packets and "
+                     "late information (packet rows). Writes DIR/runs.csv (one row per run x estimate x "
+                     "component), DIR/curves.npz (per-tick curves and one example run) and "
+                     "DIR/summary.json, and prints a table.")
     add_scenario_args(p)
     p.add_argument("--runs", type=int, required=True, metavar="N",
                    help="number of independent runs (>= 1)")

@@ -35,18 +35,18 @@ examples:
 """
 
 
-def add_command(sub) -> None:
-    p = sub.add_parser(
-        "plot", help="draw figures from run or Monte Carlo folders, or a sweep",
-        description="Draw figures (matplotlib, Agg backend) from folders written by dkfsim run "
-                    "(run.npz + summary.json) or dkfsim montecarlo (curves.npz + runs.csv + summary.json): "
-                    "tracking (truth, fused, node 0, references), MSE per tick (log scale; Monte Carlo: "
-                    "95% CI shaded), for Monte Carlo folders NEES, and for a run with mobility: "
-                    "network_over_time and topology_errors. With --compare, overlay the fused "
-                    "MSE of several folders and the centralized filter of the first. Given a sweep database "
-                    "(or its --export .csv/.parquet), draw a metric against one grid key (--x) with "
-                    "95% interval bands over the runs, one line per estimate or per value of --hue.",
-        epilog=EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter)
+def configure(p) -> None:
+    """``dkfsim plot``'s arguments (its parser made by :func:`dkfsim.cli.main.build_parser`)."""
+    p.formatter_class = argparse.RawDescriptionHelpFormatter
+    p.epilog = EPILOG
+    p.description = ("Draw figures (matplotlib, Agg backend) from folders written by dkfsim run "
+                     "(run.npz + summary.json) or dkfsim montecarlo (curves.npz + runs.csv + summary.json): "
+                     "tracking (truth, fused, node 0, references), MSE per tick (log scale; Monte Carlo: "
+                     "95% CI shaded), for Monte Carlo folders NEES, and for a run with mobility: "
+                     "network_over_time and topology_errors. With --compare, overlay the fused "
+                     "MSE of several folders and the centralized filter of the first. Given a sweep database "
+                     "(or its --export .csv/.parquet), draw a metric against one grid key (--x) with "
+                     "95% interval bands over the runs, one line per estimate or per value of --hue.")
     p.add_argument("dirs", nargs="+", metavar="DIR",
                    help="run or Monte Carlo folder(s), or one sweep database / export file")
     p.add_argument("--out", metavar="FIGDIR",

@@ -6,8 +6,9 @@ import argparse
 import sys
 from collections import Counter
 
-from dkfsim.cli.common import add_executor_args, add_yes_arg, executor_from_args, workers_from_args
+from dkfsim.cli.common import add_executor_args, add_yes_arg
 from dkfsim.cli.common import say as say_line
+from dkfsim.cli.work import executor_from_args, workers_from_args
 from dkfsim.core.errors import DkfsimError
 from dkfsim.experiments.montecarlo import check_reference
 from dkfsim.experiments.sweep import Sweep, export, is_database, load_sweep, run_sweep, tasks_done
@@ -54,10 +55,10 @@ examples:
 """
 
 
-def add_command(subparsers) -> None:
-    p = subparsers.add_parser(
-        "sweep", help="parameter sweep x Monte Carlo runs into a resumable SQLite file",
-        description=HELP, formatter_class=argparse.RawDescriptionHelpFormatter)
+def configure(p) -> None:
+    """``dkfsim sweep``'s arguments (its parser made by :func:`dkfsim.cli.main.build_parser`)."""
+    p.description = HELP
+    p.formatter_class = argparse.RawDescriptionHelpFormatter
     p.add_argument("file", metavar="FILE",
                    help="a sweep YAML file to run or resume; or a sweep database (.sqlite) to "
                         "export with --export, computing nothing")
