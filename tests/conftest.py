@@ -13,6 +13,7 @@ from collections import deque
 
 import numpy as np
 import pytest
+from interrupts import pytest_configure  # noqa: F401  (Ctrl-C and SIGTERM stop every process: issue 34)
 
 # ----------------------------------------------------------------------------
 # models and sensors

@@ -44,8 +44,9 @@
     the Python exchange for both (the same protocol code); min CPU of ``--repeats``; the issue
     asks at most 2x.  ``--channel-only`` runs this line alone.
 
-11. Start-up (issue 34): ``import dkfsim`` (CPU), ``dkfsim --help``, ``dkfsim list`` and ``dkfsim
-    validate scenarios/paper_case1.yaml`` (wall and CPU), each a fresh process, with Python's
+11. Start-up (issue 34): ``import dkfsim`` (CPU), ``dkfsim --help``, ``dkfsim list``, ``dkfsim
+    validate scenarios/paper_case1.yaml`` and ``dkfsim run`` of it (wall and CPU; the run loads
+    the compiled kernels from numba's cache, compiled in the warm-up round), each a fresh process, with Python's
     bytecode cache on (as a default Python has it: ``PYTHONDONTWRITEBYTECODE`` is removed from
     the probes' environment, every command run once before it is measured), min of ``--repeats``.
     ``--startup`` runs this section alone; with ``--base REF`` the commit ``REF`` (``git
@@ -451,6 +452,8 @@ STARTUP = {
     "dkfsim --help": ["-m", "dkfsim", "--help"],
     "dkfsim list": ["-m", "dkfsim", "list"],
     "dkfsim validate paper_case1": ["-m", "dkfsim", "validate", "scenarios/paper_case1.yaml"],
+    "dkfsim run paper_case1 (1000 ticks)": ["-m", "dkfsim", "run", "scenarios/paper_case1.yaml", "--quiet",
+                                            "--out", "{tmp}/run"],
 }
 
 
@@ -486,7 +489,7 @@ def startup(base: str | None, repeats: int) -> int:
         for rep in range(max(1, repeats) + 1):   # round 0 warms up (bytecode, file cache): not counted
             for label, cmd in STARTUP.items():
                 for name, tree in trees.items():
-                    wall, cpu = startup_probe(tree, cmd)
+                    wall, cpu = startup_probe(tree, [a.format(tmp=tmp) for a in cmd])
                     if rep:
                         times[name, label].append((wall, cpu))
     load = os.getloadavg()

@@ -106,8 +106,18 @@ def _error(text: str) -> None:
 
 
 def main(argv=None) -> int:
+    """Run ``dkfsim ARGV``; the exit status.  SIGTERM ends the command as Ctrl-C does while it
+    runs; the handler this process had before is back when it returns (a test or a script that
+    calls it in its own process keeps its own)."""
+    previous = signal.signal(signal.SIGTERM, _on_sigterm)
+    try:
+        return _main(argv)
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+
+
+def _main(argv) -> int:
     pin_process()                     # one BLAS thread here and in every worker we start
-    signal.signal(signal.SIGTERM, _on_sigterm)
     _usable_streams()
     argv = sys.argv[1:] if argv is None else list(argv)
     parser = build_parser(command_of(argv))
