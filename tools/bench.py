@@ -54,6 +54,15 @@
     The issue's targets on a quiet 2-core machine: ``import dkfsim`` below 0.4 s CPU, ``--help``
     and ``list`` below 0.5 s wall, ``validate`` below 1 s wall.
 
+12. Seconds per event (issue 34 §2): ``--calibrate`` runs a set of scenarios that exercise
+    each kind of event (:data:`CALIBRATION_RUNS`: plain, rate-limited, channel, flood, the
+    consensus family, a fusion centre, a changing graph, a 50-node tree), each warmed up once,
+    alternated ``--repeats`` times in this process, and fits the CPU seconds of a run to its
+    events (ticks, packets, node-rows, fused rows x (n nx)^3; non-negative least squares on the
+    min CPU of each), prints the fit and each run's predicted / measured seconds, and writes the
+    constants to ``dkfsim/data/calibration/seconds_per_event.json`` (the estimates' only
+    machine-dependent input) with the machine and the load it was measured under.
+
 Before/after (``--base REF``): the runs of sections 1, 2 and 4 that exercise the kernels
 (paper_case1 on the three kernel paths, a 50-node tree with matrix fusion, a 200-node tree
 without, the 1000-node tree), each in a fresh process, alternating the commit ``REF``
@@ -66,7 +75,8 @@ Usage: ``python tools/bench.py [--ticks 1000] [--sizes 12 50 200] [--fit-sizes 1
 ``python tools/bench.py --traffic-only [--ticks 1000] [--repeats 3]``,
 ``python tools/bench.py --centre-only [--ticks 1000] [--repeats 3]`` (``--channel-only`` likewise), or
 ``python tools/bench.py --base REF [--repeats 3]``,
-``python tools/bench.py --startup [--base REF] [--repeats 5]``.
+``python tools/bench.py --startup [--base REF] [--repeats 5]``,
+``python tools/bench.py --calibrate [--repeats 3] [--ticks 1000]``.
 Timing lives here, never in the tests.
 """
 
@@ -508,6 +518,62 @@ def startup(base: str | None, repeats: int) -> int:
     return 0
 
 
+#: Section 12's runs: label -> ``--set`` overrides of ``scenarios/paper_case1.yaml`` (or
+#: ``(file, overrides)``); ticks are ``--ticks`` (a third of them for the slower ones).
+CALIBRATION_RUNS = {
+    "paper_case1": [],
+    "no fusion": ["fusion=none"],
+    "rate-limited": list(TRAFFIC),
+    "flood, heavy tail": ("stress_heavy_tail.yaml", []),
+    "consensus family": ["estimators=[{kind: ci_consensus, rounds: 2}, {kind: kcf}, {kind: icf, rounds: 2}, "
+                         "{kind: diffusion_kf}, {kind: hcmci, rounds: 2}]"],
+    "fusion centre": ["estimators=[{kind: fusion_centre, at: 0}]"],
+    "channel": ("channel_its_g5.yaml", []),
+    "changing graph": ("mobility_convoy.yaml", []),
+}
+
+
+def calibrate(ticks: int, repeats: int) -> int:
+    """Section 12 (see the module docstring)."""
+    import numpy as np
+    from scipy.optimize import nnls
+
+    from dkfsim.core.resources import CALIBRATION
+    runs = {}
+    for label, spec in CALIBRATION_RUNS.items():
+        file, ov = spec if isinstance(spec, tuple) else ("paper_case1.yaml", spec)
+        k = ticks if file == "paper_case1.yaml" else max(50, ticks // 3)
+        runs[label] = dkfsim.load_scenario(ROOT / "scenarios" / file, overrides=[*ov, f"steps={k}"])
+    runs["50-node tree, matrix fusion"] = tree_scenario(50, max(50, ticks // 5), "matrix")
+    cpu, last = alternated(runs, repeats)
+    rows, y = [], []
+    for label, res in last.items():
+        ev, N = res.info["events"], res.scenario.n * res.scenario.nx
+        rows.append([ev["ticks"], ev["packets"], ev["node_rows"], ev["fused_rows"] * float(N) ** 3])
+        y.append(cpu[label])
+    A, b = np.array(rows, dtype=float), np.array(y)
+    scale = A.max(axis=0)
+    scale[scale == 0] = 1.0
+    x, _ = nnls(A / scale, b)
+    x = x / scale
+    pred = A @ x
+    load = os.getloadavg()
+    print(f"seconds per event, fitted on {len(runs)} runs (CPU s, min of {repeats} alternated; load average "
+          f"{load[0]:.2f} on {os.cpu_count()} CPUs)")
+    for name, value in zip(("ticks", "packets", "node_rows", "fusion_flops"), x):
+        print(f"  {name:14s} {value:.3e} s")
+    print(f"  {'run':32s} {'measured':>9s} {'predicted':>9s} {'ratio':>6s}")
+    for (label, _res), m, p in zip(last.items(), b, pred):
+        print(f"  {label:32s} {m:9.3f} {p:9.3f} {p / m:6.2f}")
+    data = {"ticks": x[0], "packets": x[1], "node_rows": x[2], "fusion_flops": x[3],
+            "measured": f"tools/bench.py --calibrate --ticks {ticks} --repeats {repeats}, "
+                        f"{time.strftime('%Y-%m-%d')}, {os.cpu_count()} CPUs, load average {load[0]:.2f}"}
+    CALIBRATION.write_text(json.dumps({k: (float(f"{v:.4g}") if isinstance(v, float) else v)
+                                       for k, v in data.items()}, indent=2) + "\n")
+    print(f"wrote {CALIBRATION.relative_to(ROOT)}")
+    return 0
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--ticks", type=int, default=1000)
@@ -538,8 +604,12 @@ def main(argv=None) -> int:
     ap.add_argument("--startup", action="store_true",
                     help="only the start-up of import dkfsim, --help, list and validate (section 11); "
                          "with --base REF, against REF")
+    ap.add_argument("--calibrate", action="store_true",
+                    help="only fit the seconds per event of the estimates and store them (section 12)")
     ap.add_argument("--probe", action="store_true", help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
+    if args.calibrate:
+        return calibrate(args.ticks, args.repeats)
     if args.probe:
         return probe(args)
     if args.startup:

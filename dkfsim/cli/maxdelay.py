@@ -123,7 +123,8 @@ def cmd_maxdelay(args) -> int:
     check_target(args.out)                 # before any run: a bad --out costs nothing
     prog = _Progress(args)
     try:
-        res = MaxDelay(sc, st, progress=prog, yes=args.yes, executor=executor_from_args(args)).run()
+        res = MaxDelay(sc, st, progress=prog, yes=args.yes, executor=executor_from_args(args),
+                       yes_flag="--yes").run()
     finally:
         prog.close()
     out = save_maxdelay(res, args.out)

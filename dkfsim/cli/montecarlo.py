@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from dkfsim.cli.common import add_executor_args, add_scenario_args, add_yes_arg, say
-from dkfsim.cli.work import executor_from_args, load_from_args, progress_bar, workers_from_args
+from dkfsim.cli.work import executor_from_args, load_from_args, more_workers_hint, progress_bar, workers_from_args
 from dkfsim.core.errors import DkfsimError
 from dkfsim.core.folders import check_target
 from dkfsim.experiments import executors
@@ -47,7 +47,8 @@ def cmd_montecarlo(args) -> int:
     check_burn_in(args.burn_in, int(sc.steps))
     check_reference(sc, args.relative_to)
     check_target(args.out)                 # before any run: a bad --out costs nothing
-    check_montecarlo(sc, args.runs, workers_from_args(args, args.runs), yes=args.yes)
+    check_montecarlo(sc, args.runs, workers_from_args(args, args.runs), yes=args.yes, yes_flag="--yes",
+                     hint="fewer --runs or --steps" + more_workers_hint(args))
     make = executor_from_args(args, args.runs)
     bar = progress_bar(args, args.runs, sc.name)
     progress = None if bar is None else (lambda done, _total: bar.update(done - bar.n))

@@ -4,10 +4,10 @@ from __future__ import annotations
 
 from dkfsim.cli.common import add_scenario_args, add_yes_arg, say
 from dkfsim.cli.work import load_from_args, progress_bar
+from dkfsim.config.plan import RunPlan
 from dkfsim.core.errors import DkfsimError
 from dkfsim.core.folders import check_target
-from dkfsim.engine.driver import run
-from dkfsim.engine.estimate import check_run
+from dkfsim.engine.driver import check_run_measured, run
 from dkfsim.report.tables import run_table
 
 
@@ -38,7 +38,7 @@ def cmd_run(args) -> int:
     if args.burn_in is not None and not 0 <= args.burn_in < sc.steps:
         raise DkfsimError(f"--burn-in: must be in [0, steps) = [0, {sc.steps}), got {args.burn_in}")
     check_target(args.out)                 # before the run: a bad --out costs nothing
-    check_run(sc, save=args.save, yes=args.yes)
+    check_run_measured(RunPlan(sc, args.save), yes=args.yes)
     bar = progress_bar(args, sc.steps, sc.name, unit="tick")
     progress = None if bar is None else (lambda k, _K: bar.update(k - bar.n))
     try:

@@ -47,6 +47,17 @@ def workers_from_args(args, tasks: int | None = None) -> int:
     return max(1, min(n, tasks)) if tasks else n
 
 
+def more_workers_hint(args) -> str:
+    """``", or more --jobs"`` (or ``--dask-local`` workers) when the flags can add workers to
+    this machine; nothing for a cluster of ``--scheduler`` (its workers are its own)."""
+    if args.scheduler is not None:
+        return ""
+    if args.dask_local is not None:
+        return ", or more --dask-local workers"
+    return ", or more --jobs" if (args.jobs or executors.available_cpus()) < executors.available_cpus() \
+        else ""
+
+
 def progress_bar(args, total: int | None, desc: str, unit: str = "run"):
     """The progress bar of a command: tqdm on stderr counting ``unit``, when stderr is a
     terminal and ``--quiet`` is not given; else None."""

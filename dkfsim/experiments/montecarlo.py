@@ -63,8 +63,7 @@ from dkfsim.core.progress import progress_callback
 from dkfsim.core.resources import Cost, check, repeat
 from dkfsim.core.text import aligned
 from dkfsim.core.threads import single_thread
-from dkfsim.engine.driver import Run
-from dkfsim.engine.estimate import estimate_run
+from dkfsim.engine.driver import Run, measured_estimate
 from dkfsim.engine.results import versions, write_rows
 from dkfsim.experiments import executors
 from dkfsim.model.system import build_system
@@ -164,6 +163,14 @@ def run_rows(scenario, seed: int, burn_in: int | None = None, *,
     or a :class:`Template` (many runs of one scenario: validated and built once);
     ``burn_in`` defaults to 10 % of the ticks.
     """
+    rows, out, _events = run_scored(scenario, seed, burn_in, curves=curves)
+    return rows, out
+
+
+def run_scored(scenario, seed: int, burn_in: int | None = None, *,
+               curves: bool = True) -> tuple[list[dict], dict | None, dict[str, int]]:
+    """:func:`run_rows`, and the run's events (``RunResult.info["events"]``: what its estimate
+    predicted, :mod:`dkfsim.engine.estimate`)."""
     tpl = scenario if isinstance(scenario, Template) else Template(scenario)
     sc = tpl.scenario_for(seed)
     burn = check_burn_in(burn_in, int(sc.steps))
@@ -171,7 +178,7 @@ def run_rows(scenario, seed: int, burn_in: int | None = None, *,
         res = Run(sc, save="estimates", system=tpl.system, plan=tpl.plan_for(sc)).run()
         scored = res.scored(burn)            # one NEES per estimate, for the rows and the curves
         rows = [{**row, "seed": int(seed)} for row in res.rows(burn, scored)]
-        return rows, (_curves(res, scored) if curves else None)
+        return rows, (_curves(res, scored) if curves else None), dict(res.info["events"])
 
 
 def _curves(res, scored: dict) -> dict:
@@ -197,9 +204,10 @@ def _curves(res, scored: dict) -> dict:
 def _one(template: Template, r: int, seed: int, burn_in: int) -> tuple[list[dict], dict]:
     """Run ``r`` where it runs (a worker, or this process): its rows and curves."""
     try:
-        rows, curves = run_rows(template, seed, burn_in)
+        rows, curves, events = run_scored(template, seed, burn_in)
     except DkfsimError as exc:      # e.g. a random topology that is disconnected for this seed
         raise DkfsimError(f"run {r} (seed {seed}): {exc}") from None
+    curves["events"] = events
     if r != 0:       # only run 0 is kept as the example: do not ship the rest
         for key in ("example_truth", "example_x", "example_node0"):
             del curves[key]
@@ -214,8 +222,12 @@ class _Fold:
         self.n = 0
         self.mean = self.m2 = self.nees_sum = None
         self.first = None
+        #: the runs' events, summed (what the estimate predicted)
+        self.events: dict[str, int] = {}
 
     def add(self, curves: dict) -> None:
+        for key, count in curves.get("events", {}).items():
+            self.events[key] = self.events.get(key, 0) + int(count)
         se, nees = curves["se"], curves["nees"]
         if self.n == 0:
             self.first = curves
@@ -340,9 +352,10 @@ def load_montecarlo(folder) -> "MonteCarloResult":
         raise DkfsimError(f"{folder}: {exc}") from None
 
 
-def estimate_montecarlo(sc, runs: int, jobs: int) -> Cost:
-    """Memory and time of ``runs`` runs on ``jobs`` processes, rows and curves included."""
-    one = estimate_run(sc, "estimates")
+def estimate_montecarlo(sc, runs: int, jobs: int, force_trial: bool = False) -> Cost:
+    """Memory and time of ``runs`` runs on ``jobs`` processes, rows and curves included (the
+    events of one run measured on a trial when the guess is long, or ``force_trial``)."""
+    one = measured_estimate(RunPlan(Template(sc).scenario, "estimates"), runs, min(jobs, runs), force_trial)
     estimates = 2 + len(sc.estimators)
     K, nx = int(sc.steps), sc.nx
     kept = runs * estimates * nx * 600 + 6 * estimates * K * nx * 8     # rows; pooled curves
@@ -350,9 +363,16 @@ def estimate_montecarlo(sc, runs: int, jobs: int) -> Cost:
                   min(jobs, runs), extra_bytes=kept)
 
 
-def check_montecarlo(sc, runs: int, jobs: int, *, yes: bool = False) -> Cost:
+#: The refusal's hint of the Python API (the command line names its own flags).
+API_HINT = "fewer runs or steps, or more jobs"
+
+
+def check_montecarlo(sc, runs: int, jobs: int, *, yes: bool = False, hint: str = API_HINT,
+                     yes_flag: str = "yes=True") -> Cost:
+    """Refuse a Monte Carlo that cannot fit, ask for ``yes`` above 10 minutes; ``hint`` and
+    ``yes_flag`` say what the caller can change (its flags or its keywords)."""
     est = estimate_montecarlo(sc, runs, jobs)
-    check(est, yes=yes, hint="fewer runs or steps, or more --jobs")
+    check(est, yes=yes, yes_flag=yes_flag, hint=hint)
     return est
 
 
@@ -387,6 +407,8 @@ class MonteCarloResult:
         self.nees_band = nees_band(runs, len(self.components))
         self.example = {"example_truth": first["example_truth"], "example_x": first["example_x"],
                         "example_node0": first["example_node0"]}
+        #: the runs' events, summed (``RunResult.info["events"]`` of each)
+        self.events = dict(fold.events)
         #: the reference estimate of the paired comparisons (None: ``centralized`` if present)
         self.relative_to: str | None = None
 
@@ -424,6 +446,7 @@ class MonteCarloResult:
         self.nees_band = nees_band(self.runs, nx)
         self.example = {k: np.asarray(curves[k], dtype=float) if k in curves else None
                         for k in ("example_truth", "example_x", "example_node0")}
+        self.events = {}
         self.relative_to = summary.get("relative_to")
         have = {(r["estimate"], r["component"]) for r in rows}
         missing = [(e, c) for e in self.estimates for c in self.components if (e, c) not in have]

@@ -82,6 +82,11 @@ class MaxDelayResult:
                               "tolerance_ci": [st.relative * ci[0], st.relative * ci[1]]}
 
     @property
+    def events(self) -> dict[str, int]:
+        """The events of every run the search made, summed (what its estimate predicted)."""
+        return self.md.events
+
+    @property
     def answer(self):
         a = self.emp.answer
         return None if a is None else self.md.axis.value(a)
