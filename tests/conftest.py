@@ -230,6 +230,7 @@ def isolated_registries():
     import sys
 
     from dkfsim.core import registry
+    registry.ensure_registered()       # (the built-ins register at the first read: before the snapshot)
     saved = {name: (dict(reg._entries), dict(reg._aliases)) for name, reg in registry.REGISTRIES.items()}
     modules = set(sys.modules)
     yield

@@ -55,8 +55,9 @@ def describe(family: str) -> list[str]:
         params = _params(entry)
         if params:
             lines.append(f"  {'':<22}   parameters: {params}")
-        packets = getattr(entry.implementation, "packets", "")
-        if family == "estimators" and packets:
+        if family == "estimators":
+            packets = getattr(entry.implementation, "packets", "") or \
+                "not described (its class's `packets` attribute: docs/extending.md)"
             lines.append(f"  {'':<22}   packets: {packets}")
     aliases = reg.aliases()
     if aliases:

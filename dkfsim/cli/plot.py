@@ -28,7 +28,7 @@ examples:
   dkfsim plot out/mc_case1 --format png                   # a Monte Carlo folder; adds nees.png
   dkfsim plot out/case1 out/case2 --compare --labels "case 1 (undirected)" "case 2 (directed)"
   dkfsim plot out/crossing --at 1 100 200                 # a run with mobility:: network_over_time at 3 ticks
-  dkfsim plot scenarios/sweep_delay_bound.sqlite --x links.default.latency.d_t --hue protocol
+  dkfsim plot out/sweep_delay_bound.sqlite --x links.default.latency.d_t --hue protocol
   dkfsim plot out/delay.csv --x links.default.latency.d_t --metric anees --where protocol=tree
   dkfsim plot out/d0 out/d1 out/d2 out/d3 out/d4 --compare --component position \\
       --labels "d_t = 0" "d_t = 1" "d_t = 2" "d_t = 3" "d_t = 4" --out figs --name delay_bounds

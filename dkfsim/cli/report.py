@@ -11,7 +11,7 @@ EPILOG = """\
 examples:
   dkfsim report out/case1                       # -> out/case1/report.html
   dkfsim report out/mc                          # a Monte Carlo folder
-  dkfsim report scenarios/sweep_delay_bound.sqlite --out delay_report.html
+  dkfsim report out/sweep_delay_bound.sqlite --out delay_report.html
 """
 
 

@@ -51,7 +51,7 @@ examples:
   dkfsim sweep scenarios/sweep_delay_bound.yaml --jobs 4
   dkfsim sweep scenarios/sweep_delay_bound.yaml --dask-local 4 --export out/delay.parquet
   dkfsim sweep scenarios/sweep_delay_bound.yaml --scheduler tcp://10.0.0.5:8786
-  dkfsim sweep scenarios/sweep_delay_bound.sqlite --export out/delay.csv     (export only)
+  dkfsim sweep out/sweep_delay_bound.sqlite --export out/delay.csv     (export only)
 """
 
 

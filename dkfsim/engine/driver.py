@@ -258,21 +258,23 @@ def check_run_measured(plan: RunPlan, *, yes: bool = False) -> Cost:
 
 @single_thread
 def run(scenario: Scenario | str | PathLike | Mapping[str, Any], *, seed: int | None = None,
-        steps: int | None = None, save: str = "auto", progress: bool | Callable[[int, int], None] | None = None,
-        yes: bool = False) -> RunResult:
+        steps: int | None = None, overrides: Sequence[str] = (), save: str = "auto",
+        progress: bool | Callable[[int, int], None] | None = None, yes: bool = False) -> RunResult:
     """Simulate one scenario and return its :class:`~dkfsim.engine.results.RunResult`.
 
     ``scenario`` is a :class:`~dkfsim.config.schema.Scenario`, a path to a
     scenario file or a mapping.  ``seed`` and ``steps`` override the
-    scenario's (the same as ``--set``).  A run that cannot fit in memory
+    scenario's, ``overrides`` (``dotted.key=value``) are ``--set``: the keywords of
+    :func:`dkfsim.montecarlo`, :func:`dkfsim.sweep` and :func:`dkfsim.maxdelay`.  A run that cannot fit in memory
     raises :class:`~dkfsim.core.errors.ResourceError`; one estimated to take
     more than 10 minutes does too unless ``yes`` (:mod:`dkfsim.core.resources`).
     ``progress``: True for a ``tqdm.auto`` bar (a widget in notebooks), or a
     callable ``progress(tick, K)``.  BLAS runs on one thread during the call (:mod:`dkfsim.core.threads`).
     """
-    overrides = [f"{key}={int(val)}" for key, val in (("seed", seed), ("steps", steps)) if val is not None]
-    if overrides or not isinstance(scenario, Scenario):   # validated exactly as --set would be
-        scenario = load_scenario(scenario, overrides=overrides)
+    extra = [*overrides, *(f"{key}={int(val)}" for key, val in (("seed", seed), ("steps", steps))
+                           if val is not None)]
+    if extra or not isinstance(scenario, Scenario):   # validated exactly as --set would be
+        scenario = load_scenario(scenario, overrides=extra)
     plan = RunPlan(scenario, save)
     check_run_measured(plan, yes=yes)
     with progress_callback(progress, int(scenario.steps), scenario.name, "tick") as callback:

@@ -34,6 +34,7 @@ from __future__ import annotations
 
 import math
 import time
+from collections.abc import Sequence
 from functools import cached_property
 from pathlib import Path
 
@@ -247,7 +248,8 @@ class _Fold:
 @single_thread
 def montecarlo(scenario, runs: int, jobs: int | None = None, burn_in: int | None = None,
                progress=None, yes: bool = False, executor=None,
-               relative_to: str | None = None) -> "MonteCarloResult":
+               relative_to: str | None = None, *, seed: int | None = None, steps: int | None = None,
+               overrides: Sequence[str] = ()) -> "MonteCarloResult":
     """``runs`` independent runs of ``scenario``.
 
     ``scenario``: a Scenario, a path or a mapping.  Run ``r`` uses seed
@@ -261,11 +263,13 @@ def montecarlo(scenario, runs: int, jobs: int | None = None, burn_in: int | None
     cannot fit in memory is refused, and work estimated above 10 minutes needs ``yes``
     (:mod:`dkfsim.core.resources`).  ``relative_to``: the reference estimate of the paired
     comparisons (default ``centralized`` when the scenario has it; :func:`check_reference`).
+    ``seed`` (the base seed), ``steps`` and ``overrides`` (``dotted.key=value``, as ``--set``):
+    the keywords of :func:`dkfsim.run`, :func:`dkfsim.sweep` and :func:`dkfsim.maxdelay`.
     """
     if isinstance(runs, bool) or not isinstance(runs, int) or runs < 1:
         raise DkfsimError(f"--runs: must be an integer >= 1, got {runs!r}")
     executors.check_jobs(jobs)
-    sc = scenario if isinstance(scenario, Scenario) else load_scenario(scenario)
+    sc = with_keywords(scenario, seed, steps, overrides)
     burn = check_burn_in(burn_in, int(sc.steps))
     check_reference(sc, relative_to)
     workers = executor.workers if isinstance(executor, executors.Executor) else \
@@ -302,6 +306,16 @@ def _montecarlo(sc, runs: int, jobs, burn: int, progress, executor) -> "MonteCar
             ex.close()
     wall = time.perf_counter() - t0
     return MonteCarloResult(sc, runs, ex.workers, burn, seeds, rows, fold, wall, ex.label, template.plan)
+
+
+def with_keywords(scenario, seed: int | None = None, steps: int | None = None,
+                  overrides: Sequence[str] = ()) -> Scenario:
+    """``scenario`` (a Scenario, a path or a mapping) with the API's ``seed``, ``steps`` and
+    ``overrides`` applied, validated as ``--set`` would be."""
+    extra = [*overrides, *(f"{k}={int(v)}" for k, v in (("seed", seed), ("steps", steps)) if v is not None)]
+    if isinstance(scenario, Scenario) and not extra:
+        return scenario
+    return load_scenario(scenario, overrides=extra)
 
 
 def scenario_estimates(sc) -> list[str]:

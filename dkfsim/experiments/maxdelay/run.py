@@ -9,13 +9,12 @@ from __future__ import annotations
 
 import math
 import time
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 from dkfsim.analysis.bounds import paper_bound_for_scenario
 from dkfsim.analysis.metrics import default_burn_in
-from dkfsim.config.load import load_scenario
 from dkfsim.config.plan import RunPlan
-from dkfsim.config.schema import Scenario
 from dkfsim.core.errors import DkfsimError
 from dkfsim.core.resources import EVENT_KINDS, Cost, check
 from dkfsim.core.threads import single_thread
@@ -42,7 +41,7 @@ from dkfsim.experiments.maxdelay.search import (
     tracked_estimate,
     worst_case_scan,
 )
-from dkfsim.experiments.montecarlo import components_of, derive_seed
+from dkfsim.experiments.montecarlo import components_of, derive_seed, with_keywords
 
 
 # =========================================================================== the command's engine
@@ -478,8 +477,8 @@ def _between(ones: dict, j: int, key: str) -> float:
 
 
 # =========================================================================== result
-def maxdelay(scenario, progress=None, yes: bool = False, executor=None,
-             **settings) -> "MaxDelayResult":
+def maxdelay(scenario, progress=None, yes: bool = False, executor=None, *, seed: int | None = None,
+             steps: int | None = None, overrides: Sequence[str] = (), **settings) -> "MaxDelayResult":
     """The maximum allowable delay of ``scenario`` (a Scenario, a path or a mapping).
 
     ``settings`` are the fields of :class:`Settings` (the ``dkfsim maxdelay``
@@ -487,8 +486,10 @@ def maxdelay(scenario, progress=None, yes: bool = False, executor=None,
     ``executor``: where the runs happen (as :func:`dkfsim.experiments.montecarlo.montecarlo`);
     the result does not depend on it.
     A search estimated above 10 minutes needs ``yes`` (:mod:`dkfsim.core.resources`).
+    ``seed`` (the base seed), ``steps`` and ``overrides`` (``dotted.key=value``, as ``--set``):
+    the keywords of :func:`dkfsim.run`, :func:`dkfsim.montecarlo` and :func:`dkfsim.sweep`.
     """
-    sc = scenario if isinstance(scenario, Scenario) else load_scenario(scenario)
+    sc = with_keywords(scenario, seed, steps, overrides)
     unknown = sorted(set(settings) - set(Settings.__dataclass_fields__))
     if unknown:
         raise DkfsimError(f"maxdelay: unknown setting {unknown[0]!r}; known: "

@@ -11,6 +11,7 @@ import os
 import statistics
 import sys
 import time
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -21,6 +22,7 @@ from tqdm.auto import tqdm
 from dkfsim.analysis.frames import rows_frame
 from dkfsim.config.load import load_scenario
 from dkfsim.config.plan import RunPlan
+from dkfsim.core.errors import DkfsimError
 from dkfsim.core.files import printable
 from dkfsim.core.resources import EVENT_KINDS, Cost, check
 from dkfsim.core.threads import single_thread
@@ -116,8 +118,9 @@ API_HINT = "fewer runs or a smaller grid (the sweep file), or more jobs"
 
 
 @single_thread
-def run_sweep(sweep: Sweep | str | os.PathLike, *, executor=None, jobs: int | None = None,
-              progress: bool | None = None, db: str | os.PathLike | None = None,
+def run_sweep(sweep: Sweep | str | os.PathLike, *, seed: int | None = None, steps: int | None = None,
+              overrides: Sequence[str] = (), burn_in: int | None = None, executor=None,
+              jobs: int | None = None, progress: bool | None = None, db: str | os.PathLike | None = None,
               yes: bool = False, workers: int | None = None, hint: str = API_HINT,
               yes_flag: str = "yes=True") -> SweepReport:
     """Run (or resume) a sweep; return a :class:`SweepReport`.
@@ -131,9 +134,16 @@ def run_sweep(sweep: Sweep | str | os.PathLike, *, executor=None, jobs: int | No
     once, when ``executor`` is a callable): refused if they cannot fit in
     memory, and needing ``yes`` above 10 minutes (``hint`` and ``yes_flag``: what the refusal
     tells the caller to change, its keywords or, from ``dkfsim sweep``, its flags).
+    ``seed``, ``steps`` and ``overrides`` (``dotted.key=value``, as ``--set``) change the sweep's
+    scenario, ``burn_in`` its burn-in: the keywords of :func:`dkfsim.run`,
+    :func:`dkfsim.montecarlo` and :func:`dkfsim.maxdelay` (a sweep given as a file or a mapping).
     """
+    extra = [*overrides, *(f"{k}={int(v)}" for k, v in (("seed", seed), ("steps", steps)) if v is not None)]
+    if isinstance(sweep, Sweep) and (extra or burn_in is not None):
+        raise DkfsimError("seed, steps, overrides and burn_in change a sweep's file: give the sweep file "
+                          "(or mapping), not a loaded Sweep")
     if not isinstance(sweep, Sweep):
-        sweep = load_sweep(sweep, output=db, yes=yes)
+        sweep = load_sweep(sweep, output=db, yes=yes, overrides=extra, burn_in=burn_in)
     path = Path(db) if db is not None else sweep.output
     if progress is None:
         progress = sys.stderr.isatty()
