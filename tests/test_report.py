@@ -109,7 +109,8 @@ def test_run_report_tables_hold_rows_csv(folders):
     summary = json.loads((folders / "run" / "summary.json").read_text())
     dkf = page.tables["packets"][1]
     p = summary["packets"]
-    assert [int(c) for c in dkf[1:]] == [p["sent"], p["delivered"], p["lost"], p["in_flight"], p["late"]]
+    assert [int(c) for c in dkf[1:]] == [p["sent"], p["copies"], p["delivered"], p["lost"], p["queue_dropped"],
+                                         p["crash_dropped"], p["in_flight"], p["late"]]
     versions = dict((r[0], r[1]) for r in page.tables["versions"][1:])
     assert versions["numpy"] == summary["versions"]["numpy"] and versions["seed"] == str(summary["seed"])
     assert any("12 nodes" in c and "tree" in c for c in page.captions)

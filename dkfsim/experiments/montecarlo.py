@@ -179,7 +179,24 @@ def run_scored(scenario, seed: int, burn_in: int | None = None, *,
         res = Run(sc, save="estimates", system=tpl.system, plan=tpl.plan_for(sc)).run()
         scored = res.scored(burn)            # one NEES per estimate, for the rows and the curves
         rows = [{**row, "seed": int(seed)} for row in res.rows(burn, scored)]
-        return rows, (_curves(res, scored) if curves else None), dict(res.info["events"])
+        out = _curves(res, scored) if curves else None
+        if out is not None:
+            out["packets"] = {name: packet_counts(t) for name, t in res.traffic.items()}
+        return rows, out, dict(res.info["events"])
+
+
+#: The counts of a run's traffic a Monte Carlo averages per estimate: the terms of the identity
+#: ``sent + copies = delivered + lost + queue_dropped + crash_dropped + in_flight`` and the causes
+#: of ``lost`` (docs/design.md §3).
+PACKET_COUNTS = ("sent", "copies", "delivered", "lost", "outage_lost", "range_lost", "collision_lost",
+                 "queue_dropped", "crash_dropped", "in_flight")
+
+
+def packet_counts(traffic: dict | None) -> dict[str, int] | None:
+    """The :data:`PACKET_COUNTS` of one estimator's traffic (None: not modelled)."""
+    if traffic is None:
+        return None
+    return {k: int(traffic.get(k, 0) or 0) for k in PACKET_COUNTS}
 
 
 def _curves(res, scored: dict) -> dict:
@@ -225,10 +242,17 @@ class _Fold:
         self.first = None
         #: the runs' events, summed (what the estimate predicted)
         self.events: dict[str, int] = {}
+        #: per estimate, its packet counts summed over the runs (None: not modelled)
+        self.packets: dict[str, dict[str, int] | None] = {}
 
     def add(self, curves: dict) -> None:
         for key, count in curves.get("events", {}).items():
             self.events[key] = self.events.get(key, 0) + int(count)
+        for name, counts in curves.get("packets", {}).items():
+            total = self.packets.setdefault(name, None if counts is None else dict.fromkeys(counts, 0))
+            if total is not None and counts is not None:
+                for key, v in counts.items():
+                    total[key] += v
         se, nees = curves["se"], curves["nees"]
         if self.n == 0:
             self.first = curves
@@ -423,6 +447,10 @@ class MonteCarloResult:
                         "example_node0": first["example_node0"]}
         #: the runs' events, summed (``RunResult.info["events"]`` of each)
         self.events = dict(fold.events)
+        #: per estimate, the mean over runs of each packet count (:data:`PACKET_COUNTS`; None: not
+        #: modelled, as for ``centralized``)
+        self.packets = {name: None if c is None else {k: v / runs for k, v in c.items()}
+                        for name, c in fold.packets.items()}
         #: the reference estimate of the paired comparisons (None: ``centralized`` if present)
         self.relative_to: str | None = None
 
@@ -461,6 +489,7 @@ class MonteCarloResult:
         self.example = {k: np.asarray(curves[k], dtype=float) if k in curves else None
                         for k in ("example_truth", "example_x", "example_node0")}
         self.events = {}
+        self.packets = {name: e.get("packets") for name, e in summary["estimates"].items()}
         self.relative_to = summary.get("relative_to")
         have = {(r["estimate"], r["component"]) for r in rows}
         missing = [(e, c) for e in self.estimates for c in self.components if (e, c) not in have]
@@ -536,6 +565,7 @@ class MonteCarloResult:
         out["anees_consistent"] = anees_consistent(out["anees_ci95"], nx)
         ref = self.reference
         out["paired"] = None if ref is None else paired_block(self.rows, estimate, ref, self.components)
+        out["packets"] = self.packets.get(estimate)
         for key in ("disagreement", "messages_per_tick", "bytes_per_tick", "lost", "late"):
             mean = float(np.mean(self.column(estimate, key)))
             out[key] = None if math.isnan(mean) else mean      # NaN rows: not modelled for it
@@ -586,6 +616,9 @@ class MonteCarloResult:
                           "mse, mse_diff_ci95 its Student-t interval over the paired runs; mse_ratio "
                           "= exp(mean of log(mse / reference mse)), mse_ratio_ci95 the exponentiated "
                           "t-interval of those log-ratios; null: no reference in these runs",
+                "packets": "per estimate, the mean over runs of its packet counts: sent + copies = "
+                           "delivered + lost + queue_dropped + crash_dropped + in_flight, and the parts "
+                           "of lost by cause (outage_lost, range_lost, collision_lost); null: not modelled",
                 "traffic": "messages_per_tick = packets the estimator sent / K; bytes_per_tick = "
                            "nominal bytes of those packets / K (16-byte header; the DKF: per row "
                            "8 + 8*(nx + nx(nx+1)/2) + ceil(n/8)); lost = packets, late = "
