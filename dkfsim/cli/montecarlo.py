@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from dkfsim.cli.common import add_executor_args, add_scenario_args, add_yes_arg, say
-from dkfsim.cli.work import executor_from_args, load_from_args, more_workers_hint, progress_bar, workers_from_args
+from dkfsim.cli.work import executor_from_args, load_from_args, more_workers_hint, progress_of, workers_from_args
 from dkfsim.core.errors import DkfsimError
 from dkfsim.core.folders import check_target
 from dkfsim.experiments import executors
@@ -50,14 +50,12 @@ def cmd_montecarlo(args) -> int:
     check_montecarlo(sc, args.runs, workers_from_args(args, args.runs), yes=args.yes, yes_flag="--yes",
                      hint="fewer --runs or --steps" + more_workers_hint(args))
     make = executor_from_args(args, args.runs)
-    bar = progress_bar(args, args.runs, sc.name)
-    progress = None if bar is None else (lambda done, _total: bar.update(done - bar.n))
+    progress, close = progress_of(args, args.runs, f"montecarlo {sc.name}")
     try:
         res = montecarlo(sc, args.runs, jobs=args.jobs, burn_in=args.burn_in, progress=progress,
                          yes=True, executor=make, relative_to=args.relative_to)                  # checked above
     finally:
-        if bar is not None:
-            bar.close()
+        close()
     out = res.save(args.out)               # (the per-estimate pooling is cached: once for both)
     if not args.quiet:
         say(res.table())

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from dkfsim.cli.common import add_scenario_args, add_yes_arg, say
-from dkfsim.cli.work import load_from_args, progress_bar
+from dkfsim.cli.work import load_from_args, progress_of
 from dkfsim.config.plan import RunPlan
 from dkfsim.core.errors import DkfsimError
 from dkfsim.core.folders import check_target
@@ -39,13 +39,11 @@ def cmd_run(args) -> int:
         raise DkfsimError(f"--burn-in: must be in [0, steps) = [0, {sc.steps}), got {args.burn_in}")
     check_target(args.out)                 # before the run: a bad --out costs nothing
     check_run_measured(RunPlan(sc, args.save), yes=args.yes)
-    bar = progress_bar(args, sc.steps, sc.name, unit="tick")
-    progress = None if bar is None else (lambda k, _K: bar.update(k - bar.n))
+    progress, close = progress_of(args, int(sc.steps), f"run {sc.name}", unit="tick")
     try:
         res = run(sc, save=args.save, progress=progress, yes=True)   # checked above
     finally:
-        if bar is not None:
-            bar.close()
+        close()
     out = res.save(args.out, burn_in=args.burn_in)
     if not args.quiet:
         say(run_table(res, args.burn_in))

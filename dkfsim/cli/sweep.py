@@ -8,7 +8,7 @@ from collections import Counter
 
 from dkfsim.cli.common import add_executor_args, add_yes_arg
 from dkfsim.cli.common import say as say_line
-from dkfsim.cli.work import executor_from_args, more_workers_hint, workers_from_args
+from dkfsim.cli.work import ProgressLines, executor_from_args, more_workers_hint, workers_from_args
 from dkfsim.core.errors import DkfsimError
 from dkfsim.experiments.montecarlo import check_reference
 from dkfsim.experiments.sweep import Sweep, export, is_database, load_sweep, run_sweep, tasks_done
@@ -107,7 +107,8 @@ def cmd_sweep(args) -> int:
     say(f"{sweep.source}: {len(sweep.parameter_sets)} parameter set(s) x {sweep.runs} "
         f"run(s) = {sweep.n_tasks} tasks -> {sweep.output}")
     rep = run_sweep(sweep, executor=make, jobs=args.jobs,
-                    progress=not args.quiet and sys.stderr.isatty(), yes=args.yes,
+                    progress=not args.quiet and (sys.stderr.isatty() or ProgressLines(f"dkfsim sweep {sweep.name}")),
+                    yes=args.yes,
                     workers=workers_from_args(args), yes_flag="--yes",
                     hint="fewer runs or a smaller grid in the sweep file" + more_workers_hint(args))
     rate = f" on {rep.executor} ({rep.runs_per_minute:.1f} runs/min)" if rep.computed else ""

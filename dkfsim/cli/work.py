@@ -1,10 +1,13 @@
 """What the sub-commands that run scenarios share: loading the scenario with ``--set``,
 ``--seed`` and ``--steps``, the executor and the number of workers the flags ask for, and the
-progress bar (a tqdm bar on a terminal)."""
+progress: a tqdm bar on a terminal, elsewhere (a log, a pipe, a batch job) one line about every
+:data:`PROGRESS_EVERY_S` seconds (:class:`ProgressLines`)."""
 
 from __future__ import annotations
 
+import os
 import sys
+import time
 
 from tqdm import tqdm
 
@@ -58,6 +61,59 @@ def more_workers_hint(args) -> str:
         else ""
 
 
+#: Seconds between two progress lines when stderr is not a terminal (``DKFSIM_PROGRESS_EVERY``
+#: sets another, e.g. 60 for a batch job's log).
+PROGRESS_EVERY_S = 10.0
+
+
+def progress_every() -> float:
+    """:data:`PROGRESS_EVERY_S`, or what ``DKFSIM_PROGRESS_EVERY`` says (seconds, > 0)."""
+    try:
+        value = float(os.environ.get("DKFSIM_PROGRESS_EVERY", PROGRESS_EVERY_S))
+    except ValueError:
+        return PROGRESS_EVERY_S
+    return value if value > 0 else PROGRESS_EVERY_S
+
+
+def duration(s: float) -> str:
+    """``42 s``, ``3m05s``, ``1h02m``."""
+    s = max(0.0, s)
+    if s < 60:
+        return f"{s:.0f} s"
+    m, sec = divmod(int(round(s)), 60)
+    h, m = divmod(m, 60)
+    return f"{h}h{m:02d}m" if h else f"{m}m{sec:02d}s"
+
+
+class ProgressLines:
+    """``progress(done, total)`` that writes one line to stderr about every
+    :func:`progress_every` seconds, and at the end: ``dkfsim montecarlo paper_case1: 37/100 runs,
+    1m12s, about 2m03s left``.  For stderr that is not a terminal: a log keeps every line."""
+
+    def __init__(self, what: str, unit: str = "runs"):
+        self.what, self.unit = printable(what), unit
+        self.t0 = self.last = time.monotonic()
+        self.every = progress_every()
+        self.initial: int | None = None      # done at the first report (a resumed sweep: more than 0)
+        self.first = self.t0                 # ... and when
+
+    def __call__(self, done: int, total: int) -> None:
+        now = time.monotonic()
+        if self.initial is None:                 # the rate counts from the first report (after start-up)
+            self.initial, self.first = done, now
+        if now - self.last < self.every and done < total:
+            return
+        self.last = now
+        elapsed = now - self.t0
+        new, spent = done - self.initial, now - self.first
+        left = f", about {duration(spent / new * (total - done))} left" if new > 0 and done < total else ""
+        try:
+            print(f"{self.what}: {done}/{total} {self.unit}, {duration(elapsed)}{left}", file=sys.stderr,
+                  flush=True)
+        except (OSError, ValueError):
+            pass
+
+
 def progress_bar(args, total: int | None, desc: str, unit: str = "run"):
     """The progress bar of a command: tqdm on stderr counting ``unit``, when stderr is a
     terminal and ``--quiet`` is not given; else None."""
@@ -65,3 +121,14 @@ def progress_bar(args, total: int | None, desc: str, unit: str = "run"):
         return None
     return tqdm(total=total, unit=unit, desc=printable(desc), leave=False, file=sys.stderr,
                 dynamic_ncols=True)
+
+
+def progress_of(args, total: int, what: str, unit: str = "run"):
+    """``(progress(done, total), close)`` of a command: the tqdm bar on a terminal, one line
+    about every 10 s elsewhere (:class:`ProgressLines`), nothing with ``--quiet``."""
+    bar = progress_bar(args, total, what, unit)
+    if bar is not None:
+        return (lambda done, _total: bar.update(done - bar.n)), bar.close
+    if args.quiet:
+        return None, (lambda: None)
+    return ProgressLines(f"dkfsim {what}", unit + "s"), (lambda: None)

@@ -11,7 +11,7 @@ import os
 import statistics
 import sys
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -120,7 +120,7 @@ API_HINT = "fewer runs or a smaller grid (the sweep file), or more jobs"
 @single_thread
 def run_sweep(sweep: Sweep | str | os.PathLike, *, seed: int | None = None, steps: int | None = None,
               overrides: Sequence[str] = (), burn_in: int | None = None, executor=None,
-              jobs: int | None = None, progress: bool | None = None, db: str | os.PathLike | None = None,
+              jobs: int | None = None, progress: bool | Callable[[int, int], None] | None = None, db: str | os.PathLike | None = None,
               yes: bool = False, workers: int | None = None, hint: str = API_HINT,
               yes_flag: str = "yes=True") -> SweepReport:
     """Run (or resume) a sweep; return a :class:`SweepReport`.
@@ -129,7 +129,8 @@ def run_sweep(sweep: Sweep | str | os.PathLike, *, seed: int | None = None, step
     makes one (called only once the database is checked and some task is
     left to run; the executor it returns is closed here).  Default: ``jobs``
     local processes, every CPU if None.  ``progress``: a ``tqdm.auto`` bar (a
-    widget in notebooks; default: when stderr is a terminal).  ``db`` overrides the output file.
+    widget in notebooks; default: when stderr is a terminal), or a callable
+    ``progress(done, total)`` called after each task.  ``db`` overrides the output file.
     The remaining tasks are estimated first (``workers``: how many run at
     once, when ``executor`` is a callable): refused if they cannot fit in
     memory, and needing ``yes`` above 10 minutes (``hint`` and ``yes_flag``: what the refusal
@@ -168,9 +169,10 @@ def run_sweep(sweep: Sweep | str | os.PathLike, *, seed: int | None = None, step
         computed = 0
         events: dict[str, int] = {}
         bar = None
-        if progress and todo:
+        if progress is True and todo:
             bar = tqdm(total=sweep.n_tasks, initial=skipped, unit="run", desc=printable(sweep.name),
                        file=sys.stderr, dynamic_ncols=True, smoothing=0.1)
+        report = progress if callable(progress) else None
         try:
             if todo:
                 tasks = (((p.param_hash, r, seed, only is None),
@@ -184,6 +186,8 @@ def run_sweep(sweep: Sweep | str | os.PathLike, *, seed: int | None = None, step
                         events[key] = events.get(key, 0) + count
                     if bar is not None:
                         bar.update(1)
+                    if report is not None:
+                        report(skipped + computed, sweep.n_tasks)
         except KeyboardInterrupt:
             if bar is not None:
                 bar.close()
