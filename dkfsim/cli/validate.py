@@ -2,11 +2,13 @@
 
 from __future__ import annotations
 
+import sys
+
 from dkfsim.cli.common import add_scenario_args, say
 from dkfsim.config.load import load_scenario
 from dkfsim.config.plan import RunPlan
 from dkfsim.core.resources import human_bytes, human_seconds
-from dkfsim.engine.estimate import estimate_run
+from dkfsim.engine.estimate import buffer_warning, estimate_run
 
 
 def configure(p) -> None:
@@ -41,5 +43,8 @@ def cmd_validate(args) -> int:
           f"{sc.steps} ticks of {sc.model.T} s, protocol {sc.protocol} on {shape} "
           f"(d_t = {plan.d_t}), fusion {sc.fusion}{channel}; a run needs about "
           f"{human_bytes(est.bytes)} and {human_seconds(est.seconds)} (rough estimate)")
+    warning = buffer_warning(plan)
+    if warning:
+        say(f"dkfsim validate: warning: {warning}", file=sys.stderr)
     return 0
 

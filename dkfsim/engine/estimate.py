@@ -76,6 +76,37 @@ def estimate_run(run, save: str = "auto", events: dict | None = None, how: str =
     return total
 
 
+def buffer_warning(plan: RunPlan) -> str | None:
+    """A warning when the scenario's integer ``buffer_length`` is below the bound the plan
+    computes for ``auto`` (``d_t d_g + 1``; on a changing graph ``(n - 1)(B + d_t) + 1``), else
+    None.  On a changing graph a ``late`` count of 0 does not mean the final rows are exact: a
+    row's information may still be on its way when the row leaves the window, unseen (docs/design.md
+    §6)."""
+    sc = plan.scenario
+    L = sc.buffer_length
+    if not isinstance(L, int) or isinstance(L, bool) or plan.d_t is None:
+        return None
+    if plan.graph_changes:
+        B = plan.connect_window
+        if B is None:
+            return (f"buffer_length {L}: the links up never make a connected union over the run (no window "
+                    "B), so no buffer length makes the final rows exact, and late = 0 does not say they are "
+                    "(docs/mobility.md)")
+        bound = (sc.n - 1) * (B + plan.d_t) + 1
+        if L >= bound:
+            return None
+        return (f"buffer_length {L} is below (n - 1)(B + d_t) + 1 = ({sc.n} - 1)({B} + {plan.d_t}) + 1 = "
+                f"{bound}, the bound for this changing graph: a final row can differ from what the "
+                "centralized filter knows even when late = 0 (information still on its way when the row "
+                "leaves the window is not counted as late; docs/mobility.md); buffer_length: auto uses the bound")
+    bound = plan.d_t * plan.exchange.d_g + 1
+    if L >= bound:
+        return None
+    return (f"buffer_length {L} is below d_t d_g + 1 = {plan.d_t} x {plan.exchange.d_g} + 1 = {bound}: "
+            "information slower than the window arrives late (the run counts it as late) and the final "
+            "rows miss it; buffer_length: auto uses the bound")
+
+
 def check_run(run, *, save: str = "auto", yes: bool = False) -> Cost:
     """:func:`~dkfsim.core.resources.check` one run (a plan, or a scenario planned with
     ``save``) on its analytic guess; returns the estimate.  (``dkfsim.run`` and ``dkfsim run``
