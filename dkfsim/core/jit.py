@@ -117,9 +117,9 @@ def cache_is_cold(dispatchers) -> bool:
     ``cache=True``): a module never compiled on this machine, whose first calls compile.  (One
     kernel a short run never called has no index either: that alone is not a cold cache.  numba
     keeps the index path on the dispatcher's cache; a numba without it says nothing: False.)"""
-    paths = [getattr(getattr(getattr(d, "_cache", None), "_cache_file", None), "_index_path", None)
+    found = [getattr(getattr(getattr(d, "_cache", None), "_cache_file", None), "_index_path", None)
              for d in dispatchers]
-    paths = [p for p in paths if isinstance(p, str)]
+    paths: list[str] = [p for p in found if isinstance(p, str)]
     return bool(paths) and not any(os.path.exists(p) for p in paths)
 
 
@@ -130,7 +130,7 @@ def _listen_for_compiles(numba) -> None:
     if _Compiling.listening or not hasattr(event, "Listener") or not hasattr(event, "register"):
         return
 
-    class _OnCompile(event.Listener):
+    class _OnCompile(event.Listener):  # type: ignore[name-defined]
         def on_start(self, ev):
             func = getattr(getattr(ev, "data", {}).get("dispatcher"), "py_func", None)
             if str(getattr(func, "__module__", "")).startswith("dkfsim."):

@@ -225,6 +225,7 @@ def _one(template: Template, r: int, seed: int, burn_in: int) -> tuple[list[dict
         rows, curves, events = run_scored(template, seed, burn_in)
     except DkfsimError as exc:      # e.g. a random topology that is disconnected for this seed
         raise DkfsimError(f"run {r} (seed {seed}): {exc}") from None
+    assert curves is not None                   # (asked for: run_scored's curves=True)
     curves["events"] = events
     if r != 0:       # only run 0 is kept as the example: do not ship the rest
         for key in ("example_truth", "example_x", "example_node0"):

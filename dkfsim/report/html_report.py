@@ -19,6 +19,7 @@ from __future__ import annotations
 import html
 import tempfile
 from pathlib import Path
+from typing import Any
 
 from dkfsim.config.results import (
     MonteCarloSummary,
@@ -127,7 +128,7 @@ def _channel_parameters(medium) -> list[tuple[str, object]]:
     if not isinstance(medium, dict):
         return rows
     for key, (label, factor) in CHANNEL_KEYS.items():
-        value = medium
+        value: Any = medium
         for part in key.split("."):
             value = value.get(part) if isinstance(value, dict) else None
         if value is None:

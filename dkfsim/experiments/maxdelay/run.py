@@ -234,7 +234,9 @@ class MaxDelay:
         J, st = self.axis.max_index, self.st
         if not values or any(not math.isfinite(v) for v in values.values()):
             return list(range(J + 1))
-        tol = st.tolerance if st.relative is None else st.relative * values[0]
+        tol = st.relative * values[0] if st.relative is not None else st.tolerance
+        if tol is None:                          # (check_settings: one of them is set)
+            return list(range(J + 1))
         keys = sorted(values)
         past = [j for j in keys if values[j] > tol]
         if not past:
