@@ -230,7 +230,7 @@ def montecarlo_page(folder: Path) -> str:
     mse_rows = [(name, *(Interval((e["mse"][c], *e["mse_ci95"][c])) for c in comps))
                  for name, e in est.items()]
     nees_rows = [(name, Interval((e.get("anees"), *(e.get("anees_ci95") or (None, None)))),
-                  verdict(e.get("anees_consistent")), e.get("anees_fraction_in_band"))
+                  verdict(e.get("anees_consistent")), percent(e.get("anees_fraction_in_band")))
                  for name, e in est.items()]
     ref = paired_reference(est)
     paired_rows = [(name, *(Interval((e["paired"]["mse_ratio"].get(c),
@@ -278,6 +278,12 @@ def montecarlo_page(folder: Path) -> str:
     ]
     return html_page(f"dkfsim report: {s.get('scenario')}",
                  f"Monte Carlo: {s.get('runs')} runs x {s.get('steps')} ticks", sections)
+
+
+def percent(fraction) -> str | None:
+    """A fraction as the figures write it (``93 %``), None when it is not a number."""
+    value = count(fraction)
+    return None if value is None else f"{100 * value:.0f} %"
 
 
 def _runs_seeds(path: Path) -> list[tuple[int, int]]:
