@@ -20,6 +20,7 @@ from dkfsim.report.plots import (
     plot_folder,
     relative_to,
 )
+from dkfsim.report.plots.style import PNG_DPI, png_resolution
 from dkfsim.report.sweep.plot import plot_sweep
 
 EPILOG = """\
@@ -53,6 +54,9 @@ def configure(p) -> None:
                    help="folder for the figures (default: DIR/figures; with --compare: the first DIR's)")
     p.add_argument("--format", dest="formats", nargs="+", default=list(DEFAULT_FORMATS), choices=FORMATS,
                    metavar="FMT", help=f"file formats: {', '.join(FORMATS)} (default: png pdf)")
+    p.add_argument("--dpi", type=int, default=PNG_DPI[0], metavar="N",
+                   help=f"resolution of the PNG files (default: {PNG_DPI[0]}, for screens and slides; "
+                        "300 for print: the PDF beside each is the vector figure)")
     p.add_argument("--compare", action="store_true",
                    help="overlay the fused MSE of all DIRs (same number of ticks) in one figure")
     p.add_argument("--relative", action="store_true",
@@ -153,6 +157,13 @@ def _default_out(folder: Path, name: str) -> Path:
 
 
 def cmd_plot(args) -> int:
+    if not 30 <= args.dpi <= 1200:
+        raise DkfsimError(f"--dpi: a resolution from 30 to 1200, got {args.dpi}")
+    with png_resolution(args.dpi):
+        return _cmd_plot(args)
+
+
+def _cmd_plot(args) -> int:
     formats = check_formats(args.formats)
     _check_name(args.name)
     if len(args.dirs) == 1 and _is_sweep(args.dirs[0]):
