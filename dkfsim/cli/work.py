@@ -87,8 +87,9 @@ def duration(s: float) -> str:
 
 class ProgressLines:
     """``progress(done, total)`` that writes one line to stderr about every
-    :func:`progress_every` seconds, and at the end: ``dkfsim montecarlo paper_case1: 37/100 runs,
-    1m12s, about 2m03s left``.  For stderr that is not a terminal: a log keeps every line."""
+    :func:`progress_every` seconds, and one at the end after those: ``dkfsim montecarlo
+    paper_case1: 37/100 runs, 1m12s, about 2m03s left``; a command done within the first interval
+    writes none.  For stderr that is not a terminal: a log keeps every line."""
 
     def __init__(self, what: str, unit: str = "runs"):
         self.what, self.unit = printable(what), unit
@@ -96,14 +97,15 @@ class ProgressLines:
         self.every = progress_every()
         self.initial: int | None = None      # done at the first report (a resumed sweep: more than 0)
         self.first = self.t0                 # ... and when
+        self.said = False                    # a line was written (then the end gets one too)
 
     def __call__(self, done: int, total: int) -> None:
         now = time.monotonic()
         if self.initial is None:                 # the rate counts from the first report (after start-up)
             self.initial, self.first = done, now
-        if now - self.last < self.every and done < total:
-            return
-        self.last = now
+        if now - self.last < self.every and not (done >= total and self.said):
+            return                       # (a command shorter than one interval says nothing)
+        self.last, self.said = now, True
         elapsed = now - self.t0
         new, spent = done - self.initial, now - self.first
         left = f", about {duration(spent / new * (total - done))} left" if new > 0 and done < total else ""
