@@ -14,25 +14,58 @@ Python API (mirrors the CLI; each call runs BLAS on one thread)::
     dkfsim.maxdelay("scenarios/paper_case1.yaml", relative=1.5, steps=300)
 
 The package's folders are its stages, in the order data flows
-(docs/architecture.md); importing it registers every built-in component, after
-which the first registry read imports the installed entry-point plugins
-(docs/extending.md).
+(docs/architecture.md).  ``import dkfsim`` itself is cheap: each name above is
+imported on its first use (PEP 562), and the built-in components register at
+the first registry read (a scenario validated, ``dkfsim list``), after which
+the installed entry-point plugins are imported (docs/extending.md); a command
+pays only for the stages it uses (docs/decisions.md, "Start-up").
 """
 
-from dkfsim import components, estimators, model, protocols  # noqa: F401  (registration)
-from dkfsim.config.load import load_scenario
-from dkfsim.config.schema import Scenario
-from dkfsim.core import registry as _registry
+from __future__ import annotations
+
+import importlib
+from typing import TYPE_CHECKING, Any
+
 from dkfsim.core.errors import DkfsimError, ScenarioError
 from dkfsim.core.version import __version__
-from dkfsim.engine.driver import run
-from dkfsim.engine.results import RunResult, load_run
-from dkfsim.experiments.loading import SweepResult, load
-from dkfsim.experiments.maxdelay import maxdelay
-from dkfsim.experiments.montecarlo import montecarlo
-from dkfsim.experiments.sweep import run_sweep as sweep
+
+if TYPE_CHECKING:                        # what a type checker sees: the names themselves
+    from dkfsim.config.load import load_scenario
+    from dkfsim.config.schema import Scenario
+    from dkfsim.engine.driver import run
+    from dkfsim.engine.results import RunResult, load_run
+    from dkfsim.experiments.loading import SweepResult, load
+    from dkfsim.experiments.maxdelay import maxdelay
+    from dkfsim.experiments.montecarlo import montecarlo
+    from dkfsim.experiments.sweep import run_sweep as sweep
+
+#: The API's names imported on first use: name -> (module, attribute).
+_LAZY = {
+    "load_scenario": ("dkfsim.config.load", "load_scenario"),
+    "Scenario": ("dkfsim.config.schema", "Scenario"),
+    "run": ("dkfsim.engine.driver", "run"),
+    "RunResult": ("dkfsim.engine.results", "RunResult"),
+    "load_run": ("dkfsim.engine.results", "load_run"),
+    "SweepResult": ("dkfsim.experiments.loading", "SweepResult"),
+    "load": ("dkfsim.experiments.loading", "load"),
+    "maxdelay": ("dkfsim.experiments.maxdelay", "maxdelay"),
+    "montecarlo": ("dkfsim.experiments.montecarlo", "montecarlo"),
+    "sweep": ("dkfsim.experiments.sweep", "run_sweep"),
+}
 
 __all__ = ["DkfsimError", "RunResult", "Scenario", "ScenarioError", "SweepResult", "load", "load_run",
            "load_scenario", "maxdelay", "montecarlo", "run", "sweep", "__version__"]
 
-_registry.builtins_registered()          # last: plugins may now import a complete dkfsim
+
+def __getattr__(name: str) -> Any:
+    """``dkfsim.run`` and the other API names, imported on their first use (PEP 562)."""
+    if name not in _LAZY:
+        raise AttributeError(f"module 'dkfsim' has no attribute {name!r}")
+    module, attr = _LAZY[name]
+    value = getattr(importlib.import_module(module), attr)
+    globals()[name] = value              # (the next use is a plain attribute)
+    return value
+
+
+def __dir__() -> list[str]:
+    return sorted(set(globals()) | set(_LAZY))

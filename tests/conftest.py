@@ -13,6 +13,7 @@ from collections import deque
 
 import numpy as np
 import pytest
+from interrupts import pytest_configure  # noqa: F401  (Ctrl-C and SIGTERM stop every process: issue 34)
 
 # ----------------------------------------------------------------------------
 # models and sensors
@@ -229,6 +230,7 @@ def isolated_registries():
     import sys
 
     from dkfsim.core import registry
+    registry.ensure_registered()       # (the built-ins register at the first read: before the snapshot)
     saved = {name: (dict(reg._entries), dict(reg._aliases)) for name, reg in registry.REGISTRIES.items()}
     modules = set(sys.modules)
     yield

@@ -104,6 +104,37 @@ def test_two_estimators_sending_together_see_the_same_delays():
     assert second != first[:len(second)]                       # a second packet draws anew
 
 
+@pytest.mark.usefixtures("isolated_registries")
+def test_every_estimator_listed_has_a_packets_line():
+    """``dkfsim list estimators``: a ``packets:`` line under every estimator, the plugins' too --
+    theirs says "not described" when the class has no ``packets`` (issue 34 §8)."""
+    from dkfsim.cli.list import describe
+    from dkfsim.components.estimators import EstimatorParams
+    from dkfsim.core.registry import load_plugin
+    from dkfsim.estimators.base import Estimator
+
+    load_plugin(str(EXAMPLES / "neighbour_mean.py"))
+
+    class SilentParams(EstimatorParams, kind="silent_test_estimator"):
+        """A plugin that says nothing of its packets."""
+
+    class Silent(Estimator, params=SilentParams):
+        """It sends nothing it describes."""
+
+    entries: dict[str, list[str]] = {}
+    for line in describe("estimators")[1:]:
+        if line.startswith("  also accepted"):
+            break
+        if not line.startswith("   "):                     # "  name   description"
+            entries[line.split()[0]] = []
+        else:
+            entries[list(entries)[-1]].append(line.strip())
+    assert {"neighbour_mean", "silent_test_estimator", "centralized"} <= set(entries)
+    assert all(any(text.startswith("packets: ") for text in v) for v in entries.values()), entries
+    assert any(t.startswith("packets: one per exchange link and tick") for t in entries["neighbour_mean"])
+    assert any(t.startswith("packets: not described") for t in entries["silent_test_estimator"])
+
+
 @pytest.mark.slow
 def test_the_example_estimator_runs_everywhere(tmp_path):
     path = case1_with(tmp_path, steps=30, plugins=[str(EXAMPLES / "neighbour_mean.py")],
@@ -210,6 +241,7 @@ def test_an_installed_estimator_plugin_runs_in_a_fresh_process(tmp_path):
     listed = dkfsim_command("list", "estimators", site=site)
     assert listed.returncode == 0 and "failed" not in listed.stderr, listed.stderr
     assert "neighbour_mean" in listed.stdout and "neighbours' latest estimates" in listed.stdout
+    assert "packets: one per exchange link and tick: 16-byte header + 8 nx" in listed.stdout   # (issue 34 §8)
     path = case1_with(tmp_path, steps=20, estimators=[{"kind": "neighbour_mean"}])
     ran = dkfsim_command("run", str(path), "--out", str(tmp_path / "out"), "--save", "estimates", site=site)
     assert ran.returncode == 0 and "failed" not in ran.stderr, ran.stderr

@@ -335,3 +335,10 @@ def test_sensor_names_are_drawn_under_the_node_circles_not_in_them():
     assert sorted(inside) == ["0", "1", "2"]
     assert sorted(t.get_text() for t in below) == ["a_long_sensor_name", "front_radar", "s2"]
     assert all(t.xyann[1] < 0 and t.get_va() == "top" for t in below)
+
+
+def test_rate_ticks_are_in_one_notation():
+    """Issue 34 §6: a rate axis read 500000 beside 1e+06."""
+    from dkfsim.report.sweep.plot import tick_texts
+    assert tick_texts([1e5, 2e5, 5e5, 1e6, 6e6, 1.2e7]) == ["100k", "200k", "500k", "1M", "6M", "12M"]
+    assert tick_texts([0, 1, 2, 4]) == ["0", "1", "2", "4"] and tick_texts([0.5, 1.25]) == ["0.5", "1.25"]

@@ -367,3 +367,21 @@ def test_capped_answer_names_the_option_and_the_figure_has_units_and_only_what_o
 def test_powers_of_ten_print_as_plain_numbers():
     assert pow10_text(-0.0549) == "0.8813"          # 10^-0.0549 = exp(-0.12641) = 0.88125
     assert pow10_text(5.5) == "3.162e+05" and pow10_text(400) == "10^400"
+
+
+def test_a_relative_search_says_its_decisions_are_on_the_paired_runs():
+    """Issue 34 §7: "mean 0.2254 ... within" under "tolerance 0.225" read as a contradiction; the
+    decision is on the runs paired with zero delay, and the lines say so (absolute: not)."""
+    import dkfsim
+    from dkfsim.cli.maxdelay import _done_line
+    from dkfsim.experiments.maxdelay import Candidate, classify
+    case1 = Path(__file__).resolve().parents[1] / "scenarios" / "paper_case1.yaml"
+    rel = dkfsim.maxdelay(case1, steps=40, relative=1.5, jobs=1, max_delay=2, batch=2, max_runs=2).table()
+    assert "paired with the same runs at zero delay" in rel, rel
+    absolute = dkfsim.maxdelay(case1, steps=40, tolerance=1.0, jobs=1, max_delay=2, batch=2, max_runs=2).table()
+    assert "paired" not in absolute, absolute
+    c = Candidate(index=1, delay=1.0, deterministic=False, values=[0.2254, 0.2255], excess=[-0.01, -0.012])
+    classify(c, 0.95)
+    assert "paired excess over R x the same run at zero delay" in _done_line("d_t = 1", c, paired=True)
+    assert "decided on the paired excess" in _done_line("d_t = 1", c, paired=True)
+    assert "paired" not in _done_line("d_t = 1", c, paired=False)

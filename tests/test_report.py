@@ -109,7 +109,8 @@ def test_run_report_tables_hold_rows_csv(folders):
     summary = json.loads((folders / "run" / "summary.json").read_text())
     dkf = page.tables["packets"][1]
     p = summary["packets"]
-    assert [int(c) for c in dkf[1:]] == [p["sent"], p["delivered"], p["lost"], p["in_flight"], p["late"]]
+    assert [int(c) for c in dkf[1:]] == [p["sent"], p["copies"], p["delivered"], p["lost"], p["queue_dropped"],
+                                         p["crash_dropped"], p["in_flight"], p["late"]]
     versions = dict((r[0], r[1]) for r in page.tables["versions"][1:])
     assert versions["numpy"] == summary["versions"]["numpy"] and versions["seed"] == str(summary["seed"])
     assert any("12 nodes" in c and "tree" in c for c in page.captions)
@@ -137,7 +138,7 @@ def test_montecarlo_report_tables_hold_summary_json(folders, tmp_path):
             and close(hi, e["anees_ci95"][1], 6e-5)
         nx = len(s["components"])          # the verdict, recomputed from the interval
         assert verdict == ("yes" if e["anees_ci95"][0] <= nx <= e["anees_ci95"][1] else "no")
-        assert close(frac, e["anees_fraction_in_band"])
+        assert frac == f"{100 * e['anees_fraction_in_band']:.0f} %"      # as the NEES figure writes it
     with open(folders / "mc" / "runs.csv", newline="") as fh:
         seeds = {int(r["run"]): int(r["seed"]) for r in csv.DictReader(fh)}
     assert {int(r): int(sd) for r, sd in page.tables["seeds"][1:]} == seeds

@@ -44,6 +44,25 @@
     the Python exchange for both (the same protocol code); min CPU of ``--repeats``; the issue
     asks at most 2x.  ``--channel-only`` runs this line alone.
 
+11. Start-up (issue 34): ``import dkfsim`` (CPU), ``dkfsim --help``, ``dkfsim list``, ``dkfsim
+    validate scenarios/paper_case1.yaml`` and ``dkfsim run`` of it (wall and CPU; the run loads
+    the compiled kernels from numba's cache, compiled in the warm-up round), each a fresh process, with Python's
+    bytecode cache on (as a default Python has it: ``PYTHONDONTWRITEBYTECODE`` is removed from
+    the probes' environment, every command run once before it is measured), min of ``--repeats``.
+    ``--startup`` runs this section alone; with ``--base REF`` the commit ``REF`` (``git
+    archive``) and this checkout are alternated in the same rounds and their ratios printed.
+    The issue's targets on a quiet 2-core machine: ``import dkfsim`` below 0.4 s CPU, ``--help``
+    and ``list`` below 0.5 s wall, ``validate`` below 1 s wall.
+
+12. Seconds per event (issue 34 §2): ``--calibrate`` runs a set of scenarios that exercise
+    each kind of event (:data:`CALIBRATION_RUNS`: plain, rate-limited, channel, flood, the
+    consensus family, a fusion centre, a changing graph, a 50-node tree), each warmed up once,
+    alternated ``--repeats`` times in this process, and fits the CPU seconds of a run to its
+    events (ticks, packets, node-rows, fused rows x (n nx)^3; non-negative least squares on the
+    min CPU of each), prints the fit and each run's predicted / measured seconds, and writes the
+    constants to ``dkfsim/data/calibration/seconds_per_event.json`` (the estimates' only
+    machine-dependent input) with the machine and the load it was measured under.
+
 Before/after (``--base REF``): the runs of sections 1, 2 and 4 that exercise the kernels
 (paper_case1 on the three kernel paths, a 50-node tree with matrix fusion, a 200-node tree
 without, the 1000-node tree), each in a fresh process, alternating the commit ``REF``
@@ -55,7 +74,9 @@ Usage: ``python tools/bench.py [--ticks 1000] [--sizes 12 50 200] [--fit-sizes 1
 [--skip-sweep] [--big-ticks 200] [--skip-threads] [--skip-executors] [--skip-traffic]``,
 ``python tools/bench.py --traffic-only [--ticks 1000] [--repeats 3]``,
 ``python tools/bench.py --centre-only [--ticks 1000] [--repeats 3]`` (``--channel-only`` likewise), or
-``python tools/bench.py --base REF [--repeats 3]``.
+``python tools/bench.py --base REF [--repeats 3]``,
+``python tools/bench.py --startup [--base REF] [--repeats 5]``,
+``python tools/bench.py --calibrate [--repeats 3] [--ticks 1000]``.
 Timing lives here, never in the tests.
 """
 
@@ -435,6 +456,124 @@ def before_after(args) -> int:
     return 0
 
 
+#: Section 11's commands: label -> the arguments of ``python`` (run in this checkout's folder).
+STARTUP = {
+    "import dkfsim": ["-c", "import dkfsim"],
+    "dkfsim --help": ["-m", "dkfsim", "--help"],
+    "dkfsim list": ["-m", "dkfsim", "list"],
+    "dkfsim validate paper_case1": ["-m", "dkfsim", "validate", "scenarios/paper_case1.yaml"],
+    "dkfsim run paper_case1 (1000 ticks)": ["-m", "dkfsim", "run", "scenarios/paper_case1.yaml", "--quiet",
+                                            "--out", "{tmp}/run"],
+}
+
+
+def startup_probe(tree: Path, args: list[str]) -> tuple[float, float]:
+    """Wall and CPU seconds of ``python ARGS`` run in ``tree`` (so importing its dkfsim), with Python's
+    bytecode cache on (the probe checks which dkfsim it imported)."""
+    env = {k: v for k, v in os.environ.items() if k != "PYTHONDONTWRITEBYTECODE"}
+    env["PYTHONPATH"] = str(tree)
+    before = resource.getrusage(resource.RUSAGE_CHILDREN)
+    t0 = time.perf_counter()
+    done = subprocess.run([sys.executable, *args], cwd=tree, env=env, capture_output=True, text=True)
+    wall = time.perf_counter() - t0
+    after = resource.getrusage(resource.RUSAGE_CHILDREN)
+    if done.returncode != 0:
+        raise SystemExit(f"{' '.join(args)} failed in {tree}: {done.stderr[-2000:]}")
+    return wall, (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
+
+
+def startup(base: str | None, repeats: int) -> int:
+    """Section 11 (see the module docstring)."""
+    from fingerprint import unpack  # (tools/, this script's folder): one git-archive rule
+
+    with tempfile.TemporaryDirectory(prefix="dkfsim-bench-startup-") as tmp:
+        trees = {"this": ROOT} if base is None else {"base": unpack(base, Path(tmp) / "base"), "this": ROOT}
+        for tree in trees.values():              # which dkfsim a probe imports; bytecode written
+            env = {k: v for k, v in os.environ.items() if k != "PYTHONDONTWRITEBYTECODE"}
+            got = subprocess.run([sys.executable, "-c", "import dkfsim; print(dkfsim.__file__)"], cwd=tree,
+                                 env={**env, "PYTHONPATH": str(tree)}, capture_output=True, text=True,
+                                 check=True).stdout.strip()
+            if not got.startswith(str(tree)):
+                raise SystemExit(f"the probe imported {got}, not the dkfsim of {tree}")
+        times: dict = {(name, label): [] for name in trees for label in STARTUP}
+        for rep in range(max(1, repeats) + 1):   # round 0 warms up (bytecode, file cache): not counted
+            for label, cmd in STARTUP.items():
+                for name, tree in trees.items():
+                    wall, cpu = startup_probe(tree, [a.format(tmp=tmp) for a in cmd])
+                    if rep:
+                        times[name, label].append((wall, cpu))
+    load = os.getloadavg()
+    print(f"start-up, fresh processes, bytecode cache on, min of {repeats} "
+          + ("" if base is None else f"alternated with {base} (base) ")
+          + f"(load average {load[0]:.2f} {load[1]:.2f} {load[2]:.2f} on {os.cpu_count()} CPUs)")
+    head = f"  {'command':32s}" + "".join(f" {n + ' wall':>10s} {n + ' CPU':>10s}" for n in trees)
+    print(head + ("" if base is None else f" {'wall this/base':>15s} {'CPU this/base':>14s}"))
+    for label in STARTUP:
+        best = {name: (min(w for w, _ in times[name, label]), min(c for _, c in times[name, label]))
+                for name in trees}
+        line = f"  {label:32s}" + "".join(f" {best[n][0]:10.3f} {best[n][1]:10.3f}" for n in trees)
+        if base is not None:
+            line += (f" {best['this'][0] / best['base'][0]:15.3f} {best['this'][1] / best['base'][1]:14.3f}")
+        print(line)
+    return 0
+
+
+#: Section 12's runs: label -> ``--set`` overrides of ``scenarios/paper_case1.yaml`` (or
+#: ``(file, overrides)``); ticks are ``--ticks`` (a third of them for the slower ones).
+CALIBRATION_RUNS = {
+    "paper_case1": [],
+    "no fusion": ["fusion=none"],
+    "rate-limited": list(TRAFFIC),
+    "flood, heavy tail": ("stress_heavy_tail.yaml", []),
+    "consensus family": ["estimators=[{kind: ci_consensus, rounds: 2}, {kind: kcf}, {kind: icf, rounds: 2}, "
+                         "{kind: diffusion_kf}, {kind: hcmci, rounds: 2}]"],
+    "fusion centre": ["estimators=[{kind: fusion_centre, at: 0}]"],
+    "channel": ("channel_its_g5.yaml", []),
+    "changing graph": ("mobility_convoy.yaml", []),
+}
+
+
+def calibrate(ticks: int, repeats: int) -> int:
+    """Section 12 (see the module docstring)."""
+    import numpy as np
+    from scipy.optimize import nnls
+
+    from dkfsim.core.resources import CALIBRATION
+    runs = {}
+    for label, spec in CALIBRATION_RUNS.items():
+        file, ov = spec if isinstance(spec, tuple) else ("paper_case1.yaml", spec)
+        k = ticks if file == "paper_case1.yaml" else max(50, ticks // 3)
+        runs[label] = dkfsim.load_scenario(ROOT / "scenarios" / file, overrides=[*ov, f"steps={k}"])
+    runs["50-node tree, matrix fusion"] = tree_scenario(50, max(50, ticks // 5), "matrix")
+    cpu, last = alternated(runs, repeats)
+    rows, y = [], []
+    for label, res in last.items():
+        ev, N = res.info["events"], res.scenario.n * res.scenario.nx
+        rows.append([ev["ticks"], ev["packets"], ev["node_rows"], ev["fused_rows"] * float(N) ** 3])
+        y.append(cpu[label])
+    A, b = np.array(rows, dtype=float), np.array(y)
+    scale = A.max(axis=0)
+    scale[scale == 0] = 1.0
+    x, _ = nnls(A / scale, b)
+    x = x / scale
+    pred = A @ x
+    load = os.getloadavg()
+    print(f"seconds per event, fitted on {len(runs)} runs (CPU s, min of {repeats} alternated; load average "
+          f"{load[0]:.2f} on {os.cpu_count()} CPUs)")
+    for name, value in zip(("ticks", "packets", "node_rows", "fusion_flops"), x):
+        print(f"  {name:14s} {value:.3e} s")
+    print(f"  {'run':32s} {'measured':>9s} {'predicted':>9s} {'ratio':>6s}")
+    for (label, _res), m, p in zip(last.items(), b, pred):
+        print(f"  {label:32s} {m:9.3f} {p:9.3f} {p / m:6.2f}")
+    data = {"ticks": x[0], "packets": x[1], "node_rows": x[2], "fusion_flops": x[3],
+            "measured": f"tools/bench.py --calibrate --ticks {ticks} --repeats {repeats}, "
+                        f"{time.strftime('%Y-%m-%d')}, {os.cpu_count()} CPUs, load average {load[0]:.2f}"}
+    CALIBRATION.write_text(json.dumps({k: (float(f"{v:.4g}") if isinstance(v, float) else v)
+                                       for k, v in data.items()}, indent=2) + "\n")
+    print(f"wrote {CALIBRATION.relative_to(ROOT)}")
+    return 0
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--ticks", type=int, default=1000)
@@ -462,10 +601,19 @@ def main(argv=None) -> int:
     ap.add_argument("--centre-only", action="store_true", help="only the fusion centre's cost (section 9)")
     ap.add_argument("--skip-channel", action="store_true", help="skip the shared channel's cost (section 10)")
     ap.add_argument("--channel-only", action="store_true", help="only the shared channel's cost (section 10)")
+    ap.add_argument("--startup", action="store_true",
+                    help="only the start-up of import dkfsim, --help, list and validate (section 11); "
+                         "with --base REF, against REF")
+    ap.add_argument("--calibrate", action="store_true",
+                    help="only fit the seconds per event of the estimates and store them (section 12)")
     ap.add_argument("--probe", action="store_true", help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
+    if args.calibrate:
+        return calibrate(args.ticks, args.repeats)
     if args.probe:
         return probe(args)
+    if args.startup:
+        return startup(args.base, args.repeats)
     if args.base:
         return before_after(args)
     if args.mobility_only:

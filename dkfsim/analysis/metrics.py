@@ -24,7 +24,6 @@ from dataclasses import dataclass
 from typing import Callable
 
 import numpy as np
-from scipy.special import gammaincinv, stdtrit
 
 from dkfsim.core.linalg import solve
 from dkfsim.core.registry import METRICS
@@ -192,14 +191,17 @@ def score_scored(name: str, s: Scored, components) -> list[dict]:
 # The two quantile functions are scipy.stats' ``t.ppf`` and ``chi2.ppf`` without
 # scipy.stats itself, whose import costs every dkfsim process (the CLI, a spawned
 # worker) about half a second: the same special functions those call, so the same bits
-# (tests/test_metrics.py compares them with scipy.stats).
+# (tests/test_metrics.py compares them with scipy.stats).  scipy.special itself is imported
+# at the first interval, not with this module (the metrics register for every command).
 def t_quantile(q, df):
     """Quantile ``q`` of Student's t with ``df`` degrees of freedom (``scipy.stats.t.ppf``)."""
+    from scipy.special import stdtrit
     return stdtrit(df, q)
 
 
 def chi2_quantile(q, df):
     """Quantile ``q`` of the chi-square with ``df`` degrees of freedom (``scipy.stats.chi2.ppf``)."""
+    from scipy.special import gammaincinv
     return 2 * gammaincinv(np.asarray(df) / 2, q)
 
 

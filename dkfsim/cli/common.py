@@ -1,18 +1,16 @@
-"""What every sub-command shares: the scenario arguments, ``--yes``, loading, and where
-runs happen (``--jobs``, ``--scheduler``, ``--dask-local``), ``--quiet`` and the progress bar
-(one meaning for ``montecarlo``, ``sweep`` and ``maxdelay``: docs/decisions.md)."""
+"""What every sub-command shares and ``dkfsim --help`` may import: printing, the scenario
+arguments, ``--yes``, and the flags of where runs happen (``--jobs``, ``--scheduler``,
+``--dask-local``) and ``--quiet`` (one meaning for ``montecarlo``, ``sweep`` and ``maxdelay``:
+docs/decisions.md).  Nothing here imports a stage above ``core``: loading a scenario, the
+executors and the progress bar are :mod:`dkfsim.cli.work`."""
 
 from __future__ import annotations
 
 import argparse
 import sys
 
-from tqdm import tqdm
-
-from dkfsim.config.load import load_scenario
 from dkfsim.core.errors import DkfsimError
 from dkfsim.core.files import printable
-from dkfsim.experiments import executors
 
 
 class OutputError(DkfsimError):
@@ -48,16 +46,6 @@ def add_yes_arg(p: argparse.ArgumentParser) -> None:
                         "is refused either way")
 
 
-def load_from_args(args):
-    """The scenario of ``args.scenario`` with ``--set``, ``--seed`` and ``--steps`` applied."""
-    overrides = list(args.overrides)
-    for key in ("seed", "steps"):
-        val = getattr(args, key, None)
-        if val is not None:
-            overrides.append(f"{key}={val}")
-    return load_scenario(args.scenario, overrides=overrides)
-
-
 def add_executor_args(p: argparse.ArgumentParser) -> None:
     """``--jobs`` / ``--scheduler`` / ``--dask-local`` (one of them) and ``--quiet``."""
     where = p.add_mutually_exclusive_group()
@@ -74,36 +62,3 @@ def add_executor_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--quiet", action="store_true",
                    help="no progress bar and nothing on stdout (errors are still reported); the "
                         "bar is drawn on stderr only when it is a terminal")
-
-
-def executor_from_args(args, tasks: int | None = None):
-    """A callable making the executor the flags ask for (called once work is checked), or
-    None for the library's default (``--jobs`` local processes).  A missing Dask package
-    is reported here, before any work."""
-    if args.scheduler is None and args.dask_local is None:
-        return None
-    executors.dask_distributed()
-
-    def make():
-        return executors.make_executor(scheduler=args.scheduler, dask_local=args.dask_local,
-                                       tasks=tasks)
-    return make
-
-
-def workers_from_args(args, tasks: int | None = None) -> int:
-    """How many runs at once the flags ask for (for the cost estimate)."""
-    if args.dask_local is not None:
-        return args.dask_local
-    if args.scheduler is not None:
-        return 1
-    n = args.jobs or executors.available_cpus()
-    return max(1, min(n, tasks)) if tasks else n
-
-
-def progress_bar(args, total: int | None, desc: str, unit: str = "run"):
-    """The progress bar of a command: tqdm on stderr counting ``unit``, when stderr is a
-    terminal and ``--quiet`` is not given; else None."""
-    if args.quiet or not sys.stderr.isatty():
-        return None
-    return tqdm(total=total, unit=unit, desc=printable(desc), leave=False, file=sys.stderr,
-                dynamic_ncols=True)

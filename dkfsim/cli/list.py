@@ -12,12 +12,12 @@ from dkfsim.core.registry import REGISTRIES
 _NOT_PARAMS = {"model", "kind"}
 
 
-def add_command(sub) -> None:
-    p = sub.add_parser("list", help="list the registered components: estimators, latency models, ...",
-                       description="List what a scenario can name: estimators, latency models, "
-                                   "protocols, graph generators, sensor kinds, metrics, trajectory kinds and the shipped "
-                                   "datasets, each with a one-line description and its parameters "
-                                   "(defaults in brackets). Plugins are included once loaded.")
+def configure(p) -> None:
+    """``dkfsim list``'s arguments (its parser made by :func:`dkfsim.cli.main.build_parser`)."""
+    p.description = ("List what a scenario can name: estimators, latency models, protocols, graph "
+                     "generators, sensor kinds, metrics, trajectory kinds and the shipped datasets, each "
+                     "with a one-line description and its parameters (defaults in brackets). Plugins "
+                     "are included once loaded.")
     p.add_argument("what", nargs="?", choices=list(REGISTRIES) + ["datasets"],
                    help="one family (default: all)")
     p.set_defaults(func=cmd_list)
@@ -55,8 +55,9 @@ def describe(family: str) -> list[str]:
         params = _params(entry)
         if params:
             lines.append(f"  {'':<22}   parameters: {params}")
-        packets = getattr(entry.implementation, "packets", "")
-        if family == "estimators" and packets:
+        if family == "estimators":
+            packets = getattr(entry.implementation, "packets", "") or \
+                "not described (its class's `packets` attribute: docs/extending.md)"
             lines.append(f"  {'':<22}   packets: {packets}")
     aliases = reg.aliases()
     if aliases:

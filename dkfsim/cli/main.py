@@ -3,19 +3,22 @@
 Every sub-command validates its input first; a :class:`~dkfsim.core.errors.DkfsimError`
 (bad scenario, bad flag, unwritable folder, too much work) becomes a
 one-paragraph message on stderr and exit status 2, never a traceback.
+
+Only the module of the sub-command being run is imported (:data:`COMMANDS`): ``dkfsim
+--help`` imports none of them, ``dkfsim list`` only the registries, so a command pays for
+the stages it uses and no more (docs/decisions.md, "Start-up").
 """
 
 from __future__ import annotations
 
 import argparse
 import contextlib
+import importlib
 import os
 import signal
 import sys
 import warnings
 
-from dkfsim.cli import list as list_cmd
-from dkfsim.cli import maxdelay, montecarlo, plot, report, run, sweep
 from dkfsim.cli.common import OutputError
 from dkfsim.core.errors import DkfsimError
 from dkfsim.core.files import printable, shown
@@ -30,11 +33,25 @@ examples:
   dkfsim list estimators
 """
 
-#: The sub-command modules (each ``add_command(subparsers)``), in help order.
-COMMANDS = (run, list_cmd, montecarlo, plot, report, sweep, maxdelay)
+#: The sub-commands in help order: name -> (module of ``dkfsim.cli`` whose ``configure(parser)``
+#: adds its arguments and ``func``, its line in ``dkfsim --help``).
+COMMANDS = {
+    "run": ("run", "simulate one scenario and write summary.json, rows.csv and run.npz"),
+    "validate": ("validate", "check a scenario file without running it"),
+    "list": ("list", "list the registered components: estimators, latency models, ..."),
+    "montecarlo": ("montecarlo", "N independent runs of a scenario: MSE with confidence intervals, "
+                                 "ANEES, traffic"),
+    "plot": ("plot", "draw figures from run or Monte Carlo folders, or a sweep"),
+    "report": ("report", "write one self-contained HTML page for a run, Monte Carlo or sweep"),
+    "sweep": ("sweep", "parameter sweep x Monte Carlo runs into a resumable SQLite file"),
+    "maxdelay": ("maxdelay", "largest delay bound (or, --axis rate, least link rate) for which a metric "
+                             "stays within a tolerance (Monte Carlo, worst case, paper bound)"),
+}
 
 
-def build_parser() -> argparse.ArgumentParser:
+def build_parser(command: str | None = None) -> argparse.ArgumentParser:
+    """The ``dkfsim`` parser: every sub-command's arguments, or (``command`` given: what
+    :func:`main` builds) only that one's, the others a line of help each (not imported)."""
     parser = argparse.ArgumentParser(
         prog="dkfsim",
         description="Discrete-event simulator of the anti-delay distributed Kalman filter "
@@ -43,9 +60,16 @@ def build_parser() -> argparse.ArgumentParser:
         epilog=EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--version", action="version", version=f"dkfsim {__version__}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
-    for module in COMMANDS:
-        module.add_command(sub)
+    for name, (module, line) in COMMANDS.items():
+        p = sub.add_parser(name, help=line)
+        if command is None or command == name:
+            importlib.import_module(f"dkfsim.cli.{module}").configure(p)
     return parser
+
+
+def command_of(argv: list[str]) -> str:
+    """The sub-command ``argv`` names (its first word that is not an option), or ``""``."""
+    return next((a for a in argv if not a.startswith("-")), "")
 
 
 class Terminated(KeyboardInterrupt):
@@ -102,11 +126,22 @@ def _error(text: str) -> None:
 
 
 def main(argv=None) -> int:
+    """Run ``dkfsim ARGV``; the exit status.  SIGTERM ends the command as Ctrl-C does while it
+    runs; the handler this process had before is back when it returns (a test or a script that
+    calls it in its own process keeps its own)."""
+    previous = signal.signal(signal.SIGTERM, _on_sigterm)
+    try:
+        return _main(argv)
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+
+
+def _main(argv) -> int:
     pin_process()                     # one BLAS thread here and in every worker we start
-    signal.signal(signal.SIGTERM, _on_sigterm)
     _usable_streams()
     _escaped_warnings()
-    parser = build_parser()
+    argv = sys.argv[1:] if argv is None else list(argv)
+    parser = build_parser(command_of(argv))
     args = parser.parse_args(argv)
     if not getattr(args, "command", None):
         parser.print_help()

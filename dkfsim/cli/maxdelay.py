@@ -4,35 +4,26 @@ from __future__ import annotations
 
 import sys
 
-from dkfsim.cli.common import (
-    add_executor_args,
-    add_scenario_args,
-    add_yes_arg,
-    executor_from_args,
-    load_from_args,
-    progress_bar,
-    say,
-)
+from dkfsim.cli.common import add_executor_args, add_scenario_args, add_yes_arg, say
+from dkfsim.cli.work import executor_from_args, load_from_args, progress_bar
 from dkfsim.core.files import printable
 from dkfsim.core.folders import check_target
 from dkfsim.experiments.maxdelay import METRICS, Candidate, MaxDelay, Settings
 from dkfsim.report.maxdelay import save_maxdelay
 
 
-def add_command(subparsers) -> None:
-    p = subparsers.add_parser(
-        "maxdelay", help="largest delay bound (or, --axis rate, least link rate) for which a metric "
-                         "stays within a tolerance (Monte Carlo, worst case, paper bound)",
-        description="Find the largest delay for which the anti-delay DKF's metric stays within a "
-                    "tolerance, three ways: (1) empirically, with a sequential Monte Carlo search "
-                    "(galloping then bisection over the delay; at each candidate, runs in batches "
-                    "until the confidence interval of the metric minus the tolerance is entirely "
-                    "below or above 0); (2) the deterministic worst case: every link at its largest "
-                    "latency, one run per candidate, covariance metric; (3) the paper's theoretical "
-                    "bound (Remark bound_of_delay, eq. delay_bound). The delay is d_t of a "
-                    "uniform_steps latency model, or a scale s multiplying the time parameters of "
-                    "continuous models (constant value, uniform low/high, exponential, lognormal, gamma, pareto time parameters, empirical scale, gilbert_elliott states, jitter). "
-                    "Writes DIR/maxdelay.json and DIR/maxdelay.png/.pdf and prints the three answers.")
+def configure(p) -> None:
+    """``dkfsim maxdelay``'s arguments (its parser made by :func:`dkfsim.cli.main.build_parser`)."""
+    p.description = ("Find the largest delay for which the anti-delay DKF's metric stays within a "
+                     "tolerance, three ways: (1) empirically, with a sequential Monte Carlo search "
+                     "(galloping then bisection over the delay; at each candidate, runs in batches "
+                     "until the confidence interval of the metric minus the tolerance is entirely "
+                     "below or above 0); (2) the deterministic worst case: every link at its largest "
+                     "latency, one run per candidate, covariance metric; (3) the paper's theoretical "
+                     "bound (Remark bound_of_delay, eq. delay_bound). The delay is d_t of a "
+                     "uniform_steps latency model, or a scale s multiplying the time parameters of "
+                     "continuous models (constant value, uniform low/high, exponential, lognormal, gamma, pareto time parameters, empirical scale, gilbert_elliott states, jitter). "
+                     "Writes DIR/maxdelay.json and DIR/maxdelay.png/.pdf and prints the three answers.")
     add_scenario_args(p)
     p.add_argument("--out", required=True, metavar="DIR", help="output folder (created if missing)")
     p.add_argument("--estimate", default="fused", metavar="NAME",
@@ -95,6 +86,7 @@ class _Progress:
 
     def __init__(self, args):
         self.quiet = args.quiet
+        self.paired = args.relative is not None
         self.bar = progress_bar(args, None, "maxdelay")
 
     def __call__(self, runs: int = 0, label: str | None = None, done: Candidate | None = None):
@@ -106,19 +98,24 @@ class _Progress:
             if runs:
                 self.bar.update(runs)
             if done is not None:
-                self.bar.write(printable(_done_line(label, done)), file=sys.stderr)
+                self.bar.write(printable(_done_line(label, done, self.paired)), file=sys.stderr)
         elif done is not None:
-            say(_done_line(label, done), file=sys.stderr, flush=True)
+            say(_done_line(label, done, self.paired), file=sys.stderr, flush=True)
 
     def close(self):
         if self.bar is not None:
             self.bar.close()
 
 
-def _done_line(label, c: Candidate) -> str:
+def _done_line(label, c: Candidate, paired: bool = False) -> str:
+    """A decided candidate.  With a relative tolerance the decision is on the paired excess, run
+    by run over the same run at zero delay, not on the mean against ``R x`` the zero-delay mean:
+    a mean a little above that can still be *within* (the line says so)."""
+    excess = "paired excess over R x the same run at zero delay" if paired else "excess over tolerance"
     return (f"maxdelay: {label}: {c.runs} run{'s' * (c.runs != 1)}, mean {c.mean:.4g} "
-            f"[{c.ci[0]:.4g}, {c.ci[1]:.4g}], excess over tolerance {c.excess_mean:+.3g} "
-            f"[{c.excess_ci[0]:+.3g}, {c.excess_ci[1]:+.3g}] -> {c.decision}")
+            f"[{c.ci[0]:.4g}, {c.ci[1]:.4g}], {excess} {c.excess_mean:+.3g} "
+            f"[{c.excess_ci[0]:+.3g}, {c.excess_ci[1]:+.3g}] -> {c.decision}"
+            + (" (decided on the paired excess)" if paired else ""))
 
 
 def cmd_maxdelay(args) -> int:
@@ -132,7 +129,8 @@ def cmd_maxdelay(args) -> int:
     check_target(args.out)                 # before any run: a bad --out costs nothing
     prog = _Progress(args)
     try:
-        res = MaxDelay(sc, st, progress=prog, yes=args.yes, executor=executor_from_args(args)).run()
+        res = MaxDelay(sc, st, progress=prog, yes=args.yes, executor=executor_from_args(args),
+                       yes_flag="--yes").run()
     finally:
         prog.close()
     out = save_maxdelay(res, args.out)

@@ -2,33 +2,24 @@
 
 from __future__ import annotations
 
-from dkfsim.cli.common import (
-    add_executor_args,
-    add_scenario_args,
-    add_yes_arg,
-    executor_from_args,
-    load_from_args,
-    progress_bar,
-    say,
-    workers_from_args,
-)
+from dkfsim.cli.common import add_executor_args, add_scenario_args, add_yes_arg, say
+from dkfsim.cli.work import executor_from_args, load_from_args, more_workers_hint, progress_of, workers_from_args
 from dkfsim.core.errors import DkfsimError
 from dkfsim.core.folders import check_target
 from dkfsim.experiments import executors
 from dkfsim.experiments.montecarlo import check_burn_in, check_montecarlo, check_reference, montecarlo
 
 
-def add_command(subparsers) -> None:
-    p = subparsers.add_parser(
-        "montecarlo", help="N independent runs of a scenario: MSE with confidence intervals, ANEES, traffic",
-        description="Run a scenario N times with derived seeds (run r uses derive_seed(seed, r), "
-                    "the same whatever N and --jobs) and pool the results per estimate and state "
-                    "component: MSE over time with 95% confidence intervals, ANEES with its 95% "
-                    "t-interval over runs and the consistency verdict, the paired difference and "
-                    "ratio of the MSE to a reference estimate (--relative-to), disagreement between nodes, messages, bytes, lost packets and "
-                    "late information (packet rows). Writes DIR/runs.csv (one row per run x estimate x "
-                    "component), DIR/curves.npz (per-tick curves and one example run) and "
-                    "DIR/summary.json, and prints a table.")
+def configure(p) -> None:
+    """``dkfsim montecarlo``'s arguments (its parser made by :func:`dkfsim.cli.main.build_parser`)."""
+    p.description = ("Run a scenario N times with derived seeds (run r uses derive_seed(seed, r), "
+                     "the same whatever N and --jobs) and pool the results per estimate and state "
+                     "component: MSE over time with 95% confidence intervals, ANEES with its 95% "
+                     "t-interval over runs and the consistency verdict, the paired difference and "
+                     "ratio of the MSE to a reference estimate (--relative-to), disagreement between nodes, messages, bytes, lost packets and "
+                     "late information (packet rows). Writes DIR/runs.csv (one row per run x estimate x "
+                     "component), DIR/curves.npz (per-tick curves and one example run) and "
+                     "DIR/summary.json, and prints a table.")
     add_scenario_args(p)
     p.add_argument("--runs", type=int, required=True, metavar="N",
                    help="number of independent runs (>= 1)")
@@ -56,16 +47,15 @@ def cmd_montecarlo(args) -> int:
     check_burn_in(args.burn_in, int(sc.steps))
     check_reference(sc, args.relative_to)
     check_target(args.out)                 # before any run: a bad --out costs nothing
-    check_montecarlo(sc, args.runs, workers_from_args(args, args.runs), yes=args.yes)
+    check_montecarlo(sc, args.runs, workers_from_args(args, args.runs), yes=args.yes, yes_flag="--yes",
+                     hint="fewer --runs or --steps" + more_workers_hint(args))
     make = executor_from_args(args, args.runs)
-    bar = progress_bar(args, args.runs, sc.name)
-    progress = None if bar is None else (lambda done, _total: bar.update(done - bar.n))
+    progress, close = progress_of(args, args.runs, f"montecarlo {sc.name}")
     try:
         res = montecarlo(sc, args.runs, jobs=args.jobs, burn_in=args.burn_in, progress=progress,
                          yes=True, executor=make, relative_to=args.relative_to)                  # checked above
     finally:
-        if bar is not None:
-            bar.close()
+        close()
     out = res.save(args.out)               # (the per-estimate pooling is cached: once for both)
     if not args.quiet:
         say(res.table())

@@ -20,6 +20,7 @@ from dkfsim.report.plots import (
     plot_folder,
     relative_to,
 )
+from dkfsim.report.plots.style import PNG_DPI, png_resolution
 from dkfsim.report.sweep.plot import plot_sweep
 
 EPILOG = """\
@@ -28,31 +29,34 @@ examples:
   dkfsim plot out/mc_case1 --format png                   # a Monte Carlo folder; adds nees.png
   dkfsim plot out/case1 out/case2 --compare --labels "case 1 (undirected)" "case 2 (directed)"
   dkfsim plot out/crossing --at 1 100 200                 # a run with mobility:: network_over_time at 3 ticks
-  dkfsim plot scenarios/sweep_delay_bound.sqlite --x links.default.latency.d_t --hue protocol
+  dkfsim plot out/sweep_delay_bound.sqlite --x links.default.latency.d_t --hue protocol
   dkfsim plot out/delay.csv --x links.default.latency.d_t --metric anees --where protocol=tree
   dkfsim plot out/d0 out/d1 out/d2 out/d3 out/d4 --compare --component position \\
       --labels "d_t = 0" "d_t = 1" "d_t = 2" "d_t = 3" "d_t = 4" --out figs --name delay_bounds
 """
 
 
-def add_command(sub) -> None:
-    p = sub.add_parser(
-        "plot", help="draw figures from run or Monte Carlo folders, or a sweep",
-        description="Draw figures (matplotlib, Agg backend) from folders written by dkfsim run "
-                    "(run.npz + summary.json) or dkfsim montecarlo (curves.npz + runs.csv + summary.json): "
-                    "tracking (truth, fused, node 0, references), MSE per tick (log scale; Monte Carlo: "
-                    "95% CI shaded), for Monte Carlo folders NEES, and for a run with mobility: "
-                    "network_over_time and topology_errors. With --compare, overlay the fused "
-                    "MSE of several folders and the centralized filter of the first. Given a sweep database "
-                    "(or its --export .csv/.parquet), draw a metric against one grid key (--x) with "
-                    "95% interval bands over the runs, one line per estimate or per value of --hue.",
-        epilog=EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter)
+def configure(p) -> None:
+    """``dkfsim plot``'s arguments (its parser made by :func:`dkfsim.cli.main.build_parser`)."""
+    p.formatter_class = argparse.RawDescriptionHelpFormatter
+    p.epilog = EPILOG
+    p.description = ("Draw figures (matplotlib, Agg backend) from folders written by dkfsim run "
+                     "(run.npz + summary.json) or dkfsim montecarlo (curves.npz + runs.csv + summary.json): "
+                     "tracking (truth, fused, node 0, references), MSE per tick (log scale; Monte Carlo: "
+                     "95% CI shaded), for Monte Carlo folders NEES, and for a run with mobility: "
+                     "network_over_time and topology_errors. With --compare, overlay the fused "
+                     "MSE of several folders and the centralized filter of the first. Given a sweep database "
+                     "(or its --export .csv/.parquet), draw a metric against one grid key (--x) with "
+                     "95% interval bands over the runs, one line per estimate or per value of --hue.")
     p.add_argument("dirs", nargs="+", metavar="DIR",
                    help="run or Monte Carlo folder(s), or one sweep database / export file")
     p.add_argument("--out", metavar="FIGDIR",
                    help="folder for the figures (default: DIR/figures; with --compare: the first DIR's)")
     p.add_argument("--format", dest="formats", nargs="+", default=list(DEFAULT_FORMATS), choices=FORMATS,
                    metavar="FMT", help=f"file formats: {', '.join(FORMATS)} (default: png pdf)")
+    p.add_argument("--dpi", type=int, default=PNG_DPI[0], metavar="N",
+                   help=f"resolution of the PNG files (default: {PNG_DPI[0]}, for screens and slides; "
+                        "300 for print: the PDF beside each is the vector figure)")
     p.add_argument("--compare", action="store_true",
                    help="overlay the fused MSE of all DIRs (same number of ticks) in one figure")
     p.add_argument("--relative", action="store_true",
@@ -153,6 +157,13 @@ def _default_out(folder: Path, name: str) -> Path:
 
 
 def cmd_plot(args) -> int:
+    if not 30 <= args.dpi <= 1200:
+        raise DkfsimError(f"--dpi: a resolution from 30 to 1200, got {args.dpi}")
+    with png_resolution(args.dpi):
+        return _cmd_plot(args)
+
+
+def _cmd_plot(args) -> int:
     formats = check_formats(args.formats)
     _check_name(args.name)
     if len(args.dirs) == 1 and _is_sweep(args.dirs[0]):

@@ -6,8 +6,9 @@ import argparse
 import sys
 from collections import Counter
 
-from dkfsim.cli.common import add_executor_args, add_yes_arg, executor_from_args, workers_from_args
+from dkfsim.cli.common import add_executor_args, add_yes_arg
 from dkfsim.cli.common import say as say_line
+from dkfsim.cli.work import ProgressLines, executor_from_args, more_workers_hint, workers_from_args
 from dkfsim.core.errors import DkfsimError
 from dkfsim.experiments.montecarlo import check_reference
 from dkfsim.experiments.sweep import Sweep, export, is_database, load_sweep, run_sweep, tasks_done
@@ -50,14 +51,14 @@ examples:
   dkfsim sweep scenarios/sweep_delay_bound.yaml --jobs 4
   dkfsim sweep scenarios/sweep_delay_bound.yaml --dask-local 4 --export out/delay.parquet
   dkfsim sweep scenarios/sweep_delay_bound.yaml --scheduler tcp://10.0.0.5:8786
-  dkfsim sweep scenarios/sweep_delay_bound.sqlite --export out/delay.csv     (export only)
+  dkfsim sweep out/sweep_delay_bound.sqlite --export out/delay.csv     (export only)
 """
 
 
-def add_command(subparsers) -> None:
-    p = subparsers.add_parser(
-        "sweep", help="parameter sweep x Monte Carlo runs into a resumable SQLite file",
-        description=HELP, formatter_class=argparse.RawDescriptionHelpFormatter)
+def configure(p) -> None:
+    """``dkfsim sweep``'s arguments (its parser made by :func:`dkfsim.cli.main.build_parser`)."""
+    p.description = HELP
+    p.formatter_class = argparse.RawDescriptionHelpFormatter
     p.add_argument("file", metavar="FILE",
                    help="a sweep YAML file to run or resume; or a sweep database (.sqlite) to "
                         "export with --export, computing nothing")
@@ -106,8 +107,10 @@ def cmd_sweep(args) -> int:
     say(f"{sweep.source}: {len(sweep.parameter_sets)} parameter set(s) x {sweep.runs} "
         f"run(s) = {sweep.n_tasks} tasks -> {sweep.output}")
     rep = run_sweep(sweep, executor=make, jobs=args.jobs,
-                    progress=not args.quiet and sys.stderr.isatty(), yes=args.yes,
-                    workers=workers_from_args(args))
+                    progress=not args.quiet and (sys.stderr.isatty() or ProgressLines(f"dkfsim sweep {sweep.name}")),
+                    yes=args.yes,
+                    workers=workers_from_args(args), yes_flag="--yes",
+                    hint="fewer runs or a smaller grid in the sweep file" + more_workers_hint(args))
     rate = f" on {rep.executor} ({rep.runs_per_minute:.1f} runs/min)" if rep.computed else ""
     say(f"done: {rep.skipped} already in the database, {rep.computed} computed in "
         f"{_duration(rep.wall_s)}{rate}")

@@ -52,7 +52,6 @@ from pathlib import Path
 from typing import Annotated, ClassVar, Literal
 
 import numpy as np
-import scipy.special
 from pydantic import Field, PrivateAttr, TypeAdapter, ValidationInfo, model_validator
 from typing_extensions import override
 
@@ -316,7 +315,8 @@ class Lognormal(ShiftedLaw):
         return self.sigma == 0
 
     def quantile_s(self, u):
-        return self.median * np.exp(self.sigma * scipy.special.ndtri(u))
+        from scipy.special import ndtri  # (lazy: scipy.special only where a lognormal draws)
+        return self.median * np.exp(self.sigma * ndtri(u))
 
     @override
     def sup_ns(self, T_ns):
@@ -335,7 +335,8 @@ class Gamma(ShiftedLaw):
     scale_keys: ClassVar = ("scale", "offset")
 
     def quantile_s(self, u):
-        return self.scale * scipy.special.gammaincinv(self.shape, u)
+        from scipy.special import gammaincinv  # (lazy: scipy.special only where a gamma draws)
+        return self.scale * gammaincinv(self.shape, u)
 
 
 @LATENCY_MODELS.register("pareto")

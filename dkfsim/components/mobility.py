@@ -23,8 +23,6 @@ from collections.abc import Sequence
 from typing import Any, Literal
 
 import numpy as np
-import scipy.sparse
-import scipy.sparse.csgraph
 from pydantic import field_validator
 
 from dkfsim.components.traffic import Rate
@@ -273,6 +271,7 @@ def _strongly_connected(n: int, pairs: np.ndarray, on: np.ndarray) -> bool:
     used = pairs[on]
     if len(used) < n:
         return False                # (a strongly connected digraph on n > 1 nodes has >= n arcs)
+    import scipy.sparse.csgraph  # (lazy: only a changing graph's connectivity needs it)
     graph = scipy.sparse.csr_matrix((np.ones(len(used)), (used[:, 0], used[:, 1])), shape=(n, n))
     return int(scipy.sparse.csgraph.connected_components(graph, directed=True, connection="strong")[0]) == 1
 

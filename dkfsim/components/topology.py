@@ -58,15 +58,17 @@ from __future__ import annotations
 import functools
 import heapq
 from dataclasses import dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-import networkx as nx
 import numpy as np
 
 from dkfsim.core.files import clip
 from dkfsim.core.params import suggest
 from dkfsim.core.registry import GENERATORS, PROTOCOLS
 from dkfsim.core.streams import stream
+
+if TYPE_CHECKING:
+    import networkx as nx
 
 
 @dataclass(frozen=True)
@@ -229,6 +231,7 @@ def pruefer_decode(seq, n: int) -> list[tuple[int, int]]:
 
 
 def _undirected_edges(generator: str, params: dict, n: int, seed: int) -> list[tuple[int, int]]:
+    import networkx as nx
     if generator == "path":
         return [(i, i + 1) for i in range(n - 1)]
     if generator == "star":
@@ -288,6 +291,7 @@ def build_graph(topology, n: int, seed: int) -> nx.Graph | nx.DiGraph:
     :class:`GraphSpecError` for bad parameters; connectivity is checked by
     :func:`check_connected`.
     """
+    import networkx as nx
     generator = topology.generator
     params = dict(topology.params or {})
     directed = bool(topology.directed)
@@ -322,6 +326,7 @@ def _fmt_nodes(nodes, limit: int = 8) -> str:
 
 def check_connected(graph: nx.Graph | nx.DiGraph) -> None:
     """Undirected: connected; directed: strongly connected.  Else GraphSpecError."""
+    import networkx as nx
     if graph.number_of_nodes() <= 1:
         return
     if graph.is_directed():
@@ -353,6 +358,7 @@ def check_connected(graph: nx.Graph | nx.DiGraph) -> None:
 
 def is_tree(graph: nx.Graph) -> bool:
     """Connected undirected graph without cycles."""
+    import networkx as nx
     return (not graph.is_directed() and graph.number_of_nodes() >= 1
             and graph.number_of_edges() == graph.number_of_nodes() - 1
             and nx.is_connected(graph))
@@ -360,6 +366,7 @@ def is_tree(graph: nx.Graph) -> bool:
 
 def bfs_spanning_tree(graph: nx.Graph) -> nx.Graph:
     """BFS spanning tree rooted at the lowest-index centre (see module docstring)."""
+    import networkx as nx
     n = graph.number_of_nodes()
     tree = nx.Graph()
     tree.add_nodes_from(sorted(graph.nodes))
@@ -444,6 +451,7 @@ def all_pairs_work(graph: nx.Graph | nx.DiGraph) -> int:
 
 def _farthest(graph, source) -> tuple[int, int]:
     """(a farthest node from ``source``, its distance) by breadth-first search."""
+    import networkx as nx
     dist = nx.single_source_shortest_path_length(graph, source)
     far = max(dist.items(), key=lambda kv: (kv[1], -kv[0]))
     return far[0], far[1]
@@ -455,6 +463,7 @@ def diameter(graph: nx.Graph | nx.DiGraph) -> int:
     A tree takes two breadth-first searches (the farthest node from any node
     is an end of a longest path); any other graph one from every node.
     """
+    import networkx as nx
     if graph.number_of_nodes() <= 1:
         return 0
     graph = _undirected_if_symmetric(graph)
@@ -532,6 +541,7 @@ def protocol_graph(protocol: str) -> str:
 def make_exchange(graph: nx.Graph | nx.DiGraph, protocol: str,
                   spanning_tree: bool = False) -> ExchangeGraph:
     """Exchange graph of a validated topology ``graph`` for ``protocol``."""
+    import networkx as nx
     kind = protocol_graph(protocol)
     if kind == "tree":
         if graph.is_directed():

@@ -289,16 +289,15 @@ class RecordedTrack(TrajectoryParams):
         """The recorded SINR (dB) at run times ``t_s``: the last row at or before the
         vehicle's track time (the first row's before it).  Follows ``time_offset``
         (the drive's clock), not ``along``."""
-        times, values = self._sinr_series()
+        times, values = self.sinr_series()
         return _held(times, values, run_times(t_s) - self.time_offset)
 
-    def sinr_function(self, speed: float = 1.0) -> SinrAt:
-        """:meth:`sinr_db` at one run time ``t`` evaluated at ``speed * t``: the column is read
-        at the first call (a track that is never asked needs none) and kept, as a network asks
-        once per packet."""
-        return SinrAt(self, speed)
+    def sinr_function(self, speed: float = 1.0) -> "SinrAt":
+        """:meth:`sinr_db` at one run time ``t`` evaluated at ``speed * t`` (:class:`SinrAt`)."""
+        return SinrAt(self, float(speed))
 
-    def _sinr_series(self) -> tuple[np.ndarray, np.ndarray]:
+    def sinr_series(self) -> tuple[np.ndarray, np.ndarray]:
+        """The track's ``(times, SINR)`` column (read from its file)."""
         try:
             return sampled_column(self._path, self.time_column, self.sinr_column, self.time_unit)
         except DataFileError as err:
@@ -306,18 +305,19 @@ class RecordedTrack(TrajectoryParams):
 
 
 class SinrAt:
-    """A track's recorded SINR (dB) at one run time, ``speed`` applied (:meth:`RecordedTrack.sinr_function`).
-    An object rather than a closure so that a run plan holding it pickles: a Monte Carlo sends
-    the plan to its worker processes (a closure made ``dkfsim montecarlo`` of a ``track``
-    vehicle end in a traceback with ``--jobs`` above 1)."""
+    """A track's recorded SINR at one run time ``t``, read at ``speed * t``: the column is read at
+    the first call (a track that is never asked needs none) and kept, as a network asks once per
+    packet.  A class, not a closure, so that a Monte Carlo's shared plan pickles to its worker
+    processes (issue 34: ``dkfsim montecarlo scenarios/mobility_convoy.yaml --jobs 2`` stopped with
+    a traceback)."""
 
-    def __init__(self, track: RecordedTrack, speed: float):
+    def __init__(self, track: "RecordedTrack", speed: float):
         self.track, self.speed = track, speed
         self.series: tuple[np.ndarray, np.ndarray] | None = None
 
     def __call__(self, t: float):
         if self.series is None:
-            self.series = self.track._sinr_series()
+            self.series = self.track.sinr_series()
         times, values = self.series
         return _held(times, values, np.asarray([t * self.speed]) - self.track.time_offset)[0]
 

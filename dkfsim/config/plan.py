@@ -32,14 +32,15 @@ from __future__ import annotations
 import copy
 import functools
 from dataclasses import dataclass
-from typing import Any
-
-import networkx
+from typing import TYPE_CHECKING, Any
 
 from dkfsim.components import topology as topo
 from dkfsim.components.estimators import AntiDelayParams, NoBufferParams
 from dkfsim.components.mobility import LinkSchedule
 from dkfsim.core.resources import B_FLOAT, C_VISIT, CHEAP_VISITS, SaveMode, resolve_save_mode
+
+if TYPE_CHECKING:
+    import networkx
 
 
 @dataclass(frozen=True)

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import json
 import math
+import os
 from pathlib import Path
 from typing import Annotated, Any
 
@@ -174,7 +175,8 @@ class SweepFile(StrictModel):
         if value is None:
             return None
         name = _file_name(value)
-        return Path(name) if Path(name).is_absolute() else _base(info) / name
+        # (``../out/x.sqlite`` beside ``scenarios/``: ``out/x.sqlite``, as a person writes it)
+        return Path(name) if Path(name).is_absolute() else Path(os.path.normpath(_base(info) / name))
 
     @model_validator(mode="after")
     def _set_apart_from_grid(self):

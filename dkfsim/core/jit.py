@@ -56,6 +56,7 @@ def import_numba():
         raise DkfsimError(f"numba cannot start ({type(exc).__name__}: {clip(str(exc), 120)})"
                           + (f"; check {bad}" if bad else "") + f", or set {KERNELS_ENV}=numpy") from None
     _tolerate_cache_write_errors(optional("numba.core.caching"))
+    _listen_for_compiles(numba)
     return numba
 
 
@@ -96,6 +97,73 @@ def source_sha256(module: str) -> str:
     return hashlib.sha256(Path(str(path)).read_bytes()).hexdigest()
 
 
+#: CPU seconds numba takes to compile each kernel module's kernels (measured on this project's
+#: 2-core machine; the first run on a machine pays them once, later ones load the disk cache).
+COMPILE_SECONDS = {"dkfsim.estimators.kernels": 10, "dkfsim.model.holdings_kernels": 3,
+                   "dkfsim.protocols.tree_compiled_kernels": 7, "dkfsim.estimators.fusion_centre_kernels": 4}
+
+
+class _Compiling:
+    """Whether this process said yet that it compiles dkfsim's kernels (once), and the kernel
+    modules imported so far (their :class:`LazyKernels`)."""
+
+    said = False
+    listening = False
+    lazy: list = []
+
+
+def cache_is_cold(dispatchers) -> bool:
+    """True when numba's disk cache holds no index for any of ``dispatchers`` (njit with
+    ``cache=True``): a module never compiled on this machine, whose first calls compile.  (One
+    kernel a short run never called has no index either: that alone is not a cold cache.  numba
+    keeps the index path on the dispatcher's cache; a numba without it says nothing: False.)"""
+    found = [getattr(getattr(getattr(d, "_cache", None), "_cache_file", None), "_index_path", None)
+             for d in dispatchers]
+    paths: list[str] = [p for p in found if isinstance(p, str)]
+    return bool(paths) and not any(os.path.exists(p) for p in paths)
+
+
+def _listen_for_compiles(numba) -> None:
+    """Say :func:`say_compiling` at numba's first compile of one of dkfsim's kernels in this
+    process (the ``numba:compile`` event: a real compile, not a load from the disk cache)."""
+    event = optional("numba.core.event")
+    if _Compiling.listening or not hasattr(event, "Listener") or not hasattr(event, "register"):
+        return
+
+    class _OnCompile(event.Listener):  # type: ignore[name-defined]
+        def on_start(self, ev):
+            func = getattr(getattr(ev, "data", {}).get("dispatcher"), "py_func", None)
+            if str(getattr(func, "__module__", "")).startswith("dkfsim."):
+                say_compiling(numba)
+
+        def on_end(self, ev):
+            pass
+
+    event.register("numba:compile", _OnCompile())
+    _Compiling.listening = True
+
+
+def say_compiling(numba) -> None:
+    """Once per process, one line on stderr: dkfsim's kernels are compiled now, once, and about
+    how long that takes (the kernel modules imported so far that were never compiled here)."""
+    if _Compiling.said:
+        return
+    _Compiling.said = True
+    seconds = 0
+    for lazy in _Compiling.lazy:
+        mod = sys.modules.get(lazy.module)
+        funcs = [getattr(mod, name, None) for name in lazy.names if name not in lazy.inline] \
+            if mod is not None else []
+        probes = [f if hasattr(f, "py_func") else numba.njit(cache=True)(f) for f in funcs if callable(f)]
+        if lazy.stale_borrows() or cache_is_cold(probes):
+            seconds += COMPILE_SECONDS.get(lazy.module, 5)
+    try:
+        print(f"dkfsim: compiling dkfsim's kernels once (about {max(seconds, 1)} s of CPU; later runs "
+              "load them from numba's disk cache)", file=sys.stderr, flush=True)
+    except (OSError, ValueError):
+        pass
+
+
 class LazyKernels:
     """The functions ``names`` of module ``module``, replaced by their ``numba.njit(cache=True)``
     versions (no fastmath, no parallel, nogil) on the first :meth:`get`.
@@ -125,6 +193,7 @@ class LazyKernels:
             raise ValueError(f"{module}: BORROWS names modules outside dkfsim: {foreign}")
         self._done = False
         self._lock = threading.Lock()
+        _Compiling.lazy.append(self)
 
     def stale_borrows(self) -> list[str]:
         """The borrowed modules whose source no longer matches its pin."""

@@ -9,13 +9,17 @@ well-posed input these are exactly ``numpy.linalg.solve`` and
 LAPACK ``dsysv``: the fallback runs only after they raised.
 :func:`solve_posdef` instead reports failure (a matrix that is not positive
 definite) to its caller, which picks another method.
+
+scipy's LAPACK wrappers are imported at the first solve that needs them
+(:func:`lapack`), not with this module: a command that never fuses (``dkfsim
+list``, ``validate``) does not pay scipy.linalg's import (docs/decisions.md, "Start-up").
 """
 
 from __future__ import annotations
 
+from types import SimpleNamespace
+
 import numpy as np
-import scipy.linalg
-import scipy.linalg.lapack
 
 
 def solve(A: np.ndarray, B: np.ndarray) -> np.ndarray:
@@ -37,8 +41,19 @@ def solve(A: np.ndarray, B: np.ndarray) -> np.ndarray:
     return out
 
 
-_SYSV = scipy.linalg.lapack.dsysv
 _SYSV_LWORK: dict[int, int] = {}
+#: The LAPACK routines of the solves below, bound by :func:`lapack` on first use.
+_LAPACK = SimpleNamespace(sysv=None, sysv_lwork=None, potrf=None, potrs=None)
+
+
+def lapack() -> SimpleNamespace:
+    """scipy's LAPACK routines these solves call (``dsysv``, ``dpotrf``, ``dpotrs``), imported
+    on the first call."""
+    if _LAPACK.sysv is None:
+        import scipy.linalg.lapack as lp
+        _LAPACK.sysv_lwork, _LAPACK.potrf, _LAPACK.potrs = lp.dsysv_lwork, lp.dpotrf, lp.dpotrs
+        _LAPACK.sysv = lp.dsysv
+    return _LAPACK
 
 
 def solve_symmetric(A: np.ndarray, B: np.ndarray) -> np.ndarray:
@@ -51,18 +66,15 @@ def solve_symmetric(A: np.ndarray, B: np.ndarray) -> np.ndarray:
     A = np.asarray(A, float)
     B = np.asarray(B, float)
     n = A.shape[0]
+    lp = _LAPACK if _LAPACK.sysv is not None else lapack()
     lwork = _SYSV_LWORK.get(n)
     if lwork is None:
-        lwork = _SYSV_LWORK[n] = int(scipy.linalg.lapack.dsysv_lwork(n)[0])
+        lwork = _SYSV_LWORK[n] = int(lp.sysv_lwork(n)[0])
     one = B.ndim == 1
-    _, _, x, info = _SYSV(A, B[:, None] if one else B, lwork=lwork)
+    _, _, x, info = lp.sysv(A, B[:, None] if one else B, lwork=lwork)
     if info != 0:
         return np.full(np.shape(B), np.nan)
     return x[:, 0] if one else x
-
-
-_POTRF = scipy.linalg.lapack.dpotrf
-_POTRS = scipy.linalg.lapack.dpotrs
 
 
 def solve_posdef(A: np.ndarray, B: np.ndarray, overwrite_a: bool = False) -> np.ndarray | None:
@@ -72,10 +84,11 @@ def solve_posdef(A: np.ndarray, B: np.ndarray, overwrite_a: bool = False) -> np.
     ``B`` is not modified; ``A`` only with ``overwrite_a`` (a Fortran-ordered or symmetric
     C-ordered scratch the caller no longer needs).
     """
-    c, info = _POTRF(A, lower=1, clean=0, overwrite_a=overwrite_a)
+    lp = _LAPACK if _LAPACK.potrf is not None else lapack()
+    c, info = lp.potrf(A, lower=1, clean=0, overwrite_a=overwrite_a)
     if info != 0:
         return None
-    x, info = _POTRS(c, B, lower=1)
+    x, info = lp.potrs(c, B, lower=1)
     if info != 0:
         return None
     return x

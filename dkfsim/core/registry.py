@@ -9,10 +9,14 @@ here when it validates a file, so ``dkfsim.config`` never imports the
 stages that implement them, and a component added by a plugin is valid in
 every scenario key, every command and ``dkfsim list`` at once.
 
+The built-in components register when the modules of :data:`BUILTIN_MODULES` are imported:
+at the first registry read, so that a command that reads no registry (``dkfsim --help``)
+never imports the stages that implement them (docs/decisions.md, "Start-up").
+
 Plugins: the entry-point groups ``dkfsim.plugins`` and ``dkfsim.estimators``
-(modules imported the first time a registry is read) and a scenario's ``plugins:`` key (modules
-or ``.py`` files imported before the scenario is validated).  Importing a
-plugin runs its code: that is what a plugin is for.
+(modules imported at the first registry read, after the built-ins) and a scenario's
+``plugins:`` key (modules or ``.py`` files imported before the scenario is validated).
+Importing a plugin runs its code: that is what a plugin is for.
 """
 
 from __future__ import annotations
@@ -21,6 +25,7 @@ import hashlib
 import importlib
 import importlib.util
 import sys
+import threading
 from dataclasses import dataclass
 from importlib.metadata import entry_points
 from os import PathLike
@@ -100,12 +105,13 @@ class Registry:
     # -- reading ---------------------------------------------------------------
     def canonical(self, name: str) -> str:
         """The registered name of ``name`` (itself, or what it is an alias of)."""
+        ensure_registered()
         return self._aliases.get(name, name)
 
     def get(self, name: Any) -> Entry:
         """The entry named ``name`` (or an alias); :class:`KeyError` with the message
         "unknown <family> 'x' (did you mean 'y'?); valid: ..." when there is none."""
-        load_entry_point_plugins()
+        ensure_registered()
         key = self.canonical(name) if isinstance(name, str) else name
         entry = self._entries.get(key) if isinstance(key, str) else None
         if entry is None:
@@ -118,17 +124,19 @@ class Registry:
         return f"unknown {self.family} {clip(name)}{suggest(name, names)}; valid: " + ", ".join(names)
 
     def __contains__(self, name: object) -> bool:
+        ensure_registered()
         return isinstance(name, str) and self.canonical(name) in self._entries
 
     def names(self) -> list[str]:
-        load_entry_point_plugins()
+        ensure_registered()
         return list(self._entries)
 
     def entries(self) -> Iterator[Entry]:
-        load_entry_point_plugins()
+        ensure_registered()
         return iter(list(self._entries.values()))
 
     def aliases(self) -> dict[str, str]:
+        ensure_registered()
         return dict(self._aliases)
 
 
@@ -152,30 +160,43 @@ REGISTRIES: dict[str, Registry] = {
 #: expect); both are the same mechanism.
 PLUGIN_GROUPS = ("dkfsim.plugins", "dkfsim.estimators")
 
-#: True once ``import dkfsim`` has registered every built-in component (:func:`builtins_registered`).
-_BUILTINS_REGISTERED = False
-#: True once the entry-point plugins were imported (or tried: a broken one is reported once).
-_PLUGINS_LOADED = False
+#: The modules whose import registers the built-in components, imported by name at the first
+#: registry read (:func:`ensure_registered`).  Names, not imports: the stages above ``core``
+#: register into it, it never depends on them (tests/test_layers.py checks the names).
+BUILTIN_MODULES = ("dkfsim.components", "dkfsim.model", "dkfsim.protocols", "dkfsim.estimators",
+                   "dkfsim.analysis.metrics")
+#: "no" until the first registry read, "loading" while the built-ins and plugins are imported
+#: (a read then sees what is registered so far: a module reading a registry as it registers
+#: does not recurse), "done" after.
+_STATE = "no"
+_LOCK = threading.RLock()
 
 
-def builtins_registered() -> None:
-    """Say that every built-in component is registered (the last line of ``dkfsim/__init__.py``).
-
-    Until then a registry read loads no entry-point plugin: a plugin imports dkfsim's
-    modules, and while ``import dkfsim`` is under way they are half initialised.
-    """
-    global _BUILTINS_REGISTERED
-    _BUILTINS_REGISTERED = True
+def ensure_registered() -> None:
+    """Register every built-in component (import the modules of :data:`BUILTIN_MODULES`), then
+    import the entry-point plugins (:func:`load_entry_point_plugins`): once per process, at the
+    first registry read.  Threads that read together wait for the one that loads."""
+    global _STATE
+    if _STATE == "done":
+        return
+    with _LOCK:
+        if _STATE != "no":           # done meanwhile, or this thread is loading (a read while registering)
+            return
+        _STATE = "loading"
+        try:
+            for module in BUILTIN_MODULES:
+                importlib.import_module(module)
+            load_entry_point_plugins()
+        except BaseException:
+            _STATE = "no"
+            raise
+        _STATE = "done"
 
 
 def load_entry_point_plugins() -> None:
-    """Import the modules of the :data:`PLUGIN_GROUPS` entry-point groups, once per process,
-    at the first registry read after ``import dkfsim`` completed.  A plugin that fails to
+    """Import the modules of the :data:`PLUGIN_GROUPS` entry-point groups (what
+    :func:`ensure_registered` does once the built-ins are registered).  A plugin that fails to
     import is reported on stderr (once) and left out; dkfsim itself keeps working."""
-    global _PLUGINS_LOADED
-    if _PLUGINS_LOADED or not _BUILTINS_REGISTERED:
-        return
-    _PLUGINS_LOADED = True           # (a plugin that reads a registry while loading does not recurse)
     for ep in (ep for group in PLUGIN_GROUPS for ep in entry_points(group=group)):
         try:
             ep.load()

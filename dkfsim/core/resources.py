@@ -14,12 +14,23 @@ factor of a few) -- and calls :func:`check`:
   the estimate and the way to proceed (``--yes`` / ``yes=True``).
 
 Nothing has been computed when either happens, so nothing is lost.
+
+Time is estimated as *events*, then seconds: a run's events are its estimator ticks, the
+packets sent, the (node, row) pairs its window filters re-run and the rows its fusion re-runs
+(:data:`EVENT_KINDS`, what :func:`dkfsim.engine.driver.run_events` counts in a run); an
+estimate that matters measures them on a short trial of the run
+(:func:`dkfsim.engine.driver.trial_events`), and :func:`event_seconds` turns them into seconds
+with the seconds per event ``tools/bench.py --calibrate`` fitted and stored in
+:data:`CALIBRATION` (docs/performance.md, "Estimates").
 """
 
 from __future__ import annotations
 
+import functools
+import json
 import math
 import os
+from pathlib import Path
 
 try:
     import resource
@@ -48,6 +59,36 @@ C_VISIT = 1.0e-6        # per node or edge visited by a breadth-first search (ne
 #: Below this many visits an exact all-pairs search is cheap enough to just do.
 CHEAP_VISITS = 2_000_000
 B_FLOAT = 8
+
+#: The kinds of events a run counts and an estimate predicts (docs/performance.md, "Estimates").
+EVENT_KINDS = ("ticks", "packets", "node_rows", "fused_rows")
+#: Seconds of CPU per event, fitted by ``tools/bench.py --calibrate`` (one core, one BLAS thread,
+#: compiled kernels): ``ticks``, ``packets``, ``node_rows`` per event, ``fusion_flops`` per fused
+#: row and cubed fusion size ``(n nx)^3``, and the machine and date of the fit.
+CALIBRATION = Path(__file__).resolve().parents[1] / "data" / "calibration" / "seconds_per_event.json"
+
+
+@functools.cache
+def seconds_per_event() -> dict:
+    """The stored calibration (:data:`CALIBRATION`)."""
+    return json.loads(CALIBRATION.read_text())
+
+
+def event_seconds(events: dict, fusion_size: int) -> float:
+    """CPU seconds of ``events`` (counts by :data:`EVENT_KINDS`) whose fusion is ``fusion_size``
+    = ``n nx`` wide, at the calibrated seconds per event."""
+    s = seconds_per_event()
+    return (events.get("ticks", 0) * s["ticks"] + events.get("packets", 0) * s["packets"]
+            + events.get("node_rows", 0) * s["node_rows"]
+            + events.get("fused_rows", 0) * float(fusion_size) ** 3 * s["fusion_flops"])
+
+
+def human_count(n: float) -> str:
+    """``1.2 million`` and the like, for counts of events."""
+    for word, size in (("billion", 1e9), ("million", 1e6), ("thousand", 1e3)):
+        if n >= size:
+            return f"{n / size:.3g} {word}"
+    return f"{n:.0f}"
 
 #: What a run keeps (``--save``, resolved): everything, no arrival log, summary.json only.
 SaveMode = Literal["full", "estimates", "summary"]
@@ -132,12 +173,28 @@ def _address_space_left() -> int | None:
 
 @dataclass
 class Cost:
-    """What a piece of work needs: memory by item (bytes) and CPU seconds on one core."""
+    """What a piece of work needs: memory by item (bytes) and CPU seconds on one core.
+
+    ``events``: the events it predicts by kind (:data:`EVENT_KINDS`; empty for an analytic guess)
+    and ``how`` they were predicted (e.g. "measured on a trial of 54 ticks")."""
 
     what: str
     memory: dict = field(default_factory=dict)
     seconds: float = 0.0
     workers: int = 1
+    events: dict = field(default_factory=dict)
+    how: str = ""
+
+    @property
+    def n_events(self) -> float:
+        return float(sum(self.events.values()))
+
+    def events_text(self) -> str:
+        """``"2.1 million events (…), measured on …"`` or ``""`` without events."""
+        if not self.events:
+            return ""
+        parts = ", ".join(f"{human_count(v)} {k.replace('_', '-')}" for k, v in self.events.items() if v)
+        return f"{human_count(self.n_events)} events ({parts})" + (f", {self.how}" if self.how else "")
 
     @property
     def bytes(self) -> float:
@@ -161,17 +218,18 @@ def check(est: Cost, *, yes: bool = False, hint: str = "", yes_flag: str = "--ye
             f"the {human_bytes(room)} this machine can give it" + (f"; {hint}" if hint else ""))
     if est.wall_seconds > TIME_LIMIT_S and not yes:
         par = f" on {est.workers} workers" if est.workers > 1 else ""
+        basis = f"{est.events_text()}; " if est.events else "a rough estimate, within a factor of a few; "
         raise ResourceError(
-            f"{est.what} would take about {human_seconds(est.wall_seconds)}{par} (a rough estimate, "
-            f"within a factor of a few; memory about {human_bytes(est.bytes)}); add {yes_flag} to "
-            "run it anyway" + (f", or {hint}" if hint else ""))
+            f"{est.what} would take about {human_seconds(est.wall_seconds)}{par} ({basis}memory about "
+            f"{human_bytes(est.bytes)}); add {yes_flag} to run it anyway" + (f", or {hint}" if hint else ""))
 
 
 # =========================================================================== many runs
 def repeat(est: Cost, what: str, count: float, workers: int, extra_bytes: float = 0.0,
            extra_seconds: float = 0.0) -> Cost:
     """``count`` runs like ``est`` on ``workers`` processes (each holding one run at a time)."""
-    out = Cost(what, workers=max(1, workers))
+    out = Cost(what, workers=max(1, workers), events={k: v * count for k, v in est.events.items()},
+               how=est.how)
     for name, size in est.memory.items():
         out.memory[f"{name} (x {min(out.workers, max(1, math.ceil(count)))} workers)"] = \
             size * min(out.workers, max(1, math.ceil(count)))

@@ -33,8 +33,9 @@ from dkfsim.config.schema import Scenario
 from dkfsim.core.backend import Backend
 from dkfsim.core.progress import progress_callback
 from dkfsim.core.registry import ESTIMATORS
+from dkfsim.core.resources import Cost, check
 from dkfsim.core.threads import single_thread
-from dkfsim.engine.estimate import check_run
+from dkfsim.engine.estimate import RUN_HINT, TRIAL_ABOVE_S, estimate_run, scaled_events, trial_ticks
 from dkfsim.engine.results import RunResult
 from dkfsim.estimators.anti_delay import AntiDelayDKF, AntiDelayParams
 from dkfsim.estimators.base import Estimator, EstimatorResult, RunContext
@@ -62,16 +63,38 @@ def run_backend(plan: RunPlan, network: Network, crashes: CrashSchedule | None) 
     return backend
 
 
+def run_events(results: Sequence[tuple[Estimator, EstimatorResult]], K: int) -> dict[str, int]:
+    """What a run did, counted as its estimate predicts it (:mod:`dkfsim.engine.estimate`):
+    ``ticks`` (K per estimator), ``packets`` (every estimator's packets sent, and the background
+    frames of its copy of a shared channel), ``node_rows`` (the (node, row) pairs the window
+    filters re-ran: every anti-delay DKF, a fusion centre's shadow) and ``fused_rows`` (the rows
+    their fusion's cross-covariance recursion re-ran)."""
+    out = {"ticks": K * len(results), "packets": 0, "node_rows": 0, "fused_rows": 0}
+    for est, res in results:
+        traffic = res.traffic or {}
+        out["packets"] += int(traffic.get("sent") or 0)
+        channel = traffic.get("channel") or {}
+        out["packets"] += int(channel.get("background_sent", 0)) + int(channel.get("background_collided", 0))
+        window = getattr(est, "window", None)
+        if window is not None:
+            out["node_rows"] += int(window.node_rows)
+            if getattr(est, "xcov", None) is not None:
+                out["fused_rows"] += int(window.rows_run)
+    return out
+
+
 class Run:
     """The runtime state of one run (configuration stays in the scenario)."""
 
     def __init__(self, scenario: Scenario, *, save: str = "auto",
                  progress: Callable[[int, int], None] | None = None, system: LinearGaussianSystem | None = None,
-                 plan: RunPlan | None = None):
+                 plan: RunPlan | None = None, backend: Backend | None = None):
         """``system`` and ``plan``: the scenario's :func:`~dkfsim.model.system.build_system`
         and :class:`~dkfsim.config.plan.RunPlan`, when the caller already has them (the runs
         of a Monte Carlo differ only by their seed and share both, ``plan.with_seed``; a run
-        reads them, never changes them).  A ``plan`` brings its own save mode."""
+        reads them, never changes them).  A ``plan`` brings its own save mode.  ``backend``:
+        this one instead of the environment's (the trial of an estimate runs on numpy,
+        :mod:`dkfsim.engine.estimate`)."""
         self.scenario = scenario
         self.K = K = int(scenario.steps)
         seed = int(scenario.seed)
@@ -86,7 +109,7 @@ class Run:
         network = Network(env, plan.arcs, scenario.link_spec, seed, system.T_ns, crashes=crashes,
                           shared_queues=bool(scenario.links.shared_queues), schedule=plan.link_schedule,
                           medium=scenario.medium, n=system.n)
-        self.backend = run_backend(plan, network, crashes)
+        self.backend = run_backend(plan, network, crashes) if backend is None else backend
         self.ctx = RunContext(scenario=scenario, plan=plan, backend=self.backend, system=system, truth=truth, ys=ys,
                               info=system.information(ys), crashes=crashes, env=env, network=network)
         self.dkf = AntiDelayDKF(AntiDelayParams(), self.ctx, main=True)
@@ -169,6 +192,7 @@ class Run:
             "save": ctx.save,
             "kernels": self.backend.kernels,
             "node_rows": self.dkf.window.node_rows,
+            "events": run_events(results, K),
             "exchange": self.dkf.exchange.bookkeeping,
             "backend": self.backend.record(),
         }
@@ -183,25 +207,76 @@ class Run:
                          facts=facts)
 
 
+# =========================================================================== estimates
+#: The backend of a trial: the numpy kernels and the Python exchange (no kernels to compile or
+#: load; a run's events are the same on every path).
+TRIAL_BACKEND = Backend("numpy", "python")
+
+
+def trial(plan: RunPlan, save: str = "summary") -> RunResult:
+    """A trial of ``plan``'s scenario: its first :func:`~dkfsim.engine.estimate.trial_ticks`
+    ticks, on the numpy kernels."""
+    sc = plan.scenario
+    K, P = int(sc.steps), trial_ticks(plan)
+    short = load_scenario(sc, overrides=[f"steps={P}"]) if P < K else sc
+    with np.errstate(all="ignore"):
+        return Run(short, save=save, backend=TRIAL_BACKEND).run()
+
+
+def trial_events(plan: RunPlan) -> tuple[dict[str, float], int]:
+    """The events of a run of ``plan``'s scenario, measured on a :func:`trial` (nothing kept) and
+    scaled to its ticks; and the trial's ticks."""
+    res = trial(plan)
+    P = int(res.scenario.steps)
+    return scaled_events(res.info["events"], P, int(plan.scenario.steps)), P
+
+
+def trial_estimate(plan: RunPlan, res: RunResult) -> Cost:
+    """The estimate of a run of ``plan`` from its :func:`trial` ``res``."""
+    P = int(res.scenario.steps)
+    return estimate_run(plan, events=scaled_events(res.info["events"], P, int(plan.scenario.steps)),
+                        how=f"measured on a trial of {P} ticks")
+
+
+def measured_estimate(plan: RunPlan, runs: float = 1, workers: int = 1, force: bool = False) -> Cost:
+    """The estimate of one run of ``plan``: its analytic guess, or, when ``runs`` such runs on
+    ``workers`` would take more than :data:`~dkfsim.engine.estimate.TRIAL_ABOVE_S` by the guess
+    (or ``force``), its events measured on a trial (:func:`trial_events`)."""
+    guess = estimate_run(plan)
+    if not force and guess.seconds * runs / max(1, workers) <= TRIAL_ABOVE_S:
+        return guess
+    events, ticks = trial_events(plan)
+    return estimate_run(plan, events=events, how=f"measured on a trial of {ticks} ticks")
+
+
+def check_run_measured(plan: RunPlan, *, yes: bool = False) -> Cost:
+    """:func:`~dkfsim.core.resources.check` one run on :func:`measured_estimate`; the estimate."""
+    est = measured_estimate(plan)
+    check(est, yes=yes, hint=RUN_HINT)
+    return est
+
+
 @single_thread
 def run(scenario: Scenario | str | PathLike | Mapping[str, Any], *, seed: int | None = None,
-        steps: int | None = None, save: str = "auto", progress: bool | Callable[[int, int], None] | None = None,
-        yes: bool = False) -> RunResult:
+        steps: int | None = None, overrides: Sequence[str] = (), save: str = "auto",
+        progress: bool | Callable[[int, int], None] | None = None, yes: bool = False) -> RunResult:
     """Simulate one scenario and return its :class:`~dkfsim.engine.results.RunResult`.
 
     ``scenario`` is a :class:`~dkfsim.config.schema.Scenario`, a path to a
     scenario file or a mapping.  ``seed`` and ``steps`` override the
-    scenario's (the same as ``--set``).  A run that cannot fit in memory
+    scenario's, ``overrides`` (``dotted.key=value``) are ``--set``: the keywords of
+    :func:`dkfsim.montecarlo`, :func:`dkfsim.sweep` and :func:`dkfsim.maxdelay`.  A run that cannot fit in memory
     raises :class:`~dkfsim.core.errors.ResourceError`; one estimated to take
     more than 10 minutes does too unless ``yes`` (:mod:`dkfsim.core.resources`).
     ``progress``: True for a ``tqdm.auto`` bar (a widget in notebooks), or a
     callable ``progress(tick, K)``.  BLAS runs on one thread during the call (:mod:`dkfsim.core.threads`).
     """
-    overrides = [f"{key}={int(val)}" for key, val in (("seed", seed), ("steps", steps)) if val is not None]
-    if overrides or not isinstance(scenario, Scenario):   # validated exactly as --set would be
-        scenario = load_scenario(scenario, overrides=overrides)
+    extra = [*overrides, *(f"{key}={int(val)}" for key, val in (("seed", seed), ("steps", steps))
+                           if val is not None)]
+    if extra or not isinstance(scenario, Scenario):   # validated exactly as --set would be
+        scenario = load_scenario(scenario, overrides=extra)
     plan = RunPlan(scenario, save)
-    check_run(plan, yes=yes)
+    check_run_measured(plan, yes=yes)
     with progress_callback(progress, int(scenario.steps), scenario.name, "tick") as callback:
         with np.errstate(all="ignore"):      # an exploding truth is reported, not warned about
             sim = Run(scenario, save=save, progress=callback, plan=plan)

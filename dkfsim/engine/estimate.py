@@ -7,6 +7,12 @@ estimator's :meth:`~dkfsim.estimators.base.Estimator.cost`, all read from the ru
 diameter (for ``flood``'s buffer) or the spanning tree's centre costs a search per node;
 the plan then gives a cheap lower bound of the buffer length and the estimate adds that
 search to the time (:attr:`RunPlan.search_seconds <dkfsim.config.plan.RunPlan.search_seconds>`).
+
+That time is an analytic guess (each node re-running its whole window every tick, a fixed number
+of packets per link and tick): right within a factor of a few, enough to know that a run is
+short.  Where it is not short (above :data:`TRIAL_ABOVE_S`), the commands measure the run's
+events on a trial (:func:`dkfsim.engine.driver.trial_events`) and :func:`estimate_run` turns
+those into seconds (:func:`~dkfsim.core.resources.event_seconds`).
 """
 
 from __future__ import annotations
@@ -16,13 +22,32 @@ from dkfsim.components.traffic import background_packets
 from dkfsim.config.plan import RunPlan
 from dkfsim.config.schema import named
 from dkfsim.core.registry import ESTIMATORS
-from dkfsim.core.resources import B_FLOAT, C_PACKET, Cost, check
+from dkfsim.core.resources import B_FLOAT, C_PACKET, EVENT_KINDS, Cost, check, event_seconds
 from dkfsim.estimators.anti_delay import AntiDelayDKF
 
+#: Above this many seconds of the analytic guess, a command measures its events on a trial.
+TRIAL_ABOVE_S = 30.0
+#: The refusal's hint of ``dkfsim run`` (every option it names applies to the command).
+RUN_HINT = ("fewer steps (--steps) or nodes, a shorter buffer_length, fusion: none, less background "
+            "load, or --save estimates (no n x n x K arrival log)")
 
-def estimate_run(run, save: str = "auto") -> Cost:
+
+def trial_ticks(plan: RunPlan) -> int:
+    """The ticks of a trial: twice the buffer and 20 more (the window's re-runs reach their
+    steady depth after ``L`` ticks), at most the run's."""
+    return int(min(int(plan.scenario.steps), 2 * min(plan.L_estimate, 10**6) + 20))
+
+
+def scaled_events(events: dict, ticks: int, K: int) -> dict[str, float]:
+    """The events of a trial of ``ticks`` ticks scaled to a run of ``K``."""
+    return {k: float(events[k]) * K / ticks for k in EVENT_KINDS}
+
+
+def estimate_run(run, save: str = "auto", events: dict | None = None, how: str = "") -> Cost:
     """Memory and time of one run (its DKF and every listed estimator): ``run`` is its
-    :class:`~dkfsim.config.plan.RunPlan`, or a scenario (planned with ``save``)."""
+    :class:`~dkfsim.config.plan.RunPlan`, or a scenario (planned with ``save``).  ``events``:
+    the run's events measured on a trial and scaled to its ticks (``how`` says how), which
+    then give the time; without them the time is the analytic guess."""
     plan = run if isinstance(run, RunPlan) else RunPlan(run, save)
     scenario = plan.scenario
     n, nx, K = scenario.n, scenario.nx, int(scenario.steps)
@@ -41,13 +66,48 @@ def estimate_run(run, save: str = "auto") -> Cost:
         total.seconds += part.seconds
         for key, size in part.memory.items():
             total.memory[f"{key} ({part.what})" if key in total.memory else key] = size
+    if events is not None:
+        total.events = {k: float(events[k]) for k in EVENT_KINDS}
+        total.how = how
+        total.seconds = plan.search_seconds + event_seconds(total.events, n * nx)
     return total
+
+
+def buffer_warning(plan: RunPlan) -> str | None:
+    """A warning when the scenario's integer ``buffer_length`` is below the bound the plan
+    computes for ``auto`` (``d_t d_g + 1``; on a changing graph ``(n - 1)(B + d_t) + 1``), else
+    None.  On a changing graph a ``late`` count of 0 does not mean the final rows are exact: a
+    row's information may still be on its way when the row leaves the window, unseen (docs/design.md
+    §6)."""
+    sc = plan.scenario
+    L = sc.buffer_length
+    if not isinstance(L, int) or isinstance(L, bool) or plan.d_t is None:
+        return None
+    if plan.graph_changes:
+        B = plan.connect_window
+        if B is None:
+            return (f"buffer_length {L}: the links up never make a connected union over the run (no window "
+                    "B), so no buffer length makes the final rows exact, and late = 0 does not say they are "
+                    "(docs/mobility.md)")
+        bound = (sc.n - 1) * (B + plan.d_t) + 1
+        if L >= bound:
+            return None
+        return (f"buffer_length {L} is below (n - 1)(B + d_t) + 1 = ({sc.n} - 1)({B} + {plan.d_t}) + 1 = "
+                f"{bound}, the bound for this changing graph: a final row can differ from what the "
+                "centralized filter knows even when late = 0 (information still on its way when the row "
+                "leaves the window is not counted as late; docs/mobility.md); buffer_length: auto uses the bound")
+    bound = plan.d_t * plan.exchange.d_g + 1
+    if L >= bound:
+        return None
+    return (f"buffer_length {L} is below d_t d_g + 1 = {plan.d_t} x {plan.exchange.d_g} + 1 = {bound}: "
+            "information slower than the window arrives late (the run counts it as late) and the final "
+            "rows miss it; buffer_length: auto uses the bound")
 
 
 def check_run(run, *, save: str = "auto", yes: bool = False) -> Cost:
     """:func:`~dkfsim.core.resources.check` one run (a plan, or a scenario planned with
-    ``save``); returns its estimate."""
+    ``save``) on its analytic guess; returns the estimate.  (``dkfsim.run`` and ``dkfsim run``
+    measure a trial first when the guess is long: :func:`dkfsim.engine.driver.check_run_measured`.)"""
     est = estimate_run(run, save)
-    check(est, yes=yes, hint="fewer steps or nodes, a shorter buffer_length, fusion: none, "
-                             "less background load, or --save estimates (no n x n x K arrival log)")
+    check(est, yes=yes, hint=RUN_HINT)
     return est

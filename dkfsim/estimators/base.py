@@ -25,20 +25,22 @@ run, and :func:`dkfsim.testing.check_estimator` checks one.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Any, Callable, ClassVar
+from typing import TYPE_CHECKING, Any, Callable, ClassVar
 
 import numpy as np
 import simpy
 
 from dkfsim.components.estimators import EstimatorParams
 from dkfsim.components.faults import CrashSchedule
-from dkfsim.config.plan import RunPlan
-from dkfsim.config.schema import Scenario
 from dkfsim.core.backend import Backend
 from dkfsim.core.registry import ESTIMATORS
 from dkfsim.core.resources import B_FLOAT, Cost, SaveMode
 from dkfsim.model.system import Information, LinearGaussianSystem
 from dkfsim.network.links import Link, Network, Port
+
+if TYPE_CHECKING:                     # (annotations only: ``dkfsim list`` imports this module)
+    from dkfsim.config.plan import RunPlan
+    from dkfsim.config.schema import Scenario
 
 __all__ = ["Estimate", "Estimator", "EstimatorResult", "RunContext", "SaveMode", "existing_information_bytes"]
 

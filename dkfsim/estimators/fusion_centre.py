@@ -34,7 +34,6 @@ from __future__ import annotations
 import heapq
 from typing import Any
 
-import networkx as nx
 import numpy as np
 from simpy.events import Event
 
@@ -56,6 +55,7 @@ def next_hops(arcs: list[tuple[int, int]], n: int, at: int) -> tuple[np.ndarray,
     lowest-index neighbour among equals; a breadth-first search from ``at`` over the reversed
     arcs), -1 for ``at`` itself and for a node that cannot reach it; and each node's hops to
     ``at`` on that path (0 for ``at``, -1 for a node that cannot reach it)."""
+    import networkx as nx  # (lazy: a centre's start, not every command, needs it)
     graph = nx.DiGraph()
     graph.add_nodes_from(range(n))
     graph.add_edges_from((v, u) for u, v in arcs)              # reversed: distances *to* at

@@ -30,10 +30,9 @@ module holds what they share:
 from __future__ import annotations
 
 import math
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
-import scipy.sparse
 from typing_extensions import override
 
 from dkfsim.core.linalg import solve
@@ -42,6 +41,9 @@ from dkfsim.estimators.base import Estimate, Estimator, existing_information_byt
 from dkfsim.estimators.window import predict
 from dkfsim.network.links import PRIORITY_UPDATE, Link, Port, Scheduled
 from dkfsim.protocols.base import info_bytes
+
+if TYPE_CHECKING:
+    import scipy.sparse
 
 
 # --------------------------------------------------------------------------- helpers
@@ -213,6 +215,7 @@ class RoundBased(Estimator):
         self.src = np.array([u for u, _ in arcs], dtype=np.intp)
         self.dst = np.array([v for _, v in arcs], dtype=np.intp)
         pi = metropolis_weights(n, arcs) if E else np.zeros(0)
+        import scipy.sparse  # (lazy: a consensus run's start, not every command)
         # S[v, a] = pi_a for arc a = (u -> v): the neighbour part of a combination.
         self.S = scipy.sparse.csr_matrix((pi, (self.dst, np.arange(E))), shape=(n, E))
         # A[v, a] = 1 for arc a = (u -> v): sums over in-neighbours.
@@ -280,6 +283,7 @@ class RoundBased(Estimator):
 
     def weight_matrix(self, on: np.ndarray) -> scipy.sparse.csr_matrix:
         """``S[v, a] = pi_a`` for arc ``a = (u -> v)`` of the graph of the arcs ``on``."""
+        import scipy.sparse
         return scipy.sparse.csr_matrix((self.arc_weights(on), (self.dst, np.arange(self.E))),
                                        shape=(self.n, self.E))
 

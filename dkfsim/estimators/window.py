@@ -167,6 +167,8 @@ class WindowFilter:
         self._model = kernels.Model(self.Phi, self.Q, self.x0, self.P0)
         #: node-rows recomputed so far (the filtering work; tools/bench.py fits its cost)
         self.node_rows = 0
+        #: rows recomputed so far, for any node (what a fusion hooked in ``on_rows`` redoes)
+        self.rows_run = 0
 
     # -- the tick ------------------------------------------------------------
     def update(self, k: int, on_rows=None) -> int:
@@ -192,6 +194,7 @@ class WindowFilter:
             np.maximum(starts, lo, out=starts)
         first = int(starts.min())
         self.node_rows += int((last + 1 - starts).sum())
+        self.rows_run += last + 1 - first
         if self.kernels is not None:
             self.kernels.window_rows(self._model, self.ring, starts, first, last)
         else:

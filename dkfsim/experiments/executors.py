@@ -112,12 +112,15 @@ def _watch_parent(parent_pid: int) -> None:
 
 
 def _init_local_worker(parent_pid: int) -> None:
-    pin_process()                     # one BLAS thread: the parallelism is the processes
-    # Ctrl-C reaches the whole process group; only the parent handles it.  SIGTERM (the CLI
-    # turns it into an interruption, docs/decisions.md #108) ends a worker as before.
-    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    # Ctrl-C reaches the whole process group: it ends a worker at once, as SIGTERM does (the
+    # parent, interrupted too, stops the pool and reports; the CLI turns SIGTERM into an
+    # interruption, docs/decisions.md #108).  A worker that ignored SIGINT computed on for
+    # nobody while its parent was busy or gone (issue 34 §3, decision 261); one whose parent
+    # disappears exits within half a second (:func:`_watch_parent`).
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
     signal.signal(signal.SIGTERM, signal.SIG_DFL)
     threading.Thread(target=_watch_parent, args=(parent_pid,), daemon=True).start()
+    pin_process()                     # one BLAS thread: the parallelism is the processes
 
 
 class LocalExecutor(Executor):
@@ -195,12 +198,18 @@ def kill_pool(pool) -> None:
     thrown away anyway (the caller has stopped listening).
     """
     procs = list((getattr(pool, "_processes", None) or {}).values())
+    manager = getattr(pool, "_executor_manager_thread", None)
     pool.shutdown(wait=False, cancel_futures=True)
     for p in procs:
         if p.is_alive():
             p.terminate()
     for p in procs:
         p.join(timeout=5)
+    # The pool's manager thread notices its dead workers and closes its wake-up pipe; until it
+    # has, an interpreter exiting now may write to that pipe as it closes ("Bad file descriptor",
+    # printed at the exit of an interrupted command): wait for it.
+    if manager is not None:
+        manager.join(timeout=5)
 
 
 def local(jobs: int | None = None, tasks: int | None = None) -> Executor:

@@ -34,6 +34,7 @@ from __future__ import annotations
 
 import math
 import time
+from collections.abc import Sequence
 from functools import cached_property
 from pathlib import Path
 
@@ -63,8 +64,7 @@ from dkfsim.core.progress import progress_callback
 from dkfsim.core.resources import Cost, check, repeat
 from dkfsim.core.text import aligned
 from dkfsim.core.threads import single_thread
-from dkfsim.engine.driver import Run
-from dkfsim.engine.estimate import estimate_run
+from dkfsim.engine.driver import Run, measured_estimate
 from dkfsim.engine.results import versions, write_rows
 from dkfsim.experiments import executors
 from dkfsim.model.system import build_system
@@ -164,6 +164,14 @@ def run_rows(scenario, seed: int, burn_in: int | None = None, *,
     or a :class:`Template` (many runs of one scenario: validated and built once);
     ``burn_in`` defaults to 10 % of the ticks.
     """
+    rows, out, _events = run_scored(scenario, seed, burn_in, curves=curves)
+    return rows, out
+
+
+def run_scored(scenario, seed: int, burn_in: int | None = None, *,
+               curves: bool = True) -> tuple[list[dict], dict | None, dict[str, int]]:
+    """:func:`run_rows`, and the run's events (``RunResult.info["events"]``: what its estimate
+    predicted, :mod:`dkfsim.engine.estimate`)."""
     tpl = scenario if isinstance(scenario, Template) else Template(scenario)
     sc = tpl.scenario_for(seed)
     burn = check_burn_in(burn_in, int(sc.steps))
@@ -171,7 +179,24 @@ def run_rows(scenario, seed: int, burn_in: int | None = None, *,
         res = Run(sc, save="estimates", system=tpl.system, plan=tpl.plan_for(sc)).run()
         scored = res.scored(burn)            # one NEES per estimate, for the rows and the curves
         rows = [{**row, "seed": int(seed)} for row in res.rows(burn, scored)]
-        return rows, (_curves(res, scored) if curves else None)
+        out = _curves(res, scored) if curves else None
+        if out is not None:
+            out["packets"] = {name: packet_counts(t) for name, t in res.traffic.items()}
+        return rows, out, dict(res.info["events"])
+
+
+#: The counts of a run's traffic a Monte Carlo averages per estimate: the terms of the identity
+#: ``sent + copies = delivered + lost + queue_dropped + crash_dropped + in_flight`` and the causes
+#: of ``lost`` (docs/design.md §3).
+PACKET_COUNTS = ("sent", "copies", "delivered", "lost", "outage_lost", "range_lost", "collision_lost",
+                 "queue_dropped", "crash_dropped", "in_flight")
+
+
+def packet_counts(traffic: dict | None) -> dict[str, int] | None:
+    """The :data:`PACKET_COUNTS` of one estimator's traffic (None: not modelled)."""
+    if traffic is None:
+        return None
+    return {k: int(traffic.get(k, 0) or 0) for k in PACKET_COUNTS}
 
 
 def _curves(res, scored: dict) -> dict:
@@ -197,9 +222,11 @@ def _curves(res, scored: dict) -> dict:
 def _one(template: Template, r: int, seed: int, burn_in: int) -> tuple[list[dict], dict]:
     """Run ``r`` where it runs (a worker, or this process): its rows and curves."""
     try:
-        rows, curves = run_rows(template, seed, burn_in)
+        rows, curves, events = run_scored(template, seed, burn_in)
     except DkfsimError as exc:      # e.g. a random topology that is disconnected for this seed
         raise DkfsimError(f"run {r} (seed {seed}): {exc}") from None
+    assert curves is not None                   # (asked for: run_scored's curves=True)
+    curves["events"] = events
     if r != 0:       # only run 0 is kept as the example: do not ship the rest
         for key in ("example_truth", "example_x", "example_node0"):
             del curves[key]
@@ -214,8 +241,19 @@ class _Fold:
         self.n = 0
         self.mean = self.m2 = self.nees_sum = None
         self.first = None
+        #: the runs' events, summed (what the estimate predicted)
+        self.events: dict[str, int] = {}
+        #: per estimate, its packet counts summed over the runs (None: not modelled)
+        self.packets: dict[str, dict[str, int] | None] = {}
 
     def add(self, curves: dict) -> None:
+        for key, count in curves.get("events", {}).items():
+            self.events[key] = self.events.get(key, 0) + int(count)
+        for name, counts in curves.get("packets", {}).items():
+            total = self.packets.setdefault(name, None if counts is None else dict.fromkeys(counts, 0))
+            if total is not None and counts is not None:
+                for key, v in counts.items():
+                    total[key] += v
         se, nees = curves["se"], curves["nees"]
         if self.n == 0:
             self.first = curves
@@ -235,7 +273,8 @@ class _Fold:
 @single_thread
 def montecarlo(scenario, runs: int, jobs: int | None = None, burn_in: int | None = None,
                progress=None, yes: bool = False, executor=None,
-               relative_to: str | None = None) -> "MonteCarloResult":
+               relative_to: str | None = None, *, seed: int | None = None, steps: int | None = None,
+               overrides: Sequence[str] = ()) -> "MonteCarloResult":
     """``runs`` independent runs of ``scenario``.
 
     ``scenario``: a Scenario, a path or a mapping.  Run ``r`` uses seed
@@ -249,11 +288,13 @@ def montecarlo(scenario, runs: int, jobs: int | None = None, burn_in: int | None
     cannot fit in memory is refused, and work estimated above 10 minutes needs ``yes``
     (:mod:`dkfsim.core.resources`).  ``relative_to``: the reference estimate of the paired
     comparisons (default ``centralized`` when the scenario has it; :func:`check_reference`).
+    ``seed`` (the base seed), ``steps`` and ``overrides`` (``dotted.key=value``, as ``--set``):
+    the keywords of :func:`dkfsim.run`, :func:`dkfsim.sweep` and :func:`dkfsim.maxdelay`.
     """
     if isinstance(runs, bool) or not isinstance(runs, int) or runs < 1:
         raise DkfsimError(f"--runs: must be an integer >= 1, got {runs!r}")
     executors.check_jobs(jobs)
-    sc = scenario if isinstance(scenario, Scenario) else load_scenario(scenario)
+    sc = with_keywords(scenario, seed, steps, overrides)
     burn = check_burn_in(burn_in, int(sc.steps))
     check_reference(sc, relative_to)
     workers = executor.workers if isinstance(executor, executors.Executor) else \
@@ -290,6 +331,16 @@ def _montecarlo(sc, runs: int, jobs, burn: int, progress, executor) -> "MonteCar
             ex.close()
     wall = time.perf_counter() - t0
     return MonteCarloResult(sc, runs, ex.workers, burn, seeds, rows, fold, wall, ex.label, template.plan)
+
+
+def with_keywords(scenario, seed: int | None = None, steps: int | None = None,
+                  overrides: Sequence[str] = ()) -> Scenario:
+    """``scenario`` (a Scenario, a path or a mapping) with the API's ``seed``, ``steps`` and
+    ``overrides`` applied, validated as ``--set`` would be."""
+    extra = [*overrides, *(f"{k}={int(v)}" for k, v in (("seed", seed), ("steps", steps)) if v is not None)]
+    if isinstance(scenario, Scenario) and not extra:
+        return scenario
+    return load_scenario(scenario, overrides=extra)
 
 
 def scenario_estimates(sc) -> list[str]:
@@ -342,9 +393,10 @@ def load_montecarlo(folder, *, data_files: bool = False) -> "MonteCarloResult":
         raise DkfsimError(f"{folder}: {exc}") from None
 
 
-def estimate_montecarlo(sc, runs: int, jobs: int) -> Cost:
-    """Memory and time of ``runs`` runs on ``jobs`` processes, rows and curves included."""
-    one = estimate_run(sc, "estimates")
+def estimate_montecarlo(sc, runs: int, jobs: int, force_trial: bool = False) -> Cost:
+    """Memory and time of ``runs`` runs on ``jobs`` processes, rows and curves included (the
+    events of one run measured on a trial when the guess is long, or ``force_trial``)."""
+    one = measured_estimate(RunPlan(Template(sc).scenario, "estimates"), runs, min(jobs, runs), force_trial)
     estimates = 2 + len(sc.estimators)
     K, nx = int(sc.steps), sc.nx
     kept = runs * estimates * nx * 600 + 6 * estimates * K * nx * 8     # rows; pooled curves
@@ -352,9 +404,16 @@ def estimate_montecarlo(sc, runs: int, jobs: int) -> Cost:
                   min(jobs, runs), extra_bytes=kept)
 
 
-def check_montecarlo(sc, runs: int, jobs: int, *, yes: bool = False) -> Cost:
+#: The refusal's hint of the Python API (the command line names its own flags).
+API_HINT = "fewer runs or steps, or more jobs"
+
+
+def check_montecarlo(sc, runs: int, jobs: int, *, yes: bool = False, hint: str = API_HINT,
+                     yes_flag: str = "yes=True") -> Cost:
+    """Refuse a Monte Carlo that cannot fit, ask for ``yes`` above 10 minutes; ``hint`` and
+    ``yes_flag`` say what the caller can change (its flags or its keywords)."""
     est = estimate_montecarlo(sc, runs, jobs)
-    check(est, yes=yes, hint="fewer runs or steps, or more --jobs")
+    check(est, yes=yes, yes_flag=yes_flag, hint=hint)
     return est
 
 
@@ -389,6 +448,12 @@ class MonteCarloResult:
         self.nees_band = nees_band(runs, len(self.components))
         self.example = {"example_truth": first["example_truth"], "example_x": first["example_x"],
                         "example_node0": first["example_node0"]}
+        #: the runs' events, summed (``RunResult.info["events"]`` of each)
+        self.events = dict(fold.events)
+        #: per estimate, the mean over runs of each packet count (:data:`PACKET_COUNTS`; None: not
+        #: modelled, as for ``centralized``)
+        self.packets = {name: None if c is None else {k: v / runs for k, v in c.items()}
+                        for name, c in fold.packets.items()}
         #: the reference estimate of the paired comparisons (None: ``centralized`` if present)
         self.relative_to: str | None = None
 
@@ -426,6 +491,8 @@ class MonteCarloResult:
         self.nees_band = nees_band(self.runs, nx)
         self.example = {k: np.asarray(curves[k], dtype=float) if k in curves else None
                         for k in ("example_truth", "example_x", "example_node0")}
+        self.events = {}
+        self.packets = {name: e.get("packets") for name, e in summary["estimates"].items()}
         self.relative_to = summary.get("relative_to")
         have = {(r["estimate"], r["component"]) for r in rows}
         missing = [(e, c) for e in self.estimates for c in self.components if (e, c) not in have]
@@ -501,6 +568,7 @@ class MonteCarloResult:
         out["anees_consistent"] = anees_consistent(out["anees_ci95"], nx)
         ref = self.reference
         out["paired"] = None if ref is None else paired_block(self.rows, estimate, ref, self.components)
+        out["packets"] = self.packets.get(estimate)
         for key in ("disagreement", "messages_per_tick", "bytes_per_tick", "lost", "late"):
             mean = float(np.mean(self.column(estimate, key)))
             out[key] = None if math.isnan(mean) else mean      # NaN rows: not modelled for it
@@ -551,6 +619,9 @@ class MonteCarloResult:
                           "mse, mse_diff_ci95 its Student-t interval over the paired runs; mse_ratio "
                           "= exp(mean of log(mse / reference mse)), mse_ratio_ci95 the exponentiated "
                           "t-interval of those log-ratios; null: no reference in these runs",
+                "packets": "per estimate, the mean over runs of its packet counts: sent + copies = "
+                           "delivered + lost + queue_dropped + crash_dropped + in_flight, and the parts "
+                           "of lost by cause (outage_lost, range_lost, collision_lost); null: not modelled",
                 "traffic": "messages_per_tick = packets the estimator sent / K; bytes_per_tick = "
                            "nominal bytes of those packets / K (16-byte header; the DKF: per row "
                            "8 + 8*(nx + nx(nx+1)/2) + ceil(n/8)); lost = packets, late = "

@@ -15,7 +15,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-import scipy.linalg
 
 from dkfsim.core.registry import SENSOR_KINDS
 from dkfsim.core.streams import stream
@@ -49,6 +48,7 @@ class LinearSensor:
     def __init__(self, H: np.ndarray, R: np.ndarray):
         self.H = np.asarray(H, float)
         self.R = np.asarray(R, float)
+        import scipy.linalg  # (lazy: a run's set-up, not every command, needs it)
         cR = scipy.linalg.cho_factor(self.R, lower=True)
         # H' R^-1 via a Cholesky solve rather than an explicit inverse.
         self.gain = scipy.linalg.cho_solve(cR, self.H).T

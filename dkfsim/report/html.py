@@ -18,6 +18,7 @@ from typing import Sequence
 
 import yaml
 
+from dkfsim.components.mobility import link_pairs, link_uptime
 from dkfsim.components.topology import is_tree as topology_is_tree
 from dkfsim.config.dynamics import component_names
 from dkfsim.config.load import stored_scenario
@@ -166,7 +167,11 @@ def network_section(sc, note: str = "") -> str:
         return f"<p class='note'>No drawing: {html.escape(str(exc))}</p>"
     is_tree = topology_is_tree(xg.graph)
     labels = [s.name or f"s{i + 1}" for i, s in enumerate(sc.sensors)]
-    fig, caption = draw_network(graph, xg.graph, is_tree, labels)
+    uptime = None
+    if plan.graph_changes and plan.link_schedule is not None:   # vehicles that move: the links that were up
+        pairs, up = link_pairs(plan.link_schedule)
+        uptime = {(int(u), int(v)): f for u, v, f in link_uptime(pairs, up[1:])}
+    fig, caption = draw_network(graph, xg.graph, is_tree, labels, uptime=uptime)
     return figure(fig_b64(fig), caption + (f". {note}" if note else ""), "network")
 
 

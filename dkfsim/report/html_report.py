@@ -19,6 +19,7 @@ from __future__ import annotations
 import html
 import tempfile
 from pathlib import Path
+from typing import Any
 
 from dkfsim.config.results import (
     MonteCarloSummary,
@@ -57,7 +58,7 @@ from dkfsim.report.plots import (
 from dkfsim.report.plots.folders import NothingToPlot
 from dkfsim.report.plots.style import png_resolution
 from dkfsim.report.sweep.page import sweep_page
-from dkfsim.report.tables import background_on_air, collided_percent
+from dkfsim.report.tables import PACKET_HEADS, background_on_air, collided_percent, count, packet_columns, packet_row
 
 # =========================================================================== sections
 #: Captions of the figures of ``dkfsim plot`` in a report, by file stem.
@@ -107,7 +108,40 @@ def _links_section(per_link: list[dict]) -> list[tuple[str, str]]:
                             "from hand-over to the start of transmission"))]
 
 
-def _channel_section(packets: dict, traffic: dict) -> list[tuple[str, str]]:
+#: The shared channel's keys a report lists, with their units (``medium:``, docs/channel.md):
+#: dotted key -> (label, factor to the unit shown).
+CHANNEL_KEYS = {
+    "rate": ("rate [bit/s]", 1.0), "access.kind": ("access", None), "access.cw": ("contention window [slots]", 1.0),
+    "access.slot": ("slot [µs]", 1e6), "access.aifs": ("AIFS [µs]", 1e6), "preamble": ("preamble [µs]", 1e6),
+    "queue.packets": ("radio queue [packets]", 1.0), "queue.bytes": ("radio queue [B]", 1.0),
+    "background.arrivals": ("background arrivals", None),
+    "background.packets_per_second": ("background per node [frames/s]", 1.0),
+    "background.size": ("background frame [B]", 1.0), "background.sizes": ("background sizes", None),
+    "background.offset": ("background offset [s]", 1.0), "nodes": ("nodes on the channel", None),
+}
+
+
+def _channel_parameters(medium) -> list[tuple[str, object]]:
+    """The ``medium:`` block of a stored scenario as (label with unit, value) rows: the keys of
+    :data:`CHANNEL_KEYS` it has (numbers converted to the unit shown, anything else as text)."""
+    rows: list[tuple[str, object]] = []
+    if not isinstance(medium, dict):
+        return rows
+    for key, (label, factor) in CHANNEL_KEYS.items():
+        value: Any = medium
+        for part in key.split("."):
+            value = value.get(part) if isinstance(value, dict) else None
+        if value is None:
+            continue
+        if factor is not None and isinstance(value, (int, float)) and not isinstance(value, bool):
+            value = value * factor if factor != 1.0 else value
+        elif not isinstance(value, str):
+            value = ", ".join(str(v) for v in value) if isinstance(value, (list, tuple)) else str(value)
+        rows.append((label, value))
+    return rows
+
+
+def _channel_section(packets: dict, traffic: dict, medium=None) -> list[tuple[str, str]]:
     """A run with ``medium:``: one row per estimator whose traffic has a ``channel`` block
     (summary.json ``packets.channel`` for the DKF, ``traffic.<estimate>.channel`` for the others;
     ``fused`` and ``local`` are the DKF's), none otherwise."""
@@ -119,7 +153,9 @@ def _channel_section(packets: dict, traffic: dict) -> list[tuple[str, str]]:
             for name, ch in blocks if ch]
     if not rows:
         return []
-    return [("Shared channel", table("channel", (
+    params = table("channel_parameters", ("parameter", "value"), _channel_parameters(medium),
+                   "the channel of the scenario (medium:, docs/channel.md), in the units shown")
+    return [("Shared channel", params + table("channel", (
         "estimator", "utilisation", "frames", "collided [%]", "dropped [frames]", "background on air",
         "background collided", "mean access delay [ms]"), rows,
         "the shared radio channel (summary.json traffic.<estimate>.channel): utilisation of the "
@@ -154,12 +190,10 @@ def run_page(folder: Path) -> str:
     nees_rows = [(e, by[(e, comps[0])]["anees"], by[(e, comps[0])]["disagreement"])
                  for e in s.get("estimates", [])]
     p = s.get("packets") or {}
-    pk = [("DKF (anti-delay)", p.get("sent"), p.get("delivered"), p.get("lost"),
-           p.get("in_flight"), p.get("late"))]
-    for name, t in (s.get("traffic") or {}).items():
-        if t is not None and name not in ("fused", "local"):
-            pk.append((name, t.get("sent"), t.get("delivered"), t.get("lost"), t.get("in_flight"),
-                       t.get("late")))
+    blocks = [("DKF (anti-delay)", p)] + [(name, t) for name, t in (s.get("traffic") or {}).items()
+                                         if isinstance(t, dict) and name not in ("fused", "local")]
+    columns = packet_columns([t for _, t in blocks])
+    pk = [(name, *packet_row(t, columns), count(t.get("late"))) for name, t in blocks]
     facts = [("kind", "single run"), ("seed", s.get("seed")), ("buffer length L", s.get("buffer_length")),
              ("d_t, d_g", f"{s.get('d_t')}, {s.get('d_g')}"), ("burn-in rows", burn)]
     sections = [
@@ -169,12 +203,14 @@ def run_page(folder: Path) -> str:
                       f"time-averaged squared error after {burn} burn-in rows (rows.csv)")),
         ("NEES", table("nees", ("estimate", "ANEES", "disagreement"), nees_rows,
                        f"time-averaged NEES after the burn-in; expected {len(comps)} when consistent")),
-        ("Packets", table("packets", ("estimator", "sent [packets]", "delivered [packets]",
-                                      "lost [packets]", "in flight at end [packets]", "late [items]"),
-                          pk, f"totals over the whole run ({s.get('steps')} ticks); late items: "
-                              "contributions or (packet, row) pairs for the DKF, stale packets for the others")),
+        ("Packets", table("packets", ("estimator", *(f"{PACKET_HEADS[c]} [packets]" for c in columns),
+                                      "late [items]"),
+                          pk, f"totals over the whole run ({s.get('steps')} ticks): sent + duplicate copies = "
+                              "delivered + lost + dropped + in flight at end, for every estimator; lost "
+                              "split by cause where the run has one; late items: contributions or "
+                              "(packet, row) pairs for the DKF, stale packets for the others")),
         *_links_section(s.get("per_link") or []),
-        *_channel_section(p, s.get("traffic") or {}),
+        *_channel_section(p, s.get("traffic") or {}, cfg.get("medium") if isinstance(cfg, dict) else None),
         *_uptime_section(s.get("mobility")),
         ("Figures", "\n".join(_figures(folder))),
         ("Versions and seeds", versions_table(s.get("versions"), [("seed", str(s.get("seed")))])),
@@ -194,7 +230,7 @@ def montecarlo_page(folder: Path) -> str:
     mse_rows = [(name, *(Interval((e["mse"][c], *e["mse_ci95"][c])) for c in comps))
                  for name, e in est.items()]
     nees_rows = [(name, Interval((e.get("anees"), *(e.get("anees_ci95") or (None, None)))),
-                  verdict(e.get("anees_consistent")), e.get("anees_fraction_in_band"))
+                  verdict(e.get("anees_consistent")), percent(e.get("anees_fraction_in_band")))
                  for name, e in est.items()]
     ref = paired_reference(est)
     paired_rows = [(name, *(Interval((e["paired"]["mse_ratio"].get(c),
@@ -202,8 +238,13 @@ def montecarlo_page(folder: Path) -> str:
                     *(Interval((e["paired"]["mse_diff"].get(c),
                                 *e["paired"]["mse_diff_ci95"].get(c, (None, None)))) for c in comps))
                    for name, e in est.items() if e.get("paired") and name != ref]
-    pk = [(name, e.get("messages_per_tick"), e.get("bytes_per_tick"), e.get("lost"), e.get("late"))
+    counts = {name: e.get("packets") if isinstance(e.get("packets"), dict) else None for name, e in est.items()}
+    columns = packet_columns(list(counts.values())) if any(counts.values()) else []
+    pk = [(name, count(e.get("messages_per_tick")), count(e.get("bytes_per_tick")),
+           *(packet_row(counts[name], columns) if columns else [count(e.get("lost"))]), count(e.get("late")))
           for name, e in est.items()]
+    pk_head = ("estimate", *RATE_HEADS, *((f"{PACKET_HEADS[c]} [packets/run]" for c in columns) if columns
+                                         else (LOST_HEAD,)), LATE_HEAD)
     seeds = _runs_seeds(folder / "runs.csv")
     facts = [("kind", "Monte Carlo"), ("runs", s.get("runs")), ("base seed", s.get("base_seed")),
              ("buffer length L", s.get("buffer_length")), ("d_t, d_g", f"{s.get('d_t')}, {s.get('d_g')}"),
@@ -226,8 +267,10 @@ def montecarlo_page(folder: Path) -> str:
                          "per-run differences")
          if paired_rows else "<p class='note'>No paired comparison (no reference estimate in "
                              "these runs).</p>"),
-        ("Packets", table("packets", ("estimate", *RATE_HEADS, LOST_HEAD, LATE_HEAD),
-                          pk, f"means over runs; {PACKETS_NOTE}")),
+        ("Packets", table("packets", pk_head, pk,
+                          "means over runs" + ("; per run: sent + duplicate copies = delivered + lost + "
+                                               "dropped + in flight at end, lost split by cause where the "
+                                               "runs have one" if columns else "") + f"; {PACKETS_NOTE}")),
         ("Figures", "\n".join(_figures(folder))),
         ("Versions and seeds", versions_table(s.get("versions"), [("seed rule", s.get("seed_rule", ""))])
          + folded(f"Seeds of the {len(seeds)} runs" + (", the first 50" if len(seeds) > 50 else "")
@@ -235,6 +278,12 @@ def montecarlo_page(folder: Path) -> str:
     ]
     return html_page(f"dkfsim report: {s.get('scenario')}",
                  f"Monte Carlo: {s.get('runs')} runs x {s.get('steps')} ticks", sections)
+
+
+def percent(fraction) -> str | None:
+    """A fraction as the figures write it (``93 %``), None when it is not a number."""
+    value = count(fraction)
+    return None if value is None else f"{100 * value:.0f} %"
 
 
 def _runs_seeds(path: Path) -> list[tuple[int, int]]:

@@ -43,8 +43,10 @@ def _tree_positions(tree, root: int, keep: set) -> dict:
     return pos
 
 
-def draw_network(graph, exchange_graph, is_tree: bool, labels=None, title: str = ""):
-    """A matplotlib figure of the network; returns ``(figure, caption)``."""
+def draw_network(graph, exchange_graph, is_tree: bool, labels=None, title: str = "", uptime=None):
+    """A matplotlib figure of the network; returns ``(figure, caption)``.  ``uptime`` (vehicles
+    that move: ``{(u, v): fraction of the ticks the link was up}``, ``u < v``) draws each link by
+    how long it was up, and no link never up, instead of the protocol's graph."""
     n = graph.number_of_nodes()
     root = _root(exchange_graph)
     order = list(nx.bfs_tree(exchange_graph, root)) if n > MAX_NODES else sorted(graph.nodes)
@@ -60,11 +62,19 @@ def draw_network(graph, exchange_graph, is_tree: bool, labels=None, title: str =
     plt = pyplot()
     width = 7.5 if len(keep) <= 20 else 9.5
     fig, ax = plt.subplots(figsize=(width, 4.2 if is_tree else 5.2))
-    nx.draw_networkx_edges(g.to_undirected() if g.is_directed() else g, pos, ax=ax,
-                           edge_color="0.75", width=0.8, style="dashed")
-    nx.draw_networkx_edges(xg, pos, ax=ax, edge_color="0.15", width=1.6,
-                           arrows=xg.is_directed(), arrowsize=10,
-                           node_size=300 if len(keep) <= 30 else 80)
+    if uptime is not None:                 # a changing graph: a complete graph of links used says nothing
+        up = [(e, uptime.get((min(e), max(e)), 0.0)) for e in (g.to_undirected() if g.is_directed() else g).edges]
+        up = [(e, f) for e, f in up if f > 0]
+        if up:
+            nx.draw_networkx_edges(nx.Graph([e for e, _ in up]), pos, ax=ax, edgelist=[e for e, _ in up],
+                                   width=[0.4 + 3.0 * f for _, f in up],
+                                   edge_color=[str(round(0.85 - 0.7 * f, 3)) for _, f in up])
+    else:
+        nx.draw_networkx_edges(g.to_undirected() if g.is_directed() else g, pos, ax=ax,
+                               edge_color="0.75", width=0.8, style="dashed")
+        nx.draw_networkx_edges(xg, pos, ax=ax, edge_color="0.15", width=1.6,
+                               arrows=xg.is_directed(), arrowsize=10,
+                               node_size=300 if len(keep) <= 30 else 80)
     size = 420 if len(keep) <= 20 else (260 if len(keep) <= 40 else 120)
     nx.draw_networkx_nodes(g, pos, ax=ax, node_color="#cfe2f3", edgecolors="#2a6fb0", node_size=size)
     if len(keep) <= 40:                   # the index inside the circle, the sensor's name under it
@@ -79,9 +89,15 @@ def draw_network(graph, exchange_graph, is_tree: bool, labels=None, title: str =
     if title:
         ax.set_title(plain(title), fontsize=10)
     fig.tight_layout()
-    caption = (f"{n} nodes, {graph.number_of_edges()} links; dark: the links the protocol uses"
-               + (" (a tree, drawn from its root, node " + str(root) + ")" if is_tree else "")
-               + "; dashed grey: other links of the topology")
+    if uptime is not None:
+        ever = sum(1 for f in uptime.values() if f > 0)
+        caption = (f"{n} vehicles; the {ever} links that were up at some tick, the thicker and darker the "
+                   "longer they were up (their fraction of the ticks: the \"Link up-time\" table); links "
+                   "never in range are not drawn")
+    else:
+        caption = (f"{n} nodes, {graph.number_of_edges()} links; dark: the links the protocol uses"
+                   + (" (a tree, drawn from its root, node " + str(root) + ")" if is_tree else "")
+                   + "; dashed grey: other links of the topology")
     if n > MAX_NODES:
         caption += (f". Only {MAX_NODES} of the {n} nodes are drawn (those nearest node {root} in "
                     "the exchange graph), so that the drawing stays readable")

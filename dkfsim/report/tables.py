@@ -3,7 +3,50 @@ radio channel (``medium:``), what the channel did."""
 
 from __future__ import annotations
 
+import math
+
 from dkfsim.core.text import aligned
+
+#: The terms of a port's packet identity ``sent + copies = delivered + lost + queue_dropped +
+#: crash_dropped + in_flight`` (docs/design.md §3), in the order a table shows them.
+PACKET_TERMS = ("sent", "copies", "delivered", "lost", "queue_dropped", "crash_dropped", "in_flight")
+#: The parts of ``lost`` a run counts by cause (present only where the run has that cause), and
+#: what a table calls them; the rest of ``lost`` is the links' own loss (``loss``, Gilbert-Elliott).
+LOST_CAUSES = {"outage_lost": "outage", "range_lost": "out of range", "collision_lost": "collision"}
+#: Column heads of a packets table, by term (counts of packets).
+PACKET_HEADS = {"sent": "sent", "copies": "duplicate copies", "delivered": "delivered", "lost": "lost",
+                "link_lost": "lost: link loss", **{k: f"lost: {v}" for k, v in LOST_CAUSES.items()},
+                "queue_dropped": "dropped: full queue", "crash_dropped": "dropped: crashed node",
+                "in_flight": "in flight at end"}
+
+
+def count(value):
+    """A count read from a result file: a finite number (an int when it is whole), else None."""
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+        return None
+    return int(value) if float(value).is_integer() else float(value)
+
+
+def packet_columns(traffics: list[dict | None]) -> list[str]:
+    """The columns of a packets table for these counts (``traffic`` blocks of ``summary.json``):
+    every term of the identity, ``lost`` split by the causes any of them has."""
+    causes = [k for k in LOST_CAUSES if any(t and count(t.get(k)) for t in traffics)]
+    split = ["link_lost", *causes] if causes else []
+    return ["sent", "copies", "delivered", "lost", *split, "queue_dropped", "crash_dropped", "in_flight"]
+
+
+def packet_row(traffic: dict | None, columns: list[str]) -> list:
+    """One estimator's counts in ``columns`` (None: not modelled, or not a number)."""
+    if not traffic:
+        return [None] * len(columns)
+    out = []
+    for key in columns:
+        if key == "link_lost":
+            lost, parts = count(traffic.get("lost")), [count(traffic.get(k)) or 0 for k in LOST_CAUSES]
+            out.append(None if lost is None else lost - sum(parts))
+        else:                            # (a term the counts lack is zero: an estimator without a port)
+            out.append(count(traffic[key]) if key in traffic else 0)
+    return out
 
 #: One line per estimate name that is not self-explanatory (the vocabulary of docs/estimators.md).
 DESCRIPTIONS = {

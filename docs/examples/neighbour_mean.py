@@ -38,6 +38,9 @@ class NeighbourMeanParams(EstimatorParams, kind="neighbour_mean"):
 class NeighbourMean(Estimator, params=NeighbourMeanParams):
     """Own Kalman filter, then the mean with the neighbours' latest estimates."""
 
+    #: What it sends, as ``dkfsim list`` prints it (docs/estimators.md, "Packet sizes").
+    packets = "one per exchange link and tick: 16-byte header + 8 nx (its estimate)"
+
     @classmethod
     @override
     def cost(cls, params, plan) -> Cost:

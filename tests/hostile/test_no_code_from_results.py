@@ -209,8 +209,11 @@ BANNED_ATTRIBUTES = {"unsafe_load", "unsafe_load_all", "full_load", "full_load_a
                      "getstatusoutput", "load_all"}
 #: Modules allowed to import code by name: plugins (explicitly asked for by a scenario that runs,
 #: or installed entry points), the optional dependencies (fixed names) and the kernel loader
-#: (dkfsim's own kernel modules named in code, ``BORROWS``; it refuses any other name).
-DYNAMIC_IMPORT_ALLOWED = {"dkfsim/core/registry.py", "dkfsim/core/extras.py", "dkfsim/core/jit.py"}
+#: (dkfsim's own kernel modules named in code, ``BORROWS``; it refuses any other name); and two
+#: fixed tables of dkfsim's own modules imported on first use for start-up (decision 260): the
+#: API of ``dkfsim/__init__.py`` and the sub-commands of ``cli/main.py``.
+DYNAMIC_IMPORT_ALLOWED = {"dkfsim/core/registry.py", "dkfsim/core/extras.py", "dkfsim/core/jit.py",
+                          "dkfsim/__init__.py", "dkfsim/cli/main.py"}
 DYNAMIC_IMPORTS = {"import_module", "spec_from_file_location", "exec_module", "load_module"}
 
 

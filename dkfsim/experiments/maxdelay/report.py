@@ -82,6 +82,11 @@ class MaxDelayResult:
                               "tolerance_ci": [st.relative * ci[0], st.relative * ci[1]]}
 
     @property
+    def events(self) -> dict[str, int]:
+        """The events of every run the search made, summed (what its estimate predicted)."""
+        return self.md.events
+
+    @property
     def answer(self):
         a = self.emp.answer
         return None if a is None else self.md.axis.value(a)
@@ -186,17 +191,20 @@ class MaxDelayResult:
             r = self.reference
             how = "deterministic" if r["deterministic"] else f"{r['runs']} runs"
             lines.append(f"  {reference_name(ax)} value {r['mean']:.4g} [{r['ci'][0]:.4g}, {r['ci'][1]:.4g}] "
-                         f"({how}) -> tolerance {r['tolerance']:.4g}")
+                         f"({how}) -> tolerance {r['tolerance']:.4g} (each candidate decided on its runs "
+                         "paired with the same runs at zero delay: a mean a little above this can be within)")
         e = d["empirical"]
         lines.append(f"  (1) empirical:   {_answer_text(e, unit, cap_option(ax), ax.mode)}  "
                      f"({self.runs_empirical} Monte Carlo runs)")
         for key, what in (("at_answer", "at answer"), ("at_answer_plus_1", "at answer+1")):
             a = e[key]
             if a:
+                excess = "paired excess CI" if self.md.st.relative is not None else "excess over tolerance CI"
                 lines.append(f"        {what:12s} {unit} = {a['delay']:g}: mean {a['mean']:.4g} "
-                             f"CI [{a['ci'][0]:.4g}, {a['ci'][1]:.4g}]; excess over tolerance CI "
+                             f"CI [{a['ci'][0]:.4g}, {a['ci'][1]:.4g}]; {excess} "
                              f"[{a['excess_ci'][0]:+.3g}, {a['excess_ci'][1]:+.3g}]; {a['runs']} runs, "
-                             f"{a['decision']}")
+                             f"{a['decision']}" + (" (on the paired excess)" if self.md.st.relative is not None
+                                                  else ""))
         w = d["worst_case"]
         if ax.mode == "rate":
             lines.append("  (2) lower bound: " + _bound_text(self.rate_bound))

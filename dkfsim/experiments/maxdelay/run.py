@@ -9,34 +9,40 @@ from __future__ import annotations
 
 import math
 import time
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 from dkfsim.analysis.bounds import paper_bound_for_scenario
 from dkfsim.analysis.metrics import default_burn_in
-from dkfsim.config.load import load_scenario
-from dkfsim.config.schema import Scenario, named
+from dkfsim.config.plan import RunPlan
+from dkfsim.config.schema import named
 from dkfsim.core.errors import DkfsimError
-from dkfsim.core.resources import Cost, check, repeat
+from dkfsim.core.resources import EVENT_KINDS, Cost, check
 from dkfsim.core.threads import single_thread
-from dkfsim.engine.estimate import estimate_run
+from dkfsim.engine.driver import trial, trial_estimate
+from dkfsim.engine.estimate import TRIAL_ABOVE_S, estimate_run
 from dkfsim.experiments import executors
 from dkfsim.experiments.maxdelay.axis import DelayAxis, latencies_deterministic, make_axis
 from dkfsim.experiments.maxdelay.rate import RateAxis, make_rate_axis, parse_link, rate_lower_bound
 from dkfsim.experiments.maxdelay.report import MaxDelayResult
 from dkfsim.experiments.maxdelay.search import (
     COVARIANCE_METRICS,
+    EXCEEDS,
     FUSED_METRICS,
     METRICS,
     UNDECIDED,
+    WITHIN,
     Candidate,
     Evaluator,
     Runner,
     classify,
     empirical_search,
+    gallop_bisect,
+    metric_value,
     tracked_estimate,
     worst_case_scan,
 )
-from dkfsim.experiments.montecarlo import components_of, derive_seed
+from dkfsim.experiments.montecarlo import components_of, derive_seed, with_keywords
 
 
 # =========================================================================== the command's engine
@@ -117,7 +123,7 @@ class MaxDelay:
     """Runs the three answers for one scenario (see the module docstring)."""
 
     def __init__(self, scenario, settings: Settings, progress=None, yes: bool = False,
-                 executor=None):
+                 executor=None, yes_flag: str = "yes=True"):
         check_settings(settings)
         self.executor = executor
         self.sc = scenario
@@ -144,9 +150,6 @@ class MaxDelay:
         else:
             self.axis = make_axis(scenario, max_delay=settings.max_delay, scale_step=settings.scale_step,
                                   max_scale=settings.max_scale, keep=keep)
-        check(self.estimate(), yes=yes, hint="a larger --rate-step, a narrower --max-rate/--min-rate, "
-                                             "fewer --max-runs or --steps" if settings.axis == "rate" else
-              "a larger --scale-step, a smaller --max-scale or --max-delay, fewer --max-runs or --steps")
         self.seeds = [derive_seed(int(scenario.seed), r) for r in range(settings.max_runs)]
         self.progress = progress or (lambda *_, **__: None)
         self.notes: list[str] = []
@@ -154,20 +157,136 @@ class MaxDelay:
             self.notes.append(f"buffer_length is {scenario.buffer_length!r}, not auto: it does not follow "
                               "the candidate delay")
         self.cands: dict[int, Candidate] = {}
+        #: the events of every run the search made, summed (what :meth:`estimate` predicted)
+        self.events: dict[str, int] = {}
         self.ref: list[float] = []                  # zero-delay values by run (relative)
         self.wc: dict[int, Candidate] = {}
         self._order = 0
         self._scen_cache: dict[int, tuple] = {}
+        check(self.estimate(), yes=yes, yes_flag=yes_flag, hint=self.hint(flags=yes_flag.startswith("--")))
 
-    def estimate(self) -> Cost:
-        """Memory and time of the search at its worst: every look at every candidate the
-        galloping and bisection can visit, and the worst-case scan over the whole axis."""
+    def hint(self, flags: bool = True) -> str:
+        """What a refusal suggests: only the settings that shorten this search (its axis: the
+        delay's ``--max-delay`` for a ``uniform_steps`` model, ``--scale-step`` and ``--max-scale``
+        for a scaled one, the rate's own), as flags or as keywords."""
+        def name(flag: str) -> str:
+            return flag if flags else flag[2:].replace("-", "_")
+        if self.st.axis == "rate":
+            axis = [f"a larger {name('--rate-step')}", f"a narrower {name('--max-rate')}/{name('--min-rate')}"]
+        elif getattr(self.axis, "mode", None) == "d_t":
+            axis = [f"a smaller {name('--max-delay')}"]
+        else:
+            axis = [f"a larger {name('--scale-step')}", f"a smaller {name('--max-scale')}"]
+        more = [f"more {name('--jobs')}"] if self.workers < executors.available_cpus() else []
+        return ", ".join(axis + [f"a smaller {name('--batch')} or {name('--max-runs')}",
+                                 f"fewer {name('--steps')}"] + more)
+
+    def visits(self, jstar: int) -> list[int]:
+        """The candidates the empirical search visits, in order, when every candidate up to
+        ``jstar`` is within and every one above exceeds (:func:`gallop_bisect`, then the
+        candidate above the answer)."""
+        J, seen = self.axis.max_index, []
+
+        def evaluate(j):
+            seen.append(j)
+            return Candidate(index=j, delay=0.0, deterministic=True, decision=WITHIN if j <= jstar else EXCEEDS)
+        lo, _ = gallop_bisect(evaluate, J)
+        if lo is not None and lo + 1 <= J and lo + 1 not in seen:
+            seen.append(lo + 1)
+        return list(dict.fromkeys(seen))
+
+    def expected_runs(self, answers: list[int] | None = None) -> list[tuple[float, dict[int, float]]]:
+        """The runs the search is expected to make, as ``(weight, {candidate: runs})`` over the
+        answers it may find (``answers``; default: spread evenly on a log scale of the axis, 0,
+        1, 3, 7, 15, ... and every candidate within).
+
+        For each answer: the candidates the search visits (:meth:`visits`), one look (``batch``
+        runs; one run for a deterministic candidate) at a candidate far from the answer and three
+        beside it, the paired zero-delay runs of a relative tolerance, and the worst-case scan
+        (one run per candidate up to the one past the answer, and one for the no-exchange limit).
+        A noisy metric close to its tolerance over many candidates takes more looks than this
+        expects (the rate search of docs/traffic.md: about three times as many runs)."""
         J, st = self.axis.max_index, self.st
-        looks = 2 * math.ceil(math.log2(J + 2)) + 3
-        runs = looks * st.max_runs + (J + 3)
-        one = estimate_run(self.axis.base, "estimates")
-        return repeat(one, f"{named(self.sc)}: maxdelay over {J + 1} candidates ({self.axis.name})",
-                      runs, self.workers, extra_bytes=(J + 1) * 2048)
+        if answers is None:
+            answers = sorted({min(2 ** m - 1, J) for m in range(0, int(math.log2(J + 1)) + 2)} | {J})
+        det = st.metric in COVARIANCE_METRICS and latencies_deterministic(self.axis.base)
+        det0 = self.candidate_scenario(0)[1]            # (zero delay: often deterministic)
+        worst = self.axis.worst_overrides(0) is not None and st.axis == "delay"
+        out = []
+        for jstar in answers:
+            runs: dict[int, float] = {}
+            for j in self.visits(jstar):
+                near = jstar < J and abs(j - jstar) <= 1
+                runs[j] = 1.0 if det or (j == 0 and det0) else float(min(st.max_runs, (3 if near else 1) * st.batch))
+            if st.relative is not None and not det0:
+                runs[0] = max(runs.values())       # the paired zero-delay runs, as many as the most
+            if worst:
+                for j in range(min(jstar + 1, J) + 1):
+                    runs[j] = runs.get(j, 0.0) + 1.0
+                runs[J] = runs.get(J, 0.0) + 1.0       # (the no-exchange limit, as costly as the last)
+            out.append((1.0 / len(answers), runs))
+        return out
+
+    def likely_answers(self, values: dict[int, float]) -> list[int]:
+        """Where the answer lies by the trials' metric ``values`` at the galloping's candidates
+        (one short run each, so a rough look): every candidate from the last of them within the
+        tolerance to the one before the first past it; all the axis when the first is past it
+        already or the trials say nothing (not a number)."""
+        J, st = self.axis.max_index, self.st
+        if not values or any(not math.isfinite(v) for v in values.values()):
+            return list(range(J + 1))
+        tol = st.relative * values[0] if st.relative is not None else st.tolerance
+        if tol is None:                          # (check_settings: one of them is set)
+            return list(range(J + 1))
+        keys = sorted(values)
+        past = [j for j in keys if values[j] > tol]
+        if not past:
+            return [J]                          # within everywhere: capped
+        hi = past[0]
+        lo = max([j for j in keys if j < hi], default=None)
+        return [0] if lo is None else list(range(lo, hi))
+
+    def estimate(self, force_trial: bool = False) -> Cost:
+        """Memory and time of the search as :meth:`expected_runs` expects it: each candidate's run
+        guessed (the scenario of that candidate) with the answer anywhere; when that is long (or
+        ``force_trial``), measured on trials at the galloping's candidates (0, 1, 2, 4, ..., J:
+        their events, interpolated between them, and their metric, which says where the answer
+        lies: :meth:`likely_answers`)."""
+        J = self.axis.max_index
+        anchors = sorted({0, J} | {min(2 ** m, J) for m in range(int(math.log2(max(J, 1))) + 1)})
+        plans = {j: RunPlan(self.axis.scenario(j, self.axis.overrides(j)), "estimates") for j in anchors}
+        ones = {j: estimate_run(plan) for j, plan in plans.items()}
+        expected = self.expected_runs()
+        guess = sum(w * sum(n * _between(ones, j, "seconds") for j, n in runs.items()) for w, runs in expected)
+        measured = force_trial or guess / max(1, self.workers) > TRIAL_ABOVE_S
+        if measured:
+            values = {}
+            for j, plan in plans.items():
+                res = trial(plan, "estimates")
+                ones[j] = trial_estimate(plan, res)
+                burn = min(self.burn, int(res.scenario.steps) // 2)
+                values[j] = self.trial_value(res, burn)
+            expected = self.expected_runs(self.likely_answers(values))
+        total_runs = sum(w * sum(runs.values()) for w, runs in expected)
+        total = Cost(f"{named(self.sc)}: maxdelay over {J + 1} candidates ({self.axis.name}), about "
+                     f"{total_runs:.0f} runs expected", workers=max(1, self.workers))
+        total.seconds = sum(w * sum(n * _between(ones, j, "seconds") for j, n in runs.items()) for w, runs in expected)
+        if measured:
+            total.events = {k: sum(w * sum(n * _between(ones, j, k) for j, n in runs.items()) for w, runs in expected)
+                            for k in EVENT_KINDS}
+            total.how = (f"expected from trials at {len(anchors)} of the {J + 1} candidates (their events, "
+                         "interpolated, and their metric: where the answer lies)")
+        biggest = max(one.bytes for one in ones.values())
+        total.memory["one run per worker"] = biggest * total.workers
+        total.memory["candidates"] = (J + 1) * 2048
+        return total
+
+    def trial_value(self, res, burn: int) -> float:
+        """The searched metric of a trial run (NaN when it cannot say)."""
+        try:
+            return metric_value(res.arrays, self.st.metric, self.comp, burn, self.st.estimate)
+        except (KeyError, ValueError):
+            return float("nan")
 
     @property
     def workers(self) -> int:
@@ -287,6 +406,7 @@ class MaxDelay:
                 self.notes.append("worst case not computed: a latency (or jitter) model is unbounded "
                                   "and links.d_t is not set, so there is no largest latency")
             runs_total = runner.runs
+            self.events = dict(runner.events)
         finally:
             if own:
                 ex.close()
@@ -345,9 +465,23 @@ class MaxDelay:
         return total if total > 0 else None
 
 
+def _between(ones: dict, j: int, key: str) -> float:
+    """The estimate ``key`` ("seconds" or an event kind) of candidate ``j``, linear between the
+    candidates of ``ones`` around it."""
+    def value(a: int) -> float:
+        one = ones[a]
+        return float(one.seconds if key == "seconds" else one.events.get(key, 0.0))
+    keys = sorted(ones)
+    lo = max(a for a in keys if a <= j)
+    hi = min(a for a in keys if a >= j)
+    if lo == hi:
+        return value(lo)
+    return value(lo) + (value(hi) - value(lo)) * (j - lo) / (hi - lo)
+
+
 # =========================================================================== result
-def maxdelay(scenario, progress=None, yes: bool = False, executor=None,
-             **settings) -> "MaxDelayResult":
+def maxdelay(scenario, progress=None, yes: bool = False, executor=None, *, seed: int | None = None,
+             steps: int | None = None, overrides: Sequence[str] = (), **settings) -> "MaxDelayResult":
     """The maximum allowable delay of ``scenario`` (a Scenario, a path or a mapping).
 
     ``settings`` are the fields of :class:`Settings` (the ``dkfsim maxdelay``
@@ -355,8 +489,10 @@ def maxdelay(scenario, progress=None, yes: bool = False, executor=None,
     ``executor``: where the runs happen (as :func:`dkfsim.experiments.montecarlo.montecarlo`);
     the result does not depend on it.
     A search estimated above 10 minutes needs ``yes`` (:mod:`dkfsim.core.resources`).
+    ``seed`` (the base seed), ``steps`` and ``overrides`` (``dotted.key=value``, as ``--set``):
+    the keywords of :func:`dkfsim.run`, :func:`dkfsim.montecarlo` and :func:`dkfsim.sweep`.
     """
-    sc = scenario if isinstance(scenario, Scenario) else load_scenario(scenario)
+    sc = with_keywords(scenario, seed, steps, overrides)
     unknown = sorted(set(settings) - set(Settings.__dataclass_fields__))
     if unknown:
         raise DkfsimError(f"maxdelay: unknown setting {unknown[0]!r}; known: "

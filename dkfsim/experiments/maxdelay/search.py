@@ -75,28 +75,35 @@ def covariance_value(arrays, metric: str, comp: int | None, burn: int) -> float:
 
 # =========================================================================== runs
 def _simulate(base, overrides: list, seed: int | None, metric: str, comp, burn: int,
-              covariance: bool = False, estimate: str = "fused") -> float:
+              covariance: bool = False, estimate: str = "fused") -> tuple[float, dict[str, int]]:
+    """The metric of one run, and the run's events (``RunResult.info["events"]``)."""
     ov = list(overrides) + ([] if seed is None else [f"seed={int(seed)}"])
     sc = load_scenario(base, overrides=ov)
     res = Run(sc, save="estimates").run()
     if covariance:
-        return covariance_value(res.arrays, metric, comp, burn)
-    return metric_value(res.arrays, metric, comp, burn, estimate)
+        return covariance_value(res.arrays, metric, comp, burn), res.info["events"]
+    return metric_value(res.arrays, metric, comp, burn, estimate), res.info["events"]
 
 
 class Runner:
     """Runs simulations on an executor (:mod:`dkfsim.experiments.executors`), results in
-    task order; counts them."""
+    task order; counts them, and their events (``events``: summed by kind)."""
 
     def __init__(self, executor, on_run=None):
         self.executor = executor
         self.runs = 0
         self.on_run = on_run
+        self.events: dict[str, int] = {}
 
     def map(self, tasks: list[tuple]) -> list[float]:
         if not tasks:
             return []
-        return self.executor.map(_simulate, tasks, on_done=lambda: self._count(1))
+        out = []
+        for value, events in self.executor.map(_simulate, tasks, on_done=lambda: self._count(1)):
+            out.append(value)
+            for key, count in events.items():
+                self.events[key] = self.events.get(key, 0) + int(count)
+        return out
 
     def _count(self, k: int) -> None:
         self.runs += k

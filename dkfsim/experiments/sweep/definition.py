@@ -13,6 +13,7 @@ import hashlib
 import itertools
 import math
 import os
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Iterator, Mapping
@@ -140,14 +141,20 @@ def _read(source) -> tuple[Any, str, Path]:
     return data, label, path.parent
 
 
-def load_sweep(source, *, output: str | os.PathLike | None = None, yes: bool = False) -> Sweep:
+def load_sweep(source, *, output: str | os.PathLike | None = None, yes: bool = False,
+               overrides: Sequence[str] = (), burn_in: int | None = None) -> Sweep:
     """Read and validate a sweep file (or a mapping: paths relative to the
     current folder) with the schema :class:`~dkfsim.config.sweep.SweepFile`.  Every
     parameter set is loaded as a scenario here, so a bad grid key or value fails before
-    anything runs.  ``output`` overrides the file's ``output``.  A grid too large to
-    validate in memory is refused, one that takes over 10 minutes to validate needs ``yes``.
-    Raises :class:`DkfsimError` (:class:`ScenarioError` for a key of the file)."""
+    anything runs.  ``output`` overrides the file's ``output``, ``overrides`` are added to its
+    ``set`` (``dotted.key=value``, as ``--set``) and ``burn_in`` replaces its ``burn_in``.  A grid
+    too large to validate in memory is refused, one that takes over 10 minutes to validate needs
+    ``yes``.  Raises :class:`DkfsimError` (:class:`ScenarioError` for a key of the file)."""
     data, label, base = _read(source)
+    if isinstance(data, dict) and (overrides or burn_in is not None):
+        data = {**data, "set": [*(data.get("set") or []), *overrides]}
+        if burn_in is not None:
+            data["burn_in"] = burn_in
     if not isinstance(data, dict):
         raise _err(label, None, f"top level must be a mapping of sweep keys "
                                 f"({', '.join(SWEEP_KEYS)}), got {type(data).__name__}")

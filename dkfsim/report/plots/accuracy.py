@@ -175,7 +175,8 @@ def plot_nees(folder: Folder, stem, formats=DEFAULT_FORMATS, title=None) -> list
                 label=f"{label_of(a)}: {nees_verdict(folder, a)}", ls="--" if a == "centralized" else "-")
     if folder.nees_band is not None:
         ax.axhspan(*folder.nees_band, color="0.5", alpha=0.18, lw=0, label=band_label(folder))
-    ax.axhline(folder.nx, color="k", lw=1.0, ls="--", zorder=4, label=f"expected value nx = {folder.nx}")
+    # (dotted grey: centralized is the black dashed curve, issue 34 §6)
+    ax.axhline(folder.nx, color=EXPECTED_COLOUR, lw=1.6, ls=":", zorder=4, label=f"expected value nx = {folder.nx}")
     ax.set_xlabel("time [s]")
     ax.set_ylabel("average NEES")
     ax.grid(True, alpha=0.3)
@@ -183,6 +184,10 @@ def plot_nees(folder: Folder, stem, formats=DEFAULT_FORMATS, title=None) -> list
     ax.set_title(head, fontsize=10)
     legend_below(fig, ax, ncol=1)
     return save_figure(fig, stem, formats)
+
+
+#: The expected value's line in the NEES figures: dotted dark grey, never a curve's style.
+EXPECTED_COLOUR = "0.35"
 
 
 def nees_verdict(folder: Folder, estimate: str) -> str:
@@ -222,7 +227,7 @@ def _nees_small_multiples(folder: Folder, names, stem, formats, head) -> list[Pa
         if folder.nees_band is not None:
             ax.axhspan(*folder.nees_band, color="0.5", alpha=0.18, lw=0)
         ax.plot(folder.t, folder.nees[a], color=color_of(a, folder.mse), lw=0.9)
-        ax.axhline(folder.nx, color="k", lw=1.0, ls="--", zorder=4)       # over the trace
+        ax.axhline(folder.nx, color=EXPECTED_COLOUR, lw=1.6, ls=":", zorder=4)       # over the trace
         verdict = nees_verdict(folder, a).replace("; ", "\n", 1)
         ax.set_title(f"{label_of(a)}\n{verdict}" if verdict else label_of(a), fontsize=7.5)
         ax.grid(True, alpha=0.3)
@@ -233,7 +238,7 @@ def _nees_small_multiples(folder: Folder, names, stem, formats, head) -> list[Pa
         if k >= len(names) - ncols:         # the lowest panel of its column: its own time axis
             ax.set_xlabel("time [s]", fontsize=8)
             ax.xaxis.set_tick_params(labelbottom=True)
-    band = f"\ndashed: the expected value nx = {folder.nx}" + \
+    band = f"\ndotted: the expected value nx = {folder.nx}" + \
         ("" if folder.nees_band is None else f"; grey: {band_label(folder)}")
     fig.suptitle(head + band, fontsize=10)
     fig.tight_layout()

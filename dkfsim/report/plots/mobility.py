@@ -18,6 +18,7 @@ import numpy as np
 
 from dkfsim.core.errors import DkfsimError
 from dkfsim.core.extras import pyplot
+from dkfsim.report.plots.accuracy import EXPECTED_COLOUR
 from dkfsim.report.plots.folders import Folder
 from dkfsim.report.plots.style import (
     DEFAULT_FORMATS,
@@ -147,7 +148,8 @@ def change_ticks(folder: Folder) -> np.ndarray:
 
 def plot_topology_errors(folder: Folder, stem, formats=DEFAULT_FORMATS, smooth=None) -> list:
     """``stem.png``: the squared position error of fused, local and centralized over time with
-    the ticks where the links up changed marked, above the number of links up per tick."""
+    the ticks where the links up changed marked, for a Monte Carlo folder their mean NEES below it
+    (with its per-tick band and the expected value), above the number of links up per tick."""
     formats = check_formats(formats)
     _require(folder)
     plt = pyplot()
@@ -156,10 +158,15 @@ def plot_topology_errors(folder: Folder, stem, formats=DEFAULT_FORMATS, smooth=N
     t = folder.t
     up = folder.mobility["links_up"]
     changes = change_ticks(folder)
-    fig, (top, bot) = plt.subplots(2, 1, figsize=(10, 6), sharex=True,
-                                   gridspec_kw={"height_ratios": [3, 1]})
+    nees = [e for e in estimate_order(folder.mse) if e in ERROR_ESTIMATES and e in folder.nees]
+    if nees:      # a Monte Carlo: the mean NEES against the same changes (issue 34 §7)
+        fig, (top, mid, bot) = plt.subplots(3, 1, figsize=(10, 8), sharex=True,
+                                            gridspec_kw={"height_ratios": [3, 2, 1]})
+    else:
+        fig, (top, bot) = plt.subplots(2, 1, figsize=(10, 6), sharex=True,
+                                       gridspec_kw={"height_ratios": [3, 1]})
     for k in changes:
-        for ax in (top, bot):
+        for ax in ((top, mid, bot) if nees else (top, bot)):
             ax.axvline(t[k - 1], color="0.6", lw=0.6, ls=":", zorder=0)
     names = [e for e in estimate_order(folder.mse) if e in ERROR_ESTIMATES]
     with np.errstate(all="ignore"):
@@ -175,6 +182,15 @@ def plot_topology_errors(folder: Folder, stem, formats=DEFAULT_FORMATS, smooth=N
                   (f" (moving average over {w} ticks{over})" if w > 1 else f" ({over[2:]})" if over else ""),
                   fontsize=10)
     top.grid(alpha=0.3)
+    if nees:
+        if folder.nees_band is not None:
+            mid.axhspan(*folder.nees_band, color="0.5", alpha=0.15, lw=0)
+        with np.errstate(all="ignore"):
+            for name in nees:
+                mid.plot(t, moving_average(folder.nees[name], w), color=color_of(name, names), lw=1.0)
+        mid.axhline(folder.nx, color=EXPECTED_COLOUR, lw=1.6, ls=":", zorder=4)
+        mid.set_ylabel(f"mean NEES\n(dotted: nx = {folder.nx})")
+        mid.grid(alpha=0.3)
     bot.step(t, up.sum(axis=1), where="post", color="C0", lw=1.0)
     bot.set_ylabel("links up")
     bot.set_ylim(0, max(1, up.shape[1]) * 1.05)

@@ -110,13 +110,15 @@ def per_component(metric: str) -> bool:
 
 def sweep_curves(path, x: str | None = None, hue: str | None = None, metric: str = "mse",
                  estimate: str | None = None, where=(), relative_to: str | None = None,
-                 components=None, table: tuple | None = None) -> dict:
+                 components=None, table: tuple | None = None, versus: str | None = None) -> dict:
     """The points to draw: ``{"x": key, "hue": key or None, "xs": values, "lines": {label:
     {component: [(x, n, mean, lo, hi), ...]}}, "components": [...], "nx": {estimate: nx},
     "estimates": every estimate name of the sweep (for :func:`~dkfsim.report.plots.style.color_of`)}``;
     with ``relative_to`` the points are paired ratios to the reference (:func:`_paired`);
     ``components``: the state components kept, by name or index (``--component``; default all);
-    ``table``: :func:`read_table` of ``path`` when the caller has read it already."""
+    ``table``: :func:`read_table` of ``path`` when the caller has read it already; ``versus``
+    (with ``hue``): the points are the hue lines' paired ratios to estimate ``versus`` at the same
+    grid point (the reference of the issue 34 §6 figures)."""
     columns, rows = read_table(path) if table is None else table
     if metric not in columns:
         metrics = [c for c in columns if c in METRICS]
@@ -189,6 +191,8 @@ def sweep_curves(path, x: str | None = None, hue: str | None = None, metric: str
             if label == relative_to:
                 continue
             point = _paired(g, found, gs, relative_to, hue_key, metric)
+        elif versus is not None:
+            point = _paired(g, found, gs, versus, None, metric)
         else:
             point = interval(r.get(metric) for r in g["rows"])
         if point is not None:
@@ -197,7 +201,8 @@ def sweep_curves(path, x: str | None = None, hue: str | None = None, metric: str
     xs = _values(gs, x)
     return {"x": x, "hue": hue_key, "estimate": estimate if hue_key else None, "xs": xs,
             "estimates": sorted({g["estimate"] for g in found.values()}), "lines": lines, "components": components, "metric": metric, "fixed": fixed,
-            "nx": {e: len(c) for e, c in nx.items()}, "relative_to": relative_to}
+            "nx": {e: len(c) for e, c in nx.items()},
+            "relative_to": relative_to if versus is None else versus}
 
 
 def _check_reference(ref: str, names, gs, hue_key, grid) -> None:
@@ -277,6 +282,25 @@ def line_style(index: int, over: int) -> dict:
     return style
 
 
+def tick_texts(values) -> list[str]:
+    """Tick labels of numeric grid values in one notation: SI prefixes when the largest is 10^4 or
+    more (``100k``, ``1M``, ``12M``: a rate axis read ``500000`` beside ``1e+06`` before, issue 34
+    §6), else ``%g``."""
+    nums = [float(v) for v in values]
+    top = max((abs(v) for v in nums), default=0.0)
+    if top < 1e4:
+        return [f"{v:g}" for v in nums]
+    out = []
+    for v in nums:
+        for prefix, size in (("G", 1e9), ("M", 1e6), ("k", 1e3)):
+            if abs(v) >= size:
+                out.append(f"{v / size:.4g}{prefix}")
+                break
+        else:
+            out.append(f"{v:.4g}")
+    return out
+
+
 def axis_label(key: str, xlabel: str | None = None) -> str:
     """The x label of grid key ``key``: ``--xlabel`` when given, else what the key is and its
     unit (:func:`dkfsim.config.keys.key_label`), ``per-hop delay bound d_t [ticks]``."""
@@ -292,7 +316,8 @@ def hue_color(j: int, n: int, cmap):
     return OTHER_COLORS[j] if n <= len(OTHER_COLORS) else cmap(0.9 * j / (n - 1))
 
 
-def _draw_column(axes, cur, comps, pos, styles, cmap, single: bool = True) -> tuple[int, set, bool]:
+def _draw_column(axes, cur, comps, pos, styles, cmap, single: bool = True,
+                 dashed: bool = False) -> tuple[int, set, bool]:
     """Draw the lines of :func:`sweep_curves` result ``cur`` into one column of panels; return
     the number of data lines drawn (reference lines do not count), the run counts seen and
     whether a band was opened below (:func:`~dkfsim.report.plots.style.log_band`)."""
@@ -300,6 +325,12 @@ def _draw_column(axes, cur, comps, pos, styles, cmap, single: bool = True) -> tu
     units = component_units(comps, None) if per_component(metric) else [""] * len(comps)   # by the names
     n_lines = len(styles)
     drawn, runs, opened = 0, set[int](), False
+    # One scale for every panel of the column: a log axis when any panel spans more than 10x
+    # (position on a linear axis beside velocity on a log one read as different things, issue 34 §6).
+    every = np.array([p[2] for by_comp in cur["lines"].values() for comp in comps for p in by_comp[comp]],
+                     dtype=float)
+    every = every[np.isfinite(every) & (every > 0)]
+    log_column = (metric == "mse" or ref is not None) and every.size > 0 and every.max() / every.min() > 10
     for ax, comp in zip(axes, comps):
         series = []
         for label, by_comp in cur["lines"].items():
@@ -312,7 +343,7 @@ def _draw_column(axes, cur, comps, pos, styles, cmap, single: bool = True) -> tu
                            np.array([p[4] for p in pts], dtype=float)))
         vals = np.concatenate([m for *_, m, _lo, _hi in series]) if series else np.array([])
         vals = vals[np.isfinite(vals) & (vals > 0)]
-        log = (metric == "mse" or ref is not None) and vals.size > 0 and vals.max() / vals.min() > 10
+        log = log_column and vals.size > 0
         overs = coinciding([(xs, m) for _, xs, m, _, _ in series], log)
         for (label, xs, m, lo, hi), over in zip(series, overs):
             j = list(styles).index(label)
@@ -321,6 +352,9 @@ def _draw_column(axes, cur, comps, pos, styles, cmap, single: bool = True) -> tu
             else:
                 col, lab = hue_color(j, n_lines, cmap), f"{plain(cur['hue'].removeprefix('param:'))} = {plain(label)}"
             px = [pos[str(v)] for v in xs]
+            if dashed:                        # a reference beside its hue line: same colour, dashed
+                ax.plot(px, m, color=col, lw=1.0, ls="--", alpha=0.85, zorder=1, label="_reference")
+                continue
             ax.plot(px, m, color=col, label=lab, zorder=2 + over, **line_style(styles[label], over))
             drawn += 1
             if not np.isnan(lo).all():
@@ -328,6 +362,11 @@ def _draw_column(axes, cur, comps, pos, styles, cmap, single: bool = True) -> tu
                     opened |= opens_below(lo)
                     lo, hi = log_band(lo, hi, m)
                 ax.fill_between(px, lo, hi, color=col, alpha=0.15, lw=0)
+        if dashed:
+            if log and ax.get_yscale() == "log":          # keep the panel's scale, widened to show them
+                lo_, hi_ = ax.get_ylim()
+                ax.set_ylim(min(lo_, vals.min() / 1.6), max(hi_, vals.max() * 1.6))
+            continue
         if ref is not None:
             ax.axhline(1.0, color="0.3", lw=0.8, ls=":", zorder=1)
         elif metric == "anees" and cur["nx"] and len(set(cur["nx"].values())) == 1:
@@ -368,6 +407,15 @@ def plot_sweep(path, stem, x=None, hue=None, metric="mse", estimate=None, where=
     cols = [] if ref is not None and metric != "mse" else [absolute]
     if ref is not None:
         cols.append(sweep_curves(path, x, hue, metric, estimate, where, ref, components, table))
+    # With --hue the lines are one estimate's (fused): its reference (centralized) at the same grid
+    # points is drawn dashed in each hue's colour, and the paired ratio to it beside, as a Monte
+    # Carlo's figures do (issue 34 §6).
+    versus = None
+    if relative_to is None and metric == "mse" and absolute["hue"] is not None \
+            and "centralized" in absolute["estimates"] and absolute["estimate"] != "centralized":
+        versus = "centralized"
+        cols.append(sweep_curves(path, x, hue, metric, estimate, where, None, components, table, versus=versus))
+        reference = sweep_curves(path, x, hue, metric, "centralized", where, None, components, table)
     cur = cols[0]
     comps, xs = cur["components"], cur["xs"]
     numeric = _numeric(xs)
@@ -381,6 +429,8 @@ def plot_sweep(path, stem, x=None, hue=None, metric="mse", estimate=None, where=
     for c, col in enumerate(cols):
         n, seen, o = _draw_column(axes[:, c], col, comps, pos, styles, cmap, single=len(cols) == 1)
         drawn, runs, opened = drawn + n, runs | seen, opened or o
+    if versus is not None:
+        _draw_column(axes[:, 0], reference, comps, pos, styles, cmap, dashed=True)
     if not drawn:
         plt.close(fig)
         raise DkfsimError(f"--metric {metric}: nothing to draw, no value of {metric} is known in the "
@@ -396,16 +446,21 @@ def plot_sweep(path, stem, x=None, hue=None, metric="mse", estimate=None, where=
             last.set_xlabel(last.get_xlabel() + " (log axis)")
         if numeric:
             last.set_xticks([float(v) for v in xs])
-            last.set_xticklabels([f"{v:g}" if isinstance(v, float) else plain(v, 40) for v in xs])
+            last.set_xticklabels(tick_texts(xs))
             if wide:                         # values close on a long axis: labels upright
                 last.tick_params(axis="x", labelrotation=90, labelsize=8)
         else:
             last.set_xticks(range(len(xs)))
             last.set_xticklabels([plain(v, 40) for v in xs])
     if len(cols) == 2:
-        axes[0, 0].set_title("mean over the runs", fontsize=9.5)
-        hue = "" if cur["hue"] is None else plain(cur["hue"].removeprefix("param:")) + " = "
-        axes[0, 1].set_title(f"relative to {hue}{plain(ref)}: paired ratio, run by run", fontsize=9.5)
+        axes[0, 0].set_title("mean over the runs" + (f"; dashed: {label_of(versus)}" if versus else ""),
+                             fontsize=9.5)
+        if versus is not None:
+            axes[0, 1].set_title(f"{plain(cur['estimate'])} / {plain(versus)} at each point: paired ratio, "
+                                 "run by run", fontsize=9.5)
+        else:
+            hue = "" if cur["hue"] is None else plain(cur["hue"].removeprefix("param:")) + " = "
+            axes[0, 1].set_title(f"relative to {hue}{plain(ref)}: paired ratio, run by run", fontsize=9.5)
     r = sorted(runs)
     per = f"{r[0]} runs" if len(r) == 1 else f"{r[0]}-{r[-1]} runs"
     what = METRIC_LABELS.get(metric, metric)
@@ -421,6 +476,9 @@ def plot_sweep(path, stem, x=None, hue=None, metric="mse", estimate=None, where=
     fig.suptitle((plain(title) if title else f"{plain(what)} against {words}") + f"\n({sub})",
                  fontsize=10.5)
     handles, labels = axes[0, 0].get_legend_handles_labels()
+    if versus is not None:
+        handles.append(axes[0, 0].plot([], [], color="0.4", lw=1.0, ls="--")[0])
+        labels.append(f"{label_of(versus)} at the same point (dashed, the line's colour)")
     fig.tight_layout()
     if labels:
         fig.legend(handles, labels, loc="upper center", bbox_to_anchor=(0.5, 0.0),

@@ -1,0 +1,59 @@
+"""Long commands say how far they are when stderr is not a terminal (issue 34 §4): ``montecarlo``,
+``sweep`` and ``run`` write one line about every 10 s (``DKFSIM_PROGRESS_EVERY``: here a
+hundredth of a second, so that a short command writes several), nothing with ``--quiet``; and
+the first run on a machine says that it compiles dkfsim's kernels, once."""
+
+from __future__ import annotations
+
+import os
+import re
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+CASE1 = ROOT / "scenarios" / "paper_case1.yaml"
+
+
+def dkfsim(*args, env=None, timeout=600) -> subprocess.CompletedProcess:
+    """``dkfsim ARGS`` with stderr a pipe (not a terminal), as in a log or a batch job."""
+    return subprocess.run([sys.executable, "-m", "dkfsim", *map(str, args)], cwd=ROOT, capture_output=True,
+                          text=True, timeout=timeout, env={**os.environ, **(env or {})})
+
+
+FAST = {"DKFSIM_PROGRESS_EVERY": "0.01"}
+
+
+@pytest.mark.slow
+def test_a_montecarlo_writes_progress_lines_to_a_log(tmp_path):
+    p = dkfsim("montecarlo", CASE1, "--runs", 4, "--steps", 40, "--jobs", 1, "--out", tmp_path / "mc", env=FAST)
+    assert p.returncode == 0, p.stderr
+    lines = re.findall(r"^dkfsim montecarlo paper_case1: (\d+)/4 runs, .*$", p.stderr, re.M)
+    assert len(lines) >= 2 and lines[-1] == "4", p.stderr
+    assert "left" in p.stderr                          # a rate, once a run is done
+    quiet = dkfsim("montecarlo", CASE1, "--runs", 2, "--steps", 40, "--jobs", 1, "--quiet", "--out",
+                   tmp_path / "q", env=FAST)
+    assert quiet.returncode == 0 and "runs," not in quiet.stderr, quiet.stderr
+
+
+@pytest.mark.slow
+def test_a_sweep_writes_progress_lines_to_a_log(tmp_path):
+    (tmp_path / "s.yaml").write_text(f"scenario: {CASE1}\ngrid: {{fusion: [matrix, diagonal]}}\nruns: 2\n"
+                                     f"set: ['steps=40', 'estimators=[]']\noutput: {tmp_path / 's.sqlite'}\n")
+    p = dkfsim("sweep", tmp_path / "s.yaml", "--jobs", 1, env=FAST)
+    assert p.returncode == 0, p.stderr
+    lines = re.findall(r"^dkfsim sweep s: (\d+)/4 runs, .*$", p.stderr, re.M)
+    assert len(lines) >= 2 and lines[-1] == "4", p.stderr
+
+
+@pytest.mark.slow
+def test_the_first_run_says_it_compiles_the_kernels_once(tmp_path):
+    env = {"NUMBA_CACHE_DIR": str(tmp_path / "numba")}          # a machine whose cache is cold
+    first = dkfsim("run", CASE1, "--steps", 10, "--out", tmp_path / "a", "--quiet", env=env, timeout=1200)
+    assert first.returncode == 0, first.stderr
+    said = re.findall(r"^dkfsim: compiling dkfsim's kernels once \(about (\d+) s of CPU", first.stderr, re.M)
+    assert len(said) == 1 and int(said[0]) > 0, first.stderr
+    again = dkfsim("run", CASE1, "--steps", 10, "--out", tmp_path / "b", "--quiet", env=env)
+    assert again.returncode == 0 and "compiling" not in again.stderr, again.stderr
