@@ -208,6 +208,29 @@ class RunPlan:
             return sc.link_spec(-1, -1).rate is not None
         return any(sc.link_spec(u, v).rate is not None for u, v in self.exchange_arcs)
 
+    @property
+    def arrival_bound(self) -> int | None:
+        """The most ticks a packet of the exchange can take to arrive, per hop: the links'
+        :attr:`latency_bound`, or None when nothing bounds it -- an unbounded latency model, a
+        rate-limited link or a shared channel (queueing has no bound), or a graph that changes
+        (a link that comes up resends old rows)."""
+        if self.rate_limited or self.graph_changes:
+            return None
+        return self.latency_bound
+
+    def late_horizon(self, L: int) -> int:
+        """How many final rows a DKF of buffer length ``L`` keeps the holdings of, so that a
+        late contribution counts once (the arrival log).  Nothing is sent for a final row, so
+        with :attr:`arrival_bound` ``d`` a late packet arrives at most ``d + 1`` rows after its
+        row became final: keep that many.  Unbounded: 4096 rows, fewer on large networks so that
+        the holdings (``n`` masks of ``n`` bits per row) stay near 64 MB."""
+        bound = self.arrival_bound
+        if bound is not None:
+            return bound + 2
+        n = self.scenario.n
+        per_row = n * (n // 8 + 32)
+        return int(max(L + 2, min(4096, (64 << 20) // per_row)))
+
     @functools.cached_property
     def d_t(self) -> int | None:
         """The delay bound in steps the buffer is sized for: ``links.d_t`` if set, else

@@ -141,10 +141,14 @@ SENSOR_KINDS = Registry("sensor kind", "kind")
 METRICS = Registry("metric", "metric")
 #: How a vehicle moves (issue 23): ``components/trajectories.py``.
 TRAJECTORIES = Registry("trajectory kind", "kind")
+#: How a frame leaves its sender (issue 31): ``network/media/`` -- a link without a rate
+#: (``direct``), with one (``fifo``), and the shared channel's access rules (``csma``; a
+#: scenario names one as ``medium.access.kind``).
+MEDIA = Registry("medium", "kind")
 REGISTRIES: dict[str, Registry] = {
     "generators": GENERATORS, "latency": LATENCY_MODELS, "protocols": PROTOCOLS,
     "estimators": ESTIMATORS, "sensors": SENSOR_KINDS, "metrics": METRICS,
-    "trajectories": TRAJECTORIES,
+    "trajectories": TRAJECTORIES, "media": MEDIA,
 }
 
 #: Entry-point groups whose modules are imported as plugins: ``dkfsim.plugins``

@@ -7,8 +7,8 @@ sensor's measurements are drawn up front from their own streams; one
 scenario's anti-delay DKF and every listed estimator get the same
 :class:`~dkfsim.estimators.base.RunContext`, with the run's
 :class:`~dkfsim.config.plan.RunPlan` (what the scenario implies, worked out once)
-and its :class:`~dkfsim.core.backend.Backend` (how it computes, chosen here once:
-:func:`run_backend`; ``summary.json`` records it).  At ``t_k`` every estimator's
+and its :class:`~dkfsim.core.backend.Backend` (how it computes, chosen here once;
+``summary.json`` records it).  At ``t_k`` every estimator's
 ``on_measure`` runs (priority ``NORMAL``, with the deliveries of that
 instant); then, as an event of lower priority than every delivery and
 relay at ``t_k``, every estimator's ``on_update``.
@@ -40,26 +40,8 @@ from dkfsim.estimators.anti_delay import AntiDelayDKF, AntiDelayParams
 from dkfsim.estimators.base import Estimator, EstimatorResult, RunContext
 from dkfsim.model.system import LinearGaussianSystem, build_system
 from dkfsim.model.trajectory import track_truth
-from dkfsim.network.links import PRIORITY_UPDATE, Network, Scheduled
-from dkfsim.protocols import tree_compiled
-
-
-def run_backend(plan: RunPlan, network: Network, crashes: CrashSchedule | None) -> Backend:
-    """The backend of a run: what the environment asks for (:meth:`Backend.from_environment`),
-    with the Python exchange where the compiled one cannot run (a protocol without a compiled
-    twin, a link it cannot draw, crash windows, transmitters shared between estimators, an
-    estimator whose packets wait in the DKF's rate-limited queues (``shares_dkf_port``, the
-    ``fusion_centre``: decision 221), a shared radio channel: the compiled tree cannot draw the
-    channel, decision 214)."""
-    backend = Backend.from_environment()
-    if backend.compiled_exchange:
-        links = [network.link(u, v) for u, v in plan.exchange_arcs]
-        on_dkf_port = any(getattr(ESTIMATORS.get(p.kind).implementation, "shares_dkf_port", False)
-                          for p in plan.scenario.estimators)
-        shared = (network.shared_transmitters is not None or on_dkf_port) and plan.rate_limited
-        if shared or network.medium is not None or not tree_compiled.usable(plan.protocol, links, crashes):
-            backend = backend.python_exchange()
-    return backend
+from dkfsim.network.events import PRIORITY_UPDATE, Scheduled
+from dkfsim.network.network import Network
 
 
 class Run:
@@ -86,7 +68,7 @@ class Run:
         network = Network(env, plan.arcs, scenario.link_spec, seed, system.T_ns, crashes=crashes,
                           shared_queues=bool(scenario.links.shared_queues), schedule=plan.link_schedule,
                           medium=scenario.medium, n=system.n)
-        self.backend = run_backend(plan, network, crashes)
+        self.backend = Backend.from_environment()
         self.ctx = RunContext(scenario=scenario, plan=plan, backend=self.backend, system=system, truth=truth, ys=ys,
                               info=system.information(ys), crashes=crashes, env=env, network=network)
         self.dkf = AntiDelayDKF(AntiDelayParams(), self.ctx, main=True)

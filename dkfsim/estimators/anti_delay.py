@@ -37,31 +37,15 @@ from dkfsim.core.resources import (
     C_TICK,
     Cost,
 )
-from dkfsim.estimators.base import Estimate, Estimator, EstimatorResult
+from dkfsim.estimators.base import DKFView, Estimate, Estimator, EstimatorResult
 from dkfsim.estimators.fusion import FUSERS, CrossCovariance
 from dkfsim.estimators.window import WindowFilter
 from dkfsim.model.holdings import Holdings
-from dkfsim.network.links import Port
-from dkfsim.protocols.tree_compiled import exchange_class
+from dkfsim.core.registry import PROTOCOLS
+from dkfsim.network.port import Port
 
 #: Largest P_local (entries) kept: 400 MB.
 P_LOCAL_LIMIT = 50_000_000
-
-
-def late_horizon(plan: RunPlan, n: int, L: int) -> int:
-    """How many final rows keep their holdings so that a late contribution counts once.
-
-    Nothing is sent for a final row, so with a latency bound of ``d`` steps per
-    hop a late packet arrives at most ``d + 1`` rows after its row became
-    final: keep that many.  Unbounded latency, a rate-limited link (queueing has no
-    bound) or a graph that changes (a link-up resends old rows): 4096 rows, fewer on large
-    networks so that the holdings (n masks of n bits per row) stay near 64 MB.
-    """
-    bound = None if plan.rate_limited or plan.graph_changes else plan.latency_bound
-    if bound is not None:
-        return bound + 2
-    per_row = n * (n // 8 + 32)
-    return int(max(L + 2, min(4096, (64 << 20) // per_row)))
 
 
 class AntiDelayDKF(Estimator, params=AntiDelayParams):
@@ -110,7 +94,8 @@ class AntiDelayDKF(Estimator, params=AntiDelayParams):
     # -- running -------------------------------------------------------------------
     def start(self) -> None:
         """Set up the window, the holdings, the fusion and the exchange the plan and the
-        backend say (validation has checked all of it: nothing here raises)."""
+        backend say (validation has checked all of it: nothing here raises); the scenario's own
+        instance offers itself to the estimators that build on it (``ctx.dkf``)."""
         ctx, plan, backend = self.ctx, self.ctx.plan, self.ctx.backend
         sys_, K, n, nx = ctx.system, ctx.K, ctx.n, ctx.nx
         self.L = plan.buffer_length(self.settings.buffer_length)
@@ -120,9 +105,9 @@ class AntiDelayDKF(Estimator, params=AntiDelayParams):
         self.xcov = CrossCovariance(self.window, sys_.P0) if self.fusion != "none" else None
         self.arrival = np.full((n, n, K), np.inf) if (self.main and ctx.save == "full") else None
         links = ctx.exchange_links()
-        protocol = exchange_class(plan.protocol, backend)
+        protocol = PROTOCOLS.get(plan.protocol).implementation
         self.exchange = protocol(ctx.env, n, self.holdings, arrival=self.arrival,
-                                 late_horizon=late_horizon(plan, n, self.L), nx=nx, T_ns=ctx.T_ns)
+                                 late_horizon=plan.late_horizon(self.L), nx=nx, T_ns=ctx.T_ns)
         self.exchange.crashes = ctx.crashes
         if plan.tree_schedule is not None:
             self.exchange.tree_changes = plan.tree_schedule
@@ -136,6 +121,9 @@ class AntiDelayDKF(Estimator, params=AntiDelayParams):
         if self.xcov is not None:
             self.x_fused = np.empty((K, nx))
             self.P_fused = np.empty((K, nx, nx))
+        if self.main:                     # what a fusion centre builds on (set before it starts)
+            ctx.dkf = DKFView(L=self.L, fusion=self.fusion, weights=self.A, held=self.holdings.held,
+                              x_local=self.x_local, port=self.port)
 
     def on_measure(self, row: int) -> None:
         self.exchange.open_row(row)

@@ -40,7 +40,9 @@ from dkfsim.core.linalg import solve
 from dkfsim.core.resources import B_FLOAT, C_NODE_ROW, C_PACKET, C_ROW, C_TICK, Cost
 from dkfsim.estimators.base import Estimate, Estimator, existing_information_bytes
 from dkfsim.estimators.window import predict
-from dkfsim.network.links import PRIORITY_UPDATE, Link, Port, Scheduled
+from dkfsim.network.events import PRIORITY_UPDATE, Scheduled
+from dkfsim.network.links import Link
+from dkfsim.network.port import Port
 from dkfsim.protocols.base import info_bytes
 
 
@@ -220,9 +222,8 @@ class RoundBased(Estimator):
         self.box = {name: Box(E, shapes) for name, shapes in self.boxes().items()}
         # A graph that changes: the arcs' states per tick (K + 1, E), else None.
         self._up_table: np.ndarray | None = None
-        if self.links and any(link.changes for link in self.links):
-            self._up_table = np.stack([np.frombuffer(link.up or b"", dtype=np.uint8) for link in self.links],
-                                      axis=1).astype(bool)
+        if any(link.changes for link in self.links):        # (then every link of the graph has states)
+            self._up_table = np.stack([link.up_per_tick() for link in self.links], axis=1)
         #: (E,) the arcs up at the tick being computed (all of them on a fixed graph)
         self.up_now = np.ones(E, dtype=bool)
         self._up_tick = -1

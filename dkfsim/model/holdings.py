@@ -6,8 +6,7 @@ The seam between the anti-delay DKF's two halves: an exchange protocol
 Neither touches the other; both use a :class:`Holdings`:
 
 * a protocol reports what a node newly holds with :meth:`Holdings.add` (an origin bitmask for
-  a row), or, with kernels of its own, folds it straight in with
-  :func:`dkfsim.model.holdings_kernels.fold` on :attr:`Holdings.fold_target`;
+  a row), or many at once with :meth:`Holdings.add_words`;
 * the window clears a row's slot when the row opens (:meth:`Holdings.open_row`), takes each
   node's earliest changed row at its update (:meth:`Holdings.take_changes`, which folds what
   is pending first), and reads the sums ``Omega``, ``Theta`` and the flags ``held``.
@@ -16,7 +15,7 @@ Slot ``row % S`` holds row ``row``.  ``S = min(L, K) + 1``: the window of ``L`` 
 final row it starts from, never more than the run has rows (so a huge ``L`` costs no memory).
 The sums are ``sum_o a_io omega_o`` and ``sum_o a_io theta_o[row]`` over the origins ``o`` held,
 added in the order the contributions were reported (origins ascending within one report):
-the numpy and numba folds, and a compiled protocol's, add the same numbers in the same order.
+the numpy and numba folds add the same numbers in the same order.
 """
 
 from __future__ import annotations
@@ -82,6 +81,26 @@ class Holdings:
         self._flush()
         self._fold(np.asarray(nodes, dtype=np.intp), np.asarray(rows, dtype=np.intp),
                    np.asarray(held, dtype=bool))
+
+    def add_unknown(self, stack: np.ndarray, nodes: np.ndarray, k0: int, known: np.ndarray) -> None:
+        """:meth:`add_held` of what ``stack`` says that ``known`` lacks, folded now:
+        ``stack[a, j]`` flags the origins node ``nodes[j]`` holds of row ``k0 + a``; those not
+        yet set in ``known[row % len(known), node]`` (the caller's ring of what it knows each
+        node holds) are folded -- rows, then nodes, origins ascending -- and set there (a
+        fusion centre's shadow, decision 233)."""
+        self._flush()
+        if self._compiled:
+            holdings_kernels.compiled().fold_unknown(stack, np.asarray(nodes, dtype=np.intp), int(k0), known,
+                                                     self.fold_target)
+            return
+        slots = np.arange(k0, k0 + len(stack)) % known.shape[0]
+        new = stack & ~known[slots[:, None], nodes]
+        rr, jj = np.nonzero(new.any(axis=2))
+        if not len(jj):
+            return
+        sel = new[rr, jj]
+        known[slots[rr], nodes[jj]] |= sel
+        self._fold(np.asarray(nodes, dtype=np.intp)[jj], k0 + rr, sel)
 
     # -- what the window calls -------------------------------------------------------
     def open_row(self, row: int) -> None:

@@ -29,9 +29,7 @@ A protocol is a subclass of :class:`Exchange` that implements three hooks:
 helpers :meth:`~Exchange.measuring_nodes`, :meth:`~Exchange.gain`,
 :meth:`~Exchange.schedule_flush` and :meth:`~Exchange.send`.  Overriding
 :meth:`~Exchange.schedule_flush` (with :meth:`~Exchange.flush_later`)
-changes *when* a node sends (docs/examples/tick_flood.py).  :class:`Wiring` (the links
-indexed locally) and :func:`exchange_counts` are what a protocol that is not an
-:class:`Exchange` shares with them (the compiled twin of ``tree``).
+changes *when* a node sends (docs/examples/tick_flood.py).
 """
 
 from __future__ import annotations
@@ -45,7 +43,9 @@ from simpy.events import Event
 from dkfsim.components.faults import CrashSchedule
 from dkfsim.core.bits import mask_words, set_bits
 from dkfsim.model.holdings import Holdings
-from dkfsim.network.links import PRIORITY_FLUSH, Clock, Link, Port, Scheduled
+from dkfsim.network.events import PRIORITY_FLUSH, Clock, Scheduled
+from dkfsim.network.links import Link
+from dkfsim.network.port import Port
 
 #: Bytes of a packet's header (sequence number, sender, receiver, length).
 PACKET_HEADER = 16
@@ -83,10 +83,8 @@ class Wiring:
         self.reverse = [by_arc.get((l.dst, l.src)) for l in self.links]
         self.came_up: dict[int, list[Link]] = {}
         for link in self.links:
-            if link.up is not None and link.changes:
-                up = np.frombuffer(link.up, dtype=np.uint8) != 0
-                for k in np.flatnonzero(up[1:] & ~up[:-1]) + 1:
-                    self.came_up.setdefault(int(k), []).append(link)
+            for k in link.came_up():
+                self.came_up.setdefault(k, []).append(link)
 
 
 def exchange_counts(late: int, late_per_node: list[int], logged: bool, duplicates: int,

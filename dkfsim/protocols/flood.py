@@ -67,25 +67,23 @@ class FloodExchange(Exchange):
         self.schedule_flush(j)
 
     def flush(self, j: int) -> None:
-        """Send ``j``'s pending contributions: one broadcast frame carrying their union, from
-        which each out-link's receiver gets the part addressed to it (the union minus what came
-        from that neighbour, which it holds already); without a channel, one packet per
-        out-link as before (decision 227)."""
+        """Send ``j``'s pending contributions: one flush whose parts are each out-link's
+        (the union minus what came from that neighbour, which it holds already); on a broadcast
+        medium one frame carrying their union, on any other one packet per out-link (decision
+        227)."""
         now = self.env.now
         parts = []
-        # The union sizes the frame on a channel only (without one, each part is its own packet).
-        union: dict[int, int] | None = {} if self.port.channel is not None else None
+        union: dict[int, int] = {}            # (the frame's rows: what a broadcast medium carries)
         for link in self.out_links[j]:
             p = self._pending[self.lid[link.id]]
-            if p and link.up is not None and not link.is_up(now):
+            if p and link.changes and not link.is_up(now):
                 p.clear()                       # out of range: its link-up resend carries it
             if p:
                 items = tuple((row, m) for row, m in sorted(p.items()) if row in self.rows)
                 p.clear()
                 if items:
                     parts.append((link, items))
-                    if union is not None:
-                        for row, m in items:
-                            union[row] = union.get(row, 0) | m
+                    for row, m in items:
+                        union[row] = union.get(row, 0) | m
         if parts:
-            self.send_frame(parts, PACKET_HEADER + len(union or ()) * self.row_bytes)
+            self.send_frame(parts, PACKET_HEADER + len(union) * self.row_bytes)

@@ -1,49 +1,37 @@
-"""A directed link's transmitter: one packet at a time, first in first out, with a waiting
+"""``fifo``: a link with a ``rate``: one packet at a time, first in first out, with a waiting
 room and the link's background load (docs/design.md §3, "Links that carry the traffic").
 
 The transmitter is lazy: it is not a SimPy process but a few numbers -- the instant it is
 free (``free_at``) and the start instants of the packets still waiting -- brought up to date
 when a packet is handed over (:meth:`Transmitter.offer`): the link's background packets that
-arrived up to and including that instant go first (:class:`BackgroundArrivals`, keyed draws,
-so every estimator's transmitter sees the same ones), then the packet either waits, starts
-at once, or is dropped because the waiting room is full (drop-tail; the packet in
-transmission is not in the waiting room).  Transmission of ``size`` bytes takes
-:func:`~dkfsim.components.traffic.transmission_ns`.  What the transmitter measures --
-busy time, background packets offered and dropped -- it keeps; a packet's own queueing delay
-is its sender's to record (the port's log of hand-over, start and end).
+arrived up to and including that instant go first
+(:class:`~dkfsim.network.media.background.BackgroundArrivals`, keyed draws, so every
+estimator's transmitter sees the same ones), then the packet either waits, starts at once, or
+is dropped because the waiting room is full (drop-tail; the packet in transmission is not in
+the waiting room).  Transmission of ``size`` bytes takes
+:func:`~dkfsim.components.traffic.transmission_ns`.  The medium (:class:`Fifo`) keeps what the
+transmitter measures -- busy time, background packets offered and dropped -- and the
+(hand-over, start, end) of every packet of each port, for the queueing delays and the per-tick
+series of ``run.npz``.  A packet's propagation is drawn at its hand-over instant, its arrival
+counted from the end of its transmission (a lost packet occupies the transmitter too).
 """
 
 from __future__ import annotations
 
-import math
 from array import array
 from collections import deque
 from collections.abc import Callable
+from typing import Any
 
 import numpy as np
 
-from dkfsim.components.traffic import Background, Queue, transmission_ns
-from dkfsim.core.params import MAX_NS, NS_PER_S, seconds_to_ns
-from dkfsim.core.streams import key64, keyed_uniforms
-
-#: Background packets drawn at once (a block of keyed draws).  The instants are integer sums of
-#: rounded gaps, so the block size changes no value; 512 keeps a link's first block, which
-#: every port and the compiled tree's interval log draw, cheap (one math.log per packet).
-BLOCK = 512
-#: Longest gap between two Poisson background packets (ns), about 6.5 days.
-MAX_GAP_NS = 1 << 49
-
-
-def _log(u: np.ndarray) -> np.ndarray:
-    """``log`` of each entry by the C library's ``log`` (``math.log``), the function the compiled
-    tree's kernels call: numpy's vectorised ``log`` may differ in the last bit."""
-    return np.array([math.log(x) for x in u.tolist()], dtype=np.float64)
-
-
-def background_keys(prefix: tuple, seed: int) -> tuple[int, int]:
-    """The keys of a link's background draws: its arrival gaps' and its sizes' (``prefix`` is
-    the link's, ``("link", u, v)``)."""
-    return key64(seed, *prefix, "background", "arrival"), key64(seed, *prefix, "background", "size")
+from dkfsim.components.traffic import Queue, transmission_ns
+from dkfsim.core.params import MAX_NS, NS_PER_S
+from dkfsim.core.registry import MEDIA
+from dkfsim.network.links import Link
+from dkfsim.network.media.background import BackgroundArrivals
+from dkfsim.network.media.base import Frame, Medium
+from dkfsim.network.occupancy import mean_waiting
 
 
 def busy_within(busy_ns: int, free_at: int, end_ns: int) -> int:
@@ -53,68 +41,8 @@ def busy_within(busy_ns: int, free_at: int, end_ns: int) -> int:
     return busy_ns - max(0, free_at - end_ns)
 
 
-class BackgroundArrivals:
-    """The background packets of one link, in order: ``(instant ns, size bytes)``, keyed draws.
-
-    Packet ``i``'s draws are pure functions of (the link's key, ``i``): a Poisson process's
-    gaps ``round(-ln(u_i) / lambda)`` ns (the first from 0), a periodic one's instants
-    ``offset + round(i / lambda)``; exponential sizes ``max(1, round(-ln(v_i) * size))``.
-    """
-
-    def __init__(self, spec: Background, prefix: tuple, seed: int):
-        self.spec = spec
-        #: the keys of the arrival gaps (or nothing, periodic) and of the sizes
-        self.gap_key, self.size_key = background_keys(prefix, seed)
-        self._times = np.empty(0, dtype=np.int64)
-        self._sizes = np.empty(0, dtype=np.int64)
-        self._drawn = 0          # packets drawn so far
-        self._last = 0           # instant of the last packet drawn (the Poisson gaps' origin)
-        self._pos = 0            # position of the next packet in the block
-
-    def _draw_block(self) -> None:
-        spec, lo = self.spec, self._drawn
-        idx = np.arange(lo, lo + BLOCK, dtype=np.int64)
-        zeros = np.zeros(BLOCK, dtype=np.int64)
-        period = NS_PER_S / spec.packets_per_second
-        if spec.arrivals == "poisson":
-            gaps = np.floor(-_log(keyed_uniforms(self.gap_key, idx, zeros)) * period + 0.5)
-            # a gap is at most 2^49 ns (6.5 days), so a block's sum cannot overflow
-            times = self._last + np.cumsum(np.minimum(gaps, MAX_GAP_NS).astype(np.int64))
-        else:
-            times = seconds_to_ns(spec.offset) + np.floor(np.minimum(idx * period + 0.5, MAX_NS))
-        times = np.minimum(times, MAX_NS).astype(np.int64)
-        if spec.sizes == "exponential":
-            sizes = np.maximum(1, np.floor(-_log(keyed_uniforms(self.size_key, idx, zeros)) * spec.size + 0.5))
-        else:
-            sizes = np.full(BLOCK, spec.size)
-        self._times, self._sizes = times, sizes.astype(np.int64)
-        self._last, self._drawn, self._pos = int(times[-1]), lo + BLOCK, 0
-
-    def next_time(self) -> int:
-        """The instant of the next packet not yet taken."""
-        if self._pos >= len(self._times):
-            self._draw_block()
-        return int(self._times[self._pos])
-
-    def until(self, t_ns: int) -> tuple[list[int], list[int]]:
-        """The packets not yet taken whose instant is ``<= t_ns``: (instants, sizes), in order."""
-        times_out: list[int] = []
-        sizes_out: list[int] = []
-        while True:
-            if self._pos >= len(self._times):
-                self._draw_block()
-            times = self._times
-            end = int(np.searchsorted(times, t_ns, side="right"))
-            if end > self._pos:
-                times_out.extend(times[self._pos:end].tolist())
-                sizes_out.extend(self._sizes[self._pos:end].tolist())
-                self._pos = end
-            if end < len(times):
-                return times_out, sizes_out
-
-
 class Transmitter:
-    """The FIFO transmitter of one directed link (one per estimator port, or one shared).
+    """The FIFO transmitter of one directed link (the engine of a :class:`Fifo` medium).
 
     :param rate: bits per second.
     :param queue: the waiting room (None: unbounded).
@@ -224,10 +152,91 @@ def link_stats(delays: list[int] | np.ndarray, busy_ns: int, background_sent: in
     """A rate-limited link's statistics in ``summary.json``: utilisation of ``[0, end_ns]`` from
     the busy ns in it (every packet the transmitter carried, background included), the queueing
     delay's mean and 95th percentile (s, over one port's ``delays`` in ns; 0 without any), and
-    the background packets sent and dropped.  The Python port's and the compiled tree's."""
+    the background packets sent and dropped."""
     d = np.asarray(delays, dtype=np.float64) / NS_PER_S
     return {"utilisation": busy_ns / end_ns if end_ns > 0 else 0.0,
             "queueing_delay_mean": float(d.mean()) if len(d) else 0.0,
             "queueing_delay_p95": float(np.percentile(d, 95)) if len(d) else 0.0,
             "background_sent": background_sent,
             "background_dropped": background_dropped}
+
+
+@MEDIA.register("fifo", description="a link with a rate: a first-in-first-out transmitter with a waiting room "
+                "and background load (links.<default|overrides>.rate, queue, background)")
+class Fifo(Medium):
+    """A rate-limited link's transmitter as a medium: one per link and port (or shared).
+
+    :param link: the link (its ``spec`` gives ``rate``, ``queue`` and ``background``; the
+        background's draws are keyed under the link's prefix).
+    :param rates: the rate (bit/s) at each tick ``0 .. K`` when it follows the pair's
+        distance (``mobility.links.rate``), taken at a packet's transmission start; None: the
+        link's ``rate`` throughout.
+    """
+
+    kind = "fifo"
+    #: The parameter keys it reads (``dkfsim list media``).
+    required = ("rate",)
+    optional = ("queue", "background")
+
+    def __init__(self, link: Link, rates: list[float] | None = None):
+        spec = link.spec
+        self.link = link
+        rate = float(rates[0]) if rates is not None else float(spec.rate) if spec.rate is not None else 0.0
+        if not rate > 0:
+            raise ValueError(f"link {link.src} -> {link.dst} has no rate: it is not a fifo medium")
+        self._rates = rates
+        bg = BackgroundArrivals(spec.background, link.prefix, link.seed) if spec.background is not None else None
+        #: the link's transmitter
+        self.tx = Transmitter(rate, spec.queue, bg, record=True,
+                              rate_at=self._rate_at if rates is not None else None)
+        #: per owner (port): (hand-over, start, end) ns of each of its packets the transmitter took
+        self._own: dict[Any, array] = {}
+        #: the fastest rate the link can have, for :meth:`leaves_at_once`
+        self._fastest = max(rates) if rates is not None else rate
+
+    def _rate_at(self, t_ns: int) -> float:
+        rates = self._rates
+        assert rates is not None
+        return rates[self.link.tick_of(t_ns, len(rates))]
+
+    def offer(self, frame: Frame) -> bool:
+        got = self.tx.offer(frame.handed, frame.size)
+        if got is None:
+            return False
+        frame.start, frame.end = got
+        own = self._own.get(frame.owner)
+        if own is None:
+            own = self._own[frame.owner] = array("q")
+        own.extend((frame.handed, frame.start, frame.end))
+        if frame.done is not None:
+            frame.done(frame, True)
+        return True
+
+    def leaves_at_once(self, nbytes: int) -> bool:
+        return transmission_ns(nbytes, self._fastest) == 0
+
+    def own_delays(self, owner: Any) -> np.ndarray:
+        flat = self._own.get(owner)
+        own = np.frombuffer(flat, dtype=np.int64).reshape(-1, 3) if flat else np.zeros((0, 3), np.int64)
+        return own[:, 1] - own[:, 0]
+
+    def interval_log(self, owner: Any, end: int) -> np.ndarray:
+        """Every packet the transmitter carried up to ``end``: the background (dropped ones
+        with ``start < 0``) and every owner's, whoever asks (with shared queues, the others'
+        packets are part of what ``owner``'s packets waited behind)."""
+        tx = self.tx
+        tx.advance(end)
+        parts = [tx.log()]
+        for flat in self._own.values():
+            if len(flat):
+                parts.append(np.frombuffer(flat, dtype=np.int64).reshape(-1, 3))
+        return np.concatenate(parts)
+
+    def link_report(self, owner: Any, link: Any, end: int) -> dict[str, Any]:
+        """Utilisation, ``owner``'s queueing delays, the background sent and dropped
+        (:func:`link_stats`) and the time-averaged number of packets waiting."""
+        tx = self.tx
+        row: dict[str, Any] = dict(link_stats(self.own_delays(owner), tx.busy_until(end), tx.background_sent,
+                                              tx.background_dropped, end))
+        row["queue_length_mean"] = mean_waiting(self.interval_log(owner, end), end)
+        return row
