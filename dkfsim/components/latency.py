@@ -139,10 +139,10 @@ class Sampler:
     def draw(self, t_ns: int, seq: int) -> tuple[int, bool]:
         raise NotImplementedError
 
-    def compiled_form(self) -> tuple[int, int, int] | None:
-        """``(kind, key, parameter)`` for compiled protocols that draw this model
-        themselves: ``(0, 0, ns)`` a constant, ``(1, key, d_t)`` uniform steps; None
-        for a model they cannot draw (they then leave the run to the Python path)."""
+    def vector(self) -> tuple[int, int, int] | None:
+        """The model as a batch of packets draws it in one compiled loop
+        (:mod:`dkfsim.network.port_kernels`): ``(0, 0, ns)`` a constant, ``(1, key, d_t)``
+        uniform steps; None for a model drawn one packet at a time."""
         return None
 
 
@@ -195,7 +195,8 @@ class _Fixed(Sampler):
     def draw(self, t_ns, seq):
         return self.ns, False
 
-    def compiled_form(self):
+    @override
+    def vector(self):
         return 0, 0, self.ns
 
 
@@ -236,7 +237,8 @@ class _Steps(Sampler):
     def draw(self, t_ns, seq):
         return min(int(keyed_uniform(self.key, t_ns, seq) * (self.d_t + 1)), self.d_t) * self.T_ns, False
 
-    def compiled_form(self):
+    @override
+    def vector(self):
         return 1, self.key, self.d_t
 
 

@@ -164,3 +164,18 @@ def entry_point(kernel, *args):
     sig = tuple(kernel.typeof_pyval(a) for a in args)
     compiled = overloads.get(sig)
     return kernel if compiled is None else compiled.entry_point
+
+
+def bind(kernel, *args):
+    """The compiled function of ``kernel`` (a numba dispatcher) for the types of ``args``,
+    compiled (or loaded from the disk cache) now without calling it: calling it skips numba's
+    per-call type dispatch, which for a kernel taking namedtuples of arrays costs more than
+    the work of a small call.  Only for arguments of the same types (array dtype, rank and
+    layout) on every call; a function that is not a dispatcher (the numpy path) is returned as
+    it is."""
+    typeof = getattr(kernel, "typeof_pyval", None)
+    if typeof is None:
+        return kernel
+    sig = tuple(typeof(a) for a in args)
+    kernel.compile(sig)
+    return kernel.overloads[sig].entry_point

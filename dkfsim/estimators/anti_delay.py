@@ -107,11 +107,12 @@ class AntiDelayDKF(Estimator, params=AntiDelayParams):
         links = ctx.exchange_links()
         protocol = PROTOCOLS.get(plan.protocol).implementation
         self.exchange = protocol(ctx.env, n, self.holdings, arrival=self.arrival,
-                                 late_horizon=plan.late_horizon(self.L), nx=nx, T_ns=ctx.T_ns)
+                                 late_horizon=plan.late_horizon(self.L), nx=nx, T_ns=ctx.T_ns, backend=backend)
         self.exchange.crashes = ctx.crashes
         if plan.tree_schedule is not None:
             self.exchange.tree_changes = plan.tree_schedule
-        self.exchange.attach(self.open_port(self.exchange.receive, links), links)
+        self.port = self.exchange.open_port(ctx.network, self.name, links)
+        self.exchange.attach(self.port, links)
         self.x_local = np.empty((K, n, nx))
         # P_local is the one (K, n, nx, nx) array: skip it when nothing will save it
         # or when it alone would take more than a few hundred megabytes.

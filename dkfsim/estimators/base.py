@@ -240,7 +240,7 @@ class Estimator:
         """Tick ``k``: every packet due by ``t_k`` has been delivered."""
 
     # -- helpers ---------------------------------------------------------------------
-    def open_port(self, receive: Callable[[Link, Any], None] | None, links: list[Link],
+    def open_port(self, receive: Callable[[Link, Any], None], links: list[Link],
                   until: int | None = None) -> Port:
         """Open this estimator's port (named after it) on ``links``: ``receive(link, payload)``
         gets its deliveries; deliveries after ``until`` ns (default: the run's last tick) stay

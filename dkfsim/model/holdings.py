@@ -24,6 +24,7 @@ import numpy as np
 
 from dkfsim.core.backend import Backend
 from dkfsim.core.bits import mask_words, set_bits
+from dkfsim.core.jit import bind
 from dkfsim.model import holdings_kernels
 from dkfsim.model.system import Information
 
@@ -65,6 +66,12 @@ class Holdings:
         #: the arrays a fold writes (:class:`dkfsim.model.holdings_kernels.Fold`), for kernels
         self.fold_target = holdings_kernels.Fold(self.A, omega, bool(info.varying), info.theta, self.Omega,
                                                  self.Theta, self.held, self.starts)
+        #: the compiled fold of :meth:`add_words`, bound to its arguments' types (None: numpy)
+        self._fold_words = None
+        if self._compiled:
+            i = np.zeros(1, np.int64)
+            self._fold_words = bind(holdings_kernels.compiled().fold_masks, i, i,
+                                    np.zeros((1, self._words), np.uint64), self.fold_target)
 
     # -- what protocols call -----------------------------------------------------
     def add(self, node: int, origins: int, row: int) -> None:
@@ -72,6 +79,16 @@ class Holdings:
         ``origins`` (a non-negative int, bit ``o`` for origin ``o``) for ``row``; they must be
         new to it."""
         self._pend.extend((node, origins, row))
+
+    def add_words(self, nodes: np.ndarray, rows: np.ndarray, words: np.ndarray) -> None:
+        """:meth:`add` for many contributions, folded now, in order: node ``nodes[k]`` now holds
+        the origins set in ``words[k]`` (little-endian uint64 words) for ``rows[k]``, new to it
+        (int64 arrays and a C-ordered uint64 one: a protocol's kernel output, folded as it is)."""
+        self._flush()
+        if self._fold_words is not None:
+            self._fold_words(nodes, rows, words, self.fold_target)
+        else:
+            self._fold(nodes, rows, words)
 
     def add_held(self, nodes: np.ndarray, rows: np.ndarray, held: np.ndarray) -> None:
         """:meth:`add` for many contributions at once, folded now: node ``nodes[k]`` now holds

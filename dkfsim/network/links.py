@@ -175,6 +175,12 @@ class Link:
             return []
         return (np.flatnonzero(up[1:] & ~up[:-1]) + 1).tolist()
 
+    def vector_latency(self) -> tuple[int, int, int] | None:
+        """The link's latency as a batch of packets draws it in one compiled loop
+        (:meth:`~dkfsim.components.latency.Sampler.vector`) when nothing but the latency model
+        acts on a packet; None otherwise."""
+        return self._main.model.vector() if self.plain is not None else None
+
     # -- a packet's fate -----------------------------------------------------------------
     def transmit(self, t_ns: int, seq: int = 0) -> tuple[tuple[int, ...], str | None]:
         """The arrivals of a packet handed over at ``t_ns`` as number ``seq`` of its port at

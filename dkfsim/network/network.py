@@ -21,6 +21,7 @@ import simpy
 from dkfsim.components.faults import CrashSchedule
 from dkfsim.components.medium import Medium as MediumSpec
 from dkfsim.components.mobility import LinkSchedule
+from dkfsim.core.backend import Backend
 from dkfsim.network.events import Clock
 from dkfsim.network.links import Link
 from dkfsim.network.media.base import Medium
@@ -28,7 +29,7 @@ from dkfsim.network.media import csma  # noqa: F401  (registers the default acce
 from dkfsim.network.media.channel import Channel
 from dkfsim.network.media.direct import DIRECT
 from dkfsim.network.media.fifo import Fifo
-from dkfsim.network.port import Port, Receive
+from dkfsim.network.port import Port, Receive, RecordPort
 
 #: The key of a media store's shared channel (link ids are ints).
 _CHANNEL = "channel"
@@ -93,13 +94,21 @@ class Network:
         self.links.append(link)
         return link
 
-    def port(self, name: str, receive: Receive | None, links: list[Link] | None = None,
+    def port(self, name: str, receive: Receive, links: list[Link] | None = None,
              until: int | None = None, share_with: Port | None = None) -> Port:
-        """A new port for an estimator: ``receive(link, payload)`` gets its deliveries;
-        ``links`` are the links it reports on (default: those it uses); deliveries after
-        ``until`` ns (default: the run's last tick) stay in flight.  With ``share_with`` its
-        packets take that port's copies of the media (:class:`~dkfsim.network.port.Port`)."""
+        """A new port for an estimator: ``receive(link, payload)`` gets its deliveries; ``links``
+        are the links it reports on (default: those it uses); deliveries after ``until`` ns
+        (default: the run's last tick) stay in flight.  With ``share_with`` its packets take
+        that port's copies of the media (:class:`~dkfsim.network.port.Port`)."""
         p = Port(self, name, receive, links, until, share_with)
+        self.ports.append(p)
+        return p
+
+    def record_port(self, name: str, receive: Receive, links: list[Link], *, width: int, backend: Backend,
+                    until: int | None = None) -> RecordPort:
+        """A new port whose packets are records of ``width`` int64 words, handed over and
+        delivered in batches (:class:`~dkfsim.network.port.RecordPort`)."""
+        p = RecordPort(self, name, receive, links, until, width=width, backend=backend)
         self.ports.append(p)
         return p
 

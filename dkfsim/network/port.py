@@ -33,7 +33,10 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 from simpy.events import Event
 
+from dkfsim.core.backend import Backend
+from dkfsim.core.jit import bind
 from dkfsim.core.params import NS_PER_S
+from dkfsim.network import port_kernels
 from dkfsim.network.events import PRIORITY_DELIVER, Clock, Scheduled
 from dkfsim.network.links import Link
 from dkfsim.network.media.base import Frame, Medium
@@ -51,8 +54,9 @@ COUNTERS = ("sent", "delivered", "lost", "copies", "crash_dropped", "outage_lost
 #: adding it changes none of them.
 SHARED_SEQ0 = 1 << 32
 
-#: What a port hands its estimator: ``receive(link, payload)``.
-Receive = Callable[[Link, Any], None]
+#: What a port hands its estimator: ``receive(link, payload)`` (or, a batch port,
+#: ``receive(links, payloads)``).
+Receive = Callable[..., None]
 
 
 def count_fate(link: Link, now: int, seq: int, count: dict[str, list[int]]) -> tuple[int, ...]:
@@ -82,7 +86,7 @@ class Port:
     queueing, which is the point).
     """
 
-    def __init__(self, network: Network, name: str, receive: Receive | None, links: list[Link] | None = None,
+    def __init__(self, network: Network, name: str, receive: Receive, links: list[Link] | None = None,
                  until: int | None = None, share_with: Port | None = None):
         self.net = network
         self.env: Clock = network.env
@@ -124,53 +128,80 @@ class Port:
     # -- sending -------------------------------------------------------------------
     def send(self, link: Link, payload: Any, nbytes: int = 0) -> None:
         """Hand ``payload`` to ``link`` now (``nbytes``: its nominal size, for traffic): a frame
-        of one part (:meth:`send_frame`)."""
-        self.send_frame(((link, payload, nbytes),), nbytes)
+        of one part (:meth:`send_frames`)."""
+        self.send_frames([link], [payload], [nbytes], [1], [nbytes])
 
     def send_frame(self, parts: Sequence[tuple[Link, Any, int]], frame_bytes: int) -> None:
         """Hand over now one flush of one sender carrying ``parts``, each ``(link, payload,
-        nbytes)``: each part numbered and counted on its link (``sent``, ``bytes`` += its
-        ``nbytes``) and nothing sent on a link that is down (``range_lost``); on a broadcast
-        medium (the shared channel) the parts on it go as one frame of ``frame_bytes`` (a
-        broadcast of one message of ``n`` bytes to ``k`` neighbours: ``k`` parts of ``n`` and a
-        frame of ``n``; a combined frame of different messages: the sum of their sizes),
-        offered after the other parts; on any other medium each part is a frame of its own
-        ``nbytes``, offered in order."""
+        nbytes)`` (:meth:`send_frames`)."""
+        links, payloads, nbytes = zip(*parts) if parts else ((), (), ())
+        self.send_frames(links, payloads, nbytes, [len(parts)], [frame_bytes])
+
+    def send_frames(self, links: Sequence[Link], payloads: Sequence[Any], nbytes: Sequence[int],
+                    ends: Sequence[int], frame_bytes: Sequence[int]) -> None:
+        """Hand over now flushes of senders, in order: flush ``f`` carries the parts ``ends[f-1]
+        .. ends[f]`` (part ``p``: ``payloads[p]`` of ``nbytes[p]`` bytes on ``links[p]``, every
+        part of a flush from one sender).  Each part is numbered and counted on its link
+        (``sent``, ``bytes`` += its ``nbytes``); nothing is sent on a link that is down
+        (``range_lost``).  On a broadcast medium (the shared channel) the parts of a flush on it
+        go as one frame of ``frame_bytes[f]`` (a broadcast of one message of ``n`` bytes to
+        ``k`` neighbours: ``k`` parts of ``n`` and a frame of ``n``; a combined frame of
+        different messages: the sum of their sizes), offered after the flush's other parts; on
+        any other medium each part is a frame of its own ``nbytes``, offered in order."""
         now = self.env.now
         if now != self._instant:
             self._instant, self._seq = now, {}
         count, seqs, seq0 = self._count, self._seq, self._seq0
         sent, sent_bytes = count["sent"], count["bytes"]     # (_grow extends these in place)
-        media = self._media
-        shared: dict[Medium, list[tuple[Link, Any, int]]] | None = None
-        for link, payload, nbytes in parts:
-            lid = link.id
-            seq = seqs.get(lid, seq0)
-            seqs[lid] = seq + 1
-            try:
+        if len(sent) < len(self.net.links):                 # (a link added after the port: rare)
+            self._grow()
+        media, medium_of = self._media, self.net.medium_of
+        p = 0
+        for f, end in enumerate(ends):
+            shared: dict[Medium, list[tuple[Link, Any, int]]] | None = None
+            while p < end:
+                link, payload, size = links[p], payloads[p], nbytes[p]
+                p += 1
+                lid = link.id
+                seq = seqs.get(lid, seq0)
+                seqs[lid] = seq + 1
                 sent[lid] += 1
-            except IndexError:                  # (a link added after the port: rare)
-                self._grow()
-                sent[lid] += 1
-            sent_bytes[lid] += nbytes
-            if link.changes and not link.is_up(now):
-                count["lost"][lid] += 1          # the pair is out of range: nothing leaves
-                count["range_lost"][lid] += 1
-                continue
-            medium = media.get(lid)
-            if medium is None:
-                medium = self.net.medium_of(link, media)
-            if medium.broadcast:
-                if shared is None:
-                    shared = {}
-                shared.setdefault(medium, []).append((link, payload, seq))
-            elif not medium.offer(Frame(link.src, nbytes, now, ((link, payload, seq),), self._left, self)):
-                count["queue_dropped"][lid] += 1
-        if shared:
-            for medium, held in shared.items():
-                if not medium.offer(Frame(held[0][0].src, int(frame_bytes), now, held, self._left, self)):
-                    for link, _, _ in held:
-                        count["queue_dropped"][link.id] += 1
+                sent_bytes[lid] += size
+                if link.changes and not link.is_up(now):
+                    count["lost"][lid] += 1          # the pair is out of range: nothing leaves
+                    count["range_lost"][lid] += 1
+                    continue
+                medium = media.get(lid)
+                if medium is None:
+                    medium = medium_of(link, media)
+                if medium.passive:                  # (leaves at once, nothing to offer)
+                    plain = link.plain
+                    if plain is None:
+                        for lat in count_fate(link, now, seq, count):
+                            self._enqueue(now, lat, link, payload)
+                        continue
+                    lat, lost = plain(now, seq)     # (the fast path: nothing but the latency model acts)
+                    if lost:
+                        count["lost"][lid] += 1
+                        continue
+                    at = now + lat
+                    due = self._due.get(at)
+                    if due is None:
+                        due = self._due[at] = []
+                        Scheduled(self.env, self.deliver_now, PRIORITY_DELIVER, lat)
+                    due.append(link)
+                    due.append(payload)
+                elif medium.broadcast:
+                    if shared is None:
+                        shared = {}
+                    shared.setdefault(medium, []).append((link, payload, seq))
+                elif not medium.offer(Frame(link.src, size, now, ((link, payload, seq),), self._left, self)):
+                    count["queue_dropped"][lid] += 1
+            if shared:
+                for medium, held in shared.items():
+                    if not medium.offer(Frame(held[0][0].src, int(frame_bytes[f]), now, held, self._left, self)):
+                        for link, _, _ in held:
+                            count["queue_dropped"][link.id] += 1
 
     def _left(self, frame: Frame, ok: bool) -> None:
         """A frame of this port has left its sender (at ``frame.end``, now or later), or was lost
@@ -197,7 +228,8 @@ class Port:
                 self._enqueue(handed, wait + lat, link, payload)
 
     def _enqueue(self, now: int, lat: int, link: Link, payload: Any) -> None:
-        """Deliver ``payload`` at ``now + lat`` (``now``: its hand-over, not before the present)."""
+        """Deliver ``payload`` at ``now + lat`` (``now``: its hand-over, not before the present):
+        the one place a delivery is scheduled (one event per arrival instant)."""
         at = now + lat
         due = self._due.get(at)
         if due is None:
@@ -219,8 +251,6 @@ class Port:
         crashes = self.net.crashes
         delivered = self._count["delivered"]
         receive = self._receive
-        if receive is None:
-            raise RuntimeError(f"port {self.name!r} has no receiver")
         pairs = iter(due)                   # (link, payload, link, payload, ...)
         for link, payload in zip(pairs, pairs):
             if crashes is not None and link.dst >= 0 and crashes.down(link.dst, now):
@@ -287,14 +317,14 @@ class Port:
         ``channel``."""
         self._grow()
         count = self._count
-        totals: dict[str, Any] = {k: sum(c) for k, c in count.items()}
+        totals: dict[str, Any] = {k: int(sum(c)) for k, c in count.items()}
         totals["in_flight"] = (totals["sent"] + totals["copies"] - totals["delivered"]
                                - totals["lost"] - totals["queue_dropped"] - totals["crash_dropped"])
         per_link = []
         end = self._end()
         for i in self._reported():
             link = self.net.links[i]
-            row: dict[str, Any] = {"link": (link.src, link.dst), **{k: c[i] for k, c in count.items()}}
+            row: dict[str, Any] = {"link": (link.src, link.dst), **{k: int(c[i]) for k, c in count.items()}}
             row["in_flight"] = (row["sent"] + row["copies"] - row["delivered"] - row["lost"]
                                 - row["queue_dropped"] - row["crash_dropped"])
             row.update(self.medium(link).link_report(self, link, end))
@@ -304,3 +334,281 @@ class Port:
         if self.channel is not None:
             totals["channel"] = self.channel.report(self, end)
         return totals
+
+
+
+class RecordPort(Port):
+    """A port whose packets are records: each packet carries a tag (one int of its sender's,
+    e.g. its own number) and rows of a fixed number of int64 words, and packets are handed over
+    and delivered in batches, as arrays -- for an exchange whose bookkeeping runs in kernels
+    (the ``tree`` protocol).  The same path as :class:`Port` (numbering, media, links, counts),
+    with the per-packet work of the links whose medium is passive and whose latency has a
+    vector form (:meth:`~dkfsim.network.links.Link.vector_latency`) done in one compiled loop
+    per batch (:mod:`dkfsim.network.port_kernels`), and the records of packets in flight in one
+    arena: a delivery hands ``receive(batch, records)`` -- per packet its link id, tag and rows
+    ``records[batch[k, 2]:batch[k, 3]]`` -- once per instant, in the order sent.
+
+    :param width: int64 words per record.
+    :param backend: the run's (numba or numpy: the kernels compiled or not).
+    """
+
+    def __init__(self, network: Network, name: str, receive: Receive, links: list[Link] | None = None,
+                 until: int | None = None, share_with: Port | None = None, *, width: int,
+                 backend: Backend):
+        self._kernels = port_kernels.compiled() if backend.compiled else port_kernels
+        super().__init__(network, name, receive, links, until, share_with)
+        self._grow()
+        self.width = int(width)
+        #: the records of the packets in flight, ``_arena[:_top]`` (the chunks due refer to their
+        #: rows there)
+        self._arena = np.zeros((256, self.width), dtype=np.int64)
+        self._top = 0
+        self._plans: dict[int, tuple] = {}
+
+    def _grow(self) -> None:
+        """The per-link arrays of the batch kernels (:class:`~dkfsim.network.port_kernels.Lanes`)
+        for every link of the network now -- the counters are rows of ``Lanes.count`` -- and
+        the kernels bound to their types."""
+        if not hasattr(self, "_media"):
+            super()._grow()                     # (the base constructor's call: media come next)
+            return
+        links, pk = self.net.links, port_kernels
+        E = len(links)
+        old = getattr(self, "B", None)
+        if old is not None and old.ints.shape[1] == E:
+            return
+        ints = np.zeros((6, E), dtype=np.int64)
+        ints[pk.KIND], ints[pk.SEQT] = pk.PYTHON, -1
+        key = np.zeros(E, np.uint64)
+        states = [l.up_per_tick() for l in links]
+        ints[pk.CHANGES] = [l.changes for l in links]
+        K1 = max((len(u) for u in states if u is not None), default=1)
+        up = np.ones((E, K1) if ints[pk.CHANGES].any() else (E, 1), dtype=np.uint8)
+        for i, link in enumerate(links):
+            form = link.vector_latency()
+            if form is not None and self.medium(link).passive:
+                ints[pk.KIND, i] = pk.DRAWN
+                ints[pk.LKIND, i], key[i], ints[pk.PAR, i] = form
+            u = states[i]
+            if ints[pk.CHANGES, i] and u is not None:
+                up[i, :len(u)] = u
+        names = list(self._count)
+        order = ["sent", "bytes", "lost", "range_lost", "delivered", "crash_dropped"]
+        rows = order + [k for k in names if k not in order]
+        count = np.zeros((len(rows), E), dtype=np.int64)
+        if old is not None:
+            ints[pk.SEQT:, :old.ints.shape[1]] = old.ints[pk.SEQT:]
+        for r, name in enumerate(rows):
+            c = self._count.get(name)
+            if c is not None and len(c):
+                count[r, :len(c)] = c
+        self._count = {name: count[rows.index(name)] for name in names}
+        self.B = B = pk.Lanes(ints, key, up, count)
+        k, i, i2 = self._kernels, np.zeros(1, np.int64), np.zeros((1, 6), np.int64)
+        self._hand_over = bind(k.hand_over, B, 0, 0, 1, i2, i, i)
+        self._arrange = bind(k.arrange, i, i2, 0, np.zeros((1, 4), np.int64), i, i)
+        self._tally = bind(k.tally, B, 0, np.zeros((1, 4), np.int64))
+        self._peek = bind(k.peek, B, 0, 0, 1, i, np.zeros((1, 1), np.int8))
+
+    # -- the arena of records in flight -------------------------------------------------
+    def records(self) -> np.ndarray:
+        """The arena a delivery's ``records`` are rows of (its current array; read only)."""
+        return self._arena
+
+    def _store(self, records: np.ndarray) -> int:
+        """Keep ``records`` until delivered; the arena row of the first."""
+        n = len(records)
+        if self._top + n > len(self._arena):
+            self._compact(n)
+        at = self._top
+        self._arena[at:at + n] = records
+        self._top = at + n
+        return at
+
+    def _compact(self, need: int) -> None:
+        """Drop the rows no packet in flight refers to (before the oldest one still due: the
+        chunks due are moved down with them), and grow the arena if what is left and ``need``
+        more do not fit."""
+        chunks = [chunk for due in self._due.values() for chunk in due if len(chunk)]
+        live = min((int(chunk[:, port_kernels.C_START].min()) for chunk in chunks), default=self._top)
+        keep = self._arena[live:self._top].copy()
+        size = len(self._arena)
+        while len(keep) + need > size // 2:
+            size *= 2
+        if size != len(self._arena):
+            self._arena = np.zeros((size, self.width), dtype=np.int64)
+        self._arena[:len(keep)] = keep
+        self._top = len(keep)
+        for chunk in chunks:
+            chunk[:, port_kernels.C_START:port_kernels.C_STOP + 1] -= live
+
+    # -- sending ---------------------------------------------------------------------------
+    def send_frames(self, links: Sequence[Link], payloads: Sequence[Any], nbytes: Sequence[int],
+                    ends: Sequence[int], frame_bytes: Sequence[int]) -> None:
+        raise TypeError(f"port {self.name!r} carries records: send with send_records")
+
+    def send_records(self, parts: np.ndarray, records: np.ndarray, frames: np.ndarray) -> None:
+        """Hand over now flushes of senders, in order, as :meth:`Port.send_frames`: flush ``f``
+        carries the parts up to ``frames[f, 0]`` (exclusive) and is ``frames[f, 1]`` bytes; part
+        ``p`` (the columns of :mod:`~dkfsim.network.port_kernels`, ``C_LID`` ... ``C_DONE``)
+        goes on link id ``parts[p, 0]`` with tag ``parts[p, 1]`` and rows ``records[parts[p,
+        2]:parts[p, 3]]``, ``parts[p, 4]`` bytes.  A part with ``parts[p, 5]`` reached its
+        receiver at this instant already: its sender delivered it itself, as :meth:`lookahead`
+        said it would arrive now; it is counted delivered (after checking it does arrive now),
+        not delivered again (int64 C-ordered arrays)."""
+        now = int(self.env.now)
+        if self.B.ints.shape[1] < len(self.net.links):
+            self._grow()
+        P = len(parts)
+        seqs = np.empty(P, dtype=np.int64)
+        at = np.empty(P, dtype=np.int64)
+        flags = self._hand_over(self.B, now, self._seq0, self.net.T_ns, parts, seqs, at)
+        if flags & port_kernels.BROKEN_PROMISE:
+            raise RuntimeError(f"port {self.name!r}: a packet was handed over as delivered at once, but it "
+                               "does not arrive at once (its sender did not follow the port's lookahead)")
+        base = self._store(records)
+        if not flags & port_kernels.SOME_ASK:
+            self._schedule(at, parts, base)
+            return
+        self._send_in_order(parts, records, base, frames, seqs, at)
+
+    def _schedule(self, at: np.ndarray, parts: np.ndarray, base: int) -> None:
+        """Schedule the deliveries of the parts with ``at >= 0``, one chunk per arrival instant
+        in send order (their rows offset by ``base`` into the arena)."""
+        P = len(at)
+        rows, times, cuts = np.empty((P, 4), dtype=np.int64), np.empty(P, dtype=np.int64), np.empty(P, np.int64)
+        runs = self._arrange(at, parts, base, rows, times, cuts)
+        lo = 0
+        for hi in cuts[:runs].tolist():
+            self._chunk(int(times[lo]), rows[lo:hi])
+            lo = hi
+
+    def _chunk(self, t: int, chunk: np.ndarray) -> None:
+        """Deliver the packets of ``chunk`` (rows: link id, tag, absolute row offsets) at ``t``."""
+        due = self._due.get(t)
+        if due is None:
+            due = self._due[t] = []
+            Scheduled(self.env, self.deliver_now, PRIORITY_DELIVER, t - self.env.now)
+        due.append(chunk)
+
+    def _send_in_order(self, parts: np.ndarray, records: np.ndarray, base: int, frames: np.ndarray,
+                       seqs: np.ndarray, at: np.ndarray) -> None:
+        """A batch with parts the kernel left to Python (a medium that is not passive, a latency
+        drawn one packet at a time): every part in send order, as :meth:`Port.send_frames`."""
+        count, media, medium_of, now = self._count, self._media, self.net.medium_of, self.env.now
+        links, pk = self.net.links, port_kernels
+        p = 0
+        for end, size in frames.tolist():
+            shared: dict[Medium, list[tuple[Link, Any, int]]] | None = None
+            while p < end:
+                k = p
+                p += 1
+                lid, tag, i0, i1, nbytes, done = parts[k, :6].tolist()
+                if at[k] != pk.ASK:
+                    if at[k] >= 0:
+                        self._chunk(int(at[k]), np.array([[lid, tag, i0 + base, i1 + base]], dtype=np.int64))
+                    continue
+                link, seq = links[lid], int(seqs[k])
+                if link.changes and not link.is_up(now):
+                    count["lost"][lid] += 1
+                    count["range_lost"][lid] += 1
+                    continue
+                medium = media.get(lid)
+                if medium is None:
+                    medium = medium_of(link, media)
+                if done:
+                    arrivals, why = link.transmit(now, seq)
+                    if not medium.passive or why is not None or arrivals != (0,):
+                        raise RuntimeError(f"port {self.name!r}: a packet on link {link.src} -> {link.dst} was "
+                                           "handed over as delivered at once, but it does not arrive at once")
+                    count["delivered"][lid] += 1
+                    continue
+                payload = (tag, records[i0:i1].copy())
+                if medium.passive:
+                    for lat in count_fate(link, now, seq, count):
+                        self._enqueue(now, lat, link, payload)
+                elif medium.broadcast:
+                    if shared is None:
+                        shared = {}
+                    shared.setdefault(medium, []).append((link, payload, seq))
+                elif not medium.offer(Frame(link.src, nbytes, now, ((link, payload, seq),), self._left, self)):
+                    count["queue_dropped"][lid] += 1
+            if shared:
+                for medium, held in shared.items():
+                    if not medium.offer(Frame(held[0][0].src, size, now, held, self._left, self)):
+                        for link, _, _ in held:
+                            count["queue_dropped"][link.id] += 1
+
+    def _enqueue(self, now: int, lat: int, link: Link, payload: Any) -> None:
+        tag, rows = payload
+        offset = self._store(rows)
+        self._chunk(now + lat, np.array([[link.id, tag, offset, offset + len(rows)]], dtype=np.int64))
+
+    # -- receiving -------------------------------------------------------------------------
+    def deliver_now(self, _event: Event | None = None) -> None:
+        now = self.env.now
+        due = self._due.pop(now, None)
+        if due is None:
+            return
+        if self.until is not None and now > self.until:
+            return                            # after the port's last instant: in flight
+        batch = due[0] if len(due) == 1 else np.concatenate(due)
+        crashes = self.net.crashes
+        if crashes is not None:
+            links = self.net.links
+            down = np.array([links[lid].dst >= 0 and crashes.down(links[lid].dst, now)
+                             for lid in batch[:, 0].tolist()], dtype=bool)
+            if down.any():
+                self._tally(self.B, port_kernels.CRASH_DROPPED, np.ascontiguousarray(batch[down]))
+                batch = batch[~down]
+                if not len(batch):
+                    return
+        self._tally(self.B, port_kernels.DELIVERED, batch)
+        self._receive(batch, self._arena)
+
+    def lookahead(self, links: list[Link], q: int, nbytes: int) -> np.ndarray:
+        """``(len(links), q)`` int8: the fate at this instant of the next ``q`` packets this port
+        would hand each of ``links`` now, of at least ``nbytes`` bytes: ``0`` they do not reach
+        their receiver at this instant (they arrive later, or never), ``1`` they do (and the
+        receiver is up), ``2`` the port cannot say before they are sent (their medium's state
+        or their link's faults decide).  Draws are pure functions of (link, instant, number), so
+        the answer is what sending them will do; a sender that delivers a ``1`` packet itself
+        hands it over as done (:meth:`send_records`)."""
+        now = int(self.env.now)
+        if self.until is not None and now > self.until:
+            return np.zeros((len(links), q), dtype=np.int8)   # (nothing is delivered after the port's end)
+        if self.B.ints.shape[1] < len(self.net.links):
+            self._grow()
+        plan = self._plans.get(id(links))
+        if plan is None or plan[0] is not links:
+            plan = self._plan(links)
+        _, lids, others, dsts = plan
+        table = np.full((len(links), q), 2, dtype=np.int8)
+        self._peek(self.B, now, self._seq0, self.net.T_ns, lids, table)
+        for e, medium in others:
+            link = links[e]
+            if (link.changes and not link.is_up(now)) or not medium.leaves_at_once(nbytes):
+                table[e] = 0
+            elif medium.passive:                # (else its waiting room decides: 2)
+                ints = self.B.ints
+                base = int(ints[port_kernels.SEQN, link.id]) if ints[port_kernels.SEQT, link.id] == now else self._seq0
+                for u in range(q):
+                    arrivals, why = link.transmit(now, base + u)
+                    table[e, u] = 0 if why is not None or 0 not in arrivals else 1 if len(arrivals) == 1 else 2
+        crashes = self.net.crashes
+        if crashes is not None:                 # a receiver that is down drops what arrives
+            for e, d in dsts:
+                if crashes.down(d, now):
+                    table[e] = 0
+        return table
+
+    def _plan(self, links: list[Link]) -> tuple:
+        """What :meth:`lookahead` works out once for a list of links: their ids, the links it
+        answers for in Python (with their media), and the receivers that can crash."""
+        lids = np.array([l.id for l in links], dtype=np.int64)
+        kind = self.B.ints[port_kernels.KIND]
+        others = [(e, self.medium(l)) for e, l in enumerate(links) if kind[l.id] != port_kernels.DRAWN]
+        dsts = [(e, l.dst) for e, l in enumerate(links) if l.dst >= 0] if self.net.crashes is not None else []
+        plan = (links, lids, others, dsts)
+        self._plans[id(links)] = plan
+        return plan

@@ -41,10 +41,12 @@ import numpy as np
 from simpy.events import Event
 
 from dkfsim.components.faults import CrashSchedule
+from dkfsim.core.backend import Backend
 from dkfsim.core.bits import mask_words, set_bits
 from dkfsim.model.holdings import Holdings
 from dkfsim.network.events import PRIORITY_FLUSH, Clock, Scheduled
 from dkfsim.network.links import Link
+from dkfsim.network.network import Network
 from dkfsim.network.port import Port
 
 #: Bytes of a packet's header (sequence number, sender, receiver, length).
@@ -123,6 +125,7 @@ class Exchange:
         are counted per packet.
     :param nx: the state size and :param T_ns: the tick period (ns), for
         the nominal packet size and for protocols that act on the tick grid.
+    :param backend: the run's :class:`~dkfsim.core.backend.Backend` (numba or numpy).
     """
 
     tree = False
@@ -134,8 +137,10 @@ class Exchange:
     graph = "digraph"
 
     def __init__(self, env: Clock, n: int, holdings: Holdings, arrival: np.ndarray | None = None,
-                 late_horizon: int = 4096, nx: int = 1, T_ns: int = 1):
+                 late_horizon: int = 4096, nx: int = 1, T_ns: int = 1, backend: Backend | None = None):
         self.env = env
+        #: the run's backend: a protocol with kernels of its own compiles them on the numba path
+        self.backend = backend if backend is not None else Backend.from_environment()
         self.T_ns = int(T_ns)
         self.row_bytes = row_bytes(nx, n)
         self.n = n
@@ -159,6 +164,12 @@ class Exchange:
         self._flush_cb = [self._make_flush(j) for j in range(n)]
 
     # -- wiring ----------------------------------------------------------------
+    def open_port(self, network: Network, name: str, links: list[Link]) -> Port:
+        """The port this exchange sends through, named ``name``, reporting on ``links``: one whose
+        packets are Python objects delivered one by one to :meth:`receive` (a protocol whose
+        bookkeeping runs in batches opens a :class:`~dkfsim.network.port.RecordPort`)."""
+        return network.port(name, self.receive, links)
+
     def attach(self, port: Port, links: Sequence[Link]) -> None:
         """Send through ``port`` over ``links`` (the exchange graph's arcs, in order).
 

@@ -46,6 +46,9 @@ class Medium:
     #: True for a broadcast medium: the parts of one flush of a sender on it go as one frame
     #: (every receiver hears it); False: each part is a frame of its own, on its own link.
     broadcast: ClassVar[bool] = False
+    #: True for a medium whose frames leave at their hand-over and that keeps nothing: the port
+    #: draws their propagation at once without offering them (what :meth:`offer` would do).
+    passive: ClassVar[bool] = False
 
     def offer(self, frame: Frame) -> bool:
         """Hand ``frame`` over now: False when it finds no room (nothing of it is sent, and

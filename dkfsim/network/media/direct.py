@@ -19,6 +19,7 @@ class Direct(Medium):
     """A link without a rate: every frame leaves at its hand-over."""
 
     kind = "direct"
+    passive = True
 
     def offer(self, frame: Frame) -> bool:
         frame.start = frame.end = frame.handed
