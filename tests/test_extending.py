@@ -76,7 +76,7 @@ def test_two_estimators_sending_together_see_the_same_delays():
 
     from dkfsim.components.faults import LinkSpec
     from dkfsim.components.latency import Exponential
-    from dkfsim.network.links import Network
+    from dkfsim.network.network import Network
     env = simpy.Environment()
     spec = LinkSpec(latency=Exponential(mean=0.05), loss=0.2)
     net = Network(env, [(0, 1), (1, 0)], lambda u, v: spec, seed=7, T_ns=10_000_000)

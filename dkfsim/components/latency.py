@@ -121,6 +121,11 @@ class LatencyParams(StrictModel):
         """Largest latency the model can produce, in ns; ``None`` if unbounded."""
         raise NotImplementedError
 
+    def inf_ns(self, T_ns: int) -> int:
+        """A lower bound (ns) of the latencies the model can produce (0: it may produce none at
+        all): what lets a port say at once that a packet cannot arrive at the instant it is sent."""
+        return 0
+
     def bound_steps(self, T_ns: int) -> int | None:
         """Smallest ``d`` with latency ``<= d * T`` always; ``None`` if unbounded."""
         sup = self.sup_ns(T_ns)
@@ -179,6 +184,10 @@ class Constant(LatencyParams):
     @override
     def sup_ns(self, T_ns):
         return seconds_to_ns(self.value)
+
+    @override
+    def inf_ns(self, T_ns):
+        return min(seconds_to_ns(self.value), MAX_NS)
 
     @override
     def sampler(self, prefix, seed, T_ns):
@@ -262,6 +271,10 @@ class Uniform(LatencyParams):
         return self
 
     @override
+    def inf_ns(self, T_ns):
+        return seconds_to_ns(self.low)
+
+    @override
     def from_uniform(self, u, T_ns):
         lo, hi = seconds_to_ns(self.low), seconds_to_ns(self.high)
         return np.clip(_clamped((self.low + np.asarray(u, float) * (self.high - self.low)) * NS_PER_S), lo, hi)
@@ -290,6 +303,10 @@ class ShiftedLaw(LatencyParams):
     @override
     def sup_ns(self, T_ns):
         return None
+
+    @override
+    def inf_ns(self, T_ns):
+        return max(0, seconds_to_ns(self.offset) - 1)      # (the laws reach 0 themselves)
 
 
 @LATENCY_MODELS.register("exponential")
@@ -351,6 +368,11 @@ class Pareto(ShiftedLaw):
 
     def quantile_s(self, u):
         return self.scale * u ** (-1.0 / self.alpha)
+
+    @override
+    def inf_ns(self, T_ns):
+        # (one ns less than offset + scale: the quantile's rounding cannot go below that)
+        return max(0, seconds_to_ns(self.offset + self.scale) - 1)
 
 
 # =========================================================================== empirical traces

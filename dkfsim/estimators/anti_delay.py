@@ -26,6 +26,7 @@ import numpy as np
 from dkfsim.components.estimators import AntiDelayParams, NoBufferParams
 from dkfsim.components.topology import paper_weights
 from dkfsim.config.plan import RunPlan
+from dkfsim.core.registry import PROTOCOLS
 from dkfsim.core.resources import (
     B_FLOAT,
     C_CONTRIBUTION,
@@ -41,7 +42,6 @@ from dkfsim.estimators.base import DKFView, Estimate, Estimator, EstimatorResult
 from dkfsim.estimators.fusion import FUSERS, CrossCovariance
 from dkfsim.estimators.window import WindowFilter
 from dkfsim.model.holdings import Holdings
-from dkfsim.core.registry import PROTOCOLS
 from dkfsim.network.port import Port
 
 #: Largest P_local (entries) kept: 400 MB.

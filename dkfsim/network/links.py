@@ -175,6 +175,11 @@ class Link:
             return []
         return (np.flatnonzero(up[1:] & ~up[:-1]) + 1).tolist()
 
+    def min_latency_ns(self) -> int:
+        """A lower bound (ns) of the latency of any packet that arrives (0 when a schedule may
+        scale it down: then no bound is claimed)."""
+        return 0 if self.spec.schedule else self.spec.latency.inf_ns(self.T_ns)
+
     def vector_latency(self) -> tuple[int, int, int] | None:
         """The link's latency as a batch of packets draws it in one compiled loop
         (:meth:`~dkfsim.components.latency.Sampler.vector`) when nothing but the latency model

@@ -24,8 +24,8 @@ from dkfsim.components.mobility import LinkSchedule
 from dkfsim.core.backend import Backend
 from dkfsim.network.events import Clock
 from dkfsim.network.links import Link
-from dkfsim.network.media.base import Medium
 from dkfsim.network.media import csma  # noqa: F401  (registers the default access rule)
+from dkfsim.network.media.base import Medium
 from dkfsim.network.media.channel import Channel
 from dkfsim.network.media.direct import DIRECT
 from dkfsim.network.media.fifo import Fifo

@@ -32,6 +32,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from simpy.events import Event
+from typing_extensions import override
 
 from dkfsim.core.backend import Backend
 from dkfsim.core.jit import bind
@@ -429,6 +430,10 @@ class RecordPort(Port):
         """Drop the rows no packet in flight refers to (before the oldest one still due: the
         chunks due are moved down with them), and grow the arena if what is left and ``need``
         more do not fit."""
+        for due in self._due.values():          # (single packets as arrays: moved in place below)
+            for k, e in enumerate(due):
+                if type(e) is tuple:
+                    due[k] = np.array([e], dtype=np.int64)
         chunks = [chunk for due in self._due.values() for chunk in due if len(chunk)]
         live = min((int(chunk[:, port_kernels.C_START].min()) for chunk in chunks), default=self._top)
         keep = self._arena[live:self._top].copy()
@@ -443,6 +448,7 @@ class RecordPort(Port):
             chunk[:, port_kernels.C_START:port_kernels.C_STOP + 1] -= live
 
     # -- sending ---------------------------------------------------------------------------
+    @override
     def send_frames(self, links: Sequence[Link], payloads: Sequence[Any], nbytes: Sequence[int],
                     ends: Sequence[int], frame_bytes: Sequence[int]) -> None:
         raise TypeError(f"port {self.name!r} carries records: send with send_records")
@@ -483,8 +489,9 @@ class RecordPort(Port):
             self._chunk(int(times[lo]), rows[lo:hi])
             lo = hi
 
-    def _chunk(self, t: int, chunk: np.ndarray) -> None:
-        """Deliver the packets of ``chunk`` (rows: link id, tag, absolute row offsets) at ``t``."""
+    def _chunk(self, t: int, chunk: np.ndarray | tuple[int, int, int, int]) -> None:
+        """Deliver the packets of ``chunk`` (rows: link id, tag, first and end row in the arena;
+        or one packet's as a tuple) at ``t``."""
         due = self._due.get(t)
         if due is None:
             due = self._due[t] = []
@@ -506,7 +513,7 @@ class RecordPort(Port):
                 lid, tag, i0, i1, nbytes, done = parts[k, :6].tolist()
                 if at[k] != pk.ASK:
                     if at[k] >= 0:
-                        self._chunk(int(at[k]), np.array([[lid, tag, i0 + base, i1 + base]], dtype=np.int64))
+                        self._chunk(int(at[k]), (lid, tag, i0 + base, i1 + base))
                     continue
                 link, seq = links[lid], int(seqs[k])
                 if link.changes and not link.is_up(now):
@@ -523,11 +530,12 @@ class RecordPort(Port):
                                            "handed over as delivered at once, but it does not arrive at once")
                     count["delivered"][lid] += 1
                     continue
-                payload = (tag, records[i0:i1].copy())
-                if medium.passive:
+                if medium.passive:                  # (its rows are in the arena already)
                     for lat in count_fate(link, now, seq, count):
-                        self._enqueue(now, lat, link, payload)
-                elif medium.broadcast:
+                        self._chunk(now + lat, (lid, tag, i0 + base, i1 + base))
+                    continue
+                payload = (tag, records[i0:i1].copy())       # (kept by the medium until it leaves)
+                if medium.broadcast:
                     if shared is None:
                         shared = {}
                     shared.setdefault(medium, []).append((link, payload, seq))
@@ -542,7 +550,7 @@ class RecordPort(Port):
     def _enqueue(self, now: int, lat: int, link: Link, payload: Any) -> None:
         tag, rows = payload
         offset = self._store(rows)
-        self._chunk(now + lat, np.array([[link.id, tag, offset, offset + len(rows)]], dtype=np.int64))
+        self._chunk(now + lat, (link.id, tag, offset, offset + len(rows)))
 
     # -- receiving -------------------------------------------------------------------------
     def deliver_now(self, _event: Event | None = None) -> None:
@@ -552,7 +560,13 @@ class RecordPort(Port):
             return
         if self.until is not None and now > self.until:
             return                            # after the port's last instant: in flight
-        batch = due[0] if len(due) == 1 else np.concatenate(due)
+        first = due[0]
+        if len(due) == 1 and type(first) is not tuple:
+            batch = first
+        elif all(type(e) is tuple for e in due):
+            batch = np.array(due, dtype=np.int64)
+        else:
+            batch = np.concatenate([np.array([e], dtype=np.int64) if type(e) is tuple else e for e in due])
         crashes = self.net.crashes
         if crashes is not None:
             links = self.net.links
@@ -581,9 +595,12 @@ class RecordPort(Port):
             self._grow()
         plan = self._plans.get(id(links))
         if plan is None or plan[0] is not links:
-            plan = self._plan(links)
-        _, lids, others, dsts = plan
+            plan = self._plan(links, q, nbytes)
+        _, lids, others, dsts, never, later = plan
+        if never is not None:
+            return never                        # (no packet of these links can arrive at once)
         table = np.full((len(links), q), 2, dtype=np.int8)
+        table[later] = 0
         self._peek(self.B, now, self._seq0, self.net.T_ns, lids, table)
         for e, medium in others:
             link = links[e]
@@ -602,13 +619,19 @@ class RecordPort(Port):
                     table[e] = 0
         return table
 
-    def _plan(self, links: list[Link]) -> tuple:
+    def _plan(self, links: list[Link], q: int, nbytes: int) -> tuple:
         """What :meth:`lookahead` works out once for a list of links: their ids, the links it
-        answers for in Python (with their media), and the receivers that can crash."""
+        answers for in Python (with their media) -- but those whose packets cannot arrive at
+        once, by their medium or their smallest latency -- and the receivers that can crash; and
+        the answer when no packet of any of them can arrive at once."""
         lids = np.array([l.id for l in links], dtype=np.int64)
         kind = self.B.ints[port_kernels.KIND]
-        others = [(e, self.medium(l)) for e, l in enumerate(links) if kind[l.id] != port_kernels.DRAWN]
+        at_once = [self.medium(l).leaves_at_once(nbytes) and l.min_latency_ns() == 0 for l in links]
+        others = [(e, self.medium(l)) for e, l in enumerate(links) if kind[l.id] != port_kernels.DRAWN and at_once[e]]
         dsts = [(e, l.dst) for e, l in enumerate(links) if l.dst >= 0] if self.net.crashes is not None else []
-        plan = (links, lids, others, dsts)
+        never = np.zeros((len(links), q), dtype=np.int8) if not any(at_once) else None
+        later = np.array([e for e, l in enumerate(links) if kind[l.id] != port_kernels.DRAWN and not at_once[e]],
+                         dtype=np.intp)
+        plan = (links, lids, others, dsts, never, later)
         self._plans[id(links)] = plan
         return plan

@@ -173,7 +173,8 @@ class TreeExchange(Exchange):
         """The packets delivered now, in the order they were sent (one call per instant): packet
         ``k`` came over link id ``batch[k, 0]`` as number ``batch[k, 1]`` with the items
         ``records[batch[k, 2]:batch[k, 3]]``."""
-        self._room(0, int((batch[:, 3] - batch[:, 2]).sum()))
+        if len(batch) * self.holdings.S > self.O.gain.shape[1]:     # (a packet has at most S rows)
+            self._room(0, int((batch[:, 3] - batch[:, 2]).sum()))
         self._receive(self.X, self.O, batch, records.view(np.uint64), self._local)
         self._gains()
 

@@ -30,6 +30,7 @@ from typing import Any, ClassVar
 
 import numpy as np
 from simpy.events import URGENT, Event
+from typing_extensions import override
 
 from dkfsim.components.medium import Medium as MediumSpec
 from dkfsim.components.traffic import transmission_ns
@@ -175,6 +176,7 @@ class Channel(Medium):
         self._wake()
         return ok
 
+    @override
     def leaves_at_once(self, nbytes: int) -> bool:
         return False                        # (a frame is on the air at least 1 ns)
 

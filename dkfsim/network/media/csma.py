@@ -15,6 +15,7 @@
 from __future__ import annotations
 
 from heapq import heappop, heappush
+
 from typing_extensions import override
 
 from dkfsim.components.medium import Csma
@@ -98,6 +99,7 @@ class CsmaAccess(Access):
         self.next_start()
         return self._next_air
 
+    @override
     def start(self, ts: int) -> list[Radio]:
         heads, radios = self._heads, self.channel.radios
         best = heads[0][0]

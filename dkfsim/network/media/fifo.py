@@ -24,6 +24,7 @@ from collections.abc import Callable
 from typing import Any
 
 import numpy as np
+from typing_extensions import override
 
 from dkfsim.components.traffic import Queue, transmission_ns
 from dkfsim.core.params import MAX_NS, NS_PER_S
@@ -215,11 +216,13 @@ class Fifo(Medium):
     def leaves_at_once(self, nbytes: int) -> bool:
         return transmission_ns(nbytes, self._fastest) == 0
 
+    @override
     def own_delays(self, owner: Any) -> np.ndarray:
         flat = self._own.get(owner)
         own = np.frombuffer(flat, dtype=np.int64).reshape(-1, 3) if flat else np.zeros((0, 3), np.int64)
         return own[:, 1] - own[:, 0]
 
+    @override
     def interval_log(self, owner: Any, end: int) -> np.ndarray:
         """Every packet the transmitter carried up to ``end``: the background (dropped ones
         with ``start < 0``) and every owner's, whoever asks (with shared queues, the others'
@@ -232,6 +235,7 @@ class Fifo(Medium):
                 parts.append(np.frombuffer(flat, dtype=np.int64).reshape(-1, 3))
         return np.concatenate(parts)
 
+    @override
     def link_report(self, owner: Any, link: Any, end: int) -> dict[str, Any]:
         """Utilisation, ``owner``'s queueing delays, the background sent and dropped
         (:func:`link_stats`) and the time-averaged number of packets waiting."""
