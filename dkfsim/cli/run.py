@@ -7,7 +7,7 @@ from dkfsim.config.plan import RunPlan
 from dkfsim.core.errors import DkfsimError
 from dkfsim.core.folders import check_target
 from dkfsim.core.resources import human_bytes, human_seconds
-from dkfsim.engine.driver import run
+from dkfsim.engine.driver import simulate
 from dkfsim.engine.estimate import check_run, estimate_run
 from dkfsim.report.tables import run_table
 
@@ -43,7 +43,7 @@ def add_command(sub) -> None:
 
 def cmd_validate(args) -> int:
     sc = load_from_args(args)
-    plan = RunPlan(sc)
+    plan = RunPlan.of(sc)
     est = estimate_run(plan)
     if est.seconds > 60:               # a large graph: do not spend minutes on its exact diameter
         shape = f"{plan.n_exchange_links} directed links, buffer length L ~ {plan.L_estimate}"
@@ -59,8 +59,9 @@ def cmd_validate(args) -> int:
     channel = ""
     if sc.medium is not None:         # a shared radio channel (docs/design.md §3)
         m = sc.medium
+        cw = getattr(m.access, "cw", None)
         channel = (f"; {len(m.members(sc.n))} nodes on one shared channel of {m.rate:g} bit/s "
-                   f"({m.access.kind}, cw {m.access.cw}; the Python exchange)")
+                   f"({m.access.kind}" + (f", cw {cw})" if cw is not None else ")"))
     say(f"{args.scenario}: ok — {sc.name}: {len(sc.sensors)} sensors, nx = {sc.nx}, "
           f"{sc.steps} ticks of {sc.model.T} s, protocol {sc.protocol} on {shape} "
           f"(d_t = {plan.d_t}), fusion {sc.fusion}{channel}; a run needs about "
@@ -73,11 +74,12 @@ def cmd_run(args) -> int:
     if args.burn_in is not None and not 0 <= args.burn_in < sc.steps:
         raise DkfsimError(f"--burn-in: must be in [0, steps) = [0, {sc.steps}), got {args.burn_in}")
     check_target(args.out)                 # before the run: a bad --out costs nothing
-    check_run(sc, save=args.save, yes=args.yes)
+    plan = RunPlan.of(sc, args.save)       # (the plan validation worked out: one per command)
+    check_run(plan, yes=args.yes)
     bar = progress_bar(args, sc.steps, sc.name, unit="tick")
     progress = None if bar is None else (lambda k, _K: bar.update(k - bar.n))
     try:
-        res = run(sc, save=args.save, progress=progress, yes=True)   # checked above
+        res = simulate(plan, progress)     # (the process runs BLAS on one thread: main)
     finally:
         if bar is not None:
             bar.close()

@@ -121,7 +121,7 @@ class LatencyParams(StrictModel):
         """Largest latency the model can produce, in ns; ``None`` if unbounded."""
         raise NotImplementedError
 
-    def inf_ns(self, T_ns: int) -> int:
+    def inf_ns(self) -> int:
         """A lower bound (ns) of the latencies the model can produce (0: it may produce none at
         all): what lets a port say at once that a packet cannot arrive at the instant it is sent."""
         return 0
@@ -186,7 +186,7 @@ class Constant(LatencyParams):
         return seconds_to_ns(self.value)
 
     @override
-    def inf_ns(self, T_ns):
+    def inf_ns(self):
         return min(seconds_to_ns(self.value), MAX_NS)
 
     @override
@@ -271,7 +271,7 @@ class Uniform(LatencyParams):
         return self
 
     @override
-    def inf_ns(self, T_ns):
+    def inf_ns(self):
         return seconds_to_ns(self.low)
 
     @override
@@ -305,7 +305,7 @@ class ShiftedLaw(LatencyParams):
         return None
 
     @override
-    def inf_ns(self, T_ns):
+    def inf_ns(self):
         return max(0, seconds_to_ns(self.offset) - 1)      # (the laws reach 0 themselves)
 
 
@@ -370,7 +370,7 @@ class Pareto(ShiftedLaw):
         return self.scale * u ** (-1.0 / self.alpha)
 
     @override
-    def inf_ns(self, T_ns):
+    def inf_ns(self):
         # (one ns less than offset + scale: the quantile's rounding cannot go below that)
         return max(0, seconds_to_ns(self.offset + self.scale) - 1)
 

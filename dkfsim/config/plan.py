@@ -61,6 +61,19 @@ class RunPlan:
         #: what the run keeps (``auto`` resolved)
         self.save: SaveMode = resolve_save_mode(save, scenario.n, int(scenario.steps))
 
+    @classmethod
+    def of(cls, scenario: Any, save: str = "auto") -> RunPlan:
+        """The plan of ``scenario`` its validation worked out (:meth:`Scenario.plan`), with the
+        save mode ``save``: every fact already derived is shared, so a command builds the graphs
+        and the trajectories once."""
+        plan = scenario.plan()
+        mode = resolve_save_mode(save, scenario.n, int(scenario.steps))
+        if mode == plan.save:
+            return plan
+        copied = copy.copy(plan)        # shares the cached graphs and bounds
+        copied.save = mode
+        return copied
+
     def with_seed(self, scenario: Any) -> RunPlan:
         """The plan of ``scenario``, this plan's scenario with another seed: the facts already
         worked out are shared when the topology does not depend on the seed (a pinned or

@@ -57,7 +57,7 @@ class Run:
         self.scenario = scenario
         self.K = K = int(scenario.steps)
         seed = int(scenario.seed)
-        self.plan = plan = RunPlan(scenario, save) if plan is None else plan
+        self.plan = plan = RunPlan.of(scenario, save) if plan is None else plan
         system = build_system(scenario) if system is None else system
         self.progress = progress
         # Everything random but the network is drawn up front, from its own streams.
@@ -72,7 +72,6 @@ class Run:
         self.ctx = RunContext(scenario=scenario, plan=plan, backend=self.backend, system=system, truth=truth, ys=ys,
                               info=system.information(ys), crashes=crashes, env=env, network=network)
         self.dkf = AntiDelayDKF(AntiDelayParams(), self.ctx, main=True)
-        self.ctx.dkf = self.dkf
         self.estimators = [self.dkf] + [ESTIMATORS.get(p.kind).implementation(p, self.ctx)
                                         for p in scenario.estimators]
         self.k = 0
@@ -165,6 +164,14 @@ class Run:
                          facts=facts)
 
 
+def simulate(plan: RunPlan, progress: Callable[[int, int], None] | None = None) -> RunResult:
+    """Run the scenario of ``plan`` (validated, its resources checked: :func:`run` does both)
+    and return its result; ``progress(tick, K)`` is called as the run goes."""
+    with np.errstate(all="ignore"):          # an exploding truth is reported, not warned about
+        sim = Run(plan.scenario, save=plan.save, progress=progress, plan=plan)
+    return sim.run()
+
+
 @single_thread
 def run(scenario: Scenario | str | PathLike | Mapping[str, Any], *, seed: int | None = None,
         steps: int | None = None, save: str = "auto", progress: bool | Callable[[int, int], None] | None = None,
@@ -182,9 +189,7 @@ def run(scenario: Scenario | str | PathLike | Mapping[str, Any], *, seed: int | 
     overrides = [f"{key}={int(val)}" for key, val in (("seed", seed), ("steps", steps)) if val is not None]
     if overrides or not isinstance(scenario, Scenario):   # validated exactly as --set would be
         scenario = load_scenario(scenario, overrides=overrides)
-    plan = RunPlan(scenario, save)
+    plan = RunPlan.of(scenario, save)
     check_run(plan, yes=yes)
     with progress_callback(progress, int(scenario.steps), scenario.name, "tick") as callback:
-        with np.errstate(all="ignore"):      # an exploding truth is reported, not warned about
-            sim = Run(scenario, save=save, progress=callback, plan=plan)
-        return sim.run()
+        return simulate(plan, callback)

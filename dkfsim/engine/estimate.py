@@ -21,7 +21,7 @@ from dkfsim.estimators.anti_delay import AntiDelayDKF
 def estimate_run(run, save: str = "auto") -> Cost:
     """Memory and time of one run (its DKF and every listed estimator): ``run`` is its
     :class:`~dkfsim.config.plan.RunPlan`, or a scenario (planned with ``save``)."""
-    plan = run if isinstance(run, RunPlan) else RunPlan(run, save)
+    plan = run if isinstance(run, RunPlan) else RunPlan.of(run, save)
     scenario = plan.scenario
     n, nx, K = scenario.n, scenario.nx, int(scenario.steps)
     L, arcs = plan.L_estimate, plan.n_exchange_links

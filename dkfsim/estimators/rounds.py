@@ -223,7 +223,8 @@ class RoundBased(Estimator):
         # A graph that changes: the arcs' states per tick (K + 1, E), else None.
         self._up_table: np.ndarray | None = None
         if any(link.changes for link in self.links):        # (then every link of the graph has states)
-            self._up_table = np.stack([link.up_per_tick() for link in self.links], axis=1)
+            states = [link.up_per_tick() for link in self.links]
+            self._up_table = np.stack([u for u in states if u is not None], axis=1)
         #: (E,) the arcs up at the tick being computed (all of them on a fixed graph)
         self.up_now = np.ones(E, dtype=bool)
         self._up_tick = -1

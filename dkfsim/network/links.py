@@ -178,7 +178,7 @@ class Link:
     def min_latency_ns(self) -> int:
         """A lower bound (ns) of the latency of any packet that arrives (0 when a schedule may
         scale it down: then no bound is claimed)."""
-        return 0 if self.spec.schedule else self.spec.latency.inf_ns(self.T_ns)
+        return 0 if self.spec.schedule else self.spec.latency.inf_ns()
 
     def vector_latency(self) -> tuple[int, int, int] | None:
         """The link's latency as a batch of packets draws it in one compiled loop

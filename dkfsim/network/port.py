@@ -405,11 +405,11 @@ class RecordPort(Port):
                 count[r, :len(c)] = c
         self._count = {name: count[rows.index(name)] for name in names}
         self.B = B = pk.Lanes(ints, key, up, count)
-        k, i, i2 = self._kernels, np.zeros(1, np.int64), np.zeros((1, 6), np.int64)
-        self._hand_over = bind(k.hand_over, B, 0, 0, 1, i2, i, i)
-        self._arrange = bind(k.arrange, i, i2, 0, np.zeros((1, 4), np.int64), i, i)
+        k, v, m = self._kernels, np.zeros(1, np.int64), np.zeros((1, 6), np.int64)
+        self._hand_over = bind(k.hand_over, B, 0, 0, 1, m, v, v)
+        self._arrange = bind(k.arrange, v, m, 0, np.zeros((1, 4), np.int64), v, v)
         self._tally = bind(k.tally, B, 0, np.zeros((1, 4), np.int64))
-        self._peek = bind(k.peek, B, 0, 0, 1, i, np.zeros((1, 1), np.int8))
+        self._peek = bind(k.peek, B, 0, 0, 1, v, np.zeros((1, 1), np.int8))
 
     # -- the arena of records in flight -------------------------------------------------
     def records(self) -> np.ndarray:

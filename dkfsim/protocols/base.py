@@ -181,9 +181,7 @@ class Exchange:
         self.out_links, self.reverse = wiring.out_links, wiring.reverse
         #: tick -> the links that come up then (a graph that changes; empty otherwise)
         self.came_up = wiring.came_up
-        #: per link: delivered packets that carried a contribution for a row
-        #: already final at the receiver.
-        self.late_packets = [0] * self.n_links
+        self._late_packets = [0] * self.n_links
         #: per link: the number of the last packet sent (links reorder: receivers keep the newest)
         self.seq = [0] * self.n_links
 
@@ -335,7 +333,7 @@ class Exchange:
             else:
                 self.accept(link, seq, row, st, mask)
         if late:
-            self.late_packets[self.lid[link.id]] += 1
+            self._late_packets[self.lid[link.id]] += 1
 
     def accept(self, link: Link, seq: int, row: int, st: RowState, mask: int) -> None:
         """Hook: packet number ``seq`` on ``link`` carries the aggregate ``mask`` (origins) for
@@ -345,6 +343,12 @@ class Exchange:
     def flush(self, node: int) -> None:
         """Hook: ``node``'s flush is due: :meth:`send` what it has for its out-links."""
         raise NotImplementedError
+
+    @property
+    def late_packets(self) -> list[int]:
+        """Per link: delivered packets that carried a contribution for a row already final at
+        the receiver."""
+        return self._late_packets
 
     def counts(self) -> dict[str, Any]:
         """The exchange's own counts: ``late`` (in ``late_unit``), per node, duplicates, stale."""

@@ -82,17 +82,17 @@ class TreeExchange(Exchange):
         order = np.argsort(src, kind="stable")              # each node's out-links in link order
         node = np.zeros((4, n + 1), dtype=np.int64)
         node[tk.OUTPTR] = np.searchsorted(src[order], np.arange(n + 1))
-        link = np.zeros((8, E), dtype=np.int64)
-        link[tk.SRC], link[tk.DST] = src, [l.dst for l in self.links]
-        link[tk.REV] = [-1 if r is None else r for r in wiring.reverse]
-        link[tk.INTREE] = 0 if self.tree_changes is not None else 1    # (a changing graph: the first tree at tick 1)
-        link[tk.OUT], link[tk.LID] = order, [l.id for l in self.links]
+        arcs = np.zeros((8, E), dtype=np.int64)
+        arcs[tk.SRC], arcs[tk.DST] = src, [l.dst for l in self.links]
+        arcs[tk.REV] = [-1 if r is None else r for r in wiring.reverse]
+        arcs[tk.INTREE] = 0 if self.tree_changes is not None else 1    # (a changing graph: the first tree at tick 1)
+        arcs[tk.OUT], arcs[tk.LID] = order, [l.id for l in self.links]
         logged = self.arrival is not None
         H = self.late_horizon if logged else 1
         z = np.zeros
         self.X = tk.Tree(z(15, np.int64), np.full(S, -1, np.int64), z((S, n, W), np.uint64),
                          z((S, E, W), np.uint64), z((S, E), np.int64), z((S, E, W), np.uint64), z((n, S), np.uint8),
-                         node, link, z((H, n if logged else 0, W), np.uint64), np.full(H, -1, np.int64),
+                         node, arcs, z((H, n if logged else 0, W), np.uint64), np.full(H, -1, np.int64),
                          z((2, W), np.uint64))
         CT = self.X.CT
         CT[tk.LO], CT[tk.HI] = 0, -1
