@@ -30,6 +30,7 @@ number as the tag, one ``(row, origin words)`` record per item.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
@@ -41,7 +42,7 @@ from dkfsim.core.registry import PROTOCOLS
 from dkfsim.network.events import PRIORITY_FLUSH, Scheduled
 from dkfsim.network.links import Link
 from dkfsim.network.network import Network
-from dkfsim.network.port import RecordPort
+from dkfsim.network.port import Port, RecordPort
 from dkfsim.protocols import tree_kernels as tk
 from dkfsim.protocols.base import PACKET_HEADER, PART_HEADER, Exchange, Wiring, exchange_counts
 
@@ -68,7 +69,9 @@ class TreeExchange(Exchange):
         self.W = -(-self.holdings.info.theta.shape[1] // 64)
         return network.record_port(name, self.receive_records, links, width=1 + self.W, backend=self.backend)
 
-    def attach(self, port: RecordPort, links: list[Link]) -> None:  # type: ignore[override]
+    def attach(self, port: Port, links: Sequence[Link]) -> None:
+        if not isinstance(port, RecordPort):
+            raise TypeError("the tree exchange sends through the record port its open_port opened")
         self.port = port
         wiring = Wiring(links, self.n)
         self.links, self.lid, self.n_links = wiring.links, wiring.lid, wiring.n_links
