@@ -44,7 +44,7 @@ class AccessParams(StrictModel):
 
     kind: str = ""
 
-    def __init_subclass__(cls, kind: str | None = None, **kwargs: Any):
+    def __init_subclass__(cls, kind: str | None = None, **kwargs: Any) -> None:
         if kind is not None:
             # Before pydantic collects the fields: ``kind`` becomes Literal[kind] = kind.
             annotations = dict(cls.__dict__.get("__annotations__", {}))
@@ -81,7 +81,7 @@ class Csma(AccessParams, kind="csma"):
         return seconds_to_ns(self.aifs)
 
     @model_validator(mode="after")
-    def _whole_slot(self):
+    def _whole_slot(self) -> Csma:
         if self.slot_ns < 1:
             raise custom_error(f"a slot of {self.slot!r} s is under one nanosecond (the clock's unit); "
                                "give at least 1e-9 (802.11p: 13.0e-6)", "slot")
@@ -109,7 +109,7 @@ class Medium(StrictModel):
 
     @field_validator("nodes", mode="before")
     @classmethod
-    def _nodes_shape(cls, value):
+    def _nodes_shape(cls, value: Any) -> Any:
         """One plain message for a ``nodes`` that is neither ``all`` nor a list of two or more
         nodes (the union type's own message lists both alternatives' internals)."""
         if isinstance(value, str) and value != "all":

@@ -15,6 +15,7 @@ On the numba path these functions are compiled; on the numpy path they run as Py
 from __future__ import annotations
 
 from collections import namedtuple
+from types import ModuleType
 
 import numpy as np
 
@@ -56,13 +57,13 @@ _S30, _S27, _S31, _S11 = np.uint64(30), np.uint64(27), np.uint64(31), np.uint64(
 _SCALE = 1.0 / 9007199254740992.0
 
 
-def compiled():
+def compiled() -> ModuleType:
     """This module with its kernels compiled by numba (loaded from the disk cache after the
     first time)."""
     return _lazy.get()
 
 
-def keyed_uniform(key, t, seq):
+def keyed_uniform(key: np.uint64, t: int, seq: int) -> float:
     """:func:`dkfsim.core.streams.keyed_uniform` in uint64 arithmetic (the same bits)."""
     z = key + _GOLDEN * np.uint64(t)
     z = (z ^ (z >> _S30)) * _M1
@@ -73,7 +74,7 @@ def keyed_uniform(key, t, seq):
     return (np.float64((z ^ (z >> _S31)) >> _S11) + 0.5) * _SCALE
 
 
-def latency(B, lid, t, seq, T_ns):
+def latency(B: Lanes, lid: int, t: int, seq: int, T_ns: int) -> int | np.integer:
     """The latency (ns) of packet number ``seq`` handed to link ``lid`` at ``t``."""
     d = B.ints[PAR, lid]
     if B.ints[LKIND, lid] == 0:
@@ -84,7 +85,7 @@ def latency(B, lid, t, seq, T_ns):
     return k * T_ns
 
 
-def _down(B, lid, now, T_ns):
+def _down(B: Lanes, lid: int, now: int, T_ns: int) -> bool:
     """Whether link ``lid`` is down at ``now``."""
     if B.ints[CHANGES, lid] == 0:
         return False
@@ -94,7 +95,7 @@ def _down(B, lid, now, T_ns):
     return B.up[lid, k] == 0
 
 
-def hand_over(B, now, seq0, T_ns, parts, seqs, at):
+def hand_over(B: Lanes, now: int, seq0: int, T_ns: int, parts: np.ndarray, seqs: np.ndarray, at: np.ndarray) -> int:
     """Number and count the packets handed over now, in order (packet ``p``: the columns of
     ``parts[p]``): ``seqs[p]`` its number on its link at this instant; for a :data:`DRAWN` link
     ``at[p]`` its arrival instant (:data:`NEVER`: the link is down), else :data:`ASK`.  A
@@ -132,7 +133,8 @@ def hand_over(B, now, seq0, T_ns, parts, seqs, at):
     return flags
 
 
-def arrange(at, parts, base, rows, times, cuts):
+def arrange(at: np.ndarray, parts: np.ndarray, base: int, rows: np.ndarray, times: np.ndarray,
+            cuts: np.ndarray) -> int:
     """The packets with ``at >= 0``, stably ordered by arrival instant: ``rows[m]`` (link id,
     tag, first and end row, those offset by ``base``) and ``times[m]`` its instant; ``cuts[c]``
     the end of the ``c``-th run of one instant.  Returns the number of runs."""
@@ -155,13 +157,13 @@ def arrange(at, parts, base, rows, times, cuts):
     return runs
 
 
-def tally(B, row, batch):
+def tally(B: Lanes, row: int, batch: np.ndarray) -> None:
     """``B.count[row, lid] += 1`` for the link id of each row of ``batch``."""
     for k in range(batch.shape[0]):
         B.count[row, batch[k, C_LID]] += 1
 
 
-def peek(B, now, seq0, T_ns, lids, table):
+def peek(B: Lanes, now: int, seq0: int, T_ns: int, lids: np.ndarray, table: np.ndarray) -> None:
     """The port's lookahead for the :data:`DRAWN` links of ``lids``: ``table[e, u]`` is 1 when
     the ``u``-th packet from now on link ``lids[e]`` arrives at this instant, 0 when it does not
     (later, or the link is down); rows of other links are left as they are."""

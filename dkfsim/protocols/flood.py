@@ -16,19 +16,23 @@ contributions once, each neighbour taking the part addressed to it (docs/design.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+
 from typing_extensions import override
 
 from dkfsim.core.registry import PROTOCOLS
-from dkfsim.protocols.base import PACKET_HEADER, Exchange
+from dkfsim.network.links import Link
+from dkfsim.network.port import Port
+from dkfsim.protocols.base import PACKET_HEADER, Exchange, RowState
 
 
 @PROTOCOLS.register("flood")
 class FloodExchange(Exchange):
     """Relay every new contribution once along every out-link (digraphs)."""
 
-    def attach(self, port, links) -> None:
+    def attach(self, port: Port, links: Sequence[Link]) -> None:
         super().attach(port, links)
-        self._pending = [dict() for _ in self.links]
+        self._pending: list[dict[int, int]] = [{} for _ in self.links]
 
     def _queue(self, j: int, row: int, bits: int, exclude: int) -> None:
         for link in self.out_links[j]:
@@ -46,7 +50,7 @@ class FloodExchange(Exchange):
             self._queue(i, row, 1 << i, -1)
 
     @override
-    def accept(self, link, seq, row, st, mask) -> None:
+    def accept(self, link: Link, seq: int, row: int, st: RowState, mask: int) -> None:
         j = link.dst
         new = mask & ~st.held[j]
         if new != mask:
@@ -55,7 +59,7 @@ class FloodExchange(Exchange):
             self.gain(j, row, st, new)
             self._queue(j, row, new, link.src)
 
-    def _resend(self, link) -> None:
+    def _resend(self, link: Link) -> None:
         """``link`` came up: queue on it everything its sender holds for the window's rows."""
         j = link.src
         if self.crashes is not None and self.crashes.down(j, self.env.now):

@@ -24,6 +24,7 @@ Python (docs/design.md §4, "Kernel paths").
 from __future__ import annotations
 
 from collections import namedtuple
+from types import ModuleType
 
 import numpy as np
 
@@ -75,13 +76,13 @@ _ONE = np.uint64(1)
 _ZERO = np.uint64(0)
 
 
-def compiled():
+def compiled() -> ModuleType:
     """This module with its kernels compiled by numba (loaded from the disk cache after the
     first time)."""
     return _lazy.get()
 
 
-def _popcount(m):
+def _popcount(m: np.uint64) -> int:
     """The number of set bits of the word ``m``."""
     c = 0
     while m != _ZERO:
@@ -90,7 +91,7 @@ def _popcount(m):
     return c
 
 
-def _gain(X, O, node, row, bits, log_only):
+def _gain(X: Tree, O: Out, node: int, row: int | np.integer, bits: np.ndarray, log_only: int) -> None:
     """Record that ``node`` gained the origins ``bits`` of ``row`` (for the holdings and the
     arrival log, or, ``log_only``, the arrival log alone)."""
     g = X.CT[NG]
@@ -102,7 +103,7 @@ def _gain(X, O, node, row, bits, log_only):
         O.gw[g, w] = bits[w]
 
 
-def _schedule(X, node):
+def _schedule(X: Tree, node: int) -> None:
     """``node``'s flush is due (once until it runs), after those due before it."""
     if X.node[DUE, node] == 0:
         X.node[DUE, node] = 1
@@ -117,7 +118,7 @@ def _schedule(X, node):
         X.CT[QLEN] = q + 1
 
 
-def _close(X):
+def _close(X: Tree) -> None:
     """Make final the rows the caller closed since the last call (their slots are free, and with
     the arrival log their holdings are kept for the late contributions to come)."""
     S = X.rowid.shape[0]
@@ -133,7 +134,7 @@ def _close(X):
         X.CT[LO] = row + 1
 
 
-def _count_late(X, O, node, row, recs, item):
+def _count_late(X: Tree, O: Out, node: int, row: int | np.integer, recs: np.ndarray, item: int) -> None:
     """Contributions ``recs[item, 1:]`` for ``row`` reached ``node`` after the row became final:
     one per (packet, row) without the arrival log; with it, one per contribution the node did
     not hold when the row became final (logged), every origin for a row older than the kept
@@ -165,7 +166,7 @@ def _count_late(X, O, node, row, recs, item):
     X.node[LATE_NODE, node] += c
 
 
-def _receive_packet(X, O, e, seq, i0, i1, recs):
+def _receive_packet(X: Tree, O: Out, e: int, seq: int, i0: int, i1: int, recs: np.ndarray) -> None:
     """Packet number ``seq`` on local link ``e`` carrying items ``i0 .. i1`` of ``recs``: a final
     row is late; an item older than the link's last for that row is stale; else it becomes the
     link's message for the row, and what is new to the receiver is gained (its flush is then
@@ -206,7 +207,7 @@ def _receive_packet(X, O, e, seq, i0, i1, recs):
         X.link[LATE_LINK, e] += 1
 
 
-def measure(X, O, row, nodes, fresh):
+def measure(X: Tree, O: Out, row: int, nodes: np.ndarray, fresh: np.ndarray) -> None:
     """``row`` opens (newer than every open row: its slot is cleared); on each local link of
     ``fresh`` (links new to the tree, whose senders are up, in order) the sender forgets what it
     last sent and has every open row to send; then every node of ``nodes`` (those that measure
@@ -243,7 +244,7 @@ def measure(X, O, row, nodes, fresh):
         _schedule(X, i)
 
 
-def receive(X, O, batch, recs, local):
+def receive(X: Tree, O: Out, batch: np.ndarray, recs: np.ndarray, local: np.ndarray) -> None:
     """The packets delivered now, in the order they were sent: packet ``k`` came over link id
     ``batch[k, 0]`` (local link ``local[id]``) as number ``batch[k, 1]`` and carries the items
     ``batch[k, 2] .. batch[k, 3]`` of ``recs``."""
@@ -252,12 +253,12 @@ def receive(X, O, batch, recs, local):
         _receive_packet(X, O, local[batch[k, 0]], batch[k, 1], batch[k, 2], batch[k, 3], recs)
 
 
-def schedule(X, node):
+def schedule(X: Tree, node: int) -> None:
     """:func:`_schedule` (for the caller: a node with news outside the kernels)."""
     _schedule(X, node)
 
 
-def _flush_node(X, O, j, ahead, used):
+def _flush_node(X: Tree, O: Out, j: int, ahead: np.ndarray, used: np.ndarray) -> bool:
     """Node ``j``'s flush: for each open row it changed (ascending), each out-link in the tree
     whose message -- what ``j`` holds but what came from that neighbour -- differs from the
     last one it carried gets the row; the links with rows make one frame.  Returns whether a
@@ -347,7 +348,7 @@ def _flush_node(X, O, j, ahead, used):
     return False
 
 
-def flush(X, O, ahead, used):
+def flush(X: Tree, O: Out, ahead: np.ndarray, used: np.ndarray) -> int:
     """Flush the due nodes from the head of the queue, in order (each flush's packets that
     reach their receiver now delivered before the next node flushes, as the port would); stop
     after a node with a packet whose fate at this instant ``ahead`` cannot answer for
