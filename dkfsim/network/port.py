@@ -192,6 +192,13 @@ class Port:
                         Scheduled(self.env, self.deliver_now, PRIORITY_DELIVER, lat)
                     due.append(link)
                     due.append(payload)
+                elif medium.synchronous:            # (its departure is known now)
+                    leaves = medium.depart(self, size, now)
+                    if leaves is None:
+                        count["queue_dropped"][lid] += 1
+                        continue
+                    for lat in count_fate(link, now, seq, count):    # (a lost one occupied it)
+                        self._enqueue(now, leaves - now + lat, link, payload)
                 elif medium.broadcast:
                     if shared is None:
                         shared = {}
@@ -387,8 +394,9 @@ class RecordPort(Port):
         up = np.ones((E, K1) if ints[pk.CHANGES].any() else (E, 1), dtype=np.uint8)
         for i, link in enumerate(links):
             form = link.vector_latency()
-            if form is not None and self.medium(link).passive:
-                ints[pk.KIND, i] = pk.DRAWN
+            medium = self.medium(link)
+            if form is not None and (medium.passive or medium.synchronous):
+                ints[pk.KIND, i] = pk.DRAWN if medium.passive else pk.LATENCY
                 ints[pk.LKIND, i], key[i], ints[pk.PAR, i] = form
             u = states[i]
             if ints[pk.CHANGES, i] and u is not None:
@@ -511,7 +519,8 @@ class RecordPort(Port):
                 k = p
                 p += 1
                 lid, tag, i0, i1, nbytes, done = parts[k, :6].tolist()
-                if at[k] != pk.ASK:
+                drawn = pk.drawn_latency(int(at[k]))        # (a transmitter's link: its latency drawn)
+                if at[k] != pk.ASK and drawn < 0:
                     if at[k] >= 0:
                         self._chunk(int(at[k]), (lid, tag, i0 + base, i1 + base))
                     continue
@@ -530,9 +539,16 @@ class RecordPort(Port):
                                            "handed over as delivered at once, but it does not arrive at once")
                     count["delivered"][lid] += 1
                     continue
-                if medium.passive:                  # (its rows are in the arena already)
-                    for lat in count_fate(link, now, seq, count):
-                        self._chunk(now + lat, (lid, tag, i0 + base, i1 + base))
+                if medium.passive or medium.synchronous:      # (its rows are in the arena already)
+                    wait = 0
+                    if medium.synchronous:
+                        leaves = medium.depart(self, nbytes, now)
+                        if leaves is None:
+                            count["queue_dropped"][lid] += 1
+                            continue
+                        wait = leaves - now
+                    for lat in ((drawn,) if drawn >= 0 else count_fate(link, now, seq, count)):
+                        self._chunk(now + wait + lat, (lid, tag, i0 + base, i1 + base))
                     continue
                 payload = (tag, records[i0:i1].copy())       # (kept by the medium until it leaves)
                 if medium.broadcast:

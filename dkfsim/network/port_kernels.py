@@ -25,15 +25,23 @@ _KERNELS = ("keyed_uniform", "latency", "_down", "hand_over", "arrange", "tally"
 _INLINE = ("keyed_uniform", "latency", "_down")
 _lazy = LazyKernels(__name__, _KERNELS, inline=_INLINE)
 
-#: A link's kind for the batch path: drawn here (a passive medium and a vector latency), or
-#: left to the port's Python path.
-DRAWN, PYTHON = 0, 1
+#: A link's kind for the batch path: drawn here (a passive medium and a vector latency); its
+#: latency drawn here and its departure left to the port's Python path (a synchronous medium,
+#: a transmitter); or left to the port's Python path.
+DRAWN, LATENCY, PYTHON = 0, 1, 2
 #: :func:`hand_over`'s arrival instant of a packet that does not arrive (lost, out of range,
 #: or delivered already by its sender), and of one left to the port's Python path.
 NEVER, ASK = -1, -2
 #: :func:`hand_over`'s flags: some packet is left to Python; some packet said to be delivered
 #: at once does not arrive at once.
 SOME_ASK, BROKEN_PROMISE = 1, 2
+#: :func:`hand_over` writes a :data:`LATENCY` link's latency ``d`` as ``LATENCY_AT - d``.
+LATENCY_AT = -3
+
+
+def drawn_latency(at: int) -> int:
+    """The latency :func:`hand_over` wrote as ``at`` for a :data:`LATENCY` link (-1: none)."""
+    return LATENCY_AT - at if at <= LATENCY_AT else -1
 #: Rows of ``Lanes.ints`` (per link id): its kind, its latency's vector form (0 a constant of
 #: ``PAR`` ns, 1 uniform steps ``0 .. PAR`` times ``T_ns``), whether it goes down at some tick,
 #: the instant ``SEQN`` counts from and the next sequence number.
@@ -98,9 +106,11 @@ def _down(B: Lanes, lid: int, now: int, T_ns: int) -> bool:
 def hand_over(B: Lanes, now: int, seq0: int, T_ns: int, parts: np.ndarray, seqs: np.ndarray, at: np.ndarray) -> int:
     """Number and count the packets handed over now, in order (packet ``p``: the columns of
     ``parts[p]``): ``seqs[p]`` its number on its link at this instant; for a :data:`DRAWN` link
-    ``at[p]`` its arrival instant (:data:`NEVER`: the link is down), else :data:`ASK`.  A
-    packet its sender delivered at once (``C_DONE``) is counted delivered when it does arrive
-    now, :data:`NEVER` as its instant.  Returns the flags :data:`SOME_ASK`, :data:`BROKEN_PROMISE`."""
+    ``at[p]`` its arrival instant (:data:`NEVER`: the link is down), for a :data:`LATENCY` link
+    that is up ``LATENCY_AT - latency`` (:func:`drawn_latency`), else :data:`ASK`.  A packet its
+    sender delivered at once
+    (``C_DONE``) is counted delivered when it does arrive now, :data:`NEVER` as its instant.
+    Returns the flags :data:`SOME_ASK`, :data:`BROKEN_PROMISE`."""
     flags = 0
     for p in range(parts.shape[0]):
         lid = parts[p, C_LID]
@@ -112,9 +122,13 @@ def hand_over(B: Lanes, now: int, seq0: int, T_ns: int, parts: np.ndarray, seqs:
         seqs[p] = s
         B.count[SENT, lid] += 1
         B.count[BYTES, lid] += parts[p, C_BYTES]
-        if B.ints[KIND, lid] != DRAWN:
-            at[p] = ASK
+        kind = B.ints[KIND, lid]
+        if kind != DRAWN:
             flags |= SOME_ASK
+            if kind == LATENCY and not _down(B, lid, now, T_ns):
+                at[p] = LATENCY_AT - latency(B, lid, now, s, T_ns)
+            else:
+                at[p] = ASK
             continue
         if _down(B, lid, now, T_ns):
             B.count[LOST, lid] += 1

@@ -49,12 +49,21 @@ class Medium:
     #: True for a medium whose frames leave at their hand-over and that keeps nothing: the port
     #: draws their propagation at once without offering them (what :meth:`offer` would do).
     passive: ClassVar[bool] = False
+    #: True for a medium that decides a frame's departure when it is handed over (a point-to-point
+    #: transmitter): the port asks :meth:`depart` instead of making a :class:`Frame`.
+    synchronous: ClassVar[bool] = False
 
     def offer(self, frame: Frame) -> bool:
         """Hand ``frame`` over now: False when it finds no room (nothing of it is sent, and
         ``done`` is never called); True when it was taken, ``frame.done`` then being called
         exactly once, now or later."""
         raise NotImplementedError
+
+    def depart(self, owner: Any, nbytes: int, handed: int) -> int | None:
+        """A :attr:`synchronous` medium's :meth:`offer` of one part of ``nbytes`` bytes handed over
+        at ``handed`` by ``owner``: the instant its transmission ends (it has left then), or None
+        when it finds no room."""
+        raise NotImplementedError(f"{type(self).__name__} is not synchronous")
 
     def leaves_at_once(self, nbytes: int) -> bool:
         """Whether a frame of ``nbytes`` bytes handed over now may leave its sender at this

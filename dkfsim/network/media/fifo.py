@@ -175,6 +175,7 @@ class Fifo(Medium):
     """
 
     kind = "fifo"
+    synchronous = True
     #: The parameter keys it reads (``dkfsim list media``).
     required = ("rate",)
     optional = ("queue", "background")
@@ -194,6 +195,7 @@ class Fifo(Medium):
         self._own: dict[Any, array] = {}
         #: the fastest rate the link can have, for :meth:`leaves_at_once`
         self._fastest = max(rates) if rates is not None else rate
+        self._started = -1                  # (the start of the last transmission it took)
 
     def _rate_at(self, t_ns: int) -> float:
         rates = self._rates
@@ -201,17 +203,26 @@ class Fifo(Medium):
         return rates[self.link.tick_of(t_ns, len(rates))]
 
     def offer(self, frame: Frame) -> bool:
-        got = self.tx.offer(frame.handed, frame.size)
-        if got is None:
+        end = self.depart(frame.owner, frame.size, frame.handed)
+        if end is None:
             return False
-        frame.start, frame.end = got
-        own = self._own.get(frame.owner)
-        if own is None:
-            own = self._own[frame.owner] = array("q")
-        own.extend((frame.handed, frame.start, frame.end))
+        frame.start, frame.end = self._started, end
         if frame.done is not None:
             frame.done(frame, True)
         return True
+
+    @override
+    def depart(self, owner: Any, nbytes: int, handed: int) -> int | None:
+        got = self.tx.offer(handed, nbytes)
+        if got is None:
+            return None
+        start, end = got
+        self._started = start
+        own = self._own.get(owner)
+        if own is None:
+            own = self._own[owner] = array("q")
+        own.extend((handed, start, end))
+        return end
 
     def leaves_at_once(self, nbytes: int) -> bool:
         return transmission_ns(nbytes, self._fastest) == 0
