@@ -31,6 +31,7 @@ from __future__ import annotations
 
 import copy
 import functools
+from collections import deque
 from dataclasses import dataclass
 from typing import Any
 
@@ -40,6 +41,28 @@ from dkfsim.components import topology as topo
 from dkfsim.components.estimators import AntiDelayParams, NoBufferParams
 from dkfsim.components.mobility import LinkSchedule
 from dkfsim.core.resources import B_FLOAT, C_VISIT, CHEAP_VISITS, SaveMode, resolve_save_mode
+
+#: The plans the last validations worked out, newest last, as ``(scenario, plan)``: the command
+#: that validated a scenario runs the plan it checked (:meth:`RunPlan.of`).  A scenario keeps
+#: no derived state, and the list is short, so a sweep's thousands of scenarios keep no plan
+#: alive (docs/decisions.md, "The plan once per command").
+_WORKED_OUT: deque[tuple[Any, RunPlan]] = deque(maxlen=8)
+
+
+def remember(scenario: Any, plan: RunPlan) -> None:
+    """``plan`` is what validating ``scenario`` worked out (:meth:`RunPlan.of` finds it)."""
+    _WORKED_OUT.append((scenario, plan))
+
+
+def worked_out(scenario: Any) -> RunPlan:
+    """The plan validating ``scenario`` worked out, if it is among the last few; else a new
+    one (remembered)."""
+    for known, plan in reversed(_WORKED_OUT):
+        if known is scenario:
+            return plan
+    plan = RunPlan(scenario)
+    remember(scenario, plan)
+    return plan
 
 
 @dataclass(frozen=True)
@@ -63,10 +86,10 @@ class RunPlan:
 
     @classmethod
     def of(cls, scenario: Any, save: str = "auto") -> RunPlan:
-        """The plan of ``scenario`` its validation worked out (:meth:`Scenario.plan`), with the
+        """The plan of ``scenario`` its validation worked out (:func:`worked_out`), with the
         save mode ``save``: every fact already derived is shared, so a command builds the graphs
         and the trajectories once."""
-        plan = scenario.plan()
+        plan = worked_out(scenario)
         mode = resolve_save_mode(save, scenario.n, int(scenario.steps))
         if mode == plan.save:
             return plan
@@ -231,18 +254,25 @@ class RunPlan:
             return None
         return self.latency_bound
 
-    def late_horizon(self, L: int) -> int:
-        """How many final rows a DKF of buffer length ``L`` keeps the holdings of, so that a
-        late contribution counts once (the arrival log).  Nothing is sent for a final row, so
-        with :attr:`arrival_bound` ``d`` a late packet arrives at most ``d + 1`` rows after its
-        row became final: keep that many.  Unbounded: 4096 rows, fewer on large networks so that
-        the holdings (``n`` masks of ``n`` bits per row) stay near 64 MB."""
+    def late_horizon(self, L: int, n: int | None = None) -> int:
+        """How many final rows a DKF of buffer length ``L`` on ``n`` nodes (None: the
+        scenario's) keeps the holdings of, so that a late contribution counts once (the arrival
+        log).  Nothing is sent for a final row, so with :attr:`arrival_bound` ``d`` a late packet
+        arrives at most ``d + 1`` rows after its row became final: keep that many.  Unbounded:
+        4096 rows, fewer on large networks so that the holdings (``n`` masks of ``n`` bits per
+        row) stay near 64 MB.  (A run keeps at most its own rows: :meth:`kept_final_rows`.)"""
         bound = self.arrival_bound
         if bound is not None:
             return bound + 2
-        n = self.scenario.n
+        n = self.scenario.n if n is None else n
         per_row = n * (n // 8 + 32)
         return int(max(L + 2, min(4096, (64 << 20) // per_row)))
+
+    def kept_final_rows(self, L: int) -> int:
+        """:meth:`late_horizon`, but never more rows than the run has (and two): a latency of
+        years gives a horizon of billions of rows, of which a run of ``steps`` ticks holds
+        ``steps``."""
+        return min(self.late_horizon(L), int(self.scenario.steps) + 2)
 
     @functools.cached_property
     def d_t(self) -> int | None:

@@ -62,7 +62,7 @@ from dkfsim.components.sensors import SensorParams
 from dkfsim.components.traffic import TRAFFIC_KEYS, TrafficKeys
 from dkfsim.components.truth import TruthParams
 from dkfsim.config.dynamics import Model, Prior
-from dkfsim.config.plan import RunPlan
+from dkfsim.config.plan import RunPlan, remember
 from dkfsim.config.sweep import canonical_json
 from dkfsim.core.files import clip
 from dkfsim.core.params import (
@@ -190,8 +190,6 @@ class Scenario(StrictModel):
 
     _source: str | None = PrivateAttr(default=None)
     _base_dir: str | None = PrivateAttr(default=None)
-    #: the plan validation worked out (:meth:`plan`), not part of the data nor of a pickle
-    _plan: RunPlan | None = PrivateAttr(default=None)
 
     # ------------------------------------------------------------------ validation
     @field_validator("sensors", mode="before")
@@ -280,7 +278,7 @@ class Scenario(StrictModel):
         if self.truth is not None:
             self._check_truth()
         plan = RunPlan(self)            # what the run would derive: checked here, never at its start
-        self._plan = plan               # (and the plan the run follows: RunPlan.of)
+        remember(self, plan)            # (and the plan the run follows: RunPlan.of)
         places = self._link_places()
         self._check_network(plan, places)
         self._check_time_range(plan, places)
@@ -497,21 +495,6 @@ class Scenario(StrictModel):
                                    "buffer_length")
 
     # ------------------------------------------------------------------ derived values
-    def plan(self) -> RunPlan:
-        """What the scenario implies for a run, as its validation worked it out (the graphs, the
-        trajectories, the delay bound: computed once, shared by every command that runs or
-        checks it; :meth:`RunPlan.of <dkfsim.config.plan.RunPlan.of>` gives it a save mode)."""
-        if self._plan is None:
-            self._plan = RunPlan(self)
-        return self._plan
-
-    def __getstate__(self) -> dict[Any, Any]:
-        """A pickle (a worker's copy) leaves the plan out: it is worked out again where needed."""
-        state = super().__getstate__()
-        private = dict(state.get("__pydantic_private__") or {})
-        private["_plan"] = None
-        state["__pydantic_private__"] = private
-        return state
 
     @property
     def source(self) -> str | None:

@@ -107,7 +107,7 @@ class AntiDelayDKF(Estimator, params=AntiDelayParams):
         links = ctx.exchange_links()
         protocol = PROTOCOLS.get(plan.protocol).implementation
         self.exchange = protocol(ctx.env, n, self.holdings, arrival=self.arrival,
-                                 late_horizon=plan.late_horizon(self.L), nx=nx, T_ns=ctx.T_ns, backend=backend)
+                                 late_horizon=plan.kept_final_rows(self.L), nx=nx, T_ns=ctx.T_ns, backend=backend)
         self.exchange.crashes = ctx.crashes
         if plan.tree_schedule is not None:
             self.exchange.tree_changes = plan.tree_schedule

@@ -28,12 +28,14 @@ after its last usable instant, a stale pair, ...): the estimator counts it with
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
-from typing import TYPE_CHECKING, Any
+from typing import Any, Protocol
 
 import numpy as np
 from simpy.events import Event
 from typing_extensions import override
 
+from dkfsim.components.faults import CrashSchedule
+from dkfsim.components.mobility import LinkSchedule
 from dkfsim.core.backend import Backend
 from dkfsim.core.jit import bind
 from dkfsim.core.params import NS_PER_S
@@ -43,8 +45,23 @@ from dkfsim.network.links import Link
 from dkfsim.network.media.base import Frame, Medium
 from dkfsim.network.occupancy import per_tick
 
-if TYPE_CHECKING:
-    from dkfsim.network.network import Network
+
+class Carrier(Protocol):
+    """The network as a port sees it (:class:`~dkfsim.network.network.Network` is one): the
+    clock, the links, the faults and the media a port's frames take."""
+
+    env: Clock
+    T_ns: int
+    links: list[Link]
+    crashes: CrashSchedule | None
+    schedule: LinkSchedule | None
+    members: frozenset[int]
+
+    def media_store(self) -> dict[Any, Medium]: ...
+
+    def channel_of(self, store: dict[Any, Medium]) -> Medium | None: ...
+
+    def medium_of(self, link: Link, store: dict[Any, Medium]) -> Medium: ...
 
 #: Counters of a port, per link:
 #: ``sent + copies = delivered + lost + queue_dropped + crash_dropped + in_flight``.
@@ -87,7 +104,7 @@ class Port:
     queueing, which is the point).
     """
 
-    def __init__(self, network: Network, name: str, receive: Receive, links: list[Link] | None = None,
+    def __init__(self, network: Carrier, name: str, receive: Receive, links: list[Link] | None = None,
                  until: int | None = None, share_with: Port | None = None):
         self.net = network
         self.env: Clock = network.env
@@ -360,7 +377,7 @@ class RecordPort(Port):
     :param backend: the run's (numba or numpy: the kernels compiled or not).
     """
 
-    def __init__(self, network: Network, name: str, receive: Receive, links: list[Link] | None = None,
+    def __init__(self, network: Carrier, name: str, receive: Receive, links: list[Link] | None = None,
                  until: int | None = None, share_with: Port | None = None, *, width: int,
                  backend: Backend):
         self._kernels = port_kernels.compiled() if backend.compiled else port_kernels
@@ -446,7 +463,7 @@ class RecordPort(Port):
         live = min((int(chunk[:, port_kernels.C_START].min()) for chunk in chunks), default=self._top)
         keep = self._arena[live:self._top].copy()
         size = len(self._arena)
-        while len(keep) + need > size // 2:
+        while len(keep) + need > size // 4:          # (a quarter: compactions stay rare)
             size *= 2
         if size != len(self._arena):
             self._arena = np.zeros((size, self.width), dtype=np.int64)

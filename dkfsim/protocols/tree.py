@@ -179,9 +179,9 @@ class TreeExchange(Exchange):
         if len(batch) * self.holdings.S > self.O.gain.shape[1]:     # (a packet has at most S rows)
             self._room(0, int((batch[:, 3] - batch[:, 2]).sum()))
         self._receive(self.X, self.O, batch, records.view(np.uint64), self._local)
-        self._gains()
+        self._gains(at_once=True)
 
-    def _flush_all(self, _event: Event) -> None:
+    def _flush_all(self, _event: Event | None) -> None:
         """Flush the due nodes, first due first: in one kernel call while the port can say which
         packets reach their receiver at this instant (those are delivered before the next node
         flushes, as separate events of higher priority would be); a flush whose packets it
@@ -209,9 +209,10 @@ class TreeExchange(Exchange):
         self._flush_pending = False
 
     # -- glue ------------------------------------------------------------------------
-    def _gains(self) -> None:
+    def _gains(self, at_once: bool = False) -> None:
         """Hand the gains of the last kernel call to the holdings (and the arrival log), and
-        make the flush due if the call made nodes due."""
+        make the flush due if the call made nodes due: ``at_once``, the flush runs now when
+        nothing else happens at this instant (the event it would be is the next one anyway)."""
         X, O = self.X, self.O
         g = int(X.CT[tk.NG])
         if g:
@@ -227,7 +228,10 @@ class TreeExchange(Exchange):
                 self.holdings.add_words(nodes, rows, words)
         if X.CT[tk.QLEN] > X.CT[tk.QHEAD] and not self._flush_pending:
             self._flush_pending = True
-            Scheduled(self.env, self._flush_all, PRIORITY_FLUSH)
+            if at_once and self.env.peek() > self.env.now:
+                self._flush_all(None)
+            else:
+                Scheduled(self.env, self._flush_all, PRIORITY_FLUSH)
 
     def _send(self) -> bool:
         """Hand the frames of the last flush call to the port, in order; whether there were any."""
