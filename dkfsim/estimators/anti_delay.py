@@ -23,7 +23,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from dkfsim.components.estimators import AntiDelayParams, NoBufferParams
+from dkfsim.components.estimators import AntiDelayParams, EstimatorParams, NoBufferParams
 from dkfsim.components.topology import paper_weights
 from dkfsim.config.plan import RunPlan
 from dkfsim.core.registry import PROTOCOLS
@@ -38,7 +38,7 @@ from dkfsim.core.resources import (
     C_TICK,
     Cost,
 )
-from dkfsim.estimators.base import DKFView, Estimate, Estimator, EstimatorResult
+from dkfsim.estimators.base import DKFView, Estimate, Estimator, EstimatorResult, RunContext
 from dkfsim.estimators.fusion import FUSERS, CrossCovariance
 from dkfsim.estimators.window import WindowFilter
 from dkfsim.model.holdings import Holdings
@@ -57,7 +57,7 @@ class AntiDelayDKF(Estimator, params=AntiDelayParams):
     params: AntiDelayParams
     port: Port                  # (opened by start)
 
-    def __init__(self, params: AntiDelayParams, ctx, main: bool = False):
+    def __init__(self, params: AntiDelayParams, ctx: RunContext, main: bool = False):
         super().__init__(params, ctx)
         #: The scenario's own instance (writes the contract's array names).
         self.main = main
@@ -67,8 +67,9 @@ class AntiDelayDKF(Estimator, params=AntiDelayParams):
 
     # -- configuration ------------------------------------------------------------
     @classmethod
-    def cost(cls, params, plan: RunPlan) -> Cost:
+    def cost(cls, params: EstimatorParams, plan: RunPlan) -> Cost:
         """From the plan's buffer length for this instance (exact, or the cheap bound)."""
+        assert isinstance(params, AntiDelayParams)
         sc = plan.scenario
         n, nx, K = sc.n, sc.nx, int(sc.steps)
         settings = plan.dkf(params)
@@ -176,9 +177,9 @@ class AntiDelayDKF(Estimator, params=AntiDelayParams):
 class NoBuffer(AntiDelayDKF, params=NoBufferParams):
     """The anti-delay DKF without its buffer: ``L = 1`` (late information is dropped)."""
 
-    def __init__(self, params, ctx):
+    def __init__(self, params: EstimatorParams, ctx: RunContext):
         super().__init__(AntiDelayParams(name=params.label, buffer_length=1), ctx)
 
     @classmethod
-    def cost(cls, params, plan):
+    def cost(cls, params: EstimatorParams, plan: RunPlan) -> Cost:
         return AntiDelayDKF.cost(AntiDelayParams(name=params.label, buffer_length=1), plan)

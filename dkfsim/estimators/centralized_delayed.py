@@ -22,11 +22,13 @@ from __future__ import annotations
 import numpy as np
 from typing_extensions import override
 
-from dkfsim.components.estimators import CentralizedDelayedParams
+from dkfsim.components.estimators import CentralizedDelayedParams, EstimatorParams
+from dkfsim.config.plan import RunPlan
 from dkfsim.core.resources import B_FLOAT, C_NODE_ROW, C_PACKET, C_ROW, C_TICK, Cost
 from dkfsim.estimators.base import Estimate, Estimator, EstimatorResult
 from dkfsim.estimators.window import WindowFilter
 from dkfsim.model.holdings import Holdings
+from dkfsim.network.links import Link
 from dkfsim.network.media.fifo import Fifo
 from dkfsim.protocols.base import info_bytes
 
@@ -40,7 +42,7 @@ class CentralizedDelayed(Estimator, params=CentralizedDelayedParams):
 
     @classmethod
     @override
-    def cost(cls, params, plan) -> Cost:
+    def cost(cls, params: EstimatorParams, plan: RunPlan) -> Cost:
         scenario = plan.scenario
         K, n, nx = int(scenario.steps), scenario.n, scenario.nx
         L = min(plan.L_estimate, K)
@@ -73,7 +75,7 @@ class CentralizedDelayed(Estimator, params=CentralizedDelayedParams):
         spec = ctx.scenario.link_spec(-1, -1)              # the default settings
         return [ctx.network.extra_link(("direct", name), spec, i, -1) for i, name in enumerate(ctx.system.names)]
 
-    def _receive(self, _link, payload) -> None:
+    def _receive(self, _link: Link, payload: tuple[int, int]) -> None:
         i, row = payload
         if self._ticks[i, row] == 0:                       # the first copy counts
             self._ticks[i, row] = -(-self.ctx.env.now // self.ctx.T_ns)

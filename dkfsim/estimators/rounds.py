@@ -157,7 +157,7 @@ class RoundBased(Estimator):
         nx x nx matrices: a 16-byte header (stamp, sender) and 8-byte floats."""
         return info_bytes(self.nx, vectors, matrices)
 
-    def boxes(self) -> dict[str, dict[str, tuple]]:
+    def boxes(self) -> dict[str, dict[str, tuple[int, ...]]]:
         """Message kinds: name -> {field: shape of one node's value}."""
         return {}
 
@@ -176,7 +176,7 @@ class RoundBased(Estimator):
         """At ``t_{k+1}``, before tick ``k+1`` begins: finish tick ``k`` and record row ``k-1``."""
         raise NotImplementedError
 
-    def message(self, g: int) -> tuple[str, dict, int]:
+    def message(self, g: int) -> tuple[str, dict[str, Any], int]:
         """What every node sends at global round ``g``: (box, {field: (n, ...) array}, nbytes)."""
         raise NotImplementedError
 
