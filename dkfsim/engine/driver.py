@@ -65,10 +65,10 @@ class Run:
         ys = system.simulate_measurements(truth, seed)
         crashes = CrashSchedule(scenario.faults, system.n) or None
         env = simpy.Environment()
+        self.backend = Backend.from_environment()
         network = Network(env, plan.arcs, scenario.link_spec, seed, system.T_ns, crashes=crashes,
                           shared_queues=bool(scenario.links.shared_queues), schedule=plan.link_schedule,
-                          medium=scenario.medium, n=system.n)
-        self.backend = Backend.from_environment()
+                          medium=scenario.medium, n=system.n, backend=self.backend)
         self.ctx = RunContext(scenario=scenario, plan=plan, backend=self.backend, system=system, truth=truth, ys=ys,
                               info=system.information(ys), crashes=crashes, env=env, network=network)
         self.dkf = AntiDelayDKF(AntiDelayParams(), self.ctx, main=True)

@@ -28,7 +28,7 @@ from dkfsim.network.media import csma  # noqa: F401  (registers the default acce
 from dkfsim.network.media.base import Medium
 from dkfsim.network.media.channel import Channel
 from dkfsim.network.media.direct import DIRECT
-from dkfsim.network.media.fifo import Fifo
+from dkfsim.network.media.fifo import Fifo, FifoTable
 from dkfsim.network.port import Port, Receive, RecordPort
 
 #: The key of a media store's shared channel (link ids are ints).
@@ -49,13 +49,17 @@ class Network:
     :param medium: the shared radio channel (``medium:``): a link between two of its nodes is
         on it.
     :param n: the number of nodes (default: the largest node of ``arcs`` plus one).
+    :param backend: the run's (the FIFO transmitters' kernels compiled or not; default: the
+        environment's).
     """
 
     def __init__(self, env: simpy.Environment, arcs: list[tuple[int, int]],
                  link_spec: Callable[[int, int], Any], seed: int, T_ns: int,
                  crashes: CrashSchedule | None = None, shared_queues: bool = False,
-                 schedule: LinkSchedule | None = None, medium: MediumSpec | None = None, n: int | None = None):
+                 schedule: LinkSchedule | None = None, medium: MediumSpec | None = None, n: int | None = None,
+                 backend: Backend | None = None):
         self.env = cast(Clock, env)         # (SimPy types time as int | float; here it is ns)
+        self.backend = backend if backend is not None else Backend.from_environment()
         self.seed, self.T_ns = int(seed), int(T_ns)
         self.medium = medium
         if n is None:
@@ -65,6 +69,8 @@ class Network:
         self.members: frozenset[int] = frozenset(self._member_order)
         #: the media every port uses, with shared queues (else each port keeps its own)
         self._shared_media: dict[Any, Medium] | None = {} if shared_queues else None
+        #: per set of media (by its id; the set itself kept with it): the table of its FIFO transmitters
+        self._fifo_tables: dict[int, tuple[dict[Any, Medium], FifoTable]] = {}
         self.links = [Link(i, u, v, link_spec(u, v), seed, T_ns) for i, (u, v) in enumerate(arcs)]
         self.index = {(l.src, l.dst): l for l in self.links}
         #: link id -> its rate (bit/s) at each tick when it follows the pair's distance
@@ -140,7 +146,10 @@ class Network:
         if self.on_channel(link):
             medium = self.channel_of(store)
         elif link.spec.rate is not None or link.id in self._rates:
-            medium = Fifo(link, self._rates.get(link.id))
+            held = self._fifo_tables.get(id(store))
+            if held is None:
+                held = self._fifo_tables[id(store)] = (store, FifoTable(self.backend))
+            medium = Fifo(link, self._rates.get(link.id), held[1])
         else:
             medium = DIRECT
         assert medium is not None

@@ -43,6 +43,7 @@ from dkfsim.network import port_kernels
 from dkfsim.network.events import PRIORITY_DELIVER, Clock, Scheduled
 from dkfsim.network.links import Link
 from dkfsim.network.media.base import Frame, Medium
+from dkfsim.network.media.fifo import FifoTable
 from dkfsim.network.occupancy import per_tick
 
 
@@ -381,6 +382,9 @@ class RecordPort(Port):
                  until: int | None = None, share_with: Port | None = None, *, width: int,
                  backend: Backend):
         self._kernels = port_kernels.compiled() if backend.compiled else port_kernels
+        #: the table of the FIFO transmitters its :data:`~dkfsim.network.port_kernels.QUEUED` links
+        #: run in (none: an empty one)
+        self._fifos = FifoTable(backend)
         super().__init__(network, name, receive, links, until, share_with)
         self._grow()
         self.width = int(width)
@@ -389,6 +393,7 @@ class RecordPort(Port):
         self._arena = np.zeros((256, self.width), dtype=np.int64)
         self._top = 0
         self._plans: dict[int, tuple] = {}
+        self._halt = np.zeros(2, dtype=np.int64)
 
     def _grow(self) -> None:
         """The per-link arrays of the batch kernels (:class:`~dkfsim.network.port_kernels.Lanes`)
@@ -402,28 +407,35 @@ class RecordPort(Port):
         old = getattr(self, "B", None)
         if old is not None and old.ints.shape[1] == E:
             return
-        ints = np.zeros((6, E), dtype=np.int64)
-        ints[pk.KIND], ints[pk.SEQT] = pk.PYTHON, -1
+        ints = np.zeros((7, E), dtype=np.int64)
+        ints[pk.KIND], ints[pk.SEQT], ints[pk.SLOT] = pk.PYTHON, -1, -1
         key = np.zeros(E, np.uint64)
         states = [l.up_per_tick() for l in links]
         ints[pk.CHANGES] = [l.changes for l in links]
         K1 = max((len(u) for u in states if u is not None), default=1)
         up = np.ones((E, K1) if ints[pk.CHANGES].any() else (E, 1), dtype=np.uint8)
+        tables = set()
         for i, link in enumerate(links):
             form = link.vector_latency()
             medium = self.medium(link)
-            if form is not None and (medium.passive or medium.synchronous):
-                ints[pk.KIND, i] = pk.DRAWN if medium.passive else pk.LATENCY
+            lane = medium.lane()
+            if form is not None and (medium.passive or medium.synchronous or lane is not None):
+                ints[pk.KIND, i] = pk.DRAWN if medium.passive else pk.LATENCY if lane is None else pk.QUEUED
                 ints[pk.LKIND, i], key[i], ints[pk.PAR, i] = form
+                if lane is not None:
+                    self._fifos, ints[pk.SLOT, i] = lane
+                    tables.add(id(lane[0]))
+        if len(tables) > 1:
+            raise RuntimeError(f"port {self.name!r}: its FIFO transmitters are not of one table")
             u = states[i]
             if ints[pk.CHANGES, i] and u is not None:
                 up[i, :len(u)] = u
         names = list(self._count)
-        order = ["sent", "bytes", "lost", "range_lost", "delivered", "crash_dropped"]
+        order = ["sent", "bytes", "lost", "range_lost", "delivered", "crash_dropped", "queue_dropped"]
         rows = order + [k for k in names if k not in order]
         count = np.zeros((len(rows), E), dtype=np.int64)
         if old is not None:
-            ints[pk.SEQT:, :old.ints.shape[1]] = old.ints[pk.SEQT:]
+            ints[pk.SEQT:pk.SEQN + 1, :old.ints.shape[1]] = old.ints[pk.SEQT:pk.SEQN + 1]
         for r, name in enumerate(rows):
             c = self._count.get(name)
             if c is not None and len(c):
@@ -431,7 +443,7 @@ class RecordPort(Port):
         self._count = {name: count[rows.index(name)] for name in names}
         self.B = B = pk.Lanes(ints, key, up, count)
         k, v, m = self._kernels, np.zeros(1, np.int64), np.zeros((1, 6), np.int64)
-        self._hand_over = bind(k.hand_over, B, 0, 0, 1, m, v, v)
+        self._hand_over = bind(k.hand_over, B, self._fifos.F, 0, 0, 0, 0, 1, m, v, v, v)
         self._arrange = bind(k.arrange, v, m, 0, np.zeros((1, 4), np.int64), v, v)
         self._tally = bind(k.tally, B, 0, np.zeros((1, 4), np.int64))
         self._peek = bind(k.peek, B, 0, 0, 1, v, np.zeros((1, 1), np.int8))
@@ -493,7 +505,13 @@ class RecordPort(Port):
         P = len(parts)
         seqs = np.empty(P, dtype=np.int64)
         at = np.empty(P, dtype=np.int64)
-        flags = self._hand_over(self.B, now, self._seq0, self.net.T_ns, parts, seqs, at)
+        table, halt = self._fifos, self._halt
+        owner = table.owner(self)
+        flags = self._hand_over(self.B, table.F, owner, 0, now, self._seq0, self.net.T_ns, parts, seqs, at, halt)
+        while flags & port_kernels.HALTED:      # (a transmitter needs its next background block, more room)
+            table.provide(int(self.B.ints[port_kernels.SLOT, parts[halt[0], 0]]), int(halt[1]))
+            flags = (flags & ~port_kernels.HALTED) | self._hand_over(
+                self.B, table.F, owner, int(halt[0]), now, self._seq0, self.net.T_ns, parts, seqs, at, halt)
         if flags & port_kernels.BROKEN_PROMISE:
             raise RuntimeError(f"port {self.name!r}: a packet was handed over as delivered at once, but it "
                                "does not arrive at once (its sender did not follow the port's lookahead)")

@@ -75,6 +75,16 @@ class BackgroundArrivals:
         self._times, self._sizes = times, sizes.astype(np.int64)
         self._last, self._drawn, self._pos = int(times[-1]), lo + BLOCK, 0
 
+    def next_block(self) -> tuple[np.ndarray, np.ndarray]:
+        """The next :data:`BLOCK` packets not yet taken, taken now: (instants, sizes) int64 --
+        for a transmitter that runs in a kernel (:class:`~dkfsim.network.media.fifo.FifoTable`);
+        the same packets :meth:`until` gives, block by block."""
+        if self._pos >= len(self._times):
+            self._draw_block()
+        times, sizes = self._times[self._pos:], self._sizes[self._pos:]
+        self._pos = len(self._times)
+        return times, sizes
+
     def next_time(self) -> int:
         """The instant of the next packet not yet taken."""
         if self._pos >= len(self._times):

@@ -65,6 +65,12 @@ class Medium:
         when it finds no room."""
         raise NotImplementedError(f"{type(self).__name__} is not synchronous")
 
+    def lane(self) -> tuple[Any, int] | None:
+        """A FIFO transmitter's table and column (:data:`~dkfsim.network.port_kernels.Fifos`)
+        when the port's compiled loop can run the medium itself (a packet's departure there, one
+        step with its draw); None (the default): the port asks :meth:`depart` or :meth:`offer`."""
+        return None
+
     def leaves_at_once(self, nbytes: int) -> bool:
         """Whether a frame of ``nbytes`` bytes handed over now may leave its sender at this
         very instant (its transmission taking no time): what a port's lookahead asks before
