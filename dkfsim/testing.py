@@ -271,7 +271,7 @@ def _peak(base: dict, estimators: list[dict], steps: int) -> int:
 
 def _planned(impl: type[Estimator], base: dict, spec: dict, steps: int) -> float:
     sc: Scenario = load_scenario({**copy.deepcopy(base), "estimators": [spec], "steps": steps})
-    return impl.cost(sc.estimators[0], RunPlan(sc, "estimates")).bytes
+    return impl.cost(sc.estimators[0], RunPlan.of(sc, "estimates")).bytes
 
 
 def _check_cost(spec: dict, impl: type[Estimator], base: dict) -> None:

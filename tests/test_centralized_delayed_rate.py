@@ -4,6 +4,7 @@ default link's rate, queue and background like every link of the graph."""
 from __future__ import annotations
 
 import numpy as np
+import pytest
 from test_maxdelay import const_latency, rw_scenario
 
 import dkfsim
@@ -44,10 +45,48 @@ def test_a_full_room_drops_the_sensors_packets():
     assert t["sent"] == t["delivered"] + t["lost"] + t["queue_dropped"] + t["in_flight"]
 
 
+#: What a rate-limited link's row adds (its transmitter's statistics).
+RATE_KEYS = ("utilisation", "queueing_delay_mean", "queueing_delay_p95", "background_sent", "background_dropped",
+             "queue_length_mean")
+
+
 def test_rate_1e15_equals_no_rate():
     a, b = _centre(), _centre(rate=1e15)
     assert np.array_equal(a.arrays["x_centralized_delayed"], b.arrays["x_centralized_delayed"])
-    assert a.traffic["centralized_delayed"] == b.traffic["centralized_delayed"]
+    fast = dict(b.traffic["centralized_delayed"])
+    fast["per_link"] = [{k: v for k, v in row.items() if k not in RATE_KEYS} for row in fast["per_link"]]
+    assert a.traffic["centralized_delayed"] == fast
+
+
+@pytest.mark.parametrize("links", [
+    {},
+    {"loss": 0.3, "duplicate": 0.2},
+    {"rate": 2560 / 3, "background": {"arrivals": "periodic", "packets_per_second": 0.5, "size": 64, "offset": 0.5}},
+    {"rate": 2560 / 3, "queue": {"packets": 0}, "background": {"packets_per_second": 1.0, "size": 90}},
+    {"latency": {"model": "uniform", "low": 0.1, "high": 1.7}, "jitter": {"model": "uniform", "high": 0.2},
+     "outages": [[3.0, 6.0]]},
+])
+def test_the_port_delivers_what_the_closed_form_says(links):
+    """``centralized_delayed`` sends through its port; where nothing but its direct links' draws
+    and their transmitters act, :meth:`arrival_ticks` works the same arrivals out in closed form:
+    the tick at which the centre holds each (sensor, row), and per sensor the packets sent, lost
+    and dropped by a full room -- the oracle of the port's path (issue 31)."""
+    from dkfsim.engine.driver import Run
+    from dkfsim.estimators.centralized_delayed import CentralizedDelayed
+    data = rw_scenario(const_latency(0.65), n=3, steps=30)
+    data["estimators"] = [{"kind": "centralized_delayed"}]
+    data["links"]["default"].update(links)
+    sim = Run(dkfsim.load_scenario(data))
+    res = sim.run()
+    est = next(e for e in sim.estimators if isinstance(e, CentralizedDelayed))
+    ticks, per = est.arrival_ticks()
+    assert np.array_equal(est._ticks, np.where(ticks <= 30, ticks, 0))     # (after t_K: in flight)
+    rows = {tuple(r["link"]): r for r in res.traffic["centralized_delayed"]["per_link"]}
+    for i in range(3):
+        row = rows[(i, -1)]
+        assert (row["sent"], row["lost"], row["queue_dropped"]) == (per["sent"][i], per["lost"][i],
+                                                                   per["queue_dropped"][i])
+    assert (ticks > 0).sum() > 0
 
 
 def test_per_link_rows_and_the_rate_bound_of_its_direct_links():

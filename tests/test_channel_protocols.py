@@ -13,13 +13,14 @@ from __future__ import annotations
 from collections import defaultdict
 from pathlib import Path
 
+import numpy as np
 import pytest
 import reference as ref
 from conftest import run_scenario, scenario, tree_edges
 from test_exactness import check_against_window_reference, check_common, expected_late
 
 import dkfsim
-from dkfsim.network.links import Port
+from dkfsim.network.port import Port, RecordPort
 from dkfsim.protocols.base import PACKET_HEADER, PART_HEADER, row_bytes
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -27,15 +28,31 @@ ROOT = Path(__file__).resolve().parents[1]
 
 @pytest.fixture
 def frames(monkeypatch):
-    """Every frame handed to a port: (port name, instant, frame bytes, parts)."""
+    """Every frame handed to a port: (port name, instant, frame bytes, parts), a part
+    ``(link, payload, bytes)``; a record port's (the tree's) decoded into the payload its
+    protocol means: ``(number, [(row, origin mask), ...])``."""
     log: list[tuple[str, int, int, list]] = []
     original = Port.send_frame
+    original_records = RecordPort.send_records
 
     def spy(self, parts, frame_bytes):
         parts = list(parts)
         log.append((self.name, self.env.now, frame_bytes, parts))
         original(self, parts, frame_bytes)
+
+    def spy_records(self, parts, records, frames_):
+        p0 = 0
+        for end, size in frames_.tolist():
+            decoded = []
+            for lid, tag, i0, i1, nbytes, _done in parts[p0:end, :6].tolist():
+                items = [(int(r[0]), int.from_bytes(np.asarray(r[1:]).astype(np.uint64).tobytes(), "little"))
+                         for r in records[i0:i1]]
+                decoded.append((self.net.links[lid], (tag, items), nbytes))
+            log.append((self.name, self.env.now, size, decoded))
+            p0 = end
+        original_records(self, parts, records, frames_)
     monkeypatch.setattr(Port, "send_frame", spy)
+    monkeypatch.setattr(RecordPort, "send_records", spy_records)
     return log
 
 
@@ -49,10 +66,9 @@ def _out_links(sc):
 
 
 @pytest.mark.parametrize("kind", ["ci_consensus", "kcf", "diffusion_kf"])
-def test_consensus_broadcasts_one_frame_per_node_and_instant(kind, frames, monkeypatch):
+def test_consensus_broadcasts_one_frame_per_node_and_instant(kind, frames):
     """Every sub-slot instant, every node hands over exactly one frame: one part per out-link,
     all the same message, the frame that message's size; the parts are the port's packets."""
-    monkeypatch.setenv("DKFSIM_EXCHANGE", "python")
     sc = dict(scenario(6, edges=tree_edges(6, 51), steps=20), estimators=[{"kind": kind}])
     r = run_scenario(sc)
     out = _out_links(sc)
@@ -76,15 +92,14 @@ def test_consensus_broadcasts_one_frame_per_node_and_instant(kind, frames, monke
 def test_without_a_channel_consensus_sends_per_link_in_the_links_order(monkeypatch):
     """No ``medium:``: the frames are the per-link sends, and at every instant they go in the
     network's link order (every arc, ascending ids), as the per-link loop sent them."""
-    monkeypatch.setenv("DKFSIM_EXCHANGE", "python")
     sent = defaultdict(list)
-    original = Port.send
+    original = Port.send_frames
 
-    def spy(self, link, payload, nbytes=0):
+    def spy(self, links, payloads, nbytes, ends, frame_bytes):
         if self.name == "ci_consensus":
-            sent[self.env.now].append(link.id)
-        original(self, link, payload, nbytes)
-    monkeypatch.setattr(Port, "send", spy)
+            sent[self.env.now].extend(link.id for link in links)
+        original(self, links, payloads, nbytes, ends, frame_bytes)
+    monkeypatch.setattr(Port, "send_frames", spy)
     sc = dict(scenario(6, edges=tree_edges(6, 51), steps=10), estimators=[{"kind": "ci_consensus", "rounds": 2}])
     r = run_scenario(sc)
     ids = sorted(row["link"] for row in r.res.traffic["ci_consensus"]["per_link"])
@@ -93,11 +108,10 @@ def test_without_a_channel_consensus_sends_per_link_in_the_links_order(monkeypat
         assert order == sorted(order) and len(order) == len(ids), (now, order)
 
 
-def test_flood_broadcasts_the_union_once(frames, monkeypatch):
+def test_flood_broadcasts_the_union_once(frames):
     """Flood on a channel: one frame per flush; its size is one header and the union of the
     parts' rows; no part goes back to the neighbour its contributions came from (a leaf's relays
-    are empty).  (Without a channel the frame's size is not computed: nothing reads it.)"""
-    monkeypatch.setenv("DKFSIM_EXCHANGE", "python")
+    are empty)."""
     sc = scenario(6, edges=tree_edges(6, 51), steps=20, protocol="flood",
                   latency={"model": "uniform_steps", "d_t": 2})
     sc["medium"] = {"rate": 1.0e6}
@@ -116,11 +130,10 @@ def test_flood_broadcasts_the_union_once(frames, monkeypatch):
     assert len(mine) > 0 and any(len(p) > 1 for _, _, _, p in mine)
 
 
-def test_tree_combines_each_neighbours_message(frames, monkeypatch):
+def test_tree_combines_each_neighbours_message(frames):
     """Tree: one frame per flush of a node, its size one header plus each part's own header and
     rows; the message to ``j`` never carries ``j``'s own contribution, and the numbers of a
     link's parts increase by one per packet."""
-    monkeypatch.setenv("DKFSIM_EXCHANGE", "python")
     sc = scenario(6, edges=tree_edges(6, 51), steps=20, latency={"model": "uniform_steps", "d_t": 2})
     run_scenario(sc)
     mine = [f for f in frames if f[0] == "anti_delay_dkf"]
@@ -180,7 +193,6 @@ def test_the_dkf_is_exact_on_a_collision_free_slow_channel(protocol):
     sc = _on_channel(5, 60, seed=3, latency={"model": "constant", "value": 5.0e-6}, buffer_length=12,
                      protocol=protocol, medium={"rate": 3.0e5, "access": {"kind": "csma", "slot": 1.0e-6, "aifs": 10.0e-6, "cw": 1023}})
     r = run_scenario(sc)
-    assert r.res.info["backend"]["exchange"] == "python"
     ch = r.counts["channel"]
     assert ch["collisions"] == 0 and r.counts["lost"] == 0, ch
     assert ch["access_delay_mean"] > 1e-3, "the channel was meant to make frames wait"

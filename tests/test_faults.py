@@ -23,7 +23,8 @@ from dkfsim.components.latency import parse_latency
 from dkfsim.config.load import load_scenario, scenario_hash
 from dkfsim.config.plan import RunPlan
 from dkfsim.core.errors import ScenarioError
-from dkfsim.network.links import Link, Network
+from dkfsim.network.links import Link
+from dkfsim.network.network import Network
 
 TOL = 1e-9
 T_NS = 100_000_000           # T = 0.1 s (conftest's 2-state model)

@@ -9,7 +9,8 @@ import simpy
 from dkfsim.components.faults import LinkSpec
 from dkfsim.components.latency import Constant, Uniform
 from dkfsim.core.streams import key64, keyed_uniform
-from dkfsim.network.links import SHARED_SEQ0, Network
+from dkfsim.network.network import Network
+from dkfsim.network.port import SHARED_SEQ0
 
 MS = 1_000_000          # ns
 ARCS = [(0, 1), (0, 2), (0, 3), (1, 0)]

@@ -22,10 +22,9 @@ import yaml
 from scipy import stats
 
 import dkfsim
-from dkfsim.core.backend import Backend
 from dkfsim.engine.driver import Run
 from dkfsim.estimators.fusion import fuse_matrix
-from dkfsim.estimators.fusion_centre import FusionCentre, next_hops
+from dkfsim.estimators.fusion_centre import next_hops
 
 ROOT = Path(__file__).resolve().parents[1]
 ZERO = "links.default.latency={model: constant, value: 0}"
@@ -81,30 +80,20 @@ def check_masks_are_the_nodes_holdings(centre):
     return checked
 
 
-def expected_exchange(wanted: str) -> str:
-    """The exchange a run reports when ``wanted`` is what the scenario allows: the compiled tree
-    only where this environment compiles kernels (``DKFSIM_KERNELS=numpy`` runs the Python one)."""
-    return wanted if wanted == "python" or Backend.from_environment().compiled_exchange else "python"
-
-
 def rel(a, b):
     return float(np.max(np.abs(a - b)) / np.max(np.abs(b)))
 
 
 # ------------------------------------------------------------------------------ = fused
-@pytest.mark.parametrize("make, overrides, exchange", [
-    (paper, [ZERO], "compiled"),
-    (paper, [ZERO], "python"),
-    (paper, [ZERO, "protocol=flood"], "python"),
-    (paper, [ZERO, "fusion=diagonal"], "compiled"),
-    (paper, [ZERO, "weights=paper"], "compiled"),
-    (radar, [ZERO], "python"),
+@pytest.mark.parametrize("make, overrides", [
+    (paper, [ZERO]),
+    (paper, [ZERO, "protocol=flood"]),
+    (paper, [ZERO, "fusion=diagonal"]),
+    (paper, [ZERO, "weights=paper"]),
+    (radar, [ZERO]),
 ])
-def test_zero_latency_equals_fused(make, overrides, exchange, monkeypatch):
-    if exchange == "python":
-        monkeypatch.setenv("DKFSIM_EXCHANGE", "python")
+def test_zero_latency_equals_fused(make, overrides):
     res, centre = run(make(overrides, at=1))
-    assert res.info["backend"]["exchange"] == expected_exchange(exchange)
     a = res.arrays
     assert rel(a["x_fusion_centre"], a["x_fused"]) <= 1e-8
     assert rel(a["P_fusion_centre"], a["P_fused"]) <= 1e-8
@@ -191,7 +180,7 @@ def test_cross_covariances_equal_the_recursion_from_the_held_masks(make, overrid
     s = ctx.system
     info = ctx.info
     omega_of = (lambda r: info.omega[r]) if info.varying else (lambda r: info.omega)
-    want = independent_xi(centre.log, s.Phi, s.Q, s.P0, centre.dkf.A, omega_of, centre.W)
+    want = independent_xi(centre.log, s.Phi, s.Q, s.P0, centre.dkf.weights, omega_of, centre.W)
     assert check_masks_are_the_nodes_holdings(centre) > 0
     stale = 0
     for k, newest, _excluded, _known, Xi in centre.log:
@@ -221,7 +210,7 @@ def test_lost_packets_use_the_older_estimate_predicted_forward():
     res, centre = run(_path3(), log=True)
     a = res.arrays
     s = centre.ctx.system
-    want = independent_xi(centre.log, s.Phi, s.Q, s.P0, centre.dkf.A, lambda r: centre.ctx.info.omega,
+    want = independent_xi(centre.log, s.Phi, s.Q, s.P0, centre.dkf.weights, lambda r: centre.ctx.info.omega,
                           centre.W)
     facts = res.facts["fusion_centre"]
     assert facts["stale_rows_used"] == 6 and facts["nodes_excluded"] == 0
@@ -333,53 +322,10 @@ def test_the_centre_waits_in_the_dkfs_queues(extra, shares):
     res, _ = run(paper([ZERO, "buffer_length=3", *extra]))
     same = np.array_equal(res.arrays["x_fused"], alone.arrays["x_fused"])
     assert same is not shares
-    assert res.info["backend"]["exchange"] == expected_exchange("python" if shares else "compiled")
     t = res.traffic["fusion_centre"]
     assert t["sent"] == t["delivered"] + t["lost"] + t["queue_dropped"] + t["crash_dropped"] + t["in_flight"]
     if extra and extra[0].startswith("medium"):
         assert t["collision_lost"] > 0
-
-
-# ------------------------------------------------- the relays without SimPy events (232-234)
-def _relayed(sc, direct):
-    """The run with the centre's packets relayed as its links allow (``direct``) or through the
-    port hop by hop, and the centre."""
-    sim = Run(sc)
-    centre = next(e for e in sim.estimators if isinstance(e, FusionCentre))
-    centre.direct_relay = direct
-    centre.log = []
-    return sim.run(), centre
-
-
-@pytest.mark.parametrize("overrides, relay", [
-    # constant / uniform_steps latency, no crash: the compiled relay (one kernel call per tick)
-    (["links.default.latency={model: uniform_steps, d_t: 4}"], "CompiledRelay"),
-    (["links.default.latency={model: constant, value: 0.013}"], "CompiledRelay"),
-    # loss, a crash: the Python relay, with the port's draws, losses and crash drops
-    (["links.default.latency={model: uniform_steps, d_t: 3}", "links.default.loss=0.2",
-      "faults.crashes=[{node: 2, start: 0.3, end: 0.6}]"], "DirectRelay"),
-    (["links.default.latency={model: uniform_steps, d_t: 2}", "links.default.duplicate=0.3"], "DirectRelay"),
-])
-def test_relays_equal_the_port_hop_by_hop(overrides, relay):
-    """Relayed without a SimPy event per hop, the centre's packets arrive when and in the order
-    the port would deliver them: the same packets taken (the newest row of every node at every
-    fusion), the same counts on every link, the same facts and the same estimate, bit for bit."""
-    sc = dkfsim.load_scenario(ROOT / "scenarios" / "paper_case1.yaml",
-                              overrides=["steps=150", "estimators=[{kind: centralized}, {kind: fusion_centre, at: 3}]",
-                                         *overrides])
-    fast, fc = _relayed(sc, True)
-    slow, pc = _relayed(sc, False)
-    want = relay if fc.ctx.backend.compiled or relay == "DirectRelay" else "DirectRelay"
-    assert type(fc.relay).__name__ == want and pc.relay is None
-    assert len(fc.log) == len(pc.log) == 150
-    for a, b in zip(fc.log, pc.log):
-        assert a[0] == b[0] and np.array_equal(a[1], b[1]) and np.array_equal(a[3], b[3])
-    assert fast.traffic["fusion_centre"] == slow.traffic["fusion_centre"]
-    assert fast.facts == slow.facts
-    if "uniform_steps" in overrides[0]:      # packets overtake each other: the order matters
-        assert fast.facts["fusion_centre"]["packets_ignored"] > 0
-    for key in ("x_fusion_centre", "P_fusion_centre", "x_fused"):
-        assert np.array_equal(fast.arrays[key], slow.arrays[key]), key
 
 
 def test_the_run_table_says_when_the_centre_lost_nodes():

@@ -29,7 +29,6 @@ from conftest import scc_digraph_edges, scenario, tree_edges
 
 import dkfsim
 from dkfsim.core.backend import Backend
-from dkfsim.core.errors import DkfsimError
 
 
 def rowwise_rel_err(a: np.ndarray, b: np.ndarray) -> float:
@@ -108,46 +107,21 @@ def test_kernels_switch_is_recorded_in_the_summary(monkeypatch, tmp_path):
     res.save(tmp_path / "out")
     summary = json.loads((tmp_path / "out" / "summary.json").read_text())
     assert summary["kernels"] == "numpy" and summary["exchange"] == "masks"
-    assert summary["backend"] == {"kernels": "numpy", "exchange": "python"}
+    assert summary["backend"] == {"kernels": "numpy"}
     assert dkfsim.load_run(tmp_path / "out").info["backend"] == summary["backend"]
 
 
 @pytest.mark.parametrize("env, expect", [
-    ({}, ("numba", "compiled")),
-    ({"DKFSIM_KERNELS": "numpy"}, ("numpy", "python")),
-    ({"DKFSIM_EXCHANGE": "python"}, ("numba", "python")),
-    ({"DKFSIM_EXCHANGE": " Compiled "}, ("numba", "compiled")),
-    ({"DKFSIM_KERNELS": "numpy", "DKFSIM_EXCHANGE": "compiled"}, ("numpy", "python")),   # no kernels to compile it
+    ({}, "numba"),
+    ({"DKFSIM_KERNELS": "numpy"}, "numpy"),
+    ({"DKFSIM_KERNELS": " NumPy "}, "numpy"),
 ])
 def test_the_backend_is_what_the_environment_asks_for(env, expect, monkeypatch):
     monkeypatch.delenv("DKFSIM_KERNELS", raising=False)
-    monkeypatch.delenv("DKFSIM_EXCHANGE", raising=False)
     for key, value in env.items():
         monkeypatch.setenv(key, value)
     b = Backend.from_environment()
-    assert (b.kernels, b.exchange) == expect and b.compiled == (expect[0] == "numba")
-    assert b.compiled_exchange == (expect[1] == "compiled")
-
-
-def test_a_bad_exchange_setting_is_a_clear_error(monkeypatch):
-    monkeypatch.setenv("DKFSIM_EXCHANGE", "fortran")
-    with pytest.raises(DkfsimError, match="DKFSIM_EXCHANGE=.*fortran.*compiled.*python"):
-        Backend.from_environment()
-
-
-@pytest.mark.parametrize("change, expect", [
-    (None, "compiled"),                                  # tree, plain links: the compiled twin
-    ({"protocol": "flood"}, "python"),                   # no compiled twin
-    ({"loss": 0.1}, "python"),                           # a link the kernels cannot draw
-])
-def test_the_engine_narrows_the_backend_to_what_the_run_can_use(change, expect, monkeypatch):
-    """The engine decides once which exchange runs (the DKF no longer swaps one in): the run's
-    backend, its summary record and the exchange the DKF ran agree."""
-    monkeypatch.delenv("DKFSIM_EXCHANGE", raising=False)
-    d = scenario(6, steps=8, latency={"model": "uniform_steps", "d_t": 1}, **(change or {}))
-    res = _run(d, "numba", monkeypatch, save="summary")
-    assert res.info["backend"] == {"kernels": "numba", "exchange": expect}
-    assert res.info["exchange"] == ("masks, compiled" if expect == "compiled" else "masks")
+    assert b.kernels == expect and b.compiled == (expect == "numba")
 
 
 @pytest.mark.slow
@@ -205,21 +179,22 @@ def test_kernels_taking_namedtuples_load_from_the_disk_cache_in_a_new_process():
     disk cache in a new process (a local namedtuple type, or a step from another module,
     would compile them again in every process).  A first process compiles or loads them; a
     second one must compile nothing: every kernel a run of paper_case1 calls (window,
-    fusion, baseline filter, compiled tree with the holdings' fold step it borrows, the Python
-    exchange's fold) hit the cache."""
+    fusion, baseline filter, the tree's bookkeeping, the record port's batch steps, the
+    holdings' fold) hit the cache -- those bound to their types (``core.jit.bind``) too."""
     code = """
 import json, os, sys
 import dkfsim
 from dkfsim.estimators import kernels
 from dkfsim.model import holdings_kernels as hk
-from dkfsim.protocols import tree_compiled_kernels as tk
+from dkfsim.network import port_kernels as pk
+from dkfsim.protocols import tree_kernels as tk
 sc = dkfsim.load_scenario(sys.argv[1], overrides=["steps=30"])
 dkfsim.run(sc, save="full")
-os.environ["DKFSIM_EXCHANGE"] = "python"
 dkfsim.run(sc, save="estimates")
 stats = {}
 for mod, names in ((kernels, ("window_rows", "xi_rows", "filter_rows")),
-                   (tk, ("tick", "advance")), (hk, ("fold_masks",))):
+                   (tk, ("measure", "receive", "flush")), (pk, ("hand_over", "arrange", "peek", "tally")),
+                   (hk, ("fold_masks",))):
     for name in names:
         d = getattr(mod, name)
         stats[name] = [sum(d.stats.cache_hits.values()), sum(d.stats.cache_misses.values())]
@@ -234,26 +209,22 @@ print(json.dumps(stats))
     assert all(hits > 0 and misses == 0 for hits, misses in stats.values()), stats
 
 
-def test_every_kernel_module_pins_the_files_of_the_steps_it_inlines():
-    """numba's disk cache keys a kernel by its own file only: kernels that inline steps from
-    another file (the compiled tree, the fusion centre's relay and fold) pin that file's sha256.
-    An edit there must come with a new pin (which edits the borrowing kernel file, and so renews
-    its cache).  Every module of the package that declares ``BORROWS`` is checked, so a new
-    borrower cannot be forgotten."""
-    import hashlib
-    import importlib
-
-    from dkfsim.core.jit import LazyKernels
+def test_no_kernel_module_calls_another_files_kernels():
+    """numba's disk cache keys a kernel by its own file only: a kernel calling a step of another
+    file would keep stale code after an edit there.  So every kernel module (one that compiles
+    with ``LazyKernels``) imports no other kernel module: what two of them share goes through
+    Python (a protocol hands its gains to the holdings' fold; the port hands its packets to the
+    protocol's kernels as arrays).  Checked on the source of every module of the package, so a
+    new kernel module cannot break it unseen."""
+    import ast
     root = Path(__file__).resolve().parents[1]
-    borrowers = sorted(str(p.relative_to(root))[:-3].replace("/", ".")
-                       for p in (root / "dkfsim").rglob("*.py") if "\nBORROWS = " in p.read_text())
-    assert {"dkfsim.protocols.tree_compiled_kernels", "dkfsim.estimators.fusion_centre_kernels"} <= set(borrowers)
-    for name in borrowers:
-        borrows = importlib.import_module(name).BORROWS
-        for module, pin in borrows.items():
-            path = root / (module.replace(".", "/") + ".py")
-            assert hashlib.sha256(path.read_bytes()).hexdigest() == pin, \
-                f"{path.name} changed: set {name}.BORROWS[{module!r}] to its new sha256"
-        assert LazyKernels(name, (), borrows=borrows).stale_borrows() == []
-    stale = LazyKernels("x", (), borrows={"dkfsim.model.holdings_kernels": "0" * 64})
-    assert stale.stale_borrows() == ["dkfsim.model.holdings_kernels"]      # compiled without the cache
+    kernel_modules = {str(p.relative_to(root))[:-3].replace("/", "."): p for p in (root / "dkfsim").rglob("*.py")
+                      if "= LazyKernels(" in p.read_text()}
+    assert {"dkfsim.protocols.tree_kernels", "dkfsim.network.port_kernels", "dkfsim.model.holdings_kernels",
+            "dkfsim.estimators.kernels"} <= set(kernel_modules)
+    for name, path in kernel_modules.items():
+        tree = ast.parse(path.read_text())
+        imported = {node.module for node in ast.walk(tree) if isinstance(node, ast.ImportFrom) and node.module}
+        imported |= {f"{node.module}.{a.name}" for node in ast.walk(tree) if isinstance(node, ast.ImportFrom)
+                     and node.module for a in node.names}
+        assert not (imported & (set(kernel_modules) - {name})), f"{name} imports another kernel module"

@@ -19,6 +19,7 @@
 from __future__ import annotations
 
 import ast
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -153,6 +154,50 @@ def test_start_up_imports_only_what_the_command_needs(what, code, allowed):
 @pytest.mark.parametrize("stage", STAGES)
 def test_every_stage_is_in_the_architecture_table(stage):
     assert f"| `{stage}/`" in (ROOT / "docs" / "architecture.md").read_text()
+
+
+def _listed_modules(cell: str) -> set[str]:
+    """The modules a row of the architecture table lists: ``name`` for a module of the stage,
+    ``sub/`` then ``(a, b)`` for a subpackage and its modules (``sub/a``, ``sub/b``); a
+    parenthesis after a module is a remark."""
+    out: set[str] = set()
+    sub = None
+    depth = 0
+    for m in re.finditer(r"\(|\)|`([^`]+)`", cell):
+        token = m.group(0)
+        if token == "(":
+            depth += 1
+        elif token == ")":
+            depth -= 1
+            if depth == 0:
+                sub = None
+        elif depth == 0:
+            name = m.group(1)
+            if name.endswith("/"):
+                sub = name.rstrip("/")
+                out.add(name)
+            else:
+                sub = None
+                out.add(name)
+        elif sub is not None and depth == 1:
+            out.add(f"{sub}/{m.group(1)}")
+    return out
+
+
+@pytest.mark.parametrize("stage", STAGES)
+def test_the_architecture_table_lists_each_stages_modules(stage):
+    """docs/architecture.md's module list of each stage is the stage's folder: every module (and
+    every subpackage with its modules), nothing more."""
+    rows = [line for line in (ROOT / "docs" / "architecture.md").read_text().splitlines()
+            if line.startswith(f"| `{stage}/`")]
+    assert len(rows) == 1, rows
+    listed = _listed_modules(rows[0].split("|")[3])
+    folder = PACKAGE / stage
+    actual = {p.stem for p in folder.glob("*.py") if p.stem != "__init__"}
+    for sub in (d for d in folder.iterdir() if (d / "__init__.py").exists()):
+        actual.add(sub.name + "/")
+        actual |= {f"{sub.name}/{p.stem}" for p in sub.glob("*.py") if p.stem != "__init__"}
+    assert listed == actual, f"listed only: {sorted(listed - actual)}; in the folder only: {sorted(actual - listed)}"
 
 
 def test_every_module_says_what_it_is_for():

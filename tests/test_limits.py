@@ -36,12 +36,12 @@ def test_p_local_is_kept_only_when_it_will_be_saved_and_fits(monkeypatch):
 
 def test_late_bookkeeping_is_bounded_by_the_latency_bound():
     bounded = RunPlan(dkfsim.load_scenario(scenario(4, latency={"model": "uniform_steps", "d_t": 3})))
-    assert anti_delay.late_horizon(bounded, 4, 7) == 5
+    assert bounded.late_horizon(7, 4) == 5
     unbounded = RunPlan(dkfsim.load_scenario(scenario(4, latency={"model": "exponential", "mean": 0.1},
                                                       buffer_length=3)))
-    assert anti_delay.late_horizon(unbounded, 4, 3) == 4096
+    assert unbounded.late_horizon(3, 4) == 4096
     # 1000 nodes: the kept holdings stay near 64 MB instead of ~0.7 GB.
-    assert anti_delay.late_horizon(unbounded, 1000, 3) < 500
+    assert unbounded.late_horizon(3, 1000) < 500
 
 
 def test_a_delay_bound_longer_than_the_run_costs_no_memory():

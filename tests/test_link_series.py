@@ -1,7 +1,7 @@
 """A rate-limited link over time (docs/traffic.md, "What a run reports"): the per-tick queue
 length and utilisation of :mod:`dkfsim.network.occupancy`, against hand-worked intervals,
-Little's law on a run's own packets, the run's whole-span utilisation, and the compiled tree
-against the Python exchange; every estimator's per-link traffic in summary.json."""
+Little's law on a run's own packets, the run's whole-span utilisation; every estimator's
+per-link traffic in summary.json."""
 
 from __future__ import annotations
 
@@ -14,7 +14,6 @@ from conftest import scenario, tree_edges
 from dkfsim.config.load import load_scenario
 from dkfsim.engine.driver import run
 from dkfsim.network.occupancy import fifo, mean_waiting, per_tick
-from dkfsim.protocols.tree_compiled import CompiledTreeExchange
 
 
 def test_fifo_closed_form_is_lindleys_recursion():
@@ -43,11 +42,10 @@ def _rated(latency=None):
     return sc
 
 
-def test_littles_law_on_a_runs_own_packets(monkeypatch):
+def test_littles_law_on_a_runs_own_packets():
     """No background: per link, the time-averaged number waiting over [0, t_K] equals the
     accepted packets' rate times their mean queueing delay (the port's own statistic), and
     the utilisation series averages to the run's utilisation."""
-    monkeypatch.setenv("DKFSIM_EXCHANGE", "python")
     r = run(load_scenario(_rated()))
     t_end = r.arrays["t"][-1]
     queue, util = r.arrays["queue_length"], r.arrays["utilisation"]
@@ -65,34 +63,6 @@ def test_littles_law_on_a_runs_own_packets(monkeypatch):
         waited += row["queueing_delay_mean"] > 0
     assert waited >= 3, "the rate was meant to make packets wait"
     assert queue.shape == util.shape == (80, len(rows)) and util.max() <= 1.0 + 1e-12
-
-
-@pytest.mark.parametrize("room", [None, 1])
-def test_compiled_tree_series_equal_the_python_exchange(room, monkeypatch):
-    """With background, the compiled tree's series (rebuilt from what its kernels kept: in
-    closed form when no background packet was dropped, by replaying the transmitter when a
-    room of one packet drops some) equal the Python exchange's to the bit."""
-    sc = _rated(latency={"model": "uniform_steps", "d_t": 2})     # (a latency the kernels draw)
-    sc["links"]["default"]["background"] = {"packets_per_second": 20.0, "size": 200}
-    if room is not None:
-        sc["links"]["default"]["queue"] = {"packets": room}
-    else:                                   # the closed form must do it alone
-        def no_replay(link, *_):
-            raise AssertionError(f"link {link.src} -> {link.dst}: the closed form fell back to the replay")
-        monkeypatch.setattr(CompiledTreeExchange, "_replay", staticmethod(no_replay))
-    got = {}
-    monkeypatch.setenv("DKFSIM_KERNELS", "numba")           # (the compiled tree needs numba)
-    for exchange in ("compiled", "python"):
-        monkeypatch.setenv("DKFSIM_EXCHANGE", "" if exchange == "compiled" else exchange)
-        r = run(load_scenario(sc))
-        assert r.info["backend"]["exchange"] == exchange
-        got[exchange] = r
-    a, b = got["compiled"].arrays, got["python"].arrays
-    for key in ("rated_links", "queue_length", "utilisation", "queueing_delay_quantiles"):
-        assert np.array_equal(a[key], b[key], equal_nan=True), key
-    assert a["queue_length"].max() > 0.1
-    dropped = sum(row["background_dropped"] for row in got["compiled"].counts["per_link"])
-    assert (dropped > 0) == (room is not None)
 
 
 def test_every_estimators_per_link_traffic_in_summary_json(tmp_path):

@@ -180,7 +180,7 @@ def test_the_network_loses_what_is_handed_to_a_link_that_is_down():
     from dkfsim.components.faults import LinkSpec
     from dkfsim.components.latency import Constant
     from dkfsim.components.mobility import LinkSchedule
-    from dkfsim.network.links import Network
+    from dkfsim.network.network import Network
     env = simpy.Environment()
     up = np.array([[True, True], [True, False], [False, True]])     # ticks 0, 1, 2
     net = Network(env, [(0, 1), (1, 0)], lambda u, v: LinkSpec(latency=Constant(value=0.0)), 1, 100,

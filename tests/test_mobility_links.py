@@ -16,7 +16,7 @@ from dkfsim.components.faults import LinkSpec
 from dkfsim.components.latency import Constant
 from dkfsim.components.mobility import DistanceLinks, LinkSchedule, Mobility
 from dkfsim.core.errors import ScenarioError
-from dkfsim.network.links import Network
+from dkfsim.network.network import Network
 
 
 def _network(distances, quality, latency=0.0, rate=None, T_ns=10**9):

@@ -2,7 +2,7 @@
 
 Hand-worked timelines to the nanosecond on a bare network; queueing theory on one link's
 transmitter fed by its keyed background (the code path a run's packets take: a port offers
-its packets to the same :class:`~dkfsim.network.transmitter.Transmitter`); the DKF's
+its packets to the same :class:`~dkfsim.network.media.fifo.Transmitter`); the DKF's
 exactness on a rate-limited network against the centralized filter and the arrival log;
 a rate so high that every transmission rounds to 0 ns against no rate, bit for bit.
 """
@@ -22,7 +22,9 @@ from dkfsim.components.traffic import Background, Queue, transmission_ns
 from dkfsim.config.load import load_scenario
 from dkfsim.core.errors import ScenarioError
 from dkfsim.engine.driver import run
-from dkfsim.network.links import Link, Network
+from dkfsim.network.links import Link
+from dkfsim.network.media.fifo import Fifo
+from dkfsim.network.network import Network
 
 MS = 1_000_000          # ns
 
@@ -123,7 +125,7 @@ def test_transmission_time_rounds_to_the_nearest_ns():
 # ------------------------------------------------------------------ queueing theory
 def _transmitter(rate, background, queue=None, seed=5):
     spec = LinkSpec(latency=Constant(), rate=rate, queue=queue, background=background)
-    return Link(0, 0, 1, spec, seed, 10 * MS).transmitter(record=True)
+    return Fifo(Link(0, 0, 1, spec, seed, 10 * MS)).tx
 
 
 #: Student's t quantile 0.995 with 29 degrees of freedom (99 % two-sided, 30 batches); a table
@@ -226,10 +228,9 @@ def _rated(rate, **kw):
     {"loss": 0.2, "latency": {"model": "exponential", "mean": 0.02, "offset": 0.0}, "links_d_t": 3,
      "protocol": "flood"},
 ])
-def test_rate_1e15_equals_no_rate_bit_for_bit(extra, monkeypatch):
+def test_rate_1e15_equals_no_rate_bit_for_bit(extra):
     """Every transmission rounds to 0 ns: estimates and counts equal to a run without rate (on
     the Python exchange, which both take), the consensus family included."""
-    monkeypatch.setenv("DKFSIM_EXCHANGE", "python")
     ests = [{"kind": "ci_consensus", "rounds": 2}, {"kind": "diffusion_kf"}]
     plain = dict(scenario(6, edges=tree_edges(6, 51), steps=60, **extra), estimators=ests)
     fast = dict(_rated(1e15, steps=60, **extra), estimators=ests)
@@ -318,7 +319,6 @@ def test_each_estimator_has_its_own_queues_unless_shared():
     """Two instances of the same DKF: on their own queues they see identical links (estimates
     and traffic equal); through shared queues each waits for the other's packets too."""
     alone, shared = _twins(False), _twins(True)
-    assert shared.info["backend"]["exchange"] == "python"     # the compiled tree has its own queues
     assert np.array_equal(alone.arrays["x_fused"], alone.arrays["x_twin"])
     packets = [{k: v for k, v in alone.traffic[name].items() if not k.startswith("late")}
                for name in ("fused", "twin")]          # (late: the twin counts packet rows)

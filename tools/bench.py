@@ -3,10 +3,9 @@
 
 1. ``paper_case1`` for 1000 ticks (fusion included): wall and CPU time, the
    number of packet events, the time bare SimPy needs for the same number of
-   ``timeout`` events with a no-op callback, and their ratio; the same run on
-   the same run with the Python tree protocol (``DKFSIM_EXCHANGE=python``) and on the
-   pure-numpy kernel path (``DKFSIM_KERNELS=numpy``, Python protocol too) in the same process;
-   the first call's cost (kernel compile, or loading them from the disk cache).
+   ``timeout`` events with a no-op callback, and their ratio; the same run on the pure-numpy
+   path (``DKFSIM_KERNELS=numpy``) in the same process; the first call's cost (kernel compile,
+   or loading them from the disk cache).
 2. A scaling table for random trees of 12, 50 and 200 nodes: ticks per
    second and packets per tick, with per-tick cost normalised by the work
    (nodes x window rows for filtering, links for packets); then the fitted
@@ -26,23 +25,19 @@
    and come back every few ticks (each non-root vehicle out of range one tick in
    ``--mobility-period``, periodically, and then at random ticks with that probability, so
    that almost every tick has a new set of links), against the same run on the fixed graph,
-   alternated (``--repeats`` times, min CPU of each); the ratio changing / fixed and the
-   exchange each used (the fixed graph runs the compiled tree where numba is present).
+   alternated (``--repeats`` times, min CPU of each); the ratio changing / fixed.
    ``--mobility-only`` runs this section alone.
 8. Links that carry the traffic (issue 21): ``paper_case1`` with every link at 1 Mbit/s, a
    room of 20 packets and Poisson background (:data:`TRAFFIC`) against the same scenario
-   without these keys, both on the backend's defaults (the compiled tree on the numba path),
-   alternated in this process, min of ``--repeats``; the issue asks at most 2x.
+   without these keys, alternated in this process, min of ``--repeats``.
    ``--traffic-only`` runs this line alone.
 9. A fusion centre over the network (issue 22): ``paper_case1`` with ``{kind: fusion_centre,
-   at: 0}`` against the same scenario without it, on the compiled path (the tree compiled, numba
-   kernels), alternated in this process, min CPU of ``--repeats``; the issue asks at most 2x.
+   at: 0}`` against the same scenario without it, alternated in this process, min CPU of
+   ``--repeats``.
    ``--centre-only`` runs this line alone.
 10. A shared channel (issue 22): ``scenarios/channel_its_g5.yaml`` (every estimator on one
-    CSMA channel with background, the Python exchange) against the same scenario without
-    ``medium:``, alternated on the backend's defaults (the compiled tree), then alternated with
-    the Python exchange for both (the same protocol code); min CPU of ``--repeats``; the issue
-    asks at most 2x.  ``--channel-only`` runs this line alone.
+    CSMA channel with background) against the same scenario without ``medium:``, alternated;
+    min CPU of ``--repeats``.  ``--channel-only`` runs this line alone.
 
 11. Start-up (issue 34): ``import dkfsim`` (CPU), ``dkfsim --help``, ``dkfsim list``, ``dkfsim
     validate scenarios/paper_case1.yaml`` and ``dkfsim run`` of it (wall and CPU; the run loads
@@ -63,9 +58,12 @@
     constants to ``dkfsim/data/calibration/seconds_per_event.json`` (the estimates' only
     machine-dependent input) with the machine and the load it was measured under.
 
-Before/after (``--base REF``): the runs of sections 1, 2 and 4 that exercise the kernels
-(paper_case1 on the three kernel paths, a 50-node tree with matrix fusion, a 200-node tree
-without, the 1000-node tree), each in a fresh process, alternating the commit ``REF``
+Before/after (``--base REF``): the runs issue 31 holds to the commit before it -- paper_case1
+(on the default path, with ``DKFSIM_EXCHANGE=python`` which a base commit may still read, and
+on the numpy path), a 50-node tree with matrix fusion, a 200-node tree without, the 1000-node
+tree, the shipped channel scenario, mobility_crossing, paper_case1 on rate-limited links, with a
+fusion centre, and with a fusion centre on rate-limited links -- each in a fresh process,
+alternating the commit ``REF``
 (``git archive``, unpacked in a temporary folder) and this checkout ``--repeats`` times;
 prints the CPU seconds of each (min over the repeats, each run after a short warm-up run of
 the same kind) and the ratio this / base.  Nothing else runs in that mode.
@@ -102,8 +100,11 @@ TREE_ENV = "DKFSIM_BENCH_TREE"
 sys.path.insert(0, os.environ.get(TREE_ENV) or str(ROOT))
 
 import dkfsim  # noqa: E402
-from dkfsim.estimators.kernels import KERNELS_ENV  # noqa: E402
-from dkfsim.protocols.tree_compiled import EXCHANGE_ENV  # noqa: E402
+from dkfsim.core.jit import KERNELS_ENV  # noqa: E402
+
+#: The environment variable of the Python exchange beside the compiled tree, before issue 31 (a
+#: base commit of ``--base`` may still read it; this checkout ignores it: one exchange path).
+EXCHANGE_ENV = "DKFSIM_EXCHANGE"
 
 #: Issue 21's bench line: every link of ``paper_case1`` at 1 Mbit/s, a room of 20 packets and
 #: Poisson background of 50 packets/s x 250 B (docs/traffic.md, "Cost").
@@ -261,13 +262,12 @@ def alternated(runs: dict, repeats: int) -> tuple[dict, dict]:
 def traffic_cost(ticks: int, repeats: int) -> dict:
     """Section 8: CPU seconds of ``paper_case1`` with :data:`TRAFFIC` and without (``dkfsim.run``,
     ``save="estimates"``, the environment's backend), each warmed up once, then alternated
-    ``repeats`` times in this process; the min of each, their ratio, packets and exchange."""
+    ``repeats`` times in this process; the min of each, their ratio and the packets."""
     plain = dkfsim.load_scenario(ROOT / "scenarios" / "paper_case1.yaml", overrides=[f"steps={ticks}"])
     rated = dkfsim.load_scenario(plain, overrides=list(TRAFFIC))
     out, last = alternated({"plain": plain, "rated": rated}, repeats)
     out["ratio"] = out["rated"] / out["plain"]
     out.update({f"{name}_sent": r.counts["sent"] for name, r in last.items()})
-    out["exchange"] = last["rated"].info["backend"]["exchange"]
     return out
 
 
@@ -276,28 +276,25 @@ def print_traffic_cost(ticks: int, repeats: int) -> None:
     print(f"links that carry the traffic (issue 21): paper_case1, {ticks} ticks, 1 Mbit/s, room of 20, "
           f"Poisson background 50/s x 250 B, against the plain run; CPU s, min of {repeats} alternated")
     print(f"  plain {t['plain']:8.3f} s ({t['plain_sent']} packets)   rate-limited {t['rated']:8.3f} s "
-          f"({t['rated_sent']} packets, exchange '{t['exchange']}')   ratio {t['ratio']:.2f} x (issue: <= 2)")
+          f"({t['rated_sent']} packets)   ratio {t['ratio']:.2f} x (issue: <= 2)")
 
 
 def print_centre_cost(ticks: int, repeats: int) -> None:
     """Section 9: CPU seconds of ``paper_case1`` with a fusion centre at node 0 and without
-    (``dkfsim.run``, ``save="estimates"``, :func:`alternated`), their ratio and the exchange each ran."""
+    (``dkfsim.run``, ``save="estimates"``, :func:`alternated`) and their ratio."""
     plain = dkfsim.load_scenario(ROOT / "scenarios" / "paper_case1.yaml", overrides=[f"steps={ticks}"])
     centre = dkfsim.load_scenario(plain, overrides=["estimators=[{kind: centralized}, {kind: fusion_centre, at: 0}]"])
     cpu, last = alternated({"without": plain, "with": centre}, repeats)
-    exchange = {name: r.info["backend"]["exchange"] for name, r in last.items()}
     print(f"fusion centre (issue 22): paper_case1, {ticks} ticks, with {{kind: fusion_centre, at: 0}} against "
           f"without; CPU s, min of {repeats} alternated")
-    print("  " + "   ".join(f"{name} {cpu[name]:8.3f} s ('{exchange[name]}')" for name in cpu)
+    print("  " + "   ".join(f"{name} {cpu[name]:8.3f} s" for name in cpu)
           + f"   {last['with'].traffic['fusion_centre']['sent']} centre packets   "
           f"ratio {cpu['with'] / cpu['without']:.2f} x (issue: <= 2)")
 
 
 def channel_cost(ticks: int, repeats: int) -> dict:
     """Section 10: CPU seconds of ``scenarios/channel_its_g5.yaml`` and of the same scenario
-    without ``medium:`` (:func:`alternated`), on the backend's defaults (the scenario without a
-    channel runs the compiled tree on the numba path) and then both with the Python exchange (the
-    protocol code the channel run uses); the min of each and the ratios."""
+    without ``medium:`` (:func:`alternated`); the min of each and the ratio."""
     import yaml
     path = ROOT / "scenarios" / "channel_its_g5.yaml"
     spec = yaml.safe_load(path.read_text())
@@ -305,16 +302,7 @@ def channel_cost(ticks: int, repeats: int) -> dict:
     runs = {"channel": dkfsim.load_scenario(path, overrides=[f"steps={ticks}"]),
             "plain": dkfsim.load_scenario(spec, overrides=[f"steps={ticks}"])}
     out, last = alternated(runs, repeats)
-    os.environ[EXCHANGE_ENV] = "python"
-    try:
-        python, last_python = alternated(runs, repeats)
-    finally:
-        del os.environ[EXCHANGE_ENV]
     out["ratio"] = out["channel"] / out["plain"]
-    out["ratio_python"] = python["channel"] / python["plain"]
-    out["plain_python"] = python["plain"]
-    out["exchange"] = {name: r.info["backend"]["exchange"] for name, r in last.items()}
-    out["exchange_python"] = last_python["plain"].info["backend"]["exchange"]
     out["channel_sent"] = last["channel"].counts["sent"]
     return out
 
@@ -323,11 +311,8 @@ def print_channel_cost(ticks: int, repeats: int) -> None:
     t = channel_cost(ticks, repeats)
     print(f"a shared channel (issue 22): scenarios/channel_its_g5.yaml, {ticks} ticks, every estimator, "
           f"against the same scenario without medium:; CPU s, min of {repeats} alternated")
-    print(f"  channel {t['channel']:8.3f} s (exchange '{t['exchange']['channel']}', {t['channel_sent']} packets)"
-          f"   without medium {t['plain']:8.3f} s (exchange '{t['exchange']['plain']}'), "
-          f"{t['plain_python']:8.3f} s (exchange '{t['exchange_python']}')")
-    print(f"  ratio {t['ratio']:.2f} x against the default path (issue: <= 2), "
-          f"{t['ratio_python']:.2f} x against the same Python exchange")
+    print(f"  channel {t['channel']:8.3f} s ({t['channel_sent']} packets)   without medium {t['plain']:8.3f} s   "
+          f"ratio {t['ratio']:.2f} x")
 
 
 def kernel_workloads(ticks: int, scale_ticks: int, big_nodes: int, big_ticks: int) -> dict:
@@ -335,13 +320,22 @@ def kernel_workloads(ticks: int, scale_ticks: int, big_nodes: int, big_ticks: in
     case1 = dkfsim.load_scenario(ROOT / "scenarios" / "paper_case1.yaml", overrides=[f"steps={ticks}"])
     big = dkfsim.load_scenario(tree_scenario(big_nodes, big_ticks, "none"),
                                overrides=["links.default.latency.d_t=1", "estimators=[]"])
+    centre = "estimators=[{kind: centralized}, {kind: fusion_centre, at: 0}]"
+    channel = dkfsim.load_scenario(ROOT / "scenarios" / "channel_its_g5.yaml", overrides=[f"steps={min(ticks, 300)}"])
+    crossing = dkfsim.load_scenario(ROOT / "scenarios" / "mobility_crossing.yaml")
     return {
-        "paper_case1 (compiled tree)": (case1, "estimates", None),
-        "paper_case1 (Python exchange)": (case1, "estimates", (EXCHANGE_ENV, "python")),
+        "paper_case1": (case1, "estimates", None),
+        "paper_case1 (DKFSIM_EXCHANGE=python)": (case1, "estimates", (EXCHANGE_ENV, "python")),
         "paper_case1 (numpy kernels)": (case1, "estimates", (KERNELS_ENV, "numpy")),
         f"50-node tree, matrix fusion, {scale_ticks} ticks": (tree_scenario(50, scale_ticks, "matrix"), "summary", None),
         f"200-node tree, no fusion, {scale_ticks} ticks": (tree_scenario(200, scale_ticks, "none"), "summary", None),
         f"{big_nodes}-node tree, d_t = 1, {big_ticks} ticks": (big, "summary", None),
+        f"channel_its_g5, {min(ticks, 300)} ticks": (channel, "estimates", None),
+        "mobility_crossing": (crossing, "estimates", None),
+        "paper_case1, rate-limited links": (dkfsim.load_scenario(case1, overrides=list(TRAFFIC)), "estimates", None),
+        "paper_case1, fusion centre": (dkfsim.load_scenario(case1, overrides=[centre]), "estimates", None),
+        "paper_case1, fusion centre, rate-limited links": (
+            dkfsim.load_scenario(case1, overrides=list(TRAFFIC) + [centre]), "estimates", None),
     }
 
 
@@ -395,9 +389,8 @@ def changing_graph_line(ticks: int, period: int, repeats: int, random: bool) -> 
     how = f"with probability 1/{period} per tick" if random else f"one tick in {period}"
     print(f"paper_case1 on a changing graph, {ticks} ticks, each vehicle out of range {how} "
           f"(L = {info['changing'].info['buffer_length']} both):")
-    print(f"  fixed graph     CPU {f:8.3f} s  (exchange {info['fixed'].info['backend']['exchange']})")
-    print(f"  changing graph  CPU {m:8.3f} s  (exchange {info['changing'].info['backend']['exchange']}, "
-          f"packets lost to range {rl})")
+    print(f"  fixed graph     CPU {f:8.3f} s")
+    print(f"  changing graph  CPU {m:8.3f} s  (packets lost to range {rl})")
     print(f"  ratio changing / fixed  {m / f:.2f} x  (min over {repeats} alternated runs each)")
 
 
@@ -646,9 +639,6 @@ def main(argv=None) -> int:
     print(f"  bare SimPy, same # timeouts   {bare:8.3f} s   (CPU {bare_cpu:.3f} s)")
     print(f"  ratio run / bare SimPy        {wall / bare:8.1f} x  (CPU {cpu / bare_cpu:.1f} x)")
     if res.info["kernels"] == "numba":
-        wall_py, cpu_py, r_py = timed_with(sc, EXCHANGE_ENV, "python")
-        print(f"  Python tree protocol          {wall_py:8.3f} s   (CPU {cpu_py:.3f} s; Python / compiled "
-              f"{cpu_py / cpu:.2f} x CPU; exchange '{r_py.info['exchange']}' vs '{res.info['exchange']}')")
         wall_np, cpu_np, _ = timed_with(sc, KERNELS_ENV, "numpy")
         print(f"  pure-numpy path               {wall_np:8.3f} s   (CPU {cpu_np:.3f} s; numpy / numba "
               f"{cpu_np / cpu:.2f} x CPU)")
@@ -700,7 +690,7 @@ def main(argv=None) -> int:
         print()
         loop = r.info["wall_time_s"]          # the simulation loop alone (no set-up)
         print(f"{args.big_nodes}-node random tree (d_g = {r.info['d_g']}, uniform_steps d_t = 1, L = {L}, "
-              f"no fusion, exchange '{r.info['exchange']}'), {args.big_ticks} ticks: "
+              f"no fusion), {args.big_ticks} ticks: "
               f"{w / args.big_ticks * 1e3:.1f} ms per tick (CPU {c / args.big_ticks * 1e3:.1f} ms; "
               f"the loop alone {loop / args.big_ticks * 1e3:.1f} ms wall), "
               f"{r.counts['delivered'] / args.big_ticks:.0f} packets per tick, "

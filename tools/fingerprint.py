@@ -9,10 +9,13 @@ The matrix: each scenario below (a scenario file of this repository with ``--set
 (``dkfsim run FILE --save full``) in a fresh process per run:
 
 ==============  =====================================================================
-``numba``       the default: numba kernels and, where it can run, the compiled tree
-``numpy``       ``DKFSIM_KERNELS=numpy``: the pure-numpy kernels and the Python exchange
-``python``      ``DKFSIM_EXCHANGE=python``: numba kernels with the Python exchange
+``numba``       the default: numba kernels
+``numpy``       ``DKFSIM_KERNELS=numpy``: the pure-numpy path
 ==============  =====================================================================
+
+(Before issue 31 a third path, ``python`` -- ``DKFSIM_EXCHANGE=python``, numba kernels with the
+Python exchange beside the compiled tree -- was in the matrix; fingerprints of those commits
+still hold it: compare them with ``--paths numba numpy``.)
 
 A run's fingerprint is the sha256 (with dtype and shape) of every array of ``run.npz`` and
 the numbers of ``summary.json`` (packets, per-link and per-estimate traffic, facts, rows
@@ -26,7 +29,7 @@ Usage::
     python tools/fingerprint.py --ref main -o main.json        # another commit (git archive)
     python tools/fingerprint.py --compare before.json after.json
 
-Options: ``--only NAME ...`` (scenarios), ``--paths numba numpy python``, ``--steps``,
+Options: ``--only NAME ...`` (scenarios), ``--paths numba numpy`` (also restricts ``--compare``), ``--steps``,
 ``--jobs`` (parallel runs; the machine may be shared), ``--keep DIR`` (keep every run's
 folder, to look at an array that differs), ``--list``.  ``--compare`` exits 0 when the two
 are identical, 1 when something differs or is missing.  The ``--ref`` tree compiles its own
@@ -117,7 +120,6 @@ SCENARIOS: dict[str, tuple[str, list[str]]] = {
 PATHS: dict[str, dict[str, str]] = {
     "numba": {},
     "numpy": {"DKFSIM_KERNELS": "numpy"},
-    "python": {"DKFSIM_EXCHANGE": "python"},
 }
 
 #: summary.json keys left out of the fingerprint (they change with the machine or the clock) ...
@@ -191,6 +193,9 @@ def describe(tree: Path, ref: str | None) -> str:
 
 def make(args) -> int:
     names = args.only or list(SCENARIOS)
+    for path in args.paths:
+        if path not in PATHS:
+            raise SystemExit(f"the {path} path is gone (issue 31: one exchange path); use {', '.join(PATHS)}")
     for name in names:
         if name not in SCENARIOS:
             raise SystemExit(f"unknown scenario {name!r}; known: {', '.join(SCENARIOS)}")
@@ -280,7 +285,7 @@ def main(argv=None) -> int:
     ap.add_argument("-o", "--output", help="write the fingerprint here (default: stdout)")
     ap.add_argument("--ref", help="fingerprint this commit of the repository instead of the checkout")
     ap.add_argument("--only", nargs="+", metavar="NAME", help="these scenarios only")
-    ap.add_argument("--paths", nargs="+", choices=list(PATHS), default=list(PATHS))
+    ap.add_argument("--paths", nargs="+", choices=list(PATHS) + ["python"], default=list(PATHS))
     ap.add_argument("--steps", type=int, default=300)
     ap.add_argument("--jobs", type=int, default=1, help="runs at once (default 1)")
     ap.add_argument("--keep", metavar="DIR", help="keep every run's output folder in DIR")
@@ -293,6 +298,8 @@ def main(argv=None) -> int:
         return 0
     if args.compare:
         a, b = (json.loads(Path(p).read_text()) for p in args.compare)
+        for doc in (a, b):               # (the runs of the paths asked for only)
+            doc["runs"] = {run: fp for run, fp in doc["runs"].items() if run.rsplit("/", 1)[1] in args.paths}
         diffs = compare(a, b)
         notes = [d for d in diffs if ": note: " in d]
         real = [d for d in diffs if ": note: " not in d]

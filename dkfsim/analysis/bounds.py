@@ -355,5 +355,5 @@ def paper_bound_for_scenario(scenario, p_tol: float, *, k_minus_s: int = 0) -> P
                              "changes with its measurement; the paper's bound assumes linear sensors")
         omegas.append(LinearSensor(spec.H_matrix(), spec.R_matrix()).omega)
     return paper_bound(scenario.model.Phi_matrix(), scenario.model.Q_matrix(), omegas,
-                       scenario.prior.cov_matrix(), RunPlan(scenario).exchange.graph, p_tol,
+                       scenario.prior.cov_matrix(), RunPlan.of(scenario).exchange.graph, p_tol,
                        horizon=int(scenario.steps), k_minus_s=k_minus_s)

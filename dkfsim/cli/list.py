@@ -48,7 +48,7 @@ def describe(family: str) -> list[str]:
     if family == "datasets":
         return ["datasets (scenario key dataset:)"] + [f"  {name}" for name in datasets()]
     reg = REGISTRIES[family]
-    where = "columns of the tidy rows" if family == "metrics" else f"scenario key {reg.key}:"
+    where = "columns of the tidy rows" if family == "metrics" else reg.where
     lines = [f"{family} ({where})"]
     for entry in reg.entries():
         lines.append(f"  {entry.name:<22} {entry.description}")

@@ -9,7 +9,7 @@ from dkfsim.cli.work import load_from_args, progress_of
 from dkfsim.config.plan import RunPlan
 from dkfsim.core.errors import DkfsimError
 from dkfsim.core.folders import check_target
-from dkfsim.engine.driver import check_run_measured, run
+from dkfsim.engine.driver import check_run_measured, simulate
 from dkfsim.engine.estimate import buffer_warning
 from dkfsim.report.tables import run_table
 
@@ -41,14 +41,14 @@ def cmd_run(args) -> int:
     if args.burn_in is not None and not 0 <= args.burn_in < sc.steps:
         raise DkfsimError(f"--burn-in: must be in [0, steps) = [0, {sc.steps}), got {args.burn_in}")
     check_target(args.out)                 # before the run: a bad --out costs nothing
-    plan = RunPlan(sc, args.save)
+    plan = RunPlan.of(sc, args.save)       # (the plan validation worked out: one per command)
     check_run_measured(plan, yes=args.yes)
     warning = buffer_warning(plan)
     if warning:
         say(f"dkfsim run: warning: {warning}", file=sys.stderr)
     progress, close = progress_of(args, int(sc.steps), f"run {sc.name}", unit="tick")
     try:
-        res = run(sc, save=args.save, progress=progress, yes=True)   # checked above
+        res = simulate(plan, progress)     # (the process runs BLAS on one thread: main)
     finally:
         close()
     out = res.save(args.out, burn_in=args.burn_in)

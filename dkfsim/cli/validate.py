@@ -21,7 +21,7 @@ def configure(p) -> None:
 
 def cmd_validate(args) -> int:
     sc = load_scenario(args.scenario, overrides=list(args.overrides))
-    plan = RunPlan(sc)
+    plan = RunPlan.of(sc)
     est = estimate_run(plan)
     if est.seconds > 60:               # a large graph: do not spend minutes on its exact diameter
         shape = f"{plan.n_exchange_links} directed links, buffer length L ~ {plan.L_estimate}"

@@ -120,6 +120,11 @@ class LatencyParams(StrictModel):
         """Largest latency the model can produce, in ns; ``None`` if unbounded."""
         raise NotImplementedError
 
+    def inf_ns(self) -> int:
+        """A lower bound (ns) of the latencies the model can produce (0: it may produce none at
+        all): what lets a port say at once that a packet cannot arrive at the instant it is sent."""
+        return 0
+
     def bound_steps(self, T_ns: int) -> int | None:
         """Smallest ``d`` with latency ``<= d * T`` always; ``None`` if unbounded."""
         sup = self.sup_ns(T_ns)
@@ -138,10 +143,10 @@ class Sampler:
     def draw(self, t_ns: int, seq: int) -> tuple[int, bool]:
         raise NotImplementedError
 
-    def compiled_form(self) -> tuple[int, int, int] | None:
-        """``(kind, key, parameter)`` for compiled protocols that draw this model
-        themselves: ``(0, 0, ns)`` a constant, ``(1, key, d_t)`` uniform steps; None
-        for a model they cannot draw (they then leave the run to the Python path)."""
+    def vector(self) -> tuple[int, int, int] | None:
+        """The model as a batch of packets draws it in one compiled loop
+        (:mod:`dkfsim.network.port_kernels`): ``(0, 0, ns)`` a constant, ``(1, key, d_t)``
+        uniform steps; None for a model drawn one packet at a time."""
         return None
 
 
@@ -180,6 +185,10 @@ class Constant(LatencyParams):
         return seconds_to_ns(self.value)
 
     @override
+    def inf_ns(self):
+        return min(seconds_to_ns(self.value), MAX_NS)
+
+    @override
     def sampler(self, prefix, seed, T_ns):
         return _Fixed(min(seconds_to_ns(self.value), MAX_NS))
 
@@ -194,7 +203,8 @@ class _Fixed(Sampler):
     def draw(self, t_ns, seq):
         return self.ns, False
 
-    def compiled_form(self):
+    @override
+    def vector(self):
         return 0, 0, self.ns
 
 
@@ -235,7 +245,8 @@ class _Steps(Sampler):
     def draw(self, t_ns, seq):
         return min(int(keyed_uniform(self.key, t_ns, seq) * (self.d_t + 1)), self.d_t) * self.T_ns, False
 
-    def compiled_form(self):
+    @override
+    def vector(self):
         return 1, self.key, self.d_t
 
 
@@ -257,6 +268,10 @@ class Uniform(LatencyParams):
         if self.high < self.low:
             raise custom_error(f"must be >= low ({self.low!r}), got {self.high!r}", "high")
         return self
+
+    @override
+    def inf_ns(self):
+        return seconds_to_ns(self.low)
 
     @override
     def from_uniform(self, u, T_ns):
@@ -287,6 +302,10 @@ class ShiftedLaw(LatencyParams):
     @override
     def sup_ns(self, T_ns):
         return None
+
+    @override
+    def inf_ns(self):
+        return max(0, seconds_to_ns(self.offset) - 1)      # (the laws reach 0 themselves)
 
 
 @LATENCY_MODELS.register("exponential")
@@ -350,6 +369,11 @@ class Pareto(ShiftedLaw):
 
     def quantile_s(self, u):
         return self.scale * u ** (-1.0 / self.alpha)
+
+    @override
+    def inf_ns(self):
+        # (one ns less than offset + scale: the quantile's rounding cannot go below that)
+        return max(0, seconds_to_ns(self.offset + self.scale) - 1)
 
 
 # =========================================================================== empirical traces

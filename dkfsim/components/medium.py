@@ -10,17 +10,21 @@ estimators' frames and its own ``background`` (awareness messages: per vehicle, 
 ``medium: {rate, access: {kind: csma, slot, aifs, cw}, preamble, queue, background, nodes}``;
 a frame of ``size`` bytes is on the air ``preamble + size * 8 / rate`` seconds, the second
 term rounded as :func:`~dkfsim.components.traffic.transmission_ns`, at least 1 ns
-(:meth:`dkfsim.network.medium.Channel.airtime`).
+(:meth:`dkfsim.network.media.channel.Channel.airtime`).  The access rule is a component: its
+parameter model (an :class:`AccessParams` with its ``kind``) is registered in
+:data:`~dkfsim.core.registry.MEDIA`, its implementation in :mod:`dkfsim.network.media`
+(docs/extending.md, "Add a medium").
 """
 
 from __future__ import annotations
 
-from typing import Annotated, Literal
+from typing import TYPE_CHECKING, Annotated, Any, Literal
 
 from pydantic import Field, field_validator, model_validator
 
 from dkfsim.components.traffic import Background, Queue, Rate
-from dkfsim.core.params import StrictModel, custom_error, seconds_to_ns
+from dkfsim.core.params import StrictModel, custom_error, registered, seconds_to_ns
+from dkfsim.core.registry import MEDIA
 
 #: Bytes of a frame's header: :data:`dkfsim.protocols.base.PACKET_HEADER` (a test keeps them equal).
 FRAME_HEADER = 16
@@ -37,13 +41,42 @@ MAX_CW = 1023
 MAX_SLOT_S = 1.0
 
 
-class Csma(StrictModel):
-    """Slotted CSMA with a backoff for every frame (docs/design.md §3): the channel's slot
-    boundaries after it last became idle at ``t`` are ``t + aifs + m * slot``; a node's head
-    frame draws a backoff uniform in ``0 .. cw`` slots and is sent that many boundaries after
-    the first one at or after it became head, while the channel stays idle."""
+class AccessParams(StrictModel):
+    """The keys of a shared channel's access rule (``medium.access``): ``kind`` and the rule's own.
 
-    kind: Literal["csma"] = "csma"
+    A subclass declares its kind as a class keyword, ``class MyParams(AccessParams,
+    kind="my_mac")``: the model is registered in :data:`~dkfsim.core.registry.MEDIA` under it
+    (its docstring's first line is what ``dkfsim list media`` prints), and ``medium.access:
+    {kind: my_mac, ...}`` validates with it.  Its implementation, an
+    :class:`~dkfsim.network.media.channel.Access`, registers under the same name.
+    """
+
+    kind: str = ""
+
+    def __init_subclass__(cls, kind: str | None = None, **kwargs: Any) -> None:
+        if kind is not None:
+            # Before pydantic collects the fields: ``kind`` becomes Literal[kind] = kind.
+            annotations = dict(cls.__dict__.get("__annotations__", {}))
+            annotations["kind"] = Literal[kind]
+            cls.__annotations__ = annotations
+            cls.kind = kind
+        super().__init_subclass__(**kwargs)
+
+    @classmethod
+    def __pydantic_init_subclass__(cls, kind: str | None = None, **kwargs: Any) -> None:
+        super().__pydantic_init_subclass__(**kwargs)
+        if kind is not None:           # the model is complete: register it
+            MEDIA.add(kind, params=cls)
+
+
+class Csma(AccessParams, kind="csma"):
+    """The shared channel's default access rule: slotted CSMA with a backoff for every frame.
+
+    (docs/design.md §3) The channel's slot boundaries after it last became idle at ``t`` are
+    ``t + aifs + m * slot``; a node's head frame draws a backoff uniform in ``0 .. cw`` slots
+    and is sent that many boundaries after the first one at or after it became head, while the
+    channel stays idle."""
+
     slot: Annotated[float, Field(strict=True, gt=0, le=MAX_SLOT_S, allow_inf_nan=False)] = 13.0e-6
     aifs: Annotated[float, Field(strict=True, ge=0, le=MAX_SLOT_S, allow_inf_nan=False)] = 110.0e-6
     cw: Annotated[int, Field(strict=True, ge=0, le=MAX_CW)] = 15
@@ -57,11 +90,18 @@ class Csma(StrictModel):
         return seconds_to_ns(self.aifs)
 
     @model_validator(mode="after")
-    def _whole_slot(self):
+    def _whole_slot(self) -> Csma:
         if self.slot_ns < 1:
             raise custom_error(f"a slot of {self.slot!r} s is under one nanosecond (the clock's unit); "
                                "give at least 1e-9 (802.11p: 13.0e-6)", "slot")
         return self
+
+
+#: ``medium.access``: any registered access rule (``csma`` when ``kind`` is absent).
+if TYPE_CHECKING:
+    AccessField = AccessParams
+else:
+    AccessField = registered(AccessParams, MEDIA, "csma")
 
 
 class Medium(StrictModel):
@@ -69,7 +109,7 @@ class Medium(StrictModel):
     waiting room and each vehicle's background frames."""
 
     rate: Rate
-    access: Csma = Field(default_factory=Csma)
+    access: AccessField = Field(default_factory=Csma)
     preamble: Annotated[float, Field(strict=True, ge=0, le=MAX_SLOT_S, allow_inf_nan=False)] = 40.0e-6
     queue: Queue | None = None
     background: Background | None = None
@@ -78,7 +118,7 @@ class Medium(StrictModel):
 
     @field_validator("nodes", mode="before")
     @classmethod
-    def _nodes_shape(cls, value):
+    def _nodes_shape(cls, value: Any) -> Any:
         """One plain message for a ``nodes`` that is neither ``all`` nor a list of two or more
         nodes (the union type's own message lists both alternatives' internals)."""
         if isinstance(value, str) and value != "all":

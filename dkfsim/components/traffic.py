@@ -55,7 +55,7 @@ class Queue(StrictModel):
     bytes: Annotated[int, Field(strict=True, ge=0, le=1 << 50)] | None = None
 
     @model_validator(mode="after")
-    def _one(self):
+    def _one(self) -> Queue:
         if (self.packets is None) == (self.bytes is None):
             raise custom_error("give exactly one of packets (waiting packets) or bytes (waiting bytes), "
                                "e.g. {packets: 10}")
@@ -73,7 +73,7 @@ class Background(StrictModel):
     offset: NonNegSeconds = 0.0
 
     @model_validator(mode="after")
-    def _offset_periodic(self):
+    def _offset_periodic(self) -> Background:
         if self.offset and self.arrivals != "periodic":
             raise custom_error("offset is the first arrival of periodic background; a Poisson "
                                "process starts at 0", "offset")

@@ -31,6 +31,7 @@ from __future__ import annotations
 
 import copy
 import functools
+from collections import deque
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
@@ -41,6 +42,28 @@ from dkfsim.core.resources import B_FLOAT, C_VISIT, CHEAP_VISITS, SaveMode, reso
 
 if TYPE_CHECKING:
     import networkx
+
+#: The plans the last validations worked out, newest last, as ``(scenario, plan)``: the command
+#: that validated a scenario runs the plan it checked (:meth:`RunPlan.of`).  A scenario keeps
+#: no derived state, and the list is short, so a sweep's thousands of scenarios keep no plan
+#: alive (docs/decisions.md, "The plan once per command").
+_WORKED_OUT: deque[tuple[Any, RunPlan]] = deque(maxlen=8)
+
+
+def remember(scenario: Any, plan: RunPlan) -> None:
+    """``plan`` is what validating ``scenario`` worked out (:meth:`RunPlan.of` finds it)."""
+    _WORKED_OUT.append((scenario, plan))
+
+
+def worked_out(scenario: Any) -> RunPlan:
+    """The plan validating ``scenario`` worked out, if it is among the last few; else a new
+    one (remembered)."""
+    for known, plan in reversed(_WORKED_OUT):
+        if known is scenario:
+            return plan
+    plan = RunPlan(scenario)
+    remember(scenario, plan)
+    return plan
 
 
 @dataclass(frozen=True)
@@ -61,6 +84,19 @@ class RunPlan:
         self.scenario = scenario
         #: what the run keeps (``auto`` resolved)
         self.save: SaveMode = resolve_save_mode(save, scenario.n, int(scenario.steps))
+
+    @classmethod
+    def of(cls, scenario: Any, save: str = "auto") -> RunPlan:
+        """The plan of ``scenario`` its validation worked out (:func:`worked_out`), with the
+        save mode ``save``: every fact already derived is shared, so a command builds the graphs
+        and the trajectories once."""
+        plan = worked_out(scenario)
+        mode = resolve_save_mode(save, scenario.n, int(scenario.steps))
+        if mode == plan.save:
+            return plan
+        copied = copy.copy(plan)        # shares the cached graphs and bounds
+        copied.save = mode
+        return copied
 
     def with_seed(self, scenario: Any) -> RunPlan:
         """The plan of ``scenario``, this plan's scenario with another seed: the facts already
@@ -208,6 +244,36 @@ class RunPlan:
         if not sc.links.overrides:
             return sc.link_spec(-1, -1).rate is not None
         return any(sc.link_spec(u, v).rate is not None for u, v in self.exchange_arcs)
+
+    @property
+    def arrival_bound(self) -> int | None:
+        """The most ticks a packet of the exchange can take to arrive, per hop: the links'
+        :attr:`latency_bound`, or None when nothing bounds it -- an unbounded latency model, a
+        rate-limited link or a shared channel (queueing has no bound), or a graph that changes
+        (a link that comes up resends old rows)."""
+        if self.rate_limited or self.graph_changes:
+            return None
+        return self.latency_bound
+
+    def late_horizon(self, L: int, n: int | None = None) -> int:
+        """How many final rows a DKF of buffer length ``L`` on ``n`` nodes (None: the
+        scenario's) keeps the holdings of, so that a late contribution counts once (the arrival
+        log).  Nothing is sent for a final row, so with :attr:`arrival_bound` ``d`` a late packet
+        arrives at most ``d + 1`` rows after its row became final: keep that many.  Unbounded:
+        4096 rows, fewer on large networks so that the holdings (``n`` masks of ``n`` bits per
+        row) stay near 64 MB.  (A run keeps at most its own rows: :meth:`kept_final_rows`.)"""
+        bound = self.arrival_bound
+        if bound is not None:
+            return bound + 2
+        n = self.scenario.n if n is None else n
+        per_row = n * (n // 8 + 32)
+        return int(max(L + 2, min(4096, (64 << 20) // per_row)))
+
+    def kept_final_rows(self, L: int) -> int:
+        """:meth:`late_horizon`, but never more rows than the run has (and two): a latency of
+        years gives a horizon of billions of rows, of which a run of ``steps`` ticks holds
+        ``steps``."""
+        return min(self.late_horizon(L), int(self.scenario.steps) + 2)
 
     @functools.cached_property
     def d_t(self) -> int | None:

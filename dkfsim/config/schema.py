@@ -63,7 +63,7 @@ from dkfsim.components.sensors import SensorParams
 from dkfsim.components.traffic import TRAFFIC_KEYS, TrafficKeys
 from dkfsim.components.truth import TruthParams
 from dkfsim.config.dynamics import Model, Prior
-from dkfsim.config.plan import RunPlan
+from dkfsim.config.plan import RunPlan, remember
 from dkfsim.config.sweep import canonical_json
 from dkfsim.core.files import clip, shown
 from dkfsim.core.params import (
@@ -281,6 +281,7 @@ class Scenario(StrictModel):
             self._check_truth()
         self._index_overrides()
         plan = RunPlan(self)            # what the run would derive: checked here, never at its start
+        remember(self, plan)            # (and the plan the run follows: RunPlan.of)
         places = self._link_places()
         self._check_network(plan, places)
         self._check_time_range(plan, places)
@@ -534,6 +535,7 @@ class Scenario(StrictModel):
                                    "buffer_length")
 
     # ------------------------------------------------------------------ derived values
+
     @property
     def source(self) -> str | None:
         """The file this scenario was loaded from (None for a dict)."""

@@ -3,23 +3,19 @@ compiling a module's kernels lazily, once, under a lock.
 
 Kernels live in the layer that uses them (:mod:`dkfsim.estimators.kernels` for the window
 filter and the cross-covariance recursion, :mod:`dkfsim.model.holdings_kernels` for the
-contribution fold, :mod:`dkfsim.protocols.tree_compiled_kernels` for the compiled ``tree``
-protocol's instants: deliveries, flushes and keyed latency draws); this module only holds what
-they share, low enough in the layers for all.  A run's path is decided once, by its
+contribution fold, :mod:`dkfsim.network.port_kernels` for a record port's batches,
+:mod:`dkfsim.protocols.tree_kernels` for the ``tree`` protocol's bookkeeping); this module only
+holds what they share, low enough in the layers for all.  A run's path is decided once, by its
 :class:`~dkfsim.core.backend.Backend` (which reads :func:`kernel_path`).  See docs/design.md §4
 ("Kernel paths").
 """
 
 from __future__ import annotations
 
-import hashlib
-import importlib
 import importlib.util
 import os
 import sys
 import threading
-from collections.abc import Mapping
-from pathlib import Path
 
 from dkfsim.core.errors import DkfsimError
 from dkfsim.core.extras import optional
@@ -91,12 +87,6 @@ def _tolerate_cache_write_errors(caching) -> None:
     _CacheGuard.installed = True
 
 
-def source_sha256(module: str) -> str:
-    """The sha256 (hex) of the source file of ``module`` (imported if it is not yet)."""
-    path = importlib.import_module(module).__file__
-    return hashlib.sha256(Path(str(path)).read_bytes()).hexdigest()
-
-
 #: CPU seconds numba takes to compile each kernel module's kernels (measured on this project's
 #: 2-core machine; the first run on a machine pays them once, later ones load the disk cache).
 COMPILE_SECONDS = {"dkfsim.estimators.kernels": 10, "dkfsim.model.holdings_kernels": 3,
@@ -155,7 +145,7 @@ def say_compiling(numba) -> None:
         funcs = [getattr(mod, name, None) for name in lazy.names if name not in lazy.inline] \
             if mod is not None else []
         probes = [f if hasattr(f, "py_func") else numba.njit(cache=True)(f) for f in funcs if callable(f)]
-        if lazy.stale_borrows() or cache_is_cold(probes):
+        if cache_is_cold(probes):
             seconds += COMPILE_SECONDS.get(lazy.module, 5)
     try:
         print(f"dkfsim: compiling dkfsim's kernels once (about {max(seconds, 1)} s of CPU; later runs "
@@ -172,32 +162,18 @@ class LazyKernels:
     also in ``inline`` are inlined into their callers by numba (``inline="always"``: a small
     step a kernel calls per node or packet costs no call).  Runs in threads (a Dask worker
     with threads, a notebook) may call :meth:`get` together: one compiles, under a lock, and
-    none jits an already jitted function.
-
-    ``borrows``: kernel modules of other files whose jitted steps these kernels call (as
-    ``module.step``), each with the sha256 of its source these kernels were written against
-    (:func:`source_sha256`).  numba's disk cache keys a kernel by its own file only, so an edit
-    of a borrowed file would leave these kernels' cached code stale: while a pin does not
-    match, they are compiled without the disk cache (one warning on stderr).  The borrowed
-    modules' kernels are compiled first (their ``compiled()``).
+    none jits an already jitted function.  numba's disk cache keys a kernel by its own file,
+    so a kernel module calls no other file's kernels (``tests/test_kernels.py`` checks it):
+    what two of them share goes through Python.
     """
 
-    def __init__(self, module: str, names: tuple[str, ...], inline: tuple[str, ...] = (),
-                 borrows: Mapping[str, str] | None = None):
+    def __init__(self, module: str, names: tuple[str, ...], inline: tuple[str, ...] = ()):
         self.module = module
         self.names = tuple(names)
         self.inline = frozenset(inline)
-        self.borrows = dict(borrows or {})
-        foreign = [m for m in self.borrows if not m.startswith("dkfsim.")]
-        if foreign:                     # (only dkfsim's own kernel modules are ever imported by name)
-            raise ValueError(f"{module}: BORROWS names modules outside dkfsim: {foreign}")
         self._done = False
         self._lock = threading.Lock()
         _Compiling.lazy.append(self)
-
-    def stale_borrows(self) -> list[str]:
-        """The borrowed modules whose source no longer matches its pin."""
-        return [m for m, sha in self.borrows.items() if source_sha256(m) != sha]
 
     def get(self):
         """The module, its kernels compiled (loaded from numba's disk cache or compiled)."""
@@ -205,17 +181,10 @@ class LazyKernels:
             with self._lock:
                 if not self._done:
                     numba = import_numba()
-                    for borrowed in self.borrows:
-                        importlib.import_module(borrowed).compiled()
-                    stale = self.stale_borrows()
-                    if stale:
-                        print(f"dkfsim: warning: {', '.join(stale)} changed since {self.module} pinned it "
-                              f"(BORROWS): its kernels are compiled without numba's disk cache; update the pin "
-                              "to the file's sha256 (dkfsim.core.jit.source_sha256)", file=sys.stderr)
                     mod = sys.modules[self.module]
                     for name in self.names:
                         inline = "always" if name in self.inline else "never"
-                        setattr(mod, name, numba.njit(cache=not stale, fastmath=False, nogil=True,
+                        setattr(mod, name, numba.njit(cache=True, fastmath=False, nogil=True,
                                                       inline=inline)(getattr(mod, name)))
                     self._done = True
         return sys.modules[self.module]
@@ -233,3 +202,18 @@ def entry_point(kernel, *args):
     sig = tuple(kernel.typeof_pyval(a) for a in args)
     compiled = overloads.get(sig)
     return kernel if compiled is None else compiled.entry_point
+
+
+def bind(kernel, *args):
+    """The compiled function of ``kernel`` (a numba dispatcher) for the types of ``args``,
+    compiled (or loaded from the disk cache) now without calling it: calling it skips numba's
+    per-call type dispatch, which for a kernel taking namedtuples of arrays costs more than
+    the work of a small call.  Only for arguments of the same types (array dtype, rank and
+    layout) on every call; a function that is not a dispatcher (the numpy path) is returned as
+    it is."""
+    typeof = getattr(kernel, "typeof_pyval", None)
+    if typeof is None:
+        return kernel
+    sig = tuple(typeof(a) for a in args)
+    kernel.compile(sig)
+    return kernel.overloads[sig].entry_point

@@ -23,6 +23,8 @@ import numpy as np
 from pydantic import BaseModel, BeforeValidator, ConfigDict, Field, SerializeAsAny, ValidationInfo, model_validator
 from pydantic_core import PydanticCustomError
 
+from dkfsim.core.files import clip
+
 NS_PER_S = 1_000_000_000
 #: Every time and delay a run can reach is at most this many nanoseconds (about 146 years).
 MAX_NS = 2**62
@@ -83,26 +85,34 @@ class StrictModel(BaseModel):
         return self.model_dump(mode="json", exclude_none=True)
 
 
-def dispatch(registry, default: str | None = None):
+def dispatch(registry, default: str | None = None, base: type | None = None):
     """A ``BeforeValidator`` that validates a mapping with the parameter model its
-    ``registry.key`` names (``default`` when the key is absent).  Errors keep
-    their key paths; an unknown name gets the registry's "did you mean"."""
+    ``registry.key`` names (``default`` when the key is absent), one of those that subclass
+    ``base`` when given (a family whose members are not all of one kind: the media).  Errors
+    keep their key paths; an unknown name gets the registry's "did you mean"."""
     key = registry.key
+
+    def fits(entry) -> bool:
+        return entry.params is not None and (base is None or issubclass(entry.params, base))
 
     def validate(value: Any, info: ValidationInfo) -> Any:
         if isinstance(value, BaseModel):
             return value
         if not isinstance(value, dict):
             raise custom_error(f"must be a mapping, got {type(value).__name__} {_short(value)}")
+        names = [e.name for e in registry.entries() if fits(e)]
         name = value.get(key, default)
         if name is None:
-            raise custom_error(f"missing key '{key}' (one of: {', '.join(registry.names())})")
+            raise custom_error(f"missing key '{key}' (one of: {', '.join(names)})")
         try:
             entry = registry.get(name)
         except KeyError as err:
-            raise custom_error(err.args[0], key) from None
-        if entry.params is None:
-            raise custom_error(f"{registry.family} {name!r} has no parameters registered", key)
+            if len(names) == len(registry.names()):
+                raise custom_error(err.args[0], key) from None
+            raise custom_error(f"unknown {registry.family} {clip(name)}{suggest(name, names)}; valid here: "
+                               + ", ".join(names), key) from None
+        if entry.params is None or not fits(entry):
+            raise custom_error(f"{registry.family} {name!r} cannot be named here; valid here: {', '.join(names)}", key)
         if name != entry.name:                       # an alias: validate under the real name
             value = {**value, key: entry.name}
         return entry.params.model_validate(value, context=info.context)
@@ -115,9 +125,9 @@ def _short(value: Any) -> str:
 
 
 def registered(base: type, registry, default: str | None = None):
-    """The field type of a component chosen by name: any registered parameter model
-    (serialised as its own class), dispatched on ``registry.key``."""
-    return Annotated[SerializeAsAny[base], dispatch(registry, default)]
+    """The field type of a component chosen by name: any registered parameter model that
+    subclasses ``base`` (serialised as its own class), dispatched on ``registry.key``."""
+    return Annotated[SerializeAsAny[base], dispatch(registry, default, base)]
 
 
 # =========================================================================== time

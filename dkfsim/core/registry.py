@@ -55,11 +55,13 @@ def _first_line(obj: Any) -> str:
 class Registry:
     """Named components of one family, in registration order."""
 
-    def __init__(self, family: str, key: str):
+    def __init__(self, family: str, key: str, where: str | None = None):
         #: What a member is called in messages ("latency model").
         self.family = family
         #: The scenario key that names a member (``model``, ``kind``, ``generator``).
         self.key = key
+        #: Where a scenario names one (``dkfsim list``; default: its key).
+        self.where = where or f"scenario key {key}:"
         self._entries: dict[str, Entry] = {}
         self._aliases: dict[str, str] = {}
 
@@ -149,10 +151,15 @@ SENSOR_KINDS = Registry("sensor kind", "kind")
 METRICS = Registry("metric", "metric")
 #: How a vehicle moves (issue 23): ``components/trajectories.py``.
 TRAJECTORIES = Registry("trajectory kind", "kind")
+#: How a frame leaves its sender (issue 31): ``network/media/`` -- a link without a rate
+#: (``direct``), with one (``fifo``), and the shared channel's access rules (``csma``; a
+#: scenario names one as ``medium.access.kind``).
+MEDIA = Registry("medium", "kind", where="a link without a rate is direct, with one fifo; a shared channel's "
+                 "access rule is medium.access.kind:")
 REGISTRIES: dict[str, Registry] = {
     "generators": GENERATORS, "latency": LATENCY_MODELS, "protocols": PROTOCOLS,
     "estimators": ESTIMATORS, "sensors": SENSOR_KINDS, "metrics": METRICS,
-    "trajectories": TRAJECTORIES,
+    "trajectories": TRAJECTORIES, "media": MEDIA,
 }
 
 #: Entry-point groups whose modules are imported as plugins: ``dkfsim.plugins``

@@ -63,12 +63,14 @@ def keyed_uniform(key: int, t: int, seq: int, _m64: int = _M64, _golden: int = _
     return (((z ^ (z >> 31)) >> 11) + 0.5) * _scale
 
 
-def keyed_uniforms(key: int, t, seq) -> np.ndarray:
-    """:func:`keyed_uniform` for arrays of ``t`` and ``seq`` (bit-identical values)."""
+def keyed_uniforms(key, t, seq) -> np.ndarray:
+    """:func:`keyed_uniform` for arrays of ``t`` and ``seq`` (and ``key``: one key, or one per
+    entry, broadcast together; bit-identical values)."""
     t = np.asarray(t, dtype=np.int64).astype(np.uint64)
     seq = np.asarray(seq, dtype=np.int64).astype(np.uint64)
+    key = np.uint64(key) if isinstance(key, int) else np.asarray(key, dtype=np.uint64)
     with np.errstate(over="ignore"):
-        z = _mix_array(np.uint64(key) + np.uint64(_GOLDEN) * t)
+        z = _mix_array(key + np.uint64(_GOLDEN) * t)
         z = _mix_array(z + np.uint64(_GOLDEN) * (seq + np.uint64(1)))
     return ((z >> np.uint64(11)).astype(np.float64) + 0.5) * _SCALE
 

@@ -7,8 +7,8 @@ sensor's measurements are drawn up front from their own streams; one
 scenario's anti-delay DKF and every listed estimator get the same
 :class:`~dkfsim.estimators.base.RunContext`, with the run's
 :class:`~dkfsim.config.plan.RunPlan` (what the scenario implies, worked out once)
-and its :class:`~dkfsim.core.backend.Backend` (how it computes, chosen here once:
-:func:`run_backend`; ``summary.json`` records it).  At ``t_k`` every estimator's
+and its :class:`~dkfsim.core.backend.Backend` (how it computes, chosen here once;
+``summary.json`` records it).  At ``t_k`` every estimator's
 ``on_measure`` runs (priority ``NORMAL``, with the deliveries of that
 instant); then, as an event of lower priority than every delivery and
 relay at ``t_k``, every estimator's ``on_update``.
@@ -41,26 +41,8 @@ from dkfsim.estimators.anti_delay import AntiDelayDKF, AntiDelayParams
 from dkfsim.estimators.base import Estimator, EstimatorResult, RunContext
 from dkfsim.model.system import LinearGaussianSystem, build_system
 from dkfsim.model.trajectory import track_truth
-from dkfsim.network.links import PRIORITY_UPDATE, Network, Scheduled
-from dkfsim.protocols import tree_compiled
-
-
-def run_backend(plan: RunPlan, network: Network, crashes: CrashSchedule | None) -> Backend:
-    """The backend of a run: what the environment asks for (:meth:`Backend.from_environment`),
-    with the Python exchange where the compiled one cannot run (a protocol without a compiled
-    twin, a link it cannot draw, crash windows, transmitters shared between estimators, an
-    estimator whose packets wait in the DKF's rate-limited queues (``shares_dkf_port``, the
-    ``fusion_centre``: decision 221), a shared radio channel: the compiled tree cannot draw the
-    channel, decision 214)."""
-    backend = Backend.from_environment()
-    if backend.compiled_exchange:
-        links = [network.link(u, v) for u, v in plan.exchange_arcs]
-        on_dkf_port = any(getattr(ESTIMATORS.get(p.kind).implementation, "shares_dkf_port", False)
-                          for p in plan.scenario.estimators)
-        shared = (network.shared_transmitters is not None or on_dkf_port) and plan.rate_limited
-        if shared or network.medium is not None or not tree_compiled.usable(plan.protocol, links, crashes):
-            backend = backend.python_exchange()
-    return backend
+from dkfsim.network.events import PRIORITY_UPDATE, Scheduled
+from dkfsim.network.network import Network
 
 
 def run_events(results: Sequence[tuple[Estimator, EstimatorResult]], K: int) -> dict[str, int]:
@@ -98,7 +80,7 @@ class Run:
         self.scenario = scenario
         self.K = K = int(scenario.steps)
         seed = int(scenario.seed)
-        self.plan = plan = RunPlan(scenario, save) if plan is None else plan
+        self.plan = plan = RunPlan.of(scenario, save) if plan is None else plan
         system = build_system(scenario) if system is None else system
         self.progress = progress
         # Everything random but the network is drawn up front, from its own streams.
@@ -106,14 +88,13 @@ class Run:
         ys = system.simulate_measurements(truth, seed)
         crashes = CrashSchedule(scenario.faults, system.n) or None
         env = simpy.Environment()
+        self.backend = Backend.from_environment() if backend is None else backend
         network = Network(env, plan.arcs, scenario.link_spec, seed, system.T_ns, crashes=crashes,
                           shared_queues=bool(scenario.links.shared_queues), schedule=plan.link_schedule,
-                          medium=scenario.medium, n=system.n)
-        self.backend = run_backend(plan, network, crashes) if backend is None else backend
+                          medium=scenario.medium, n=system.n, backend=self.backend)
         self.ctx = RunContext(scenario=scenario, plan=plan, backend=self.backend, system=system, truth=truth, ys=ys,
                               info=system.information(ys), crashes=crashes, env=env, network=network)
         self.dkf = AntiDelayDKF(AntiDelayParams(), self.ctx, main=True)
-        self.ctx.dkf = self.dkf
         self.estimators = [self.dkf] + [ESTIMATORS.get(p.kind).implementation(p, self.ctx)
                                         for p in scenario.estimators]
         self.k = 0
@@ -208,9 +189,9 @@ class Run:
 
 
 # =========================================================================== estimates
-#: The backend of a trial: the numpy kernels and the Python exchange (no kernels to compile or
-#: load; a run's events are the same on every path).
-TRIAL_BACKEND = Backend("numpy", "python")
+#: The backend of a trial: the numpy kernels (none to compile or load; a run's events are the
+#: same on every path).
+TRIAL_BACKEND = Backend("numpy")
 
 
 def trial(plan: RunPlan, save: str = "summary") -> RunResult:
@@ -254,6 +235,12 @@ def check_run_measured(plan: RunPlan, *, yes: bool = False) -> Cost:
     est = measured_estimate(plan)
     check(est, yes=yes, hint=RUN_HINT)
     return est
+def simulate(plan: RunPlan, progress: Callable[[int, int], None] | None = None) -> RunResult:
+    """Run the scenario of ``plan`` (validated, its resources checked: :func:`run` does both)
+    and return its result; ``progress(tick, K)`` is called as the run goes."""
+    with np.errstate(all="ignore"):          # an exploding truth is reported, not warned about
+        sim = Run(plan.scenario, save=plan.save, progress=progress, plan=plan)
+    return sim.run()
 
 
 @single_thread
@@ -275,9 +262,7 @@ def run(scenario: Scenario | str | PathLike | Mapping[str, Any], *, seed: int | 
                            if val is not None)]
     if extra or not isinstance(scenario, Scenario):   # validated exactly as --set would be
         scenario = load_scenario(scenario, overrides=extra)
-    plan = RunPlan(scenario, save)
+    plan = RunPlan.of(scenario, save)
     check_run_measured(plan, yes=yes)
     with progress_callback(progress, int(scenario.steps), scenario.name, "tick") as callback:
-        with np.errstate(all="ignore"):      # an exploding truth is reported, not warned about
-            sim = Run(scenario, save=save, progress=callback, plan=plan)
-        return sim.run()
+        return simulate(plan, callback)

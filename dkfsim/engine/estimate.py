@@ -48,7 +48,7 @@ def estimate_run(run, save: str = "auto", events: dict | None = None, how: str =
     :class:`~dkfsim.config.plan.RunPlan`, or a scenario (planned with ``save``).  ``events``:
     the run's events measured on a trial and scaled to its ticks (``how`` says how), which
     then give the time; without them the time is the analytic guess."""
-    plan = run if isinstance(run, RunPlan) else RunPlan(run, save)
+    plan = run if isinstance(run, RunPlan) else RunPlan.of(run, save)
     scenario = plan.scenario
     n, nx, K = scenario.n, scenario.nx, int(scenario.steps)
     L, arcs = plan.L_estimate, plan.n_exchange_links

@@ -23,9 +23,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from dkfsim.components.estimators import AntiDelayParams, NoBufferParams
+from dkfsim.components.estimators import AntiDelayParams, EstimatorParams, NoBufferParams
 from dkfsim.components.topology import paper_weights
 from dkfsim.config.plan import RunPlan
+from dkfsim.core.registry import PROTOCOLS
 from dkfsim.core.resources import (
     B_FLOAT,
     C_CONTRIBUTION,
@@ -37,31 +38,14 @@ from dkfsim.core.resources import (
     C_TICK,
     Cost,
 )
-from dkfsim.estimators.base import Estimate, Estimator, EstimatorResult
+from dkfsim.estimators.base import DKFView, Estimate, Estimator, EstimatorResult, RunContext
 from dkfsim.estimators.fusion import FUSERS, CrossCovariance
 from dkfsim.estimators.window import WindowFilter
 from dkfsim.model.holdings import Holdings
-from dkfsim.network.links import Port
-from dkfsim.protocols.tree_compiled import exchange_class
+from dkfsim.network.port import Port
 
 #: Largest P_local (entries) kept: 400 MB.
 P_LOCAL_LIMIT = 50_000_000
-
-
-def late_horizon(plan: RunPlan, n: int, L: int) -> int:
-    """How many final rows keep their holdings so that a late contribution counts once.
-
-    Nothing is sent for a final row, so with a latency bound of ``d`` steps per
-    hop a late packet arrives at most ``d + 1`` rows after its row became
-    final: keep that many.  Unbounded latency, a rate-limited link (queueing has no
-    bound) or a graph that changes (a link-up resends old rows): 4096 rows, fewer on large
-    networks so that the holdings (n masks of n bits per row) stay near 64 MB.
-    """
-    bound = None if plan.rate_limited or plan.graph_changes else plan.latency_bound
-    if bound is not None:
-        return bound + 2
-    per_row = n * (n // 8 + 32)
-    return int(max(L + 2, min(4096, (64 << 20) // per_row)))
 
 
 class AntiDelayDKF(Estimator, params=AntiDelayParams):
@@ -73,7 +57,7 @@ class AntiDelayDKF(Estimator, params=AntiDelayParams):
     params: AntiDelayParams
     port: Port                  # (opened by start)
 
-    def __init__(self, params: AntiDelayParams, ctx, main: bool = False):
+    def __init__(self, params: AntiDelayParams, ctx: RunContext, main: bool = False):
         super().__init__(params, ctx)
         #: The scenario's own instance (writes the contract's array names).
         self.main = main
@@ -83,8 +67,9 @@ class AntiDelayDKF(Estimator, params=AntiDelayParams):
 
     # -- configuration ------------------------------------------------------------
     @classmethod
-    def cost(cls, params, plan: RunPlan) -> Cost:
+    def cost(cls, params: EstimatorParams, plan: RunPlan) -> Cost:
         """From the plan's buffer length for this instance (exact, or the cheap bound)."""
+        assert isinstance(params, AntiDelayParams)
         sc = plan.scenario
         n, nx, K = sc.n, sc.nx, int(sc.steps)
         settings = plan.dkf(params)
@@ -110,7 +95,8 @@ class AntiDelayDKF(Estimator, params=AntiDelayParams):
     # -- running -------------------------------------------------------------------
     def start(self) -> None:
         """Set up the window, the holdings, the fusion and the exchange the plan and the
-        backend say (validation has checked all of it: nothing here raises)."""
+        backend say (validation has checked all of it: nothing here raises); the scenario's own
+        instance offers itself to the estimators that build on it (``ctx.dkf``)."""
         ctx, plan, backend = self.ctx, self.ctx.plan, self.ctx.backend
         sys_, K, n, nx = ctx.system, ctx.K, ctx.n, ctx.nx
         self.L = plan.buffer_length(self.settings.buffer_length)
@@ -120,13 +106,14 @@ class AntiDelayDKF(Estimator, params=AntiDelayParams):
         self.xcov = CrossCovariance(self.window, sys_.P0) if self.fusion != "none" else None
         self.arrival = np.full((n, n, K), np.inf) if (self.main and ctx.save == "full") else None
         links = ctx.exchange_links()
-        protocol = exchange_class(plan.protocol, backend)
+        protocol = PROTOCOLS.get(plan.protocol).implementation
         self.exchange = protocol(ctx.env, n, self.holdings, arrival=self.arrival,
-                                 late_horizon=late_horizon(plan, n, self.L), nx=nx, T_ns=ctx.T_ns)
+                                 late_horizon=plan.kept_final_rows(self.L), nx=nx, T_ns=ctx.T_ns, backend=backend)
         self.exchange.crashes = ctx.crashes
         if plan.tree_schedule is not None:
             self.exchange.tree_changes = plan.tree_schedule
-        self.exchange.attach(self.open_port(self.exchange.receive, links), links)
+        self.port = self.exchange.open_port(ctx.network, self.name, links)
+        self.exchange.attach(self.port, links)
         self.x_local = np.empty((K, n, nx))
         # P_local is the one (K, n, nx, nx) array: skip it when nothing will save it
         # or when it alone would take more than a few hundred megabytes.
@@ -136,6 +123,9 @@ class AntiDelayDKF(Estimator, params=AntiDelayParams):
         if self.xcov is not None:
             self.x_fused = np.empty((K, nx))
             self.P_fused = np.empty((K, nx, nx))
+        if self.main:                     # what a fusion centre builds on (set before it starts)
+            ctx.dkf = DKFView(L=self.L, fusion=self.fusion, weights=self.A, held=self.holdings.held,
+                              x_local=self.x_local, port=self.port)
 
     def on_measure(self, row: int) -> None:
         self.exchange.open_row(row)
@@ -187,9 +177,9 @@ class AntiDelayDKF(Estimator, params=AntiDelayParams):
 class NoBuffer(AntiDelayDKF, params=NoBufferParams):
     """The anti-delay DKF without its buffer: ``L = 1`` (late information is dropped)."""
 
-    def __init__(self, params, ctx):
+    def __init__(self, params: EstimatorParams, ctx: RunContext):
         super().__init__(AntiDelayParams(name=params.label, buffer_length=1), ctx)
 
     @classmethod
-    def cost(cls, params, plan):
+    def cost(cls, params: EstimatorParams, plan: RunPlan) -> Cost:
         return AntiDelayDKF.cost(AntiDelayParams(name=params.label, buffer_length=1), plan)

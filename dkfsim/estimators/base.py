@@ -36,13 +36,16 @@ from dkfsim.core.backend import Backend
 from dkfsim.core.registry import ESTIMATORS
 from dkfsim.core.resources import B_FLOAT, Cost, SaveMode
 from dkfsim.model.system import Information, LinearGaussianSystem
-from dkfsim.network.links import Link, Network, Port
+from dkfsim.network.links import Link
+from dkfsim.network.network import Network
+from dkfsim.network.port import Port
 
 if TYPE_CHECKING:                     # (annotations only: ``dkfsim list`` imports this module)
     from dkfsim.config.plan import RunPlan
     from dkfsim.config.schema import Scenario
 
-__all__ = ["Estimate", "Estimator", "EstimatorResult", "RunContext", "SaveMode", "existing_information_bytes"]
+__all__ = ["DKFView", "Estimate", "Estimator", "EstimatorResult", "RunContext", "SaveMode",
+           "existing_information_bytes"]
 
 
 @dataclass
@@ -64,6 +67,25 @@ class EstimatorResult:
     traffic: dict[str, Any] | None = None
     #: Side facts for summary.json (protocol counters, rounds, ...).
     facts: dict[str, Any] = field(default_factory=dict)
+
+
+@dataclass(frozen=True)
+class DKFView:
+    """What the run's own anti-delay DKF offers the estimators that build on it (the fusion
+    centre): set by the DKF when it starts, before any listed estimator does.  The arrays are
+    the DKF's own, written as the run goes: read them, never change them."""
+
+    #: Its buffer length ``L`` and fusion (``matrix``, ``diagonal``, ``none``).
+    L: int
+    fusion: str
+    #: ``(n, n)`` the origin weights ``a_io`` of its information sums.
+    weights: np.ndarray
+    #: ``(S, n, n)`` bool: the origins each node holds of the row in window slot ``row % S``.
+    held: np.ndarray
+    #: ``(K, n, nx)``: each node's real-time estimate of each row, once its tick's update ran.
+    x_local: np.ndarray
+    #: The DKF's port: open yours ``share_with`` it to send through its media.
+    port: Port
 
 
 @dataclass
@@ -96,9 +118,9 @@ class RunContext:
     env: simpy.Environment
     #: The links of the run, shared by every estimator (open a port with ``network.port``).
     network: Network
-    #: The scenario's own anti-delay DKF (set by the engine before any ``start``): what a
-    #: fusion centre fuses.  None outside a run.
-    dkf: Any = None
+    #: The scenario's own anti-delay DKF as the estimators that build on it see it (set when it
+    #: starts, before any listed estimator does): what a fusion centre fuses.  None before.
+    dkf: DKFView | None = None
 
     @property
     def save(self) -> SaveMode:
@@ -179,10 +201,6 @@ class Estimator:
     #: False for an idealised estimator with no network model (the centralized filter): its
     #: traffic is "not applicable" (None, ``null`` in summary.json), not zero.
     network_model: ClassVar[bool] = True
-    #: True for an estimator whose packets share the DKF's transmitters (``share_with`` the DKF's
-    #: port, the fusion centre): with rate-limited links the run needs the Python exchange, the
-    #: compiled tree cannot see those packets in its queues (decision 221).
-    shares_dkf_port: ClassVar[bool] = False
     #: What it sends and the nominal size of each packet kind (``dkfsim list estimators``,
     #: docs/estimators.md "Packet sizes"); a link's ``rate`` transmits these bytes.
     packets: ClassVar[str] = ""
@@ -224,13 +242,11 @@ class Estimator:
         """Tick ``k``: every packet due by ``t_k`` has been delivered."""
 
     # -- helpers ---------------------------------------------------------------------
-    def open_port(self, receive: Callable[[Link, Any], None] | None, links: list[Link],
+    def open_port(self, receive: Callable[[Link, Any], None], links: list[Link],
                   until: int | None = None) -> Port:
         """Open this estimator's port (named after it) on ``links``: ``receive(link, payload)``
-        gets its deliveries (None: the estimator moves its packets itself and reports their
-        counts with :meth:`~dkfsim.network.links.Port.set_counts`); deliveries after ``until``
-        ns (default: the run's last tick) stay in flight.  Sets :attr:`port`, whose counts
-        the default :meth:`finish` reports."""
+        gets its deliveries; deliveries after ``until`` ns (default: the run's last tick) stay
+        in flight.  Sets :attr:`port`, whose counts the default :meth:`finish` reports."""
         self.port = self.ctx.network.port(self.name, receive, links, until=until)
         return self.port
 

@@ -4,20 +4,17 @@ Each sensor sends its row to the centre at its tick over a direct link with
 the scenario's *default* link settings (latency model, loss, jitter,
 schedule, outages, duplication: the earlier copy counts); the per-link
 overrides name links of the graph, which the centre is not on.  The links'
-draws are named ``("direct", <sensor name>, ...)``.  With a ``rate`` in the
-default settings each direct link has its transmitter (its ``queue`` and
-``background`` too, docs/traffic.md), like every link of the graph: a packet
-leaves at the end of its transmission, or is dropped when the waiting room is
-full (``queue_dropped``).  The centre runs the
-anti-delay window filter with the DKF's buffer length ``L``: a row arriving
-after it became final is late.  A crashed sensor sends nothing.  Traffic:
-``sent = delivered + lost + queue_dropped + in_flight`` (a duplicated packet
-counts once, by its first copy).
-
-On a shared channel (``medium:``) the packets go through a port instead, during the run: each
-sensor's packet is a unicast frame on the channel, contending with every other frame and the
-background (its port's copy of the channel); the counts are the port's
-(``sent + copies = delivered + lost + queue_dropped + crash_dropped + in_flight``).
+draws are named ``("direct", <sensor name>, ...)``.  The packets go through
+the estimator's port like any other: with a ``rate`` in the default settings
+each direct link has its transmitter (its ``queue`` and ``background`` too,
+docs/traffic.md), and on a shared channel (``medium:``) each sensor's packet
+is a unicast frame contending with every other frame and the background.  The
+centre runs the anti-delay window filter with the DKF's buffer length ``L``: a
+row arriving after it became final is late.  A crashed sensor sends nothing.
+Traffic: the port's (``sent + copies = delivered + lost + queue_dropped +
+crash_dropped + in_flight``).  Where nothing but the links' draws acts on the
+packets, :meth:`CentralizedDelayed.arrival_ticks` works their arrivals out in
+closed form: the tests' oracle for the port.
 """
 
 from __future__ import annotations
@@ -25,19 +22,19 @@ from __future__ import annotations
 import numpy as np
 from typing_extensions import override
 
-from dkfsim.components.estimators import CentralizedDelayedParams
+from dkfsim.components.estimators import CentralizedDelayedParams, EstimatorParams
+from dkfsim.config.plan import RunPlan
 from dkfsim.core.resources import B_FLOAT, C_NODE_ROW, C_PACKET, C_ROW, C_TICK, Cost
 from dkfsim.estimators.base import Estimate, Estimator, EstimatorResult
 from dkfsim.estimators.window import WindowFilter
 from dkfsim.model.holdings import Holdings
+from dkfsim.network.links import Link
+from dkfsim.network.media.fifo import Fifo
 from dkfsim.protocols.base import info_bytes
 
 
 class CentralizedDelayed(Estimator, params=CentralizedDelayedParams):
     """The window filter of a fusion centre that receives every sensor over its own link."""
-
-    #: whether the sensors' packets go through a port on the scenario's shared channel
-    _on_channel = False
 
     #: Its packets and their nominal sizes (bytes; docs/estimators.md, "Packet sizes").
     packets = ("one per sensor and tick on its direct link: 16 + 8 (nx + nx(nx+1)/2) "
@@ -45,7 +42,7 @@ class CentralizedDelayed(Estimator, params=CentralizedDelayedParams):
 
     @classmethod
     @override
-    def cost(cls, params, plan) -> Cost:
+    def cost(cls, params: EstimatorParams, plan: RunPlan) -> Cost:
         scenario = plan.scenario
         K, n, nx = int(scenario.steps), scenario.n, scenario.nx
         L = min(plan.L_estimate, K)
@@ -55,14 +52,8 @@ class CentralizedDelayed(Estimator, params=CentralizedDelayedParams):
                     seconds=K * (C_TICK + L * (C_ROW + C_NODE_ROW) + n * C_PACKET))
 
     def start(self) -> None:
-        """On a shared channel (``medium:``) the sensors' packets go through a port: each is a
-        unicast frame that contends with the others' frames and the background (decision 229).
-        Without a channel nothing runs during the run (:meth:`arrival_ticks` works them out at
-        the end, in closed form)."""
+        """Open the port on each sensor's direct link to the centre (decision 229)."""
         ctx = self.ctx
-        self._on_channel = ctx.scenario.medium is not None
-        if not self._on_channel:
-            return
         s, K = ctx.system, ctx.K
         self._direct = self._direct_links()
         self._ticks = np.zeros((s.n, K), dtype=np.int64)
@@ -71,10 +62,7 @@ class CentralizedDelayed(Estimator, params=CentralizedDelayedParams):
         self._port = self.open_port(self._receive, self._direct, until=K * ctx.T_ns)
 
     def on_measure(self, row: int) -> None:
-        """Row ``row``'s tick: every sensor that measured sends its packet to the centre (on a
-        shared channel only)."""
-        if not self._on_channel:
-            return
+        """Row ``row``'s tick: every sensor that measured sends its packet to the centre."""
         m, send, size = self._measured, self._port.send, self._size
         for i, link in enumerate(self._direct):
             if m is None or m[row, i]:                     # a crashed sensor sends nothing
@@ -87,23 +75,26 @@ class CentralizedDelayed(Estimator, params=CentralizedDelayedParams):
         spec = ctx.scenario.link_spec(-1, -1)              # the default settings
         return [ctx.network.extra_link(("direct", name), spec, i, -1) for i, name in enumerate(ctx.system.names)]
 
-    def _receive(self, _link, payload) -> None:
+    def _receive(self, _link: Link, payload: tuple[int, int]) -> None:
         i, row = payload
         if self._ticks[i, row] == 0:                       # the first copy counts
             self._ticks[i, row] = -(-self.ctx.env.now // self.ctx.T_ns)
 
     def arrival_ticks(self) -> tuple[np.ndarray, dict]:
-        """Tick (1-based) at which the centre holds sensor i's row r, 0 if never
-        (``(n, K)`` ints: the first ``k`` with ``t_k >= t_{r+1} + latency``), and the counts
-        per sensor (``sent``, ``lost``, ``queue_dropped``: ``(n,)`` ints)."""
+        """The closed form of the port's work where nothing but the links' draws and their
+        transmitters act (no channel, no crash of the centre): the tick (1-based) at which the
+        centre holds sensor i's row r, 0 if never (``(n, K)`` ints: the first ``k`` with
+        ``t_k >= t_{r+1} + latency``), and the counts per sensor (``sent``, ``lost``,
+        ``queue_dropped``: ``(n,)`` ints).  Call it after :meth:`start` (it uses the direct
+        links); the tests compare it with the run."""
         ctx = self.ctx
         s, K, T_ns = ctx.system, ctx.K, ctx.T_ns
         ticks = np.zeros((s.n, K), dtype=np.int64)
         m = ctx.measured()
         sent, lost, dropped = (np.zeros(s.n, dtype=np.int64) for _ in range(3))   # per sensor
         size = self.packet_bytes()
-        for i, link in enumerate(self._direct_links()):
-            tx = link.transmitter() if link.rate is not None else None
+        for i, link in enumerate(self._direct):
+            tx = Fifo(link).tx if link.spec.rate is not None else None
             for r in range(K):
                 if m is not None and not m[r, i]:          # a crashed sensor sends nothing
                     continue
@@ -132,10 +123,7 @@ class CentralizedDelayed(Estimator, params=CentralizedDelayedParams):
         L = ctx.plan.buffer_length()
         held = Holdings(ctx.info, np.ones((1, s.n)), L, backend=ctx.backend)
         w = WindowFilter(s.Phi, s.Q, s.x0_mean, s.P0, held, ctx.backend)
-        if self._on_channel:
-            ticks = self._ticks
-        else:
-            ticks, counts = self.arrival_ticks()
+        ticks = self._ticks
         rows = np.arange(K)
         usable = (ticks > 0) & (ticks <= rows + L) & (ticks <= K)
         order = np.argsort(ticks[usable], kind="stable")
@@ -152,12 +140,4 @@ class CentralizedDelayed(Estimator, params=CentralizedDelayedParams):
             slot = (k - 1) % w.S
             x[k - 1], P[k - 1] = w.state.x[slot, 0], w.state.P[slot, 0]
         late = int(((ticks > rows + L) & (ticks <= K)).sum())
-        if self._on_channel:
-            return EstimatorResult({self.name: Estimate(x, P)}, traffic={**self._port.counts(), "late": late})
-        per = {**counts, "delivered": ((ticks > 0) & (ticks <= K)).sum(axis=1)}   # first copy, by t_K
-        per["in_flight"] = per["sent"] - per["lost"] - per["queue_dropped"] - per["delivered"]
-        per["bytes"] = per["sent"] * self.packet_bytes()
-        keys = ("sent", "lost", "queue_dropped", "delivered", "in_flight", "bytes")
-        traffic = {**{k: int(per[k].sum()) for k in keys}, "late": late,
-                   "per_link": [{"link": (i, -1), **{k: int(per[k][i]) for k in keys}} for i in range(s.n)]}
-        return EstimatorResult({self.name: Estimate(x, P)}, traffic=traffic)
+        return EstimatorResult({self.name: Estimate(x, P)}, traffic={**self._port.counts(), "late": late})

@@ -105,10 +105,13 @@ from an older tick (``stale``).
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 from typing_extensions import override
 
-from dkfsim.components.estimators import CIParams
+from dkfsim.components.estimators import CIParams, EstimatorParams
+from dkfsim.config.plan import RunPlan
 from dkfsim.core.resources import B_FLOAT, C_NODE_ROW, C_PACKET, C_ROW, C_TICK, Cost
 from dkfsim.estimators.base import existing_information_bytes
 from dkfsim.estimators.rounds import Powers as _Powers
@@ -136,7 +139,8 @@ class CIConsensus(RoundBased, params=CIParams):
 
     @classmethod
     @override
-    def cost(cls, params, plan) -> Cost:
+    def cost(cls, params: EstimatorParams, plan: RunPlan) -> Cost:
+        assert isinstance(params, CIParams)
         scenario, arcs = plan.scenario, plan.n_exchange_links
         K, n, nx = int(scenario.steps), scenario.n, scenario.nx
         return Cost(params.label,
@@ -154,12 +158,13 @@ class CIConsensus(RoundBased, params=CIParams):
         n, nx = self.n, self.nx
         self.x = np.broadcast_to(np.asarray(s.x0_mean, float), (n, nx)).copy()
         self.P = np.broadcast_to(np.asarray(s.P0, float), (n, nx, nx)).copy()
-        self.Om = self.q = None
+        #: the information pair (set by each tick's prediction, before anything reads it)
+        self.Om, self.q = np.zeros((n, nx, nx)), np.zeros((n, nx))
         self.used = self.stale = 0
         self.powers = _Powers(self.Phi, self.Q)
         self.nbytes = info_bytes(nx)
 
-    def boxes(self):
+    def boxes(self) -> dict[str, dict[str, tuple[int, ...]]]:
         nx = self.nx
         return {"pair": {"Om": (nx, nx), "q": (nx,), "x": (nx,), "P": (nx, nx)}}
 
@@ -169,7 +174,7 @@ class CIConsensus(RoundBased, params=CIParams):
         Omp, qp = _solve_pair(Pp, xp)
         self._set_pair(Omp + self.omega_at(k), qp + self.theta[k - 1])
 
-    def _set_pair(self, Om, q) -> None:
+    def _set_pair(self, Om: np.ndarray, q: np.ndarray) -> None:
         # New arrays every time: packets in flight hold references to the old ones.
         self.Om = 0.5 * (Om + np.swapaxes(Om, -1, -2))
         self.q = q
@@ -219,7 +224,7 @@ class CIConsensus(RoundBased, params=CIParams):
         self.record(k, self.x, self.P)
 
     @override
-    def message(self, g: int):
+    def message(self, g: int) -> tuple[str, dict[str, Any], int]:
         return "pair", {"Om": self.Om, "q": self.q, "x": self.x, "P": self.P}, self.nbytes
 
     # -- the result -------------------------------------------------------------

@@ -27,10 +27,12 @@ the centralized filter.  Runs on the scenario's full topology.
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 from typing_extensions import override
 
-from dkfsim.components.estimators import DiffusionParams
+from dkfsim.components.estimators import DiffusionParams, EstimatorParams
 from dkfsim.estimators.rounds import RoundBased, solve_pair
 
 
@@ -44,7 +46,7 @@ class DiffusionKF(RoundBased, params=DiffusionParams):
 
     @classmethod
     @override
-    def slots_of(cls, params) -> int:
+    def slots_of(cls, params: EstimatorParams) -> int:
         return 2
 
     def start(self) -> None:
@@ -62,7 +64,7 @@ class DiffusionKF(RoundBased, params=DiffusionParams):
         indeg = np.bincount(self.dst[on], minlength=self.n)
         return np.where(on, 1.0 / (1.0 + indeg[self.dst]), 0.0)
 
-    def boxes(self):
+    def boxes(self) -> dict[str, dict[str, tuple[int, ...]]]:
         nx = self.nx
         return {"meas": {"u": (nx,), "U": (nx, nx)}, "psi": {"psi": (nx,)}}
 
@@ -82,7 +84,7 @@ class DiffusionKF(RoundBased, params=DiffusionParams):
         self.P, self.psi = solve_pair(Ombar + self.msg["U"] + self.nsum(box.f["U"], have),
                                       qbar + self.msg["u"] + self.nsum(box.f["u"], have))
 
-    def message(self, g: int):
+    def message(self, g: int) -> tuple[str, dict[str, Any], int]:
         if g % 2 == 0:
             return "meas", self.msg, self.info_bytes(1, 1)
         return "psi", {"psi": self.psi}, self.info_bytes(1, 0)

@@ -21,32 +21,28 @@ for what the centre holds.  When the shadow must make a row final before it know
 final holdings of it (more than ``M`` ticks without a packet), the node leaves the fusion for
 the rest of the run (``nodes_excluded``; docs/decisions.md #220); so does a node whose masks hold
 a radar entry whose ``omega`` no packet delivered (each node carries a given one once).  The centre fuses row ``k-1``
-in an event of priority :data:`~dkfsim.network.links.PRIORITY_FUSE`, after the packets sent at
+in an event of priority :data:`~dkfsim.network.events.PRIORITY_FUSE`, after the packets sent at
 the update and their zero-latency relays: at zero latency and no rate limit it equals ``fused``.
-Where nothing but a packet's own keyed draws acts on it (no rate, no channel) the centre moves its
-packets itself, hop for hop what the port would do (:class:`DirectRelay`, or
-:class:`CompiledRelay` in one kernel call per tick), and fuses at the end of its update
-(decisions 232-234).
+Its packets take one path, its port's, whatever the media (decision 240).
 """
 
 from __future__ import annotations
 
-import heapq
 from typing import Any
 
 import numpy as np
 from simpy.events import Event
 
 from dkfsim.components.estimators import FusionCentreParams
-from dkfsim.core.jit import entry_point
 from dkfsim.core.resources import B_FLOAT, C_FLOP, C_FUSION_ROW, C_NODE_ROW, C_PACKET, C_ROW, C_TICK, Cost
-from dkfsim.estimators import fusion_centre_kernels as fk
-from dkfsim.estimators.base import Estimate, Estimator, EstimatorResult
+from dkfsim.estimators.base import DKFView, Estimate, Estimator, EstimatorResult
 from dkfsim.estimators.fusion import FUSERS, CrossCovariance
 from dkfsim.estimators.window import WindowFilter
 from dkfsim.model.holdings import Holdings
 from dkfsim.model.system import Information
-from dkfsim.network.links import PRIORITY_FUSE, SHARED_SEQ0, Link, Port, Scheduled, count_fate
+from dkfsim.network.events import PRIORITY_FUSE, Scheduled
+from dkfsim.network.links import Link
+from dkfsim.network.port import Port
 from dkfsim.protocols.base import PACKET_HEADER
 
 
@@ -69,169 +65,6 @@ def next_hops(arcs: list[tuple[int, int]], n: int, at: int) -> tuple[np.ndarray,
     return hop, dist
 
 
-class DirectRelay:
-    """The centre's packets on links without a transmitter or a channel, moved without a SimPy
-    event: what :class:`~dkfsim.network.links.Port` would do with them, hop for hop (decision 232).
-
-    On such a link nothing but the packet's own keyed draws of ``(link, hand-over instant,
-    sequence number)`` acts on it, and the centre's packets have a sequence space of their own
-    (``share_with``: from :data:`~dkfsim.network.links.SHARED_SEQ0`): no other packet can
-    change their fate.  The relay keeps the port's calendar (instant -> packets due, in the order
-    sent), numbers each link's packets per instant as the port does, draws and counts with
-    :func:`~dkfsim.network.links.count_fate` as the port does, drops a packet reaching a node that is
-    down (``crash_dropped``), and hands the owner what reaches it in the port's order;
-    :meth:`tick` runs the instants up to the tick before its sends and again after them, so
-    every packet is in place by the time the port's events would have delivered it.  The counts
-    go to the port (:meth:`Port.set_counts`) at the end.
-    """
-
-    def __init__(self, port: Port, links: list[Link], out: list[Link | None], at: int, accept, crashes):
-        self.port, self.links, self.out, self.at, self.accept, self.crashes = port, links, out, at, accept, crashes
-        self.arrived = 0
-        size = 1 + max((l.id for l in links), default=0)
-        self.count = {name: [0] * size for name in ("sent", "bytes", "delivered", "lost", "copies",
-                                                    "crash_dropped", "outage_lost")}
-        self.due: dict[int, list] = {}
-        self.instants: list[int] = []          # a heap of the keys of ``due``
-        self.instant = -1
-        self.seq: dict[int, int] = {}
-
-    def send(self, now: int, link: Link, payload: Any, nbytes: int) -> None:
-        """:meth:`Port.send` of ``payload`` on ``link`` at ``now``."""
-        if now != self.instant:
-            self.instant, self.seq = now, {}
-        lid = link.id
-        seq = self.seq.get(lid, SHARED_SEQ0)
-        self.seq[lid] = seq + 1
-        count = self.count
-        count["sent"][lid] += 1
-        count["bytes"][lid] += nbytes
-        for lat in count_fate(link, now, seq, count):      # (Link.plain's draw where it has one)
-            self._enqueue(now + lat, link, payload)
-
-    def _enqueue(self, at: int, link: Link, payload: Any) -> None:
-        due = self.due.get(at)
-        if due is None:
-            due = self.due[at] = []
-            heapq.heappush(self.instants, at)
-        due.append((link, payload))
-
-    def tick(self, now: int, sends: list[tuple[Link, Any, int]], own: Any) -> int:
-        """The centre's packets at the tick ``now``: what is due up to ``now`` delivered (the
-        port's deliveries come before the update), then ``own`` (the centre node's packet, or
-        None) to the owner, then ``sends`` (``(link, payload, bytes)``), then their zero-latency
-        hops.  Returns how many packets reached the centre (``own`` not counted)."""
-        got = self.arrived
-        self.deliver_until(now)
-        if own is not None:
-            self.accept(own)
-        for link, payload, nbytes in sends:
-            self.send(now, link, payload, nbytes)
-        self.deliver_until(now)
-        return self.arrived - got
-
-    def deliver_until(self, t: int) -> None:
-        """Deliver every packet due at an instant up to ``t``, instant by instant, each instant's
-        packets in the order they were sent (and those sent at that instant with zero latency
-        after them, as the port's next event of the instant would)."""
-        instants, crashes = self.instants, self.crashes
-        delivered, dropped = self.count["delivered"], self.count["crash_dropped"]
-        while instants and instants[0] <= t:
-            now = heapq.heappop(instants)
-            for link, payload in self.due.pop(now):
-                if crashes is not None and crashes.down(link.dst, now):
-                    dropped[link.id] += 1
-                    continue
-                delivered[link.id] += 1
-                node = link.dst
-                if node == self.at:
-                    self.arrived += 1
-                    self.accept(payload)
-                elif self.out[node] is not None:
-                    self.send(now, self.out[node], payload, payload[-1])
-
-    def report(self) -> None:
-        """The counts, into the port (what :meth:`Port.counts` reports)."""
-        for link in self.links:
-            self.port.set_counts(link, **{name: c[link.id] for name, c in self.count.items()})
-
-
-class CompiledRelay:
-    """:class:`DirectRelay` and the centre's :meth:`~FusionCentre.accept` in one compiled call
-    per tick (:mod:`dkfsim.estimators.fusion_centre_kernels`), for links on which nothing but
-    a ``constant`` or ``uniform_steps`` latency acts, a network without crashes and no radar:
-    the same hops, numbers, draws, order, counts and accepted packets (decision 232).  A packet
-    is its node and row; the masks it carries stay in :attr:`ring` (one slot per tick, as many
-    ticks as a packet can be in flight) for the compiled fold."""
-
-    def __init__(self, port: Port, links: list[Link], forms: list[tuple[int, int, int]], ticks: int,
-                 out: list[Link | None], at: int, T_ns: int, newest: np.ndarray, excluded: np.ndarray,
-                 W: int, n_origins: int):
-        """``forms``: each link's :meth:`Link.compiled_latency`; ``ticks``: :meth:`in_flight_ticks`."""
-        self.port, self.links, self.fk = port, links, fk.compiled()
-        n = len(out)
-        size = 1 + max((l.id for l in links), default=0)
-        kind, key, par = np.zeros(size, np.int64), np.zeros(size, np.uint64), np.zeros(size, np.int64)
-        dst = np.full(size, -1, np.int64)
-        for l, f in zip(links, forms):
-            kind[l.id], key[l.id], par[l.id], dst[l.id] = f[0], f[1], f[2], l.dst
-        cap = 2 * n * ticks + 16              # each tick sends fewer than n packets
-        z = np.zeros
-        self.R = fk.Relay(z(4, np.int64), kind, key, par, int(T_ns), dst,
-                          np.array([-1 if o is None else o.id for o in out], np.int64), int(at), n, SHARED_SEQ0,
-                          np.full(size, -1, np.int64), z(size, np.int64), z(size, np.int64), z(size, np.int64),
-                          z(size, np.int64), z(cap, np.int64), z(cap, np.int64), z(cap, np.int64),
-                          z(cap, np.int64), z(cap, np.int64), newest, z(n, np.bool_), excluded)
-        #: the nodes that send (all but the centre's, with a route)
-        self.senders = np.array([i for i in range(n) if i != at and out[i] is not None], np.int64)
-        #: the masks each tick's packets carry, slot ``row % len(ring)``
-        self.ring = z((ticks + 1, W, n, n_origins), np.bool_)
-        self.kernel = entry_point(self.fk.tick, self.R, -1, 0, self.senders[:0], 0)
-        self.R.CT[:] = 0                  # (what that first call took: nothing happened yet)
-        newest[:] = -1
-        self.R.pend[:] = False
-        self.fold = None
-
-    @staticmethod
-    def in_flight_ticks(forms: list[tuple[int, int, int]], hops: int, T_ns: int) -> int:
-        """A bound of the ticks a packet can be in flight (plus two): ``hops``, the most hops
-        of a route to the centre, times the longest latency of one hop (``forms``: the links'
-        :meth:`Link.compiled_latency`)."""
-        longest = 0
-        for f in forms:
-            longest = max(longest, f[2] if f[0] == 0 else f[2] * T_ns)
-        return hops * (-(-longest // T_ns)) + 2
-
-    def tick(self, now: int, row: int, nbytes: int) -> None:
-        """The tick ``now`` whose update computed ``row``: the relay's deliveries, the centre's
-        own estimate and every other node's packet of ``nbytes`` (masks in :attr:`ring`)."""
-        if self.kernel(self.R, now, row, self.senders, nbytes) < 0:
-            raise RuntimeError("fusion centre relay: more packets in flight than its bound")
-
-    def fold_into(self, k0: int, W: int, known: np.ndarray, target) -> None:
-        """Fold what the accepted packets taught the centre (``fold_ring``)."""
-        R = self.R
-        if self.fold is None:
-            self.fold = entry_point(self.fk.fold_ring, self.ring, R.pend, R.newest, k0, W, known, target)
-            return                 # (the entry point's first call was the fold)
-        self.fold(self.ring, R.pend, R.newest, k0, W, known, target)
-
-    def counts(self) -> tuple[int, int]:
-        """``(packets that reached the centre, packets it ignored)``."""
-        return int(self.R.CT[self.fk.RECEIVED]), int(self.R.CT[self.fk.IGNORED])
-
-    def report(self) -> None:
-        """:meth:`DirectRelay.report`."""
-        R = self.R
-        for l in self.links:
-            self.port.set_counts(l, sent=int(R.sent[l.id]), bytes=int(R.nbytes[l.id]),
-                                 delivered=int(R.delivered[l.id]))
-
-
-#: The largest ring of masks (bytes) a :class:`CompiledRelay` keeps (64 MiB).
-RING_BYTES = 1 << 26
-
-
 def packet_bytes(nx: int, n: int, rows: int, omegas: int) -> int:
     """Nominal bytes of a node's packet to the centre: header, row number, the estimate,
     ``rows`` origin masks and the upper triangles of ``omegas`` carried ``omega`` matrices."""
@@ -248,10 +81,7 @@ class FusionCentre(Estimator, params=FusionCentreParams):
 
     params: FusionCentreParams
     port: Port
-    shares_dkf_port = True                # its packets wait in the DKF's queues (decision 221)
-    #: move the packets on links without a transmitter or channel without SimPy events
-    #: (:class:`DirectRelay`); False: always through the port (the tests compare both)
-    direct_relay = True
+    dkf: DKFView
 
     def __init__(self, params: FusionCentreParams, ctx):
         super().__init__(params, ctx)
@@ -277,6 +107,7 @@ class FusionCentre(Estimator, params=FusionCentreParams):
     # -- running -------------------------------------------------------------------
     def start(self) -> None:
         ctx = self.ctx
+        assert ctx.dkf is not None        # (the scenario's DKF starts first)
         self.dkf = dkf = ctx.dkf          # the scenario's DKF, with its fusion (validation checked)
         sys_, K, n, nx = ctx.system, ctx.K, ctx.n, ctx.nx
         self.Phi = sys_.Phi
@@ -302,17 +133,12 @@ class FusionCentre(Estimator, params=FusionCentreParams):
                                 column_sensor=info.column_sensor)
         #: (K, n): the centre has origin o's omega of row r (always for a linear sensor)
         self.have_omega = np.broadcast_to(~self.varying, (K, n)).copy()
-        self.holdings = Holdings(self.info, dkf.A, W, per_origin=True, backend=ctx.backend)
+        self.holdings = Holdings(self.info, dkf.weights, W, per_origin=True, backend=ctx.backend)
         self.window = WindowFilter(sys_.Phi, sys_.Q, sys_.x0_mean, sys_.P0, self.holdings, ctx.backend)
         self.xcov = CrossCovariance(self.window, sys_.P0)
         S = self.holdings.S
         #: what the centre knows node i holds of each shadow row (folded or pending)
         self.known = np.zeros((S, n, n), dtype=bool)
-        #: the compiled fold (without radars: their exclusion stays in numpy), None: numpy
-        self.fold_kernel = None
-        if ctx.backend.compiled and not self.vary:
-            self.fold_kernel = entry_point(fk.compiled().fold_new, np.zeros((0, 0, n), dtype=bool),
-                                           np.zeros(0, dtype=np.intp), 0, self.known, self.holdings.fold_target)
         self.newest = np.full(n, -1, dtype=np.int64)
         #: per node: the row of its newest packet (a Python list: one packet costs no numpy
         #: call; ``newest`` is its array as of the last fusion).  The estimate of that row is
@@ -328,24 +154,9 @@ class FusionCentre(Estimator, params=FusionCentreParams):
         net = ctx.network
         self.out: list[Link | None] = [net.link(i, int(h)) if h >= 0 else None for i, h in enumerate(self.hop)]
         links = [l for l in self.out if l is not None]
-        # Through the DKF's transmitters (and channel): the centre's load is part of the DKF's
+        # Through the DKF's media (its queues and channel): the centre's load is part of the DKF's
         # cost; its own counters and keyed draws (sequence numbers from 1 << 32).
         self.port = net.port(self.name, self.receive, links, share_with=dkf.port)
-        #: links without a transmitter or a channel: the packets move without SimPy events
-        #: (:class:`DirectRelay`, decision 232); None: through the port, hop by hop
-        self.relay: DirectRelay | CompiledRelay | None = None
-        if self.direct_relay and self.port.channel is None and all(l.rate is None and l.up is None for l in links):
-            if ctx.backend.compiled and net.crashes is None and ctx.crashes is None and not self.vary and all(
-                    l.plain is not None for l in links):
-                forms = [f for f in (l.compiled_latency() for l in links) if f is not None]
-                if len(forms) == len(links):             # (every link's latency compiles)
-                    ticks = CompiledRelay.in_flight_ticks(forms, int(dist.max()), ctx.T_ns)
-                    # (the ring of masks stays small: else the Python relay, whose masks live in flight)
-                    if (ticks + 1) * W * n * n <= RING_BYTES:
-                        self.relay = CompiledRelay(self.port, links, forms, ticks, self.out, self.at, ctx.T_ns,
-                                                   self.newest, self.excluded, W, n)
-            if self.relay is None:
-                self.relay = DirectRelay(self.port, links, self.out, self.at, self.accept, net.crashes)
         self.x = np.empty((K, nx))
         self.P = np.empty((K, nx, nx))
         self.k = 0
@@ -364,26 +175,17 @@ class FusionCentre(Estimator, params=FusionCentreParams):
         self.k = k
         r = k - 1
         W, n, nx = self.W, self.ctx.n, self.ctx.nx
-        held = self.dkf.holdings.held
+        held = self.dkf.held
         window = np.arange(max(r - self.L + 1, 0), r + 1)  # the DKF's window as of this tick
         self.sent_held[window % W] = held[window % held.shape[0]]
         lo = max(r - W + 1, 0)
         idx = np.arange(lo, r + 1) % W
-        relay = self.relay
-        if isinstance(relay, CompiledRelay):
-            ring = relay.ring
-            ring[r % len(ring), :len(idx)] = self.sent_held[idx]
-            relay.tick(int(self.ctx.env.now), r, packet_bytes(nx, n, len(idx), 0))
-            self._fuse(None)
-            return
         masks = self.sent_held[idx]                          # (rows, n, n)
         vary = self.vary
         crashes, now = self.ctx.crashes, int(self.ctx.env.now)
-        out_links, at = self.out, self.at
+        out_links, at, send = self.out, self.at, self.port.send
         entries: list[tuple[int, int, np.ndarray, np.ndarray]] = []
         nbytes = packet_bytes(nx, n, len(idx), 0)
-        sends: list[tuple[Link, tuple, int]] = []
-        own = None
         for i in range(n):
             if crashes is not None and i != at and crashes.down(i, now):
                 continue                          # a node that is down sends nothing
@@ -403,20 +205,9 @@ class FusionCentre(Estimator, params=FusionCentreParams):
             payload = (i, r, lo, masks, entries, nbytes)
             out = out_links[i]
             if i == at:
-                own = payload
-                if relay is None:
-                    self.accept(payload)
+                self.accept(payload)
             elif out is not None:
-                if relay is None:
-                    self.port.send(out, payload, nbytes)
-                else:
-                    sends.append((out, payload, nbytes))
-        if relay is not None:
-            # every packet due by now is in place (the relay's hops are no port events): the
-            # fusion of PRIORITY_FUSE can run now, without an event
-            self.received += relay.tick(now, sends, own)
-            self._fuse(None)
-            return
+                send(out, payload, nbytes)
         Scheduled(self.ctx.env, self._fuse, PRIORITY_FUSE)
 
     def receive(self, link: Link, payload: Any) -> None:
@@ -446,12 +237,8 @@ class FusionCentre(Estimator, params=FusionCentreParams):
     def _fuse(self, _event: Event | None) -> None:
         k = self.k
         r = k - 1
-        relay = self.relay
-        if isinstance(relay, CompiledRelay):      # newest: the relay's kernel keeps it
-            relay.fold_into(max(k - self.W, 0), self.W, self.known, self.holdings.fold_target)
-        else:
-            self.newest[:] = self.newest_rows
-            self._fold(k)
+        self.newest[:] = self.newest_rows
+        self._fold(k)
         newest, excluded = self.newest, self.excluded
         done = k - self.W                 # the shadow's row that becomes final now
         low = int(newest.min())
@@ -505,8 +292,8 @@ class FusionCentre(Estimator, params=FusionCentreParams):
             if a < b:
                 stack[a - k0:b - k0, j] = masks[a - lo:, i]
         self.pending.clear()
-        if self.fold_kernel is not None:
-            self.fold_kernel(stack, nodes, k0, self.known, self.holdings.fold_target)
+        if not self.vary:
+            self.holdings.add_unknown(stack, nodes, k0, self.known)
             return
         slots = np.arange(k0, k) % self.holdings.S
         new = stack & ~self.known[slots[:, None], nodes]
@@ -514,23 +301,16 @@ class FusionCentre(Estimator, params=FusionCentreParams):
         if not len(jj):
             return
         sel, rows, who = new[rr, jj], k0 + rr, nodes[jj]
-        if self.vary:
-            # a node that holds a radar entry whose omega no packet brought leaves the fusion
-            bad = np.unique(who[(sel & ~self.have_omega[rows]).any(axis=1)])
-            if len(bad):
-                self.excluded[bad] = True
-                keep = ~np.isin(who, bad)
-                sel, rows, who, rr = sel[keep], rows[keep], who[keep], rr[keep]
+        # a node that holds a radar entry whose omega no packet brought leaves the fusion
+        bad = np.unique(who[(sel & ~self.have_omega[rows]).any(axis=1)])
+        if len(bad):
+            self.excluded[bad] = True
+            keep = ~np.isin(who, bad)
+            sel, rows, who, rr = sel[keep], rows[keep], who[keep], rr[keep]
         self.known[slots[rr], who] |= sel
         self.holdings.add_held(who, rows, sel)
 
     def finish(self) -> EstimatorResult:
-        if self.relay is not None:
-            self.relay.report()
-        if isinstance(self.relay, CompiledRelay):
-            received, ignored = self.relay.counts()
-            self.received += received
-            self.ignored += ignored
         facts = {"packets_received": self.received, "packets_ignored": self.ignored,
                  "stale_rows_used": self.stale_rows, "nodes_excluded": int(self.excluded.sum()),
                  "at": self.at, "rows_carried": self.W}

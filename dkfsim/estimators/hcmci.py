@@ -26,6 +26,8 @@ dropped and counted late.  Runs on the scenario's full topology.
 
 from __future__ import annotations
 
+from typing import Any
+
 from typing_extensions import override
 
 from dkfsim.components.estimators import HCMCIParams
@@ -47,7 +49,7 @@ class HCMCI(RoundBased, params=HCMCIParams):
         w = self.params.omega
         self.w = float(self.n if w == "n" else w)
 
-    def boxes(self):
+    def boxes(self) -> dict[str, dict[str, tuple[int, ...]]]:
         nx = self.nx
         return {"h": {"Om": (nx, nx), "q": (nx,), "dOm": (nx, nx), "dq": (nx,)}}
 
@@ -67,7 +69,7 @@ class HCMCI(RoundBased, params=HCMCIParams):
         self._average(k)
 
     @override
-    def message(self, g: int):
+    def message(self, g: int) -> tuple[str, dict[str, Any], int]:
         return "h", self.s, self.info_bytes(2, 2)
 
     def end_tick(self, k: int) -> None:

@@ -24,6 +24,8 @@ full topology (:mod:`dkfsim.estimators.rounds`).
 
 from __future__ import annotations
 
+from typing import Any
+
 from typing_extensions import override
 
 from dkfsim.components.estimators import ICFParams
@@ -41,7 +43,7 @@ class ICF(RoundBased, params=ICFParams):
     def start(self) -> None:
         self.start_rounds(self.ctx.topology_links(), int(self.params.rounds))
 
-    def boxes(self):
+    def boxes(self) -> dict[str, dict[str, tuple[int, ...]]]:
         nx = self.nx
         return {"iv": {"V": (nx, nx), "v": (nx,)}}
 
@@ -62,7 +64,7 @@ class ICF(RoundBased, params=ICFParams):
         self._iterate(k)
 
     @override
-    def message(self, g: int):
+    def message(self, g: int) -> tuple[str, dict[str, Any], int]:
         return "iv", {"V": self.V, "v": self.v}, self.info_bytes(1, 1)
 
     def end_tick(self, k: int) -> None:

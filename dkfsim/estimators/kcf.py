@@ -23,10 +23,12 @@ scenario's full topology (:mod:`dkfsim.estimators.rounds`).
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 from typing_extensions import override
 
-from dkfsim.components.estimators import KCFParams
+from dkfsim.components.estimators import EstimatorParams, KCFParams
 from dkfsim.estimators.rounds import RoundBased, solve_pair
 
 
@@ -42,13 +44,13 @@ class KCF(RoundBased, params=KCFParams):
 
     @classmethod
     @override
-    def slots_of(cls, params) -> int:
+    def slots_of(cls, params: EstimatorParams) -> int:
         return 1
 
     def start(self) -> None:
         self.start_rounds(self.ctx.topology_links(), 1)
 
-    def boxes(self):
+    def boxes(self) -> dict[str, dict[str, tuple[int, ...]]]:
         nx = self.nx
         return {"m": {"u": (nx,), "U": (nx, nx), "xbar": (nx,)}}
 
@@ -57,7 +59,7 @@ class KCF(RoundBased, params=KCFParams):
         self.msg = {"u": self.theta[k - 1], "U": self.omega_at(k), "xbar": self.xbar}
 
     @override
-    def message(self, g: int):
+    def message(self, g: int) -> tuple[str, dict[str, Any], int]:
         return "m", self.msg, self.info_bytes(2, 1)
 
     def end_tick(self, k: int) -> None:

@@ -39,7 +39,9 @@ from dkfsim.core.linalg import solve
 from dkfsim.core.resources import B_FLOAT, C_NODE_ROW, C_PACKET, C_ROW, C_TICK, Cost
 from dkfsim.estimators.base import Estimate, Estimator, existing_information_bytes
 from dkfsim.estimators.window import predict
-from dkfsim.network.links import PRIORITY_UPDATE, Link, Port, Scheduled
+from dkfsim.network.events import PRIORITY_UPDATE, Scheduled
+from dkfsim.network.links import Link
+from dkfsim.network.port import Port
 from dkfsim.protocols.base import info_bytes
 
 if TYPE_CHECKING:
@@ -157,7 +159,7 @@ class RoundBased(Estimator):
         nx x nx matrices: a 16-byte header (stamp, sender) and 8-byte floats."""
         return info_bytes(self.nx, vectors, matrices)
 
-    def boxes(self) -> dict[str, dict[str, tuple]]:
+    def boxes(self) -> dict[str, dict[str, tuple[int, ...]]]:
         """Message kinds: name -> {field: shape of one node's value}."""
         return {}
 
@@ -176,7 +178,7 @@ class RoundBased(Estimator):
         """At ``t_{k+1}``, before tick ``k+1`` begins: finish tick ``k`` and record row ``k-1``."""
         raise NotImplementedError
 
-    def message(self, g: int) -> tuple[str, dict, int]:
+    def message(self, g: int) -> tuple[str, dict[str, Any], int]:
         """What every node sends at global round ``g``: (box, {field: (n, ...) array}, nbytes)."""
         raise NotImplementedError
 
@@ -223,9 +225,9 @@ class RoundBased(Estimator):
         self.box = {name: Box(E, shapes) for name, shapes in self.boxes().items()}
         # A graph that changes: the arcs' states per tick (K + 1, E), else None.
         self._up_table: np.ndarray | None = None
-        if self.links and any(link.changes for link in self.links):
-            self._up_table = np.stack([np.frombuffer(link.up or b"", dtype=np.uint8) for link in self.links],
-                                      axis=1).astype(bool)
+        if any(link.changes for link in self.links):        # (then every link of the graph has states)
+            states = [link.up_per_tick() for link in self.links]
+            self._up_table = np.stack([u for u in states if u is not None], axis=1)
         #: (E,) the arcs up at the tick being computed (all of them on a fixed graph)
         self.up_now = np.ones(E, dtype=bool)
         self._up_tick = -1

@@ -135,7 +135,7 @@ class Template:
         sc = scenario if isinstance(scenario, Scenario) else load_scenario(scenario)
         self.scenario = load_scenario(sc, overrides=pinned_topology(sc))
         plain = not self.scenario.plugins
-        self.plan = RunPlan(self.scenario, "estimates").resolve() if plain else None
+        self.plan = RunPlan.of(self.scenario, "estimates").resolve() if plain else None
         self.system = build_system(self.scenario) if plain else None
 
     def scenario_for(self, seed: int) -> Scenario:
@@ -146,7 +146,7 @@ class Template:
 
     def plan_for(self, scenario: Scenario) -> RunPlan:
         """The plan of ``scenario`` (:meth:`scenario_for`): the template's, shared."""
-        return self.plan.with_seed(scenario) if self.plan is not None else RunPlan(scenario, "estimates")
+        return self.plan.with_seed(scenario) if self.plan is not None else RunPlan.of(scenario, "estimates")
 
 
 def run_rows(scenario, seed: int, burn_in: int | None = None, *,
@@ -396,7 +396,7 @@ def load_montecarlo(folder, *, data_files: bool = False) -> "MonteCarloResult":
 def estimate_montecarlo(sc, runs: int, jobs: int, force_trial: bool = False) -> Cost:
     """Memory and time of ``runs`` runs on ``jobs`` processes, rows and curves included (the
     events of one run measured on a trial when the guess is long, or ``force_trial``)."""
-    one = measured_estimate(RunPlan(Template(sc).scenario, "estimates"), runs, min(jobs, runs), force_trial)
+    one = measured_estimate(RunPlan.of(Template(sc).scenario, "estimates"), runs, min(jobs, runs), force_trial)
     estimates = 2 + len(sc.estimators)
     K, nx = int(sc.steps), sc.nx
     kept = runs * estimates * nx * 600 + 6 * estimates * K * nx * 8     # rows; pooled curves
@@ -430,7 +430,7 @@ class MonteCarloResult:
                  executor: str = "this process", plan: RunPlan | None = None):
         self.scenario = scenario
         #: the facts of its runs (graphs, buffer length): its Template's plan
-        self.plan = RunPlan(scenario) if plan is None else plan
+        self.plan = RunPlan.of(scenario) if plan is None else plan
         self.runs = runs
         self.jobs = jobs
         self.executor = executor
@@ -470,7 +470,7 @@ class MonteCarloResult:
         ``curves.npz``).  Its summary and table are recomputed from those rows and curves."""
         self = cls.__new__(cls)
         self.scenario = scenario
-        self.plan = RunPlan(scenario)
+        self.plan = RunPlan.of(scenario)
         self.runs = int(summary["runs"])
         self.jobs = summary.get("jobs")
         self.executor = "(read back from its folder)"

@@ -6,8 +6,7 @@ The seam between the anti-delay DKF's two halves: an exchange protocol
 Neither touches the other; both use a :class:`Holdings`:
 
 * a protocol reports what a node newly holds with :meth:`Holdings.add` (an origin bitmask for
-  a row), or, with kernels of its own, folds it straight in with
-  :func:`dkfsim.model.holdings_kernels.fold` on :attr:`Holdings.fold_target`;
+  a row), or many at once with :meth:`Holdings.add_words`;
 * the window clears a row's slot when the row opens (:meth:`Holdings.open_row`), takes each
   node's earliest changed row at its update (:meth:`Holdings.take_changes`, which folds what
   is pending first), and reads the sums ``Omega``, ``Theta`` and the flags ``held``.
@@ -16,7 +15,7 @@ Slot ``row % S`` holds row ``row``.  ``S = min(L, K) + 1``: the window of ``L`` 
 final row it starts from, never more than the run has rows (so a huge ``L`` costs no memory).
 The sums are ``sum_o a_io omega_o`` and ``sum_o a_io theta_o[row]`` over the origins ``o`` held,
 added in the order the contributions were reported (origins ascending within one report):
-the numpy and numba folds, and a compiled protocol's, add the same numbers in the same order.
+the numpy and numba folds add the same numbers in the same order.
 """
 
 from __future__ import annotations
@@ -25,6 +24,7 @@ import numpy as np
 
 from dkfsim.core.backend import Backend
 from dkfsim.core.bits import mask_words, set_bits
+from dkfsim.core.jit import bind
 from dkfsim.model import holdings_kernels
 from dkfsim.model.system import Information
 
@@ -66,6 +66,12 @@ class Holdings:
         #: the arrays a fold writes (:class:`dkfsim.model.holdings_kernels.Fold`), for kernels
         self.fold_target = holdings_kernels.Fold(self.A, omega, bool(info.varying), info.theta, self.Omega,
                                                  self.Theta, self.held, self.starts)
+        #: the compiled fold of :meth:`add_words`, bound to its arguments' types (None: numpy)
+        self._fold_words = None
+        if self._compiled:
+            i = np.zeros(1, np.int64)
+            self._fold_words = bind(holdings_kernels.compiled().fold_masks, i, i,
+                                    np.zeros((1, self._words), np.uint64), self.fold_target)
 
     # -- what protocols call -----------------------------------------------------
     def add(self, node: int, origins: int, row: int) -> None:
@@ -73,6 +79,16 @@ class Holdings:
         ``origins`` (a non-negative int, bit ``o`` for origin ``o``) for ``row``; they must be
         new to it."""
         self._pend.extend((node, origins, row))
+
+    def add_words(self, nodes: np.ndarray, rows: np.ndarray, words: np.ndarray) -> None:
+        """:meth:`add` for many contributions, folded now, in order: node ``nodes[k]`` now holds
+        the origins set in ``words[k]`` (little-endian uint64 words) for ``rows[k]``, new to it
+        (int64 arrays and a C-ordered uint64 one: a protocol's kernel output, folded as it is)."""
+        self._flush()
+        if self._fold_words is not None:
+            self._fold_words(nodes, rows, words, self.fold_target)
+        else:
+            self._fold(nodes, rows, words)
 
     def add_held(self, nodes: np.ndarray, rows: np.ndarray, held: np.ndarray) -> None:
         """:meth:`add` for many contributions at once, folded now: node ``nodes[k]`` now holds
@@ -82,6 +98,26 @@ class Holdings:
         self._flush()
         self._fold(np.asarray(nodes, dtype=np.intp), np.asarray(rows, dtype=np.intp),
                    np.asarray(held, dtype=bool))
+
+    def add_unknown(self, stack: np.ndarray, nodes: np.ndarray, k0: int, known: np.ndarray) -> None:
+        """:meth:`add_held` of what ``stack`` says that ``known`` lacks, folded now:
+        ``stack[a, j]`` flags the origins node ``nodes[j]`` holds of row ``k0 + a``; those not
+        yet set in ``known[row % len(known), node]`` (the caller's ring of what it knows each
+        node holds) are folded -- rows, then nodes, origins ascending -- and set there (a
+        fusion centre's shadow, decision 233)."""
+        self._flush()
+        if self._compiled:
+            holdings_kernels.compiled().fold_unknown(stack, np.asarray(nodes, dtype=np.intp), int(k0), known,
+                                                     self.fold_target)
+            return
+        slots = np.arange(k0, k0 + len(stack)) % known.shape[0]
+        new = stack & ~known[slots[:, None], nodes]
+        rr, jj = np.nonzero(new.any(axis=2))
+        if not len(jj):
+            return
+        sel = new[rr, jj]
+        known[slots[rr], nodes[jj]] |= sel
+        self._fold(np.asarray(nodes, dtype=np.intp)[jj], k0 + rr, sel)
 
     # -- what the window calls -------------------------------------------------------
     def open_row(self, row: int) -> None:

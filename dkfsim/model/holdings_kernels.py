@@ -6,12 +6,9 @@ information sums for one row, origins ascending, and notes the row as changed;
 update).  The arrays come grouped in the module-level namedtuple :class:`Fold`, which numba's
 disk cache keeps like plain arrays.
 
-The compiled ``tree`` protocol folds what a packet brings straight into the holdings, with
-:func:`fold` and :func:`bit_index` inlined into its own kernels
-(:mod:`dkfsim.protocols.tree_compiled_kernels`).  numba's cache does not notice an edit of
-this file in those kernels, so they pin its sha256 (``LazyKernels(..., borrows=...)``): after
-an edit here they compile without the disk cache (correct, slower, one warning) until the pin
-is updated, and ``tests/test_kernels.py`` fails until it is (docs/decisions.md 131).
+Every kernel that folds lives in this file: numba's disk cache keys a kernel by its own
+file, so a kernel elsewhere calling :func:`fold` would keep stale code after an edit here.
+:func:`fold_unknown` is a fusion centre's fold of what its packets taught it (decision 233).
 """
 
 from __future__ import annotations
@@ -22,9 +19,9 @@ import numpy as np
 
 from dkfsim.core.jit import LazyKernels
 
-_KERNELS = ("bit_index", "fold", "fold_masks")
-#: Steps inlined into the kernels that call them per contribution (here and in the tree's).
-_INLINE = ("bit_index", "fold")
+_KERNELS = ("bit_index", "fold", "fold_masks", "_fold_origins", "fold_unknown")
+#: Steps inlined into the kernels that call them per contribution.
+_INLINE = ("bit_index", "fold", "_fold_origins")
 _lazy = LazyKernels(__name__, _KERNELS, inline=_INLINE)
 
 #: What a fold reads and writes: the weights ``A`` (node x origin), the information ``omega``
@@ -85,3 +82,31 @@ def fold_masks(i, r, words, F):
     ``i[k]`` gained for row ``r[k]``."""
     for k in range(i.shape[0]):
         fold(i[k], r[k], words[k], F)
+
+
+def _fold_origins(i, row, have, known, bits, F):
+    """Fold the origins flagged in ``have`` that ``known`` (the caller's ring of what each node
+    holds) lacks for node ``i`` and ``row`` into the sums (:func:`fold`, origins ascending),
+    and mark them known."""
+    slot = row % known.shape[0]
+    new = False
+    for o in range(have.shape[0]):
+        if have[o] and not known[slot, i, o]:
+            if not new:
+                bits[:] = 0
+                new = True
+            known[slot, i, o] = True
+            bits[o >> 6] |= np.uint64(1) << np.uint64(o & 63)
+    if new:
+        fold(i, row, bits, F)
+
+
+def fold_unknown(stack, nodes, k0, known, F):
+    """:meth:`Holdings.add_unknown <dkfsim.model.holdings.Holdings.add_unknown>`:
+    ``stack[a, j]`` are the origins node ``nodes[j]`` holds of row ``k0 + a``; what ``known``
+    lacks is folded (:func:`_fold_origins`; rows, then nodes)."""
+    rows, m, no = stack.shape
+    bits = np.zeros((no + 63) // 64, dtype=np.uint64)
+    for a in range(rows):
+        for j in range(m):
+            _fold_origins(nodes[j], k0 + a, stack[a, j], known, bits, F)

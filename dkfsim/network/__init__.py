@@ -1,1 +1,3 @@
-"""The network: SimPy links with per-packet latency, loss and faults, shared by every estimator."""
+"""The network shared by every estimator of a run: links (propagation), media (how a frame
+leaves its sender), ports (one per estimator: numbering, counting, delivering) and the network
+that ties them (docs/design.md §3; docs/architecture.md, "The network layer")."""

@@ -29,9 +29,7 @@ A protocol is a subclass of :class:`Exchange` that implements three hooks:
 helpers :meth:`~Exchange.measuring_nodes`, :meth:`~Exchange.gain`,
 :meth:`~Exchange.schedule_flush` and :meth:`~Exchange.send`.  Overriding
 :meth:`~Exchange.schedule_flush` (with :meth:`~Exchange.flush_later`)
-changes *when* a node sends (docs/examples/tick_flood.py).  :class:`Wiring` (the links
-indexed locally) and :func:`exchange_counts` are what a protocol that is not an
-:class:`Exchange` shares with them (the compiled twin of ``tree``).
+changes *when* a node sends (docs/examples/tick_flood.py).
 """
 
 from __future__ import annotations
@@ -43,9 +41,13 @@ import numpy as np
 from simpy.events import Event
 
 from dkfsim.components.faults import CrashSchedule
+from dkfsim.core.backend import Backend
 from dkfsim.core.bits import mask_words, set_bits
 from dkfsim.model.holdings import Holdings
-from dkfsim.network.links import PRIORITY_FLUSH, Clock, Link, Port, Scheduled
+from dkfsim.network.events import PRIORITY_FLUSH, Clock, Scheduled
+from dkfsim.network.links import Link
+from dkfsim.network.network import Network
+from dkfsim.network.port import Port
 
 #: Bytes of a packet's header (sequence number, sender, receiver, length).
 PACKET_HEADER = 16
@@ -83,10 +85,8 @@ class Wiring:
         self.reverse = [by_arc.get((l.dst, l.src)) for l in self.links]
         self.came_up: dict[int, list[Link]] = {}
         for link in self.links:
-            if link.up is not None and link.changes:
-                up = np.frombuffer(link.up, dtype=np.uint8) != 0
-                for k in np.flatnonzero(up[1:] & ~up[:-1]) + 1:
-                    self.came_up.setdefault(int(k), []).append(link)
+            for k in link.came_up():
+                self.came_up.setdefault(k, []).append(link)
 
 
 def exchange_counts(late: int, late_per_node: list[int], logged: bool, duplicates: int,
@@ -125,6 +125,7 @@ class Exchange:
         are counted per packet.
     :param nx: the state size and :param T_ns: the tick period (ns), for
         the nominal packet size and for protocols that act on the tick grid.
+    :param backend: the run's :class:`~dkfsim.core.backend.Backend` (numba or numpy).
     """
 
     tree = False
@@ -136,8 +137,10 @@ class Exchange:
     graph = "digraph"
 
     def __init__(self, env: Clock, n: int, holdings: Holdings, arrival: np.ndarray | None = None,
-                 late_horizon: int = 4096, nx: int = 1, T_ns: int = 1):
+                 late_horizon: int = 4096, nx: int = 1, T_ns: int = 1, backend: Backend | None = None):
         self.env = env
+        #: the run's backend: a protocol with kernels of its own compiles them on the numba path
+        self.backend = backend if backend is not None else Backend.from_environment()
         self.T_ns = int(T_ns)
         self.row_bytes = row_bytes(nx, n)
         self.n = n
@@ -161,6 +164,12 @@ class Exchange:
         self._flush_cb = [self._make_flush(j) for j in range(n)]
 
     # -- wiring ----------------------------------------------------------------
+    def open_port(self, network: Network, name: str, links: list[Link]) -> Port:
+        """The port this exchange sends through, named ``name``, reporting on ``links``: one whose
+        packets are Python objects delivered one by one to :meth:`receive` (a protocol whose
+        bookkeeping runs in batches opens a :class:`~dkfsim.network.port.RecordPort`)."""
+        return network.port(name, self.receive, links)
+
     def attach(self, port: Port, links: Sequence[Link]) -> None:
         """Send through ``port`` over ``links`` (the exchange graph's arcs, in order).
 
@@ -172,9 +181,7 @@ class Exchange:
         self.out_links, self.reverse = wiring.out_links, wiring.reverse
         #: tick -> the links that come up then (a graph that changes; empty otherwise)
         self.came_up = wiring.came_up
-        #: per link: delivered packets that carried a contribution for a row
-        #: already final at the receiver.
-        self.late_packets = [0] * self.n_links
+        self._late_packets = [0] * self.n_links
         #: per link: the number of the last packet sent (links reorder: receivers keep the newest)
         self.seq = [0] * self.n_links
 
@@ -326,7 +333,7 @@ class Exchange:
             else:
                 self.accept(link, seq, row, st, mask)
         if late:
-            self.late_packets[self.lid[link.id]] += 1
+            self._late_packets[self.lid[link.id]] += 1
 
     def accept(self, link: Link, seq: int, row: int, st: RowState, mask: int) -> None:
         """Hook: packet number ``seq`` on ``link`` carries the aggregate ``mask`` (origins) for
@@ -336,6 +343,12 @@ class Exchange:
     def flush(self, node: int) -> None:
         """Hook: ``node``'s flush is due: :meth:`send` what it has for its out-links."""
         raise NotImplementedError
+
+    @property
+    def late_packets(self) -> list[int]:
+        """Per link: delivered packets that carried a contribution for a row already final at
+        the receiver."""
+        return self._late_packets
 
     def counts(self) -> dict[str, Any]:
         """The exchange's own counts: ``late`` (in ``late_unit``), per node, duplicates, stale."""

@@ -16,19 +16,23 @@ contributions once, each neighbour taking the part addressed to it (docs/design.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+
 from typing_extensions import override
 
 from dkfsim.core.registry import PROTOCOLS
-from dkfsim.protocols.base import PACKET_HEADER, Exchange
+from dkfsim.network.links import Link
+from dkfsim.network.port import Port
+from dkfsim.protocols.base import PACKET_HEADER, Exchange, RowState
 
 
 @PROTOCOLS.register("flood")
 class FloodExchange(Exchange):
     """Relay every new contribution once along every out-link (digraphs)."""
 
-    def attach(self, port, links) -> None:
+    def attach(self, port: Port, links: Sequence[Link]) -> None:
         super().attach(port, links)
-        self._pending = [dict() for _ in self.links]
+        self._pending: list[dict[int, int]] = [{} for _ in self.links]
 
     def _queue(self, j: int, row: int, bits: int, exclude: int) -> None:
         for link in self.out_links[j]:
@@ -46,7 +50,7 @@ class FloodExchange(Exchange):
             self._queue(i, row, 1 << i, -1)
 
     @override
-    def accept(self, link, seq, row, st, mask) -> None:
+    def accept(self, link: Link, seq: int, row: int, st: RowState, mask: int) -> None:
         j = link.dst
         new = mask & ~st.held[j]
         if new != mask:
@@ -55,7 +59,7 @@ class FloodExchange(Exchange):
             self.gain(j, row, st, new)
             self._queue(j, row, new, link.src)
 
-    def _resend(self, link) -> None:
+    def _resend(self, link: Link) -> None:
         """``link`` came up: queue on it everything its sender holds for the window's rows."""
         j = link.src
         if self.crashes is not None and self.crashes.down(j, self.env.now):
@@ -67,25 +71,23 @@ class FloodExchange(Exchange):
         self.schedule_flush(j)
 
     def flush(self, j: int) -> None:
-        """Send ``j``'s pending contributions: one broadcast frame carrying their union, from
-        which each out-link's receiver gets the part addressed to it (the union minus what came
-        from that neighbour, which it holds already); without a channel, one packet per
-        out-link as before (decision 227)."""
+        """Send ``j``'s pending contributions: one flush whose parts are each out-link's
+        (the union minus what came from that neighbour, which it holds already); on a broadcast
+        medium one frame carrying their union, on any other one packet per out-link (decision
+        227)."""
         now = self.env.now
         parts = []
-        # The union sizes the frame on a channel only (without one, each part is its own packet).
-        union: dict[int, int] | None = {} if self.port.channel is not None else None
+        union: dict[int, int] = {}            # (the frame's rows: what a broadcast medium carries)
         for link in self.out_links[j]:
             p = self._pending[self.lid[link.id]]
-            if p and link.up is not None and not link.is_up(now):
+            if p and link.changes and not link.is_up(now):
                 p.clear()                       # out of range: its link-up resend carries it
             if p:
                 items = tuple((row, m) for row, m in sorted(p.items()) if row in self.rows)
                 p.clear()
                 if items:
                     parts.append((link, items))
-                    if union is not None:
-                        for row, m in items:
-                            union[row] = union.get(row, 0) | m
+                    for row, m in items:
+                        union[row] = union.get(row, 0) | m
         if parts:
-            self.send_frame(parts, PACKET_HEADER + len(union or ()) * self.row_bytes)
+            self.send_frame(parts, PACKET_HEADER + len(union) * self.row_bytes)

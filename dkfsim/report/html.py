@@ -161,7 +161,7 @@ def network_section(sc, note: str = "") -> str:
         return (f"<p class='note'>No drawing: the stored scenario is shown as stored, not validated "
                 f"({html.escape(sc.reason)}).</p>")
     try:
-        plan = RunPlan(sc)
+        plan = RunPlan.of(sc)
         graph, xg = plan.graph, plan.exchange
     except DkfsimError as exc:
         return f"<p class='note'>No drawing: {html.escape(str(exc))}</p>"

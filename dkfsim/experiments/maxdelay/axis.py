@@ -243,7 +243,7 @@ def latencies_deterministic(sc) -> bool:
     on its measurement)."""
     if any(s.kind != "linear" for s in sc.sensors):
         return False
-    for u, v in RunPlan(sc).exchange.arcs:
+    for u, v in RunPlan.of(sc).exchange.arcs:
         spec = sc.link_spec(u, v)
         if spec.loss > 0 or (getattr(spec, "duplicate", 0.0) or 0.0) > 0:
             return False

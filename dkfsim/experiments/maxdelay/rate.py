@@ -132,7 +132,7 @@ def make_rate_axis(scenario, *, max_rate: float, min_rate: float, step: float, l
     data = scenario.to_dict()
     pair = parse_link(link)
     if pair is not None:
-        arcs = set(RunPlan(scenario).exchange.arcs)
+        arcs = set(RunPlan.of(scenario).exchange.arcs)
         if pair not in arcs:
             raise DkfsimError(f"--link {pair[0]},{pair[1]}: not a link the scenario's exchange uses "
                               f"(links: {', '.join(f'{u},{v}' for u, v in sorted(arcs)[:12])}"

@@ -254,7 +254,7 @@ class MaxDelay:
         lies: :meth:`likely_answers`)."""
         J = self.axis.max_index
         anchors = sorted({0, J} | {min(2 ** m, J) for m in range(int(math.log2(max(J, 1))) + 1)})
-        plans = {j: RunPlan(self.axis.scenario(j, self.axis.overrides(j)), "estimates") for j in anchors}
+        plans = {j: RunPlan.of(self.axis.scenario(j, self.axis.overrides(j)), "estimates") for j in anchors}
         ones = {j: estimate_run(plan) for j, plan in plans.items()}
         expected = self.expected_runs()
         guess = sum(w * sum(n * _between(ones, j, "seconds") for j, n in runs.items()) for w, runs in expected)

@@ -335,7 +335,7 @@ def _replayed_mobility(f: Path, summary: dict, K: int) -> dict:
         raise DkfsimError(f"{f}: scenario_config has steps {clip(cfg.get('steps'))} but curves.npz has "
                           f"{K} ticks (the files do not belong together)")
     try:
-        plan = RunPlan(stored_scenario(cfg, source=summary.get("source"), label=str(f)))
+        plan = RunPlan.of(stored_scenario(cfg, source=summary.get("source"), label=str(f)))
         schedule = plan.link_schedule
     except DkfsimError:
         return {}
