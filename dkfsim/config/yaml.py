@@ -43,10 +43,23 @@ def _check_events(text: str, base) -> None:
     an alias to a big anchored list costs what it expands to.  An alias to a
     node that is still open refers to itself (a recursive structure).
     """
+    try:
+        _walk_events(yaml.parse(text, Loader=base))
+    except yaml.YAMLError as err:
+        # libyaml's scanner has its own depth limit (1000 flow levels), which it may meet
+        # before it hands over the first event (a flow collection's key is looked for ahead):
+        # the same refusal as ours, in our words
+        if "maximum nesting depth" in str(getattr(err, "problem", "")):
+            raise _TooBig(f"nested deeper than {MAX_DEPTH} levels", getattr(err, "problem_mark", None)) from None
+        raise
+
+
+def _walk_events(events) -> None:
+    """:func:`_check_events` on the parser's ``events``."""
     stack: list[list] = [[0, None]]              # [nodes so far, anchor] per open collection
     sizes: dict[str, int] = {}
     total = 0
-    for ev in yaml.parse(text, Loader=base):
+    for ev in events:
         if isinstance(ev, (yaml.SequenceStartEvent, yaml.MappingStartEvent)):
             if len(stack) > MAX_DEPTH:
                 raise _TooBig(f"nested deeper than {MAX_DEPTH} levels", ev.start_mark)
