@@ -37,8 +37,9 @@ def cmd_validate(args) -> int:
     channel = ""
     if sc.medium is not None:         # a shared radio channel (docs/design.md §3)
         m = sc.medium
+        cw = getattr(m.access, "cw", None)
         channel = (f"; {len(m.members(sc.n))} nodes on one shared channel of {m.rate:g} bit/s "
-                   f"({m.access.kind}, cw {m.access.cw}; the Python exchange)")
+                   f"({m.access.kind}" + (f", cw {cw})" if cw is not None else ")"))
     say(f"{args.scenario}: ok — {sc.name}: {len(sc.sensors)} sensors, nx = {sc.nx}, "
           f"{sc.steps} ticks of {sc.model.T} s, protocol {sc.protocol} on {shape} "
           f"(d_t = {plan.d_t}), fusion {sc.fusion}{channel}; a run needs about "

@@ -21,7 +21,7 @@ A link with background or a queue limit needs a rate (nothing else would make th
 
 from __future__ import annotations
 
-from typing import Annotated, Literal
+from typing import Annotated, Any, Literal
 
 from pydantic import Field, model_validator
 
@@ -93,7 +93,7 @@ class TrafficKeys(StrictModel):
 TRAFFIC_KEYS: tuple[str, ...] = tuple(TrafficKeys.model_fields)
 
 
-def background_packets(scenario, arcs) -> float:
+def background_packets(scenario: Any, arcs: Any) -> float:
     """Background packets a run of ``scenario`` on the directed links ``arcs`` sends, each an event
     of the network: the channel's frames (``medium.background``, per member) and each link's
     (``links.*.background``, per arc that has it), in the DKF's network and in each estimator's

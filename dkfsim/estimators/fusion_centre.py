@@ -33,9 +33,10 @@ from typing import Any
 import numpy as np
 from simpy.events import Event
 
-from dkfsim.components.estimators import FusionCentreParams
+from dkfsim.components.estimators import EstimatorParams, FusionCentreParams
+from dkfsim.config.plan import RunPlan
 from dkfsim.core.resources import B_FLOAT, C_FLOP, C_FUSION_ROW, C_NODE_ROW, C_PACKET, C_ROW, C_TICK, Cost
-from dkfsim.estimators.base import DKFView, Estimate, Estimator, EstimatorResult
+from dkfsim.estimators.base import DKFView, Estimate, Estimator, EstimatorResult, RunContext
 from dkfsim.estimators.fusion import FUSERS, CrossCovariance
 from dkfsim.estimators.window import WindowFilter
 from dkfsim.model.holdings import Holdings
@@ -83,7 +84,7 @@ class FusionCentre(Estimator, params=FusionCentreParams):
     port: Port
     dkf: DKFView
 
-    def __init__(self, params: FusionCentreParams, ctx):
+    def __init__(self, params: FusionCentreParams, ctx: RunContext):
         super().__init__(params, ctx)
         self.at = int(params.at)
         #: optional log for tests: per fuse ``(k, newest, excluded, known masks of the
@@ -91,7 +92,8 @@ class FusionCentre(Estimator, params=FusionCentreParams):
         self.log: list[tuple] | None = None
 
     @classmethod
-    def cost(cls, params, plan) -> Cost:
+    def cost(cls, params: EstimatorParams, plan: RunPlan) -> Cost:
+        assert isinstance(params, FusionCentreParams)
         sc = plan.scenario
         n, nx, K = sc.n, sc.nx, int(sc.steps)
         L, _ = plan.buffer_length_bound(plan.dkf().buffer_length)

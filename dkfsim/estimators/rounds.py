@@ -47,9 +47,12 @@ from dkfsim.protocols.base import info_bytes
 if TYPE_CHECKING:
     import scipy.sparse
 
+    from dkfsim.components.estimators import EstimatorParams
+    from dkfsim.config.plan import RunPlan
+
 
 # --------------------------------------------------------------------------- helpers
-def metropolis_weights(n: int, arcs) -> np.ndarray:
+def metropolis_weights(n: int, arcs: Any) -> np.ndarray:
     """``pi`` of each arc ``(u, v)`` (u sends to v): ``1 / (1 + max(d_u, d_v))``.
 
     ``d`` counts in-neighbours.  ``pi_vv = 1 - sum`` over v's in-arcs.
@@ -78,14 +81,15 @@ def sym(A: np.ndarray) -> np.ndarray:
 class Powers:
     """``Phi^m`` and ``Q_m = sum_{i<m} Phi^i Q Phi^i'`` for m = 0, 1, ..., grown on demand."""
 
-    def __init__(self, Phi, Q):
+    def __init__(self, Phi: np.ndarray, Q: np.ndarray) -> None:
         self.Phi, self.Q = Phi, Q
         nx = Phi.shape[0]
         self.F = [np.eye(nx)]
         self.Qm = [np.zeros((nx, nx))]
-        self._F = self._Q = None
+        self._F: np.ndarray | None = None
+        self._Q: np.ndarray | None = None
 
-    def get(self, m: np.ndarray):
+    def get(self, m: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         top = int(m.max())
         if top >= len(self.F) or self._F is None:
             while len(self.F) <= top:
@@ -93,6 +97,7 @@ class Powers:
                 Qn = self.Phi @ self.Qm[-1] @ self.Phi.T + self.Q
                 self.Qm.append(0.5 * (Qn + Qn.T))
             self._F, self._Q = np.array(self.F), np.array(self.Qm)
+        assert self._Q is not None
         return self._F[m], self._Q[m]
 
 
@@ -125,13 +130,13 @@ class RoundBased(Estimator):
     WORK = 2
 
     @classmethod
-    def slots_of(cls, params) -> int:
+    def slots_of(cls, params: EstimatorParams) -> int:
         """Sub-slots per tick of an entry (default: its ``rounds``)."""
-        return int(params.rounds)
+        return int(getattr(params, "rounds", 1))
 
     @classmethod
     @override
-    def cost(cls, params, plan) -> Cost:
+    def cost(cls, params: EstimatorParams, plan: RunPlan) -> Cost:
         scenario, arcs = plan.scenario, plan.n_exchange_links
         K, n, nx = int(scenario.steps), scenario.n, scenario.nx
         return Cost(params.label, memory={params.label: K * n * (nx + nx * nx) * B_FLOAT
@@ -247,7 +252,7 @@ class RoundBased(Estimator):
         """Every node's measurement information matrix of row ``k - 1`` (n, nx, nx)."""
         return self.omega[k - 1] if self._omega_per_row else self.omega
 
-    def record(self, k: int, x, P) -> None:
+    def record(self, k: int, x: np.ndarray, P: np.ndarray) -> None:
         self.x_out[k - 1] = x
         self.P_out[k - 1] = P
 
@@ -256,7 +261,7 @@ class RoundBased(Estimator):
         if not self.crashes or self.slots == 0:
             return np.zeros(0, dtype=np.intp)
         now = self.env.now
-        return np.array([i for i in range(self.n) if self.crashes.down(i, now)], dtype=np.intp)
+        return np.array([i for i in range(self.n) if self.crashes.down(i, int(now))], dtype=np.intp)
 
     def follow_graph(self, k: int) -> None:
         """On a graph that changes: take the arcs up at tick ``k`` (the tick being computed),
@@ -334,7 +339,7 @@ class RoundBased(Estimator):
             if parts:
                 send_frame(parts, nbytes)
 
-    def _receive(self, link, payload) -> None:
+    def _receive(self, link: Link, payload: Any) -> None:
         g, box, fields = payload
         if self.DROP_LATE and self.env.now > self.deadline(g):
             self.port.count_late()
@@ -347,7 +352,7 @@ class RoundBased(Estimator):
         else:
             self.superseded += 1
 
-    def _instant(self, _event) -> None:
+    def _instant(self, _event: Any) -> None:
         g = self._g                  # global round index: tick g // slots + 1, sub-slot g % slots
         self._g += 1
         k, l = g // self.slots + 1, g % self.slots

@@ -33,6 +33,8 @@ class Clock(Protocol):
 
     def schedule(self, event: Event, priority: int = ..., delay: int = ...) -> None: ...
 
+    def peek(self) -> float: ...
+
 
 class Scheduled(Event):
     """An event that fires at ``now + delay`` with a given priority and callback."""
