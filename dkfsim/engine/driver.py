@@ -35,7 +35,7 @@ from dkfsim.core.progress import progress_callback
 from dkfsim.core.registry import ESTIMATORS
 from dkfsim.core.resources import Cost, check
 from dkfsim.core.threads import single_thread
-from dkfsim.engine.estimate import RUN_HINT, TRIAL_ABOVE_S, estimate_run, scaled_events, trial_ticks
+from dkfsim.engine.estimate import RUN_HINT, TRIAL_ABOVE_S, estimate_run, scaled_events, trial_is_short, trial_ticks
 from dkfsim.engine.results import RunResult
 from dkfsim.estimators.anti_delay import AntiDelayDKF, AntiDelayParams
 from dkfsim.estimators.base import Estimator, EstimatorResult, RunContext
@@ -222,9 +222,12 @@ def trial_estimate(plan: RunPlan, res: RunResult) -> Cost:
 def measured_estimate(plan: RunPlan, runs: float = 1, workers: int = 1, force: bool = False) -> Cost:
     """The estimate of one run of ``plan``: its analytic guess, or, when ``runs`` such runs on
     ``workers`` would take more than :data:`~dkfsim.engine.estimate.TRIAL_ABOVE_S` by the guess
-    (or ``force``), its events measured on a trial (:func:`trial_events`)."""
+    (or ``force``), its events measured on a trial (:func:`trial_events`) -- unless the trial
+    itself would be long (:func:`~dkfsim.engine.estimate.trial_is_short`)."""
     guess = estimate_run(plan)
     if not force and guess.seconds * runs / max(1, workers) <= TRIAL_ABOVE_S:
+        return guess
+    if not trial_is_short(plan, guess):      # (the trial itself would be long: the guess decides)
         return guess
     events, ticks = trial_events(plan)
     return estimate_run(plan, events=events, how=f"measured on a trial of {ticks} ticks")

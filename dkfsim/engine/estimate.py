@@ -38,6 +38,15 @@ def trial_ticks(plan: RunPlan) -> int:
     return int(min(int(plan.scenario.steps), 2 * min(plan.L_estimate, 10**6) + 20))
 
 
+def trial_is_short(plan: RunPlan, guess: Cost) -> bool:
+    """Whether a trial of ``plan`` (:func:`trial_ticks`) is short by the analytic ``guess`` of
+    the whole run: at most :data:`TRIAL_ABOVE_S`.  A longer trial is not run -- the guess
+    stands, and an absurd load (a background of 1e9 packets/s) is refused on it instead of
+    being measured for hours."""
+    K = max(1, int(plan.scenario.steps))
+    return guess.seconds * trial_ticks(plan) / K <= TRIAL_ABOVE_S
+
+
 def scaled_events(events: dict, ticks: int, K: int) -> dict[str, float]:
     """The events of a trial of ``ticks`` ticks scaled to a run of ``K``."""
     return {k: float(events[k]) * K / ticks for k in EVENT_KINDS}

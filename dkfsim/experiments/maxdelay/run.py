@@ -20,7 +20,7 @@ from dkfsim.core.errors import DkfsimError
 from dkfsim.core.resources import EVENT_KINDS, Cost, check
 from dkfsim.core.threads import single_thread
 from dkfsim.engine.driver import trial, trial_estimate
-from dkfsim.engine.estimate import TRIAL_ABOVE_S, estimate_run
+from dkfsim.engine.estimate import TRIAL_ABOVE_S, estimate_run, trial_is_short
 from dkfsim.experiments import executors
 from dkfsim.experiments.maxdelay.axis import DelayAxis, latencies_deterministic, make_axis
 from dkfsim.experiments.maxdelay.rate import RateAxis, make_rate_axis, parse_link, rate_lower_bound
@@ -259,6 +259,7 @@ class MaxDelay:
         expected = self.expected_runs()
         guess = sum(w * sum(n * _between(ones, j, "seconds") for j, n in runs.items()) for w, runs in expected)
         measured = force_trial or guess / max(1, self.workers) > TRIAL_ABOVE_S
+        measured = measured and all(trial_is_short(plan, ones[j]) for j, plan in plans.items())
         if measured:
             values = {}
             for j, plan in plans.items():
