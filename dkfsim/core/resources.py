@@ -27,7 +27,6 @@ with the seconds per event ``tools/bench.py --calibrate`` fitted and stored in
 from __future__ import annotations
 
 import functools
-import json
 import math
 import os
 from pathlib import Path
@@ -40,6 +39,7 @@ from dataclasses import dataclass, field
 from typing import Literal, cast
 
 from dkfsim.core.errors import DkfsimError, ResourceError
+from dkfsim.core.files import read_json
 
 #: Above this estimated wall time a command asks for --yes.
 TIME_LIMIT_S = 600.0
@@ -71,7 +71,7 @@ CALIBRATION = Path(__file__).resolve().parents[1] / "data" / "calibration" / "se
 @functools.cache
 def seconds_per_event() -> dict:
     """The stored calibration (:data:`CALIBRATION`)."""
-    return json.loads(CALIBRATION.read_text())
+    return read_json(CALIBRATION, what="the stored calibration of seconds per event")
 
 
 def event_seconds(events: dict, fusion_size: int) -> float:
