@@ -463,6 +463,7 @@ class Empirical(LatencyParams):
 
     def trace_s(self) -> np.ndarray:
         """The trace's latencies in seconds, after ``unit``, ``one_way`` and ``scale``."""
+        assert self._path is not None         # (set by _load, the validator)
         raw = read_column(self._path, self.column)
         return raw * (_UNIT_S[self.unit] * self.scale * (0.5 if self.one_way else 1.0))
 
