@@ -338,7 +338,7 @@ def paper_bound(Phi, Q, omegas, P0, graph, p_tol: float, *, horizon: int = 1000,
         directed=directed, ln_C0=ln_C0,
         base=float(math.exp((Z + 1) * (math.log(gamma_hat) + 2 * math.log(eta)))),
         printed_base=float(gamma_hat * eta ** (2 * (Z + 1))),
-        d_star=d_star, d_t_bound=int(math.floor(d_star)) if meaningful else None,
+        d_star=d_star, d_t_bound=int(math.floor(d_star)) if meaningful and d_star is not None else None,
         d_star_literal=d_lit if d_lit is not None else math.nan,
         meaningful=meaningful, note=note)
     bound.guaranteed = [(d, bound.lambda_max_bound(d)) for d in (0, 1, 2, 4, 8)]

@@ -120,7 +120,7 @@ def curves_dataset(t, estimates, components, curves: Mapping, attrs: Mapping | N
     xr = optional("xarray")
     names, comps = list(estimates), list(components)
     A, K = len(names), len(t)
-    data_vars = {}
+    data_vars: dict[str, tuple[tuple[str, ...], np.ndarray]] = {}
     for key, value in curves.items():
         a = np.asarray(value)
         if a.shape == (A, K, len(comps)):

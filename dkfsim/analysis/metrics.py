@@ -132,9 +132,10 @@ def _traffic(key: str, scale: bool):
 
 
 def _anees(s: Scored) -> float:
-    if s.P is None:
+    nees = s.nees                   # (None when s.P is None)
+    if nees is None:
         return math.nan
-    return float(np.mean(s.nees[s.burn_in:]))
+    return float(np.mean(nees[s.burn_in:]))
 
 
 for _name, _metric, _doc in (

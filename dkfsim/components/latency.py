@@ -49,7 +49,7 @@ import functools
 import math
 import os
 from pathlib import Path
-from typing import Annotated, ClassVar, Literal
+from typing import TYPE_CHECKING, Annotated, ClassVar, Literal
 
 import numpy as np
 from pydantic import Field, PrivateAttr, TypeAdapter, ValidationInfo, model_validator
@@ -463,6 +463,7 @@ class Empirical(LatencyParams):
 
     def trace_s(self) -> np.ndarray:
         """The trace's latencies in seconds, after ``unit``, ``one_way`` and ``scale``."""
+        assert self._path is not None         # (set by _load, the validator)
         raw = read_column(self._path, self.column)
         return raw * (_UNIT_S[self.unit] * self.scale * (0.5 if self.one_way else 1.0))
 
@@ -508,6 +509,14 @@ class _Replay(Sampler):
 
 
 # =========================================================================== Gilbert-Elliott
+#: The latency model of a Gilbert-Elliott state (any registered model; to a type checker: the
+#: base model, which every registered one subclasses).
+if TYPE_CHECKING:
+    _StateModel = LatencyParams
+else:
+    _StateModel = registered(LatencyParams, LATENCY_MODELS)
+
+
 @LATENCY_MODELS.register("gilbert_elliott")
 class GilbertElliott(LatencyParams):
     """Two-state (good/bad) Markov channel per link, one step per tick."""
@@ -515,8 +524,8 @@ class GilbertElliott(LatencyParams):
     model: Literal["gilbert_elliott"] = "gilbert_elliott"
     p_good_to_bad: Probability
     p_bad_to_good: Probability
-    good: registered(LatencyParams, LATENCY_MODELS)
-    bad: registered(LatencyParams, LATENCY_MODELS)
+    good: _StateModel
+    bad: _StateModel
     loss_good: Probability = 0.0
     loss_bad: Probability = 0.0
     initial: Literal["stationary", "good", "bad"] = "stationary"

@@ -118,7 +118,10 @@ class Model(StrictModel):
     def nx(self) -> int:
         if self.kind == "constant_velocity":
             return 2 * (self.dims or 2)
-        return 3 if self.kind == "constant_acceleration" else len(self.Phi)
+        if self.kind == "constant_acceleration":
+            return 3
+        assert self.Phi is not None            # (required with kind: linear, checked above)
+        return len(self.Phi)
 
     @property
     def T_ns(self) -> int:

@@ -55,7 +55,7 @@ _BOUND_WORDS = {"greater_than_equal": (">=", "ge"), "greater_than": (">", "gt"),
                 "less_than_equal": ("<=", "le"), "less_than": ("<", "lt")}
 
 
-def _reason(err: dict, path: list[str]) -> tuple[str, list[str]]:
+def _reason(err: Mapping[str, Any], path: list[str]) -> tuple[str, list[str]]:
     """Short message for one pydantic error, and the (maybe extended) path."""
     etype = err["type"]
     ctx = err.get("ctx") or {}

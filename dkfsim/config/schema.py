@@ -250,7 +250,7 @@ class Scenario(StrictModel):
             # Both spellings (an old file with ``--set estimators=...``, or the other
             # way round): an explicit entry takes the place of the converted one of
             # the same name; the other explicit entries follow.
-            by_name = {}
+            by_name: dict[str | None, Any] = {}
             for e in explicit:
                 name = (e.get("name") or ESTIMATORS.canonical(str(e.get("kind")))) \
                     if isinstance(e, dict) else None
@@ -278,7 +278,7 @@ class Scenario(StrictModel):
                                    f"sensors.{i}.name")
             names[s.name] = i
         if self.truth is not None:
-            self._check_truth()
+            self._check_truth(self.truth)
         self._index_overrides()
         plan = RunPlan(self)            # what the run would derive: checked here, never at its start
         remember(self, plan)            # (and the plan the run follows: RunPlan.of)
@@ -317,19 +317,19 @@ class Scenario(StrictModel):
                     f"{least}{S} window rows, {least}{need / 2**30:.1f} GiB of memory; use fusion: "
                     f"none for a network this large (or a shorter buffer_length)", dkf.key or "fusion")
 
-    def _check_truth(self) -> None:
+    def _check_truth(self, truth: TruthParams) -> None:
         if self.model.kind != "constant_velocity" or self.model.nx != 4:
             raise custom_error("a recorded track gives the state [x, vx, y, vy]: needs model "
                                "kind: constant_velocity with dims: 2", "truth")
-        need = self.truth.start + self.steps * self.model.T
-        have = self.truth.track().duration
+        need = truth.start + self.steps * self.model.T
+        have = truth.track().duration
         if need > have + 1e-9:
-            named = (f"truth.dataset {self.truth.dataset}" if self.truth.dataset is not None
-                     else f"truth.file {self.truth.file}")
+            named = (f"truth.dataset {truth.dataset}" if truth.dataset is not None
+                     else f"truth.file {truth.file}")
             raise custom_error(
-                f"the run needs {need:g} s of track (truth.start {self.truth.start:g} s + "
+                f"the run needs {need:g} s of track (truth.start {truth.start:g} s + "
                 f"{self.steps} steps x {self.model.T:g} s) but {named} covers {have:g} s; use at "
-                f"most {int((have - self.truth.start) / self.model.T + 1e-9)} steps", "steps")
+                f"most {int((have - truth.start) / self.model.T + 1e-9)} steps", "steps")
 
     def _pair(self, u: int, v: int) -> tuple[int, int]:
         """The key of link ``u -> v`` in the override index (either direction on an undirected

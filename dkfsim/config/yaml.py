@@ -14,7 +14,7 @@
 from __future__ import annotations
 
 import re
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import yaml
 
@@ -91,7 +91,12 @@ def _walk_events(events) -> None:
                           "counted in full); refusing an alias bomb", ev.start_mark)
 
 
-_Base = yaml.CSafeLoader if getattr(yaml, "__with_libyaml__", False) else yaml.SafeLoader
+#: libyaml's safe loader when installed, else PyYAML's (to a type checker: PyYAML's, whose
+#: constructor and resolver libyaml's shares).
+if TYPE_CHECKING:
+    _Base = yaml.SafeLoader
+else:
+    _Base = yaml.CSafeLoader if getattr(yaml, "__with_libyaml__", False) else yaml.SafeLoader
 
 
 class SafeLoader(_Base):

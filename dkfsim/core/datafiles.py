@@ -87,6 +87,7 @@ def locate(file: str | None, dataset: str | None, base_dir) -> tuple[Path, str]:
                             + ", ".join(datasets()) + ")")
     if dataset is not None:
         return dataset_path(dataset), "dataset"
+    assert file is not None               # (exactly one is given)
     path, tried = resolve_data_file(file, base_dir)
     if path is None:
         raise DataFileError("file not found (tried " + ", ".join(str(t) for t in tried) + ")")

@@ -18,6 +18,7 @@ import json
 import os
 import re
 import stat
+from collections.abc import Iterable
 from pathlib import Path
 from typing import Any, BinaryIO
 
@@ -100,12 +101,13 @@ def check_plain_data(data: Any, what: str = "the scenario data", max_depth: int 
     nodes, or a container inside itself.  Raises :class:`DkfsimError` (``what`` names
     the data in its message)."""
     count = 0
-    stack = [(data, 0, ())]
+    stack: list[tuple[Any, int, tuple[int, ...]]] = [(data, 0, ())]     # (node, depth, ids of its ancestors)
     while stack:
         node, depth, path = stack.pop()
         count += 1
         if count > MAX_NODES:
             raise DkfsimError(f"{what} holds more than {MAX_NODES:,} values")
+        children: Iterable[Any]
         if isinstance(node, dict):
             children = node.values()
         elif isinstance(node, (list, tuple)):

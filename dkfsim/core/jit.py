@@ -16,6 +16,7 @@ import importlib.util
 import os
 import sys
 import threading
+from typing import Any
 
 from dkfsim.core.errors import DkfsimError
 from dkfsim.core.extras import optional
@@ -119,8 +120,9 @@ def _listen_for_compiles(numba) -> None:
     event = optional("numba.core.event")
     if _Compiling.listening or not hasattr(event, "Listener") or not hasattr(event, "register"):
         return
+    listener: Any = event.Listener      # numba's base class: mypy cannot check it (no type information)
 
-    class _OnCompile(event.Listener):  # type: ignore[name-defined]
+    class _OnCompile(listener):
         def on_start(self, ev):
             func = getattr(getattr(ev, "data", {}).get("dispatcher"), "py_func", None)
             if str(getattr(func, "__module__", "")).startswith("dkfsim."):

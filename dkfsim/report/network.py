@@ -31,7 +31,8 @@ def _tree_positions(tree, root: int, keep: set) -> dict:
     """Top-down tidy layout: leaves left to right in depth-first order, parents centred."""
     sub = tree.subgraph(keep)
     depth = nx.single_source_shortest_path_length(sub, root)
-    pos, next_x = {}, 0.0
+    pos: dict[int, tuple[float, float]] = {}
+    next_x = 0.0
     for v in nx.dfs_postorder_nodes(sub, root, sort_neighbors=sorted):
         kids = [u for u in sub.neighbors(v) if depth.get(u, -1) == depth[v] + 1]
         if kids:

@@ -11,9 +11,10 @@ import json
 import math
 from dataclasses import dataclass
 
-from dkfsim.components.latency import parse_latency
+from dkfsim.components.latency import LatencyParams, parse_latency
 from dkfsim.config.load import load_scenario
 from dkfsim.config.plan import RunPlan
+from dkfsim.config.schema import Scenario
 from dkfsim.core.errors import DkfsimError
 from dkfsim.core.registry import LATENCY_MODELS
 
@@ -39,12 +40,13 @@ def _value_at(lat: dict, dotted: str):
     return node
 
 
-def _scaled_keys(path: str, lat: dict) -> list[str] | None:
+def _scaled_keys(path: str, lat: dict) -> list[str]:
     """The dotted keys (under ``path``) a latency scale multiplies, as the model declares
-    them (:meth:`~dkfsim.components.latency.LatencyParams.scaled_keys`); None if it cannot
-    be scaled."""
+    them (:meth:`~dkfsim.components.latency.LatencyParams.scaled_keys`)."""
     keys = parse_latency(lat).scaled_keys()
-    return None if keys is None else [f"{path}.{k}" for k in keys]
+    if keys is None:
+        raise DkfsimError(f"{path}: latency model {lat['model']!r} cannot be scaled")  # excluded by make_axis
+    return [f"{path}.{k}" for k in keys]
 
 
 def _scale_overrides(path: str, lat: dict, s: float) -> list[str]:
@@ -59,10 +61,14 @@ def _scalable(lat: dict) -> bool:
     return parse_latency(lat).scaled_keys() is not None
 
 
+def _declares_scale(params: type | None) -> bool:
+    assert params is not None and issubclass(params, LatencyParams)    # every latency model's params
+    return params.scale_keys is not None or params.nests_models
+
+
 def scalable_models() -> list[str]:
     """Latency models a scale can multiply (those declaring ``scale_keys``, or nesting models)."""
-    return [e.name for e in LATENCY_MODELS.entries()
-            if e.params.scale_keys is not None or e.params.nests_models]
+    return [e.name for e in LATENCY_MODELS.entries() if _declares_scale(e.params)]
 
 
 @dataclass
@@ -84,7 +90,7 @@ class DelayAxis:
     mode: str
     step: float
     max_index: int
-    base: object                # Scenario
+    base: Scenario
     specs: list                 # [(dotted path, latency dict), ...]: every latency model
     jitters: list               # [(dotted path, latency dict), ...]: every jitter model
     T: float
@@ -134,6 +140,7 @@ class DelayAxis:
         when one is unbounded and there is no ``links.d_t`` to stand in."""
         out = []
         for path, lat in self.specs:
+            sup: float | None
             if self.mode == "d_t":
                 sup = j * self.T
             else:

@@ -91,9 +91,7 @@ class MaxDelayResult:
         a = self.emp.answer
         return None if a is None else self.md.axis.value(a)
 
-    def _search_dict(self, res: SearchResult | None, cands: dict) -> dict | None:
-        if res is None:
-            return None
+    def _search_dict(self, res: SearchResult, cands: dict) -> dict:
         ax = self.md.axis
 
         def at(j):

@@ -396,9 +396,11 @@ class MaxDelay:
             limit = None
             if wc_data0 is not None and isinstance(self.axis, DelayAxis):
                 ref0 = self.worst_value(wc_data0, runner)
-                wc_tol = st.tolerance if st.relative is None else st.relative * ref0
-                self.evaluate_worst(0, runner, wc_tol, value=ref0)
-                wc = worst_case_scan(lambda j: self.evaluate_worst(j, runner, wc_tol), J)
+                tol = st.tolerance if st.relative is None else st.relative * ref0
+                assert tol is not None          # (check_settings: one of tolerance and relative is set)
+                wc_tol = tol
+                self.evaluate_worst(0, runner, tol, value=ref0)
+                wc = worst_case_scan(lambda j: self.evaluate_worst(j, runner, tol), J)
                 limit = self.worst_value(self.axis.limit_overrides(), runner)
             elif isinstance(self.axis, RateAxis):
                 self.notes.append("worst case not computed: it is a latency notion; on the rate axis "
@@ -462,7 +464,9 @@ class MaxDelay:
             if ax.links_d_t is None:
                 return None
             lat = [ax.links_d_t * ax.T]
-        total = max(lat) + (max(jit) if jit else 0.0)
+        lat_s = [v for v in lat if v is not None]      # (none is None now)
+        jit_s = [v for v in jit if v is not None]
+        total = max(lat_s) + (max(jit_s) if jit_s else 0.0)
         return total if total > 0 else None
 
 

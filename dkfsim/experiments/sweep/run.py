@@ -30,7 +30,7 @@ from dkfsim.engine.driver import measured_estimate
 from dkfsim.engine.estimate import TRIAL_ABOVE_S, estimate_run
 from dkfsim.experiments import executors
 from dkfsim.experiments.montecarlo import derive_seed, run_scored
-from dkfsim.experiments.sweep.definition import Sweep, load_sweep
+from dkfsim.experiments.sweep.definition import ParameterSet, Sweep, load_sweep
 from dkfsim.experiments.sweep.grid import summarize
 from dkfsim.experiments.sweep.results import read_results
 from dkfsim.experiments.sweep.store import SweepDB, missing_estimates, tasks_done
@@ -156,7 +156,8 @@ def run_sweep(sweep: Sweep | str | os.PathLike, *, seed: int | None = None, step
     with SweepDB(path, sweep) as store:
         done, missing = store.done(), missing_estimates(store, sweep)
         # Runs not done yet (every estimate), then estimators added to runs done before.
-        todo = [(p, r, None) for p, r in sweep.tasks() if (p.param_hash, r) not in done]
+        todo: list[tuple[ParameterSet, int, list[str] | None]] = [
+            (p, r, None) for p, r in sweep.tasks() if (p.param_hash, r) not in done]
         todo += [(p, r, missing[p.param_hash, r]) for p, r in sweep.tasks()
                  if (p.param_hash, r) in missing]
         skipped = sweep.n_tasks - len(todo)

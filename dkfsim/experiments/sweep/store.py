@@ -16,8 +16,10 @@ import tempfile
 import time
 import urllib.parse
 from pathlib import Path
-from typing import Any
+from types import ModuleType
+from typing import Any, BinaryIO
 
+fcntl: ModuleType | None
 try:
     import fcntl
 except ImportError:  # pragma: no cover  (Windows)
@@ -127,7 +129,7 @@ class SweepDB:
 
     def __init__(self, path, sweep: Sweep | None = None, *, readonly: bool = False):
         self.path = Path(path)
-        self._lock_fh = None
+        self._lock_fh: BinaryIO | None = None
         label = str(self.path)
         if readonly:
             if not self.path.exists():
@@ -139,13 +141,14 @@ class SweepDB:
                 self.conn = sqlite3.connect(self.path, isolation_level=None, timeout=30)
             try:
                 try:
-                    self.definition = self._stored_definition()
+                    definition = self._stored_definition()
                 except DkfsimError:
                     if not self._reopen_immutable():
                         raise
-                    self.definition = self._stored_definition()
-                if self.definition is None:
+                    definition = self._stored_definition()
+                if definition is None:
                     raise DkfsimError(f"{label}: not a dkfsim sweep database (no sweep definition)")
+                self.definition: dict = definition
             except BaseException:
                 self.close()
                 raise
@@ -389,7 +392,7 @@ class SweepDB:
         conn = getattr(self, "conn", None)
         if conn is not None:
             conn.close()
-            self.conn = None
+            del self.conn                 # (closed: getattr above finds none)
         if self._lock_fh is not None:
             self._lock_fh.close()
             self._lock_fh = None

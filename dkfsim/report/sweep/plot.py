@@ -91,7 +91,7 @@ def _parse_where(columns, where) -> dict:
 
 
 def _values(gs, key) -> list:
-    seen = []
+    seen: list[object] = []
     for g in gs:
         v = g["grid"][key]
         if not any(_same(v, s) for s in seen):
@@ -176,7 +176,7 @@ def sweep_curves(path, x: str | None = None, hue: str | None = None, metric: str
         components = components[:1]       # scalar metrics repeat on every component row
     elif wanted_components:
         components = [components[i] for i in select_components(components, wanted_components, "the sweep")]
-    nx = {}
+    nx: dict[str, set[str]] = {}           # estimate -> its state components
     for g in gs:
         nx.setdefault(g["estimate"], set()).add(g["component"])
     lines: dict = {}
