@@ -69,6 +69,9 @@ class Settings:
 
 #: The axes of ``--axis``.
 AXES = ("delay", "rate")
+#: Axes longer than this are not enumerated to estimate the search: its cost is bounded below
+#: by the candidates' bookkeeping and one run each (the worst-case scan), which is refused.
+MAX_ENUMERATED = 10**6
 
 
 def check_settings(st: Settings) -> None:
@@ -246,6 +249,19 @@ class MaxDelay:
         lo = max([j for j in keys if j < hi], default=None)
         return [0] if lo is None else list(range(lo, hi))
 
+    def _lower_bound(self) -> Cost:
+        """The cost of a search over more than :data:`MAX_ENUMERATED` candidates, bounded below
+        without enumerating them (``--scale-step 1e-12`` makes 10^12): their bookkeeping, and one
+        run of the base scenario per candidate."""
+        J = self.axis.max_index
+        one = estimate_run(RunPlan.of(self.axis.base, "estimates"))
+        total = Cost(f"{named(self.sc)}: maxdelay over {J + 1:.3g} candidates ({self.axis.name}), at "
+                     "least one run each", workers=max(1, self.workers))
+        total.seconds = (J + 1) * one.seconds
+        total.memory["one run per worker"] = one.bytes * total.workers
+        total.memory["candidates"] = (J + 1) * 2048
+        return total
+
     def estimate(self, force_trial: bool = False) -> Cost:
         """Memory and time of the search as :meth:`expected_runs` expects it: each candidate's run
         guessed (the scenario of that candidate) with the answer anywhere; when that is long (or
@@ -253,6 +269,8 @@ class MaxDelay:
         their events, interpolated between them, and their metric, which says where the answer
         lies: :meth:`likely_answers`)."""
         J = self.axis.max_index
+        if J + 1 > MAX_ENUMERATED:
+            return self._lower_bound()
         anchors = sorted({0, J} | {min(2 ** m, J) for m in range(int(math.log2(max(J, 1))) + 1)})
         plans = {j: RunPlan.of(self.axis.scenario(j, self.axis.overrides(j)), "estimates") for j in anchors}
         ones = {j: estimate_run(plan) for j, plan in plans.items()}
