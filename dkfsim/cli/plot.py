@@ -54,7 +54,7 @@ def configure(p) -> None:
                    help="folder for the figures (default: DIR/figures; with --compare: the first DIR's)")
     p.add_argument("--format", dest="formats", nargs="+", default=list(DEFAULT_FORMATS), choices=FORMATS,
                    metavar="FMT", help=f"file formats: {', '.join(FORMATS)} (default: png pdf)")
-    p.add_argument("--dpi", type=int, default=PNG_DPI[0], metavar="N",
+    p.add_argument("--dpi", type=int, default=None, metavar="N",
                    help=f"resolution of the PNG files (default: {PNG_DPI[0]}, for screens and slides; "
                         "300 for print: the PDF beside each is the vector figure)")
     p.add_argument("--compare", action="store_true",
@@ -157,6 +157,8 @@ def _default_out(folder: Path, name: str) -> Path:
 
 
 def cmd_plot(args) -> int:
+    if args.dpi is None:                 # the resolution in force (PNG_DPI: 150 unless a caller chose)
+        return _cmd_plot(args)
     if not 30 <= args.dpi <= 1200:
         raise DkfsimError(f"--dpi: a resolution from 30 to 1200, got {args.dpi}")
     with png_resolution(args.dpi):
