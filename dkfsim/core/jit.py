@@ -90,8 +90,8 @@ def _tolerate_cache_write_errors(caching) -> None:
 
 #: CPU seconds numba takes to compile each kernel module's kernels (measured on this project's
 #: 2-core machine; the first run on a machine pays them once, later ones load the disk cache).
-COMPILE_SECONDS = {"dkfsim.estimators.kernels": 10, "dkfsim.model.holdings_kernels": 3,
-                   "dkfsim.protocols.tree_compiled_kernels": 7, "dkfsim.estimators.fusion_centre_kernels": 4}
+COMPILE_SECONDS = {"dkfsim.estimators.kernels": 15, "dkfsim.model.holdings_kernels": 3,
+                   "dkfsim.protocols.tree_kernels": 9, "dkfsim.network.port_kernels": 6}
 
 
 class _Compiling:
