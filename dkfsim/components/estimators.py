@@ -17,7 +17,7 @@ from pydantic import BeforeValidator, Field
 
 from dkfsim.components.topology import protocol_graph
 from dkfsim.core.files import clip
-from dkfsim.core.params import NAME_LIMIT, NonNegReal, StrictBool, StrictModel, custom_error, suggest
+from dkfsim.core.params import NAME_LIMIT, NonNegReal, StrictBool, StrictModel, custom_error, fix_kind, suggest
 from dkfsim.core.registry import ESTIMATORS
 
 
@@ -38,11 +38,7 @@ class EstimatorParams(StrictModel):
 
     def __init_subclass__(cls, kind: str | None = None, aliases: tuple[str, ...] = (), **kwargs: Any):
         if kind is not None:
-            # Before pydantic collects the fields: ``kind`` becomes Literal[kind] = kind.
-            annotations = dict(cls.__dict__.get("__annotations__", {}))
-            annotations["kind"] = Literal[kind]
-            cls.__annotations__ = annotations
-            cls.kind = kind
+            fix_kind(cls, kind)
         super().__init_subclass__(**kwargs)
 
     @classmethod

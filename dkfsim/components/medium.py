@@ -23,7 +23,7 @@ from typing import TYPE_CHECKING, Annotated, Any, Literal
 from pydantic import Field, field_validator, model_validator
 
 from dkfsim.components.traffic import Background, Queue, Rate
-from dkfsim.core.params import StrictModel, custom_error, registered, seconds_to_ns
+from dkfsim.core.params import StrictModel, custom_error, fix_kind, registered, seconds_to_ns
 from dkfsim.core.registry import MEDIA
 
 #: Bytes of a frame's header: :data:`dkfsim.protocols.base.PACKET_HEADER` (a test keeps them equal).
@@ -55,11 +55,7 @@ class AccessParams(StrictModel):
 
     def __init_subclass__(cls, kind: str | None = None, **kwargs: Any) -> None:
         if kind is not None:
-            # Before pydantic collects the fields: ``kind`` becomes Literal[kind] = kind.
-            annotations = dict(cls.__dict__.get("__annotations__", {}))
-            annotations["kind"] = Literal[kind]
-            cls.__annotations__ = annotations
-            cls.kind = kind
+            fix_kind(cls, kind)
         super().__init_subclass__(**kwargs)
 
     @classmethod

@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import difflib
 from decimal import ROUND_HALF_EVEN, Decimal
-from typing import Annotated, Any
+from typing import Annotated, Any, Literal
 
 import numpy as np
 from pydantic import BaseModel, BeforeValidator, ConfigDict, Field, SerializeAsAny, ValidationInfo, model_validator
@@ -122,6 +122,16 @@ def dispatch(registry, default: str | None = None, base: type | None = None):
 def _short(value: Any) -> str:
     text = " ".join(repr(value).split())
     return text if len(text) <= 60 else text[:56] + " ..."
+
+
+def fix_kind(cls: type, kind: str) -> None:
+    """Make ``kind`` a subclass's ``Literal[kind] = kind`` field, from ``__init_subclass__``
+    (before pydantic collects the fields): a component family whose subclasses declare their
+    kind in the class statement (``class MyMac(AccessParams, kind="my_mac")``)."""
+    annotations = dict(cls.__dict__.get("__annotations__", {}))
+    annotations["kind"] = Literal[kind]
+    cls.__annotations__ = annotations
+    type.__setattr__(cls, "kind", kind)
 
 
 def registered(base: type, registry, default: str | None = None):
