@@ -98,11 +98,10 @@ NonNeg = Annotated[float, Field(strict=True, ge=0)]
 Node = Annotated[int, Field(strict=True, ge=-1)]
 
 
-class LinkCounts(Model):
-    """One link's counts (summary.json ``per_link`` and ``traffic.<estimate>.per_link`` rows);
-    a rate-limited link's row has its utilisation and queueing delays too."""
+class PacketCounts(Model):
+    """The packet counts a link's row and an estimator's block both have (the terms of
+    ``sent + copies = delivered + lost + queue_dropped + crash_dropped + in_flight``)."""
 
-    link: tuple[Node, Node]
     sent: Count | None = None
     delivered: Count | None = None
     lost: Count | None = None
@@ -114,6 +113,17 @@ class LinkCounts(Model):
     collision_lost: Count | None = None
     range_lost: Count | None = None
     in_flight: Count | None = None
+
+
+class _Linked(Model):
+    link: tuple[Node, Node]
+
+
+class LinkCounts(PacketCounts, _Linked):
+    """One link's counts (summary.json ``per_link`` and ``traffic.<estimate>.per_link`` rows);
+    a rate-limited link's row has its utilisation and queueing delays too.  (``link`` comes
+    first: pydantic orders the fields of the last base first.)"""
+
     late_packets: Count | None = None
     background_sent: Count | None = None
     background_dropped: Count | None = None
@@ -162,21 +172,10 @@ class ChannelRecord(Model):
     access_delay_mean: Annotated[float, Field(strict=True, ge=0)]
 
 
-class Counts(Model):
+class Counts(PacketCounts):
     """An estimator's packet counts: summary.json ``packets`` (the DKF's) and each
     ``traffic.<estimate>`` block."""
 
-    sent: Count | None = None
-    delivered: Count | None = None
-    lost: Count | None = None
-    copies: Count | None = None
-    crash_dropped: Count | None = None
-    outage_lost: Count | None = None
-    bytes: Count | None = None
-    queue_dropped: Count | None = None
-    collision_lost: Count | None = None
-    range_lost: Count | None = None
-    in_flight: Count | None = None
     late: Count | None = None
     late_per_node: list[Count] | None = None
     late_unit: Text | None = None
