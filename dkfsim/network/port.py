@@ -217,17 +217,34 @@ class Port:
                         continue
                     for lat in count_fate(link, now, seq, count):    # (a lost one occupied it)
                         self._enqueue(now, leaves - now + lat, link, payload)
-                elif medium.broadcast:
-                    if shared is None:
-                        shared = {}
-                    shared.setdefault(medium, []).append((link, payload, seq))
-                elif not medium.offer(Frame(link.src, size, now, ((link, payload, seq),), self._left, self)):
-                    count["queue_dropped"][lid] += 1
+                else:
+                    shared = self._offer(medium, link, payload, seq, size, now, shared)
             if shared:
-                for medium, held in shared.items():
-                    if not medium.offer(Frame(held[0][0].src, int(frame_bytes[f]), now, held, self._left, self)):
-                        for link, _, _ in held:
-                            count["queue_dropped"][link.id] += 1
+                self._offer_shared(shared, int(frame_bytes[f]), now)
+
+    def _offer(self, medium: Medium, link: Link, payload: Any, seq: int, nbytes: int, now: int,
+               shared: dict[Medium, list[tuple[Link, Any, int]]] | None
+               ) -> dict[Medium, list[tuple[Link, Any, int]]] | None:
+        """One part handed to a medium that decides later (neither passive nor synchronous): a
+        broadcast medium's parts are gathered into ``shared`` (made on first use; returned) to
+        leave as one frame (:meth:`_offer_shared`), any other's leave as a frame of their own;
+        a frame the medium refuses counts ``queue_dropped``."""
+        if medium.broadcast:
+            if shared is None:
+                shared = {}
+            shared.setdefault(medium, []).append((link, payload, seq))
+        elif not medium.offer(Frame(link.src, nbytes, now, ((link, payload, seq),), self._left, self)):
+            self._count["queue_dropped"][link.id] += 1
+        return shared
+
+    def _offer_shared(self, shared: dict[Medium, list[tuple[Link, Any, int]]], nbytes: int, now: int) -> None:
+        """The parts :meth:`_offer` gathered, one frame of ``nbytes`` per broadcast medium; every
+        part of a refused frame counts ``queue_dropped``."""
+        count = self._count
+        for medium, held in shared.items():
+            if not medium.offer(Frame(held[0][0].src, nbytes, now, held, self._left, self)):
+                for link, _, _ in held:
+                    count["queue_dropped"][link.id] += 1
 
     def _left(self, frame: Frame, ok: bool) -> None:
         """A frame of this port has left its sender (at ``frame.end``, now or later), or was lost
@@ -586,17 +603,9 @@ class RecordPort(Port):
                         self._chunk(now + wait + lat, (lid, tag, i0 + base, i1 + base))
                     continue
                 payload = (tag, records[i0:i1].copy())       # (kept by the medium until it leaves)
-                if medium.broadcast:
-                    if shared is None:
-                        shared = {}
-                    shared.setdefault(medium, []).append((link, payload, seq))
-                elif not medium.offer(Frame(link.src, nbytes, now, ((link, payload, seq),), self._left, self)):
-                    count["queue_dropped"][lid] += 1
+                shared = self._offer(medium, link, payload, seq, nbytes, now, shared)
             if shared:
-                for medium, held in shared.items():
-                    if not medium.offer(Frame(held[0][0].src, size, now, held, self._left, self)):
-                        for link, _, _ in held:
-                            count["queue_dropped"][link.id] += 1
+                self._offer_shared(shared, size, now)
 
     def _enqueue(self, now: int, lat: int, link: Link, payload: Any) -> None:
         tag, rows = payload
