@@ -238,6 +238,8 @@ def check_run_measured(plan: RunPlan, *, yes: bool = False) -> Cost:
     est = measured_estimate(plan)
     check(est, yes=yes, hint=RUN_HINT)
     return est
+
+
 def simulate(plan: RunPlan, progress: Callable[[int, int], None] | None = None) -> RunResult:
     """Run the scenario of ``plan`` (validated, its resources checked: :func:`run` does both)
     and return its result; ``progress(tick, K)`` is called as the run goes."""
