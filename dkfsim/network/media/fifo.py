@@ -70,26 +70,35 @@ class FifoTable:
 
     def add(self, rates: list[float], T_ns: int, queue: Queue | None, background: BackgroundArrivals | None) -> int:
         """A new transmitter, its column: ``rates`` (bit/s) at ticks ``0, 1, ...`` of ``T_ns``
-        ns (the last for every later tick; one rate: throughout)."""
-        F, m = self.F, self.F.st.shape[1]
-        st = np.zeros((pk.NST, m + 1), np.int64)
-        st[:, :m] = F.st
-        col = st[:, m]
+        ns (the last for every later tick; one rate: throughout).  The table's arrays hold
+        twice the columns they need when they grow, so adding many links costs linear time."""
+        m = len(self._backgrounds)
+        maxp = queue.packets if queue is not None and queue.packets is not None else -1
+        F = self.F
+        C = max(F.ring.shape[1], maxp if maxp > 0 else 0)
+        R = max(F.rate.shape[1], len(rates))
+        cap = F.st.shape[1]
+        if m == cap or C > F.ring.shape[1] or R > F.rate.shape[1]:
+            new = max(cap, 2 * (m + 1)) if m == cap else cap
+            st = np.zeros((pk.NST, new), np.int64)
+            st[:, :cap] = F.st
+            rate = np.zeros((new, R), np.float64)
+            rate[:cap, :F.rate.shape[1]] = F.rate
+            ring = np.zeros((new, C, 2), np.int64)
+            if C == F.ring.shape[1]:            # the rings keep their places (and heads)
+                ring[:cap] = F.ring
+            else:                                # longer rings: each from its head at position 0
+                ring[:cap] = self._unrolled(F.ring, F.st, C)
+                st[pk.HEAD, :cap] = 0
+            bg = np.zeros((new, 2, BLOCK), np.int64)
+            bg[:cap] = F.bg
+            F = self.F = pk.Fifos(st, rate, ring, bg, F.log, F.top)
+        col = F.st[:, m]
         col[pk.SEEN] = -1
-        col[pk.MAXP] = queue.packets if queue is not None and queue.packets is not None else -1
+        col[pk.MAXP] = maxp
         col[pk.MAXB] = queue.bytes if queue is not None and queue.bytes is not None else -1
         col[pk.NRATE], col[pk.TNS], col[pk.HASBG] = len(rates), max(1, int(T_ns)), background is not None
-        rate = np.zeros((m + 1, max(F.rate.shape[1], len(rates))), np.float64)
-        rate[:m, :F.rate.shape[1]] = F.rate
-        rate[m, :len(rates)] = rates
-        C = max(F.ring.shape[1], int(col[pk.MAXP]) if col[pk.MAXP] > 0 else 0)
-        ring = np.zeros((m + 1, C, 2), np.int64)
-        ring[:m] = self._unrolled(F.ring, F.st, C)
-        if m:
-            st[pk.HEAD, :m] = 0
-        bg = np.zeros((m + 1, 2, BLOCK), np.int64)
-        bg[:m] = F.bg
-        self.F = pk.Fifos(st, rate, ring, bg, F.log, F.top)
+        F.rate[m, :len(rates)] = rates
         self._backgrounds.append(background)
         return m
 
