@@ -127,8 +127,9 @@ def test_a_task_is_written_entirely_or_not_at_all(tmp_path):
 def test_killed_sweep_resumes_without_losing_or_repeating_a_task(tmp_path):
     psutil = pytest.importorskip("psutil")
     grid = {"links.default.latency.d_t": [0, 1, 2]}
-    killed = write_sweep(tmp_path, name="killed", grid=grid, runs=4)
-    fresh = write_sweep(tmp_path, name="fresh", grid=grid, runs=4)
+    # Long enough tasks (about 0.3 s each) that the kill lands while most are still to do.
+    killed = write_sweep(tmp_path, name="killed", grid=grid, runs=4, steps=1000)
+    fresh = write_sweep(tmp_path, name="fresh", grid=grid, runs=4, steps=1000)
     db = tmp_path / "killed.sqlite"
     total = 12
 
@@ -145,8 +146,8 @@ def test_killed_sweep_resumes_without_losing_or_repeating_a_task(tmp_path):
             if db.exists():
                 try:
                     done = table(db, "SELECT COUNT(*) FROM tasks")[0][0]
-                except sqlite3.OperationalError:  # schema not there yet
-                    done = 0
+                except sqlite3.OperationalError:  # schema not there yet, or a write under way
+                    pass
                 if done >= 3:
                     break
             time.sleep(0.01)
