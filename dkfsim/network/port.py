@@ -666,12 +666,9 @@ class RecordPort(Port):
             link = links[e]
             if (link.changes and not link.is_up(now)) or not medium.leaves_at_once(nbytes):
                 table[e] = 0
-            elif medium.passive:                # (else its waiting room decides: 2)
-                ints = self.B.ints
-                base = int(ints[port_kernels.SEQN, link.id]) if ints[port_kernels.SEQT, link.id] == now else self._seq0
-                for u in range(q):
-                    arrivals, why = link.transmit(now, base + u)
-                    table[e, u] = 0 if why is not None or 0 not in arrivals else 1 if len(arrivals) == 1 else 2
+            # (else 2: its waiting room, or its latency drawn in Python, decides.  Drawing here
+            # cost a Python draw per link and packet at every flush, most never sent: 19x the
+            # run's time on exponential latency; an unknown part is sent and delivered instead.)
         crashes = self.net.crashes
         if crashes is not None:                 # a receiver that is down drops what arrives
             for e, d in dsts:
@@ -688,6 +685,7 @@ class RecordPort(Port):
         kind = self.B.ints[port_kernels.KIND]
         at_once = [self.medium(l).leaves_at_once(nbytes) and l.min_latency_ns() == 0 for l in links]
         others = [(e, self.medium(l)) for e, l in enumerate(links) if kind[l.id] != port_kernels.DRAWN and at_once[e]]
+        others = [(e, m) for e, m in others if links[e].changes or not m.passive]   # (else always 2)
         dsts = [(e, l.dst) for e, l in enumerate(links) if l.dst >= 0] if self.net.crashes is not None else []
         never = np.zeros((len(links), q), dtype=np.int8) if not any(at_once) else None
         later = np.array([e for e, l in enumerate(links) if kind[l.id] != port_kernels.DRAWN and not at_once[e]],
