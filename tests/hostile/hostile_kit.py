@@ -1,10 +1,19 @@
 """What the hostile tests share: legitimate result folders to tamper with, and the CLI run as a
-user runs it (a real process) with its CPU time and peak memory measured.
+user runs it (a process of its own) with its CPU time and peak memory measured.
 
 Time and memory bounds are on the child's own CPU seconds (``os.wait4``) and peak resident set
 size (its ``VmHWM`` at exit, reported through a pipe), never wall time: the machine is shared.
 ``wait4``'s ``ru_maxrss`` is no measure of the child's memory: Linux carries the forking
 process's resident size into the child's record, so it would include the pytest worker's.
+
+A child is this test process forked (:func:`_forked`: dkfsim, its kernels and matplotlib already
+loaded, the command run by ``dkfsim.cli.main`` with fresh standard streams, signals and warning
+filters) unless it must be a fresh ``python -m dkfsim``: ``fresh=True``, an ``env`` (read at
+import), ``python=`` code, or ``DKFSIM_TEST_FORK=0``.  Starting Python, dkfsim and matplotlib
+afresh cost 1-1.5 s of CPU per call, most of this tier's time.  A forked child's peak memory is
+what it grew by plus what a fresh process holds after those imports (measured once), and it
+may reuse memory the test process had freed: a test whose point is a memory bound asks for a
+fresh process (:meth:`Child.within` refuses a forked child a bound tighter than the default).
 """
 
 from __future__ import annotations
@@ -43,6 +52,7 @@ class Child:
     stderr: str
     cpu: float            # user + system seconds of the child (and the children it waited for)
     maxrss_mb: float      # peak resident set size of the child's own program (VmHWM)
+    fresh: bool = True    # a fresh Python process (else this test process, forked)
 
     def clean_error(self, *words, cpu: float = CPU_LIMIT, memory_mb: float = MEMORY_LIMIT_MB) -> str:
         """Exit 2, no traceback, one paragraph naming every word, within the bounds."""
@@ -61,6 +71,8 @@ class Child:
         return self.stdout
 
     def within(self, cpu: float, memory_mb: float) -> None:
+        assert self.fresh or memory_mb >= MEMORY_LIMIT_MB, \
+            "a test of a memory bound runs a fresh process: dkfsim_cli(..., fresh=True)"
         assert self.cpu < cpu, f"{self.cpu:.1f} s of CPU (bound {cpu} s)"
         assert self.maxrss_mb < memory_mb, f"{self.maxrss_mb:.0f} MB peak memory (bound {memory_mb} MB)"
 
@@ -91,13 +103,16 @@ RUN_DKFSIM = "import runpy; runpy.run_module('dkfsim', run_name='__main__', alte
 
 
 def dkfsim_cli(*args, cwd=None, env=None, timeout: float = 300, stdin=subprocess.DEVNULL,
-               stdout=None, preexec=None, python=None) -> Child:
-    """``python -m dkfsim ARGS`` in a child process; its resources are read with ``wait4``.
+               stdout=None, preexec=None, python=None, fresh: bool = False) -> Child:
+    """``dkfsim ARGS`` in a child process (this one forked, or ``python -m dkfsim``: see the
+    module); its resources are read with ``wait4``.
 
     ``stdout``: a file object to write the child's stdout to instead of capturing it;
     ``preexec``: run in the child before it starts (limits); ``python``: code run with ``-c``
-    instead of ``-m dkfsim`` (``sys.argv[1:]`` are ARGS).
+    instead of ``-m dkfsim`` (``sys.argv[1:]`` are ARGS); ``fresh``: a fresh process.
     """
+    if not (fresh or env or python is not None or os.environ.get("DKFSIM_TEST_FORK") == "0"):
+        return _forked(args, cwd, timeout, stdin, stdout, preexec)
     peak_r, peak_w = os.pipe()
     full_env = {**os.environ, **(env or {}), "DKFSIM_TEST_PEAK_FD": str(peak_w)}
     code = PEAK_REPORTER + (RUN_DKFSIM if python is None else python)
@@ -135,6 +150,121 @@ def dkfsim_cli(*args, cwd=None, env=None, timeout: float = 300, stdin=subprocess
                  b"".join(chunks["err"]).decode("utf-8", "replace"), usage.ru_utime + usage.ru_stime,
                  # killed before its exit handlers ran: only wait4's (inflated) figure is left
                  int(peak_kb) / 1024 if peak_kb.isdigit() else usage.ru_maxrss / 1024)
+
+
+def _warm() -> float:
+    """Load once in this process what the commands load (dkfsim's CLI, a run with its kernels,
+    the report and matplotlib); the peak memory (MB) of a fresh process after those imports."""
+    global _FRESH_MB
+    if _FRESH_MB is None:
+        import dkfsim.cli.main  # noqa: F401
+        import dkfsim.report.html_report  # noqa: F401
+        import dkfsim.report.plots  # noqa: F401
+        dkfsim.run(dkfsim.load_scenario(CASE1, overrides=["steps=3"]))
+        probe = dkfsim_cli(python="import dkfsim.cli.main, dkfsim.report.plots, matplotlib.pyplot", fresh=True)
+        assert probe.returncode == 0, probe.stderr
+        _FRESH_MB = probe.maxrss_mb
+    return _FRESH_MB
+
+
+_FRESH_MB: float | None = None
+
+
+def _forked(args, cwd, timeout: float, stdin, stdout, preexec) -> Child:
+    """:func:`dkfsim_cli` in this process, forked (see the module)."""
+    import faulthandler
+    import io
+    import traceback
+    import warnings
+    base_mb = _warm()
+    fds = [os.pipe(), os.pipe(), os.pipe()]          # stdout, stderr, peak memory
+    (out_r, out_w), (err_r, err_w), (peak_r, peak_w) = fds
+    sys.stdout.flush()
+    sys.stderr.flush()
+    pid = os.fork()
+    if pid == 0:                                        # the child: never returns
+        code = 1
+        try:
+            os.close(out_r), os.close(err_r), os.close(peak_r)
+            faulthandler.disable()
+            signal.signal(signal.SIGINT, signal.default_int_handler)
+            for sig in (signal.SIGTERM, signal.SIGALRM, signal.SIGXFSZ, signal.SIGCHLD):
+                signal.signal(sig, signal.SIG_DFL)
+            null = os.open(os.devnull, os.O_RDWR)
+            os.dup2(null if stdin is subprocess.DEVNULL else stdin.fileno(), 0)
+            os.dup2(out_w if stdout is None else stdout.fileno(), 1)
+            os.dup2(err_w, 2)
+            sys.stdin = io.TextIOWrapper(io.FileIO(0, "r", closefd=False), encoding="utf-8")
+            sys.stdout = io.TextIOWrapper(io.FileIO(1, "w", closefd=False), encoding="utf-8")
+            sys.stderr = io.TextIOWrapper(io.FileIO(2, "w", closefd=False), encoding="utf-8",
+                                          errors="backslashreplace", line_buffering=True)
+            warnings.resetwarnings()                    # (also forgets every warning already shown)
+            warnings.simplefilter("ignore", DeprecationWarning)
+            warnings.simplefilter("ignore", PendingDeprecationWarning)
+            warnings.simplefilter("ignore", ImportWarning)
+            warnings.simplefilter("ignore", ResourceWarning)
+            warnings.showwarning = warnings._showwarning_orig
+            if "matplotlib.pyplot" in sys.modules:
+                sys.modules["matplotlib.pyplot"].close("all")
+            if cwd is not None:
+                os.chdir(cwd)
+            with open("/proc/self/status", "rb") as f:
+                start_kb = int(next(l.split()[1] for l in f if l.startswith(b"VmRSS:")))
+            with open("/proc/self/clear_refs", "w") as f:
+                f.write("5")                            # (the peak from here on)
+            if preexec is not None:
+                preexec()
+            from dkfsim.cli.main import main
+            sys.argv = [str(Path(dkfsim.__file__).with_name("__main__.py")), *map(str, args)]
+            try:
+                code = main(sys.argv[1:])
+            except SystemExit as exc:
+                code = exc.code if isinstance(exc.code, int) else 0 if exc.code is None else 1
+                if isinstance(exc.code, str):
+                    print(exc.code, file=sys.stderr)
+            except BaseException:
+                traceback.print_exc()
+                code = 1
+            for f in (sys.stdout, sys.stderr):
+                with contextlib.suppress(Exception):
+                    f.flush()
+            with open("/proc/self/status", "rb") as f:
+                peak_kb = int(next(l.split()[1] for l in f if l.startswith(b"VmHWM:")))
+            os.write(peak_w, str(max(0, peak_kb - start_kb)).encode())
+        except BaseException:
+            with contextlib.suppress(Exception):
+                os.write(2, traceback.format_exc().encode())
+        finally:
+            os._exit(code if isinstance(code, int) else 1)
+    for fd in (out_w, err_w, peak_w):
+        os.close(fd)
+    chunks: dict[int, list[bytes]] = {out_r: [], err_r: []}
+
+    def read(fd: int) -> None:
+        while block := os.read(fd, 1 << 16):
+            chunks[fd].append(block)
+    readers = [threading.Thread(target=read, args=(fd,)) for fd in (out_r, err_r)]
+    for r in readers:
+        r.start()
+    timer = threading.Timer(timeout, lambda: os.kill(pid, signal.SIGKILL))
+    timer.start()
+    try:
+        _, status, usage = os.wait4(pid, 0)
+    finally:
+        timer.cancel()
+    os.set_blocking(peak_r, False)   # a grandchild may still hold the write end
+    try:
+        grown_kb = os.read(peak_r, 64)
+    except BlockingIOError:
+        grown_kb = b""
+    os.close(peak_r)
+    for r in readers:
+        r.join()
+    for fd in (out_r, err_r):
+        os.close(fd)
+    return Child(os.waitstatus_to_exitcode(status), b"".join(chunks[out_r]).decode("utf-8", "replace"),
+                 b"".join(chunks[err_r]).decode("utf-8", "replace"), usage.ru_utime + usage.ru_stime,
+                 base_mb + (int(grown_kb) / 1024 if grown_kb.isdigit() else float("inf")), fresh=False)
 
 
 class Hung(Exception):

@@ -375,8 +375,8 @@ def test_a_huge_string_in_summary_json_is_read_in_bounded_memory(legit, tmp_path
     edit_json(folder / "summary.json", lambda s: s.update(fuzz_big=value))
     size_mb = (folder / "summary.json").stat().st_size / 2**20
     bound = 300 + 10 * size_mb
-    dkfsim_cli("report", folder).ok(cpu=60, memory_mb=bound)
-    dkfsim_cli("plot", folder, "--format", "png").ok(cpu=60, memory_mb=bound)
+    dkfsim_cli("report", folder, fresh=True).ok(cpu=60, memory_mb=bound)
+    dkfsim_cli("plot", folder, "--format", "png", fresh=True).ok(cpu=60, memory_mb=bound)
 
 
 @pytest.mark.slow
@@ -385,7 +385,7 @@ def test_a_huge_cell_in_a_sweep_database_is_read_in_bounded_memory(legit, tmp_pa
     with contextlib.closing(sqlite3.connect(db)) as conn:
         conn.execute("UPDATE params SET values_json=? WHERE idx=0", (json.dumps({"x": "y" * 40_000_000}),))
         conn.commit()
-    child = dkfsim_cli("report", db)
+    child = dkfsim_cli("report", db, fresh=True)
     assert child.returncode in (0, 2) and "Traceback" not in child.stderr
     child.within(60, 300 + 10 * db.stat().st_size / 2**20)
 
@@ -427,7 +427,7 @@ def test_a_huge_fcd_element_is_refused_at_once(tmp_path, what):
         fh.write('<fcd-export><timestep time="0"><vehicle id="v0" x="0" y="0" ')
         fh.write('type="' + "t" * 100_000_000 + '"/>' if what == "a 100 MB attribute" else '/>' + "text " * 10_000_000)
         fh.write("</timestep></fcd-export>")
-    dkfsim_cli("validate", _fcd_scenario(tmp_path, fcd)).clean_error("f.xml", "without a '>'", cpu=20,
+    dkfsim_cli("validate", _fcd_scenario(tmp_path, fcd), fresh=True).clean_error("f.xml", "without a '>'", cpu=20,
                                                                    memory_mb=600)
 
 

@@ -49,7 +49,7 @@ def refused(folder: Path, *words, load_run: bool = False, **bounds) -> None:
     """plot and report end in a clean error naming ``words``; load_run and dkfsim.load raise
     DkfsimError."""
     for cmd in (("plot", folder, "--format", "png"), ("report", folder)):
-        dkfsim_cli(*cmd).clean_error(*words, **bounds)
+        dkfsim_cli(*cmd, fresh="memory_mb" in bounds).clean_error(*words, **bounds)
     if load_run:
         with pytest.raises(DkfsimError):
             dkfsim.load_run(folder)
