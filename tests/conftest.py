@@ -10,10 +10,26 @@ from __future__ import annotations
 
 import copy
 from collections import deque
+from pathlib import Path
 
 import numpy as np
 import pytest
 from interrupts import pytest_configure  # noqa: F401  (Ctrl-C and SIGTERM stop every process: issue 34)
+
+#: Tests in the slow tier by measurement (tools/slow_tier.py): over the fast tier's per-test budget.
+SLOW_BY_TIME = Path(__file__).with_name("slow_tests.txt")
+
+
+def pytest_collection_modifyitems(items):
+    """Mark ``slow`` the tests tests/slow_tests.txt lists (one id per line after its seconds), and
+    those using the hostile tier's ``legit`` folders (a run, a Monte Carlo and a sweep with their
+    reports and figures: 20 s to make, once per test process)."""
+    listed = {line.split(None, 1)[1].strip() for line in SLOW_BY_TIME.read_text(encoding="utf-8").splitlines()
+              if line.strip() and not line.startswith("#")}
+    for item in items:
+        if item.nodeid in listed or "legit" in getattr(item, "fixturenames", ()):
+            item.add_marker(pytest.mark.slow)
+            item.add_marker(pytest.mark.slow_by_time)
 
 # ----------------------------------------------------------------------------
 # models and sensors

@@ -435,7 +435,9 @@ def test_a_regular_install_runs_copies_of_the_data_scenarios_anywhere(tmp_path):
     assert p.returncode == 0, p.stderr
     elsewhere = tmp_path / "elsewhere"
     elsewhere.mkdir()
-    env = {**os.environ, "PYTHONPATH": str(site)}
+    # (the numpy kernels: compiling the installed copy's numba kernels cold is 35 s, and the
+    # point here is the data files in the package)
+    env = {**os.environ, "PYTHONPATH": str(site), "DKFSIM_KERNELS": "numpy"}
     for name in ("stress_5g_empirical", "cicv5g_track"):
         (elsewhere / f"{name}.yaml").write_text((ROOT / "scenarios" / f"{name}.yaml").read_text())
         code = ("import dkfsim, sys; assert dkfsim.__file__.startswith(sys.argv[1]), dkfsim.__file__; "

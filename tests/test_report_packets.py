@@ -76,6 +76,7 @@ def reports(tmp_path_factory):
     return out
 
 
+@pytest.mark.slow                         # (its fixture: four runs and their reports, 14 s)
 @pytest.mark.parametrize("name", RUNS)
 def test_a_run_reports_packet_table_adds_up(reports, name):
     rows = packets_table(reports[name])
@@ -93,6 +94,7 @@ def test_a_run_reports_packet_table_adds_up(reports, name):
         assert dkf["duplicate copies"] > 0 and dkf["dropped: crashed node"] > 0, dkf
 
 
+@pytest.mark.slow
 def test_the_channel_report_lists_the_channel_with_units(reports):
     table = dict(row for row in Page(reports["channel"].read_text()).tables["channel_parameters"][1:])
     assert float(table["rate [bit/s]"]) == 6e6

@@ -290,10 +290,11 @@ def small_scenario() -> dkfsim.Scenario:
     return dkfsim.load_scenario(CASE1, overrides=["steps=40"])
 
 
-@pytest.fixture(scope="module")
+@pytest.fixture(scope="session")
 def legit(tmp_path_factory) -> dict[str, Path]:
     """A run folder, a Monte Carlo folder and a sweep database (with its files), all small and
-    untouched: tests copy them (:func:`copy_of`) before tampering."""
+    untouched: tests copy them (:func:`copy_of`) before tampering.  Made once per test process
+    (about 20 s): every hostile module reads the same ones."""
     d = tmp_path_factory.mktemp("legit")
     sc = small_scenario()
     dkfsim.run(sc).save(d / "run")
