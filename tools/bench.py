@@ -62,7 +62,8 @@ Before/after (``--base REF``): the runs issue 31 holds to the commit before it -
 (on the default path, with ``DKFSIM_EXCHANGE=python`` which a base commit may still read, and
 on the numpy path), a 50-node tree with matrix fusion, a 200-node tree without, the 1000-node
 tree, the shipped channel scenario, mobility_crossing, paper_case1 on rate-limited links, with a
-fusion centre, and with a fusion centre on rate-limited links -- each in a fresh process,
+fusion centre, and with a fusion centre on rate-limited links, paper_case1 on exponential latency
+and stress_heavy_tail (latencies drawn one packet at a time) -- each in a fresh process,
 alternating the commit ``REF``
 (``git archive``, unpacked in a temporary folder) and this checkout ``--repeats`` times;
 prints the CPU seconds of each (min over the repeats, each run after a short warm-up run of
@@ -336,6 +337,11 @@ def kernel_workloads(ticks: int, scale_ticks: int, big_nodes: int, big_ticks: in
         "paper_case1, fusion centre": (dkfsim.load_scenario(case1, overrides=[centre]), "estimates", None),
         "paper_case1, fusion centre, rate-limited links": (
             dkfsim.load_scenario(case1, overrides=list(TRAFFIC) + [centre]), "estimates", None),
+        # (random latency drawn one packet at a time: the stress scenarios, maxdelay's scale axis)
+        "paper_case1, exponential latency": (dkfsim.load_scenario(case1, overrides=[
+            "links.default.latency={model: exponential, mean: 0.02}", "links.d_t=4"]), "estimates", None),
+        "stress_heavy_tail": (dkfsim.load_scenario(ROOT / "scenarios" / "stress_heavy_tail.yaml",
+                                                   overrides=[f"steps={ticks}"]), "estimates", None),
     }
 
 
