@@ -34,12 +34,21 @@ HEADER = f"""\
 """
 
 
+#: Whether this pytest process records (the one that runs the tests: an xdist worker, or pytest
+#: without xdist; an xdist controller sees every report again).
+_RECORDS = False
+
+
+def pytest_configure(config) -> None:
+    global _RECORDS
+    _RECORDS = hasattr(config, "workerinput") or not getattr(config.option, "numprocesses", None)
+
+
 def pytest_runtest_logreport(report) -> None:
     """Record the setup and call time of each test (in the process that ran it)."""
     out = os.environ.get("DKFSIM_TEST_TIMES")
     measured = "slow" not in report.keywords or "slow_by_time" in report.keywords   # (not slow by what it is)
-    if out and measured and report.when in ("setup", "call") and (
-            os.environ.get("PYTEST_XDIST_WORKER") or "PYTEST_XDIST_TESTRUNUID" not in os.environ):
+    if out and _RECORDS and measured and report.when in ("setup", "call"):
         with open(out, "a", encoding="utf-8") as f:
             f.write(f"{report.duration:.3f}\t{report.nodeid}\n")
 
