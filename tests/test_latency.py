@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 from pydantic import ValidationError
 
 from dkfsim.components.latency import Constant, Exponential, LatencyParams, Uniform, UniformSteps, parse_latency
@@ -521,3 +523,13 @@ def test_keyed_draws_follow_the_model_law():
     assert stats.kstest(x, stats.expon(scale=0.011).cdf).pvalue < 1e-4
     y = _seconds(m, offset=0.002)
     assert stats.ks_2samp(x, y).pvalue > 0.01
+
+
+@settings(max_examples=300, deadline=None)
+@given(st.one_of(st.floats(allow_nan=False), st.floats(min_value=-3, max_value=3),
+                 st.integers(-10, 10).map(lambda k: k / 2), st.floats(min_value=2.0**62 - 4096, max_value=2.0**63)))
+def test_one_latency_is_clamped_as_an_array_of_them_is(ns):
+    """The per-packet rounding (a port's draw) is the array path's, half to even, clipped to
+    [0, MAX_NS]: a difference would change a run's draws."""
+    from dkfsim.components.latency import _clamped, _clamped_one
+    assert _clamped_one(np.float64(ns)) == int(_clamped(np.float64(ns)))

@@ -166,6 +166,14 @@ def _clamped(ns) -> np.ndarray:
     return np.clip(np.rint(ns), 0, MAX_NS).astype(np.int64)
 
 
+def _clamped_one(ns: float) -> int:
+    """:func:`_clamped` of one latency, without numpy's array wrappers (a port draws one packet at
+    a time, and ``np.clip`` was most of a draw): the same rounding, half to even."""
+    if not ns < MAX_NS:
+        return MAX_NS if ns == ns else int(_clamped(ns))     # (NaN: as the array path gives it)
+    return round(float(ns)) if ns > 0 else 0
+
+
 # =========================================================================== bounded models
 @LATENCY_MODELS.register("constant")
 class Constant(LatencyParams):
@@ -297,7 +305,8 @@ class ShiftedLaw(LatencyParams):
     @override
     def from_uniform(self, u, T_ns):
         with np.errstate(over="ignore"):
-            return _clamped((self.offset + self.quantile_s(np.asarray(u, float))) * NS_PER_S)
+            ns = (self.offset + self.quantile_s(np.asarray(u, float))) * NS_PER_S
+        return _clamped_one(ns) if type(u) is float else _clamped(ns)
 
     @override
     def sup_ns(self, T_ns):
