@@ -102,6 +102,29 @@ _atexit.register(_report_peak)
 RUN_DKFSIM = "import runpy; runpy.run_module('dkfsim', run_name='__main__', alter_sys=True)"
 
 
+def _wait(pid: int, kill, readers: list[threading.Thread], peak_r: int, timeout: float) -> tuple:
+    """Start ``readers`` (of the child's output), wait for the child ``pid`` (``kill()`` after
+    ``timeout`` s), read what it reported through ``peak_r``, join the readers: ``(wait status,
+    resource usage, the report's bytes)``."""
+    for r in readers:
+        r.start()
+    timer = threading.Timer(timeout, kill)
+    timer.start()
+    try:
+        _, status, usage = os.wait4(pid, 0)
+    finally:
+        timer.cancel()
+    os.set_blocking(peak_r, False)   # a grandchild may still hold the write end
+    try:
+        report = os.read(peak_r, 64)
+    except BlockingIOError:
+        report = b""
+    os.close(peak_r)
+    for r in readers:
+        r.join()
+    return status, usage, report
+
+
 def dkfsim_cli(*args, cwd=None, env=None, timeout: float = 300, stdin=subprocess.DEVNULL,
                stdout=None, preexec=None, python=None, fresh: bool = False) -> Child:
     """``dkfsim ARGS`` in a child process (this one forked, or ``python -m dkfsim``: see the
@@ -126,23 +149,8 @@ def dkfsim_cli(*args, cwd=None, env=None, timeout: float = 300, stdin=subprocess
     chunks: dict[str, list[bytes]] = {"out": [], "err": []}
     readers = [threading.Thread(target=lambda f=f, k=k: chunks[k].append(f.read()))
                for f, k in ((p.stdout, "out"), (p.stderr, "err")) if f is not None]
-    for r in readers:
-        r.start()
-    timer = threading.Timer(timeout, p.kill)
-    timer.start()
-    try:
-        _, status, usage = os.wait4(p.pid, 0)
-    finally:
-        timer.cancel()
+    status, usage, peak_kb = _wait(p.pid, p.kill, readers, peak_r, timeout)
     p.returncode = os.waitstatus_to_exitcode(status)
-    os.set_blocking(peak_r, False)   # a grandchild may still hold the write end
-    try:
-        peak_kb = os.read(peak_r, 64)
-    except BlockingIOError:
-        peak_kb = b""
-    os.close(peak_r)
-    for r in readers:
-        r.join()
     for f in (p.stdout, p.stderr):
         if f is not None:
             f.close()
@@ -244,22 +252,7 @@ def _forked(args, cwd, timeout: float, stdin, stdout, preexec) -> Child:
         while block := os.read(fd, 1 << 16):
             chunks[fd].append(block)
     readers = [threading.Thread(target=read, args=(fd,)) for fd in (out_r, err_r)]
-    for r in readers:
-        r.start()
-    timer = threading.Timer(timeout, lambda: os.kill(pid, signal.SIGKILL))
-    timer.start()
-    try:
-        _, status, usage = os.wait4(pid, 0)
-    finally:
-        timer.cancel()
-    os.set_blocking(peak_r, False)   # a grandchild may still hold the write end
-    try:
-        grown_kb = os.read(peak_r, 64)
-    except BlockingIOError:
-        grown_kb = b""
-    os.close(peak_r)
-    for r in readers:
-        r.join()
+    status, usage, grown_kb = _wait(pid, lambda: os.kill(pid, signal.SIGKILL), readers, peak_r, timeout)
     for fd in (out_r, err_r):
         os.close(fd)
     return Child(os.waitstatus_to_exitcode(status), b"".join(chunks[out_r]).decode("utf-8", "replace"),
