@@ -656,9 +656,9 @@ class RecordPort(Port):
         plan = self._plans.get(id(links))
         if plan is None or plan[0] is not links:
             plan = self._plan(links, q, nbytes)
-        _, lids, others, dsts, never, later = plan
-        if never is not None:
-            return never                        # (no packet of these links can arrive at once)
+        _, lids, others, dsts, fixed, later = plan
+        if fixed is not None:
+            return fixed                        # (the same answer at every instant: read only)
         table = np.full((len(links), q), 2, dtype=np.int8)
         table[later] = 0
         self._peek(self.B, now, self._seq0, self.net.T_ns, lids, table)
@@ -680,16 +680,22 @@ class RecordPort(Port):
         """What :meth:`lookahead` works out once for a list of links: their ids, the links it
         answers for in Python (with their media) -- but those whose packets cannot arrive at
         once, by their medium or their smallest latency -- and the receivers that can crash; and
-        the answer when no packet of any of them can arrive at once."""
+        the answer when no instant can change it (no packet of any of them can arrive at once,
+        or each is answered "unknown" or "later" whatever the instant)."""
         lids = np.array([l.id for l in links], dtype=np.int64)
         kind = self.B.ints[port_kernels.KIND]
         at_once = [self.medium(l).leaves_at_once(nbytes) and l.min_latency_ns() == 0 for l in links]
         others = [(e, self.medium(l)) for e, l in enumerate(links) if kind[l.id] != port_kernels.DRAWN and at_once[e]]
         others = [(e, m) for e, m in others if links[e].changes or not m.passive]   # (else always 2)
         dsts = [(e, l.dst) for e, l in enumerate(links) if l.dst >= 0] if self.net.crashes is not None else []
-        never = np.zeros((len(links), q), dtype=np.int8) if not any(at_once) else None
         later = np.array([e for e, l in enumerate(links) if kind[l.id] != port_kernels.DRAWN and not at_once[e]],
                          dtype=np.intp)
-        plan = (links, lids, others, dsts, never, later)
+        fixed = None                            # (an answer that no instant changes)
+        if not any(at_once):
+            fixed = np.zeros((len(links), q), dtype=np.int8)
+        elif not others and not dsts and not any(kind[l.id] == port_kernels.DRAWN for l in links):
+            fixed = np.full((len(links), q), 2, dtype=np.int8)
+            fixed[later] = 0
+        plan = (links, lids, others, dsts, fixed, later)
         self._plans[id(links)] = plan
         return plan
