@@ -28,6 +28,7 @@ import sys
 import threading
 from dataclasses import dataclass
 from pathlib import Path
+from typing import NoReturn
 
 import pytest
 import yaml
@@ -102,6 +103,24 @@ _atexit.register(_report_peak)
 RUN_DKFSIM = "import runpy; runpy.run_module('dkfsim', run_name='__main__', alter_sys=True)"
 
 
+def _readers(fds: list[int]):
+    """Threads that read each of ``fds`` to its end (:func:`_wait` starts and joins them), and
+    ``text(fd)``: what was read from ``fd``, decoded (empty for one not read)."""
+    chunks: dict[int, list[bytes]] = {fd: [] for fd in fds}
+
+    def read(fd: int) -> None:
+        while block := os.read(fd, 1 << 16):
+            chunks[fd].append(block)
+    return ([threading.Thread(target=read, args=(fd,)) for fd in fds],
+            lambda fd: b"".join(chunks.get(fd, ())).decode("utf-8", "replace"))
+
+
+def _status_kb(field: bytes) -> int:
+    """A ``kB`` figure of this process's /proc/self/status (``b"VmRSS:"``, ``b"VmHWM:"``)."""
+    with open("/proc/self/status", "rb") as f:
+        return int(next(line.split()[1] for line in f if line.startswith(field)))
+
+
 def _wait(pid: int, kill, readers: list[threading.Thread], peak_r: int, timeout: float) -> tuple:
     """Start ``readers`` (of the child's output), wait for the child ``pid`` (``kill()`` after
     ``timeout`` s), read what it reported through ``peak_r``, join the readers: ``(wait status,
@@ -146,16 +165,15 @@ def dkfsim_cli(*args, cwd=None, env=None, timeout: float = 300, stdin=subprocess
                              stderr=subprocess.PIPE, preexec_fn=preexec, pass_fds=(peak_w,))
     finally:
         os.close(peak_w)
-    chunks: dict[str, list[bytes]] = {"out": [], "err": []}
-    readers = [threading.Thread(target=lambda f=f, k=k: chunks[k].append(f.read()))
-               for f, k in ((p.stdout, "out"), (p.stderr, "err")) if f is not None]
+    out_fd, err_fd = (-1 if p.stdout is None else p.stdout.fileno()), p.stderr.fileno()
+    readers, text = _readers([fd for fd in (out_fd, err_fd) if fd >= 0])
     status, usage, peak_kb = _wait(p.pid, p.kill, readers, peak_r, timeout)
     p.returncode = os.waitstatus_to_exitcode(status)
+    out, err = text(out_fd), text(err_fd)
     for f in (p.stdout, p.stderr):
         if f is not None:
             f.close()
-    return Child(p.returncode, b"".join(chunks["out"]).decode("utf-8", "replace"),
-                 b"".join(chunks["err"]).decode("utf-8", "replace"), usage.ru_utime + usage.ru_stime,
+    return Child(p.returncode, out, err, usage.ru_utime + usage.ru_stime,
                  # killed before its exit handlers ran: only wait4's (inflated) figure is left
                  int(peak_kb) / 1024 if peak_kb.isdigit() else usage.ru_maxrss / 1024)
 
@@ -180,84 +198,81 @@ _FRESH_MB: float | None = None
 
 def _forked(args, cwd, timeout: float, stdin, stdout, preexec) -> Child:
     """:func:`dkfsim_cli` in this process, forked (see the module)."""
+    base_mb = _warm()
+    (out_r, out_w), (err_r, err_w), (peak_r, peak_w) = os.pipe(), os.pipe(), os.pipe()
+    sys.stdout.flush()
+    sys.stderr.flush()
+    pid = os.fork()
+    if pid == 0:
+        for fd in (out_r, err_r, peak_r):
+            os.close(fd)
+        _child(args, cwd, stdin, out_w if stdout is None else stdout.fileno(), err_w, peak_w, preexec)
+    for fd in (out_w, err_w, peak_w):
+        os.close(fd)
+    readers, text = _readers([out_r, err_r])
+    status, usage, grown_kb = _wait(pid, lambda: os.kill(pid, signal.SIGKILL), readers, peak_r, timeout)
+    out, err = text(out_r), text(err_r)
+    for fd in (out_r, err_r):
+        os.close(fd)
+    return Child(os.waitstatus_to_exitcode(status), out, err, usage.ru_utime + usage.ru_stime,
+                 base_mb + (int(grown_kb) / 1024 if grown_kb.isdigit() else float("inf")), fresh=False)
+
+
+def _child(args, cwd, stdin, out_fd: int, err_fd: int, peak_fd: int, preexec) -> NoReturn:
+    """The forked child of :func:`_forked`: standard streams on ``stdin`` (or /dev/null),
+    ``out_fd`` and ``err_fd``, Python's default signals and warning filters, then ``dkfsim ARGS``;
+    what its resident size grew by (kB) is written to ``peak_fd``.  Exits with the command's
+    status (1 and a traceback if it raised)."""
     import faulthandler
     import io
     import traceback
     import warnings
-    base_mb = _warm()
-    fds = [os.pipe(), os.pipe(), os.pipe()]          # stdout, stderr, peak memory
-    (out_r, out_w), (err_r, err_w), (peak_r, peak_w) = fds
-    sys.stdout.flush()
-    sys.stderr.flush()
-    pid = os.fork()
-    if pid == 0:                                        # the child: never returns
-        code = 1
+    code = 1
+    try:
+        faulthandler.disable()
+        signal.signal(signal.SIGINT, signal.default_int_handler)
+        for sig in (signal.SIGTERM, signal.SIGALRM, signal.SIGXFSZ, signal.SIGCHLD):
+            signal.signal(sig, signal.SIG_DFL)
+        os.dup2(os.open(os.devnull, os.O_RDONLY) if stdin is subprocess.DEVNULL else stdin.fileno(), 0)
+        os.dup2(out_fd, 1)
+        os.dup2(err_fd, 2)
+        sys.stdin = io.TextIOWrapper(io.FileIO(0, "r", closefd=False), encoding="utf-8")
+        sys.stdout = io.TextIOWrapper(io.FileIO(1, "w", closefd=False), encoding="utf-8")
+        sys.stderr = io.TextIOWrapper(io.FileIO(2, "w", closefd=False), encoding="utf-8",
+                                      errors="backslashreplace", line_buffering=True)
+        warnings.resetwarnings()                    # (also forgets every warning already shown)
+        for category in (DeprecationWarning, PendingDeprecationWarning, ImportWarning, ResourceWarning):
+            warnings.simplefilter("ignore", category)
+        warnings.showwarning = warnings._showwarning_orig
+        if "matplotlib.pyplot" in sys.modules:
+            sys.modules["matplotlib.pyplot"].close("all")
+        if cwd is not None:
+            os.chdir(cwd)
+        start_kb = _status_kb(b"VmRSS:")
+        with open("/proc/self/clear_refs", "w") as f:
+            f.write("5")                            # (the peak from here on)
+        if preexec is not None:
+            preexec()
+        from dkfsim.cli.main import main
+        sys.argv = [str(Path(dkfsim.__file__).with_name("__main__.py")), *map(str, args)]
         try:
-            os.close(out_r), os.close(err_r), os.close(peak_r)
-            faulthandler.disable()
-            signal.signal(signal.SIGINT, signal.default_int_handler)
-            for sig in (signal.SIGTERM, signal.SIGALRM, signal.SIGXFSZ, signal.SIGCHLD):
-                signal.signal(sig, signal.SIG_DFL)
-            null = os.open(os.devnull, os.O_RDWR)
-            os.dup2(null if stdin is subprocess.DEVNULL else stdin.fileno(), 0)
-            os.dup2(out_w if stdout is None else stdout.fileno(), 1)
-            os.dup2(err_w, 2)
-            sys.stdin = io.TextIOWrapper(io.FileIO(0, "r", closefd=False), encoding="utf-8")
-            sys.stdout = io.TextIOWrapper(io.FileIO(1, "w", closefd=False), encoding="utf-8")
-            sys.stderr = io.TextIOWrapper(io.FileIO(2, "w", closefd=False), encoding="utf-8",
-                                          errors="backslashreplace", line_buffering=True)
-            warnings.resetwarnings()                    # (also forgets every warning already shown)
-            warnings.simplefilter("ignore", DeprecationWarning)
-            warnings.simplefilter("ignore", PendingDeprecationWarning)
-            warnings.simplefilter("ignore", ImportWarning)
-            warnings.simplefilter("ignore", ResourceWarning)
-            warnings.showwarning = warnings._showwarning_orig
-            if "matplotlib.pyplot" in sys.modules:
-                sys.modules["matplotlib.pyplot"].close("all")
-            if cwd is not None:
-                os.chdir(cwd)
-            with open("/proc/self/status", "rb") as f:
-                start_kb = int(next(l.split()[1] for l in f if l.startswith(b"VmRSS:")))
-            with open("/proc/self/clear_refs", "w") as f:
-                f.write("5")                            # (the peak from here on)
-            if preexec is not None:
-                preexec()
-            from dkfsim.cli.main import main
-            sys.argv = [str(Path(dkfsim.__file__).with_name("__main__.py")), *map(str, args)]
-            try:
-                code = main(sys.argv[1:])
-            except SystemExit as exc:
-                code = exc.code if isinstance(exc.code, int) else 0 if exc.code is None else 1
-                if isinstance(exc.code, str):
-                    print(exc.code, file=sys.stderr)
-            except BaseException:
-                traceback.print_exc()
-                code = 1
-            for f in (sys.stdout, sys.stderr):
-                with contextlib.suppress(Exception):
-                    f.flush()
-            with open("/proc/self/status", "rb") as f:
-                peak_kb = int(next(l.split()[1] for l in f if l.startswith(b"VmHWM:")))
-            os.write(peak_w, str(max(0, peak_kb - start_kb)).encode())
+            code = main(sys.argv[1:])
+        except SystemExit as exc:
+            code = exc.code if isinstance(exc.code, int) else 0 if exc.code is None else 1
+            if isinstance(exc.code, str):
+                print(exc.code, file=sys.stderr)
         except BaseException:
+            traceback.print_exc()
+            code = 1
+        for f in (sys.stdout, sys.stderr):
             with contextlib.suppress(Exception):
-                os.write(2, traceback.format_exc().encode())
-        finally:
-            os._exit(code if isinstance(code, int) else 1)
-    for fd in (out_w, err_w, peak_w):
-        os.close(fd)
-    chunks: dict[int, list[bytes]] = {out_r: [], err_r: []}
-
-    def read(fd: int) -> None:
-        while block := os.read(fd, 1 << 16):
-            chunks[fd].append(block)
-    readers = [threading.Thread(target=read, args=(fd,)) for fd in (out_r, err_r)]
-    status, usage, grown_kb = _wait(pid, lambda: os.kill(pid, signal.SIGKILL), readers, peak_r, timeout)
-    for fd in (out_r, err_r):
-        os.close(fd)
-    return Child(os.waitstatus_to_exitcode(status), b"".join(chunks[out_r]).decode("utf-8", "replace"),
-                 b"".join(chunks[err_r]).decode("utf-8", "replace"), usage.ru_utime + usage.ru_stime,
-                 base_mb + (int(grown_kb) / 1024 if grown_kb.isdigit() else float("inf")), fresh=False)
+                f.flush()
+        os.write(peak_fd, str(max(0, _status_kb(b"VmHWM:") - start_kb)).encode())
+    except BaseException:
+        with contextlib.suppress(Exception):
+            os.write(2, traceback.format_exc().encode())
+    finally:
+        os._exit(code if isinstance(code, int) else 1)
 
 
 class Hung(Exception):

@@ -36,15 +36,17 @@ def _allocate_300_mb() -> None:
 _KEPT: list[bytearray] = []
 
 
-def test_a_forked_childs_growth_is_measured():
+def test_a_forked_childs_growth_is_measured(monkeypatch):
     """A forked child (the default) counts what it allocates, not the test process it copies."""
+    monkeypatch.delenv("DKFSIM_TEST_FORK", raising=False)       # (forked, whatever the run chose)
     child = dkfsim_cli("validate", "no-such-file.yaml", preexec=_allocate_300_mb)
     assert not child.fresh and child.returncode == 2 and "Traceback" not in child.stderr, child
     assert child.maxrss_mb >= 300, child.maxrss_mb
     assert dkfsim_cli("validate", "no-such-file.yaml").maxrss_mb < 300
 
 
-def test_a_forked_child_refuses_a_memory_bound_tighter_than_the_default():
+def test_a_forked_child_refuses_a_memory_bound_tighter_than_the_default(monkeypatch):
+    monkeypatch.delenv("DKFSIM_TEST_FORK", raising=False)
     child = dkfsim_cli("validate", "no-such-file.yaml")
     with pytest.raises(AssertionError, match="fresh=True"):
         child.clean_error("no-such-file.yaml", memory_mb=400)
