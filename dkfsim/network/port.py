@@ -685,8 +685,9 @@ class RecordPort(Port):
         lids = np.array([l.id for l in links], dtype=np.int64)
         kind = self.B.ints[port_kernels.KIND]
         at_once = [self.medium(l).leaves_at_once(nbytes) and l.min_latency_ns() == 0 for l in links]
-        others = [(e, self.medium(l)) for e, l in enumerate(links) if kind[l.id] != port_kernels.DRAWN and at_once[e]]
-        others = [(e, m) for e, m in others if links[e].changes or not m.passive]   # (else always 2)
+        # (a link on a passive medium that never changes is always 2: nothing to answer per instant)
+        others = [(e, self.medium(l)) for e, l in enumerate(links) if kind[l.id] != port_kernels.DRAWN and at_once[e]
+                  and (l.changes or not self.medium(l).passive)]
         dsts = [(e, l.dst) for e, l in enumerate(links) if l.dst >= 0] if self.net.crashes is not None else []
         later = np.array([e for e, l in enumerate(links) if kind[l.id] != port_kernels.DRAWN and not at_once[e]],
                          dtype=np.intp)
