@@ -25,20 +25,25 @@ from interrupts import pytest_configure  # noqa: F401  (Ctrl-C and SIGTERM stop 
 os.environ.pop("PYTHONDONTWRITEBYTECODE", None)
 sys.dont_write_bytecode = False
 
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tools"))
+from slow_tier import read_list  # noqa: E402  (tools/: the list's writer reads it too)
+
 #: Tests in the slow tier by measurement (tools/slow_tier.py): over the fast tier's per-test budget.
-SLOW_BY_TIME = Path(__file__).with_name("slow_tests.txt")
+SLOW_BY_TIME = set(read_list())
 
 
 def pytest_collection_modifyitems(items):
-    """Mark ``slow`` the tests tests/slow_tests.txt lists (one id per line after its seconds), and
-    those using the hostile tier's ``legit`` folders (a run, a Monte Carlo and a sweep with their
-    reports and figures: 20 s to make, once per test process)."""
-    listed = {line.split(None, 1)[1].strip() for line in SLOW_BY_TIME.read_text(encoding="utf-8").splitlines()
-              if line.strip() and not line.startswith("#")}
+    """Mark ``slow`` the tests tests/slow_tests.txt lists (``slow_by_time`` too: what
+    tools/slow_tier.py measures again), and those using the hostile tier's ``legit`` folders (a
+    run, a Monte Carlo and a sweep with their reports and figures: 20 s to make, once per test
+    process)."""
     for item in items:
-        if item.nodeid in listed or "legit" in getattr(item, "fixturenames", ()):
+        if item.nodeid in SLOW_BY_TIME:
             item.add_marker(pytest.mark.slow)
             item.add_marker(pytest.mark.slow_by_time)
+        elif "legit" in getattr(item, "fixturenames", ()):
+            item.add_marker(pytest.mark.slow)
+
 
 # ----------------------------------------------------------------------------
 # models and sensors
