@@ -22,8 +22,9 @@ from typing import TYPE_CHECKING, Annotated, Any, Literal
 
 from pydantic import Field, field_validator, model_validator
 
+from dkfsim.components.radio import RadioParams
 from dkfsim.components.traffic import Background, Queue, Rate
-from dkfsim.core.params import StrictModel, custom_error, fix_kind, registered, seconds_to_ns
+from dkfsim.core.params import NonNegSeconds, StrictModel, custom_error, fix_kind, registered, seconds_to_ns
 from dkfsim.core.registry import MEDIA
 
 #: Bytes of a frame's header: :data:`dkfsim.protocols.base.PACKET_HEADER` (a test keeps them equal).
@@ -93,6 +94,23 @@ class Csma(AccessParams, kind="csma"):
         return self
 
 
+class Edca(Csma, kind="edca"):
+    """IEEE 802.11p's access rule (802.11-2016 EDCA, as ns-3 runs it): a frame that finds the
+    medium idle and no backoff pending goes once the medium has been idle for AIFS; one that finds
+    it busy draws a backoff; a post-backoff after every own frame; EIFS after a frame in error.
+
+    (docs/radio.md) Each radio counts its backoff in idle slots ``t_idle + aifs + m * slot`` of
+    its own view of the medium, frozen while it senses it busy; ``eifs`` replaces ``aifs`` after
+    a frame the radio received in error (802.11p at 10 MHz: SIFS 32 us + an ACK at 6 Mbit/s 88 us
+    + AIFS 110 us = 230 us)."""
+
+    eifs: Annotated[float, Field(strict=True, ge=0, le=MAX_SLOT_S, allow_inf_nan=False)] = 230.0e-6
+
+    @property
+    def eifs_ns(self) -> int:
+        return seconds_to_ns(self.eifs)
+
+
 #: ``medium.access``: any registered access rule (``csma`` when ``kind`` is absent).
 if TYPE_CHECKING:
     AccessField = AccessParams
@@ -111,6 +129,11 @@ class Medium(StrictModel):
     background: Background | None = None
     nodes: Literal["all"] | Annotated[tuple[Annotated[int, Field(strict=True, ge=0)], ...],
                                       Field(min_length=2)] = "all"
+    #: each vehicle hands its frames of tick ``k`` to its radio a keyed uniform ``[0, jitter)``
+    #: seconds late (per vehicle and tick), as vehicles that do not share a clock do
+    generation_jitter: NonNegSeconds = 0.0
+    #: a spatial radio (:mod:`dkfsim.components.radio`); None: one collision domain
+    radio: RadioParams | None = None
 
     @field_validator("nodes", mode="before")
     @classmethod

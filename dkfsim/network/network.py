@@ -24,7 +24,7 @@ from dkfsim.components.mobility import LinkSchedule
 from dkfsim.core.backend import Backend
 from dkfsim.network.events import Clock
 from dkfsim.network.links import Link
-from dkfsim.network.media import csma  # noqa: F401  (registers the default access rule)
+from dkfsim.network.media import csma, slotted  # noqa: F401  (registers the access rules)
 from dkfsim.network.media.base import Medium
 from dkfsim.network.media.channel import Channel
 from dkfsim.network.media.direct import DIRECT
@@ -137,7 +137,7 @@ class Network:
             return None
         channel = store.get(_CHANNEL)
         if channel is None:
-            channel = store[_CHANNEL] = Channel(self.env, self.medium, self._member_order, self.seed)
+            channel = store[_CHANNEL] = Channel(self.env, self.medium, self._member_order, self.seed, T_ns=self.T_ns)
         return channel
 
     def medium_of(self, link: Link, store: dict[Any, Medium]) -> Medium:

@@ -253,6 +253,10 @@ class Port:
         arrivals counted from the frame's end."""
         count = self._count
         if not ok:
+            if frame.start < 0:                 # (held back by generation jitter, then refused)
+                for link, _, _ in frame.parts:
+                    count["queue_dropped"][link.id] += 1
+                return
             for link, _, _ in frame.parts:
                 count["lost"][link.id] += 1
                 count["collision_lost"][link.id] += 1

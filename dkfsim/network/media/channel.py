@@ -36,6 +36,7 @@ from dkfsim.components.medium import Medium as MediumSpec
 from dkfsim.components.traffic import transmission_ns
 from dkfsim.core.params import MAX_NS, NS_PER_S, seconds_to_ns
 from dkfsim.core.registry import MEDIA
+from dkfsim.core.streams import key64, keyed_uniform
 from dkfsim.network.events import Scheduled
 from dkfsim.network.media.background import BackgroundArrivals
 from dkfsim.network.media.base import Frame, Medium
@@ -101,6 +102,13 @@ class Access:
     def idle(self, te: int) -> None:
         """The channel became idle at ``te``."""
 
+    def started(self, ts: int) -> None:
+        """The radios :meth:`start` returned are on the air from ``ts`` (one collision domain:
+        every radio senses them)."""
+
+    def sent(self, radio: Radio, te: int) -> None:
+        """``radio``'s frame on the air ended at ``te`` (before its next head, if any)."""
+
 
 class Channel(Medium):
     """One copy of the shared channel (each estimator's port has its own unless shared).
@@ -117,7 +125,7 @@ class Channel(Medium):
     report_name: ClassVar[str] = "channel"
 
     def __init__(self, env: Any, spec: MediumSpec, members: tuple[int, ...], seed: int, index: int = 0,
-                 record: bool = False):
+                 record: bool = False, T_ns: int = 0):
         self.env = env
         self.spec = spec
         self.rate, self.preamble = float(spec.rate), seconds_to_ns(spec.preamble)
@@ -146,8 +154,17 @@ class Channel(Medium):
         #: estimators' frames waiting or on the air (wake-ups are needed only while any is)
         self.pending = 0
         self._wakes: set[int] = set()
+        #: ``generation_jitter`` (ns), and each radio's key of it and the instant its last frame
+        #: reaches it (frames held back by the jitter wait in ``_held``: (instant, order, frame))
+        self.jitter_ns, self.T_ns = seconds_to_ns(spec.generation_jitter), int(T_ns)
+        if self.jitter_ns and self.T_ns <= 0:
+            raise ValueError("a channel with generation_jitter needs the tick length T_ns")
+        self._jitter_keys = {node: key64(seed, "channel", index, node, "jitter") for node in members}
+        self._ready: dict[int, int] = {}
+        self._held: list[tuple[int, int, Frame]] = []
+        self._held_count = 0
         #: the access rule (``medium.access.kind``)
-        self.access: Access = MEDIA.get(spec.access.kind).implementation(spec.access, self, seed)
+        self.access: Access = self.make_access(spec, seed)
         # statistics
         #: every busy period: (start, end, frames, background frames, collided), flat; and
         #: the instants of background frames a full waiting room dropped (:meth:`stats` reads
@@ -161,13 +178,20 @@ class Channel(Medium):
         #: with ``record``: (node, start, end, ok, background) of every frame that ended
         self.ended: list[tuple[int, int, int, bool, bool]] | None = [] if record else None
 
+    def make_access(self, spec: MediumSpec, seed: int) -> Access:
+        """The access rule's implementation for this channel (``medium.access.kind``)."""
+        return MEDIA.get(spec.access.kind).implementation(spec.access, self, seed)
+
     # ------------------------------------------------------------------ offering
     def offer(self, frame: Frame) -> bool:
         """Hand over ``frame`` now at its node's radio: False when the waiting room is full
-        (drop-tail: nothing of it is sent)."""
+        (drop-tail: nothing of it is sent).  With ``generation_jitter`` the frame reaches the
+        radio later (:meth:`_hold`), and is taken: a full waiting room then drops it as lost."""
         now = self.env.now
         if now > self.now:                  # (brought to now already: nothing to do, decision 235)
             self.advance(now)
+        if self.jitter_ns and self._hold(frame, now):
+            return True
         ok = self._arrive(self.radios[frame.node], frame, now)
         if ok:
             self.pending += 1
@@ -179,6 +203,36 @@ class Channel(Medium):
     @override
     def leaves_at_once(self, nbytes: int) -> bool:
         return False                        # (a frame is on the air at least 1 ns)
+
+    def _hold(self, frame: Frame, now: int) -> bool:
+        """Hold ``frame`` back until its vehicle's generation instant of this tick, ``now`` plus
+        the keyed uniform ``[0, jitter)`` of (vehicle, tick) -- never before the vehicle's
+        previous frame (its frames keep their order); False when that is now."""
+        node = frame.node
+        delay = int(keyed_uniform(self._jitter_keys[node], now // self.T_ns, 0) * self.jitter_ns)
+        ready = max(now + delay, self._ready.get(node, 0))
+        self._ready[node] = ready
+        if ready <= now:
+            return False
+        heappush(self._held, (ready, self._held_count, frame))
+        self._held_count += 1
+        self.pending += 1
+        self._wake()
+        return True
+
+    def _release(self, th: int) -> None:
+        """The held frames due at ``th`` reach their radios (a full waiting room drops them:
+        their owner learns it as a loss on the air, ``frame.done(frame, False)``)."""
+        held = self._held
+        while held and held[0][0] == th:
+            frame = heappop(held)[2]
+            self.pending -= 1
+            if self._arrive(self.radios[frame.node], frame, th):
+                self.pending += 1
+            else:
+                self._refused[frame.owner] = self._refused.get(frame.owner, 0) + 1
+                if frame.done is not None:
+                    frame.done(frame, False)
 
     def _arrive(self, radio: Radio, frame: Frame, now: int) -> bool:
         queue = radio.queue
@@ -211,15 +265,18 @@ class Channel(Medium):
         or after ``t``, so it adds no start before ``t`` and no end or arrival at it."""
         if t <= self.now:
             return
-        arrivals, access = self._arrivals, self.access
+        arrivals, access, held = self._arrivals, self.access, self._held
         while True:
             te = self._next_end
             ta = arrivals[0][0] if arrivals else NEVER
+            th = held[0][0] if held else NEVER
             ts = NEVER if self.on_air else access.next_start()
-            if te <= t and te <= ta:
+            if te <= t and te <= ta and te <= th:
                 self._end(te)
-            elif ta <= t and ta <= ts:
+            elif ta <= t and ta <= ts and ta <= th:
                 self._background(ta)
+            elif th <= t and th <= ts:
+                self._release(th)
             elif ts < t:
                 self._start(ts)
             else:
@@ -256,6 +313,7 @@ class Channel(Medium):
                 background += 1
         if not on_air:
             raise RuntimeError(f"channel: no head is due at {ts} ns")
+        self.access.started(ts)
         self._next_end = first_end
         n = len(on_air)
         self.collided = n > 1
@@ -288,6 +346,7 @@ class Channel(Medium):
                     own = self._owned[frame.owner] = array("q")
                 own.extend((frame.end, not ok, frame.start - frame.handed))
                 frame.done(frame, ok)
+            access.sent(radio, te)
             if radio.queue:
                 access.head(radio, te)
 
@@ -301,15 +360,21 @@ class Channel(Medium):
         (its deliveries are scheduled then), with one wake-up per frame when nothing interferes."""
         if not self.pending:
             return
-        if self.on_air:
-            t = self._next_end
-        else:
-            access = self.access
-            t = access.next_start() + access.next_airtime()
+        t = self.wake_time()
+        if self._held and self._held[0][0] < t:
+            t = self._held[0][0]
         if t in self._wakes or t > MAX_NS:
             return
         self._wakes.add(t)
         Scheduled(self.env, self._woken, URGENT, t - self.now)     # (now: brought to the present)
+
+    def wake_time(self) -> int:
+        """The next end the channel must see if nothing more is handed over: that of the frame
+        on the air, else of the first frame due to start."""
+        if self.on_air:
+            return self._next_end
+        access = self.access
+        return access.next_start() + access.next_airtime()
 
     def _woken(self, _event: Event) -> None:
         now = self.env.now

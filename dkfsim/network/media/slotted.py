@@ -1,0 +1,202 @@
+"""Slotted access where each radio has its own view of the medium: ``edca`` (IEEE 802.11p), and
+``csma`` on a spatial radio (docs/radio.md, "The access rules").
+
+A radio counts its backoff in the slot boundaries ``origin + m * slot`` of its current idle
+period, ``origin = t_idle + aifs`` (``eifs`` after a frame it received in error), ``t_idle`` the
+instant *it* sensed the medium become idle; a transmission that it senses freezes its count at
+the boundaries passed before it.  The channel tells each radio's view: :meth:`busy` and
+:meth:`clear` for the radios whose view changed (a spatial radio: those that sensed the frame;
+one collision domain: every radio, :meth:`idle`).  Two rules differ only in when they draw:
+
+``csma`` (:class:`RadioCsma`)
+    a backoff uniform in ``0 .. cw`` for every head frame, counted from the first boundary at or
+    after it became head (the one-domain rule of :mod:`~dkfsim.network.media.csma`, per radio);
+``edca`` (:class:`EdcaAccess`, 802.11-2016 §10.22.2, as ns-3 runs it)
+    a head frame that finds its radio's medium idle and no backoff pending goes once the medium
+    has been idle for AIFS, without a backoff; one that finds it busy draws a backoff; after
+    every own transmission a post-backoff is drawn and counted down, head frame or not.
+
+State is kept in arrays over the radios, so a frame sensed by hundreds of radios costs a few
+vector operations, not a Python loop.
+"""
+
+from __future__ import annotations
+
+from typing import Any, ClassVar
+
+import numpy as np
+from typing_extensions import override
+
+from dkfsim.components.medium import Edca
+from dkfsim.core.registry import MEDIA
+from dkfsim.core.streams import key64, keyed_uniform
+from dkfsim.network.media.channel import NEVER, Access, Channel, Radio
+
+
+class SlottedAccess(Access):
+    """The per-radio slotted engine (see the module); a subclass says when a backoff is drawn."""
+
+    #: the backoff draws' name in their key ``("channel", c, node, name)``
+    draws: ClassVar[str] = "backoff"
+
+    def __init__(self, params: Any, channel: Channel, seed: int):
+        super().__init__(params, channel, seed)
+        self.slot, self.aifs, self.cw = params.slot_ns, params.aifs_ns, int(params.cw)
+        self.eifs = int(getattr(params, "eifs_ns", self.aifs))
+        self.radios: list[Radio] = [channel.radios[node] for node in sorted(channel.radios)]
+        #: a radio's position in the arrays
+        self.pos = {radio.node: i for i, radio in enumerate(self.radios)}
+        m = len(self.radios)
+        self._keys = [key64(seed, "channel", channel.index, radio.node, self.draws) for radio in self.radios]
+        self._drawn_at = [-1] * m
+        self._drawn = [0] * m
+        #: the instant each radio's medium became idle (-1: it senses it busy); boundary 0 of
+        #: its count; its backoff in slots from ``origin`` (-1: none pending); when its head
+        #: frame starts if the medium stays idle (NEVER: no head, or busy)
+        self.idle_at = np.zeros(m, dtype=np.int64)
+        self.origin = np.full(m, self.aifs, dtype=np.int64)
+        self.count = np.full(m, -1, dtype=np.int64)
+        self.due = np.full(m, NEVER, dtype=np.int64)
+        self.head_on = np.zeros(m, dtype=bool)
+        self.air = np.ones(m, dtype=np.int64)
+        self._all = np.arange(m)
+        #: the radios that started last (one domain: they sensed no error, they sent)
+        self._started = np.zeros(0, dtype=np.int64)
+
+    def draw(self, i: int, t: int) -> int:
+        """A backoff uniform in ``0 .. cw`` for radio ``i`` at ``t`` (the keyed draw at ``(t,
+        attempt)``, ``attempt`` its earlier draws at ``t``), as :mod:`~dkfsim.network.media.csma`
+        draws."""
+        if self._drawn_at[i] != t:
+            self._drawn_at[i], drawn = t, 0
+        else:
+            drawn = self._drawn[i]
+        self._drawn[i] = drawn + 1
+        count = int(keyed_uniform(self._keys[i], t, drawn) * (self.cw + 1))
+        return min(count, self.cw)          # (a draw next to 1 may round up to cw + 1)
+
+    def _join(self, i: int, t: int, b: int) -> None:
+        """Radio ``i``'s head, idle, goes ``b`` boundaries after the first at or after ``t``."""
+        first = int(self.origin[i])
+        join = 0 if t <= first else -(-(t - first) // self.slot)
+        self.count[i] = join + b
+        self.due[i] = first + (join + b) * self.slot
+
+    @override
+    def head(self, radio: Radio, t: int) -> None:
+        i = self.pos[radio.node]
+        self.head_on[i] = True
+        self.air[i] = self.channel.airtime(radio.queue[0].size)
+        self.on_head(i, t, bool(self.idle_at[i] >= 0))
+
+    def on_head(self, i: int, t: int, idle: bool) -> None:
+        """Radio ``i``'s head frame arrived at ``t`` (its medium idle or not): set its count."""
+        raise NotImplementedError
+
+    def busy(self, nodes: np.ndarray | None, t: int) -> None:
+        """The radios at positions ``nodes`` (None: all) sense the medium busy from ``t``: each
+        idle one's count keeps the boundaries not passed before ``t``."""
+        sel = self._all if nodes is None else nodes
+        sel = sel[self.idle_at[sel] >= 0]
+        if not len(sel):
+            return
+        c = self.count[sel]
+        origin = self.origin[sel]
+        passed = np.where(t <= origin, 0, -((origin - t) // self.slot))
+        left = c - passed
+        # a post-backoff that ran out with no frame to send is over; a head keeps what is left
+        left = np.where(c < 0, -1, np.where(self.head_on[sel], np.maximum(left, 0), np.where(left > 0, left, -1)))
+        self.count[sel] = left
+        self.idle_at[sel] = -1
+        self.due[sel] = NEVER
+
+    def clear(self, nodes: np.ndarray, t: int, error: np.ndarray | None = None) -> None:
+        """The radios at positions ``nodes`` sense the medium idle from ``t`` (``error``: those
+        whose last frame received was in error count from ``t + eifs``)."""
+        if not len(nodes):
+            return
+        wait = self.aifs if error is None else np.where(error, self.eifs, self.aifs)
+        origin = t + wait
+        self.idle_at[nodes] = t
+        self.origin[nodes] = origin
+        c = self.count[nodes]
+        self.due[nodes] = np.where(self.head_on[nodes], np.where(c >= 0, origin + c * self.slot, origin), NEVER)
+
+    @override
+    def idle(self, te: int) -> None:
+        """One collision domain: every radio senses idle from ``te``; after a collision, EIFS for
+        every radio but those that sent."""
+        error = None
+        if self.channel.collided and self.eifs != self.aifs:
+            error = np.ones(len(self.radios), dtype=bool)
+            error[self._started] = False
+        self.clear(self._all, te, error)
+
+    @override
+    def next_start(self) -> int:
+        return int(self.due.min())
+
+    @override
+    def next_airtime(self) -> int:
+        due = self.due
+        return int(self.air[due == due.min()].min())
+
+    @override
+    def start(self, ts: int) -> list[Radio]:
+        sel = np.flatnonzero(self.due == ts)
+        self.head_on[sel] = False
+        self.due[sel] = NEVER
+        self.count[sel] = -1
+        self._started = sel
+        radios = self.radios
+        return [radios[i] for i in sel.tolist()]
+
+    @override
+    def started(self, ts: int) -> None:
+        """One collision domain: every radio senses the transmissions that started at ``ts``."""
+        self.busy(None, ts)
+
+
+@MEDIA.register("edca", params=Edca)
+class EdcaAccess(SlottedAccess):
+    """IEEE 802.11p EDCA (see the module): immediate access on an idle medium, a backoff drawn
+    when busy, a post-backoff after every own frame, EIFS after a frame received in error."""
+
+    draws = "edca"
+
+    @override
+    def on_head(self, i: int, t: int, idle: bool) -> None:
+        c = int(self.count[i])
+        if c >= 0 and idle and int(self.origin[i]) + c * self.slot < t:
+            c = -1                          # the post-backoff ran out before the frame came
+            self.count[i] = -1
+        if c >= 0:
+            if idle:
+                self.due[i] = int(self.origin[i]) + c * self.slot
+        elif idle:
+            self.due[i] = max(t, int(self.origin[i]))
+        else:
+            self.count[i] = self.draw(i, t)
+
+    @override
+    def sent(self, radio: Radio, te: int) -> None:
+        i = self.pos[radio.node]
+        self.count[i] = self.draw(i, te)    # the post-backoff, counted once the medium is idle
+
+
+class RadioCsma(SlottedAccess):
+    """``csma`` where each radio has its own view of the medium (a spatial radio): a backoff
+    for every head frame, as :class:`~dkfsim.network.media.csma.CsmaAccess` draws it, counted
+    in the radio's own idle slots.  With every radio sensing every frame it is that rule, bit for
+    bit (tests/test_radio.py)."""
+
+    draws = "backoff"
+
+    @override
+    def on_head(self, i: int, t: int, idle: bool) -> None:
+        b = self.draw(i, t)
+        if idle:
+            self._join(i, t, b)
+        else:
+            self.count[i] = b
+
