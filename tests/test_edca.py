@@ -135,8 +135,8 @@ def test_eifs_equal_to_aifs_changes_nothing_for_one_sender_alone():
     for eifs in (AIFS, 5 * AIFS):
         env, net, port, got = network(2, medium(access=Edca(slot=SLOT / 1e9, aifs=AIFS / 1e9, cw=CW,
                                                              eifs=eifs / 1e9)))
-        at(env, T0, lambda: port.send(net.link(0, 1), "a", 100))
-        at(env, T0 + 3 * US, lambda: port.send(net.link(2, 1), "b", 100))
+        at(env, T0, lambda port=port, net=net: port.send(net.link(0, 1), "a", 100))
+        at(env, T0 + 3 * US, lambda port=port, net=net: port.send(net.link(2, 1), "b", 100))
         env.run()
         end0 = T0 + airtime(100)
         assert ends(got, 2) == [end0 + AIFS + draw(2, 2, T0 + 3 * US) * SLOT + airtime(100)]
