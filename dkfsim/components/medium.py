@@ -130,8 +130,9 @@ class Medium(StrictModel):
     nodes: Literal["all"] | Annotated[tuple[Annotated[int, Field(strict=True, ge=0)], ...],
                                       Field(min_length=2)] = "all"
     #: each vehicle hands its frames of tick ``k`` to its radio a keyed uniform ``[0, jitter)``
-    #: seconds late (per vehicle and tick), as vehicles that do not share a clock do
-    generation_jitter: NonNegSeconds = 0.0
+    #: seconds late (per vehicle and tick), as vehicles that do not share a clock do (absent: 0,
+    #: and a stored scenario without it keeps its hash)
+    generation_jitter: NonNegSeconds | None = None
     #: a spatial radio (:mod:`dkfsim.components.radio`); None: one collision domain
     radio: RadioParams | None = None
 

@@ -144,8 +144,9 @@ class Mobility(StrictModel):
         return self.links is not None and self.links.rate is not None
 
     def trajectory(self, node: int) -> TrajectoryParams:
-        """Node ``node``'s trajectory: its own entry, else the default."""
-        return self.vehicles.get(str(node)) or self.vehicles["default"]
+        """Node ``node``'s trajectory: its own entry, else the default (placed for the node:
+        :meth:`~dkfsim.components.trajectories.TrajectoryParams.for_node`)."""
+        return (self.vehicles.get(str(node)) or self.vehicles["default"]).for_node(node)
 
     def sinr_at(self, node: int) -> Any:
         """Node ``node``'s recorded SINR as a function of run seconds (``speed`` applied), or

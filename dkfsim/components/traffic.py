@@ -12,7 +12,8 @@ carry the traffic"), each absent by default (an infinitely fast link, nothing wa
     ``K = N + 1``); a packet that does not fit is dropped (drop-tail, ``queue_dropped``).
 ``background`` (``{arrivals: poisson|periodic, packets_per_second, size, sizes, offset}``)
     Other traffic on the link: packets of ``size`` bytes (``sizes: exponential``: of mean
-    ``size``) arriving as a Poisson process or periodically from ``offset`` seconds; their
+    ``size``) arriving as a Poisson process or periodically from ``offset`` seconds (``random``:
+    each link's or radio's own keyed offset, uniform over one period); their
     instants and sizes are keyed draws of the link, so every estimator sees the same
     background.
 
@@ -70,11 +71,11 @@ class Background(StrictModel):
                                                allow_inf_nan=False)]
     size: Annotated[int, Field(strict=True, ge=1, le=MAX_PACKET_BYTES)]
     sizes: Literal["fixed", "exponential"] = "fixed"
-    offset: NonNegSeconds = 0.0
+    offset: NonNegSeconds | Literal["random"] = 0.0
 
     @model_validator(mode="after")
     def _offset_periodic(self) -> Background:
-        if self.offset and self.arrivals != "periodic":
+        if self.offset != 0.0 and self.arrivals != "periodic":
             raise custom_error("offset is the first arrival of periodic background; a Poisson "
                                "process starts at 0", "offset")
         return self

@@ -16,6 +16,9 @@ metres and metres per second in the plane, for run times ``t_s`` in seconds
     a recorded drive (a shipped CICV5G UTM track), shifted per vehicle.
 ``sumo_fcd {file, vehicle, ...}``
     one vehicle of a SUMO floating-car-data file.
+``road {spacing, lanes, lane_width, speed, start}``
+    vehicles equally spaced on a straight road, placed by their number (vehicle ``i``
+    ``(i // lanes) * spacing`` m along it, on lane ``i % lanes``).
 
 Between samples every kind is piecewise linear; its velocity is the slope
 of the segment holding ``t`` (the later one at a sample time) and 0 outside
@@ -83,6 +86,11 @@ class TrajectoryParams(StrictModel):
     def velocities(self, t_s) -> np.ndarray:
         """Velocities (m/s) at run times ``t_s`` (s): shape ``(len(t), 2)``."""
         raise NotImplementedError
+
+    def for_node(self, node: int) -> TrajectoryParams:
+        """The trajectory of vehicle ``node`` when this one is given to it (a kind that places
+        each vehicle by its number, ``road``, answers its own; every other kind, itself)."""
+        return self
 
 
 @TRAJECTORIES.register("constant_velocity")
@@ -164,6 +172,35 @@ class SampledTrajectory(TrajectoryParams):
     @override
     def velocities(self, t_s):
         return self.polyline().velocities(self.sample_times(run_times(t_s)))
+
+
+@TRAJECTORIES.register("road")
+class Road(TrajectoryParams):
+    """Vehicles equally spaced on a straight road (the analytic radio models' highway): vehicle
+    ``i`` on lane ``i % lanes`` (lanes ``lane_width`` m apart), ``(i // lanes) * spacing`` m along
+    the road from ``start``, all driving at ``speed`` m/s along x.  Given as ``default``, it
+    places every vehicle by its number."""
+
+    kind: Literal["road"] = "road"
+    spacing: Annotated[float, Field(strict=True, gt=0, le=1e6, allow_inf_nan=False)]
+    lanes: Annotated[int, Field(strict=True, ge=1, le=100)] = 1
+    lane_width: Annotated[float, Field(strict=True, ge=0, le=100, allow_inf_nan=False)] = 4.0
+    speed: Annotated[float, Field(strict=True, ge=-1e3, le=1e3, allow_inf_nan=False)] = 0.0
+    start: Point = (0.0, 0.0)
+
+    @override
+    def for_node(self, node: int) -> TrajectoryParams:
+        x0, y0 = self.start
+        return ConstantVelocity(start=(x0 + (node // self.lanes) * self.spacing, y0 + (node % self.lanes) * self.lane_width),
+                                velocity=(self.speed, 0.0))
+
+    @override
+    def positions(self, t_s):
+        return self.for_node(0).positions(t_s)
+
+    @override
+    def velocities(self, t_s):
+        return self.for_node(0).velocities(t_s)
 
 
 @TRAJECTORIES.register("waypoints")

@@ -461,6 +461,14 @@ class Scenario(StrictModel):
         no ``rate`` (nor ``queue``/``background``) on it, no rate from distance."""
         assert self.medium is not None
         self.medium.check(self.n)
+        if self.medium.radio is not None and self.mobility is None:
+            raise custom_error("a spatial radio decides each frame at each receiver from the pair's distance, "
+                               "so it needs the vehicles' positions: give mobility: (waypoints, a track, SUMO FCD, "
+                               "a road), or remove medium.radio for one collision domain", "medium.radio")
+        if self.medium.generation_jitter and self.medium.generation_jitter > self.model.T:
+            raise custom_error(f"a vehicle's frames of one tick reach its radio within the tick, so the jitter "
+                               f"is at most the tick T = {self.model.T} s, got {self.medium.generation_jitter}",
+                               "medium.generation_jitter")
         queue, background = self.medium.queue, self.medium.background
         if queue is not None and queue.packets == 0:
             raise custom_error("a frame waits in its radio's waiting room for its slot, so it must hold "

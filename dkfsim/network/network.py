@@ -29,6 +29,7 @@ from dkfsim.network.media.base import Medium
 from dkfsim.network.media.channel import Channel
 from dkfsim.network.media.direct import DIRECT
 from dkfsim.network.media.fifo import Fifo, FifoTable
+from dkfsim.network.media.radio import RadioChannel
 from dkfsim.network.port import Port, Receive, RecordPort
 
 #: The key of a media store's shared channel (link ids are ints).
@@ -51,17 +52,23 @@ class Network:
     :param n: the number of nodes (default: the largest node of ``arcs`` plus one).
     :param backend: the run's (the FIFO transmitters' kernels compiled or not; default: the
         environment's).
+    :param positions: every node's position (m) at ticks ``0 .. K``, ``(K + 1, n, 2)``: what a
+        spatial radio (``medium.radio``) needs.
     """
 
     def __init__(self, env: simpy.Environment, arcs: list[tuple[int, int]],
                  link_spec: Callable[[int, int], Any], seed: int, T_ns: int,
                  crashes: CrashSchedule | None = None, shared_queues: bool = False,
                  schedule: LinkSchedule | None = None, medium: MediumSpec | None = None, n: int | None = None,
-                 backend: Backend | None = None):
+                 backend: Backend | None = None, positions: Any = None):
         self.env = cast(Clock, env)         # (SimPy types time as int | float; here it is ns)
         self.backend = backend if backend is not None else Backend.from_environment()
         self.seed, self.T_ns = int(seed), int(T_ns)
         self.medium = medium
+        #: every node's position at ticks 0 .. K, for a spatial radio (``medium.radio``)
+        self.positions = positions
+        if medium is not None and medium.radio is not None and positions is None:
+            raise ValueError("a spatial radio (medium.radio) needs the vehicles' positions (mobility:)")
         if n is None:
             n = 1 + max((max(u, v) for u, v in arcs), default=-1)
         #: the nodes on the channel, in increasing order (none without ``medium``), and as a set
@@ -137,7 +144,11 @@ class Network:
             return None
         channel = store.get(_CHANNEL)
         if channel is None:
-            channel = store[_CHANNEL] = Channel(self.env, self.medium, self._member_order, self.seed, T_ns=self.T_ns)
+            if self.medium.radio is not None:
+                channel = RadioChannel(self.env, self.medium, self._member_order, self.seed, self.positions, self.T_ns)
+            else:
+                channel = Channel(self.env, self.medium, self._member_order, self.seed, T_ns=self.T_ns)
+            store[_CHANNEL] = channel
         return channel
 
     def medium_of(self, link: Link, store: dict[Any, Medium]) -> Medium:

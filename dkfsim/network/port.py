@@ -262,7 +262,13 @@ class Port:
                 count["collision_lost"][link.id] += 1
             return
         handed, wait = frame.handed, frame.end - frame.handed
+        lost_at = frame.lost_at
         for link, payload, seq in frame.parts:
+            if lost_at is not None and link.dst in lost_at:     # (a spatial radio's receiver lost it)
+                count["lost"][link.id] += 1
+                if lost_at[link.dst]:
+                    count["collision_lost"][link.id] += 1
+                continue
             plain = link.plain
             if plain is None:
                 for lat in count_fate(link, handed, seq, count):    # (a lost one occupied the medium)

@@ -16,7 +16,7 @@ import numpy as np
 
 from dkfsim.components.traffic import Background
 from dkfsim.core.params import MAX_NS, NS_PER_S, seconds_to_ns
-from dkfsim.core.streams import key64, keyed_uniforms
+from dkfsim.core.streams import key64, keyed_uniform, keyed_uniforms
 
 #: Background packets drawn at once (a block of keyed draws).  The instants are integer sums of
 #: rounded gaps, so the block size changes no value; 512 keeps a link's first block, which
@@ -43,13 +43,20 @@ class BackgroundArrivals:
 
     Packet ``i``'s draws are pure functions of (the link's key, ``i``): a Poisson process's
     gaps ``round(-ln(u_i) / lambda)`` ns (the first from 0), a periodic one's instants
-    ``offset + round(i / lambda)``; exponential sizes ``max(1, round(-ln(v_i) * size))``.
+    ``offset + round(i / lambda)`` (``offset: random``: a keyed uniform over one period, per link
+    or radio); exponential sizes ``max(1, round(-ln(v_i) * size))``.
     """
 
     def __init__(self, spec: Background, prefix: tuple, seed: int):
         self.spec = spec
         #: the keys of the arrival gaps (or nothing, periodic) and of the sizes
         self.gap_key, self.size_key = background_keys(prefix, seed)
+        #: a periodic process's first instant: ``offset``, or with ``random`` a keyed uniform over
+        #: one period (the gaps' key at (0, -1): no Poisson gap uses it)
+        if spec.offset == "random":
+            self.offset_ns = int(keyed_uniform(self.gap_key, 0, -1) * NS_PER_S / spec.packets_per_second)
+        else:
+            self.offset_ns = seconds_to_ns(spec.offset)
         self._times = np.empty(0, dtype=np.int64)
         self._sizes = np.empty(0, dtype=np.int64)
         self._drawn = 0          # packets drawn so far
@@ -66,7 +73,7 @@ class BackgroundArrivals:
             # a gap is at most 2^49 ns (6.5 days), so a block's sum cannot overflow
             times = self._last + np.cumsum(np.minimum(gaps, MAX_GAP_NS).astype(np.int64))
         else:
-            times = seconds_to_ns(spec.offset) + np.floor(np.minimum(idx * period + 0.5, MAX_NS))
+            times = self.offset_ns + np.floor(np.minimum(idx * period + 0.5, MAX_NS))
         times = np.minimum(times, MAX_NS).astype(np.int64)
         if spec.sizes == "exponential":
             sizes = np.maximum(1, np.floor(-_log(keyed_uniforms(self.size_key, idx, zeros)) * spec.size + 0.5))

@@ -27,15 +27,19 @@ class Frame:
     """One frame handed to a medium: its sender, size (bytes), hand-over instant (ns), what it
     carries (``parts``: the port's, opaque to the medium) and whom to tell when it is done
     (``done(frame, ok)``; None: a background frame, nobody's); ``start`` and ``end`` of its
-    transmission once it has one, ``owner`` the port whose frame it is (None: background)."""
+    transmission once it has one, ``owner`` the port whose frame it is (None: background);
+    ``lost_at``, set by a medium whose receivers decide each for itself (a spatial radio) before
+    ``done(frame, True)``: receiver node -> whether it lost the frame to a collision, for every
+    receiver that lost it (None: every receiver got it)."""
 
-    __slots__ = ("node", "size", "handed", "parts", "done", "start", "end", "owner")
+    __slots__ = ("node", "size", "handed", "parts", "done", "start", "end", "owner", "lost_at")
 
     def __init__(self, node: int, size: int, handed: int, parts: Any = None,
                  done: Callable[[Frame, bool], None] | None = None, owner: Any = None):
         self.node, self.size, self.handed, self.parts, self.done = node, size, handed, parts, done
         self.owner = owner
         self.start = self.end = -1
+        self.lost_at: dict[int, bool] | None = None
 
 
 class Medium:

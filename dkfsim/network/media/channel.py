@@ -156,7 +156,7 @@ class Channel(Medium):
         self._wakes: set[int] = set()
         #: ``generation_jitter`` (ns), and each radio's key of it and the instant its last frame
         #: reaches it (frames held back by the jitter wait in ``_held``: (instant, order, frame))
-        self.jitter_ns, self.T_ns = seconds_to_ns(spec.generation_jitter), int(T_ns)
+        self.jitter_ns, self.T_ns = seconds_to_ns(spec.generation_jitter or 0.0), int(T_ns)
         if self.jitter_ns and self.T_ns <= 0:
             raise ValueError("a channel with generation_jitter needs the tick length T_ns")
         self._jitter_keys = {node: key64(seed, "channel", index, node, "jitter") for node in members}
@@ -270,8 +270,8 @@ class Channel(Medium):
             te = self._next_end
             ta = arrivals[0][0] if arrivals else NEVER
             th = held[0][0] if held else NEVER
-            ts = NEVER if self.on_air else access.next_start()
-            if te <= t and te <= ta and te <= th:
+            ts = self.start_time(access)
+            if te <= t and te <= ta and te <= th and te <= ts:
                 self._end(te)
             elif ta <= t and ta <= ts and ta <= th:
                 self._background(ta)
@@ -282,6 +282,11 @@ class Channel(Medium):
             else:
                 break
         self.now = t
+
+    def start_time(self, access: Access) -> int:
+        """When the next transmission starts if nothing more is handed over: never while one is
+        on the air (one collision domain: every radio senses it)."""
+        return NEVER if self.on_air else access.next_start()
 
     def _background(self, ta: int) -> None:
         _, node = heappop(self._arrivals)

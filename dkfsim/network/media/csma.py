@@ -22,6 +22,7 @@ from dkfsim.components.medium import Csma
 from dkfsim.core.registry import MEDIA
 from dkfsim.core.streams import key64, keyed_uniform
 from dkfsim.network.media.channel import NEVER, Access, Channel, Radio
+from dkfsim.network.media.slotted import RadioCsma
 
 
 class _Backoff:
@@ -37,6 +38,9 @@ class _Backoff:
 @MEDIA.register("csma", params=Csma)
 class CsmaAccess(Access):
     """Slotted CSMA with a backoff for every frame (see the module)."""
+
+    #: the rule on a spatial radio, where each radio has its own view of the medium
+    on_radio = RadioCsma
 
     def __init__(self, params: Csma, channel: Channel, seed: int):
         super().__init__(params, channel, seed)

@@ -1,0 +1,242 @@
+"""The spatial radio (``medium.radio``, issue 32; docs/radio.md).
+
+Independent truths: the one-collision-domain channel (the radio without path loss must deliver
+exactly what it delivers), the gamma CDF of Nakagami fading (closed form), and timelines worked
+by hand to the nanosecond from the powers of the log-distance model (a hidden terminal,
+capture in both orders).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+import simpy
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from scipy import special
+
+from dkfsim.components.faults import LinkSpec
+from dkfsim.components.latency import Constant
+from dkfsim.components.medium import Csma, Edca, Medium
+from dkfsim.components.radio import C_LIGHT, RadioParams
+from dkfsim.components.traffic import Background
+from dkfsim.network.network import Network
+
+US, MS = 1_000, 1_000_000
+RATE, PRE = 6e6, 40 * US
+LAT = 1 * US
+T0 = 1 * MS
+AIFS = 110 * US
+
+
+def airtime(size: int) -> int:
+    return PRE + int(size * 8 * 1e9 / RATE + 0.5)
+
+
+def positions(xs, ticks: int = 2000) -> np.ndarray:
+    """Vehicles standing at ``x = xs[i]`` on a line, for ``ticks`` ticks."""
+    pos = np.zeros((ticks, len(xs), 2))
+    pos[:, :, 0] = np.asarray(xs, dtype=float)
+    return pos
+
+
+def network(med: Medium, xs, seed: int = 1):
+    n = len(xs)
+    env = simpy.Environment()
+    arcs = [(u, v) for u in range(n) for v in range(n) if u != v]
+    net = Network(env, arcs, lambda u, v: LinkSpec(latency=Constant(value=LAT / 1e9)), seed=seed, T_ns=10 * MS,
+                  medium=med, positions=positions(xs) if med.radio is not None else None)
+    got: list = []
+    port = net.port("p", lambda link, payload: got.append((env.now, link.src, link.dst, payload)))
+    return env, net, port, got
+
+
+def at(env, t, action):
+    def proc():
+        yield env.timeout(t)
+        action()
+    env.process(proc())
+
+
+def broadcast(net, port, u: int, payload, size: int):
+    n = len(net.members)
+    port.send_frame([(net.link(u, v), payload, size) for v in range(n) if v != u], size)
+
+
+# ------------------------------------------------------------------ the one-domain limit
+@settings(max_examples=12, deadline=None)
+@given(kind=st.sampled_from(["csma", "edca"]), seed=st.integers(0, 10_000), n=st.integers(2, 6),
+       cw=st.integers(0, 15), bg=st.sampled_from([None, 100.0, 400.0]),
+       plan=st.lists(st.tuples(st.integers(0, 5), st.integers(0, 40), st.integers(20, 400)), min_size=1, max_size=40))
+def test_without_path_loss_the_radio_delivers_what_one_collision_domain_delivers(kind, seed, n, cw, bg, plan):
+    """No path loss (every member hears and senses every frame at the transmit power): each
+    receiver's decision is the channel's, so every delivery (instant, link, payload), every
+    per-link loss and the busy time are those of the one-domain channel -- for ``csma`` (the
+    radio runs its per-radio form) and ``edca``."""
+    access = Csma(cw=cw) if kind == "csma" else Edca(cw=cw)
+    background = Background(arrivals="poisson", packets_per_second=bg, size=300) if bg else None
+    runs = []
+    for radio in (None, RadioParams(path_loss={"model": "none"})):
+        med = Medium(rate=RATE, access=access, preamble=PRE / 1e9, background=background, radio=radio)
+        env, net, port, got = network(med, [10.0 * i for i in range(n)], seed)
+        for u, slot, size in plan:
+            if u < n:
+                at(env, T0 + slot * 50 * US, lambda u=u, size=size, slot=slot: broadcast(net, port, u, (u, slot), size))
+        env.run(until=T0 + 60 * MS)
+        c = port.counts()
+        runs.append((sorted(got), [(r["link"], r["lost"], r["delivered"]) for r in c["per_link"]],
+                     c["channel"]["frames"], c["channel"]["utilisation"]))
+    assert runs[0][:3] == runs[1][:3]
+    assert runs[1][3] == pytest.approx(runs[0][3], rel=1e-12)       # (the mean of equal CBRs)
+
+
+# ------------------------------------------------------------------ fading, closed form
+def test_nakagami_pdr_is_the_gamma_cdf_over_a_hundred_thousand_pairs():
+    """One sender, 1,000 receivers on a circle of radius d around it, 100 frames: 100,000
+    (frame, receiver) pairs at one distance.  With Nakagami-m fading and a threshold, a pair is
+    received iff ``g * snr >= thr`` with ``g`` gamma(m, 1/m): PDR = Q(m, m thr / snr), within
+    its 99 % interval.  Every pair is counted once, lost ones as ``propagation``."""
+    m, d, receivers, frames = 1.5, 1300.0, 1000, 100
+    radio = RadioParams(path_loss={"model": "free_space"}, fading={"model": "nakagami", "m": m},
+                        reception={"model": "threshold", "sinr": 8.0}, sensitivity=-200.0, noise=-95.0,
+                        carrier_sense=-200.0, bins={"width": 2000.0, "max": 2000.0})
+    med = Medium(rate=RATE, access=Edca(), radio=radio)
+    angles = 2 * math.pi * np.arange(receivers) / receivers
+    pos = np.zeros((2000, receivers + 1, 2))
+    pos[:, 1:, 0], pos[:, 1:, 1] = d * np.cos(angles), d * np.sin(angles)
+    env = simpy.Environment()
+    net = Network(env, [(0, 1), (1, 0)], lambda u, v: LinkSpec(latency=Constant(value=1e-6)), seed=7,
+                  T_ns=10 * MS, medium=med, positions=pos, n=receivers + 1)
+    port = net.port("p", lambda link, payload: None)
+
+    def sends():
+        for k in range(frames):
+            port.send(net.link(0, 1), k, 100)
+            yield env.timeout(10 * MS)
+    env.process(sends())
+    env.run()
+    ch = port.counts()["channel"]
+    snr_db = 23.0 - 20 * math.log10(4 * math.pi * d * 5.9e9 / C_LIGHT) + 95.0
+    p = float(special.gammaincc(m, m * 10 ** ((8.0 - snr_db) / 10)))
+    pairs = receivers * frames
+    assert ch["pairs"] == pairs and ch["pdr_by_distance"]["frames"] == [pairs]
+    assert 0.2 < p < 0.9                       # (a distance where fading decides)
+    pdr = ch["pdr_by_distance"]["pdr"][0]
+    assert abs(pdr - p) <= 2.576 * math.sqrt(p * (1 - p) / pairs), (pdr, p)
+    assert ch["losses"] == {"sensing": 0, "receiver_busy": 0, "propagation": pairs - ch["pairs_received"],
+                            "collision": 0}
+
+
+# ------------------------------------------------------------------ hand-worked timelines
+#: log-distance, exponent 3, free space at 1 m (47.866 dB at 5.9 GHz): received power of 23 dBm
+#: at 20 m -63.9 dBm, 100 m -84.9, 200 m -93.9, 220 m -95.1
+def loss_db(d: float) -> float:
+    return 20 * math.log10(4 * math.pi * 5.9e9 / C_LIGHT) + 30 * math.log10(d)
+
+
+SPATIAL = dict(path_loss={"model": "log_distance", "exponent": 3.0}, sensitivity=-92.0, carrier_sense=-88.0,
+               noise=-95.0, reception={"model": "threshold", "sinr": 8.0})
+
+
+def test_a_hidden_terminal_loses_both_frames_at_the_receiver_between_and_nowhere_else():
+    """A (x = 0) and C (x = 200) cannot hear each other (-93.9 dBm, below sensitivity and carrier
+    sense); B (x = 100) hears both at -84.9 dBm.  A hands a frame over at 1 ms, C 5 us later:
+    under ``edca`` each goes at once (C senses nothing).  B locks on A's, C's is lost there
+    (``receiver_busy``) and A's fails (SINR 0 dB < 8: ``collision``).  D (x = -20) receives A's
+    (SINR 31 dB), E (x = 220) C's; D and E are below sensitivity for the far sender."""
+    assert -85.0 < 23 - loss_db(100) < -84.8 and 23 - loss_db(200) < -92
+    med = Medium(rate=RATE, access=Edca(), preamble=PRE / 1e9, radio=RadioParams(**SPATIAL))
+    env, net, port, got = network(med, [0.0, 100.0, 200.0, -20.0, 220.0])
+    A, B, C, D, E = range(5)
+    at(env, T0, lambda: broadcast(net, port, A, "a", 200))
+    at(env, T0 + 5 * US, lambda: broadcast(net, port, C, "c", 200))
+    env.run()
+    end_a, end_c = T0 + airtime(200), T0 + 5 * US + airtime(200)
+    assert sorted(got) == [(end_a + LAT, A, D, "a"), (end_c + LAT, C, E, "c")]
+    rows = {r["link"]: r for r in port.counts()["per_link"]}
+    assert (rows[(A, B)]["lost"], rows[(A, B)]["collision_lost"]) == (1, 1)      # locked on it, interfered
+    assert (rows[(C, B)]["lost"], rows[(C, B)]["collision_lost"]) == (1, 0)      # B was busy with A's
+    ch = port.counts()["channel"]
+    # pairs: A's frame at B (collision), C's at B (receiver_busy), A's at C/E and C's at A/D (sensing)
+    assert ch["losses"] == {"sensing": 4, "receiver_busy": 1, "propagation": 0, "collision": 1}
+
+
+def test_a_sender_within_carrier_sense_defers_with_a_backoff():
+    """B (x = 100) senses A's frame (-84.9 dBm >= -88): its frame, handed over during A's, draws
+    the keyed backoff b and goes at end_a + AIFS + b slots; nobody loses anything."""
+    from dkfsim.core.streams import key64, keyed_uniform
+    med = Medium(rate=RATE, access=Edca(), preamble=PRE / 1e9, radio=RadioParams(**SPATIAL))
+    env, net, port, got = network(med, [0.0, 100.0, -20.0], seed=4)
+    at(env, T0, lambda: port.send(net.link(0, 2), "a", 200))
+    at(env, T0 + 5 * US, lambda: port.send(net.link(1, 0), "b", 200))
+    env.run()
+    b = int(keyed_uniform(key64(4, "channel", 0, 1, "edca"), T0 + 5 * US, 0) * 16)
+    end_a = T0 + airtime(200)
+    assert sorted(got) == [(end_a + LAT, 0, 2, "a"), (end_a + AIFS + b * 13 * US + airtime(200) + LAT, 1, 0, "b")]
+
+
+CAPTURE_XS = [0.0, 10.0, 40.0]         # R, S (strong: -54.9 dBm at R), W (weak: -72.9 dBm): 18 dB apart
+
+
+@pytest.mark.parametrize("capture, first, heard", [
+    (None, "S", {"S"}),        # the stronger first: it survives the weaker one (SINR 18 dB)
+    (None, "W", set()),        # the weaker first: R stays on it and it fails; the stronger is lost (busy)
+    (10.0, "W", {"S"}),        # capture 10 dB: R switches to the stronger (18 dB >= 10), which survives
+    (20.0, "W", set()),        # capture 20 dB: 18 dB is not enough to switch
+])
+def test_capture_in_both_orders(capture, first, heard):
+    """S (10 m) and W (40 m) send to R (0 m) 20 us apart; neither senses the other (carrier
+    sense above any power here), so they overlap."""
+    radio = RadioParams(**{**SPATIAL, "carrier_sense": 0.0}, capture=capture)
+    med = Medium(rate=RATE, access=Edca(), preamble=PRE / 1e9, radio=radio)
+    env, net, port, got = network(med, CAPTURE_XS)
+    node = {"S": 1, "W": 2}
+    second = "W" if first == "S" else "S"
+    at(env, T0, lambda: port.send(net.link(node[first], 0), first, 200))
+    at(env, T0 + 20 * US, lambda: port.send(net.link(node[second], 0), second, 200))
+    env.run()
+    start = {first: T0, second: T0 + 20 * US}
+    assert sorted(got) == sorted((start[x] + airtime(200) + LAT, node[x], 0, x) for x in heard)
+    rows = {r["link"]: r for r in port.counts()["per_link"]}
+    lost = {x for x in ("S", "W") if rows[(node[x], 0)]["lost"]}
+    assert lost == {"S", "W"} - heard
+
+
+def test_a_receiver_that_starts_sending_loses_what_it_was_receiving():
+    """Half duplex: R locks on a frame below its carrier sense (so it does not defer), then
+    sends its own: the frame it was receiving is lost there (``receiver_busy``)."""
+    radio = RadioParams(**{**SPATIAL, "carrier_sense": -60.0})
+    med = Medium(rate=RATE, access=Edca(), preamble=PRE / 1e9, radio=radio)
+    env, net, port, got = network(med, [0.0, 40.0, -10.0])
+    at(env, T0, lambda: port.send(net.link(1, 0), "to R", 200))
+    at(env, T0 + 20 * US, lambda: port.send(net.link(0, 2), "from R", 100))
+    env.run()
+    assert "to R" not in [g[3] for g in got]
+    row = next(r for r in port.counts()["per_link"] if r["link"] == (1, 0))
+    assert (row["sent"], row["lost"], row["collision_lost"]) == (1, 1, 0)
+    assert port.counts()["channel"]["losses"]["receiver_busy"] >= 1
+
+
+def test_every_pair_is_counted_once_and_cbr_is_the_sensed_busy_time():
+    """A random run on a line: the pairs by fate add up to frames x (members - 1); a member
+    beyond everyone's range senses only its own three frames: its CBR is their airtime over the
+    run."""
+    radio = RadioParams(**SPATIAL, bins={"width": 50.0, "max": 2000.0})
+    med = Medium(rate=RATE, access=Edca(), preamble=PRE / 1e9, radio=radio)
+    xs = [0.0, 30.0, 90.0, 160.0, 5000.0]
+    env, net, port, got = network(med, xs, seed=3)
+    rng = np.random.default_rng(5)
+    for t, u in zip(rng.integers(0, 400 * MS, 200), rng.integers(0, 4, 200)):
+        at(env, int(t), lambda u=int(u): broadcast(net, port, u, "x", 150))
+    for k in range(3):
+        at(env, (100 + 100 * k) * MS, lambda: port.send(net.link(4, 0), "far", 200))
+    env.run(until=500 * MS)
+    ch = port.counts()["channel"]
+    assert ch["pairs"] == ch["frames_on_air"] * (len(xs) - 1)
+    assert ch["pairs"] == ch["pairs_received"] + sum(ch["losses"].values())
+    # beyond the bins (2000 m): the far member's pairs, one per other frame and four per its own
+    assert sum(ch["pdr_by_distance"]["frames"]) == ch["pairs"] - (ch["frames_on_air"] - 3) - 3 * 4
+    assert ch["cbr"][4] == 3 * airtime(200) / (500 * MS)
+    assert min(ch["cbr"][:4]) > 0
