@@ -83,7 +83,8 @@ def test_without_path_loss_the_radio_delivers_what_one_collision_domain_delivers
         env, net, port, got = network(med, [10.0 * i for i in range(n)], seed)
         for u, slot, size in plan:
             if u < n:
-                at(env, T0 + slot * 50 * US, lambda u=u, size=size, slot=slot: broadcast(net, port, u, (u, slot), size))
+                at(env, T0 + slot * 50 * US,
+                   lambda u=u, size=size, slot=slot, net=net, port=port: broadcast(net, port, u, (u, slot), size))
         env.run(until=T0 + 60 * MS)
         c = port.counts()
         runs.append((sorted(got), [(r["link"], r["lost"], r["delivered"]) for r in c["per_link"]],

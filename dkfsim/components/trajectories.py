@@ -87,7 +87,7 @@ class TrajectoryParams(StrictModel):
         """Velocities (m/s) at run times ``t_s`` (s): shape ``(len(t), 2)``."""
         raise NotImplementedError
 
-    def for_node(self, node: int) -> TrajectoryParams:
+    def for_node(self, node: int) -> TrajectoryParams:  # noqa: ARG002  (a kind may place by number)
         """The trajectory of vehicle ``node`` when this one is given to it (a kind that places
         each vehicle by its number, ``road``, answers its own; every other kind, itself)."""
         return self

@@ -35,7 +35,6 @@ from typing_extensions import override
 
 from dkfsim.components.medium import Medium as MediumSpec
 from dkfsim.components.radio import error_rate, fading_db, path_loss_db, shadowing_db
-from dkfsim.core.params import NS_PER_S
 from dkfsim.core.registry import MEDIA
 from dkfsim.core.streams import key64, keyed_uniforms
 from dkfsim.network.media.channel import NEVER, Access, Channel
