@@ -68,6 +68,7 @@ def test_no_import_cycles():
 LAZY_IMPORTS = {
     ("dkfsim/analysis/metrics.py", "scipy.special"): "t and chi-square quantiles: intervals over runs",
     ("dkfsim/components/latency.py", "scipy.special"): "lognormal and gamma quantiles: their draws",
+    ("dkfsim/components/radio.py", "scipy.special"): "normal and gamma quantiles: shadowing and fading draws",
     ("dkfsim/components/mobility.py", "scipy.sparse.csgraph"): "a changing graph's connectivity",
     ("dkfsim/components/topology.py", "networkx"): "building and measuring a scenario's graph",
     ("dkfsim/core/linalg.py", "scipy.linalg.lapack"): "the fusion's LAPACK solves",

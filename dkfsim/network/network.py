@@ -145,7 +145,8 @@ class Network:
         channel = store.get(_CHANNEL)
         if channel is None:
             if self.medium.radio is not None:
-                channel = RadioChannel(self.env, self.medium, self._member_order, self.seed, self.positions, self.T_ns)
+                channel = RadioChannel(self.env, self.medium, self._member_order, self.seed, self.positions, self.T_ns,
+                                       backend=self.backend)
             else:
                 channel = Channel(self.env, self.medium, self._member_order, self.seed, T_ns=self.T_ns)
             store[_CHANNEL] = channel

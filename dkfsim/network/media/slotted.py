@@ -62,6 +62,8 @@ class SlottedAccess(Access):
         self._all = np.arange(m)
         #: the radios that started last (one domain: they sensed no error, they sent)
         self._started = np.zeros(0, dtype=np.int64)
+        #: the earliest ``due`` (-1: to be worked out again)
+        self._best = -1
 
     def draw(self, i: int, t: int) -> int:
         """A backoff uniform in ``0 .. cw`` for radio ``i`` at ``t`` (the keyed draw at ``(t,
@@ -88,6 +90,7 @@ class SlottedAccess(Access):
         self.head_on[i] = True
         self.air[i] = self.channel.airtime(radio.queue[0].size)
         self.on_head(i, t, bool(self.idle_at[i] >= 0))
+        self._best = -1
 
     def on_head(self, i: int, t: int, idle: bool) -> None:
         """Radio ``i``'s head frame arrived at ``t`` (its medium idle or not): set its count."""
@@ -109,6 +112,7 @@ class SlottedAccess(Access):
         self.count[sel] = left
         self.idle_at[sel] = -1
         self.due[sel] = NEVER
+        self._best = -1
 
     def clear(self, nodes: np.ndarray, t: int, error: np.ndarray | None = None) -> None:
         """The radios at positions ``nodes`` sense the medium idle from ``t`` (``error``: those
@@ -121,6 +125,7 @@ class SlottedAccess(Access):
         self.origin[nodes] = origin
         c = self.count[nodes]
         self.due[nodes] = np.where(self.head_on[nodes], np.where(c >= 0, origin + c * self.slot, origin), NEVER)
+        self._best = -1
 
     @override
     def idle(self, te: int) -> None:
@@ -134,18 +139,20 @@ class SlottedAccess(Access):
 
     @override
     def next_start(self) -> int:
-        return int(self.due.min())
+        if self._best < 0:                  # (worked out again after any change of ``due``)
+            self._best = int(self.due.min())
+        return self._best
 
     @override
     def next_airtime(self) -> int:
-        due = self.due
-        return int(self.air[due == due.min()].min())
+        return int(self.air[self.due == self.next_start()].min())
 
     @override
     def start(self, ts: int) -> list[Radio]:
         sel = np.flatnonzero(self.due == ts)
         self.head_on[sel] = False
         self.due[sel] = NEVER
+        self._best = -1
         self.count[sel] = -1
         self._started = sel
         radios = self.radios

@@ -1,0 +1,184 @@
+"""Kernels of :class:`dkfsim.network.media.radio.RadioChannel`: what a transmission's start and
+end do at every receiver (docs/radio.md, "The receivers").
+
+The receivers' state is two arrays over the members, ``ri`` (int64 rows below) and ``rf``
+(float64 rows below); each frame on the air has a slot ``s`` with its power ``p[s]`` (mW) and
+distance ``d[s]`` (m) at every member, its decision draws ``u[s]``, each pair's fate
+``fate[s]`` and which members sense it ``sensed[s]``; ``si[s]`` holds its sender's member index
+and its start and end (ns).  One call per event does a loop over the members, so a frame heard by
+hundreds of vehicles costs no Python per receiver.
+
+On the numba path these functions are compiled; on the numpy path they run as Python.
+"""
+
+from __future__ import annotations
+
+import math
+from types import ModuleType
+
+import numpy as np
+
+from dkfsim.core.jit import LazyKernels
+
+_KERNELS = ("error_rate", "close", "start", "end")
+_lazy = LazyKernels(__name__, _KERNELS, inline=("error_rate",))
+
+#: Rows of ``ri``: the slot each member is locked on (-1: none), the start of its current SINR
+#: chunk, how many frames on the air it senses (its own included), since when it senses the
+#: medium busy, its busy ns so far, whether it transmits, whether its last frame received was in
+#: error, whether its locked frame met interference, how many frames on the air reach it.
+LOCKED, CHUNK_T, SENSE_N, BUSY_FROM, BUSY_NS, TX, RXERR, INTERF, NAIR = range(9)
+NRI = 9
+#: Rows of ``rf``: the locked frame's power (mW) and airtime (ns), the log of its success
+#: probability over the chunks so far, the power of every frame on the air (mW).
+LOCK_P, LOCK_AIR, LOGPSR, TOTAL = range(4)
+NRF = 4
+#: Columns of ``si``: the sender's member index, start, end.
+S_I, S_START, S_END = range(3)
+#: A pair's fate: received, or the cause of its loss; the sender's own entry; not yet decided.
+RECEIVED, SENSING, RECEIVER_BUSY, PROPAGATION, COLLISION = range(5)
+SENDER, PENDING = -1, 5
+#: Reception rules: a threshold (``tab_x[0]`` dB) or a table (``tab_x`` dB -> ``tab_y``).
+THRESHOLD, TABLE = 0, 1
+
+
+def compiled() -> ModuleType:
+    """This module with its kernels compiled by numba (loaded from the disk cache after the
+    first time)."""
+    return _lazy.get()
+
+
+def error_rate(kind: int, tab_x: np.ndarray, tab_y: np.ndarray, sinr_db: float) -> float:
+    """The packet error rate at ``sinr_db`` (``np.interp``'s rule: linear, held at the ends)."""
+    if kind == THRESHOLD:
+        return 0.0 if sinr_db >= tab_x[0] else 1.0
+    n = len(tab_x)
+    if sinr_db <= tab_x[0]:
+        return tab_y[0]
+    if sinr_db >= tab_x[n - 1]:
+        return tab_y[n - 1]
+    j = np.searchsorted(tab_x, sinr_db, side="right") - 1
+    x0, x1 = tab_x[j], tab_x[j + 1]
+    return tab_y[j] + (tab_y[j + 1] - tab_y[j]) * ((sinr_db - x0) / (x1 - x0))
+
+
+def close(ri: np.ndarray, rf: np.ndarray, kind: int, tab_x: np.ndarray, tab_y: np.ndarray, noise: float,
+          t: int) -> None:
+    """Every locked member's SINR chunk up to ``t`` (its interference is about to change):
+    ``logpsr += (t - chunk) / airtime * log(1 - PER(SINR))``."""
+    m = ri.shape[1]
+    for r in range(m):
+        if ri[LOCKED, r] < 0 or ri[CHUNK_T, r] >= t:
+            continue
+        lp = rf[LOCK_P, r]
+        other = rf[TOTAL, r] - lp
+        if other < 0.0:
+            other = 0.0
+        per = error_rate(kind, tab_x, tab_y, 10.0 * math.log10(lp / (noise + other)))
+        if per >= 1.0:
+            rf[LOGPSR, r] = -math.inf
+        elif per > 0.0:
+            rf[LOGPSR, r] += (t - ri[CHUNK_T, r]) / rf[LOCK_AIR, r] * math.log1p(-per)
+        ri[CHUNK_T, r] = t
+
+
+def start(ri: np.ndarray, rf: np.ndarray, p: np.ndarray, fate: np.ndarray, sensed: np.ndarray, si: np.ndarray,
+          slots: np.ndarray, ts: int, sens: float, cs: float, capture: float, went: np.ndarray) -> int:
+    """The frames of ``slots`` (in their senders' order) start at ``ts``: a sender loses what it
+    was receiving; a free member locks on the strongest of them at or above ``sens`` (with
+    ``capture > 0`` a locked one switches to it when it is ``capture`` times stronger); every
+    pair's fate so far; the members that begin to sense the medium busy, written to ``went``
+    (their number returned)."""
+    m = ri.shape[1]
+    for s in slots:                         # half duplex
+        i = si[s, S_I]
+        if ri[LOCKED, i] >= 0:
+            fate[ri[LOCKED, i], i] = RECEIVER_BUSY
+            ri[LOCKED, i] = -1
+        ri[TX, i] = 1
+    n = 0
+    for r in range(m):
+        best, bp = -1, -1.0
+        for s in slots:
+            if p[s, r] > bp:
+                bp, best = p[s, r], s
+        for s in slots:
+            if si[s, S_I] == r:
+                fate[s, r] = SENDER
+            elif p[s, r] < sens:
+                fate[s, r] = SENSING
+            else:
+                fate[s, r] = RECEIVER_BUSY
+        if ri[TX, r] == 0 and bp >= sens:
+            lock = ri[LOCKED, r] < 0
+            if not lock and capture > 0.0 and bp >= rf[LOCK_P, r] * capture:
+                fate[ri[LOCKED, r], r] = COLLISION
+                lock = True
+            if lock:
+                ri[LOCKED, r] = best
+                fate[best, r] = PENDING
+                rf[LOCK_P, r] = bp
+                rf[LOCK_AIR, r] = si[best, S_END] - ts
+                rf[LOGPSR, r] = 0.0
+                ri[CHUNK_T, r] = ts
+                ri[INTERF, r] = 0
+        before = ri[SENSE_N, r]
+        for s in slots:
+            rf[TOTAL, r] += p[s, r]
+            if p[s, r] > 0.0:
+                ri[NAIR, r] += 1
+            on = p[s, r] >= cs or si[s, S_I] == r
+            sensed[s, r] = on
+            if on:
+                ri[SENSE_N, r] += 1
+        if ri[LOCKED, r] >= 0 and ri[NAIR, r] > 1:
+            ri[INTERF, r] = 1
+        if before == 0 and ri[SENSE_N, r] > 0:
+            ri[BUSY_FROM, r] = ts
+            went[n] = r
+            n += 1
+    return n
+
+
+def end(ri: np.ndarray, rf: np.ndarray, p: np.ndarray, d: np.ndarray, u: np.ndarray, fate: np.ndarray,
+        sensed: np.ndarray, si: np.ndarray, slots: np.ndarray, te: int, kind: int, tab_x: np.ndarray,
+        tab_y: np.ndarray, noise: float, width: float, pairs: np.ndarray, fates: np.ndarray,
+        went: np.ndarray) -> int:
+    """The frames of ``slots`` end at ``te``: each member locked on one decides (received iff its
+    draw is below the success probability over the chunks; lost, ``propagation`` when it had no
+    interference or would have been lost without it, else ``collision``); the frames leave the
+    sums; every pair is counted (``fates`` by fate, ``pairs[bin, fate]`` by distance); the
+    members that sense the medium idle from ``te``, written to ``went`` (their number returned)."""
+    m = ri.shape[1]
+    nb = pairs.shape[0]
+    n = 0
+    for s in slots:
+        for r in range(m):
+            if ri[LOCKED, r] == s:
+                lp = rf[LOCK_P, r]
+                psr_noise = 1.0 - error_rate(kind, tab_x, tab_y, 10.0 * math.log10(lp / noise))
+                x = u[s, r]
+                if x < math.exp(rf[LOGPSR, r]):
+                    fate[s, r] = RECEIVED
+                    ri[RXERR, r] = 0
+                else:
+                    fate[s, r] = PROPAGATION if (ri[INTERF, r] == 0 or x >= psr_noise) else COLLISION
+                    ri[RXERR, r] = 1
+                ri[LOCKED, r] = -1
+            rf[TOTAL, r] -= p[s, r]
+            if p[s, r] > 0.0:
+                ri[NAIR, r] -= 1
+            if sensed[s, r]:
+                ri[SENSE_N, r] -= 1
+                if ri[SENSE_N, r] == 0:
+                    ri[BUSY_NS, r] += te - ri[BUSY_FROM, r]
+                    went[n] = r
+                    n += 1
+            f = fate[s, r]
+            if f >= 0:
+                fates[f] += 1
+                b = int(d[s, r] // width)
+                if b < nb:
+                    pairs[b, f] += 1
+        ri[TX, si[s, S_I]] = 0
+    return n
