@@ -235,8 +235,8 @@ def _winner_b1(d: np.ndarray, f: float, h: float) -> np.ndarray:
 def shadowing_db(model: object, u: np.ndarray) -> np.ndarray:
     """The shadowing loss (dB) from uniform draws ``u`` in (0, 1)."""
     if isinstance(model, Lognormal):
-        from scipy import special      # (not at import: validating a scenario needs no scipy)
-        return model.sigma * special.ndtri(u)
+        from scipy.special import ndtri  # (lazy: validating a scenario needs no scipy)
+        return model.sigma * ndtri(u)
     return np.zeros(len(u))
 
 
@@ -244,8 +244,8 @@ def fading_db(model: object, u: np.ndarray) -> np.ndarray:
     """The fading gain (dB) from uniform draws ``u`` in (0, 1): the power gain of Nakagami-m is
     gamma of shape ``m`` and scale ``1/m``, drawn by its inverse CDF."""
     if isinstance(model, Nakagami):
-        from scipy import special
-        g = special.gammaincinv(model.m, u) / model.m
+        from scipy.special import gammaincinv  # (lazy: scipy.special only where fading draws)
+        g = gammaincinv(model.m, u) / model.m
         return 10.0 * np.log10(np.maximum(g, 1e-300))
     return np.zeros(len(u))
 
