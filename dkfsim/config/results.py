@@ -158,9 +158,52 @@ class MobilityRecord(Model):
     link_uptime: list[tuple[Count, Count, Annotated[float, Field(ge=0, le=1)]]]
 
 
+Fraction = Annotated[float, Field(strict=True, ge=0, le=1)]
+#: The longest list of a radio block: the distance bins (``DistanceBins`` allows 10,000) and the
+#: members of a channel.
+RADIO_LIST = 100_000
+
+
+class PdrByDistance(Model):
+    """A spatial radio's ``pdr_by_distance`` (docs/radio.md): the bins' edges (m), the packet
+    delivery ratio per bin (null: no pair fell in it), the (frame, receiver) pairs per bin and
+    each cause of a loss per bin."""
+
+    bins_m: Annotated[list[Annotated[float, Field(strict=True, ge=0)]], Field(min_length=2, max_length=RADIO_LIST)]
+    pdr: Annotated[list[Fraction | None], Field(max_length=RADIO_LIST)]
+    frames: Annotated[list[Count], Field(max_length=RADIO_LIST)]
+    sensing: Annotated[list[Count], Field(max_length=RADIO_LIST)] | None = None
+    receiver_busy: Annotated[list[Count], Field(max_length=RADIO_LIST)] | None = None
+    propagation: Annotated[list[Count], Field(max_length=RADIO_LIST)] | None = None
+    collision: Annotated[list[Count], Field(max_length=RADIO_LIST)] | None = None
+
+    @model_validator(mode="after")
+    def _shapes(self) -> PdrByDistance:
+        bins = len(self.bins_m) - 1
+        for key in ("pdr", "frames", "sensing", "receiver_busy", "propagation", "collision"):
+            value = getattr(self, key)
+            if value is not None and len(value) != bins:
+                raise custom_error(f"has {len(value)} entries for {bins} distance bins (bins_m has {bins + 1} edges)",
+                                   key)
+        if any(b <= a for a, b in zip(self.bins_m, self.bins_m[1:])):
+            raise custom_error("the bins' edges must increase", "bins_m")
+        return self
+
+
+class Losses(Model):
+    """A spatial radio's lost (frame, receiver) pairs by cause."""
+
+    sensing: Count
+    receiver_busy: Count
+    propagation: Count
+    collision: Count
+
+
 class ChannelRecord(Model):
     """An estimator's ``channel`` block (a run with ``medium:``, docs/channel.md): the shared
-    channel as its copy saw it; what ``dkfsim report`` shows of it."""
+    channel as its copy saw it; what ``dkfsim report`` shows of it.  A spatial radio
+    (``medium.radio``, docs/radio.md) adds ``pdr_by_distance``, ``cbr`` (per member),
+    ``cbr_mean``, ``losses``, ``pairs`` and ``pairs_received``."""
 
     utilisation: Annotated[float, Field(strict=True, ge=0)]
     frames: Count
@@ -170,6 +213,12 @@ class ChannelRecord(Model):
     background_collided: Count
     background_dropped: Count = 0
     access_delay_mean: Annotated[float, Field(strict=True, ge=0)]
+    cbr: Annotated[list[Fraction], Field(max_length=RADIO_LIST)] | None = None
+    cbr_mean: Fraction | None = None
+    pdr_by_distance: PdrByDistance | None = None
+    losses: Losses | None = None
+    pairs: Count | None = None
+    pairs_received: Count | None = None
 
 
 class Counts(PacketCounts):

@@ -163,6 +163,7 @@ class Run:
         counts = dict(results[0][1].traffic or {})    # the scenario's DKF: the run's packets
         if self.dkf.port is not None:     # its rate-limited links over time (none: nothing added)
             arrays.update(self.dkf.port.link_series(sys_.T_ns, K))
+            arrays.update(self.dkf.port.channel_series(sys_.T_ns, K))
         plan = self.plan
         info = {
             "buffer_length": self.dkf.L,

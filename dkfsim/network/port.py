@@ -329,6 +329,11 @@ class Port:
         log = self.medium(link).interval_log(self, self._end())
         return log if log is not None else np.zeros((0, 3), dtype=np.int64)
 
+    def channel_series(self, T_ns: int, K: int) -> dict[str, np.ndarray]:
+        """The shared channel's per-tick arrays as this port's copy saw it
+        (:meth:`~dkfsim.network.media.base.Medium.series`); empty without a channel."""
+        return self.channel.series(self, T_ns, K) if self.channel is not None else {}
+
     def link_series(self, T_ns: int, K: int) -> dict[str, np.ndarray]:
         """Per tick, each link this port reports on whose medium has a waiting room: the
         time-averaged number of packets waiting and the utilisation

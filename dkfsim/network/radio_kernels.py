@@ -20,8 +20,8 @@ import numpy as np
 
 from dkfsim.core.jit import LazyKernels
 
-_KERNELS = ("error_rate", "close", "start", "end")
-_lazy = LazyKernels(__name__, _KERNELS, inline=("error_rate",))
+_KERNELS = ("error_rate", "busy_ticks", "close", "start", "end")
+_lazy = LazyKernels(__name__, _KERNELS, inline=("error_rate", "busy_ticks"))
 
 #: Rows of ``ri``: the slot each member is locked on (-1: none), the start of its current SINR
 #: chunk, how many frames on the air it senses (its own included), since when it senses the
@@ -140,15 +140,32 @@ def start(ri: np.ndarray, rf: np.ndarray, p: np.ndarray, fate: np.ndarray, sense
     return n
 
 
+def busy_ticks(ticks: np.ndarray, r: int, a: int, b: int, T_ns: int) -> None:
+    """Add member ``r``'s busy interval ``[a, b)`` to ``ticks[k, r]`` (ns busy in ``[k T, (k+1) T)``;
+    the last row takes what lies beyond it)."""
+    last = ticks.shape[0] - 1
+    k = a // T_ns
+    while a < b:
+        if k >= last:
+            ticks[last, r] += b - a
+            return
+        edge = (k + 1) * T_ns
+        stop = b if b < edge else edge
+        ticks[k, r] += stop - a
+        a = stop
+        k += 1
+
+
 def end(ri: np.ndarray, rf: np.ndarray, p: np.ndarray, d: np.ndarray, u: np.ndarray, fate: np.ndarray,
         sensed: np.ndarray, si: np.ndarray, slots: np.ndarray, te: int, kind: int, tab_x: np.ndarray,
         tab_y: np.ndarray, noise: float, width: float, pairs: np.ndarray, fates: np.ndarray,
-        went: np.ndarray) -> int:
+        went: np.ndarray, ticks: np.ndarray, T_ns: int) -> int:
     """The frames of ``slots`` end at ``te``: each member locked on one decides (received iff its
     draw is below the success probability over the chunks; lost, ``propagation`` when it had no
     interference or would have been lost without it, else ``collision``); the frames leave the
     sums; every pair is counted (``fates`` by fate, ``pairs[bin, fate]`` by distance); the
-    members that sense the medium idle from ``te``, written to ``went`` (their number returned)."""
+    members that sense the medium idle from ``te``, written to ``went`` (their number returned),
+    their busy periods added to ``ticks`` (:func:`busy_ticks`)."""
     m = ri.shape[1]
     nb = pairs.shape[0]
     n = 0
@@ -172,6 +189,7 @@ def end(ri: np.ndarray, rf: np.ndarray, p: np.ndarray, d: np.ndarray, u: np.ndar
                 ri[SENSE_N, r] -= 1
                 if ri[SENSE_N, r] == 0:
                     ri[BUSY_NS, r] += te - ri[BUSY_FROM, r]
+                    busy_ticks(ticks, r, ri[BUSY_FROM, r], te, T_ns)
                     went[n] = r
                     n += 1
             f = fate[s, r]

@@ -76,6 +76,9 @@ CAPTIONS = {
                          "the scenario: every run moves alike).",
     "topology_errors": "Squared position error over time; dotted: the ticks at which the links up "
                        "change; below: the number of links up per tick.",
+    "radio": "The spatial radio as the DKF's copy of the channel saw it: packet delivery ratio of every "
+             "(frame, receiver) pair against their distance, the causes of the losses stacked above it "
+             "and the pairs per bin (dotted); below, each vehicle's channel busy ratio per tick.",
 }
 
 
@@ -118,6 +121,14 @@ CHANNEL_KEYS = {
     "background.packets_per_second": ("background per node [frames/s]", 1.0),
     "background.size": ("background frame [B]", 1.0), "background.sizes": ("background sizes", None),
     "background.offset": ("background offset [s]", 1.0), "nodes": ("nodes on the channel", None),
+    "access.eifs": ("EIFS [µs]", 1e6), "generation_jitter": ("generation jitter [ms]", 1e3),
+    "radio.power": ("transmit power [dBm]", 1.0), "radio.frequency": ("carrier [GHz]", 1e-9),
+    "radio.noise": ("noise floor [dBm]", 1.0), "radio.sensitivity": ("sensitivity [dBm]", 1.0),
+    "radio.carrier_sense": ("carrier sense threshold [dBm]", 1.0), "radio.path_loss.model": ("path loss", None),
+    "radio.shadowing.model": ("shadowing", None), "radio.shadowing.sigma": ("shadowing σ [dB]", 1.0),
+    "radio.fading.model": ("fading", None), "radio.fading.m": ("Nakagami m", 1.0),
+    "radio.reception.model": ("reception", None), "radio.reception.sinr": ("SINR threshold [dB]", 1.0),
+    "radio.capture": ("capture margin [dB]", 1.0),
 }
 
 
@@ -155,6 +166,7 @@ def _channel_section(packets: dict, traffic: dict, medium=None) -> list[tuple[st
         return []
     params = table("channel_parameters", ("parameter", "value"), _channel_parameters(medium),
                    "the channel of the scenario (medium:, docs/channel.md), in the units shown")
+    params += _radio_table(blocks)
     return [("Shared channel", params + table("channel", (
         "estimator", "utilisation", "frames", "collided [%]", "dropped [frames]", "background on air",
         "background collided", "mean access delay [ms]"), rows,
@@ -164,6 +176,27 @@ def _channel_section(packets: dict, traffic: dict, medium=None) -> list[tuple[st
         "went on the air and how many of them collided; the mean access delay of its frames, from hand-over to the start of "
         "transmission. Each estimator has its own copy of the channel unless links.shared_queues "
         "(the fusion centre shares the DKF's)"))]
+
+
+def _radio_table(blocks: list) -> str:
+    """A spatial radio's numbers per estimator's copy (``cbr_mean``, ``pairs``, ``losses``), or
+    nothing for one collision domain."""
+    rows = []
+    for name, ch in blocks:
+        if not ch or ch.get("losses") is None:
+            continue
+        pairs, losses = ch.get("pairs") or 0, ch["losses"]
+        rows.append((name, ch.get("cbr_mean"), pairs,
+                     100.0 * ch.get("pairs_received", 0) / pairs if pairs else None,
+                     losses["sensing"], losses["receiver_busy"], losses["propagation"], losses["collision"]))
+    if not rows:
+        return ""
+    return table("radio", ("estimator", "CBR (mean over vehicles)", "(frame, receiver) pairs", "received [%]",
+                           "lost: sensing", "lost: receiver busy", "lost: propagation", "lost: collision"), rows,
+                 "the spatial radio (medium.radio, docs/radio.md): every (frame, receiver) pair of every frame on "
+                 "the estimator's copy of the channel, background included, received or lost by cause: below "
+                 "sensitivity, the receiver transmitting or locked on another frame, noise and fading alone, "
+                 "interference; CBR: the share of the run each vehicle sensed the channel busy")
 
 
 def _uptime_section(record: dict | None) -> list[tuple[str, str]]:

@@ -98,6 +98,11 @@ class Medium:
         queue and utilisation series of ``run.npz``; None for a medium without one."""
         return None
 
+    def series(self, owner: Any, T_ns: int, K: int) -> dict[str, np.ndarray]:
+        """The medium's per-tick arrays of ``run.npz`` as ``owner`` saw them over ``K`` ticks of
+        ``T_ns`` (e.g. a spatial radio's CBR per vehicle); none by default."""
+        return {}
+
     def own_delays(self, owner: Any) -> np.ndarray:
         """ns from hand-over to the start of transmission of each of ``owner``'s frames."""
         return np.zeros(0, dtype=np.int64)

@@ -99,13 +99,15 @@ class RadioChannel(Channel):
         self.pairs = np.zeros((len(self.edges) - 1, 5), dtype=np.int64)
         self.fates = np.zeros(5, dtype=np.int64)
         self.started_frames = 0
+        #: each member's busy ns per tick (row ``k``: ``[k T, (k+1) T)``; the last row, beyond)
+        self.ticks = np.zeros((len(self.positions), m), dtype=np.int64)
         kind, tab_x, tab_y = self.rule
         i1 = np.zeros(1, dtype=np.int64)
         self._close = bind(k.close, self.ri, self.rf, kind, tab_x, tab_y, 1.0, 0)
         self._start_k = bind(k.start, self.ri, self.rf, self.p, self.fate, self.sensed, self.si, i1, 0, 1.0, 1.0,
                              1.0, self._went)
         self._end_k = bind(k.end, self.ri, self.rf, self.p, self.d, self.u, self.fate, self.sensed, self.si, i1, 0,
-                           kind, tab_x, tab_y, 1.0, 1.0, self.pairs, self.fates, self._went)
+                           kind, tab_x, tab_y, 1.0, 1.0, self.pairs, self.fates, self._went, self.ticks, 1)
 
     def _grow(self, size: int) -> None:
         """Room for ``size`` frames on the air at once (the slots' rows, kept)."""
@@ -207,7 +209,8 @@ class RadioChannel(Channel):
         self._close(self.ri, self.rf, kind, tab_x, tab_y, self.noise, te)
         slots = np.asarray(ending, dtype=np.int64)
         went = self._end_k(self.ri, self.rf, self.p, self.d, self.u, self.fate, self.sensed, self.si, slots, te,
-                           kind, tab_x, tab_y, self.noise, self.width, self.pairs, self.fates, self._went)
+                           kind, tab_x, tab_y, self.noise, self.width, self.pairs, self.fates, self._went,
+                           self.ticks, self.T_ns)
         frames = [self._slot_of.pop(slot) for slot in ending]
         if not self._slot_of:
             self.rf[rk.TOTAL] = 0.0             # (nothing on the air: no rounding left over)
@@ -239,14 +242,40 @@ class RadioChannel(Channel):
                 access.head(radio, te)
 
     # ------------------------------------------------------------------ statistics
+    def busy_per_tick(self, T_ns: int, K: int) -> np.ndarray:
+        """(K, members): ns each member sensed the medium busy (its own transmissions included) in
+        ``[k T, (k+1) T)``, ``k = 0 .. K-1``, periods still open counted up to now (the channel
+        brought up to ``K T`` or now)."""
+        now = min(K * T_ns, self.env.now)
+        self.advance(now)
+        ticks = np.zeros((K, len(self.nodes)))
+        rows = min(K, len(self.ticks) - 1)       # (the kernel's last row holds what lies beyond)
+        ticks[:rows] = self.ticks[:rows]
+        ri = self.ri
+        for r in np.flatnonzero(ri[rk.SENSE_N] > 0).tolist():
+            a = int(ri[rk.BUSY_FROM, r])
+            for k in range(a // T_ns, min(K, -(-now // T_ns))):
+                ticks[k, r] += min(now, (k + 1) * T_ns) - max(a, k * T_ns)
+        return ticks
+
     def cbr(self, end_ns: int) -> np.ndarray:
         """Each member's channel busy ratio over ``[0, end_ns]``: the time it sensed the medium
-        busy (its own transmissions included) over ``end_ns``, brought up to ``end_ns`` or now."""
-        now = min(end_ns, self.env.now)
-        self.advance(now)
-        ri = self.ri
-        busy = ri[rk.BUSY_NS] + np.where(ri[rk.SENSE_N] > 0, now - ri[rk.BUSY_FROM], 0)
-        return busy / end_ns if end_ns > 0 else np.zeros(len(busy))
+        busy over ``end_ns`` (whole ticks; a last partial tick counts its share of its tick)."""
+        if end_ns <= 0:
+            return np.zeros(len(self.nodes))
+        T = self.T_ns
+        K = -(-end_ns // T)
+        busy = self.busy_per_tick(T, K)
+        total = busy[: end_ns // T].sum(axis=0)
+        if end_ns % T:
+            total = total + busy[-1] * ((end_ns % T) / T)
+        return total / end_ns
+
+    @override
+    def series(self, owner: Any, T_ns: int, K: int) -> dict[str, np.ndarray]:
+        """Each member's CBR per tick as ``run.npz`` keeps it: ``cbr`` (K, members), row ``k`` the
+        busy fraction of ``[k T, (k+1) T)``, and ``cbr_nodes`` (members,)."""
+        return {"cbr": self.busy_per_tick(T_ns, K) / T_ns, "cbr_nodes": self.nodes.copy()}
 
     @override
     def report(self, owner: Any, end: int) -> dict[str, Any]:

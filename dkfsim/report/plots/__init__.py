@@ -43,6 +43,7 @@ from dkfsim.report.plots.accuracy import plot_mse, plot_nees
 from dkfsim.report.plots.compare import check_comparable, plot_compare
 from dkfsim.report.plots.folders import Folder, component_names, load_folder
 from dkfsim.report.plots.links import has_links, plot_links
+from dkfsim.report.plots.radio import has_radio, plot_radio
 from dkfsim.report.plots.mobility import has_mobility, plot_network_over_time, plot_topology_errors
 from dkfsim.report.plots.paired import paired_reference, plot_paired, relative_to
 from dkfsim.report.plots.style import (
@@ -60,9 +61,9 @@ from dkfsim.report.plots.style import (
 from dkfsim.report.plots.tracking import plot_tracking, zoom_window
 
 __all__ = ["DEFAULT_FORMATS", "ESTIMATES", "FORMATS", "Folder", "check_comparable", "color_of",
-           "component_names", "default_smooth", "has_links", "has_mobility", "label_of", "load_folder", "moving_average",
+           "component_names", "default_smooth", "has_links", "has_mobility", "has_radio", "label_of", "load_folder", "moving_average",
            "mse_note", "paired_reference", "plot_compare", "plot_folder", "plot_mse", "plot_nees",
-           "plot_links", "plot_network_over_time", "plot_paired", "plot_topology_errors", "plot_tracking", "relative_to",
+           "plot_links", "plot_radio", "plot_network_over_time", "plot_paired", "plot_topology_errors", "plot_tracking", "relative_to",
            "select_components", "zoom_window", "check_formats"]
 
 
@@ -83,6 +84,8 @@ def plot_folder(folder: Folder, out_dir, formats=DEFAULT_FORMATS, components=Non
         written += plot_paired(folder, out / "paired", formats, components)
     if has_links(folder):
         written += plot_links(folder, out / "links", formats)
+    if has_radio(folder):
+        written += plot_radio(folder, out / "radio", formats)
     if has_mobility(folder):
         written += plot_network_over_time(folder, out / "network_over_time", formats, at)
         written += plot_topology_errors(folder, out / "topology_errors", formats, smooth)

@@ -40,6 +40,10 @@ LINK_ARRAYS = {"queue_length": ("K", "E"), "utilisation": ("K", "E"), "queueing_
 MOBILITY_ARRAYS = {"positions": ("K", "n", 2), "links_up": ("K", "E")}
 
 
+#: A run on a spatial radio (``medium.radio``): each member's CBR per tick and the members.
+RADIO_ARRAYS = {"cbr": ("K", "M"), "cbr_nodes": ("M",)}
+
+
 class NothingToPlot(DkfsimError):
     """A folder dkfsim wrote without arrays to draw (``--save summary``): not a damaged one."""
 
@@ -80,6 +84,9 @@ class Folder:
     #: such a scenario: the same, replayed from its stored scenario (:func:`_replayed_mobility`);
     #: empty otherwise
     mobility: dict[str, np.ndarray] = field(default_factory=dict)
+    #: a run on a spatial radio: ``cbr`` (K, M) and ``cbr_nodes`` (M,) from run.npz, and the DKF's
+    #: ``pdr_by_distance`` block from summary.json (``pdr``: None where no pair fell); empty otherwise
+    radio: dict = field(default_factory=dict)
 
     def fraction_in_band(self, estimate: str) -> float | None:
         """Fraction of the ticks after the burn-in whose mean NEES lies in the per-tick band."""
@@ -198,7 +205,12 @@ def _load_run(p: Path) -> Folder:
                 npz_header(z, key, _dims(shape, K=K, E=E))
             link_keys = ["rated_links", *LINK_ARRAYS]
         mobility_keys = _check_mobility(z, summary, K)
-        arrays = z.read(["t", "truth", *keys, *link_keys, *mobility_keys])
+        radio_keys = []
+        if "cbr" in z or "cbr_nodes" in z:
+            M = npz_header(z, "cbr_nodes", (None,)).shape[0]
+            npz_header(z, "cbr", (K, M))
+            radio_keys = list(RADIO_ARRAYS)
+        arrays = z.read(["t", "truth", *keys, *link_keys, *mobility_keys, *radio_keys])
     truth = arrays["truth"].astype(float)
     t = arrays["t"].astype(float)
     kind = _model_kind(summary)
@@ -225,7 +237,19 @@ def _load_run(p: Path) -> Folder:
                   examples=examples, node0=node0, n_runs=1, d_t=_d_t(summary),
                   burn_in=(summary.get("metrics") or {}).get("burn_in"),
                   links={k: arrays[k] for k in link_keys},
-                  mobility=_mobility(f, summary, {k: arrays[k] for k in mobility_keys}))
+                  mobility=_mobility(f, summary, {k: arrays[k] for k in mobility_keys}),
+                  radio=_radio(summary, {k: arrays[k] for k in radio_keys}))
+
+
+def _radio(summary: dict, arrays: dict) -> dict:
+    """A radio run's arrays and the DKF's ``pdr_by_distance`` (summary.json, checked on reading)."""
+    pdr = ((summary.get("packets") or {}).get("channel") or {}).get("pdr_by_distance")
+    if not arrays and pdr is None:
+        return {}
+    out = dict(arrays)
+    if pdr is not None:
+        out["pdr_by_distance"] = pdr
+    return out
 
 
 def _check_mobility(z: NpzFile, summary: dict, K: int) -> list[str]:
