@@ -20,10 +20,13 @@ from __future__ import annotations
 
 from typing import TYPE_CHECKING, Annotated, Any, Literal
 
+import numpy as np
 from pydantic import Field, field_validator, model_validator
 
+from dkfsim.components.mobility import Mobility
 from dkfsim.components.radio import RadioParams
 from dkfsim.components.traffic import Background, Queue, Rate
+from dkfsim.components.trajectories import Trajectory, TrajectoryParams
 from dkfsim.core.params import NonNegSeconds, StrictModel, custom_error, fix_kind, registered, seconds_to_ns
 from dkfsim.core.registry import MEDIA
 
@@ -118,6 +121,50 @@ else:
     AccessField = registered(AccessParams, MEDIA, "csma")
 
 
+#: Most bystanders a channel may carry.
+MAX_BYSTANDERS = 10_000
+
+
+class Bystanders(StrictModel):
+    """``medium.bystanders``: vehicles on the channel beside the scenario's nodes (docs/radio.md):
+    no sensor, no estimator, only their ``medium.background`` frames -- the traffic a group of
+    vehicles running the DKF shares the air with.  Bystander ``j`` is node ``n + j`` of the channel
+    (``n`` the scenario's nodes), ``vehicles`` gives each its trajectory as ``mobility.vehicles``
+    does (its own entry ``j``, else ``default``; a ``road`` places it by ``j``)."""
+
+    count: Annotated[int, Field(strict=True, ge=1, le=MAX_BYSTANDERS)]
+    vehicles: dict[str, Trajectory]
+
+    @field_validator("vehicles", mode="before")
+    @classmethod
+    def _trajectories(cls, v: Any) -> Any:
+        return Mobility.parse_vehicles(v)       # (the one parser of vehicle keys)
+
+    @model_validator(mode="after")
+    def _every_one(self) -> Bystanders:
+        for key in self.vehicles:
+            if key != "default" and (len(key) > 6 or not 0 <= int(key) < self.count):
+                raise custom_error(f"bystander {key} is out of range 0..{self.count - 1}", f"vehicles.{key}")
+        if "default" not in self.vehicles:
+            missing = [j for j in range(self.count) if str(j) not in self.vehicles]
+            if missing:
+                raise custom_error(f"bystander {missing[0]} has no trajectory ({len(missing)} without one); give "
+                                   "it one, or a 'default' trajectory", "vehicles")
+        return self
+
+    def trajectory(self, j: int) -> TrajectoryParams:
+        """Bystander ``j``'s trajectory, placed for it."""
+        return (self.vehicles.get(str(j)) or self.vehicles["default"]).for_node(j)
+
+    def positions(self, K: int, T: float, speed: float = 1.0) -> np.ndarray:
+        """Every bystander's position (m) at ``t_k = k T``: ``(K + 1, count, 2)``."""
+        t = np.arange(K + 1) * float(T) * float(speed)
+        out = np.empty((K + 1, self.count, 2))
+        for j in range(self.count):
+            out[:, j, :] = self.trajectory(j).positions(t)
+        return out
+
+
 class Medium(StrictModel):
     """The scenario's shared channel: who is on it, its rate, its access rule, each radio's
     waiting room and each vehicle's background frames."""
@@ -135,6 +182,8 @@ class Medium(StrictModel):
     generation_jitter: NonNegSeconds | None = None
     #: a spatial radio (:mod:`dkfsim.components.radio`); None: one collision domain
     radio: RadioParams | None = None
+    #: vehicles on the channel beside the nodes, sending only background (a spatial radio's)
+    bystanders: Bystanders | None = None
 
     @field_validator("nodes", mode="before")
     @classmethod
@@ -149,8 +198,9 @@ class Medium(StrictModel):
         return value
 
     def members(self, n: int) -> tuple[int, ...]:
-        """The nodes on the channel, in increasing order."""
-        return tuple(range(n)) if self.nodes == "all" else tuple(sorted(set(self.nodes)))
+        """The nodes on the channel, in increasing order, then its bystanders ``n .. n + count - 1``."""
+        nodes = tuple(range(n)) if self.nodes == "all" else tuple(sorted(set(self.nodes)))
+        return nodes + (tuple(range(n, n + self.bystanders.count)) if self.bystanders is not None else ())
 
     def check(self, n: int) -> None:
         """``nodes`` against the scenario's ``n`` nodes (a

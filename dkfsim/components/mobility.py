@@ -109,6 +109,10 @@ class Mobility(StrictModel):
     @field_validator("vehicles", mode="before")
     @classmethod
     def _keys(cls, v: Any) -> Any:
+        return cls.parse_vehicles(v)
+
+    @staticmethod
+    def parse_vehicles(v: Any) -> Any:
         """Keys are ``default`` or node numbers (YAML reads ``0:`` as an integer)."""
         if not isinstance(v, dict):
             return v

@@ -35,6 +35,8 @@ from collections import deque
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
+import numpy as np
+
 from dkfsim.components import topology as topo
 from dkfsim.components.estimators import AntiDelayParams, NoBufferParams
 from dkfsim.components.mobility import LinkSchedule
@@ -152,6 +154,19 @@ class RunPlan:
         if sc.mobility is None:
             return None
         return sc.mobility.positions(sc.n, int(sc.steps), sc.model.T)
+
+    @functools.cached_property
+    def radio_positions(self):
+        """What a spatial radio (``medium.radio``) places: the nodes' positions then its bystanders'
+        (``medium.bystanders``), ``(K + 1, n + count, 2)``; None without a radio."""
+        sc = self.scenario
+        if sc.medium is None or sc.medium.radio is None or self.positions is None:
+            return None
+        if sc.medium.bystanders is None:
+            return self.positions
+        speed = sc.mobility.speed if sc.mobility is not None else 1.0
+        others = sc.medium.bystanders.positions(int(sc.steps), sc.model.T, speed)
+        return np.concatenate([self.positions, others], axis=1)
 
     @property
     def graph_changes(self) -> bool:

@@ -465,6 +465,10 @@ class Scenario(StrictModel):
             raise custom_error("a spatial radio decides each frame at each receiver from the pair's distance, "
                                "so it needs the vehicles' positions: give mobility: (waypoints, a track, SUMO FCD, "
                                "a road), or remove medium.radio for one collision domain", "medium.radio")
+        if self.medium.bystanders is not None and self.medium.radio is None:
+            raise custom_error("bystanders are vehicles placed on the road beside the nodes: they need a spatial "
+                               "radio (medium.radio); for one collision domain give the nodes background instead",
+                               "medium.bystanders")
         if self.medium.generation_jitter and self.medium.generation_jitter > self.model.T:
             raise custom_error(f"a vehicle's frames of one tick reach its radio within the tick, so the jitter "
                                f"is at most the tick T = {self.model.T} s, got {self.medium.generation_jitter}",

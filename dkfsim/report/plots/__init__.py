@@ -43,9 +43,9 @@ from dkfsim.report.plots.accuracy import plot_mse, plot_nees
 from dkfsim.report.plots.compare import check_comparable, plot_compare
 from dkfsim.report.plots.folders import Folder, component_names, load_folder
 from dkfsim.report.plots.links import has_links, plot_links
-from dkfsim.report.plots.radio import has_radio, plot_radio
 from dkfsim.report.plots.mobility import has_mobility, plot_network_over_time, plot_topology_errors
 from dkfsim.report.plots.paired import paired_reference, plot_paired, relative_to
+from dkfsim.report.plots.radio import has_radio, plot_radio
 from dkfsim.report.plots.style import (
     DEFAULT_FORMATS,
     ESTIMATES,
