@@ -101,13 +101,15 @@ class RadioChannel(Channel):
         self.started_frames = 0
         #: each member's busy ns per tick (row ``k``: ``[k T, (k+1) T)``; the last row, beyond)
         self.ticks = np.zeros((len(self.positions), m), dtype=np.int64)
+        #: the run's end (its positions' last tick): the pairs of frames started by then are counted
+        self.horizon = (len(self.positions) - 1) * T_ns
         kind, tab_x, tab_y = self.rule
         i1 = np.zeros(1, dtype=np.int64)
         self._close = bind(k.close, self.ri, self.rf, kind, tab_x, tab_y, 1.0, 0)
         self._start_k = bind(k.start, self.ri, self.rf, self.p, self.fate, self.sensed, self.si, i1, 0, 1.0, 1.0,
                              1.0, self._went)
         self._end_k = bind(k.end, self.ri, self.rf, self.p, self.d, self.u, self.fate, self.sensed, self.si, i1, 0,
-                           kind, tab_x, tab_y, 1.0, 1.0, self.pairs, self.fates, self._went, self.ticks, 1)
+                           kind, tab_x, tab_y, 1.0, 1.0, self.pairs, self.fates, self._went, self.ticks, 1, 0)
 
     def _grow(self, size: int) -> None:
         """Room for ``size`` frames on the air at once (the slots' rows, kept)."""
@@ -210,7 +212,7 @@ class RadioChannel(Channel):
         slots = np.asarray(ending, dtype=np.int64)
         went = self._end_k(self.ri, self.rf, self.p, self.d, self.u, self.fate, self.sensed, self.si, slots, te,
                            kind, tab_x, tab_y, self.noise, self.width, self.pairs, self.fates, self._went,
-                           self.ticks, self.T_ns)
+                           self.ticks, self.T_ns, self.horizon)
         frames = [self._slot_of.pop(slot) for slot in ending]
         if not self._slot_of:
             self.rf[rk.TOTAL] = 0.0             # (nothing on the air: no rounding left over)
