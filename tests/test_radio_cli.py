@@ -85,12 +85,18 @@ def test_the_run_reports_pdr_cbr_and_the_four_causes_consistently(run):
     assert s["traffic"]["ci_consensus"]["channel"]["background_sent"] > 0
 
 
-def test_plot_draws_the_radio_figure_and_the_report_lists_the_radio(run, tmp_path):
+def test_the_radio_figure_is_drawn_and_the_report_lists_the_radio(run, tmp_path):
+    """``dkfsim plot``'s radio figure (the report draws the folder's figures inline with the same
+    function), and the report's radio table and parameters."""
     pytest.importorskip("matplotlib")
-    code, out, err = cli("plot", str(run), "--out", str(tmp_path / "fig"), "--format", "png")
-    assert code == 0, err
-    assert (tmp_path / "fig" / "radio.png").stat().st_size > 10_000
-    code, _, err = cli("report", str(run), "--out", str(tmp_path / "r.html"))
+    from dkfsim.report.plots import load_folder, plot_radio
+    written = plot_radio(load_folder(run), tmp_path / "radio", ("png",))
+    assert [p.name for p in written] == ["radio.png"] and written[0].stat().st_size > 10_000
+    tables = tmp_path / "tables"                 # (the tables alone: the report's figures are plot's)
+    tables.mkdir()
+    for name in ("summary.json", "rows.csv"):
+        shutil.copy(run / name, tables / name)
+    code, _, err = cli("report", str(tables), "--out", str(tmp_path / "r.html"))
     assert code == 0, err
     page = (tmp_path / "r.html").read_text()
     assert 'id="radio"' in page and "lost: collision" in page and "carrier sense threshold" in page
