@@ -49,6 +49,12 @@
     The issue's targets on a quiet 2-core machine: ``import dkfsim`` below 0.4 s CPU, ``--help``
     and ``list`` below 0.5 s wall, ``validate`` below 1 s wall.
 
+13. A spatial radio (issue 32): ``--radio-only`` runs vehicles on a two-lane road 8 m apart
+    (50 ... 400) sending only 10 Hz beacons on the radio (:data:`RADIO`, EDCA) and prints the CPU
+    per frame against the receivers in range (those that detect a frame), with the fitted
+    exponent; then ``scenarios/highway_its_g5.yaml`` for ``--highway-seconds`` (the DKF group
+    alone: the issue's target is 60 s of CPU for 60 s simulated).
+
 12. Seconds per event (issue 34 §2): ``--calibrate`` runs a set of scenarios that exercise
     each kind of event (:data:`CALIBRATION_RUNS`: plain, rate-limited, channel, flood, the
     consensus family, a fusion centre, a changing graph, a 50-node tree), each warmed up once,
@@ -314,6 +320,70 @@ def print_channel_cost(ticks: int, repeats: int) -> None:
           f"against the same scenario without medium:; CPU s, min of {repeats} alternated")
     print(f"  channel {t['channel']:8.3f} s ({t['channel_sent']} packets)   without medium {t['plain']:8.3f} s   "
           f"ratio {t['ratio']:.2f} x")
+
+
+#: Section 13's radio: 802.11p's defaults on WINNER+ B1 with log-normal shadowing and Nakagami
+#: fading, 10 Hz beacons of 300 bytes with random phases, EDCA.
+RADIO = {"path_loss": {"model": "winner_b1"}, "shadowing": {"model": "lognormal", "sigma": 3.0},
+         "fading": {"model": "nakagami", "m": 1.5}}
+
+
+def radio_frames(vehicles: int, spacing: float, seconds: float) -> tuple[float, int, float]:
+    """Section 13: ``vehicles`` on a two-lane road ``spacing`` m apart sending only 10 Hz beacons on
+    the radio for ``seconds``: (CPU s, frames, mean receivers that detected a frame)."""
+    import numpy as np
+    import simpy
+
+    from dkfsim.components.faults import LinkSpec
+    from dkfsim.components.latency import Constant
+    from dkfsim.components.medium import Edca, Medium
+    from dkfsim.components.traffic import Background
+    from dkfsim.network.network import Network
+    T = 10_000_000
+    K = int(seconds * 1e9 / T) + 1
+    pos = np.zeros((K + 1, vehicles, 2))
+    pos[:, :, 0] = (np.arange(vehicles) // 2) * spacing
+    pos[:, :, 1] = (np.arange(vehicles) % 2) * 4.0
+    med = Medium(rate=6e6, access=Edca(), radio=RADIO,
+                 background=Background(arrivals="periodic", packets_per_second=10, size=300, offset="random"))
+    env = simpy.Environment()
+    net = Network(env, [(0, 1), (1, 0)], lambda *_: LinkSpec(latency=Constant(value=1e-6)), seed=1, T_ns=T,
+                  medium=med, positions=pos, n=vehicles)
+    port = net.port("bench", lambda *_: None)
+    channel = port.channel
+    c0 = time.process_time()
+    channel.advance(int(seconds * 1e9))
+    cpu = time.process_time() - c0
+    r = channel.report(port, int(seconds * 1e9))
+    frames = r["frames_on_air"]
+    heard = (r["pairs"] - r["losses"]["sensing"]) / max(frames, 1)
+    return cpu, frames, heard
+
+
+def print_radio_cost(seconds: float, vehicles: list[int], highway_seconds: float) -> None:
+    """Section 13 (see the module)."""
+    print(f"a spatial radio (issue 32): beacons only, EDCA, WINNER+ B1 + shadowing + fading, {seconds:g} s "
+          "simulated; CPU per frame against the receivers in range (those that detect a frame)")
+    print(f"{'vehicles':>9} {'frames':>8} {'in range':>9} {'CPU s':>7} {'us/frame':>9}")
+    xs, ys = [], []
+    for n in vehicles:
+        cpu, frames, heard = radio_frames(n, 8.0, seconds)
+        xs.append(heard)
+        ys.append(cpu / frames * 1e6)
+        print(f"{n:9d} {frames:8d} {heard:9.1f} {cpu:7.2f} {ys[-1]:9.1f}")
+    print(f"  fitted exponent of CPU per frame against receivers in range: {slope(xs, ys):.2f}")
+    path = ROOT / "scenarios" / "highway_its_g5.yaml"
+    if path.is_file() and highway_seconds > 0:
+        sc = dkfsim.load_scenario(path)
+        steps = int(round(highway_seconds / sc.model.T))
+        sc = dkfsim.load_scenario(path, overrides=[f"steps={steps}", "estimators=[]"])
+        dkfsim.run(sc, steps=20, save="summary")           # warm-up
+        wall, cpu, res = timed(sc, save="summary")
+        ch = res.counts["channel"]
+        members = len(ch["cbr"])
+        print(f"  scenarios/highway_its_g5.yaml, {members} vehicles, the DKF group alone, {highway_seconds:g} s "
+              f"simulated: {ch['frames_on_air']} frames, CPU {cpu:.1f} s ({cpu / ch['frames_on_air'] * 1e6:.0f} "
+              f"us/frame; target: at most 60 s for 60 s)")
 
 
 def kernel_workloads(ticks: int, scale_ticks: int, big_nodes: int, big_ticks: int) -> dict:
@@ -600,6 +670,11 @@ def main(argv=None) -> int:
     ap.add_argument("--centre-only", action="store_true", help="only the fusion centre's cost (section 9)")
     ap.add_argument("--skip-channel", action="store_true", help="skip the shared channel's cost (section 10)")
     ap.add_argument("--channel-only", action="store_true", help="only the shared channel's cost (section 10)")
+    ap.add_argument("--radio-only", action="store_true", help="only the spatial radio's cost (section 13)")
+    ap.add_argument("--radio-seconds", type=float, default=5.0, help="simulated seconds of each radio run")
+    ap.add_argument("--radio-vehicles", type=int, nargs="+", default=[50, 100, 200, 300, 400])
+    ap.add_argument("--highway-seconds", type=float, default=60.0,
+                    help="simulated seconds of the shipped highway (0 skips it)")
     ap.add_argument("--startup", action="store_true",
                     help="only the start-up of import dkfsim, --help, list and validate (section 11); "
                          "with --base REF, against REF")
@@ -626,6 +701,9 @@ def main(argv=None) -> int:
         return 0
     if args.channel_only:
         print_channel_cost(args.ticks, args.repeats)
+        return 0
+    if args.radio_only:
+        print_radio_cost(args.radio_seconds, args.radio_vehicles, args.highway_seconds)
         return 0
 
     sc = dkfsim.load_scenario(ROOT / "scenarios" / "paper_case1.yaml", overrides=[f"steps={args.ticks}"])

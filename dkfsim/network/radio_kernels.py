@@ -20,8 +20,8 @@ import numpy as np
 
 from dkfsim.core.jit import LazyKernels
 
-_KERNELS = ("error_rate", "busy_ticks", "close", "start", "end")
-_lazy = LazyKernels(__name__, _KERNELS, inline=("error_rate", "busy_ticks"))
+_KERNELS = ("keyed_uniform", "draws", "error_rate", "busy_ticks", "close", "start", "end")
+_lazy = LazyKernels(__name__, _KERNELS, inline=("keyed_uniform", "error_rate", "busy_ticks"))
 
 #: Rows of ``ri``: the slot each member is locked on (-1: none), the start of its current SINR
 #: chunk, how many frames on the air it senses (its own included), since when it senses the
@@ -46,6 +46,33 @@ def compiled() -> ModuleType:
     """This module with its kernels compiled by numba (loaded from the disk cache after the
     first time)."""
     return _lazy.get()
+
+
+_GOLDEN = np.uint64(0x9E3779B97F4A7C15)
+_M1 = np.uint64(0xBF58476D1CE4E5B9)
+_M2 = np.uint64(0x94D049BB133111EB)
+_S30, _S27, _S31, _S11 = np.uint64(30), np.uint64(27), np.uint64(31), np.uint64(11)
+_SCALE = 1.0 / 9007199254740992.0
+
+
+def keyed_uniform(key: np.uint64, t: int, seq: int) -> float:
+    """:func:`dkfsim.core.streams.keyed_uniform` in uint64 arithmetic (the same bits; a kernel
+    module calls no other file's kernels, so this is :mod:`~dkfsim.network.port_kernels`' own)."""
+    z = key + _GOLDEN * np.uint64(t)
+    z = (z ^ (z >> _S30)) * _M1
+    z = (z ^ (z >> _S27)) * _M2
+    z = (z ^ (z >> _S31)) + _GOLDEN * np.uint64(seq + 1)
+    z = (z ^ (z >> _S30)) * _M1
+    z = (z ^ (z >> _S27)) * _M2
+    return (np.float64((z ^ (z >> _S31)) >> _S11) + 0.5) * _SCALE
+
+
+def draws(keys: np.ndarray, t: int, seq0: int, nodes: np.ndarray, out: np.ndarray) -> None:
+    """``out[j, r] = keyed_uniform(keys[j], t, seq0 + nodes[r])``: a frame's draws (one row per
+    stream) at every member."""
+    for j in range(len(keys)):
+        for r in range(len(nodes)):
+            out[j, r] = keyed_uniform(keys[j], t, seq0 + nodes[r])
 
 
 def error_rate(kind: int, tab_x: np.ndarray, tab_y: np.ndarray, sinr_db: float) -> float:

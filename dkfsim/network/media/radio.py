@@ -55,6 +55,11 @@ def _mw(dbm: float) -> float:
     return float(10.0 ** (dbm / 10.0))
 
 
+def _draws(keys: np.ndarray, t: int, seq0: int, nodes: np.ndarray, out: np.ndarray) -> None:
+    """:func:`~dkfsim.network.radio_kernels.draws` on the numpy path: the same bits, vectorised."""
+    out[:] = keyed_uniforms(keys[:, None], t, seq0 + nodes)
+
+
 class RadioChannel(Channel):
     """One copy of the spatial radio channel (see the module).
 
@@ -81,7 +86,8 @@ class RadioChannel(Channel):
             if isinstance(rule, PerTable) else (rk.THRESHOLD, np.array([rule.sinr]), np.zeros(1))
         #: per member: the keys of its frames' shadowing, fading and decision draws
         self._keys = {node: np.array([key64(seed, "radio", index, node, what) for what in ("shadow", "fade", "rx")],
-                                     dtype=np.uint64)[:, None] for node in members}
+                                     dtype=np.uint64) for node in members}
+        self._u3 = np.zeros((3, m))
         #: per sender: (hand-over instant, frames started with it) for the draws' keys
         self._keyed: dict[int, tuple[int, int]] = {}
         self.ri = np.zeros((rk.NRI, m), dtype=np.int64)
@@ -106,6 +112,8 @@ class RadioChannel(Channel):
         kind, tab_x, tab_y = self.rule
         i1 = np.zeros(1, dtype=np.int64)
         self._close = bind(k.close, self.ri, self.rf, kind, tab_x, tab_y, 1.0, 0)
+        self._draws = bind(k.draws, self._keys[members[0]], 0, 0, self.nodes, self._u3) if backend.compiled \
+            else _draws
         self._start_k = bind(k.start, self.ri, self.rf, self.p, self.fate, self.sensed, self.si, i1, 0, 1.0, 1.0,
                              1.0, self._went)
         self._end_k = bind(k.end, self.ri, self.rf, self.p, self.d, self.u, self.fate, self.sensed, self.si, i1, 0,
@@ -159,7 +167,8 @@ class RadioChannel(Channel):
         xy = self.positions[k]
         d = np.hypot(xy[:, 0] - xy[i, 0], xy[:, 1] - xy[i, 1])
         dbm = rp.power - path_loss_db(rp.path_loss, d, rp.frequency)
-        draws = keyed_uniforms(self._keys[node], handed, seq0 + self.nodes)     # (shadow, fade, rx) x members
+        draws = self._u3
+        self._draws(self._keys[node], handed, seq0, self.nodes, draws)         # (shadow, fade, rx) x members
         if not isinstance(rp.shadowing, NoShadowing):
             dbm = dbm - shadowing_db(rp.shadowing, draws[0])
         if not isinstance(rp.fading, NoFading):
