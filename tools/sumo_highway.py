@@ -3,9 +3,9 @@
 
 A straight highway, 3 km long, 3 lanes in each direction, speed limit 120 km/h: ``netgenerate``
 builds it (a two-node grid: edge ``A0B0`` eastbound, x from 0 to 3000 m, lanes at y = -1.6, -4.8,
--8.0 m; edge ``B0A0`` westbound, lanes at y = +1.6, +4.8, +8.0 m), ``randomTrips.py`` inserts
-vehicles at its two ends (each trip drives the whole 3 km, in a random direction) at two rates, and
-``sumo`` runs each headless (fixed ``--seed``, ``--step-length 0.1``) for a 300 s warm-up and a
+-8.0 m; edge ``B0A0`` westbound, lanes at y = +1.6, +4.8, +8.0 m), ``randomTrips.py`` makes the
+trips of each direction (ids ``east<n>``, ``west<n>``; each drives the whole 3 km) departing at
+uniformly random times at two rates, and ``sumo`` runs each headless (fixed ``--seed``, ``--step-length 0.1``) for a 300 s warm-up and a
 60 s window, of which it writes floating-car data every 1 s (``--fcd-output``, x/y, the attributes
 ``x,y,angle,speed,lane``).  Two files come out, with the window's time shifted to start at 0
 (file time = SUMO time - 300 s) and SUMO's header comment (date, temporary paths) replaced by a
@@ -14,7 +14,7 @@ fixed one, so a rerun writes the same bytes:
 ``scenarios/data/highway_light.fcd.xml``  about 100 vehicles on the 3 km at once (both directions)
 ``scenarios/data/highway_dense.fcd.xml``  about 300
 
-and ``scenarios/data/highway.json``: the SUMO version, the commands run, the seed, the densities
+and ``scenarios/data/highway.json``: the SUMO version, the commands run, the seeds, the densities
 measured in the files (vehicles per km per direction), and for each file the ids of the vehicles
 present during the whole window and a group of 12 of them: consecutive eastbound vehicles at
 t = 0 (no other vehicle between them, on any lane), the run of 12 that stays the most compact
