@@ -178,19 +178,22 @@ def test_a_sender_within_carrier_sense_defers_with_a_backoff():
     assert sorted(got) == [(end_a + LAT, 0, 2, "a"), (end_a + AIFS + b * 13 * US + airtime(200) + LAT, 1, 0, "b")]
 
 
-CAPTURE_XS = [0.0, 10.0, 40.0]         # R, S (strong: -54.9 dBm at R), W (weak: -72.9 dBm): 18 dB apart
+#: R at 0; S 10 m on one side (-54.9 dBm at R); W 165 m on the other (-91.4 dBm at R, just above the
+#: sensitivity; SNR 3.6 dB, received alone under a 2 dB threshold).  S and W are 175 m apart,
+#: below each other's sensitivity (-92.2 dBm): hidden, so their frames overlap at R, 36.5 dB apart.
+CAPTURE_XS = [0.0, 10.0, -165.0]
 
 
 @pytest.mark.parametrize("capture, first, heard", [
-    (None, "S", {"S"}),        # the stronger first: it survives the weaker one (SINR 18 dB)
+    (None, "S", {"S"}),        # the stronger first: it survives the weaker one (SINR 36.5 dB)
     (None, "W", set()),        # the weaker first: R stays on it and it fails; the stronger is lost (busy)
-    (10.0, "W", {"S"}),        # capture 10 dB: R switches to the stronger (18 dB >= 10), which survives
-    (20.0, "W", set()),        # capture 20 dB: 18 dB is not enough to switch
+    (10.0, "W", {"S"}),        # capture 10 dB: R switches to the stronger (36.5 dB >= 10), which survives
+    (40.0, "W", set()),        # capture 40 dB: 36.5 dB is not enough to switch
 ])
 def test_capture_in_both_orders(capture, first, heard):
-    """S (10 m) and W (40 m) send to R (0 m) 20 us apart; neither senses the other (carrier
-    sense above any power here), so they overlap."""
-    radio = RadioParams(**{**SPATIAL, "carrier_sense": 0.0}, capture=capture)
+    """S and W send to R 20 us apart; hidden from each other, their frames overlap at R."""
+    assert -92.3 < 23 - loss_db(175) < -92 < 23 - loss_db(165) < -91.3
+    radio = RadioParams(**{**SPATIAL, "reception": {"model": "threshold", "sinr": 2.0}}, capture=capture)
     med = Medium(rate=RATE, access=Edca(), preamble=PRE / 1e9, radio=radio)
     env, net, port, got = network(med, CAPTURE_XS)
     node = {"S": 1, "W": 2}
@@ -205,19 +208,41 @@ def test_capture_in_both_orders(capture, first, heard):
     assert lost == {"S", "W"} - heard
 
 
-def test_a_receiver_that_starts_sending_loses_what_it_was_receiving():
-    """Half duplex: R locks on a frame below its carrier sense (so it does not defer), then
-    sends its own: the frame it was receiving is lost there (``receiver_busy``)."""
-    radio = RadioParams(**{**SPATIAL, "carrier_sense": -60.0})
-    med = Medium(rate=RATE, access=Edca(), preamble=PRE / 1e9, radio=radio)
-    env, net, port, got = network(med, [0.0, 40.0, -10.0])
-    at(env, T0, lambda: port.send(net.link(1, 0), "to R", 200))
-    at(env, T0 + 20 * US, lambda: port.send(net.link(0, 2), "from R", 100))
+def test_the_weak_frame_alone_is_received():
+    """The capture geometry's weak sender alone: its frame reaches R (SNR 3.6 dB >= 2)."""
+    radio = RadioParams(**{**SPATIAL, "reception": {"model": "threshold", "sinr": 2.0}})
+    env, net, port, got = network(Medium(rate=RATE, access=Edca(), preamble=PRE / 1e9, radio=radio), CAPTURE_XS)
+    at(env, T0, lambda: port.send(net.link(2, 0), "W", 200))
     env.run()
-    assert "to R" not in [g[3] for g in got]
-    row = next(r for r in port.counts()["per_link"] if r["link"] == (1, 0))
-    assert (row["sent"], row["lost"], row["collision_lost"]) == (1, 1, 0)
-    assert port.counts()["channel"]["losses"]["receiver_busy"] >= 1
+    assert got == [(T0 + airtime(200) + LAT, 2, 0, "W")]
+
+
+def test_a_receiver_busy_receiving_defers_and_one_sending_loses_what_arrives():
+    """A PHY receiving a frame is busy (802.11's CCA, as ns-3): B locks on A's frame although it is
+    below B's carrier sense, so B's own frame waits for its end (a keyed backoff).  Half duplex: A
+    and C start at one idle instant, each transmitting while the other's frame arrives -- each
+    loses the other's (``receiver_busy``)."""
+    from dkfsim.core.streams import key64, keyed_uniform
+    radio = RadioParams(**{**SPATIAL, "carrier_sense": -60.0})     # (A's -72.9 dBm at B is below it)
+    med = Medium(rate=RATE, access=Edca(), preamble=PRE / 1e9, radio=radio)
+    env, net, port, got = network(med, [0.0, 40.0, 80.0], seed=2)
+    A, B, C = range(3)
+    at(env, T0, lambda: port.send(net.link(A, B), "a", 200))
+    at(env, T0 + 20 * US, lambda: port.send(net.link(B, A), "b", 100))
+    env.run()
+    end_a = T0 + airtime(200)
+    b = int(keyed_uniform(key64(2, "channel", 0, B, "edca"), T0 + 20 * US, 0) * 16)
+    assert sorted(got) == [(end_a + LAT, A, B, "a"), (end_a + AIFS + b * 13 * US + airtime(100) + LAT, B, A, "b")]
+    env, net, port, got = network(med, [0.0, 40.0, 80.0], seed=2)
+    at(env, T0, lambda: port.send(net.link(A, C), "a", 200))
+    at(env, T0, lambda: port.send(net.link(C, A), "c", 200))
+    env.run()
+    assert got == []
+    rows = {r["link"]: r for r in port.counts()["per_link"]}
+    assert (rows[(A, C)]["lost"], rows[(A, C)]["collision_lost"]) == (1, 0)
+    # A's at C and C's at A (half duplex), C's at B (B locked on A's, the first of equals), A's at B
+    assert port.counts()["channel"]["losses"] == {"sensing": 0, "receiver_busy": 3, "propagation": 0,
+                                                  "collision": 1}
 
 
 def test_every_pair_is_counted_once_and_cbr_is_the_sensed_busy_time():

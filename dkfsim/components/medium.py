@@ -21,14 +21,28 @@ from __future__ import annotations
 from typing import TYPE_CHECKING, Annotated, Any, Literal
 
 import numpy as np
-from pydantic import Field, field_validator, model_validator
+from pydantic import Field, PrivateAttr, ValidationInfo, field_validator, model_validator
 
+from dkfsim.components.fcd import read_fcd
+from dkfsim.components.latency import located
 from dkfsim.components.mobility import Mobility
 from dkfsim.components.radio import RadioParams
 from dkfsim.components.traffic import Background, Queue, Rate
-from dkfsim.components.trajectories import Trajectory, TrajectoryParams
-from dkfsim.core.params import NonNegSeconds, StrictModel, custom_error, fix_kind, registered, seconds_to_ns
+from dkfsim.components.trajectories import SumoFcd, Trajectory, TrajectoryParams
+from dkfsim.core.errors import DkfsimError
+from dkfsim.core.params import (
+    MAX_SECONDS,
+    Name,
+    NonNegSeconds,
+    StrictModel,
+    Text,
+    custom_error,
+    fix_kind,
+    registered,
+    seconds_to_ns,
+)
 from dkfsim.core.registry import MEDIA
+from dkfsim.core.streams import key64, keyed_uniform
 
 #: Bytes of a frame's header: :data:`dkfsim.protocols.base.PACKET_HEADER` (a test keeps them equal).
 FRAME_HEADER = 16
@@ -98,9 +112,11 @@ class Csma(AccessParams, kind="csma"):
 
 
 class Edca(Csma, kind="edca"):
-    """IEEE 802.11p's access rule (802.11-2016 EDCA, as ns-3 runs it): a frame that finds the
-    medium idle and no backoff pending goes once the medium has been idle for AIFS; one that finds
-    it busy draws a backoff; a post-backoff after every own frame; EIFS after a frame in error.
+    """IEEE 802.11p's access rule (802.11-2016 EDCA): a frame that finds the medium idle and no
+    backoff pending goes once the medium has been idle for AIFS (ns-3's ad-hoc MAC waits DIFS
+    after the frame even on a long-idle medium, its QoS MAC the next slot boundary); one that
+    finds it busy draws a backoff; a post-backoff after every own frame; EIFS after a frame in
+    error.
 
     (docs/radio.md) Each radio counts its backoff in idle slots ``t_idle + aifs + m * slot`` of
     its own view of the medium, frozen while it senses it busy; ``eifs`` replaces ``aifs`` after
@@ -125,15 +141,39 @@ else:
 MAX_BYSTANDERS = 10_000
 
 
+class FcdTraffic(StrictModel):
+    """``medium.bystanders.sumo_fcd``: every vehicle of a SUMO FCD file but those named, each a
+    ``sumo_fcd`` trajectory (in the order of their ids)."""
+
+    file: Text
+    exclude: Annotated[list[Name], Field(max_length=MAX_BYSTANDERS)] = []
+    time_offset: Annotated[float, Field(strict=True, ge=-MAX_SECONDS, le=MAX_SECONDS, allow_inf_nan=False)] = 0.0
+    #: keep this share of the vehicles (a fixed subset: vehicle ``v`` is kept when the uniform keyed
+    #: by its id is below ``fraction``), to thin the traffic to a lower density
+    fraction: Annotated[float, Field(strict=True, gt=0, le=1, allow_inf_nan=False)] = 1.0
+
+    def kept(self, ids: list[str]) -> list[str]:
+        """The vehicles of ``ids`` kept (sorted), the excluded left out."""
+        out = sorted(set(ids) - set(self.exclude))
+        if self.fraction < 1.0:
+            out = [v for v in out if keyed_uniform(key64(0, "bystander", v), 0, 0) < self.fraction]
+        return out
+
+
 class Bystanders(StrictModel):
     """``medium.bystanders``: vehicles on the channel beside the scenario's nodes (docs/radio.md):
     no sensor, no estimator, only their ``medium.background`` frames -- the traffic a group of
     vehicles running the DKF shares the air with.  Bystander ``j`` is node ``n + j`` of the channel
-    (``n`` the scenario's nodes), ``vehicles`` gives each its trajectory as ``mobility.vehicles``
-    does (its own entry ``j``, else ``default``; a ``road`` places it by ``j``)."""
+    (``n`` the scenario's nodes).  Either ``count`` and ``vehicles``, each one's trajectory given as
+    ``mobility.vehicles`` gives them (its own entry ``j``, else ``default``; a ``road`` places it
+    by ``j``), or ``sumo_fcd: {file, exclude}``: every other vehicle of a SUMO run, on the air
+    while it is on the road."""
 
-    count: Annotated[int, Field(strict=True, ge=1, le=MAX_BYSTANDERS)]
-    vehicles: dict[str, Trajectory]
+    count: Annotated[int, Field(strict=True, ge=1, le=MAX_BYSTANDERS)] | None = None
+    vehicles: dict[str, Trajectory] | None = None
+    sumo_fcd: FcdTraffic | None = None
+    #: ``sumo_fcd``'s vehicles, worked out when validated (not stored: the scenario keeps the key)
+    _fcd: list[Any] | None = PrivateAttr(default=None)
 
     @field_validator("vehicles", mode="before")
     @classmethod
@@ -141,7 +181,32 @@ class Bystanders(StrictModel):
         return Mobility.parse_vehicles(v)       # (the one parser of vehicle keys)
 
     @model_validator(mode="after")
+    def _from_fcd(self, info: ValidationInfo) -> Bystanders:
+        """``sumo_fcd``: a trajectory per vehicle of the file but the excluded (the file read once)."""
+        fcd = self.sumo_fcd
+        if fcd is None:
+            if self.count is None or self.vehicles is None:
+                raise custom_error("give count and vehicles, or sumo_fcd: {file, exclude}")
+            return self
+        if self.count is not None or self.vehicles is not None:
+            raise custom_error("give either sumo_fcd or count and vehicles, not both", "sumo_fcd")
+        path, _ = located(fcd.file, None, info)
+        try:
+            ids = fcd.kept(list(read_fcd(path).vehicles))
+        except DkfsimError as err:
+            raise custom_error(str(err), "sumo_fcd.file") from None
+        if not 1 <= len(ids) <= MAX_BYSTANDERS:
+            raise custom_error(f"{len(ids)} vehicles of {path.name} are left as bystanders; give 1 .. "
+                               f"{MAX_BYSTANDERS}", "sumo_fcd.exclude")
+        context = info.context
+        self._fcd = [SumoFcd.model_validate({"file": fcd.file, "vehicle": v, "time_offset": fcd.time_offset},
+                                            context=context) for v in ids]
+        return self
+
+    @model_validator(mode="after")
     def _every_one(self) -> Bystanders:
+        if self.vehicles is None:
+            return self
         for key in self.vehicles:
             if key != "default" and (len(key) > 6 or not 0 <= int(key) < self.count):
                 raise custom_error(f"bystander {key} is out of range 0..{self.count - 1}", f"vehicles.{key}")
@@ -154,15 +219,30 @@ class Bystanders(StrictModel):
 
     def trajectory(self, j: int) -> TrajectoryParams:
         """Bystander ``j``'s trajectory, placed for it."""
+        if self._fcd is not None:
+            return self._fcd[j]
+        assert self.vehicles is not None
         return (self.vehicles.get(str(j)) or self.vehicles["default"]).for_node(j)
 
-    def positions(self, K: int, T: float, speed: float = 1.0) -> np.ndarray:
-        """Every bystander's position (m) at ``t_k = k T``: ``(K + 1, count, 2)``."""
+    @property
+    def n(self) -> int:
+        """How many bystanders."""
+        if self._fcd is not None:
+            return len(self._fcd)
+        assert self.count is not None
+        return self.count
+
+    def positions(self, K: int, T: float, speed: float = 1.0) -> tuple[np.ndarray, np.ndarray]:
+        """Every bystander's position (m) at ``t_k = k T`` and whether it is on the road then:
+        ``(K + 1, count, 2)`` and ``(K + 1, count)`` bool."""
         t = np.arange(K + 1) * float(T) * float(speed)
-        out = np.empty((K + 1, self.count, 2))
-        for j in range(self.count):
-            out[:, j, :] = self.trajectory(j).positions(t)
-        return out
+        out = np.empty((K + 1, self.n, 2))
+        present = np.empty((K + 1, self.n), dtype=bool)
+        for j in range(self.n):
+            traj = self.trajectory(j)
+            out[:, j, :] = traj.positions(t)
+            present[:, j] = traj.present(t)
+        return out, present
 
 
 class Medium(StrictModel):
@@ -200,7 +280,7 @@ class Medium(StrictModel):
     def members(self, n: int) -> tuple[int, ...]:
         """The nodes on the channel, in increasing order, then its bystanders ``n .. n + count - 1``."""
         nodes = tuple(range(n)) if self.nodes == "all" else tuple(sorted(set(self.nodes)))
-        return nodes + (tuple(range(n, n + self.bystanders.count)) if self.bystanders is not None else ())
+        return nodes + (tuple(range(n, n + self.bystanders.n)) if self.bystanders is not None else ())
 
     def check(self, n: int) -> None:
         """``nodes`` against the scenario's ``n`` nodes (a

@@ -87,6 +87,12 @@ class TrajectoryParams(StrictModel):
         """Velocities (m/s) at run times ``t_s`` (s): shape ``(len(t), 2)``."""
         raise NotImplementedError
 
+    def present(self, t_s) -> np.ndarray:
+        """Whether the vehicle is on the road at run times ``t_s`` (bool, ``len(t)``): always,
+        but for a kind that knows when it enters and leaves (``sumo_fcd``).  A spatial radio
+        keeps a bystander that is not on the road off the air (docs/radio.md)."""
+        return np.ones(len(run_times(t_s)), dtype=bool)
+
     def for_node(self, node: int) -> TrajectoryParams:  # noqa: ARG002  (a kind may place by number)
         """The trajectory of vehicle ``node`` when this one is given to it (a kind that places
         each vehicle by its number, ``road``, answers its own; every other kind, itself)."""
@@ -417,6 +423,13 @@ class SumoFcd(SampledTrajectory):
     @override
     def sample_times(self, t):
         return t - self.time_offset
+
+    @override
+    def present(self, t_s):
+        """Within the vehicle's samples (SUMO writes a vehicle while it is on the network)."""
+        line = self.polyline()
+        st = self.sample_times(run_times(t_s))
+        return (st >= line.t[0]) & (st <= line.t[-1])
 
     @override
     def displacement(self):

@@ -156,17 +156,19 @@ class RunPlan:
         return sc.mobility.positions(sc.n, int(sc.steps), sc.model.T)
 
     @functools.cached_property
-    def radio_positions(self):
+    def radio_places(self):
         """What a spatial radio (``medium.radio``) places: the nodes' positions then its bystanders'
-        (``medium.bystanders``), ``(K + 1, n + count, 2)``; None without a radio."""
+        (``medium.bystanders``), ``(K + 1, n + count, 2)``, and whether each is on the road at each
+        tick (None: every one always; the nodes always are); None without a radio."""
         sc = self.scenario
         if sc.medium is None or sc.medium.radio is None or self.positions is None:
             return None
         if sc.medium.bystanders is None:
-            return self.positions
+            return self.positions, None
         speed = sc.mobility.speed if sc.mobility is not None else 1.0
-        others = sc.medium.bystanders.positions(int(sc.steps), sc.model.T, speed)
-        return np.concatenate([self.positions, others], axis=1)
+        others, present = sc.medium.bystanders.positions(int(sc.steps), sc.model.T, speed)
+        nodes = np.ones(self.positions.shape[:2], dtype=bool)
+        return np.concatenate([self.positions, others], axis=1), np.concatenate([nodes, present], axis=1)
 
     @property
     def graph_changes(self) -> bool:

@@ -213,6 +213,7 @@ class ChannelRecord(Model):
     background_collided: Count
     background_dropped: Count = 0
     access_delay_mean: Annotated[float, Field(strict=True, ge=0)]
+    frames_on_air: Count | None = None
     cbr: Annotated[list[Fraction], Field(max_length=RADIO_LIST)] | None = None
     cbr_mean: Fraction | None = None
     pdr_by_distance: PdrByDistance | None = None

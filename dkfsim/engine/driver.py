@@ -89,9 +89,11 @@ class Run:
         crashes = CrashSchedule(scenario.faults, system.n) or None
         env = simpy.Environment()
         self.backend = Backend.from_environment() if backend is None else backend
+        positions, presence = plan.radio_places or (None, None)
         network = Network(env, plan.arcs, scenario.link_spec, seed, system.T_ns, crashes=crashes,
                           shared_queues=bool(scenario.links.shared_queues), schedule=plan.link_schedule,
-                          medium=scenario.medium, n=system.n, backend=self.backend, positions=plan.radio_positions)
+                          medium=scenario.medium, n=system.n, backend=self.backend, positions=positions,
+                          presence=presence)
         self.ctx = RunContext(scenario=scenario, plan=plan, backend=self.backend, system=system, truth=truth, ys=ys,
                               info=system.information(ys), crashes=crashes, env=env, network=network)
         self.dkf = AntiDelayDKF(AntiDelayParams(), self.ctx, main=True)

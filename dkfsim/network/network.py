@@ -53,20 +53,22 @@ class Network:
     :param backend: the run's (the FIFO transmitters' kernels compiled or not; default: the
         environment's).
     :param positions: every node's position (m) at ticks ``0 .. K``, ``(K + 1, n, 2)``: what a
-        spatial radio (``medium.radio``) needs.
+        spatial radio (``medium.radio``) needs; ``presence``: whether each is on the road at each
+        tick (``(K + 1, n)`` bool; None: always).
     """
 
     def __init__(self, env: simpy.Environment, arcs: list[tuple[int, int]],
                  link_spec: Callable[[int, int], Any], seed: int, T_ns: int,
                  crashes: CrashSchedule | None = None, shared_queues: bool = False,
                  schedule: LinkSchedule | None = None, medium: MediumSpec | None = None, n: int | None = None,
-                 backend: Backend | None = None, positions: Any = None):
+                 backend: Backend | None = None, positions: Any = None, presence: Any = None):
         self.env = cast(Clock, env)         # (SimPy types time as int | float; here it is ns)
         self.backend = backend if backend is not None else Backend.from_environment()
         self.seed, self.T_ns = int(seed), int(T_ns)
         self.medium = medium
-        #: every node's position at ticks 0 .. K, for a spatial radio (``medium.radio``)
-        self.positions = positions
+        #: every node's position at ticks 0 .. K, for a spatial radio (``medium.radio``), and
+        #: whether each is on the road then (None: always)
+        self.positions, self.presence = positions, presence
         if medium is not None and medium.radio is not None and positions is None:
             raise ValueError("a spatial radio (medium.radio) needs the vehicles' positions (mobility:)")
         if n is None:
@@ -146,7 +148,7 @@ class Network:
         if channel is None:
             if self.medium.radio is not None:
                 channel = RadioChannel(self.env, self.medium, self._member_order, self.seed, self.positions, self.T_ns,
-                                       backend=self.backend)
+                                       backend=self.backend, presence=self.presence)
             else:
                 channel = Channel(self.env, self.medium, self._member_order, self.seed, T_ns=self.T_ns)
             store[_CHANNEL] = channel

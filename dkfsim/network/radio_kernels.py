@@ -6,7 +6,8 @@ The receivers' state is two arrays over the members, ``ri`` (int64 rows below) a
 distance ``d[s]`` (m) at every member, its decision draws ``u[s]``, each pair's fate
 ``fate[s]`` and which members sense it ``sensed[s]``; ``si[s]`` holds its sender's member index
 and its start and end (ns).  One call per event does a loop over the members, so a frame heard by
-hundreds of vehicles costs no Python per receiver.
+hundreds of vehicles costs no Python per receiver.  A power below 0 marks a member that is not on
+the road: no pair, no sensing, no interference.
 
 On the numba path these functions are compiled; on the numpy path they run as Python.
 """
@@ -114,8 +115,9 @@ def start(ri: np.ndarray, rf: np.ndarray, p: np.ndarray, fate: np.ndarray, sense
     """The frames of ``slots`` (in their senders' order) start at ``ts``: a sender loses what it
     was receiving; a free member locks on the strongest of them at or above ``sens`` (with
     ``capture > 0`` a locked one switches to it when it is ``capture`` times stronger); every
-    pair's fate so far; the members that begin to sense the medium busy, written to ``went``
-    (their number returned)."""
+    pair's fate so far; a member senses a frame at or above ``cs``, its own, and the one it locks
+    on (its PHY is receiving: 802.11's CCA is busy); the members that begin to sense the medium
+    busy, written to ``went`` (their number returned)."""
     m = ri.shape[1]
     for s in slots:                         # half duplex
         i = si[s, S_I]
@@ -130,7 +132,7 @@ def start(ri: np.ndarray, rf: np.ndarray, p: np.ndarray, fate: np.ndarray, sense
             if p[s, r] > bp:
                 bp, best = p[s, r], s
         for s in slots:
-            if si[s, S_I] == r:
+            if si[s, S_I] == r or p[s, r] < 0.0:      # (the sender; a member off the road: no pair)
                 fate[s, r] = SENDER
             elif p[s, r] < sens:
                 fate[s, r] = SENSING
@@ -151,10 +153,10 @@ def start(ri: np.ndarray, rf: np.ndarray, p: np.ndarray, fate: np.ndarray, sense
                 ri[INTERF, r] = 0
         before = ri[SENSE_N, r]
         for s in slots:
-            rf[TOTAL, r] += p[s, r]
             if p[s, r] > 0.0:
+                rf[TOTAL, r] += p[s, r]
                 ri[NAIR, r] += 1
-            on = p[s, r] >= cs or si[s, S_I] == r
+            on = p[s, r] >= cs or si[s, S_I] == r or ri[LOCKED, r] == s     # (a PHY receiving is busy)
             sensed[s, r] = on
             if on:
                 ri[SENSE_N, r] += 1
@@ -210,8 +212,8 @@ def end(ri: np.ndarray, rf: np.ndarray, p: np.ndarray, d: np.ndarray, u: np.ndar
                     fate[s, r] = PROPAGATION if (ri[INTERF, r] == 0 or x >= psr_noise) else COLLISION
                     ri[RXERR, r] = 1
                 ri[LOCKED, r] = -1
-            rf[TOTAL, r] -= p[s, r]
             if p[s, r] > 0.0:
+                rf[TOTAL, r] -= p[s, r]
                 ri[NAIR, r] -= 1
             if sensed[s, r]:
                 ri[SENSE_N, r] -= 1

@@ -103,10 +103,27 @@ def channel_line(ch: dict) -> str:
     estimator's own frames, collided and refused by full radio queues, their mean access delay,
     and the background's frames on the air (and collided, and refused)."""
     dropped = f", {ch['background_dropped']} refused by full queues" if ch.get("background_dropped") else ""
+    if ch.get("losses") is not None:
+        return radio_line(ch, dropped)
     return (f"channel: utilisation {ch['utilisation']:.3g}, {ch['frames']} frames "
             f"({collided_percent(ch):.3g} % collided, {ch['frames_dropped']} dropped by full radio queues), "
             f"mean access delay {1e3 * ch['access_delay_mean']:.3g} ms; background "
             f"{background_on_air(ch)} frames on the air ({ch['background_collided']} collided){dropped}")
+
+
+def radio_line(ch: dict, dropped: str = "") -> str:
+    """A spatial radio's line (docs/radio.md): the mean CBR, the estimator's own frames and their
+    access delay, the frames on the air (background included) and their (frame, receiver) pairs,
+    received and lost by cause."""
+    pairs, losses = ch.get("pairs") or 0, ch["losses"]
+    received = f"{100.0 * ch.get('pairs_received', 0) / pairs:.3g} %" if pairs else "none"
+    causes = ", ".join(f"{name.replace('_', ' ')} {losses[name]}" for name in
+                       ("sensing", "receiver_busy", "propagation", "collision"))
+    return (f"radio: CBR {ch.get('cbr_mean', 0.0):.3g} (mean over {len(ch.get('cbr') or [])} vehicles), "
+            f"{ch['frames']} frames ({ch['frames_dropped']} dropped by full radio queues), mean access delay "
+            f"{1e3 * ch['access_delay_mean']:.3g} ms; {ch.get('frames_on_air', 0)} frames on the air (background "
+            f"{ch['background_sent']}{dropped}), {pairs} (frame, receiver) pairs: {received} received; lost: "
+            f"{causes}")
 
 
 def background_on_air(ch: dict) -> int:

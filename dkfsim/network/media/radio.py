@@ -28,6 +28,7 @@ senses the medium busy (its own transmissions included).
 from __future__ import annotations
 
 from array import array
+from heapq import heappop, heappush
 from typing import Any
 
 import numpy as np
@@ -68,7 +69,8 @@ class RadioChannel(Channel):
     """
 
     def __init__(self, env: Any, spec: MediumSpec, members: tuple[int, ...], seed: int, positions: np.ndarray,
-                 T_ns: int, index: int = 0, record: bool = False, backend: Backend | None = None):
+                 T_ns: int, index: int = 0, record: bool = False, backend: Backend | None = None,
+                 presence: np.ndarray | None = None):
         radio = spec.radio
         assert radio is not None
         self.params = radio
@@ -79,6 +81,10 @@ class RadioChannel(Channel):
         self.nodes = np.asarray(members, dtype=np.int64)
         self.pos_of = {node: i for i, node in enumerate(members)}
         self.positions = np.asarray(positions, dtype=np.float64)[:, list(members), :]
+        #: whether each member is on the road at each tick (None: always); one that is not sends
+        #: nothing and is no receiver
+        self.present = None if presence is None or bool(np.all(presence)) else \
+            np.asarray(presence, dtype=bool)[:, list(members)]
         self.noise, self.sens, self.cs = _mw(radio.noise), _mw(radio.sensitivity), _mw(radio.carrier_sense)
         self.capture = 0.0 if radio.capture is None else _mw(radio.capture)
         rule = radio.reception
@@ -176,8 +182,28 @@ class RadioChannel(Channel):
         p = self.p[slot]
         np.power(10.0, dbm / 10.0, out=p)
         p[i] = 0.0
+        if self.present is not None:
+            if self.present[k, i]:
+                p[~self.present[k]] = -1.0      # (off the road: no receiver)
+            else:
+                p[:] = -1.0                     # (a frame queued before its sender left: nobody hears it)
         self.d[slot] = d
         self.u[slot] = draws[2]
+
+    @override
+    def _background(self, ta: int) -> None:
+        """A member off the road at ``ta`` sends none of its background then (its packets up to
+        ``ta`` are taken and not offered)."""
+        node = self._arrivals[0][1]
+        if self.present is not None and not self.present[min(ta // self.T_ns, len(self.present) - 1),
+                                                          self.pos_of[node]]:
+            heappop(self._arrivals)
+            bg = self.radios[node].background
+            assert bg is not None
+            bg.until(ta)
+            heappush(self._arrivals, (bg.next_time(), node))
+            return
+        super()._background(ta)
 
     @override
     def _start(self, ts: int) -> None:
