@@ -322,20 +322,3 @@ def model(beta: float, lam: float, power: float, size: int, data_rate: float, di
                   cbr_u=cbr_uncorrected(beta, lam, power, size, data_rate, p),
                   pre={"sensing": sen, "receiver_busy": rxb, "propagation": pro, "collision": col})
 
-
-def binned(result: Result, edges, weights=None) -> dict[str, np.ndarray]:
-    """The model's PDR and errors averaged over the distances that fall in each bin ``[edges[j],
-    edges[j + 1])`` (``weights``: how many pairs each distance holds; default equal): what a
-    simulator's per-bin counts estimate.  NaN in a bin with no distance."""
-    edges = np.asarray(edges, dtype=np.float64)
-    w = np.ones(len(result.distances)) if weights is None else np.asarray(weights, dtype=np.float64)
-    b = np.searchsorted(edges, result.distances, side="right") - 1
-    out: dict[str, np.ndarray] = {}
-    for name, values in {"pdr": result.pdr, **result.errors()}.items():
-        acc = np.full(len(edges) - 1, np.nan)
-        for j in range(len(edges) - 1):
-            sel = b == j
-            if sel.any():
-                acc[j] = float((values[sel] * w[sel]).sum() / w[sel].sum())
-        out[name] = acc
-    return out
