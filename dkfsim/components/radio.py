@@ -74,11 +74,20 @@ class TwoRayInterference(StrictModel):
 class WinnerB1(StrictModel):
     """WINNER+ B1 (urban micro), line of sight (IST-WINNER II D1.1.2, table 4-4), the model of
     the analytic 802.11p reference (Sepulcre et al. 2022): ``22.7 log10 d + 27 + 20 log10 f_GHz``
-    up to the breakpoint ``4 h' h' f / c`` (``h' = height - 1``), ``40 log10 d + 7.56
-    - 34.6 log10 h' + 2.7 log10 f_GHz`` beyond it."""
+    up to the breakpoint ``4 h' h' f / c`` (``h' = height - environment_height``, both antennas at
+    ``height``), ``40 log10 d + 7.56 - 34.6 log10 h' + 2.7 log10 f_GHz`` beyond it.  WINNER's
+    environment height is 1 m; the analytic reference's vehicles, 1.5 m antennas over 0.5 m."""
 
     model: Literal["winner_b1"] = "winner_b1"
-    height: Annotated[float, Field(strict=True, gt=1, le=1e3, allow_inf_nan=False)] = 1.5
+    height: Annotated[float, Field(strict=True, gt=0, le=1e3, allow_inf_nan=False)] = 1.5
+    environment_height: Annotated[float, Field(strict=True, ge=0, le=1e3, allow_inf_nan=False)] = 1.0
+
+    @model_validator(mode="after")
+    def _above(self) -> WinnerB1:
+        if self.height <= self.environment_height:
+            raise custom_error(f"the antennas ({self.height} m) must be above the environment height "
+                               f"({self.environment_height} m)", "height")
+        return self
 
 
 PathLoss = Annotated[Union[NoLoss, FreeSpace, LogDistance, TwoRayInterference, WinnerB1],
@@ -207,7 +216,7 @@ def path_loss_db(model: object, d: np.ndarray, frequency: float) -> np.ndarray:
     if isinstance(model, TwoRayInterference):
         return _two_ray(d, frequency, model.height, model.permittivity)
     if isinstance(model, WinnerB1):
-        return _winner_b1(d, frequency, model.height)
+        return _winner_b1(d, frequency, model.height - model.environment_height)
     raise TypeError(f"no path-loss model {type(model).__name__}")
 
 
@@ -224,9 +233,8 @@ def _two_ray(d: np.ndarray, f: float, h: float, eps: float) -> np.ndarray:
     return -10.0 * np.log10(np.maximum(gain, 1e-300))
 
 
-def _winner_b1(d: np.ndarray, f: float, h: float) -> np.ndarray:
+def _winner_b1(d: np.ndarray, f: float, he: float) -> np.ndarray:
     f_ghz = f / 1e9
-    he = h - 1.0
     d_bp = 4.0 * he * he * f / C_LIGHT
     near = 22.7 * np.log10(d) + 27.0 + 20.0 * math.log10(f_ghz)
     far = 40.0 * np.log10(d) + 7.56 - 34.6 * math.log10(he) + 2.7 * math.log10(f_ghz)

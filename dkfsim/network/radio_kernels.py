@@ -188,12 +188,12 @@ def busy_ticks(ticks: np.ndarray, r: int, a: int, b: int, T_ns: int) -> None:
 def end(ri: np.ndarray, rf: np.ndarray, p: np.ndarray, d: np.ndarray, u: np.ndarray, fate: np.ndarray,
         sensed: np.ndarray, si: np.ndarray, slots: np.ndarray, te: int, kind: int, tab_x: np.ndarray,
         tab_y: np.ndarray, noise: float, width: float, pairs: np.ndarray, fates: np.ndarray,
-        went: np.ndarray, ticks: np.ndarray, T_ns: int, horizon: int) -> int:
+        went: np.ndarray, ticks: np.ndarray, T_ns: int, window: np.ndarray, counted: np.ndarray) -> int:
     """The frames of ``slots`` end at ``te``: each member locked on one decides (received iff its
     draw is below the success probability over the chunks; lost, ``propagation`` when it had no
     interference or would have been lost without it, else ``collision``); the frames leave the
-    sums; every pair of a frame started before ``horizon`` is counted (``fates`` by fate,
-    ``pairs[bin, fate]`` by distance); the
+    sums; every pair of a frame started in ``[window[0], window[1])`` by a ``counted`` sender is
+    counted (``fates`` by fate, ``pairs[bin, fate]`` by distance); the
     members that sense the medium idle from ``te``, written to ``went`` (their number returned),
     their busy periods added to ``ticks`` (:func:`busy_ticks`)."""
     m = ri.shape[1]
@@ -223,9 +223,9 @@ def end(ri: np.ndarray, rf: np.ndarray, p: np.ndarray, d: np.ndarray, u: np.ndar
                     went[n] = r
                     n += 1
             f = fate[s, r]
-            if f >= 0 and si[s, S_START] < horizon:
+            if f >= 0 and window[0] <= si[s, S_START] < window[1] and counted[si[s, S_I]]:
                 fates[f] += 1
-                b = int(d[s, r] // width)
+                b = int(math.floor(d[s, r] / width + 1e-9))    # (a distance of whole bins: the upper)
                 if b < nb:
                     pairs[b, f] += 1
         ri[TX, si[s, S_I]] = 0

@@ -113,8 +113,10 @@ class RadioChannel(Channel):
         self.started_frames = 0
         #: each member's busy ns per tick (row ``k``: ``[k T, (k+1) T)``; the last row, beyond)
         self.ticks = np.zeros((len(self.positions), m), dtype=np.int64)
-        #: the run's end (its positions' last tick): the pairs of frames started by then are counted
-        self.horizon = (len(self.positions) - 1) * T_ns
+        #: whose frames' pairs are counted: started in ``[window[0], window[1])`` (by default the
+        #: run, its positions' ticks) by a ``counted`` member (:meth:`measure`)
+        self._window = np.array([0, (len(self.positions) - 1) * T_ns], dtype=np.int64)
+        self._counted = np.ones(m, dtype=np.bool_)
         kind, tab_x, tab_y = self.rule
         i1 = np.zeros(1, dtype=np.int64)
         self._close = bind(k.close, self.ri, self.rf, kind, tab_x, tab_y, 1.0, 0)
@@ -123,7 +125,8 @@ class RadioChannel(Channel):
         self._start_k = bind(k.start, self.ri, self.rf, self.p, self.fate, self.sensed, self.si, i1, 0, 1.0, 1.0,
                              1.0, self._went)
         self._end_k = bind(k.end, self.ri, self.rf, self.p, self.d, self.u, self.fate, self.sensed, self.si, i1, 0,
-                           kind, tab_x, tab_y, 1.0, 1.0, self.pairs, self.fates, self._went, self.ticks, 1, 0)
+                           kind, tab_x, tab_y, 1.0, 1.0, self.pairs, self.fates, self._went, self.ticks, 1,
+                           self._window, self._counted)
 
     def _grow(self, size: int) -> None:
         """Room for ``size`` frames on the air at once (the slots' rows, kept)."""
@@ -247,7 +250,7 @@ class RadioChannel(Channel):
         slots = np.asarray(ending, dtype=np.int64)
         went = self._end_k(self.ri, self.rf, self.p, self.d, self.u, self.fate, self.sensed, self.si, slots, te,
                            kind, tab_x, tab_y, self.noise, self.width, self.pairs, self.fates, self._went,
-                           self.ticks, self.T_ns, self.horizon)
+                           self.ticks, self.T_ns, self._window, self._counted)
         frames = [self._slot_of.pop(slot) for slot in ending]
         if not self._slot_of:
             self.rf[rk.TOTAL] = 0.0             # (nothing on the air: no rounding left over)
@@ -279,6 +282,17 @@ class RadioChannel(Channel):
                 access.head(radio, te)
 
     # ------------------------------------------------------------------ statistics
+    def measure(self, senders: Any = None, start: int = 0, end: int | None = None) -> None:
+        """Count from now on only the pairs of frames that ``senders`` (members' node numbers;
+        None: every member) start in ``[start, end)`` ns (``end`` None: the run's last tick) --
+        e.g. the vehicles away from a road's ends, for a comparison with a model of an endless
+        road (tests/test_radio_analytic.py).  CBR is every member's as before."""
+        if senders is not None:
+            self._counted[:] = False
+            self._counted[[self.pos_of[int(node)] for node in senders]] = True
+        self._window[:] = (start, self._window[1] if end is None else end)
+
+    # ------------------------------------------------------------------ statistics
     def busy_per_tick(self, T_ns: int, K: int) -> np.ndarray:
         """(K, members): ns each member sensed the medium busy (its own transmissions included) in
         ``[k T, (k+1) T)``, ``k = 0 .. K-1``, periods still open counted up to now (the channel
@@ -297,9 +311,15 @@ class RadioChannel(Channel):
 
     def cbr(self, end_ns: int) -> np.ndarray:
         """Each member's channel busy ratio over ``[0, end_ns]``: the time it sensed the medium
-        busy over ``end_ns`` (whole ticks; a last partial tick counts its share of its tick)."""
+        busy over ``end_ns`` -- exact while the channel has not gone past ``end_ns``, else from the
+        per-tick rows (whole ticks; a last partial tick counts its share of its tick)."""
         if end_ns <= 0:
             return np.zeros(len(self.nodes))
+        now = min(end_ns, self.env.now)
+        self.advance(now)
+        if self.now <= end_ns:
+            ri = self.ri
+            return (ri[rk.BUSY_NS] + np.where(ri[rk.SENSE_N] > 0, now - ri[rk.BUSY_FROM], 0)) / end_ns
         T = self.T_ns
         K = -(-end_ns // T)
         busy = self.busy_per_tick(T, K)
