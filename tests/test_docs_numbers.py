@@ -81,15 +81,24 @@ def test_the_stored_rows_are_what_the_code_computes(study):
     equal the stored rows; the store holds every run of the study."""
     stored = dn.read_rows(study.path)
     assert sorted({r["run"] for r in stored}) == list(range(study.runs))
+    runs = getattr(study, "spot_runs", dn.SPOT_RUNS)       # (a radio study: one run of its lightest point)
     key = lambda r: (r["run"], r["estimate"], r["component"])  # noqa: E731
-    old = {key(r): r for r in stored if r["run"] in dn.SPOT_RUNS}
-    new = {key(r): r for r in study.spot()}
+    old = {key(r): r for r in stored if r["run"] in runs}
+    new = {key(r): r for r in study.spot(runs)}
     assert set(old) == set(new)
     for k, row in new.items():
-        for col in ("mse", "anees", "messages_per_tick", "late"):
+        for col in ("mse", "anees", "messages_per_tick", "late", *(("cbr", "pdr_300") if "cbr" in study.columns else ())):
             assert np.isclose(row[col], old[k][col], rtol=1e-9, atol=0, equal_nan=True), (k, col)
 
 
 @pytest.mark.slow
 def test_the_radar_numbers_are_what_the_experiment_gives():
     assert_quoted(dn.render_radar(), "radar")
+
+
+def assert_block(name: str, text: str) -> None:
+    """The block ``name`` of the docs is ``text`` (for a test that computed its numbers itself)."""
+    found = dn.page_blocks()[name]
+    assert found and all(body.rstrip("\n") == text.rstrip("\n") for _, body in found), (
+        f"docs block {name} differs from what this test computed; run .venv/bin/python "
+        "tools/docs_numbers.py --only radio_validation and commit")

@@ -177,7 +177,17 @@ def test_dkfsim_radio_configured_as_ns3_agrees_with_it(name):
     for the reason in KNOWN (there half of ns-3's runs are enough to show it)."""
     ref = load(name)
     runs = ref["config"]["runs"] // 2 if name in KNOWN else None
-    assert compare(ref, run_all(ref, runs=runs)) == []
+    ours = run_all(ref, runs=runs)
+    assert compare(ref, ours) == []
+    from test_docs_numbers import assert_block, dn  # docs/radio.md quotes these very numbers
+    if name in dn.NS3_HIGHWAYS:
+        assert_block(dn.NS3_HIGHWAYS[name], dn.ns3_highway_block(ref["results"], ours, MIN_PAIRS))
+
+
+def test_docs_quote_the_synchronized_senders_as_computed():
+    """docs/radio.md's table of the synchronized senders (the six references, about 2 s)."""
+    from test_docs_numbers import assert_block, dn
+    assert_block("radio-ns3-sync", dn.ns3_sync_block({n: (load(n)["results"], run_all(load(n))) for n in dn.NS3_SYNC}))
 
 
 def test_the_stored_references_are_complete():

@@ -210,6 +210,9 @@ def test_pdr_causes_and_cbr_match_the_analytic_model(beta):
     other = {0.06: 0.12, 0.12: 0.06}[beta]
     wrong, wrong_cbr = analytic(other, edges)
     assert failures(sim, wrong, sim_cbr, wrong_cbr), "the comparison does not tell 0.06 from 0.12 vehicles/m"
+    from test_docs_numbers import assert_block, dn  # docs/radio.md quotes these very numbers
+    assert_block(dn.analytic_name(beta), dn.analytic_block(beta, edges, sim, ref, sim_cbr, ref_cbr,
+                                                             discrepancies(sim, ref), SEEDS[beta]))
 
 
 # ---------------------------------------------------------------- the pieces, exactly

@@ -689,6 +689,185 @@ def render_buffer(rows: dict[str, Rows]) -> dict[str, str]:
     return {"buffer-table": "\n".join(lines), "buffer-reading": para(reading)}
 
 
+# --------------------------------------------------------------------------- the radio's highway
+HIGHWAY_FILE = "scenarios/sweep_highway.yaml"
+#: the columns of a highway run's rows: the usual, then each estimator's copy of the radio -- the
+#: mean CBR of the group's vehicles (the nodes), and the PDR of its (frame, receiver) pairs within
+#: 300 m, background included (NaN without a radio copy)
+RADIO_COLUMNS = (*COLUMNS, "cbr", "pdr_300")
+#: the highway sweep's estimates, in the table's order
+HIGHWAY_ESTIMATES = ("fused", "fusion_centre", "centralized", *CONSENSUS_FAMILY[:-1])
+
+
+def radio_rows(scenario: str, overrides: tuple[str, ...], r: int) -> list[dict]:
+    """Run ``r`` of a radio study (run r's seed, as a Monte Carlo's): its tidy rows with the
+    radio's numbers of each estimator's copy of the channel."""
+    from dkfsim.engine.driver import Run
+    sc = dkfsim.load_scenario(ROOT / scenario, overrides=list(overrides))
+    tpl = Template(sc)
+    run_sc = tpl.scenario_for(derive_seed(sc.seed, r))
+    burn = max(1, int(run_sc.steps) // 10)
+    with np.errstate(all="ignore"):
+        res = Run(run_sc, save="summary", system=tpl.system, plan=tpl.plan_for(run_sc)).run()
+        rows = res.rows(burn, res.scored(burn))
+    out = []
+    for row in rows:
+        ch = ((res.traffic.get(row["estimate"]) or {}).get("channel") or {})
+        block = ch.get("pdr_by_distance")
+        cbr = pdr = math.nan
+        if block is not None:
+            near = [i for i, edge in enumerate(block["bins_m"][1:]) if edge <= 300.0]
+            frames = sum(block["frames"][i] for i in near)
+            lost = sum(block[c][i] for c in ("sensing", "receiver_busy", "propagation", "collision") for i in near)
+            group = ch["cbr"][:len(run_sc.sensors)]          # (the channel's first members are the nodes)
+            cbr, pdr = float(np.mean(group)), (frames - lost) / frames if frames else math.nan
+        out.append({**{c: row[c] for c in COLUMNS if c != "run"}, "run": r, "cbr": cbr, "pdr_300": pdr})
+    return out
+
+
+def _radio_job(args: tuple) -> list[dict]:
+    return radio_rows(*args)
+
+
+@dataclass(frozen=True)
+class RadioStudy(Study):
+    """A study of runs on a spatial radio: each run's rows keep its copies' CBR and PDR
+    (:func:`radio_rows`); ``spot_runs``: the runs the slow tier recomputes."""
+
+    spot_runs: tuple[int, ...] = (0,)
+
+    def compute(self, jobs: int) -> list[dict]:
+        from concurrent.futures import ProcessPoolExecutor
+        args = [(self.scenario, self.overrides, r) for r in range(self.runs)]
+        with ProcessPoolExecutor(max_workers=max(1, jobs)) as pool:
+            return [row for rows in pool.map(_radio_job, args) for row in rows]
+
+    def spot(self, runs: Iterable[int] = SPOT_RUNS) -> list[dict]:
+        return [row for r in runs for row in radio_rows(self.scenario, self.overrides, r)]
+
+
+def highway_studies() -> tuple[RadioStudy, ...]:
+    """One study per density of ``scenarios/sweep_highway.yaml``; the slow tier spot-checks run 0
+    of the lightest (a full-density run costs about 17 s)."""
+    studies = grid_studies(HIGHWAY_FILE, lambda v: f"sweep_highway_{float(v):g}", RADIO_COLUMNS)
+    return tuple(RadioStudy(s.name, s.scenario, s.overrides, s.runs, s.columns, (0,) if i == 0 else ())
+                 for i, s in enumerate(studies))
+
+
+HIGHWAY = highway_studies()
+
+
+def render_radio(rows: dict[str, Rows]) -> dict[str, str]:
+    """docs/radio.md's highway table: per density, each estimate's position MSE and each copy's
+    PDR within 300 m and CBR (means over the runs, 95 % intervals for the DKF)."""
+    spec = yaml.safe_load((ROOT / HIGHWAY_FILE).read_text())
+    import json
+    meta = json.loads((ROOT / "scenarios" / "data" / "highway.json").read_text())
+    dense = meta["files"]["highway_dense.fcd.xml"]["density_veh_per_km_per_direction"]
+    per_km = dense["eastbound"]["mean"] + dense["westbound"]["mean"]
+    points = [(s, rows[s.name]) for s in HIGHWAY]
+    first = points[0][1]
+    names = [e for e in HIGHWAY_ESTIMATES if e in first.estimates]
+    K = int(spec["set"][0].split("=")[1])
+    head = ["share of the traffic", "vehicles per km", *(f"MSE {e}" for e in names), "PDR ≤ 300 m (DKF)",
+            "group's CBR (DKF)", "PDR ≤ 300 m (ci_consensus)", "group's CBR (ci_consensus)"]
+    lines = ["```", f".venv/bin/dkfsim sweep {HIGHWAY_FILE} --jobs 2 --db out/highway.sqlite", "```", "",
+             f"{first.runs} runs of {K} ticks per density; position MSE after the burn-in (mean over the runs; the "
+             "DKF's with its 95 % interval); each estimator's copy of the radio (the same traffic in each, its "
+             "own frames besides): the PDR of every (frame, receiver) pair within 300 m and the mean CBR of the "
+             "twelve vehicles of the group:", "",
+             "| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+    for study, r in points:
+        share = float(study.overrides[-1].split("=")[1])
+        cells = [f"{share:g}", f"{share * per_km:.0f}", interval(r.col("fused", "mse"))]
+        cells += [g4(r.mean(e, "mse")) for e in names[1:]]
+        cells += [f"{r.mean('fused', 'pdr_300'):.3f}", f"{r.mean('fused', 'cbr'):.3f}",
+                  f"{r.mean('ci_consensus', 'pdr_300'):.3f}", f"{r.mean('ci_consensus', 'cbr'):.3f}"]
+        lines.append("| " + " | ".join(cells) + " |")
+    return {"radio-highway": "\n".join(lines)}
+
+
+def _tests_module(name: str):
+    """A module of tests/ (the validation's own code: the analytic model and the ns-3 comparison)."""
+    import importlib
+    if str(ROOT / "tests") not in sys.path:
+        sys.path.insert(0, str(ROOT / "tests"))
+    return importlib.import_module(name)
+
+
+def analytic_name(beta: float) -> str:
+    """The docs block of one density's analytic comparison (block names hold no dot)."""
+    return f"radio-analytic-{beta:g}".replace(".", "")
+
+
+def analytic_block(beta: float, edges, sim: dict, ref: dict, sim_cbr: float, ref_cbr: float, gap: dict,
+                   seeds: int) -> str:
+    """docs/radio.md's table of one density against the analytic model: PDR and the collision
+    share per 25 m bin (every other bin), dkfsim | model, and the worst differences and CBR --
+    from the numbers tests/test_radio_analytic.py computes (it checks this block with them)."""
+    lines = [f"{beta} vehicles/m ({seeds} one-period runs): PDR mean |difference| {gap['pdr'][0]:.4f}, "
+             f"worst bin {gap['pdr'][1]:.4f}; worst bin per cause: "
+             + ", ".join(f"{k.replace('_', ' ')} {gap[k][1]:.3f}" for k in ("sensing", "receiver_busy",
+                                                                               "propagation", "collision"))
+             + f"; CBR {sim_cbr:.3f} against eq. (35)'s {ref_cbr:.3f}.", "",
+             "| bin (m) | PDR: dkfsim \\| model | collision: dkfsim \\| model |", "|---|---|---|"]
+    for k in range(0, len(edges) - 1, 2):
+        lines.append(f"| {edges[k]:.0f}–{edges[k + 1]:.0f} | {sim['pdr'][k]:.3f} \\| {ref['pdr'][k]:.3f} | "
+                     f"{sim['collision'][k]:.3f} \\| {ref['collision'][k]:.3f} |")
+    return "\n".join(lines)
+
+
+def ns3_sync_block(results: dict[str, tuple[dict, dict]]) -> str:
+    """docs/radio.md's synchronized senders against ns-3: per configuration (name -> (ns-3's
+    results, dkfsim's :func:`test_ns3_reference.run_all`)) the PDR, the detected pairs lost and CBR."""
+    rows = ["| configuration | PDR: dkfsim \\| ns-3 | detected pairs lost | CBR |", "|---|---|---|---|"]
+    for name, (r, ours) in results.items():
+        pdr_o = sum(ours["received"]) / max(1, sum(ours["pairs"]))
+        pdr_r = sum(p * n for p, n in zip(r["pdr"], r["pairs"]) if p is not None) / max(1, sum(r["pairs"]))
+        rows.append(f"| {name} | {pdr_o:.3f} \\| {pdr_r:.3f} | {ours['lost_fraction']:.3f} \\| "
+                    f"{r['collided_fraction']:.3f} | {ours['cbr_mean']:.4f} \\| {r['cbr_mean']:.4f} |")
+    return "\n".join(rows)
+
+
+def ns3_highway_block(r: dict, ours: dict, min_pairs: int) -> str:
+    """docs/radio.md's table of one ns-3 highway: PDR per 25 m bin with enough pairs, and CBR."""
+    rows = [f"CBR: dkfsim {ours['cbr_mean']:.3f}, ns-3 {r['cbr_mean']:.3f}.", "",
+            "| bin (m) | PDR: dkfsim \\| ns-3 |", "|---|---|"]
+    edges = r["bins_m"]
+    for k in range(len(edges) - 1):
+        if min(r["pairs"][k], ours["pairs"][k]) >= min_pairs:
+            rows.append(f"| {edges[k]:.0f}–{edges[k + 1]:.0f} | {ours['pdr'][k]:.3f} \\| {r['pdr'][k]:.3f} |")
+            if max(ours["pdr"][k], r["pdr"][k]) == 0.0:
+                rows[-1] = rows[-1][:-1] + "(and every bin beyond) |"
+                break
+    return "\n".join(rows)
+
+
+#: the ns-3 references docs/radio.md quotes
+NS3_SYNC = ("sync_n4", "sync_n12", "sync_n24", "sync_jitter_n4", "sync_jitter_n12", "sync_jitter_n24")
+NS3_HIGHWAYS = {"highway_d0.06_interfere": "radio-ns3-highway-006", "highway_d0.12_interfere": "radio-ns3-highway-012"}
+
+
+def render_radio_validation() -> dict[str, str]:
+    """docs/radio.md's validation tables: dkfsim against the analytic 802.11p model of Sepulcre et
+    al. and against the stored ns-3 references -- the validation tests' own computations, each of
+    which checks its block with the numbers it computed."""
+    ta = _tests_module("test_radio_analytic")
+    out = {}
+    for beta in (0.06, 0.12):
+        pairs, sim_cbr, edges = ta.simulate(beta, ta.SEEDS[beta])
+        sim = ta.measured(pairs)
+        ref, ref_cbr = ta.analytic(beta, edges)
+        out[analytic_name(beta)] = analytic_block(beta, edges, sim, ref, sim_cbr, ref_cbr,
+                                                      ta.discrepancies(sim, ref), ta.SEEDS[beta])
+    tn = _tests_module("test_ns3_reference")
+    out["radio-ns3-sync"] = ns3_sync_block({n: (tn.load(n)["results"], tn.run_all(tn.load(n))) for n in NS3_SYNC})
+    for name, block in NS3_HIGHWAYS.items():
+        ref = tn.load(name)
+        out[block] = ns3_highway_block(ref["results"], tn.run_all(ref), tn.MIN_PAIRS)
+    return out
+
+
 GENERATORS = (
     Generator("quickstart", ("quickstart", "quickstart-reading"), render_quickstart, cheap=True),
     Generator("paper", ("fig4", "fig5", "fig6"), render_paper, PAPER),
@@ -701,6 +880,9 @@ GENERATORS = (
     Generator("centre", ("centre-table", "centre-reading"), render_centre, CENTRE),
     Generator("channel", ("channel-table", "channel-reading"), render_channel, CHANNEL),
     Generator("buffer", ("buffer-table", "buffer-reading"), render_buffer, BUFFER),
+    Generator("radio", ("radio-highway",), render_radio, HIGHWAY),
+    Generator("radio_validation", ("radio-analytic-006", "radio-analytic-012", "radio-ns3-sync",
+                                   *NS3_HIGHWAYS.values()), render_radio_validation),
 )
 
 

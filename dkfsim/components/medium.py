@@ -205,13 +205,14 @@ class Bystanders(StrictModel):
 
     @model_validator(mode="after")
     def _every_one(self) -> Bystanders:
-        if self.vehicles is None:
+        if self.vehicles is None or self.count is None:
             return self
+        count = self.count
         for key in self.vehicles:
-            if key != "default" and (len(key) > 6 or not 0 <= int(key) < self.count):
-                raise custom_error(f"bystander {key} is out of range 0..{self.count - 1}", f"vehicles.{key}")
+            if key != "default" and (len(key) > 6 or not 0 <= int(key) < count):
+                raise custom_error(f"bystander {key} is out of range 0..{count - 1}", f"vehicles.{key}")
         if "default" not in self.vehicles:
-            missing = [j for j in range(self.count) if str(j) not in self.vehicles]
+            missing = [j for j in range(count) if str(j) not in self.vehicles]
             if missing:
                 raise custom_error(f"bystander {missing[0]} has no trajectory ({len(missing)} without one); give "
                                    "it one, or a 'default' trajectory", "vehicles")

@@ -68,6 +68,15 @@ class RadioChannel(Channel):
         started in ``[t_k, t_{k+1})`` sees the positions of tick ``k``.
     """
 
+    #: the frames on the air, a row each (:mod:`~dkfsim.network.radio_kernels`): power (mW),
+    #: distance (m), decision draws, each pair's fate, who senses it; sender, start and end
+    p: np.ndarray
+    d: np.ndarray
+    u: np.ndarray
+    fate: np.ndarray
+    sensed: np.ndarray
+    si: np.ndarray
+
     def __init__(self, env: Any, spec: MediumSpec, members: tuple[int, ...], seed: int, positions: np.ndarray,
                  T_ns: int, index: int = 0, record: bool = False, backend: Backend | None = None,
                  presence: np.ndarray | None = None):
@@ -131,13 +140,18 @@ class RadioChannel(Channel):
     def _grow(self, size: int) -> None:
         """Room for ``size`` frames on the air at once (the slots' rows, kept)."""
         m = len(self.nodes)
-        old = len(getattr(self, "si", ()))
-        for name, dtype in (("p", np.float64), ("d", np.float64), ("u", np.float64), ("fate", np.int8),
-                            ("sensed", np.bool_)):
+        old = len(self.si) if hasattr(self, "si") else 0
+
+        def grown(a: np.ndarray | None, dtype: Any) -> np.ndarray:
             new = np.zeros((size, m), dtype=dtype)
-            if old:
-                new[:old] = getattr(self, name)
-            setattr(self, name, new)
+            if a is not None:
+                new[:old] = a
+            return new
+        self.p = grown(self.p if old else None, np.float64)
+        self.d = grown(self.d if old else None, np.float64)
+        self.u = grown(self.u if old else None, np.float64)
+        self.fate = grown(self.fate if old else None, np.int8)
+        self.sensed = grown(self.sensed if old else None, np.bool_)
         si = np.zeros((size, 3), dtype=np.int64)
         if old:
             si[:old] = self.si
