@@ -799,6 +799,41 @@ def render_radio(rows: dict[str, Rows]) -> dict[str, str]:
     return {"radio-highway": "\n".join(lines), "radio-highway-reading": para(reading)}
 
 
+def draw_radio_figure(path: Path) -> Path:
+    """docs/figures/radio_highway.png from the highway study's stored rows (what docs/radio.md's
+    table quotes): each estimate's position MSE against the density, and each copy's PDR within
+    300 m and the group's CBR.  Written by ``--only radio`` (never by the tests)."""
+    from dkfsim.core.extras import pyplot
+    from dkfsim.report.plots.style import color_of, label_of, legend_below, save_figure
+    plt = pyplot()
+    meta_dense = __import__("json").loads((ROOT / "scenarios" / "data" / "highway.json").read_text())
+    d = meta_dense["files"]["highway_dense.fcd.xml"]["density_veh_per_km_per_direction"]
+    per_km = d["eastbound"]["mean"] + d["westbound"]["mean"]
+    points = [(float(s.overrides[-1].split("=")[1]) * per_km, Rows(read_rows(s.path))) for s in HIGHWAY]
+    x = [p for p, _ in points]
+    fig, (left, right) = plt.subplots(1, 2, figsize=(11, 4.6))
+    for e in HIGHWAY_ESTIMATES:
+        if e in points[0][1].estimates:
+            left.plot(x, [r.mean(e, "mse") for _, r in points], "o-", color=color_of(e, HIGHWAY_ESTIMATES),
+                      label=label_of(e), ms=4)
+    left.set_yscale("log")
+    left.set_xlabel("vehicles per km (both directions)")
+    left.set_ylabel("position MSE (mean over runs)")
+    left.set_title("the estimates against the traffic density", fontsize=10)
+    left.grid(alpha=0.3, which="both")
+    for e, style in (("fused", "-"), ("ci_consensus", "--")):
+        right.plot(x, [r.mean(e, "pdr_300") for _, r in points], "o" + style, color="k", ms=4,
+                   label=f"PDR within 300 m, {label_of(e)}'s copy")
+        right.plot(x, [r.mean(e, "cbr") for _, r in points], "s" + style, color="#e6550d", ms=4,
+                   label=f"group's CBR, {label_of(e)}'s copy")
+    right.set_ylim(0, 1)
+    right.set_xlabel("vehicles per km (both directions)")
+    right.set_title("the radio around the group (each estimator's copy)", fontsize=10)
+    right.grid(alpha=0.3)
+    legend_below(fig, [left, right], ncol=3)
+    return save_figure(fig, path, ("png",))[0]
+
+
 def _tests_module(name: str):
     """A module of tests/ (the validation's own code: the analytic model and the ns-3 comparison)."""
     import importlib
@@ -945,6 +980,8 @@ def main(argv=None) -> int:
         return 1 if bad else 0
     for page in write_blocks(rendered):
         print(f"rewrote {page.relative_to(ROOT)}")
+    if any(g.name == "radio" for g in gens):
+        print(f"drew {draw_radio_figure(ROOT / 'docs' / 'figures' / 'radio_highway').relative_to(ROOT)}")
     return 0
 
 
