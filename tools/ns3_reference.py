@@ -4,10 +4,10 @@ configurations tests/test_ns3_reference.py runs dkfsim on, results stored under 
 Runs in a venv of its own with the PyPI package ``ns3`` (cppyy bindings), never in dkfsim's:
 it imports neither dkfsim nor anything but the standard library, ``ns`` and numpy::
 
-    python3.11 -m venv /work/ns3env
-    nice -n 10 /work/ns3env/bin/pip install ns3==3.44.post0 numpy     # builds cppyy: minutes
-    /work/ns3env/bin/python tools/ns3_reference.py                    # every configuration
-    /work/ns3env/bin/python tools/ns3_reference.py --only sync_n12 --out /tmp/x
+    python3.11 -m venv ../ns3env                                     # (a venv of its own, outside the repository)
+    nice -n 10 ../ns3env/bin/pip install ns3==3.44.post0 numpy     # builds cppyy: minutes
+    ../ns3env/bin/python tools/ns3_reference.py                       # every configuration
+    ../ns3env/bin/python tools/ns3_reference.py --only sync_n12 --out out/ns3
 
 What ns-3 runs (every attribute the dkfsim side must mirror is written into each JSON):
 802.11p (``WIFI_STANDARD_80211p``, 10 MHz), ``AdhocWifiMac`` without QoS (so the DCF: AIFSN 2,
@@ -422,7 +422,7 @@ def run(name: str, cfg: dict, args, ns, cppyy) -> dict:
     result = {
         "name": name,
         "ns3_version": metadata.version("ns3"),
-        "command": " ".join(shlex.quote(a) for a in [sys.executable, *sys.argv]),
+        "command": " ".join(shlex.quote(a) for a in ["python", *sys.argv]),   # (python: the ns3 venv's)
         "config": {**cfg, **(SYNC if cfg["kind"] == "sync" else HIGHWAY), "seed": args.seed, "runs": cfg.get("runs", 1),
                    "error_model": ERROR_MODELS[args.error_model], "nakagami_m": args.nakagami,
                    "duration_s": t_end_ns / 1e9, "payload_bytes": payload,

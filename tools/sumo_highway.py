@@ -24,8 +24,8 @@ vehicle: east148}`` (docs/trajectories.md).
 Standard library and SUMO only (not dkfsim): run it with a Python that has the ``sumo`` extra of
 pyproject.toml (eclipse-sumo 1.28.0; ``make test`` never installs it), e.g.::
 
-    python3 -m venv /tmp/sumoenv && /tmp/sumoenv/bin/pip install eclipse-sumo==1.28.0
-    /tmp/sumoenv/bin/python tools/sumo_highway.py [--out scenarios/data]
+    python3 -m venv ../sumoenv && ../sumoenv/bin/pip install eclipse-sumo==1.28.0
+    ../sumoenv/bin/python tools/sumo_highway.py [--out scenarios/data]
 """
 
 from __future__ import annotations
