@@ -123,6 +123,9 @@ class Channel(Medium):
     kind = "channel"
     broadcast = True
     report_name: ClassVar[str] = "channel"
+    #: whether a frame may start while others are on the air (a spatial radio, where a sender
+    #: senses only some of them); False: one collision domain, nothing starts while one is on it
+    overlapping: ClassVar[bool] = False
 
     def __init__(self, env: Any, spec: MediumSpec, members: tuple[int, ...], seed: int, index: int = 0,
                  record: bool = False, T_ns: int = 0):
@@ -163,8 +166,12 @@ class Channel(Medium):
         self._ready: dict[int, int] = {}
         self._held: list[tuple[int, int, Frame]] = []
         self._held_count = 0
-        #: the access rule (``medium.access.kind``)
+        #: the access rule (``medium.access.kind``), and its hooks a rule may leave as they are
+        #: (None then: not called, on the per-event path)
         self.access: Access = self.make_access(spec, seed)
+        rule = type(self.access)
+        self._started = self.access.started if rule.started is not Access.started else None
+        self._sent = self.access.sent if rule.sent is not Access.sent else None
         # statistics
         #: every busy period: (start, end, frames, background frames, collided), flat; and
         #: the instants of background frames a full waiting room dropped (:meth:`stats` reads
@@ -265,12 +272,12 @@ class Channel(Medium):
         or after ``t``, so it adds no start before ``t`` and no end or arrival at it."""
         if t <= self.now:
             return
-        arrivals, access, held = self._arrivals, self.access, self._held
+        arrivals, access, held, overlapping = self._arrivals, self.access, self._held, self.overlapping
         while True:
             te = self._next_end
             ta = arrivals[0][0] if arrivals else NEVER
             th = held[0][0] if held else NEVER
-            ts = self.start_time(access)
+            ts = NEVER if self.on_air and not overlapping else access.next_start()
             if te <= t and te <= ta and te <= th and te <= ts:
                 self._end(te)
             elif ta <= t and ta <= ts and ta <= th:
@@ -282,11 +289,6 @@ class Channel(Medium):
             else:
                 break
         self.now = t
-
-    def start_time(self, access: Access) -> int:
-        """When the next transmission starts if nothing more is handed over: never while one is
-        on the air (one collision domain: every radio senses it)."""
-        return NEVER if self.on_air else access.next_start()
 
     def _background(self, ta: int) -> None:
         _, node = heappop(self._arrivals)
@@ -318,7 +320,8 @@ class Channel(Medium):
                 background += 1
         if not on_air:
             raise RuntimeError(f"channel: no head is due at {ts} ns")
-        self.access.started(ts)
+        if self._started is not None:
+            self._started(ts)
         self._next_end = first_end
         n = len(on_air)
         self.collided = n > 1
@@ -351,7 +354,8 @@ class Channel(Medium):
                     own = self._owned[frame.owner] = array("q")
                 own.extend((frame.end, not ok, frame.start - frame.handed))
                 frame.done(frame, ok)
-            access.sent(radio, te)
+            if self._sent is not None:
+                self._sent(radio, te)
             if radio.queue:
                 access.head(radio, te)
 
@@ -365,21 +369,22 @@ class Channel(Medium):
         (its deliveries are scheduled then), with one wake-up per frame when nothing interferes."""
         if not self.pending:
             return
-        t = self.wake_time()
+        if not self.overlapping:
+            if self.on_air:
+                t = self._next_end
+            else:
+                access = self.access
+                t = access.next_start() + access.next_airtime()
+        else:                               # (the first end among those on the air and the next start's)
+            access = self.access
+            ts = access.next_start()
+            t = min(self._next_end, ts + access.next_airtime() if ts < NEVER else NEVER)
         if self._held and self._held[0][0] < t:
             t = self._held[0][0]
         if t in self._wakes or t > MAX_NS:
             return
         self._wakes.add(t)
         Scheduled(self.env, self._woken, URGENT, t - self.now)     # (now: brought to the present)
-
-    def wake_time(self) -> int:
-        """The next end the channel must see if nothing more is handed over: that of the frame
-        on the air, else of the first frame due to start."""
-        if self.on_air:
-            return self._next_end
-        access = self.access
-        return access.next_start() + access.next_airtime()
 
     def _woken(self, _event: Event) -> None:
         now = self.env.now

@@ -70,6 +70,7 @@ class RadioChannel(Channel):
 
     #: the frames on the air, a row each (:mod:`~dkfsim.network.radio_kernels`): power (mW),
     #: distance (m), decision draws, each pair's fate, who senses it; sender, start and end
+    overlapping = True                      # (a radio that senses nothing may start over a frame)
     p: np.ndarray
     d: np.ndarray
     u: np.ndarray
@@ -170,16 +171,6 @@ class RadioChannel(Channel):
                              "with medium.radio give a rule each radio runs on its own view (edca or csma)")
         self.slotted = impl(spec.access, self, seed)
         return self.slotted
-
-    @override
-    def start_time(self, access: Access) -> int:
-        return access.next_start()            # (a radio that senses nothing may start over a frame)
-
-    @override
-    def wake_time(self) -> int:
-        access = self.access
-        ts = access.next_start()
-        return min(self._next_end, ts + access.next_airtime() if ts < NEVER else NEVER)
 
     # ------------------------------------------------------------------ the air
     def _fill(self, slot: int, node: int, i: int, handed: int, seq0: int, ts: int) -> None:
