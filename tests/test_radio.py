@@ -16,6 +16,7 @@ import simpy
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy import special
+from test_medium import at
 
 from dkfsim.components.faults import LinkSpec
 from dkfsim.components.latency import Constant
@@ -51,13 +52,6 @@ def network(med: Medium, xs, seed: int = 1):
     got: list = []
     port = net.port("p", lambda link, payload: got.append((env.now, link.src, link.dst, payload)))
     return env, net, port, got
-
-
-def at(env, t, action):
-    def proc():
-        yield env.timeout(t)
-        action()
-    env.process(proc())
 
 
 def broadcast(net, port, u: int, payload, size: int):

@@ -25,7 +25,7 @@ from pydantic import Field, PrivateAttr, ValidationInfo, field_validator, model_
 
 from dkfsim.components.fcd import read_fcd
 from dkfsim.components.latency import located
-from dkfsim.components.mobility import Mobility
+from dkfsim.components.mobility import Mobility, check_vehicle_keys
 from dkfsim.components.radio import RadioParams
 from dkfsim.components.traffic import Background, Queue, Rate
 from dkfsim.components.trajectories import SumoFcd, Trajectory, TrajectoryParams
@@ -205,17 +205,8 @@ class Bystanders(StrictModel):
 
     @model_validator(mode="after")
     def _every_one(self) -> Bystanders:
-        if self.vehicles is None or self.count is None:
-            return self
-        count = self.count
-        for key in self.vehicles:
-            if key != "default" and (len(key) > 6 or not 0 <= int(key) < count):
-                raise custom_error(f"bystander {key} is out of range 0..{count - 1}", f"vehicles.{key}")
-        if "default" not in self.vehicles:
-            missing = [j for j in range(count) if str(j) not in self.vehicles]
-            if missing:
-                raise custom_error(f"bystander {missing[0]} has no trajectory ({len(missing)} without one); give "
-                                   "it one, or a 'default' trajectory", "vehicles")
+        if self.vehicles is not None and self.count is not None:
+            check_vehicle_keys(self.vehicles, self.count, "bystander", "vehicles")
         return self
 
     def trajectory(self, j: int) -> TrajectoryParams:

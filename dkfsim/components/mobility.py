@@ -94,6 +94,20 @@ class DistanceLinks(StrictModel):
         return loss, extra, rate
 
 
+def check_vehicle_keys(vehicles: dict, n: int, noun: str, where: str) -> None:
+    """Every key of ``vehicles`` (parsed by :meth:`Mobility.parse_vehicles`) is ``default`` or one
+    of ``0 .. n-1``, and every one of those has a trajectory (its own or the default); the error
+    names ``where.<key>`` and calls them ``noun`` ("node", "bystander")."""
+    for key in vehicles:
+        if key != "default" and (len(key) > 18 or not 0 <= int(key) < n):
+            raise custom_error(f"{noun} {key} is out of range 0..{n - 1}", f"{where}.{key}")
+    if "default" not in vehicles:
+        missing = [i for i in range(n) if str(i) not in vehicles]
+        if missing:
+            raise custom_error(f"{noun} {missing[0]} has no trajectory ({len(missing)} {noun}(s) without one); "
+                               "give it one, or a 'default' trajectory", where)
+
+
 class Mobility(StrictModel):
     """The top-level ``mobility`` key: a trajectory per vehicle (node), the radio range, the
     link quality from distance and a speed factor."""
@@ -133,14 +147,7 @@ class Mobility(StrictModel):
     def check(self, n: int) -> None:
         """Cross-checks that need the network size (called by the scenario): every key a node,
         every node a trajectory."""
-        for key in self.vehicles:
-            if key != "default" and (len(key) > 18 or not 0 <= int(key) < n):
-                raise custom_error(f"node {key} is out of range 0..{n - 1}", f"mobility.vehicles.{key}")
-        if "default" not in self.vehicles:
-            missing = [i for i in range(n) if str(i) not in self.vehicles]
-            if missing:
-                raise custom_error(f"node {missing[0]} has no trajectory ({len(missing)} node(s) without one); "
-                                   "give it one, or a 'default' trajectory", "mobility.vehicles")
+        check_vehicle_keys(self.vehicles, n, "node", "mobility.vehicles")
 
     @property
     def rate_from_distance(self) -> bool:
