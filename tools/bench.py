@@ -371,7 +371,8 @@ def print_radio_cost(seconds: float, vehicles: list[int], highway_seconds: float
         xs.append(heard)
         ys.append(cpu / frames * 1e6)
         print(f"{n:9d} {frames:8d} {heard:9.1f} {cpu:7.2f} {ys[-1]:9.1f}")
-    print(f"  fitted exponent of CPU per frame against receivers in range: {slope(xs, ys):.2f}")
+    if len(xs) > 1:
+        print(f"  fitted exponent of CPU per frame against receivers in range: {slope(xs, ys):.2f}")
     path = ROOT / "scenarios" / "highway_its_g5.yaml"
     if path.is_file() and highway_seconds > 0:
         sc = dkfsim.load_scenario(path)

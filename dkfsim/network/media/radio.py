@@ -35,7 +35,15 @@ import numpy as np
 from typing_extensions import override
 
 from dkfsim.components.medium import Medium as MediumSpec
-from dkfsim.components.radio import NoFading, NoShadowing, PerTable, fading_db, path_loss_db, shadowing_db
+from dkfsim.components.radio import (
+    NoFading,
+    NoShadowing,
+    PerTable,
+    fading_db,
+    normal_quantiles,
+    path_loss_db,
+    shadowing_db,
+)
 from dkfsim.core.backend import Backend
 from dkfsim.core.jit import bind
 from dkfsim.core.registry import MEDIA
@@ -96,6 +104,7 @@ class RadioChannel(Channel):
         self.present = None if presence is None or bool(np.all(presence)) else \
             np.asarray(presence, dtype=bool)[:, list(members)]
         self.noise, self.sens, self.cs = _mw(radio.noise), _mw(radio.sensitivity), _mw(radio.carrier_sense)
+        self._both = not isinstance(radio.shadowing, NoShadowing) and not isinstance(radio.fading, NoFading)
         self.capture = 0.0 if radio.capture is None else _mw(radio.capture)
         rule = radio.reception
         self.rule = (rk.TABLE, np.array([x for x, _ in rule.table]), np.array([y for _, y in rule.table])) \
@@ -183,10 +192,14 @@ class RadioChannel(Channel):
         dbm = rp.power - path_loss_db(rp.path_loss, d, rp.frequency)
         draws = self._u3
         self._draws(self._keys[node], handed, seq0, self.nodes, draws)         # (shadow, fade, rx) x members
-        if not isinstance(rp.shadowing, NoShadowing):
-            dbm = dbm - shadowing_db(rp.shadowing, draws[0])
-        if not isinstance(rp.fading, NoFading):
-            dbm = dbm + fading_db(rp.fading, draws[1])
+        if self._both:                      # (one normal quantile call for both rows)
+            z = normal_quantiles(draws[:2])
+            dbm = dbm - shadowing_db(rp.shadowing, draws[0], z[0]) + fading_db(rp.fading, draws[1], z[1])
+        else:
+            if not isinstance(rp.shadowing, NoShadowing):
+                dbm = dbm - shadowing_db(rp.shadowing, draws[0])
+            if not isinstance(rp.fading, NoFading):
+                dbm = dbm + fading_db(rp.fading, draws[1])
         p = self.p[slot]
         np.power(10.0, dbm / 10.0, out=p)
         p[i] = 0.0
