@@ -103,6 +103,7 @@ class RadioChannel(Channel):
         #: nothing and is no receiver
         self.present = None if presence is None or bool(np.all(presence)) else \
             np.asarray(presence, dtype=bool)[:, list(members)]
+        self.absent = None if self.present is None else ~self.present
         self.noise, self.sens, self.cs = _mw(radio.noise), _mw(radio.sensitivity), _mw(radio.carrier_sense)
         self._both = not isinstance(radio.shadowing, NoShadowing) and not isinstance(radio.fading, NoFading)
         self.capture = 0.0 if radio.capture is None else _mw(radio.capture)
@@ -188,7 +189,7 @@ class RadioChannel(Channel):
         rp = self.params
         k = min(ts // self.T_ns, len(self.positions) - 1)
         xy = self.positions[k]
-        d = np.hypot(xy[:, 0] - xy[i, 0], xy[:, 1] - xy[i, 1])
+        d = np.hypot(xy[:, 0] - xy[i, 0], xy[:, 1] - xy[i, 1], out=self.d[slot])
         dbm = rp.power - path_loss_db(rp.path_loss, d, rp.frequency)
         draws = self._u3
         self._draws(self._keys[node], handed, seq0, self.nodes, draws)         # (shadow, fade, rx) x members
@@ -203,12 +204,11 @@ class RadioChannel(Channel):
         p = self.p[slot]
         np.power(10.0, dbm / 10.0, out=p)
         p[i] = 0.0
-        if self.present is not None:
-            if self.present[k, i]:
-                p[~self.present[k]] = -1.0      # (off the road: no receiver)
+        if self.absent is not None:
+            if not self.absent[k, i]:
+                p[self.absent[k]] = -1.0        # (off the road: no receiver)
             else:
                 p[:] = -1.0                     # (a frame queued before its sender left: nobody hears it)
-        self.d[slot] = d
         self.u[slot] = draws[2]
 
     @override
@@ -284,7 +284,8 @@ class RadioChannel(Channel):
             self._free.append(slot)
             radio = radios[frame.node]
             radio.on_air = None
-            lost = np.flatnonzero((fate != rk.RECEIVED) & (fate != rk.SENDER))
+            if frame.done is not None or self.ended is not None:       # (not a background frame's)
+                lost = np.flatnonzero((fate != rk.RECEIVED) & (fate != rk.SENDER))
             if self.ended is not None:
                 self.ended.append((frame.node, frame.start, frame.end, len(lost) < len(nodes) - 1, frame.done is None))
             if frame.done is not None:

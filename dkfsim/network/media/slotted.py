@@ -103,29 +103,32 @@ class SlottedAccess(Access):
         sel = sel[self.idle_at[sel] >= 0]
         if not len(sel):
             return
-        c = self.count[sel]
-        origin = self.origin[sel]
-        passed = np.where(t <= origin, 0, -((origin - t) // self.slot))
-        left = c - passed
-        # a post-backoff that ran out with no frame to send is over; a head keeps what is left
-        left = np.where(c < 0, -1, np.where(self.head_on[sel], np.maximum(left, 0), np.where(left > 0, left, -1)))
-        self.count[sel] = left
         self.idle_at[sel] = -1
         self.due[sel] = NEVER
         self._best = -1
+        pend = sel[self.count[sel] >= 0]        # (those counting a backoff)
+        if len(pend):
+            c = self.count[pend]
+            origin = self.origin[pend]
+            left = c - np.where(t <= origin, 0, -((origin - t) // self.slot))
+            # a post-backoff that ran out with no frame to send is over; a head keeps what is left
+            self.count[pend] = np.where(self.head_on[pend], np.maximum(left, 0), np.where(left > 0, left, -1))
 
     def clear(self, nodes: np.ndarray, t: int, error: np.ndarray | None = None) -> None:
         """The radios at positions ``nodes`` sense the medium idle from ``t`` (``error``: those
         whose last frame received was in error count from ``t + eifs``)."""
         if not len(nodes):
             return
-        wait = self.aifs if error is None else np.where(error, self.eifs, self.aifs)
-        origin = t + wait
         self.idle_at[nodes] = t
-        self.origin[nodes] = origin
-        c = self.count[nodes]
-        self.due[nodes] = np.where(self.head_on[nodes], np.where(c >= 0, origin + c * self.slot, origin), NEVER)
-        self._best = -1
+        if error is None or not error.any():
+            self.origin[nodes] = t + self.aifs
+        else:
+            self.origin[nodes] = t + np.where(error, self.eifs, self.aifs)
+        heads = nodes[self.head_on[nodes]]     # (a radio sensing the medium busy has no due instant)
+        if len(heads):
+            c, origin = self.count[heads], self.origin[heads]
+            self.due[heads] = np.where(c >= 0, origin + c * self.slot, origin)
+            self._best = -1
 
     @override
     def idle(self, te: int) -> None:
