@@ -20,19 +20,9 @@ from typing_extensions import override
 
 from dkfsim.components.medium import Csma
 from dkfsim.core.registry import MEDIA
-from dkfsim.core.streams import key64, keyed_uniform
+from dkfsim.core.streams import key64
 from dkfsim.network.media.channel import NEVER, Access, Channel, Radio
-from dkfsim.network.media.slotted import RadioCsma
-
-
-class _Backoff:
-    """A radio's backoff draws: its key, and the instant and count of its last draws."""
-
-    __slots__ = ("key", "drawn_at", "drawn")
-
-    def __init__(self, key: int):
-        self.key = key
-        self.drawn_at, self.drawn = -1, 0
+from dkfsim.network.media.slotted import Backoff, RadioCsma
 
 
 @MEDIA.register("csma", params=Csma)
@@ -46,7 +36,7 @@ class CsmaAccess(Access):
         super().__init__(params, channel, seed)
         self.slot, self.aifs, self.cw = params.slot_ns, params.aifs_ns, int(params.cw)
         for node, radio in channel.radios.items():
-            radio.state = _Backoff(key64(seed, "channel", channel.index, node, "backoff"))
+            radio.state = Backoff(key64(seed, "channel", channel.index, node, "backoff"))
         #: the contending heads (a frame waiting, none on the air): ``(boundary, node, airtime)``,
         #: a heap; ``boundary`` counts the idle boundaries of the whole run (:attr:`passed` of
         #: earlier idle periods, then this one's), so freezing changes no entry
@@ -62,17 +52,7 @@ class CsmaAccess(Access):
     def head(self, radio: Radio, t: int) -> None:
         """A fresh backoff, counted from the first boundary at or after ``t`` (the next idle
         period's first while the channel is busy)."""
-        b: _Backoff = radio.state
-        if b.drawn_at != t:
-            b.drawn_at = t
-            drawn = 0
-        else:
-            drawn = b.drawn
-        b.drawn = drawn + 1
-        cw = self.cw
-        count = int(keyed_uniform(b.key, t, drawn) * (cw + 1))
-        if count > cw:                      # (a draw next to 1 may round up to cw + 1)
-            count = cw
+        count = radio.state.draw(t, self.cw)
         first = self.t_idle + self.aifs
         channel = self.channel
         join = 0 if channel.on_air or t <= first else -(-(t - first) // self.slot)

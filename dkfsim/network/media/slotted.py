@@ -33,6 +33,29 @@ from dkfsim.core.streams import key64, keyed_uniform
 from dkfsim.network.media.channel import NEVER, Access, Channel, Radio
 
 
+class Backoff:
+    """A radio's backoff draws: its key, and the instant and count of its last draws (the one
+    draw every slotted rule makes: :mod:`~dkfsim.network.media.csma`, :class:`SlottedAccess`)."""
+
+    __slots__ = ("key", "drawn_at", "drawn")
+
+    def __init__(self, key: int):
+        self.key = key
+        self.drawn_at, self.drawn = -1, 0
+
+    def draw(self, t: int, cw: int) -> int:
+        """A backoff uniform in ``0 .. cw`` at ``t``: the keyed draw at ``(t, attempt)``,
+        ``attempt`` the number of earlier draws at ``t``."""
+        if self.drawn_at != t:
+            self.drawn_at = t
+            drawn = 0
+        else:
+            drawn = self.drawn
+        self.drawn = drawn + 1
+        count = int(keyed_uniform(self.key, t, drawn) * (cw + 1))
+        return cw if count > cw else count  # (a draw next to 1 may round up to cw + 1)
+
+
 class SlottedAccess(Access):
     """The per-radio slotted engine (see the module); a subclass says when a backoff is drawn."""
 
@@ -47,9 +70,8 @@ class SlottedAccess(Access):
         #: a radio's position in the arrays
         self.pos = {radio.node: i for i, radio in enumerate(self.radios)}
         m = len(self.radios)
-        self._keys = [key64(seed, "channel", channel.index, radio.node, self.draws) for radio in self.radios]
-        self._drawn_at = [-1] * m
-        self._drawn = [0] * m
+        self._backoffs = [Backoff(key64(seed, "channel", channel.index, radio.node, self.draws))
+                          for radio in self.radios]
         #: the instant each radio's medium became idle (-1: it senses it busy); boundary 0 of
         #: its count; its backoff in slots from ``origin`` (-1: none pending); when its head
         #: frame starts if the medium stays idle (NEVER: no head, or busy)
@@ -66,16 +88,8 @@ class SlottedAccess(Access):
         self._best = -1
 
     def draw(self, i: int, t: int) -> int:
-        """A backoff uniform in ``0 .. cw`` for radio ``i`` at ``t`` (the keyed draw at ``(t,
-        attempt)``, ``attempt`` its earlier draws at ``t``), as :mod:`~dkfsim.network.media.csma`
-        draws."""
-        if self._drawn_at[i] != t:
-            self._drawn_at[i], drawn = t, 0
-        else:
-            drawn = self._drawn[i]
-        self._drawn[i] = drawn + 1
-        count = int(keyed_uniform(self._keys[i], t, drawn) * (self.cw + 1))
-        return min(count, self.cw)          # (a draw next to 1 may round up to cw + 1)
+        """A backoff uniform in ``0 .. cw`` for radio ``i`` at ``t`` (:meth:`Backoff.draw`)."""
+        return self._backoffs[i].draw(t, self.cw)
 
     def _join(self, i: int, t: int, b: int) -> None:
         """Radio ``i``'s head, idle, goes ``b`` boundaries after the first at or after ``t``."""
