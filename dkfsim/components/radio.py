@@ -11,7 +11,8 @@ and each receiver decides for itself (:mod:`dkfsim.network.media.radio`): a fram
 busy, and a frame it locks on is received by the ``reception`` rule from its SINR over the frame
 (interference summed over every overlapping frame).  Each part below is a small declarative
 model, chosen by its ``model`` key; :func:`path_loss_db`, :func:`shadowing_db`,
-:func:`fading_db` and :func:`error_rate` evaluate them, vectorised over receivers.
+:func:`fading_db` evaluate them, vectorised over receivers (the reception rule is the radio's
+kernel's, :func:`dkfsim.network.radio_kernels.error_rate`).
 
 Units: powers in dBm, gains and losses in dB, distances in metres, frequencies in Hz.
 """
@@ -290,15 +291,3 @@ def fading_db(model: object, u: np.ndarray, z: np.ndarray | None = None) -> np.n
         lo = table[i]
         return lo + w * (table[i + 1] - lo)
     return np.zeros(len(u))
-
-
-def error_rate(model: object, sinr_db: np.ndarray) -> np.ndarray:
-    """The packet error rate at ``sinr_db`` under the reception rule."""
-    sinr_db = np.asarray(sinr_db, dtype=np.float64)
-    if isinstance(model, Threshold):
-        return np.where(sinr_db >= model.sinr, 0.0, 1.0)
-    if isinstance(model, PerTable):
-        s = np.array([p[0] for p in model.table])
-        per = np.array([p[1] for p in model.table])
-        return np.interp(sinr_db, s, per)
-    raise TypeError(f"no reception model {type(model).__name__}")

@@ -64,6 +64,14 @@ def _mw(dbm: float) -> float:
     return float(10.0 ** (dbm / 10.0))
 
 
+def reception_rule(model: Any) -> tuple[int, np.ndarray, np.ndarray]:
+    """``medium.radio.reception`` as :func:`~dkfsim.network.radio_kernels.error_rate` reads it:
+    (kind, SINR points dB, PER points; a threshold's one point)."""
+    if isinstance(model, PerTable):
+        return rk.TABLE, np.array([x for x, _ in model.table]), np.array([y for _, y in model.table])
+    return rk.THRESHOLD, np.array([model.sinr]), np.zeros(1)
+
+
 def _draws(keys: np.ndarray, t: int, seq0: int, nodes: np.ndarray, out: np.ndarray) -> None:
     """:func:`~dkfsim.network.radio_kernels.draws` on the numpy path: the same bits, vectorised."""
     out[:] = keyed_uniforms(keys[:, None], t, seq0 + nodes)
@@ -107,9 +115,7 @@ class RadioChannel(Channel):
         self.noise, self.sens, self.cs = _mw(radio.noise), _mw(radio.sensitivity), _mw(radio.carrier_sense)
         self._both = not isinstance(radio.shadowing, NoShadowing) and not isinstance(radio.fading, NoFading)
         self.capture = 0.0 if radio.capture is None else _mw(radio.capture)
-        rule = radio.reception
-        self.rule = (rk.TABLE, np.array([x for x, _ in rule.table]), np.array([y for _, y in rule.table])) \
-            if isinstance(rule, PerTable) else (rk.THRESHOLD, np.array([rule.sinr]), np.zeros(1))
+        self.rule = reception_rule(radio.reception)
         #: per member: the keys of its frames' shadowing, fading and decision draws
         self._keys = {node: np.array([key64(seed, "radio", index, node, what) for what in ("shadow", "fade", "rx")],
                                      dtype=np.uint64) for node in members}
