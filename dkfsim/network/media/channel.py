@@ -162,7 +162,8 @@ class Channel(Medium):
         self.jitter_ns, self.T_ns = seconds_to_ns(spec.generation_jitter or 0.0), int(T_ns)
         if self.jitter_ns and self.T_ns <= 0:
             raise ValueError("a channel with generation_jitter needs the tick length T_ns")
-        self._jitter_keys = {node: key64(seed, "channel", index, node, "jitter") for node in members}
+        self._jitter_keys = {node: key64(seed, "channel", index, node, "jitter") for node in members} \
+            if self.jitter_ns else {}
         self._ready: dict[int, int] = {}
         self._held: list[tuple[int, int, Frame]] = []
         self._held_count = 0
@@ -228,8 +229,9 @@ class Channel(Medium):
         return True
 
     def _release(self, th: int) -> None:
-        """The held frames due at ``th`` reach their radios (a full waiting room drops them:
-        their owner learns it as a loss on the air, ``frame.done(frame, False)``)."""
+        """The held frames due at ``th`` reach their radios (a full waiting room refuses them:
+        ``frame.done(frame, False)`` on a frame never on the air, which its port counts as
+        ``queue_dropped``)."""
         held = self._held
         while held and held[0][0] == th:
             frame = heappop(held)[2]
@@ -296,10 +298,16 @@ class Channel(Medium):
         bg = radio.background
         assert bg is not None
         _, sizes = bg.until(ta)
-        for size in sizes:
-            if not self._arrive(radio, Frame(node, int(size), ta), ta):
-                self._dropped.append(ta)
+        if self.sends(node, ta):
+            for size in sizes:
+                if not self._arrive(radio, Frame(node, int(size), ta), ta):
+                    self._dropped.append(ta)
         heappush(self._arrivals, (bg.next_time(), node))
+
+    def sends(self, node: int, t: int) -> bool:  # noqa: ARG002  (a medium with vehicles off the road says no)
+        """Whether ``node``'s radio is on the air at ``t`` (its background packets then are
+        offered; otherwise taken and dropped unseen): always on one collision domain."""
+        return True
 
     def _start(self, ts: int) -> None:
         on_air = self.on_air

@@ -28,7 +28,6 @@ senses the medium busy (its own transmissions included).
 from __future__ import annotations
 
 from array import array
-from heapq import heappop, heappush
 from typing import Any
 
 import numpy as np
@@ -107,11 +106,10 @@ class RadioChannel(Channel):
         self.nodes = np.asarray(members, dtype=np.int64)
         self.pos_of = {node: i for i, node in enumerate(members)}
         self.positions = np.asarray(positions, dtype=np.float64)[:, list(members), :]
-        #: whether each member is on the road at each tick (None: always); one that is not sends
-        #: nothing and is no receiver
-        self.present = None if presence is None or bool(np.all(presence)) else \
-            np.asarray(presence, dtype=bool)[:, list(members)]
-        self.absent = None if self.present is None else ~self.present
+        #: whether each member is off the road at each tick (None: none ever is); one that is
+        #: sends nothing and is no receiver
+        self.absent = None if presence is None or bool(np.all(presence)) else \
+            ~np.asarray(presence, dtype=bool)[:, list(members)]
         self.noise, self.sens, self.cs = _mw(radio.noise), _mw(radio.sensitivity), _mw(radio.carrier_sense)
         self._both = not isinstance(radio.shadowing, NoShadowing) and not isinstance(radio.fading, NoFading)
         self.capture = 0.0 if radio.capture is None else _mw(radio.capture)
@@ -218,19 +216,10 @@ class RadioChannel(Channel):
         self.u[slot] = draws[2]
 
     @override
-    def _background(self, ta: int) -> None:
-        """A member off the road at ``ta`` sends none of its background then (its packets up to
-        ``ta`` are taken and not offered)."""
-        node = self._arrivals[0][1]
-        if self.present is not None and not self.present[min(ta // self.T_ns, len(self.present) - 1),
-                                                          self.pos_of[node]]:
-            heappop(self._arrivals)
-            bg = self.radios[node].background
-            assert bg is not None
-            bg.until(ta)
-            heappush(self._arrivals, (bg.next_time(), node))
-            return
-        super()._background(ta)
+    def sends(self, node: int, t: int) -> bool:
+        """A member off the road at ``t`` sends none of its background then."""
+        absent = self.absent
+        return absent is None or not absent[min(t // self.T_ns, len(absent) - 1), self.pos_of[node]]
 
     @override
     def _start(self, ts: int) -> None:
@@ -302,7 +291,8 @@ class RadioChannel(Channel):
                     own = self._owned[frame.owner] = array("q")
                 own.extend((frame.end, bool((fate == rk.COLLISION).any()), frame.start - frame.handed))
                 frame.done(frame, True)
-            access.sent(radio, te)
+            if self._sent is not None:
+                self._sent(radio, te)
             if radio.queue:
                 access.head(radio, te)
 
@@ -317,7 +307,6 @@ class RadioChannel(Channel):
             self._counted[[self.pos_of[int(node)] for node in senders]] = True
         self._window[:] = (start, self._window[1] if end is None else end)
 
-    # ------------------------------------------------------------------ statistics
     def busy_per_tick(self, T_ns: int, K: int) -> np.ndarray:
         """(K, members): ns each member sensed the medium busy (its own transmissions included) in
         ``[k T, (k+1) T)``, ``k = 0 .. K-1``, periods still open counted up to now (the channel
