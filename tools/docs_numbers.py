@@ -47,6 +47,7 @@ from __future__ import annotations
 
 import argparse
 import csv
+import json
 import math
 import re
 import sys
@@ -757,14 +758,18 @@ def highway_studies() -> tuple[RadioStudy, ...]:
 HIGHWAY = highway_studies()
 
 
+def highway_per_km() -> float:
+    """Vehicles per km on the shipped highway's SUMO run, both directions (scenarios/data/highway.json)."""
+    meta = json.loads((ROOT / "scenarios" / "data" / "highway.json").read_text())
+    dense = meta["files"]["highway_dense.fcd.xml"]["density_veh_per_km_per_direction"]
+    return dense["eastbound"]["mean"] + dense["westbound"]["mean"]
+
+
 def render_radio(rows: dict[str, Rows]) -> dict[str, str]:
     """docs/radio.md's highway table: per density, each estimate's position MSE and each copy's
     PDR within 300 m and CBR (means over the runs, 95 % intervals for the DKF)."""
     spec = yaml.safe_load((ROOT / HIGHWAY_FILE).read_text())
-    import json
-    meta = json.loads((ROOT / "scenarios" / "data" / "highway.json").read_text())
-    dense = meta["files"]["highway_dense.fcd.xml"]["density_veh_per_km_per_direction"]
-    per_km = dense["eastbound"]["mean"] + dense["westbound"]["mean"]
+    per_km = highway_per_km()
     points = [(s, rows[s.name]) for s in HIGHWAY]
     first = points[0][1]
     names = [e for e in HIGHWAY_ESTIMATES if e in first.estimates]
@@ -806,9 +811,7 @@ def draw_radio_figure(path: Path) -> Path:
     from dkfsim.core.extras import pyplot
     from dkfsim.report.plots.style import color_of, label_of, legend_below, save_figure
     plt = pyplot()
-    meta_dense = __import__("json").loads((ROOT / "scenarios" / "data" / "highway.json").read_text())
-    d = meta_dense["files"]["highway_dense.fcd.xml"]["density_veh_per_km_per_direction"]
-    per_km = d["eastbound"]["mean"] + d["westbound"]["mean"]
+    per_km = highway_per_km()
     points = [(float(s.overrides[-1].split("=")[1]) * per_km, Rows(read_rows(s.path))) for s in HIGHWAY]
     x = [p for p, _ in points]
     fig, (left, right) = plt.subplots(1, 2, figsize=(11, 4.6))
