@@ -274,13 +274,77 @@ def test_the_fading_table_is_the_gamma_inverse_cdf_within_a_thousandth_of_a_db(m
     assert np.abs(fading_db(Nakagami(m=m), u) - exact).max() < 1e-3
 
 
-def test_the_kernels_draws_are_the_keyed_uniforms_bit_for_bit():
-    """The compiled draw of a frame's three streams at every member is
-    :func:`dkfsim.core.streams.keyed_uniforms` (the numpy path's), bit for bit."""
-    from dkfsim.core.streams import key64, keyed_uniforms
+def test_the_normal_quantile_is_scipys_bit_for_bit_compiled_or_not():
+    """The kernels' Cephes ``ndtri`` is ``scipy.special.ndtri`` to the bit (the tails' branches
+    included), compiled and as Python."""
     from dkfsim.network import radio_kernels as rk
-    keys = np.array([key64(9, "radio", 0, 3, w) for w in ("shadow", "fade", "rx")], dtype=np.uint64)
-    nodes = np.arange(0, 700, 7, dtype=np.int64)
-    out = np.zeros((3, len(nodes)))
-    rk.compiled().draws(keys, 123_456_789_012, 5 << 24, nodes, out)
-    assert np.array_equal(out, keyed_uniforms(keys[:, None], 123_456_789_012, (5 << 24) + nodes))
+    u = np.concatenate([np.random.default_rng(5).random(20_000), np.logspace(-15.9, -1, 300),
+                        1 - np.logspace(-15.9, -1, 300), [2.0 ** -53, 1 - 2.0 ** -53, math.exp(-2), 0.5]])
+    want = special.ndtri(u)
+    compiled = rk.compiled().ndtri
+    assert np.array_equal([compiled(x) for x in u], want)
+    assert np.array_equal([rk.ndtri(x) for x in u[::20]], want[::20])
+
+
+@settings(max_examples=25, deadline=None)
+@given(seed=st.integers(0, 10**9), m=st.integers(2, 60), sigma=st.sampled_from([0.0, 3.0, 8.0]),
+       fading=st.sampled_from([None, 0.5, 1.5, 3.0]), away=st.integers(0, 3), handed=st.integers(0, 2**50))
+def test_the_compiled_fill_is_the_numpy_fill_bit_for_bit(seed, m, sigma, fading, away, handed):
+    """A frame's powers and decision draws at every member (keyed shadowing, Nakagami fading by
+    its table, members off the road) are the same bits on both kernel paths."""
+    from dkfsim.components.radio import Z_MAX, Z_STEPS, Nakagami, NoFading, fading_table
+    from dkfsim.core.streams import key64
+    from dkfsim.network import radio_kernels as rk
+    from dkfsim.network.media.radio import _fill
+    rng = np.random.default_rng(seed)
+    loss = rng.uniform(40.0, 140.0, m)
+    keys = np.array([key64(seed, "radio", 0, 1, w) for w in ("shadow", "fade", "rx")], dtype=np.uint64)
+    nodes = np.sort(rng.choice(10 * m, m, replace=False)).astype(np.int64)
+    table = fading_table(NoFading() if fading is None else Nakagami(m=fading))
+    absent = np.zeros(m, dtype=np.bool_)
+    absent[rng.choice(m, min(away, m), replace=False)] = True
+    i = int(rng.integers(m))
+    out = []
+    for fill in (rk.compiled().fill, _fill):
+        p, u = np.zeros((3, m)), np.zeros((3, m))
+        fill(p, u, 1, loss, keys, handed, 7 << 24, nodes, i, 23.0, sigma, table, Z_MAX, float(Z_STEPS), absent)
+        out.append((p, u))
+    assert np.array_equal(out[0][0], out[1][0]) and np.array_equal(out[0][1], out[1][1])
+    p = out[0][0][1]
+    assert p[i] == (-1.0 if absent[i] else 0.0) and np.all(p[absent] == -1.0)
+    if sigma == 0.0 and fading is None and not absent.any():     # (no draw: the mean power)
+        want = 10.0 ** ((23.0 - loss) / 10.0)
+        want[i] = 0.0
+        assert np.allclose(p, want, rtol=1e-12)
+
+
+def test_a_radio_run_is_the_same_on_both_kernel_paths():
+    """Vehicles on a road with shadowing, fading and some off the road, EDCA, background and
+    estimator frames: every delivery, every pair's count and every member's busy time are the
+    same on the numba and the numpy path."""
+    from dkfsim.core.backend import Backend
+    n, T = 24, 10 * MS
+    radio = RadioParams(path_loss={"model": "winner_b1"}, shadowing={"model": "lognormal", "sigma": 3.0},
+                        fading={"model": "nakagami", "m": 1.5}, capture=6.0)
+    med = Medium(rate=RATE, access=Edca(), preamble=PRE / 1e9, radio=radio,
+                 background=Background(arrivals="periodic", packets_per_second=20, size=300, offset="random"))
+    pos = positions([35.0 * i for i in range(n)], ticks=40)
+    presence = np.ones((40, n), dtype=bool)
+    presence[:10, 3] = presence[25:, 7] = False
+    runs = []
+    for kernels in ("numba", "numpy"):
+        env = simpy.Environment()
+        arcs = [(u, v) for u in range(n) for v in range(n) if u != v]
+        net = Network(env, arcs, lambda u, v: LinkSpec(latency=Constant(value=LAT / 1e9)), seed=4, T_ns=T,
+                      medium=med, positions=pos, presence=presence, n=n, backend=Backend(kernels))
+        got: list = []
+        port = net.port("p", lambda link, payload, got=got, env=env: got.append((env.now, link.src, link.dst, payload)))
+        for k in range(30):
+            for u in (0, 5, 11):
+                at(env, k * T + 1, lambda u=u, k=k, net=net, port=port: broadcast(net, port, u, (u, k), 200))
+        env.run(until=35 * T)
+        r = port.channel.report(port, 35 * T)
+        runs.append((got, r, port.channel.series(port, T, 35)["cbr"]))
+    (got0, r0, c0), (got1, r1, c1) = runs
+    assert got0 == got1 and r0 == r1 and np.array_equal(c0, c1)
+    assert r0["pairs"] > 5_000 and 0 < r0["pairs_received"] < r0["pairs"]

@@ -276,6 +276,14 @@ def nakagami_table(m: float) -> np.ndarray:
     return 10.0 * np.log10(np.maximum(g, 1e-300))
 
 
+def fading_table(model: object) -> np.ndarray:
+    """``model``'s fading gain (dB) on :func:`nakagami_table`'s grid of normal quantiles (what the
+    radio's kernel interpolates); no fading: an empty table."""
+    if isinstance(model, Nakagami):
+        return nakagami_table(float(model.m))
+    return np.zeros(0)
+
+
 def fading_db(model: object, u: np.ndarray, z: np.ndarray | None = None) -> np.ndarray:
     """The fading gain (dB) from uniform draws ``u`` in (0, 1) (or their normal quantiles ``z``,
     when the caller has them): the power gain of Nakagami-m is gamma of shape ``m`` and scale

@@ -150,7 +150,8 @@ class Network:
                 channel = RadioChannel(self.env, self.medium, self._member_order, self.seed, self.positions, self.T_ns,
                                        backend=self.backend, presence=self.presence)
             else:
-                channel = Channel(self.env, self.medium, self._member_order, self.seed, T_ns=self.T_ns)
+                channel = Channel(self.env, self.medium, self._member_order, self.seed, T_ns=self.T_ns,
+                                  backend=self.backend)
             store[_CHANNEL] = channel
         return channel
 

@@ -21,8 +21,9 @@ import numpy as np
 
 from dkfsim.core.jit import LazyKernels
 
-_KERNELS = ("keyed_uniform", "draws", "error_rate", "busy_ticks", "close", "start", "end")
-_lazy = LazyKernels(__name__, _KERNELS, inline=("keyed_uniform", "error_rate", "busy_ticks"))
+_KERNELS = ("keyed_uniform", "polevl", "p1evl", "ndtri", "fill", "error_rate", "busy_ticks", "close",
+            "start", "end")
+_lazy = LazyKernels(__name__, _KERNELS, inline=("keyed_uniform", "polevl", "p1evl", "error_rate", "busy_ticks"))
 
 #: Rows of ``ri``: the slot each member is locked on (-1: none), the start of its current SINR
 #: chunk, how many frames on the air it senses (its own included), since when it senses the
@@ -68,12 +69,172 @@ def keyed_uniform(key: np.uint64, t: int, seq: int) -> float:
     return (np.float64((z ^ (z >> _S31)) >> _S11) + 0.5) * _SCALE
 
 
-def draws(keys: np.ndarray, t: int, seq0: int, nodes: np.ndarray, out: np.ndarray) -> None:
-    """``out[j, r] = keyed_uniform(keys[j], t, seq0 + nodes[r])``: a frame's draws (one row per
-    stream) at every member."""
-    for j in range(len(keys)):
-        for r in range(len(nodes)):
-            out[j, r] = keyed_uniform(keys[j], t, seq0 + nodes[r])
+#: Cephes ``ndtri``'s constants and its rational approximations' coefficients (:func:`ndtri`).
+# sqrt(2*pi)
+_SQRT2PI = 2.506628274631000502415765284811045253007
+# exp(-2)
+_EXPM2 = 0.13533528323661269189
+
+# approximation for 0 <= |y - 0.5| <= 3/8
+_P0 = np.array((
+    -5.99633501014107895267E1,
+    9.80010754185999661536E1,
+    -5.66762857469070293439E1,
+    1.39312609387279679503E1,
+    -1.23916583867381258016E0,
+), dtype=np.float64)
+
+_Q0 = np.array((
+    # 1.00000000000000000000E0 (implicit, p1evl)
+    1.95448858338141759834E0,
+    4.67627912898881538453E0,
+    8.63602421390890590575E1,
+    -2.25462687854119370527E2,
+    2.00260212380060660359E2,
+    -8.20372256168333339912E1,
+    1.59056225126211695515E1,
+    -1.18331621121330003142E0,
+), dtype=np.float64)
+
+# Approximation for interval z = sqrt(-2 log y ) between 2 and 8
+# i.e., y between exp(-2) = .135 and exp(-32) = 1.27e-14.
+_P1 = np.array((
+    4.05544892305962419923E0,
+    3.15251094599893866154E1,
+    5.71628192246421288162E1,
+    4.40805073893200834700E1,
+    1.46849561928858024014E1,
+    2.18663306850790267539E0,
+    -1.40256079171354495875E-1,
+    -3.50424626827848203418E-2,
+    -8.57456785154685413611E-4,
+), dtype=np.float64)
+
+_Q1 = np.array((
+    # 1.00000000000000000000E0 (implicit, p1evl)
+    1.57799883256466749731E1,
+    4.53907635128879210584E1,
+    4.13172038254672030440E1,
+    1.50425385692907503408E1,
+    2.50464946208309415979E0,
+    -1.42182922854787788574E-1,
+    -3.80806407691578277194E-2,
+    -9.33259480895457427372E-4,
+), dtype=np.float64)
+
+# Approximation for interval z = sqrt(-2 log y ) between 8 and 64
+# i.e., y between exp(-32) = 1.27e-14 and exp(-2048) = 3.67e-890.
+_P2 = np.array((
+    3.23774891776946035970E0,
+    6.91522889068984211695E0,
+    3.93881025292474443415E0,
+    1.33303460815807542389E0,
+    2.01485389549179081538E-1,
+    1.23716634817820021358E-2,
+    3.01581553508235416007E-4,
+    2.65806974686737550832E-6,
+    6.23974539184983293730E-9,
+), dtype=np.float64)
+
+_Q2 = np.array((
+    # 1.00000000000000000000E0 (implicit, p1evl)
+    6.02427039364742014255E0,
+    3.67983563856160859403E0,
+    1.37702099489081330271E0,
+    2.16236993594496635890E-1,
+    1.34204006088543189037E-2,
+    3.28014464682127739104E-4,
+    2.89247864745380683936E-6,
+    6.79019408009981274425E-9,
+), dtype=np.float64)
+
+
+def polevl(x: float, coef: np.ndarray) -> float:
+    """Cephes ``polevl``: Horner's rule, ``coef[0]`` the highest degree's coefficient."""
+    ans = float(coef[0])
+    for i in range(1, len(coef)):
+        ans = ans * x + float(coef[i])
+    return ans
+
+
+def p1evl(x: float, coef: np.ndarray) -> float:
+    """Cephes ``p1evl``: :func:`polevl` with a leading coefficient 1 not stored."""
+    ans = x + float(coef[0])
+    for i in range(1, len(coef)):
+        ans = ans * x + float(coef[i])
+    return ans
+
+
+def ndtri(y0: float) -> float:
+    """The standard normal quantile of ``y0`` in (0, 1): Cephes ``ndtri`` as
+    ``scipy.special.ndtri`` runs it (scipy/xsf ``include/xsf/cephes/ndtri.h``, Cephes 2.1 by
+    Stephen L. Moshier), in the same operation order, so the same bits (tests/test_radio.py)."""
+    if y0 == 0.0:
+        return -math.inf
+    if y0 == 1.0:
+        return math.inf
+    if y0 < 0.0 or y0 > 1.0 or y0 != y0:
+        return math.nan
+    code = 1
+    y = y0
+    if y > (1.0 - _EXPM2):
+        y = 1.0 - y
+        code = 0
+    if y > _EXPM2:
+        y = y - 0.5
+        y2 = y * y
+        x = y + y * (y2 * polevl(y2, _P0) / p1evl(y2, _Q0))
+        return x * _SQRT2PI
+    x = math.sqrt(-2.0 * math.log(y))
+    x0 = x - math.log(x) / x
+    z = 1.0 / x
+    if x < 8.0:                             # (y > exp(-32))
+        x1 = z * polevl(z, _P1) / p1evl(z, _Q1)
+    else:
+        x1 = z * polevl(z, _P2) / p1evl(z, _Q2)
+    x = x0 - x1
+    if code != 0:
+        x = -x
+    return x
+
+
+def fill(p: np.ndarray, u: np.ndarray, slot: int, loss: np.ndarray, keys: np.ndarray, handed: int, seq0: int,
+         nodes: np.ndarray, i: int, power: float, sigma: float, table: np.ndarray, z_max: float, z_steps: float,
+         absent: np.ndarray) -> None:
+    """Slot ``slot``'s rows for a frame member ``i`` sends, handed over at ``handed``: its power
+    (mW) at every member, ``power - loss - sigma z_0 + F(z_1)`` dBm, and its decision draws
+    ``u[slot]``.  Each member's three keyed draws (``keys``: shadowing, fading, decision; at
+    ``(handed, seq0 + node)``) are made whether used or not; ``z_j`` is the normal quantile of
+    draw ``j`` (:func:`ndtri`); ``F`` interpolates ``table``, the fading gain (dB) on the grid
+    ``z = -z_max .. z_max`` in steps of ``1 / z_steps`` (no fading: fewer than two points).  The
+    sender's own entry is 0; a member off the road (``absent``) gets -1 (no pair), and every
+    member does when the sender itself is off the road."""
+    m = len(nodes)
+    nt = len(table)
+    for r in range(m):
+        seq = seq0 + nodes[r]
+        dbm = power - loss[r]
+        if sigma > 0.0:
+            dbm -= sigma * ndtri(keyed_uniform(keys[0], handed, seq))
+        if nt > 1:
+            z = ndtri(keyed_uniform(keys[1], handed, seq))
+            z = -z_max if z < -z_max else (z_max if z > z_max else z)
+            x = (z + z_max) * z_steps
+            j = int(x)
+            if j > nt - 2:
+                j = nt - 2
+            lo = table[j]
+            dbm += lo + (x - j) * (table[j + 1] - lo)
+        p[slot, r] = 10.0 ** (dbm / 10.0)
+        u[slot, r] = keyed_uniform(keys[2], handed, seq)
+    p[slot, i] = 0.0
+    if absent[i]:
+        for r in range(m):
+            p[slot, r] = -1.0
+    else:
+        for r in range(m):
+            if absent[r]:
+                p[slot, r] = -1.0
 
 
 def error_rate(kind: int, tab_x: np.ndarray, tab_y: np.ndarray, sinr_db: float) -> float:

@@ -59,6 +59,9 @@ class BackgroundArrivals:
             self.offset_ns = seconds_to_ns(spec.offset)
         self._times = np.empty(0, dtype=np.int64)
         self._sizes = np.empty(0, dtype=np.int64)
+        #: the block's instants and sizes as Python ints (a radio takes one packet at a time)
+        self._tl: list[int] = []
+        self._sl: list[int] = []
         self._drawn = 0          # packets drawn so far
         self._last = 0           # instant of the last packet drawn (the Poisson gaps' origin)
         self._pos = 0            # position of the next packet in the block
@@ -80,6 +83,7 @@ class BackgroundArrivals:
         else:
             sizes = np.full(BLOCK, spec.size)
         self._times, self._sizes = times, sizes.astype(np.int64)
+        self._tl, self._sl = self._times.tolist(), self._sizes.tolist()
         self._last, self._drawn, self._pos = int(times[-1]), lo + BLOCK, 0
 
     def next_block(self) -> tuple[np.ndarray, np.ndarray]:
@@ -94,22 +98,20 @@ class BackgroundArrivals:
 
     def next_time(self) -> int:
         """The instant of the next packet not yet taken."""
-        if self._pos >= len(self._times):
+        if self._pos >= len(self._tl):
             self._draw_block()
-        return int(self._times[self._pos])
+        return self._tl[self._pos]
 
-    def until(self, t_ns: int) -> tuple[list[int], list[int]]:
-        """The packets not yet taken whose instant is ``<= t_ns``: (instants, sizes), in order."""
-        times_out: list[int] = []
-        sizes_out: list[int] = []
+    def until(self, t_ns: int) -> list[int]:
+        """The sizes of the packets not yet taken whose instant is ``<= t_ns``, in order, taken now."""
+        sizes: list[int] = []
         while True:
-            if self._pos >= len(self._times):
+            if self._pos >= len(self._tl):
                 self._draw_block()
-            times = self._times
-            end = int(np.searchsorted(times, t_ns, side="right"))
-            if end > self._pos:
-                times_out.extend(times[self._pos:end].tolist())
-                sizes_out.extend(self._sizes[self._pos:end].tolist())
-                self._pos = end
-            if end < len(times):
-                return times_out, sizes_out
+            times, pos = self._tl, self._pos
+            while pos < len(times) and times[pos] <= t_ns:
+                sizes.append(self._sl[pos])
+                pos += 1
+            self._pos = pos
+            if pos < len(times):
+                return sizes

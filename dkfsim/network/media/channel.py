@@ -34,6 +34,7 @@ from typing_extensions import override
 
 from dkfsim.components.medium import Medium as MediumSpec
 from dkfsim.components.traffic import transmission_ns
+from dkfsim.core.backend import Backend
 from dkfsim.core.params import MAX_NS, NS_PER_S, seconds_to_ns
 from dkfsim.core.registry import MEDIA
 from dkfsim.core.streams import key64, keyed_uniform
@@ -118,6 +119,7 @@ class Channel(Medium):
     :param index: the channel's number ``c`` in its draws' keys (one channel: 0).
     :param record: keep ``(node, start, end, ok, background)`` of every frame that ended
         (:attr:`ended`; for the checks of the access rule).
+    :param backend: the run's kernel path (default: the environment's).
     """
 
     kind = "channel"
@@ -128,8 +130,10 @@ class Channel(Medium):
     overlapping: ClassVar[bool] = False
 
     def __init__(self, env: Any, spec: MediumSpec, members: tuple[int, ...], seed: int, index: int = 0,
-                 record: bool = False, T_ns: int = 0):
+                 record: bool = False, T_ns: int = 0, backend: Backend | None = None):
         self.env = env
+        #: the run's kernel path (an access rule's kernels compiled or not)
+        self.backend = backend if backend is not None else Backend.from_environment()
         self.spec = spec
         self.rate, self.preamble = float(spec.rate), seconds_to_ns(spec.preamble)
         self.max_packets = spec.queue.packets if spec.queue is not None else None
@@ -297,10 +301,10 @@ class Channel(Medium):
         radio = self.radios[node]
         bg = radio.background
         assert bg is not None
-        _, sizes = bg.until(ta)
+        sizes = bg.until(ta)
         if self.sends(node, ta):
             for size in sizes:
-                if not self._arrive(radio, Frame(node, int(size), ta), ta):
+                if not self._arrive(radio, Frame(node, size, ta), ta):
                     self._dropped.append(ta)
         heappush(self._arrivals, (bg.next_time(), node))
 

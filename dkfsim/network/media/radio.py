@@ -35,13 +35,13 @@ from typing_extensions import override
 
 from dkfsim.components.medium import Medium as MediumSpec
 from dkfsim.components.radio import (
-    NoFading,
-    NoShadowing,
+    Z_MAX,
+    Z_STEPS,
+    Lognormal,
     PerTable,
-    fading_db,
+    fading_table,
     normal_quantiles,
     path_loss_db,
-    shadowing_db,
 )
 from dkfsim.core.backend import Backend
 from dkfsim.core.jit import bind
@@ -71,9 +71,28 @@ def reception_rule(model: Any) -> tuple[int, np.ndarray, np.ndarray]:
     return rk.THRESHOLD, np.array([model.sinr]), np.zeros(1)
 
 
-def _draws(keys: np.ndarray, t: int, seq0: int, nodes: np.ndarray, out: np.ndarray) -> None:
-    """:func:`~dkfsim.network.radio_kernels.draws` on the numpy path: the same bits, vectorised."""
-    out[:] = keyed_uniforms(keys[:, None], t, seq0 + nodes)
+def _fill(p: np.ndarray, u: np.ndarray, slot: int, loss: np.ndarray, keys: np.ndarray, handed: int, seq0: int,
+          nodes: np.ndarray, i: int, power: float, sigma: float, table: np.ndarray, z_max: float, z_steps: float,
+          absent: np.ndarray) -> None:
+    """:func:`~dkfsim.network.radio_kernels.fill` on the numpy path: the same bits, vectorised
+    over the members (tests/test_radio.py)."""
+    draws = keyed_uniforms(keys[:, None], handed, seq0 + nodes)        # (shadow, fade, rx) x members
+    dbm = power - loss
+    if sigma > 0.0:
+        dbm = dbm - sigma * normal_quantiles(draws[0])
+    if len(table) > 1:
+        x = (np.clip(normal_quantiles(draws[1]), -z_max, z_max) + z_max) * z_steps
+        j = np.minimum(x.astype(np.int64), len(table) - 2)
+        lo = table[j]
+        dbm = dbm + (lo + (x - j) * (table[j + 1] - lo))
+    row = p[slot]
+    row[:] = [10.0 ** x for x in (dbm / 10.0).tolist()]       # (the C library's pow, as compiled: not numpy's)
+    row[i] = 0.0
+    if absent[i]:
+        row[:] = -1.0
+    else:
+        row[absent] = -1.0
+    u[slot] = draws[2]
 
 
 class RadioChannel(Channel):
@@ -99,25 +118,28 @@ class RadioChannel(Channel):
         radio = spec.radio
         assert radio is not None
         self.params = radio
-        super().__init__(env, spec, members, seed, index, record, T_ns)
-        backend = backend if backend is not None else Backend.from_environment()
+        super().__init__(env, spec, members, seed, index, record, T_ns, backend)
+        backend = self.backend
         k = rk.compiled() if backend.compiled else rk
         m = len(members)
         self.nodes = np.asarray(members, dtype=np.int64)
         self.pos_of = {node: i for i, node in enumerate(members)}
         self.positions = np.asarray(positions, dtype=np.float64)[:, list(members), :]
-        #: whether each member is off the road at each tick (None: none ever is); one that is
-        #: sends nothing and is no receiver
-        self.absent = None if presence is None or bool(np.all(presence)) else \
+        #: whether each member is off the road at each tick; one that is sends nothing and is no
+        #: receiver
+        self.absent = np.zeros((len(self.positions), m), dtype=np.bool_) if presence is None else \
             ~np.asarray(presence, dtype=bool)[:, list(members)]
+        self._anyone_absent = bool(self.absent.any())
         self.noise, self.sens, self.cs = _mw(radio.noise), _mw(radio.sensitivity), _mw(radio.carrier_sense)
-        self._both = not isinstance(radio.shadowing, NoShadowing) and not isinstance(radio.fading, NoFading)
+        #: shadowing's sigma (dB; 0: none) and the fading gain (dB) tabulated against the normal
+        #: quantile (:func:`~dkfsim.components.radio.fading_table`; fewer than two points: none)
+        self.sigma = radio.shadowing.sigma if isinstance(radio.shadowing, Lognormal) else 0.0
+        self.fade_table = fading_table(radio.fading)
         self.capture = 0.0 if radio.capture is None else _mw(radio.capture)
         self.rule = reception_rule(radio.reception)
         #: per member: the keys of its frames' shadowing, fading and decision draws
         self._keys = {node: np.array([key64(seed, "radio", index, node, what) for what in ("shadow", "fade", "rx")],
                                      dtype=np.uint64) for node in members}
-        self._u3 = np.zeros((3, m))
         #: per sender: (hand-over instant, frames started with it) for the draws' keys
         self._keyed: dict[int, tuple[int, int]] = {}
         self.ri = np.zeros((rk.NRI, m), dtype=np.int64)
@@ -144,8 +166,8 @@ class RadioChannel(Channel):
         kind, tab_x, tab_y = self.rule
         i1 = np.zeros(1, dtype=np.int64)
         self._close = bind(k.close, self.ri, self.rf, kind, tab_x, tab_y, 1.0, 0)
-        self._draws = bind(k.draws, self._keys[members[0]], 0, 0, self.nodes, self._u3) if backend.compiled \
-            else _draws
+        self._fill_k = bind(k.fill, self.p, self.u, 0, np.zeros(m), self._keys[members[0]], 0, 0, self.nodes, 0, 1.0,
+                            1.0, self.fade_table, 1.0, 1.0, self.absent[0]) if backend.compiled else _fill
         self._start_k = bind(k.start, self.ri, self.rf, self.p, self.fate, self.sensed, self.si, i1, 0, 1.0, 1.0,
                              1.0, self._went)
         self._end_k = bind(k.end, self.ri, self.rf, self.p, self.d, self.u, self.fate, self.sensed, self.si, i1, 0,
@@ -188,38 +210,22 @@ class RadioChannel(Channel):
 
     # ------------------------------------------------------------------ the air
     def _fill(self, slot: int, node: int, i: int, handed: int, seq0: int, ts: int) -> None:
-        """Slot ``slot``'s rows for a frame sent by ``node`` (member ``i``) at ``ts``: its power (mW)
-        and distance at every member, and its decision draws."""
+        """Slot ``slot``'s rows for a frame sent by ``node`` (member ``i``) at ``ts``: its distance
+        to every member and the path loss there (the model's, vectorised), then its power (mW) and
+        decision draws (:func:`~dkfsim.network.radio_kernels.fill`)."""
         rp = self.params
         k = min(ts // self.T_ns, len(self.positions) - 1)
         xy = self.positions[k]
         d = np.hypot(xy[:, 0] - xy[i, 0], xy[:, 1] - xy[i, 1], out=self.d[slot])
-        dbm = rp.power - path_loss_db(rp.path_loss, d, rp.frequency)
-        draws = self._u3
-        self._draws(self._keys[node], handed, seq0, self.nodes, draws)         # (shadow, fade, rx) x members
-        if self._both:                      # (one normal quantile call for both rows)
-            z = normal_quantiles(draws[:2])
-            dbm = dbm - shadowing_db(rp.shadowing, draws[0], z[0]) + fading_db(rp.fading, draws[1], z[1])
-        else:
-            if not isinstance(rp.shadowing, NoShadowing):
-                dbm = dbm - shadowing_db(rp.shadowing, draws[0])
-            if not isinstance(rp.fading, NoFading):
-                dbm = dbm + fading_db(rp.fading, draws[1])
-        p = self.p[slot]
-        np.power(10.0, dbm / 10.0, out=p)
-        p[i] = 0.0
-        if self.absent is not None:
-            if not self.absent[k, i]:
-                p[self.absent[k]] = -1.0        # (off the road: no receiver)
-            else:
-                p[:] = -1.0                     # (a frame queued before its sender left: nobody hears it)
-        self.u[slot] = draws[2]
+        loss = path_loss_db(rp.path_loss, d, rp.frequency)
+        self._fill_k(self.p, self.u, slot, loss, self._keys[node], handed, seq0, self.nodes, i, rp.power,
+                     self.sigma, self.fade_table, Z_MAX, float(Z_STEPS), self.absent[k])
 
     @override
     def sends(self, node: int, t: int) -> bool:
         """A member off the road at ``t`` sends none of its background then."""
         absent = self.absent
-        return absent is None or not absent[min(t // self.T_ns, len(absent) - 1), self.pos_of[node]]
+        return not self._anyone_absent or not absent[min(t // self.T_ns, len(absent) - 1), self.pos_of[node]]
 
     @override
     def _start(self, ts: int) -> None:
@@ -252,7 +258,7 @@ class RadioChannel(Channel):
             self._periods.extend((ts, frame.end, 1, frame.done is None, 0))
         went = self._start_k(self.ri, self.rf, self.p, self.fate, self.sensed, self.si, slots, ts, self.sens,
                              self.cs, self.capture, self._went)
-        self.slotted.busy(self._went[:went].copy(), ts)
+        self.slotted.busy(self._went, ts, went)
         self._next_end = min(f.end for f in self.on_air)
 
     @override
@@ -267,10 +273,7 @@ class RadioChannel(Channel):
         frames = [self._slot_of.pop(slot) for slot in ending]
         if not self._slot_of:
             self.rf[rk.TOTAL] = 0.0             # (nothing on the air: no rounding left over)
-        idle = self._went[:went].copy()
-        error = self.ri[rk.RXERR, idle].astype(bool)
-        self.slotted.clear(idle, te, error)
-        self.ri[rk.RXERR, idle] = 0
+        self.slotted.clear(self._went, te, self.ri[rk.RXERR], went)     # (their errors read and cleared)
         self.on_air = [f for f in self.on_air if f.end != te]
         self._next_end = min((f.end for f in self.on_air), default=NEVER)
         radios, access, nodes = self.radios, self.access, self.nodes

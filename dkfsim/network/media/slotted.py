@@ -28,8 +28,10 @@ import numpy as np
 from typing_extensions import override
 
 from dkfsim.components.medium import Edca
+from dkfsim.core.jit import bind
 from dkfsim.core.registry import MEDIA
 from dkfsim.core.streams import key64, keyed_uniform
+from dkfsim.network import slotted_kernels as sk
 from dkfsim.network.media.channel import NEVER, Access, Channel, Radio
 
 
@@ -84,8 +86,17 @@ class SlottedAccess(Access):
         self._all = np.arange(m)
         #: the radios that started last (one domain: they sensed no error, they sent)
         self._started = np.zeros(0, dtype=np.int64)
+        self._out = np.zeros(m, dtype=np.int64)
+        #: each radio's "its last frame received was in error" for one domain (kept all 0 but
+        #: after a collision)
+        self._no_error = np.zeros(m, dtype=np.int64)
         #: the earliest ``due`` (-1: to be worked out again)
         self._best = -1
+        k = sk.compiled() if channel.backend.compiled else sk
+        state = (self.idle_at, self.origin, self.count, self.due, self.head_on)
+        self._busy = bind(k.busy, *state, self._all, 0, 0, 1, NEVER)
+        self._clear = bind(k.clear, *state, self._all, 0, 0, 1, 1, 1, self._no_error)
+        self._start = bind(k.start, self.due, self.head_on, self.count, 0, NEVER, self._out)
 
     def draw(self, i: int, t: int) -> int:
         """A backoff uniform in ``0 .. cw`` for radio ``i`` at ``t`` (:meth:`Backoff.draw`)."""
@@ -110,38 +121,22 @@ class SlottedAccess(Access):
         """Radio ``i``'s head frame arrived at ``t`` (its medium idle or not): set its count."""
         raise NotImplementedError
 
-    def busy(self, nodes: np.ndarray | None, t: int) -> None:
-        """The radios at positions ``nodes`` (None: all) sense the medium busy from ``t``: each
-        idle one's count keeps the boundaries not passed before ``t``."""
+    def busy(self, nodes: np.ndarray | None, t: int, n: int = -1) -> None:
+        """The radios at positions ``nodes[:n]`` (None: all; ``n`` -1: every one of ``nodes``)
+        sense the medium busy from ``t``: each idle one's count keeps the boundaries not passed
+        before ``t`` (:func:`~dkfsim.network.slotted_kernels.busy`)."""
         sel = self._all if nodes is None else nodes
-        sel = sel[self.idle_at[sel] >= 0]
-        if not len(sel):
-            return
-        self.idle_at[sel] = -1
-        self.due[sel] = NEVER
-        self._best = -1
-        pend = sel[self.count[sel] >= 0]        # (those counting a backoff)
-        if len(pend):
-            c = self.count[pend]
-            origin = self.origin[pend]
-            left = c - np.where(t <= origin, 0, -((origin - t) // self.slot))
-            # a post-backoff that ran out with no frame to send is over; a head keeps what is left
-            self.count[pend] = np.where(self.head_on[pend], np.maximum(left, 0), np.where(left > 0, left, -1))
+        if self._busy(self.idle_at, self.origin, self.count, self.due, self.head_on, sel,
+                      len(sel) if n < 0 else n, t, self.slot, NEVER):
+            self._best = -1
 
-    def clear(self, nodes: np.ndarray, t: int, error: np.ndarray | None = None) -> None:
-        """The radios at positions ``nodes`` sense the medium idle from ``t`` (``error``: those
-        whose last frame received was in error count from ``t + eifs``)."""
-        if not len(nodes):
-            return
-        self.idle_at[nodes] = t
-        if error is None or not error.any():
-            self.origin[nodes] = t + self.aifs
-        else:
-            self.origin[nodes] = t + np.where(error, self.eifs, self.aifs)
-        heads = nodes[self.head_on[nodes]]     # (a radio sensing the medium busy has no due instant)
-        if len(heads):
-            c, origin = self.count[heads], self.origin[heads]
-            self.due[heads] = np.where(c >= 0, origin + c * self.slot, origin)
+    def clear(self, nodes: np.ndarray, t: int, error: np.ndarray | None = None, n: int = -1) -> None:
+        """The radios at positions ``nodes[:n]`` (``n`` -1: every one) sense the medium idle from
+        ``t`` (``error``, over every radio: those whose last frame received was in error count from
+        ``t + eifs``; read and cleared; :func:`~dkfsim.network.slotted_kernels.clear`)."""
+        if self._clear(self.idle_at, self.origin, self.count, self.due, self.head_on, nodes,
+                       len(nodes) if n < 0 else n, t, self.slot, self.aifs, self.eifs,
+                       self._no_error if error is None else error):
             self._best = -1
 
     @override
@@ -150,8 +145,8 @@ class SlottedAccess(Access):
         every radio but those that sent."""
         error = None
         if self.channel.collided and self.eifs != self.aifs:
-            error = np.ones(len(self.radios), dtype=bool)
-            error[self._started] = False
+            error = np.ones(len(self.radios), dtype=np.int64)
+            error[self._started] = 0
         self.clear(self._all, te, error)
 
     @override
@@ -166,12 +161,9 @@ class SlottedAccess(Access):
 
     @override
     def start(self, ts: int) -> list[Radio]:
-        sel = np.flatnonzero(self.due == ts)
-        self.head_on[sel] = False
-        self.due[sel] = NEVER
+        n = self._start(self.due, self.head_on, self.count, ts, NEVER, self._out)
         self._best = -1
-        self.count[sel] = -1
-        self._started = sel
+        sel = self._started = self._out[:n].copy()
         radios = self.radios
         return [radios[i] for i in sel.tolist()]
 
