@@ -17,7 +17,7 @@ import numpy as np
 
 from dkfsim.core.jit import LazyKernels
 
-_KERNELS = ("busy", "clear", "start")
+_KERNELS = ("busy", "clear", "start", "first_air")
 _lazy = LazyKernels(__name__, _KERNELS)
 
 
@@ -84,3 +84,12 @@ def start(due: np.ndarray, head_on: np.ndarray, count: np.ndarray, ts: int, neve
             out[n] = r
             n += 1
     return n
+
+
+def first_air(due: np.ndarray, air: np.ndarray, ts: int) -> int:
+    """The shortest airtime of the radios due at ``ts`` (-1: none)."""
+    best = -1
+    for r in range(len(due)):
+        if due[r] == ts and (best < 0 or air[r] < best):
+            best = air[r]
+    return best

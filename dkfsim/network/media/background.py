@@ -47,8 +47,11 @@ class BackgroundArrivals:
     or radio); exponential sizes ``max(1, round(-ln(v_i) * size))``.
     """
 
-    def __init__(self, spec: Background, prefix: tuple, seed: int):
+    def __init__(self, spec: Background, prefix: tuple, seed: int, first_block: int = BLOCK):
         self.spec = spec
+        #: packets of the next block drawn: ``first_block``, doubling up to :data:`BLOCK` (a
+        #: radio among hundreds that a short run hears send a few times draws few)
+        self._block = max(1, min(first_block, BLOCK))
         #: the keys of the arrival gaps (or nothing, periodic) and of the sizes
         self.gap_key, self.size_key = background_keys(prefix, seed)
         #: a periodic process's first instant: ``offset``, or with ``random`` a keyed uniform over
@@ -67,9 +70,10 @@ class BackgroundArrivals:
         self._pos = 0            # position of the next packet in the block
 
     def _draw_block(self) -> None:
-        spec, lo = self.spec, self._drawn
-        idx = np.arange(lo, lo + BLOCK, dtype=np.int64)
-        zeros = np.zeros(BLOCK, dtype=np.int64)
+        spec, lo, n = self.spec, self._drawn, self._block
+        self._block = min(2 * n, BLOCK)
+        idx = np.arange(lo, lo + n, dtype=np.int64)
+        zeros = np.zeros(n, dtype=np.int64)
         period = NS_PER_S / spec.packets_per_second
         if spec.arrivals == "poisson":
             gaps = np.floor(-_log(keyed_uniforms(self.gap_key, idx, zeros)) * period + 0.5)
@@ -81,10 +85,10 @@ class BackgroundArrivals:
         if spec.sizes == "exponential":
             sizes = np.maximum(1, np.floor(-_log(keyed_uniforms(self.size_key, idx, zeros)) * spec.size + 0.5))
         else:
-            sizes = np.full(BLOCK, spec.size)
+            sizes = np.full(n, spec.size)
         self._times, self._sizes = times, sizes.astype(np.int64)
         self._tl, self._sl = self._times.tolist(), self._sizes.tolist()
-        self._last, self._drawn, self._pos = int(times[-1]), lo + BLOCK, 0
+        self._last, self._drawn, self._pos = int(times[-1]), lo + n, 0
 
     def next_block(self) -> tuple[np.ndarray, np.ndarray]:
         """The next :data:`BLOCK` packets not yet taken, taken now: (instants, sizes) int64 --

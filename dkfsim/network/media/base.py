@@ -17,7 +17,7 @@ A new medium is one subclass, registered in :data:`~dkfsim.core.registry.MEDIA`
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from typing import Any, ClassVar
 
 import numpy as np
@@ -29,8 +29,8 @@ class Frame:
     (``done(frame, ok)``; None: a background frame, nobody's); ``start`` and ``end`` of its
     transmission once it has one, ``owner`` the port whose frame it is (None: background);
     ``lost_at``, set by a medium whose receivers decide each for itself (a spatial radio) before
-    ``done(frame, True)``: receiver node -> whether it lost the frame to a collision, for every
-    receiver that lost it (None: every receiver got it)."""
+    ``done(frame, True)``: a mapping receiver node -> whether it lost the frame to a collision,
+    holding every receiver that lost it (None: every receiver got it)."""
 
     __slots__ = ("node", "size", "handed", "parts", "done", "start", "end", "owner", "lost_at")
 
@@ -39,7 +39,7 @@ class Frame:
         self.node, self.size, self.handed, self.parts, self.done = node, size, handed, parts, done
         self.owner = owner
         self.start = self.end = -1
-        self.lost_at: dict[int, bool] | None = None
+        self.lost_at: Mapping[int, bool] | None = None
 
 
 class Medium:

@@ -146,7 +146,7 @@ class Channel(Medium):
         self._arrivals: list[tuple[int, int]] = []
         for node in members:
             prefix = ("channel", index, node)
-            bg = BackgroundArrivals(spec.background, prefix, seed) if spec.background is not None else None
+            bg = BackgroundArrivals(spec.background, prefix, seed, first_block=8) if spec.background is not None else None
             self.radios[node] = Radio(node, bg)
             if bg is not None:
                 self._arrivals.append((bg.next_time(), node))

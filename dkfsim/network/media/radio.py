@@ -28,6 +28,7 @@ senses the medium busy (its own transmissions included).
 from __future__ import annotations
 
 from array import array
+from collections.abc import Iterator, Mapping
 from typing import Any
 
 import numpy as np
@@ -95,6 +96,37 @@ def _fill(p: np.ndarray, u: np.ndarray, slot: int, loss: np.ndarray, keys: np.nd
     u[slot] = draws[2]
 
 
+class Losses(Mapping[int, bool]):
+    """A frame's :attr:`~dkfsim.network.media.base.Frame.lost_at` on the radio: receiver node ->
+    whether it lost the frame to a collision, for the members that lost it, read from the
+    frame's fates (a copy): a port asks only of its links' receivers, so nothing is built for
+    the hundreds of others."""
+
+    __slots__ = ("fate", "pos_of", "nodes")
+
+    def __init__(self, fate: np.ndarray, pos_of: dict[int, int], nodes: np.ndarray):
+        self.fate, self.pos_of, self.nodes = fate, pos_of, nodes
+
+    def __getitem__(self, node: int) -> bool:
+        i = self.pos_of.get(node)
+        if i is None or self.fate[i] in (rk.RECEIVED, rk.SENDER):
+            raise KeyError(node)
+        return bool(self.fate[i] == rk.COLLISION)
+
+    def __contains__(self, node: object) -> bool:
+        i = self.pos_of.get(node) if isinstance(node, int) else None
+        return i is not None and self.fate[i] not in (rk.RECEIVED, rk.SENDER)
+
+    def _lost(self) -> np.ndarray:
+        return np.flatnonzero((self.fate != rk.RECEIVED) & (self.fate != rk.SENDER))
+
+    def __iter__(self) -> Iterator[int]:
+        return iter(self.nodes[self._lost()].tolist())
+
+    def __len__(self) -> int:
+        return len(self._lost())
+
+
 class RadioChannel(Channel):
     """One copy of the spatial radio channel (see the module).
 
@@ -125,6 +157,8 @@ class RadioChannel(Channel):
         self.nodes = np.asarray(members, dtype=np.int64)
         self.pos_of = {node: i for i, node in enumerate(members)}
         self.positions = np.asarray(positions, dtype=np.float64)[:, list(members), :]
+        #: their x and y, each contiguous per tick
+        self._x, self._y = np.ascontiguousarray(self.positions[:, :, 0]), np.ascontiguousarray(self.positions[:, :, 1])
         #: whether each member is off the road at each tick; one that is sends nothing and is no
         #: receiver
         self.absent = np.zeros((len(self.positions), m), dtype=np.bool_) if presence is None else \
@@ -214,9 +248,9 @@ class RadioChannel(Channel):
         to every member and the path loss there (the model's, vectorised), then its power (mW) and
         decision draws (:func:`~dkfsim.network.radio_kernels.fill`)."""
         rp = self.params
-        k = min(ts // self.T_ns, len(self.positions) - 1)
-        xy = self.positions[k]
-        d = np.hypot(xy[:, 0] - xy[i, 0], xy[:, 1] - xy[i, 1], out=self.d[slot])
+        k = min(ts // self.T_ns, len(self._x) - 1)
+        x, y = self._x[k], self._y[k]
+        d = np.hypot(x - x[i], y - y[i], out=self.d[slot])
         loss = path_loss_db(rp.path_loss, d, rp.frequency)
         self._fill_k(self.p, self.u, slot, loss, self._keys[node], handed, seq0, self.nodes, i, rp.power,
                      self.sigma, self.fade_table, Z_MAX, float(Z_STEPS), self.absent[k])
@@ -282,13 +316,12 @@ class RadioChannel(Channel):
             self._free.append(slot)
             radio = radios[frame.node]
             radio.on_air = None
-            if frame.done is not None or self.ended is not None:       # (not a background frame's)
-                lost = np.flatnonzero((fate != rk.RECEIVED) & (fate != rk.SENDER))
             if self.ended is not None:
+                lost = np.flatnonzero((fate != rk.RECEIVED) & (fate != rk.SENDER))
                 self.ended.append((frame.node, frame.start, frame.end, len(lost) < len(nodes) - 1, frame.done is None))
             if frame.done is not None:
                 self.pending -= 1
-                frame.lost_at = dict(zip(nodes[lost].tolist(), (fate[lost] == rk.COLLISION).tolist()))
+                frame.lost_at = Losses(fate.copy(), self.pos_of, nodes)
                 own = self._owned.get(frame.owner)
                 if own is None:
                     own = self._owned[frame.owner] = array("q")

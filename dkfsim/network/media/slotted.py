@@ -97,6 +97,7 @@ class SlottedAccess(Access):
         self._busy = bind(k.busy, *state, self._all, 0, 0, 1, NEVER)
         self._clear = bind(k.clear, *state, self._all, 0, 0, 1, 1, 1, self._no_error)
         self._start = bind(k.start, self.due, self.head_on, self.count, 0, NEVER, self._out)
+        self._first_air = bind(k.first_air, self.due, self.air, 0)
 
     def draw(self, i: int, t: int) -> int:
         """A backoff uniform in ``0 .. cw`` for radio ``i`` at ``t`` (:meth:`Backoff.draw`)."""
@@ -157,7 +158,7 @@ class SlottedAccess(Access):
 
     @override
     def next_airtime(self) -> int:
-        return int(self.air[self.due == self.next_start()].min())
+        return int(self._first_air(self.due, self.air, self.next_start()))
 
     @override
     def start(self, ts: int) -> list[Radio]:
