@@ -327,10 +327,13 @@ def excluded_resources(sensed: float, n: float) -> float:
     """Eq. (29) (and (33)), ``N_e``: the resources a vehicle excludes when it senses ``sensed``
     vehicles, ``S/2 + sum_{k=1}^{floor(S/2)} max(1 - k / (N - S/2), 0)`` -- half of them on
     resources of their own, each of the other half on a resource not yet counted with the
-    probability in the sum."""
+    probability in the sum.  Below ``N`` for ``S < 2 N`` (where it grows with ``S``); beyond, the
+    sum exceeds ``N``: kept as the implementation evaluates it (only Step 3 gets there, at its
+    doubled ``S``, and its loop reads it as too few resources left and raises the threshold)."""
     half = sensed / 2.0
     k = np.arange(1, int(math.floor(half)) + 1, dtype=np.float64)
-    return half + float(np.maximum(1.0 - k / (n - half), 0.0).sum())
+    with np.errstate(divide="ignore"):
+        return half + float(np.maximum(1.0 - k / (n - half), 0.0).sum())
 
 
 def cbr(beta: float, lam: float, power: float, subchannels: int, p: Paper = PAPER) -> float:
