@@ -46,14 +46,16 @@ path loss                   WINNER+ B1 LOS, f = 5.91 GHz, both antennas 1.5 m, n
                             environment height (effective heights 1.5 m, breakpoint     get_PL_SH
                             4 h h f / c = 177.3 m), floored at free space, d >= 3 m
 shadowing sigma             3 dB, log-normal, the same for every link                   impl.
-transmit power P_t          20 or 23 dBm (the paper's configurations)                   run_all
+road, density beta          one line of vehicles 1 / beta m apart; 0.1, 0.2, 0.3        run_all
+                            vehicles/m (100, 200, 300 per km)
+packets                     190 bytes, lam = 10 or 20 Hz, periodic                      run_all
+transmit power P_t          20 or 23 dBm                                                run_all
 sensing threshold P_sen     -90.5 dBm (a packet below it is not received: eq. (10))     impl.
 noise                       -95 dBm over the 50 RBs of 10 MHz (9 dB noise figure),      impl.
                             scaled to the RBs of the data: -95 - 10 log10(50 / RBs)
-MCS / sub-channels S        190 B: S = 4 -> QPSK r = 0.7 in 10 data RBs (BLER table     impl. (the
-                            ``QPSK_R07``); S = 2 -> QPSK r = 0.5, 12 RBs (``QPSK_R05``)  paper's
-                                                                                        table)
-BLER(SINR)                  3GPP R1-160284 (Huawei, "DMRS enhancement of V2V"), 190 B,  get_BLER
+MCS / sub-channels S        190 B: S = 4 -> QPSK r = 0.7 in 10 data RBs (BLER table     impl.
+                            ``QPSK_R07``); S = 2 -> QPSK r = 0.5, 12 RBs (``QPSK_R05``)  CV2XMode4
+BLER(SINR)                  3GPP R1-160284 ("DMRS enhancement of V2V"), 190 B,          get_BLER
                             280 km/h relative speed, read off as the implementation
                             does: linear in between, 1 below the first point, 1e-4
                             above 20 dB
@@ -81,8 +83,9 @@ reservation length tau      transmissions on one reservation: E[reselection coun
                             10..30 at 50 ms, 25..75 at 20 ms (3GPP); p_keep = 0 gives
                             tau = 10 at 10 Hz (and 20 at 20 Hz), the implementation's
                             tau = lam
-sensing window              1000 ms: enters only through the assumption that every
-                            current reservation of a sensed vehicle is known (eq. (24))
+sensing window              1000 ms (3GPP): not a parameter of the model; our reading:   ours
+                            eq. (24) assumes it holds every current reservation of a
+                            sensed vehicle
 Step 3                      the threshold raised in 0.1 dB steps from P_sen until       (32),(33)
                             N_a >= N_c, with S = 2 beta sum PSR_n (eq. (32.1) as the    (31)
                             implementation evaluates it); p_sim as eq. (23) with that
