@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import json
 import math
+import time
 from pathlib import Path
 
 import numpy as np
@@ -69,8 +70,10 @@ def size_of(ref: dict) -> int:
     return int(size)
 
 
-def run_dkfsim(ref: dict, seed: int = 1) -> dict:
-    """The configuration of ``ref`` on dkfsim's radio: the channel block of the port's counts."""
+def run_dkfsim(ref: dict, seed: int = 1, cpu: list | None = None) -> dict:
+    """The configuration of ``ref`` on dkfsim's radio: the channel block of the port's counts
+    (``cpu``: the process CPU seconds of the run and its counts appended, what ns-3's timing
+    covers -- the frames scheduled and run, the vehicles' set-up excluded; tools/bench.py)."""
     cfg = ref["config"]
     pos = np.asarray(ref["positions"], dtype=np.float64)
     n = len(pos)
@@ -103,8 +106,12 @@ def run_dkfsim(ref: dict, seed: int = 1) -> dict:
                     port.send_frame([(net.link(u, v), k, size) for v in range(n) if v != u], size)
                 yield env.timeout(T_ns)
         env.process(rounds())
+    t0 = time.process_time()
     env.run(until=end_ns)
-    return port.counts()["channel"]
+    counts = port.counts()["channel"]
+    if cpu is not None:
+        cpu.append(time.process_time() - t0)
+    return counts
 
 
 def run_all(ref: dict, runs: int | None = None) -> dict:

@@ -289,13 +289,15 @@ def test_the_normal_quantile_is_scipys_bit_for_bit_compiled_or_not():
 @settings(max_examples=25, deadline=None)
 @given(seed=st.integers(0, 10**9), m=st.integers(2, 60), sigma=st.sampled_from([0.0, 3.0, 8.0]),
        fading=st.sampled_from([None, 0.5, 1.5, 3.0]), away=st.integers(0, 3), handed=st.integers(0, 2**50))
-def test_the_compiled_fill_is_the_numpy_fill_bit_for_bit(seed, m, sigma, fading, away, handed):
+def test_the_compiled_fill_is_the_python_fill_bit_for_bit(seed, m, sigma, fading, away, handed):
     """A frame's powers and decision draws at every member (keyed shadowing, Nakagami fading by
-    its table, members off the road) are the same bits on both kernel paths."""
+    its table, members off the road) are the same bits compiled and as Python (the numpy path),
+    and the draws are :func:`dkfsim.core.streams.keyed_uniforms`'."""
+    import warnings
+
     from dkfsim.components.radio import Z_MAX, Z_STEPS, Nakagami, NoFading, fading_table
-    from dkfsim.core.streams import key64
+    from dkfsim.core.streams import key64, keyed_uniforms
     from dkfsim.network import radio_kernels as rk
-    from dkfsim.network.media.radio import _fill
     rng = np.random.default_rng(seed)
     loss = rng.uniform(40.0, 140.0, m)
     keys = np.array([key64(seed, "radio", 0, 1, w) for w in ("shadow", "fade", "rx")], dtype=np.uint64)
@@ -305,11 +307,15 @@ def test_the_compiled_fill_is_the_numpy_fill_bit_for_bit(seed, m, sigma, fading,
     absent[rng.choice(m, min(away, m), replace=False)] = True
     i = int(rng.integers(m))
     out = []
-    for fill in (rk.compiled().fill, _fill):
+    compiled = rk.compiled().fill
+    for fill in (compiled, compiled.py_func):
         p, u = np.zeros((3, m)), np.zeros((3, m))
-        fill(p, u, 1, loss, keys, handed, 7 << 24, nodes, i, 23.0, sigma, table, Z_MAX, float(Z_STEPS), absent)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)     # (uint64 arithmetic wraps by design)
+            fill(p, u, 1, loss, keys, handed, 7 << 24, nodes, i, 23.0, sigma, table, Z_MAX, float(Z_STEPS), absent)
         out.append((p, u))
     assert np.array_equal(out[0][0], out[1][0]) and np.array_equal(out[0][1], out[1][1])
+    assert np.array_equal(out[0][1][1], keyed_uniforms(keys[2], handed, (7 << 24) + nodes))
     p = out[0][0][1]
     assert p[i] == (-1.0 if absent[i] else 0.0) and np.all(p[absent] == -1.0)
     if sigma == 0.0 and fading is None and not absent.any():     # (no draw: the mean power)
@@ -318,10 +324,29 @@ def test_the_compiled_fill_is_the_numpy_fill_bit_for_bit(seed, m, sigma, fading,
         assert np.allclose(p, want, rtol=1e-12)
 
 
-def test_a_radio_run_is_the_same_on_both_kernel_paths():
+@pytest.mark.parametrize("model", [{"model": "none"}, {"model": "free_space"}, {"model": "log_distance"},
+                                   {"model": "log_distance", "exponent": 2.7, "reference_distance": 10.0,
+                                    "reference_loss": 60.0},
+                                   {"model": "two_ray_interference"}, {"model": "two_ray_interference", "height": 3.0},
+                                   {"model": "winner_b1"}, {"model": "winner_b1", "height": 2.0}])
+def test_the_engines_path_loss_is_the_models(model):
+    """The engine's path loss, one distance at a time (compiled), is
+    :func:`dkfsim.components.radio.path_loss_db` of the model at every distance, including below
+    the shortest (1 m) and across WINNER+ B1's breakpoint."""
+    from dkfsim.components.radio import path_loss_db
+    from dkfsim.network import radio_kernels as rk
+    from dkfsim.network.media.radio import path_loss_form
+    params = RadioParams(path_loss=model)
+    kind, plp = path_loss_form(params.path_loss, params.frequency)
+    d = np.concatenate([[0.0, 0.3, 1.0], np.geomspace(1.01, 5000.0, 3000)])
+    compiled = rk.compiled().path_loss
+    got = np.array([compiled(kind, plp, x) for x in d])
+    assert np.allclose(got, path_loss_db(params.path_loss, d, params.frequency), rtol=1e-12, atol=1e-9)
+
+
+def _road_run(kernels: str) -> tuple:
     """Vehicles on a road with shadowing, fading and some off the road, EDCA, background and
-    estimator frames: every delivery, every pair's count and every member's busy time are the
-    same on the numba and the numpy path."""
+    estimator frames (for :func:`test_a_radio_run_is_the_same_on_both_kernel_paths`)."""
     from dkfsim.core.backend import Backend
     n, T = 24, 10 * MS
     radio = RadioParams(path_loss={"model": "winner_b1"}, shadowing={"model": "lognormal", "sigma": 3.0},
@@ -331,20 +356,109 @@ def test_a_radio_run_is_the_same_on_both_kernel_paths():
     pos = positions([35.0 * i for i in range(n)], ticks=40)
     presence = np.ones((40, n), dtype=bool)
     presence[:10, 3] = presence[25:, 7] = False
-    runs = []
-    for kernels in ("numba", "numpy"):
-        env = simpy.Environment()
-        arcs = [(u, v) for u in range(n) for v in range(n) if u != v]
-        net = Network(env, arcs, lambda u, v: LinkSpec(latency=Constant(value=LAT / 1e9)), seed=4, T_ns=T,
-                      medium=med, positions=pos, presence=presence, n=n, backend=Backend(kernels))
-        got: list = []
-        port = net.port("p", lambda link, payload, got=got, env=env: got.append((env.now, link.src, link.dst, payload)))
-        for k in range(30):
-            for u in (0, 5, 11):
-                at(env, k * T + 1, lambda u=u, k=k, net=net, port=port: broadcast(net, port, u, (u, k), 200))
-        env.run(until=35 * T)
-        r = port.channel.report(port, 35 * T)
-        runs.append((got, r, port.channel.series(port, T, 35)["cbr"]))
-    (got0, r0, c0), (got1, r1, c1) = runs
-    assert got0 == got1 and r0 == r1 and np.array_equal(c0, c1)
+    env = simpy.Environment()
+    arcs = [(u, v) for u in range(n) for v in range(n) if u != v]
+    net = Network(env, arcs, lambda u, v: LinkSpec(latency=Constant(value=LAT / 1e9)), seed=4, T_ns=T,
+                  medium=med, positions=pos, presence=presence, n=n, backend=Backend(kernels))
+    got: list = []
+    port = net.port("p", lambda link, payload: got.append((env.now, link.src, link.dst, payload)))
+    for k in range(30):
+        for u in (0, 5, 11):
+            at(env, k * T + 1, lambda u=u, k=k: broadcast(net, port, u, [u, k], 200))
+    env.run(until=35 * T)
+    return got, port.channel.report(port, 35 * T), port.channel.series(port, T, 35)["cbr"].tolist()
+
+
+def test_a_radio_run_is_the_same_on_both_kernel_paths():
+    """The radio's engine compiled and as Python (``DKFSIM_KERNELS=numpy``, in a process of its
+    own: a process that compiled the kernels runs them compiled): every delivery, every pair's
+    count and every member's busy time are the same."""
+    import json
+    import os
+    import subprocess
+    import sys
+    from pathlib import Path
+    code = ("import json, sys; sys.path.insert(0, 'tests'); from test_radio import _road_run; "
+            "print(json.dumps(_road_run('numpy')))")
+    env = {**os.environ, "DKFSIM_KERNELS": "numpy"}
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, check=True,
+                         cwd=Path(__file__).parent.parent)
+    got0, r0, c0 = json.loads(json.dumps(_road_run("numba")))
+    got1, r1, c1 = json.loads(out.stdout)
+    assert got0 == got1 and r0 == r1 and c0 == c1
     assert r0["pairs"] > 5_000 and 0 < r0["pairs_received"] < r0["pairs"]
+
+
+def _python_edca_radio(env, spec, members, positions, record):
+    """A radio channel whose per-radio rule is EDCA as a researcher would write one: a
+    :class:`~dkfsim.network.media.slotted.SlottedAccess` subclass with ``on_head`` and ``sent`` in
+    Python (the engine calls them back)."""
+    from typing_extensions import override
+
+    from dkfsim.network.media.radio import RadioChannel
+    from dkfsim.network.media.slotted import SlottedAccess
+
+    class PythonEdca(SlottedAccess):
+        draws = "edca"
+
+        @override
+        def on_head(self, i: int, t: int, idle: bool) -> None:
+            c = int(self.count[i])
+            if c >= 0 and idle and int(self.origin[i]) + c * self.slot < t:
+                c = -1
+                self.count[i] = -1
+            if c >= 0:
+                if idle:
+                    self.due[i] = int(self.origin[i]) + c * self.slot
+            elif idle:
+                self.due[i] = max(t, int(self.origin[i]))
+            else:
+                self.count[i] = self.draw(i, t)
+
+        @override
+        def sent(self, radio, te: int) -> None:
+            i = self.pos[radio.node]
+            self.count[i] = self.draw(i, te)
+
+    class Radio(RadioChannel):
+        @override
+        def make_access(self, spec, seed):
+            self.slotted = PythonEdca(spec.access, self, seed)
+            return self.slotted
+
+    return Radio(env, spec, members, 5, positions, 10 * MS, record=record)
+
+
+@pytest.mark.parametrize("record", [False, True])
+def test_a_researchers_rule_in_python_runs_on_the_radio_as_the_built_in_one(record):
+    """A per-radio rule in Python (the engine calls its ``on_head`` and ``sent`` back) written as
+    ``edca`` is: the radio delivers what it delivers with the built-in, compiled ``edca`` --
+    every pair, every busy period, every estimator frame's fates; with ``record``, every frame
+    that ended is logged, each once."""
+    from dkfsim.network.media.base import Frame
+    from dkfsim.network.media.radio import RadioChannel
+    n = 40
+    radio = RadioParams(path_loss={"model": "log_distance"}, fading={"model": "nakagami", "m": 1.0})
+    spec = Medium(rate=RATE, access=Edca(cw=7), preamble=PRE / 1e9, radio=radio, queue={"packets": 3},
+                  background=Background(arrivals="poisson", packets_per_second=60, size=400))
+    pos = positions([12.0 * i for i in range(n)], ticks=60)
+    out = []
+    for custom in (False, True):
+        env = simpy.Environment()
+        ch = _python_edca_radio(env, spec, tuple(range(n)), pos, record) if custom else \
+            RadioChannel(env, spec, tuple(range(n)), 5, pos, 10 * MS, record=record)
+        told: list = []
+
+        def done(frame, ok, told=told):
+            told.append((frame.node, frame.start, frame.end, ok, sorted(frame.lost_at or {})))
+        for k in range(40):
+            for u in (3, 17, 30):
+                at(env, k * 10 * MS + 7, lambda u=u, env=env, ch=ch, done=done: ch.offer(Frame(u, 900, env.now, None,
+                                                                                                done, "me")))
+        env.run(until=450 * MS)
+        out.append((told, ch.report("me", 450 * MS), ch.ended))
+    assert out[0][0] == out[1][0] and out[0][1] == out[1][1] and out[0][2] == out[1][2]
+    told, rep, ended = out[0]
+    assert len(told) > 50 and rep["frames_on_air"] > 1000 and rep["background_dropped"] > 0
+    if record:
+        assert ended is not None and len(ended) == len(set(ended)) >= rep["frames_on_air"] - 20

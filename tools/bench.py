@@ -360,6 +360,25 @@ def radio_frames(vehicles: int, spacing: float, seconds: float) -> tuple[float, 
     return cpu, frames, heard
 
 
+def ns3_ratios() -> list[tuple[str, int, int, float, float]]:
+    """Section 13, against ns-3: each stored ns-3 reference whose weak frames interfere (the
+    same physics as dkfsim's radio; tests/test_ns3_reference.py) run on dkfsim as the test sets it
+    up, every one of ns-3's runs: (name, vehicles, frames, dkfsim CPU per frame us, ns-3's stored
+    CPU per frame us), both timing the frames scheduled and run, the set-up excluded."""
+    sys.path.insert(0, str(ROOT / "tests"))
+    from test_ns3_reference import NAMES, load, run_dkfsim
+    out = []
+    for name in NAMES:
+        if not name.endswith("_interfere"):
+            continue
+        ref = load(name)
+        run_dkfsim(ref, 1)                                  # warm-up
+        cpu: list[float] = []
+        frames = sum(run_dkfsim(ref, seed, cpu)["frames_on_air"] for seed in range(1, ref["config"]["runs"] + 1))
+        out.append((name, len(ref["positions"]), frames, sum(cpu) / frames * 1e6, ref["timing"]["cpu_per_frame_us"]))
+    return out
+
+
 def print_radio_cost(seconds: float, vehicles: list[int], highway_seconds: float) -> None:
     """Section 13 (see the module)."""
     print(f"a spatial radio (issue 32): beacons only, EDCA, WINNER+ B1 + shadowing + fading, {seconds:g} s "
@@ -372,7 +391,15 @@ def print_radio_cost(seconds: float, vehicles: list[int], highway_seconds: float
         ys.append(cpu / frames * 1e6)
         print(f"{n:9d} {frames:8d} {heard:9.1f} {cpu:7.2f} {ys[-1]:9.1f}")
     if len(xs) > 1:
-        print(f"  fitted exponent of CPU per frame against receivers in range: {slope(xs, ys):.2f}")
+        print(f"  fitted exponent of CPU per frame against receivers in range: {slope(xs, ys):.2f}; against "
+              f"the vehicles on the road: {slope([float(n) for n in vehicles], ys):.2f} (every member's power and "
+              "draws are worked out, for the interference it adds)")
+    if (ROOT / "tests" / "data" / "ns3").is_dir():
+        print("  against ns-3 3.44 on its stored highways (weak frames interfere), CPU per frame, its scheduling "
+              "and run:")
+        for name, n, frames, ours, theirs in ns3_ratios():
+            print(f"    {name:26s} {n:4d} vehicles {frames:7d} frames  dkfsim {ours:7.1f} us  ns-3 {theirs:7.1f} us  "
+                  f"ns-3 / dkfsim {theirs / ours:6.1f}")
     path = ROOT / "scenarios" / "highway_its_g5.yaml"
     if path.is_file() and highway_seconds > 0:
         sc = dkfsim.load_scenario(path)

@@ -15,15 +15,19 @@ On the numba path these functions are compiled; on the numpy path they run as Py
 from __future__ import annotations
 
 import math
-from types import ModuleType
+from collections.abc import Callable
+from types import FunctionType, ModuleType
+from typing import Any
 
 import numpy as np
 
 from dkfsim.core.jit import LazyKernels
 
 _KERNELS = ("keyed_uniform", "polevl", "p1evl", "ndtri", "fill", "error_rate", "busy_ticks", "close",
-            "start", "end")
-_lazy = LazyKernels(__name__, _KERNELS, inline=("keyed_uniform", "polevl", "p1evl", "error_rate", "busy_ticks"))
+            "start", "end", "path_loss", "draw", "on_head", "busy", "clear", "take_due", "first_air", "head",
+            "push", "background", "transmit", "finish", "run")
+_lazy = LazyKernels(__name__, _KERNELS, inline=("keyed_uniform", "polevl", "p1evl", "error_rate", "busy_ticks",
+                                                "path_loss"))
 
 #: Rows of ``ri``: the slot each member is locked on (-1: none), the start of its current SINR
 #: chunk, how many frames on the air it senses (its own included), since when it senses the
@@ -35,19 +39,82 @@ NRI = 9
 #: probability over the chunks so far, the power of every frame on the air (mW).
 LOCK_P, LOCK_AIR, LOGPSR, TOTAL = range(4)
 NRF = 4
-#: Columns of ``si``: the sender's member index, start, end.
-S_I, S_START, S_END = range(3)
+#: Columns of ``si``: the sender's member index, start, end, its frame's number among the
+#: estimators' frames (-1: background) and its hand-over instant.
+S_I, S_START, S_END, S_FID, S_HANDED = range(5)
+NSI = 5
 #: A pair's fate: received, or the cause of its loss; the sender's own entry; not yet decided.
 RECEIVED, SENSING, RECEIVER_BUSY, PROPAGATION, COLLISION = range(5)
 SENDER, PENDING = -1, 5
 #: Reception rules: a threshold (``tab_x[0]`` dB) or a table (``tab_x`` dB -> ``tab_y``).
 THRESHOLD, TABLE = 0, 1
+#: Path-loss models (:func:`path_loss`; ``plp``: their parameters, below).
+PL_NONE, PL_FREE_SPACE, PL_LOG_DISTANCE, PL_TWO_RAY, PL_WINNER_B1 = range(5)
+#: ``plp``: the shortest distance, the frequency, the speed of light, then the model's own (log
+#: distance: reference distance, reference loss, exponent; two-ray: height, permittivity; WINNER+
+#: B1: effective height).
+P_MIN_D, P_FREQ, P_C, P_A, P_B, P_C2 = range(6)
+#: Per-radio access rules run in the engine: a researcher's (Python, its ``on_head`` and ``sent``
+#: called back), ``csma`` and ``edca`` (:mod:`~dkfsim.network.media.slotted`).
+CUSTOM, CSMA, EDCA = range(3)
+#: "Never": after every instant of a run (``dkfsim.network.media.channel.NEVER``).
+NEVER = (1 << 62) + 1
+
+# ------------------------------------------------------------ the engine's state (:func:`run`)
+#: What :func:`run` returns: done (brought up to ``t``); estimators' frames ended or access
+#: calls to make in Python (``E[E_NOWN]``, ``E[E_NHOOK]``); held frames are due (``th``); a
+#: radio's background block ran out (``E[E_ARG]``); a buffer is full (``E[E_ARG]``: which).
+DONE, YIELD, HELD, REFILL, GROW = range(5)
+#: Buffers :data:`GROW` names: radio ``E[E_ARG2]``'s waiting room, the slots, the busy periods,
+#: the dropped background, the log of ended frames.
+G_QUEUE, G_SLOTS, G_PERIODS, G_DROPPED, G_LOG = range(5)
+#: ``E``: the engine's scalars: the first end on the air, frames on the air, free slots, rows of
+#: ``periods``, ``dropped``, ``log``, estimators' frames ended and access calls waiting for Python
+#: in this call, an argument of the status, a second one, frames started so far.
+E_NEXT_END, E_NAIR, E_NFREE, E_NPER, E_NDROP, E_NLOG, E_NOWN, E_NHOOK, E_ARG, E_ARG2, E_STARTED = range(11)
+NE = 11
+#: Rows of ``rq`` (per radio): its waiting room's first entry, length and bytes, the slot of its
+#: frame on the air (-1: none), its background block's next packet and length (-1: no
+#: background), the hand-over instant of its last frame started and how many started with it
+#: (the draws' sequence).
+Q_HEAD, Q_LEN, Q_BYTES, ON_AIR, B_POS, B_LEN, K_HANDED, K_SEQ = range(8)
+NRQ = 8
+#: Rows of an access rule's ``dr`` (per radio): its backoff draws' last instant and count at it.
+DRAWN_AT, DRAWN = range(2)
+#: Columns of a waiting room's entry (``queue[r, j]``) and of a background packet (``bg[r, j]``).
+F_SIZE, F_HANDED, F_FID, F_AIR = range(4)
+G_TIME, G_SIZE, G_AIR = range(3)
+#: ``ip``: the access rule, slot, cw, AIFS, EIFS, tick (ns), waiting-room limits (-1: none),
+#: whether ended frames are logged, the path-loss model, the reception rule, whether a
+#: researcher's rule has a ``sent``.
+I_RULE, I_SLOT, I_CW, I_AIFS, I_EIFS, I_T, I_MAXP, I_MAXB, I_RECORD, I_PL, I_RX, I_SENT = range(12)
+NIP = 12
+#: ``fp``: transmit power (dBm), shadowing sigma (dB), the fading table's grid, sensitivity,
+#: carrier sense and noise (mW), the capture ratio (0: none), the distance bins' width (m).
+F_POWER, F_SIGMA, F_ZMAX, F_ZSTEPS, F_SENS, F_CS, F_NOISE, F_CAPTURE, F_WIDTH = range(9)
+NFP = 9
+#: A hook for a researcher's rule (``hooks[j]``): (what, radio, instant).
+H_HEAD, H_SENT = range(2)
+#: Receivers per frame in a draw's sequence number (a frame's draws: ``seq = k * SEQ + node``).
+SEQ = 1 << 24
 
 
 def compiled() -> ModuleType:
     """This module with its kernels compiled by numba (loaded from the disk cache after the
     first time)."""
     return _lazy.get()
+
+
+def quiet(kernel: Callable) -> Callable:
+    """``kernel`` as the numpy path runs it: in Python, its uint64 arithmetic (the keyed draws)
+    wrapping as compiled, without numpy's overflow warnings; a compiled kernel as it is."""
+    if not isinstance(kernel, FunctionType):  # (compiled: a dispatcher or its entry point)
+        return kernel
+
+    def run(*args: Any) -> Any:
+        with np.errstate(over="ignore"):
+            return kernel(*args)
+    return run
 
 
 _GOLDEN = np.uint64(0x9E3779B97F4A7C15)
@@ -391,3 +458,427 @@ def end(ri: np.ndarray, rf: np.ndarray, p: np.ndarray, d: np.ndarray, u: np.ndar
                     pairs[b, f] += 1
         ri[TX, si[s, S_I]] = 0
     return n
+
+
+# ------------------------------------------------------------ the engine (:func:`run`)
+def path_loss(kind: int, plp: np.ndarray, d: float) -> float:
+    """The path loss (dB) of model ``kind`` at distance ``d`` (m; at least ``plp[P_MIN_D]``):
+    :func:`dkfsim.components.radio.path_loss_db` one distance at a time (tests/test_radio.py holds
+    them together)."""
+    if d < plp[P_MIN_D]:
+        d = plp[P_MIN_D]
+    if kind == PL_NONE:
+        return 0.0
+    f, c = plp[P_FREQ], plp[P_C]
+    if kind == PL_FREE_SPACE:
+        return 20.0 * math.log10(4.0 * math.pi * d * f / c)
+    if kind == PL_LOG_DISTANCE:
+        d0 = plp[P_A]
+        return plp[P_B] + 10.0 * plp[P_C2] * math.log10((d if d > d0 else d0) / d0)
+    if kind == PL_TWO_RAY:
+        h, eps = plp[P_A], plp[P_B]
+        lam = c / f
+        d_ref = math.sqrt(d * d + (2.0 * h) ** 2)
+        sin_t, cos_t = 2.0 * h / d_ref, d / d_ref
+        root = math.sqrt(eps - cos_t * cos_t)
+        gamma = (sin_t - root) / (sin_t + root)
+        phi = 2.0 * math.pi * (d - d_ref) / lam
+        re = 1.0 / d + gamma * math.cos(phi) / d_ref
+        im = gamma * math.sin(phi) / d_ref
+        amp = math.hypot(re, im)
+        gain = (lam / (4.0 * math.pi)) ** 2 * amp * amp
+        return -10.0 * math.log10(gain if gain > 1e-300 else 1e-300)
+    he = plp[P_A]                           # PL_WINNER_B1
+    f_ghz = f / 1e9
+    if d < 4.0 * he * he * f / c:
+        return 22.7 * math.log10(d) + (27.0 + 20.0 * math.log10(f_ghz))
+    return 40.0 * math.log10(d) + (7.56 - 34.6 * math.log10(he) + 2.7 * math.log10(f_ghz))
+
+
+def draw(bkey: np.ndarray, dr: np.ndarray, i: int, t: int, cw: int) -> int:
+    """Radio ``i``'s backoff uniform in ``0 .. cw`` at ``t``: the keyed draw at ``(t, attempt)``,
+    ``attempt`` the number of its earlier draws at ``t``
+    (:meth:`dkfsim.network.media.slotted.Backoff.draw`, the same bits)."""
+    if dr[DRAWN_AT, i] != t:
+        dr[DRAWN_AT, i] = t
+        k = 0
+    else:
+        k = dr[DRAWN, i]
+    dr[DRAWN, i] = k + 1
+    c = int(keyed_uniform(bkey[i], t, k) * (cw + 1))
+    return cw if c > cw else c              # (a draw next to 1 may round up to cw + 1)
+
+
+def on_head(rule: int, i: int, t: int, idle: bool, origin: np.ndarray, count: np.ndarray, due: np.ndarray,
+            bkey: np.ndarray, dr: np.ndarray, cw: int, slot: int) -> None:
+    """Radio ``i``'s head frame arrived at ``t`` (its medium idle or not): its count and due
+    instant under ``rule`` (``edca``: immediate access after AIFS on an idle medium unless a
+    backoff is pending, a backoff drawn on a busy one; ``csma``: a backoff for every head, counted
+    from the first boundary at or after ``t``)."""
+    if rule == EDCA:
+        c = count[i]
+        if c >= 0 and idle and origin[i] + c * slot < t:
+            c = -1                          # the post-backoff ran out before the frame came
+            count[i] = -1
+        if c >= 0:
+            if idle:
+                due[i] = origin[i] + c * slot
+        elif idle:
+            due[i] = t if t > origin[i] else origin[i]
+        else:
+            count[i] = draw(bkey, dr, i, t, cw)
+    else:
+        b = draw(bkey, dr, i, t, cw)
+        if idle:
+            first = origin[i]
+            j = 0 if t <= first else -(-(t - first) // slot)
+            count[i] = j + b
+            due[i] = first + (j + b) * slot
+        else:
+            count[i] = b
+
+
+def busy(idle_at: np.ndarray, origin: np.ndarray, count: np.ndarray, due: np.ndarray, head_on: np.ndarray,
+         nodes: np.ndarray, n: int, t: int, slot: int, never: int) -> int:
+    """The radios ``nodes[:n]`` sense the medium busy from ``t``: each that sensed it idle keeps
+    the boundaries of its count not passed before ``t`` (a head keeps at least 0 left; a
+    post-backoff with nothing left and no frame to send is over: -1).  Returns how many
+    changed (0: no ``due`` changed)."""
+    changed = 0
+    for j in range(n):
+        r = nodes[j]
+        if idle_at[r] < 0:
+            continue
+        changed += 1
+        idle_at[r] = -1
+        due[r] = never
+        c = count[r]
+        if c >= 0:
+            o = origin[r]
+            left = c if t <= o else c - (-((o - t) // slot))
+            if head_on[r]:
+                count[r] = left if left > 0 else 0
+            else:
+                count[r] = left if left > 0 else -1
+    return changed
+
+
+def clear(idle_at: np.ndarray, origin: np.ndarray, count: np.ndarray, due: np.ndarray, head_on: np.ndarray,
+          nodes: np.ndarray, n: int, t: int, slot: int, aifs: int, eifs: int, error: np.ndarray) -> int:
+    """The radios ``nodes[:n]`` sense the medium idle from ``t``: each counts from ``t + aifs``,
+    or ``t + eifs`` when ``error[r]`` (its last frame received was in error; read and cleared
+    here); a head is due at its count's boundary.  Returns how many heads were among them (0:
+    no ``due`` changed)."""
+    heads = 0
+    for j in range(n):
+        r = nodes[j]
+        idle_at[r] = t
+        o = t + (eifs if error[r] else aifs)
+        error[r] = 0
+        origin[r] = o
+        if head_on[r]:
+            heads += 1
+            c = count[r]
+            due[r] = o + c * slot if c >= 0 else o
+    return heads
+
+
+def take_due(due: np.ndarray, head_on: np.ndarray, count: np.ndarray, ts: int, never: int, out: np.ndarray) -> int:
+    """The radios due at ``ts``, in order, written to ``out`` (their number returned): they are
+    heads no more, due never, with no count."""
+    n = 0
+    for r in range(len(due)):
+        if due[r] == ts:
+            head_on[r] = False
+            due[r] = never
+            count[r] = -1
+            out[n] = r
+            n += 1
+    return n
+
+
+def first_air(due: np.ndarray, air: np.ndarray, ts: int) -> int:
+    """The shortest airtime of the radios due at ``ts`` (-1: none)."""
+    best = -1
+    for r in range(len(due)):
+        if due[r] == ts and (best < 0 or air[r] < best):
+            best = air[r]
+    return best
+
+
+def head(r: int, t: int, airtime: int, E: np.ndarray, idle_at: np.ndarray, origin: np.ndarray,
+         count: np.ndarray, due: np.ndarray, head_on: np.ndarray, air: np.ndarray, bkey: np.ndarray,
+         dr: np.ndarray, hooks: np.ndarray, ip: np.ndarray) -> None:
+    """Radio ``r``'s first waiting frame (``airtime`` ns) became its head at ``t``: the rule's
+    :func:`on_head`, or a call back to a researcher's rule (``hooks``)."""
+    head_on[r] = True
+    air[r] = airtime
+    if ip[I_RULE] == CUSTOM:
+        h = E[E_NHOOK]
+        hooks[h, 0], hooks[h, 1], hooks[h, 2] = H_HEAD, r, t
+        E[E_NHOOK] = h + 1
+    else:
+        on_head(ip[I_RULE], r, t, idle_at[r] >= 0, origin, count, due, bkey, dr, ip[I_CW], ip[I_SLOT])
+
+
+def push(r: int, size: int, handed: int, fid: int, airtime: int, now: int, E: np.ndarray, rq: np.ndarray,
+         queue: np.ndarray, idle_at: np.ndarray, origin: np.ndarray, count: np.ndarray, due: np.ndarray,
+         head_on: np.ndarray, air: np.ndarray, bkey: np.ndarray, dr: np.ndarray, hooks: np.ndarray,
+         ip: np.ndarray) -> bool:
+    """A frame reaches radio ``r``'s waiting room at ``now`` (False: refused, the room full; the
+    caller made sure the ring has room): the frame becomes its head when the radio has nothing
+    else."""
+    ql = rq[Q_LEN, r]
+    if ip[I_MAXP] >= 0 and ql >= ip[I_MAXP]:
+        return False
+    if ip[I_MAXB] >= 0 and rq[Q_BYTES, r] + size > ip[I_MAXB]:
+        return False
+    j = (rq[Q_HEAD, r] + ql) % queue.shape[1]
+    queue[r, j, F_SIZE], queue[r, j, F_HANDED], queue[r, j, F_FID], queue[r, j, F_AIR] = size, handed, fid, airtime
+    rq[Q_LEN, r] = ql + 1
+    rq[Q_BYTES, r] += size
+    if rq[ON_AIR, r] < 0 and ql == 0:
+        head(r, now, airtime, E, idle_at, origin, count, due, head_on, air, bkey, dr, hooks, ip)
+    return True
+
+
+def background(r: int, ta: int, E: np.ndarray, rq: np.ndarray, queue: np.ndarray, bg: np.ndarray,
+               absent: np.ndarray, dropped: np.ndarray, idle_at: np.ndarray, origin: np.ndarray,
+               count: np.ndarray, due: np.ndarray, head_on: np.ndarray, air: np.ndarray, bkey: np.ndarray,
+               dr: np.ndarray, hooks: np.ndarray, ip: np.ndarray) -> int:
+    """Radio ``r``'s background packets at ``ta`` reach its waiting room (a radio off the road
+    takes and drops them unseen; a full room drops them, logged in ``dropped``); :data:`GROW`
+    before anything changes when a buffer has no room."""
+    pos, bl = rq[B_POS, r], rq[B_LEN, r]
+    n = 0
+    while pos + n < bl and bg[r, pos + n, G_TIME] <= ta:
+        n += 1
+    k = ta // ip[I_T]
+    if k > absent.shape[0] - 1:
+        k = absent.shape[0] - 1
+    sends = not absent[k, r]
+    if sends:
+        if rq[Q_LEN, r] + n > queue.shape[1]:
+            E[E_ARG], E[E_ARG2] = G_QUEUE, r
+            return GROW
+        if E[E_NDROP] + n > len(dropped):
+            E[E_ARG] = G_DROPPED
+            return GROW
+        for j in range(pos, pos + n):
+            if not push(r, bg[r, j, G_SIZE], ta, -1, bg[r, j, G_AIR], ta, E, rq, queue, idle_at, origin, count,
+                        due, head_on, air, bkey, dr, hooks, ip):
+                dropped[E[E_NDROP]] = ta
+                E[E_NDROP] += 1
+    rq[B_POS, r] = pos + n
+    return DONE
+
+
+def transmit(ts: int, E: np.ndarray, rq: np.ndarray, queue: np.ndarray, idle_at: np.ndarray, origin: np.ndarray,
+             count: np.ndarray, due: np.ndarray, head_on: np.ndarray, rkeys: np.ndarray, nodes: np.ndarray,
+             px: np.ndarray, py: np.ndarray, absent: np.ndarray, ri: np.ndarray, rf: np.ndarray, p: np.ndarray,
+             d: np.ndarray, u: np.ndarray, fate: np.ndarray, sensed: np.ndarray, si: np.ndarray, free: np.ndarray,
+             onair: np.ndarray, sbuf: np.ndarray, sl: np.ndarray, went: np.ndarray, loss: np.ndarray,
+             periods: np.ndarray, ip: np.ndarray, fp: np.ndarray, plp: np.ndarray, table: np.ndarray,
+             tab_x: np.ndarray, tab_y: np.ndarray) -> int:
+    """The heads due at ``ts`` start: each leaves its waiting room for a slot on the air, with
+    its powers and draws at every member (:func:`fill`, the distances and path loss of the
+    tick of ``ts``); the receivers take them (:func:`start`) and those that begin to sense the
+    medium busy freeze (:func:`busy`).  :data:`GROW` before anything changes when the slots or
+    the periods' log have no room."""
+    m = len(nodes)
+    n = 0
+    for r in range(m):
+        if due[r] == ts:
+            n += 1
+    if E[E_NFREE] < n:
+        E[E_ARG] = G_SLOTS
+        return GROW
+    if E[E_NPER] + n > periods.shape[0]:
+        E[E_ARG] = G_PERIODS
+        return GROW
+    n = take_due(due, head_on, count, ts, NEVER, sbuf)
+    close(ri, rf, ip[I_RX], tab_x, tab_y, fp[F_NOISE], ts)
+    k = ts // ip[I_T]
+    if k > px.shape[0] - 1:
+        k = px.shape[0] - 1
+    cap = queue.shape[1]
+    for j in range(n):
+        r = sbuf[j]
+        h = rq[Q_HEAD, r]
+        size, handed, fid, airtime = queue[r, h, F_SIZE], queue[r, h, F_HANDED], queue[r, h, F_FID], queue[r, h, F_AIR]
+        rq[Q_HEAD, r] = (h + 1) % cap
+        rq[Q_LEN, r] -= 1
+        rq[Q_BYTES, r] -= size
+        if rq[K_HANDED, r] == handed:
+            rq[K_SEQ, r] += 1
+        else:
+            rq[K_HANDED, r] = handed
+            rq[K_SEQ, r] = 0
+        E[E_NFREE] -= 1
+        s = free[E[E_NFREE]]
+        rq[ON_AIR, r] = s
+        onair[E[E_NAIR]] = s
+        E[E_NAIR] += 1
+        x0, y0 = px[k, r], py[k, r]
+        for q in range(m):
+            dist = math.hypot(px[k, q] - x0, py[k, q] - y0)
+            d[s, q] = dist
+            loss[q] = path_loss(ip[I_PL], plp, dist)
+        fill(p, u, s, loss, rkeys[r], handed, rq[K_SEQ, r] * SEQ, nodes, r, fp[F_POWER], fp[F_SIGMA], table,
+             fp[F_ZMAX], fp[F_ZSTEPS], absent[k])
+        end_ = ts + airtime
+        si[s, S_I], si[s, S_START], si[s, S_END], si[s, S_FID], si[s, S_HANDED] = r, ts, end_, fid, handed
+        sl[j] = s
+        E[E_STARTED] += 1
+        w = E[E_NPER]
+        periods[w, 0], periods[w, 1], periods[w, 2], periods[w, 3], periods[w, 4] = ts, end_, 1, fid < 0, 0
+        E[E_NPER] = w + 1
+    nw = start(ri, rf, p, fate, sensed, si, sl[:n], ts, fp[F_SENS], fp[F_CS], fp[F_CAPTURE], went)
+    busy(idle_at, origin, count, due, head_on, went, nw, ts, ip[I_SLOT], NEVER)
+    first = NEVER
+    for j in range(E[E_NAIR]):
+        e = si[onair[j], S_END]
+        if e < first:
+            first = e
+    E[E_NEXT_END] = first
+    return DONE
+
+
+def finish(te: int, E: np.ndarray, rq: np.ndarray, queue: np.ndarray, idle_at: np.ndarray, origin: np.ndarray,
+           count: np.ndarray, due: np.ndarray, head_on: np.ndarray, air: np.ndarray, bkey: np.ndarray,
+           dr: np.ndarray, nodes: np.ndarray, ri: np.ndarray, rf: np.ndarray, p: np.ndarray, d: np.ndarray, u: np.ndarray,
+           fate: np.ndarray, sensed: np.ndarray, si: np.ndarray, free: np.ndarray, onair: np.ndarray,
+           sl: np.ndarray, went: np.ndarray, pairs: np.ndarray, fates: np.ndarray, ticks: np.ndarray,
+           window: np.ndarray, counted: np.ndarray, log: np.ndarray, own: np.ndarray, hooks: np.ndarray,
+           ip: np.ndarray, fp: np.ndarray, tab_x: np.ndarray, tab_y: np.ndarray) -> int:
+    """The frames on the air that end at ``te`` end, in their senders' order: the receivers
+    decide (:func:`end`), those that sense the medium idle again count (:func:`clear`), each
+    sender draws its post-backoff (``edca``) and its next frame becomes its head; an estimator's
+    frame is listed in ``own`` (its slot: its fates stay until the next start).  :data:`GROW`
+    before anything changes when the log has no room."""
+    n = 0
+    for j in range(E[E_NAIR]):
+        s = onair[j]
+        if si[s, S_END] == te:
+            a = n                           # (insertion by sender: a few frames end at once)
+            while a > 0 and si[sl[a - 1], S_I] > si[s, S_I]:
+                sl[a] = sl[a - 1]
+                a -= 1
+            sl[a] = s
+            n += 1
+    record = ip[I_RECORD] != 0
+    if record and E[E_NLOG] + n > log.shape[0]:
+        E[E_ARG] = G_LOG
+        return GROW
+    close(ri, rf, ip[I_RX], tab_x, tab_y, fp[F_NOISE], te)
+    nw = end(ri, rf, p, d, u, fate, sensed, si, sl[:n], te, ip[I_RX], tab_x, tab_y, fp[F_NOISE], fp[F_WIDTH], pairs,
+             fates, went, ticks, ip[I_T], window, counted)
+    left = 0
+    for j in range(E[E_NAIR]):
+        s = onair[j]
+        if si[s, S_END] != te:
+            onair[left] = s
+            left += 1
+    E[E_NAIR] = left
+    for j in range(n):
+        free[E[E_NFREE]] = sl[j]
+        E[E_NFREE] += 1
+    if left == 0:
+        for r in range(rf.shape[1]):
+            rf[TOTAL, r] = 0.0              # (nothing on the air: no rounding left over)
+    clear(idle_at, origin, count, due, head_on, went, nw, te, ip[I_SLOT], ip[I_AIFS], ip[I_EIFS], ri[RXERR])
+    first = NEVER
+    for j in range(left):
+        e = si[onair[j], S_END]
+        if e < first:
+            first = e
+    E[E_NEXT_END] = first
+    m = len(nodes)
+    cap = queue.shape[1]
+    for j in range(n):
+        s = sl[j]
+        r = si[s, S_I]
+        rq[ON_AIR, r] = -1
+        if record:
+            lost = 0
+            for q in range(m):
+                if fate[s, q] != RECEIVED and fate[s, q] != SENDER:
+                    lost += 1
+            w = E[E_NLOG]
+            log[w, 0], log[w, 1], log[w, 2], log[w, 3], log[w, 4] = nodes[r], si[s, S_START], te, lost < m - 1, \
+                si[s, S_FID] < 0
+            E[E_NLOG] = w + 1
+        if si[s, S_FID] >= 0:
+            own[E[E_NOWN]] = s
+            E[E_NOWN] += 1
+        if ip[I_RULE] == EDCA:
+            count[r] = draw(bkey, dr, r, te, ip[I_CW])     # the post-backoff, counted once the medium is idle
+        elif ip[I_RULE] == CUSTOM and ip[I_SENT] != 0:
+            h = E[E_NHOOK]
+            hooks[h, 0], hooks[h, 1], hooks[h, 2] = H_SENT, r, te
+            E[E_NHOOK] = h + 1
+        if rq[Q_LEN, r] > 0:
+            head(r, te, queue[r, rq[Q_HEAD, r] % cap, F_AIR], E, idle_at, origin, count, due, head_on, air, bkey,
+                 dr, hooks, ip)
+    return DONE
+
+
+def run(t: int, th: int, E: np.ndarray, rq: np.ndarray, queue: np.ndarray, bg: np.ndarray, idle_at: np.ndarray,
+        origin: np.ndarray, count: np.ndarray, due: np.ndarray, head_on: np.ndarray, air: np.ndarray,
+        bkey: np.ndarray, dr: np.ndarray, rkeys: np.ndarray, nodes: np.ndarray, px: np.ndarray, py: np.ndarray,
+        absent: np.ndarray, ri: np.ndarray, rf: np.ndarray, p: np.ndarray, d: np.ndarray, u: np.ndarray,
+        fate: np.ndarray, sensed: np.ndarray, si: np.ndarray, free: np.ndarray, onair: np.ndarray,
+        sbuf: np.ndarray, sl: np.ndarray, went: np.ndarray, loss: np.ndarray, pairs: np.ndarray,
+        fates: np.ndarray, ticks: np.ndarray, window: np.ndarray, counted: np.ndarray, periods: np.ndarray,
+        dropped: np.ndarray, log: np.ndarray, own: np.ndarray, hooks: np.ndarray, ip: np.ndarray,
+        fp: np.ndarray, plp: np.ndarray, table: np.ndarray, tab_x: np.ndarray, tab_y: np.ndarray) -> int:
+    """Bring the radio up to ``t`` (every end and background arrival at or before ``t``, every
+    start before it, in time order: at one instant the ends, then the background radio by radio,
+    then the held frames (``th``: when the first is due; Python releases them), then the starts),
+    or until Python must act (the status: :data:`DONE` ... :data:`GROW`).  Resumable: a call
+    after Python acted goes on from the same state."""
+    m = len(nodes)
+    E[E_NOWN] = 0
+    E[E_NHOOK] = 0
+    while True:
+        ta, ra = NEVER, -1
+        for r in range(m):
+            bl = rq[B_LEN, r]
+            if bl < 0:
+                continue
+            if rq[B_POS, r] >= bl:
+                E[E_ARG] = r
+                return REFILL
+            x = bg[r, rq[B_POS, r], G_TIME]
+            if x < ta:
+                ta, ra = x, r
+        te = E[E_NEXT_END]
+        ts = NEVER
+        for r in range(m):
+            if due[r] < ts:
+                ts = due[r]
+        if te <= t and te <= ta and te <= th and te <= ts:
+            st = finish(te, E, rq, queue, idle_at, origin, count, due, head_on, air, bkey, dr, nodes, ri, rf, p, d, u,
+                        fate, sensed, si, free, onair, sl, went, pairs, fates, ticks, window, counted, log, own,
+                        hooks, ip, fp, tab_x, tab_y)
+            if st != DONE:
+                return st
+            if E[E_NOWN] > 0 or E[E_NHOOK] > 0:
+                return YIELD
+        elif ta <= t and ta <= ts and ta <= th:
+            st = background(ra, ta, E, rq, queue, bg, absent, dropped, idle_at, origin, count, due, head_on, air,
+                            bkey, dr, hooks, ip)
+            if st != DONE:
+                return st
+            if E[E_NHOOK] > 0:
+                return YIELD
+        elif th <= t and th <= ts:
+            return HELD
+        elif ts < t:
+            st = transmit(ts, E, rq, queue, idle_at, origin, count, due, head_on, rkeys, nodes, px, py, absent, ri,
+                          rf, p, d, u, fate, sensed, si, free, onair, sbuf, sl, went, loss, periods, ip, fp, plp,
+                          table, tab_x, tab_y)
+            if st != DONE:
+                return st
+        else:
+            return DONE

@@ -119,3 +119,18 @@ class BackgroundArrivals:
             self._pos = pos
             if pos < len(times):
                 return sizes
+
+    def take(self, n: int) -> tuple[list[int], list[int]]:
+        """The next ``n`` packets not yet taken and any more at the last one's instant, taken now:
+        (instants, sizes) -- a block for a radio's engine, which takes an instant's packets
+        together (:func:`~dkfsim.network.radio_kernels.background`), so a block never splits one."""
+        times: list[int] = []
+        sizes: list[int] = []
+        while True:
+            if self._pos >= len(self._tl):
+                self._draw_block()
+            if len(times) >= n and self._tl[self._pos] != times[-1]:
+                return times, sizes
+            times.append(self._tl[self._pos])
+            sizes.append(self._sl[self._pos])
+            self._pos += 1

@@ -390,13 +390,17 @@ class Channel(Medium):
         else:                               # (the first end among those on the air and the next start's)
             access = self.access
             ts = access.next_start()
-            t = min(self._next_end, ts + access.next_airtime() if ts < NEVER else NEVER)
+            t = min(self.first_end(), ts + access.next_airtime() if ts < NEVER else NEVER)
         if self._held and self._held[0][0] < t:
             t = self._held[0][0]
         if t in self._wakes or t > MAX_NS:
             return
         self._wakes.add(t)
         Scheduled(self.env, self._woken, URGENT, t - self.now)     # (now: brought to the present)
+
+    def first_end(self) -> int:
+        """When the first frame on the air ends (:data:`NEVER`: none on the air)."""
+        return self._next_end
 
     def _woken(self, _event: Event) -> None:
         now = self.env.now

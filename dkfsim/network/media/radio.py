@@ -27,6 +27,7 @@ senses the medium busy (its own transmissions included).
 
 from __future__ import annotations
 
+import math
 from array import array
 from collections.abc import Iterator, Mapping
 from typing import Any
@@ -36,21 +37,26 @@ from typing_extensions import override
 
 from dkfsim.components.medium import Medium as MediumSpec
 from dkfsim.components.radio import (
+    C_LIGHT,
+    MIN_DISTANCE_M,
     Z_MAX,
     Z_STEPS,
+    FreeSpace,
+    LogDistance,
     Lognormal,
+    NoLoss,
     PerTable,
+    TwoRayInterference,
+    WinnerB1,
     fading_table,
-    normal_quantiles,
-    path_loss_db,
 )
 from dkfsim.core.backend import Backend
 from dkfsim.core.jit import bind
 from dkfsim.core.registry import MEDIA
-from dkfsim.core.streams import key64, keyed_uniforms
+from dkfsim.core.streams import key64
 from dkfsim.network import radio_kernels as rk
 from dkfsim.network.media.base import Frame
-from dkfsim.network.media.channel import NEVER, Access, Channel
+from dkfsim.network.media.channel import NEVER, Access, Channel, Radio
 from dkfsim.network.media.slotted import SlottedAccess
 
 #: The causes of a lost (frame, receiver) pair, named as the analytic 802.11p model names them
@@ -72,28 +78,29 @@ def reception_rule(model: Any) -> tuple[int, np.ndarray, np.ndarray]:
     return rk.THRESHOLD, np.array([model.sinr]), np.zeros(1)
 
 
-def _fill(p: np.ndarray, u: np.ndarray, slot: int, loss: np.ndarray, keys: np.ndarray, handed: int, seq0: int,
-          nodes: np.ndarray, i: int, power: float, sigma: float, table: np.ndarray, z_max: float, z_steps: float,
-          absent: np.ndarray) -> None:
-    """:func:`~dkfsim.network.radio_kernels.fill` on the numpy path: the same bits, vectorised
-    over the members (tests/test_radio.py)."""
-    draws = keyed_uniforms(keys[:, None], handed, seq0 + nodes)        # (shadow, fade, rx) x members
-    dbm = power - loss
-    if sigma > 0.0:
-        dbm = dbm - sigma * normal_quantiles(draws[0])
-    if len(table) > 1:
-        x = (np.clip(normal_quantiles(draws[1]), -z_max, z_max) + z_max) * z_steps
-        j = np.minimum(x.astype(np.int64), len(table) - 2)
-        lo = table[j]
-        dbm = dbm + (lo + (x - j) * (table[j + 1] - lo))
-    row = p[slot]
-    row[:] = [10.0 ** x for x in (dbm / 10.0).tolist()]       # (the C library's pow, as compiled: not numpy's)
-    row[i] = 0.0
-    if absent[i]:
-        row[:] = -1.0
-    else:
-        row[absent] = -1.0
-    u[slot] = draws[2]
+def path_loss_form(model: Any, frequency: float) -> tuple[int, np.ndarray]:
+    """``medium.radio.path_loss`` as :func:`~dkfsim.network.radio_kernels.path_loss` reads it:
+    (model, parameters) -- the models of :func:`dkfsim.components.radio.path_loss_db`, which a test
+    holds the compiled form to."""
+    plp = np.zeros(6)
+    plp[rk.P_MIN_D], plp[rk.P_FREQ], plp[rk.P_C] = MIN_DISTANCE_M, frequency, C_LIGHT
+    if isinstance(model, NoLoss):
+        return rk.PL_NONE, plp
+    if isinstance(model, FreeSpace):
+        return rk.PL_FREE_SPACE, plp
+    if isinstance(model, LogDistance):
+        d0 = model.reference_distance
+        plp[rk.P_A], plp[rk.P_C2] = d0, model.exponent
+        plp[rk.P_B] = model.reference_loss if model.reference_loss is not None else \
+            20.0 * math.log10(4.0 * math.pi * d0 * frequency / C_LIGHT)
+        return rk.PL_LOG_DISTANCE, plp
+    if isinstance(model, TwoRayInterference):
+        plp[rk.P_A], plp[rk.P_B] = model.height, model.permittivity
+        return rk.PL_TWO_RAY, plp
+    if isinstance(model, WinnerB1):
+        plp[rk.P_A] = model.height - model.environment_height
+        return rk.PL_WINNER_B1, plp
+    raise TypeError(f"no path-loss model {type(model).__name__}")
 
 
 class Losses(Mapping[int, bool]):
@@ -130,29 +137,42 @@ class Losses(Mapping[int, bool]):
 class RadioChannel(Channel):
     """One copy of the spatial radio channel (see the module).
 
+    Its events run in a compiled engine (:func:`~dkfsim.network.radio_kernels.run`) over arrays:
+    the waiting rooms, each radio's background, the access rule's counts, the frames on the air
+    and the receivers.  Python keeps the estimators' frames (numbered into the waiting rooms),
+    the frames held back by generation jitter, and the calls back: an estimator's frame that
+    ended, a researcher's access rule.
+
     :param positions: every node's position (m) at ticks ``0 .. K``, ``(K + 1, n, 2)``; a frame
         started in ``[t_k, t_{k+1})`` sees the positions of tick ``k``.
     """
 
-    #: the frames on the air, a row each (:mod:`~dkfsim.network.radio_kernels`): power (mW),
-    #: distance (m), decision draws, each pair's fate, who senses it; sender, start and end
     overlapping = True                      # (a radio that senses nothing may start over a frame)
+    #: the slots of frames on the air, a row each (:mod:`~dkfsim.network.radio_kernels`): power
+    #: (mW), distance (m), decision draws, each pair's fate, who senses it; sender, start, end,
+    #: frame number and hand-over; the slots on the air, the free ones, a scratch list, the
+    #: estimators' frames that ended, a researcher's rule's calls back
     p: np.ndarray
     d: np.ndarray
     u: np.ndarray
     fate: np.ndarray
     sensed: np.ndarray
     si: np.ndarray
+    onair: np.ndarray
+    free: np.ndarray
+    sl: np.ndarray
+    own: np.ndarray
+    hooks: np.ndarray
 
     def __init__(self, env: Any, spec: MediumSpec, members: tuple[int, ...], seed: int, positions: np.ndarray,
                  T_ns: int, index: int = 0, record: bool = False, backend: Backend | None = None,
                  presence: np.ndarray | None = None):
         radio = spec.radio
         assert radio is not None
+        if list(members) != sorted(members):
+            raise ValueError("a radio channel's members must be in increasing order")
         self.params = radio
         super().__init__(env, spec, members, seed, index, record, T_ns, backend)
-        backend = self.backend
-        k = rk.compiled() if backend.compiled else rk
         m = len(members)
         self.nodes = np.asarray(members, dtype=np.int64)
         self.pos_of = {node: i for i, node in enumerate(members)}
@@ -163,71 +183,147 @@ class RadioChannel(Channel):
         #: receiver
         self.absent = np.zeros((len(self.positions), m), dtype=np.bool_) if presence is None else \
             ~np.asarray(presence, dtype=bool)[:, list(members)]
-        self._anyone_absent = bool(self.absent.any())
         self.noise, self.sens, self.cs = _mw(radio.noise), _mw(radio.sensitivity), _mw(radio.carrier_sense)
-        #: shadowing's sigma (dB; 0: none) and the fading gain (dB) tabulated against the normal
-        #: quantile (:func:`~dkfsim.components.radio.fading_table`; fewer than two points: none)
-        self.sigma = radio.shadowing.sigma if isinstance(radio.shadowing, Lognormal) else 0.0
-        self.fade_table = fading_table(radio.fading)
         self.capture = 0.0 if radio.capture is None else _mw(radio.capture)
         self.rule = reception_rule(radio.reception)
+        kind, tab_x, tab_y = self.rule
+        pl_kind, self._plp = path_loss_form(radio.path_loss, radio.frequency)
         #: per member: the keys of its frames' shadowing, fading and decision draws
-        self._keys = {node: np.array([key64(seed, "radio", index, node, what) for what in ("shadow", "fade", "rx")],
-                                     dtype=np.uint64) for node in members}
-        #: per sender: (hand-over instant, frames started with it) for the draws' keys
-        self._keyed: dict[int, tuple[int, int]] = {}
+        self._rkeys = np.array([[key64(seed, "radio", index, node, what) for what in ("shadow", "fade", "rx")]
+                                for node in members], dtype=np.uint64).reshape(m, 3)
         self.ri = np.zeros((rk.NRI, m), dtype=np.int64)
         self.ri[rk.LOCKED] = -1
         self.rf = np.zeros((rk.NRF, m))
         self.rf[rk.LOCK_AIR] = 1.0
+        # the engine's state (radio_kernels, "the engine's state")
+        self.E = np.zeros(rk.NE, dtype=np.int64)
+        self.E[rk.E_NEXT_END] = NEVER
+        self.rq = np.zeros((rk.NRQ, m), dtype=np.int64)
+        self.rq[rk.ON_AIR] = self.rq[rk.B_LEN] = self.rq[rk.K_HANDED] = -1
+        self.queue = np.zeros((m, 4, 4), dtype=np.int64)
+        self.bg = np.zeros((m, 64, 3), dtype=np.int64)
         self._went = np.zeros(m, dtype=np.int64)
-        #: the frames on the air, a slot each (their rows of p, d, u, fate, sensed, si)
-        self._slot_of: dict[int, Frame] = {}
-        self._free: list[int] = []
-        self._grow(8)
+        self._sbuf = np.zeros(m, dtype=np.int64)
+        self._loss = np.zeros(m)
+        self.p = np.zeros((0, m))
+        self._grow_slots(8)
         # statistics
         self.edges = radio.bins.edges()
         self.width = float(self.edges[1])
         self.pairs = np.zeros((len(self.edges) - 1, 5), dtype=np.int64)
         self.fates = np.zeros(5, dtype=np.int64)
-        self.started_frames = 0
         #: each member's busy ns per tick (row ``k``: ``[k T, (k+1) T)``; the last row, beyond)
         self.ticks = np.zeros((len(self.positions), m), dtype=np.int64)
         #: whose frames' pairs are counted: started in ``[window[0], window[1])`` (by default the
         #: run, its positions' ticks) by a ``counted`` member (:meth:`measure`)
         self._window = np.array([0, (len(self.positions) - 1) * T_ns], dtype=np.int64)
         self._counted = np.ones(m, dtype=np.bool_)
-        kind, tab_x, tab_y = self.rule
-        i1 = np.zeros(1, dtype=np.int64)
-        self._close = bind(k.close, self.ri, self.rf, kind, tab_x, tab_y, 1.0, 0)
-        self._fill_k = bind(k.fill, self.p, self.u, 0, np.zeros(m), self._keys[members[0]], 0, 0, self.nodes, 0, 1.0,
-                            1.0, self.fade_table, 1.0, 1.0, self.absent[0]) if backend.compiled else _fill
-        self._start_k = bind(k.start, self.ri, self.rf, self.p, self.fate, self.sensed, self.si, i1, 0, 1.0, 1.0,
-                             1.0, self._went)
-        self._end_k = bind(k.end, self.ri, self.rf, self.p, self.d, self.u, self.fate, self.sensed, self.si, i1, 0,
-                           kind, tab_x, tab_y, 1.0, 1.0, self.pairs, self.fates, self._went, self.ticks, 1,
-                           self._window, self._counted)
+        #: every frame started: (start, end, 1, background, 0); the instants of background frames
+        #: a full waiting room dropped; with ``record``, every frame ended (:attr:`ended`)
+        self.periods = np.zeros((256, 5), dtype=np.int64)
+        self.dropped = np.zeros(64, dtype=np.int64)
+        self.log = np.zeros((64 if record else 0, 5), dtype=np.int64)
+        acc = self.slotted
+        q = spec.queue
+        self.ip = np.zeros(rk.NIP, dtype=np.int64)
+        self.ip[[rk.I_RULE, rk.I_SLOT, rk.I_CW, rk.I_AIFS, rk.I_EIFS, rk.I_T, rk.I_RECORD, rk.I_PL, rk.I_RX]] = \
+            acc.rule, acc.slot, acc.cw, acc.aifs, acc.eifs, T_ns, int(record), pl_kind, kind
+        self.ip[rk.I_MAXP] = -1 if q is None or q.packets is None else q.packets
+        self.ip[rk.I_MAXB] = -1 if q is None or q.bytes is None else q.bytes
+        self.ip[rk.I_SENT] = int(acc.rule == rk.CUSTOM and type(acc).sent is not Access.sent)
+        self.fp = np.zeros(rk.NFP)
+        self.fp[[rk.F_POWER, rk.F_SIGMA, rk.F_ZMAX, rk.F_ZSTEPS, rk.F_SENS, rk.F_CS, rk.F_NOISE, rk.F_CAPTURE,
+                 rk.F_WIDTH]] = radio.power, radio.shadowing.sigma if isinstance(radio.shadowing, Lognormal) \
+            else 0.0, Z_MAX, Z_STEPS, self.sens, self.cs, self.noise, self.capture, self.width
+        self._tables = (fading_table(radio.fading), tab_x, tab_y)
+        #: the estimators' frames in the waiting rooms or on the air, by number
+        self._frames: dict[int, Frame] = {}
+        self._fid = 0
+        self._takes = [2] * m
+        for i, node in enumerate(members):
+            if self.radios[node].background is not None:
+                self._refill(i)
+        k = rk.compiled() if self.backend.compiled else rk
+        self._run = rk.quiet(bind(k.run, 0, 0, *self._state()))
+        self._push = rk.quiet(bind(k.push, 0, 0, 0, 0, 0, 0, self.E, self.rq, self.queue, acc.idle_at, acc.origin,
+                          acc.count, acc.due, acc.head_on, acc.air, acc.bkey, acc.dr, self.hooks, self.ip))
 
-    def _grow(self, size: int) -> None:
-        """Room for ``size`` frames on the air at once (the slots' rows, kept)."""
+    def _state(self) -> tuple:
+        """The engine's arrays, in :func:`~dkfsim.network.radio_kernels.run`'s order."""
+        acc = self.slotted
+        return (self.E, self.rq, self.queue, self.bg, acc.idle_at, acc.origin, acc.count, acc.due, acc.head_on,
+                acc.air, acc.bkey, acc.dr, self._rkeys, self.nodes, self._x, self._y, self.absent, self.ri, self.rf,
+                self.p, self.d, self.u, self.fate, self.sensed, self.si, self.free, self.onair, self._sbuf, self.sl,
+                self._went, self._loss, self.pairs, self.fates, self.ticks, self._window, self._counted,
+                self.periods, self.dropped, self.log, self.own, self.hooks, self.ip, self.fp, self._plp,
+                *self._tables)
+
+    def _grow_slots(self, size: int) -> None:
+        """Room for ``size`` frames on the air at once (the slots' rows kept; the new ones free)."""
         m = len(self.nodes)
-        old = len(self.si) if hasattr(self, "si") else 0
+        old = len(self.p)
 
-        def grown(a: np.ndarray | None, dtype: Any) -> np.ndarray:
-            new = np.zeros((size, m), dtype=dtype)
-            if a is not None:
-                new[:old] = a
+        def grown(a: np.ndarray | None, shape: tuple, dtype: Any) -> np.ndarray:
+            new = np.zeros(shape, dtype=dtype)
+            if a is not None and old:
+                new[:old] = a[:old]
             return new
-        self.p = grown(self.p if old else None, np.float64)
-        self.d = grown(self.d if old else None, np.float64)
-        self.u = grown(self.u if old else None, np.float64)
-        self.fate = grown(self.fate if old else None, np.int8)
-        self.sensed = grown(self.sensed if old else None, np.bool_)
-        si = np.zeros((size, 3), dtype=np.int64)
-        if old:
-            si[:old] = self.si
-        self.si = si
-        self._free.extend(range(size - 1, old - 1, -1))
+        first = old == 0
+        self.p = grown(self.p, (size, m), np.float64)
+        self.d = grown(None if first else self.d, (size, m), np.float64)
+        self.u = grown(None if first else self.u, (size, m), np.float64)
+        self.fate = grown(None if first else self.fate, (size, m), np.int8)
+        self.sensed = grown(None if first else self.sensed, (size, m), np.bool_)
+        self.si = grown(None if first else self.si, (size, rk.NSI), np.int64)
+        self.onair = grown(None if first else self.onair, (size,), np.int64)
+        nfree = int(self.E[rk.E_NFREE])
+        free = np.zeros(size, dtype=np.int64)
+        if not first:
+            free[:nfree] = self.free[:nfree]
+        free[nfree:nfree + size - old] = np.arange(size - 1, old - 1, -1)
+        self.free = free
+        self.E[rk.E_NFREE] = nfree + size - old
+        self.sl = np.zeros(size, dtype=np.int64)
+        self.own = np.zeros(size, dtype=np.int64)
+        self.hooks = np.zeros((2 * size + 4, 3), dtype=np.int64)
+
+    def _grow(self, what: int) -> None:
+        """Double the buffer the engine found full (:data:`~dkfsim.network.radio_kernels.GROW`)."""
+        if what == rk.G_SLOTS:
+            self._grow_slots(2 * len(self.p) + len(self.nodes))
+        elif what == rk.G_QUEUE:
+            m, cap = self.queue.shape[:2]
+            order = (self.rq[rk.Q_HEAD][:, None] + np.arange(cap)) % cap    # (each ring unrolled from its head)
+            queue = np.zeros((m, 2 * cap, 4), dtype=np.int64)
+            queue[:, :cap] = np.take_along_axis(self.queue, order[:, :, None], axis=1)
+            self.queue = queue
+            self.rq[rk.Q_HEAD] = 0
+        elif what == rk.G_PERIODS:
+            self.periods = np.concatenate([self.periods, np.zeros_like(self.periods)])
+        elif what == rk.G_DROPPED:
+            self.dropped = np.concatenate([self.dropped, np.zeros_like(self.dropped)])
+        else:
+            self._drain_log()
+            self.log = np.zeros((2 * len(self.log) + len(self.p), 5), dtype=np.int64)
+
+    def _refill(self, i: int) -> None:
+        """Radio ``i``'s next background packets into its block, never splitting an instant: 4
+        at first, twice as many each time up to the block's width (a short run of hundreds of
+        radios draws few)."""
+        bg = self.radios[int(self.nodes[i])].background
+        assert bg is not None
+        want = self._takes[i] = min(2 * self._takes[i], self.bg.shape[1])
+        times, sizes = bg.take(want)
+        n = len(times)
+        if n > self.bg.shape[1]:
+            wide = np.zeros((self.bg.shape[0], 2 * n, 3), dtype=np.int64)
+            wide[:, :self.bg.shape[1]] = self.bg
+            self.bg = wide
+        row = self.bg[i]
+        row[:n, rk.G_TIME] = times
+        row[:n, rk.G_SIZE] = sizes
+        row[:n, rk.G_AIR] = [self.airtime(size) for size in sizes]
+        self.rq[rk.B_POS, i], self.rq[rk.B_LEN, i] = 0, n
 
     @override
     def make_access(self, spec: MediumSpec, seed: int) -> Access:
@@ -242,95 +338,99 @@ class RadioChannel(Channel):
         self.slotted = impl(spec.access, self, seed)
         return self.slotted
 
-    # ------------------------------------------------------------------ the air
-    def _fill(self, slot: int, node: int, i: int, handed: int, seq0: int, ts: int) -> None:
-        """Slot ``slot``'s rows for a frame sent by ``node`` (member ``i``) at ``ts``: its distance
-        to every member and the path loss there (the model's, vectorised), then its power (mW) and
-        decision draws (:func:`~dkfsim.network.radio_kernels.fill`)."""
-        rp = self.params
-        k = min(ts // self.T_ns, len(self._x) - 1)
-        x, y = self._x[k], self._y[k]
-        d = np.hypot(x - x[i], y - y[i], out=self.d[slot])
-        loss = path_loss_db(rp.path_loss, d, rp.frequency)
-        self._fill_k(self.p, self.u, slot, loss, self._keys[node], handed, seq0, self.nodes, i, rp.power,
-                     self.sigma, self.fade_table, Z_MAX, float(Z_STEPS), self.absent[k])
+    # ------------------------------------------------------------------ the engine
+    @override
+    def _arrive(self, radio: Radio, frame: Frame, now: int) -> bool:
+        i = self.pos_of[radio.node]
+        if self.rq[rk.Q_LEN, i] >= self.queue.shape[1]:
+            self._grow(rk.G_QUEUE)
+        fid = self._fid
+        self.E[rk.E_NHOOK] = 0
+        ok = self._push(i, frame.size, frame.handed, fid, self.airtime(frame.size), now, self.E, self.rq, self.queue,
+                        *self._access, self.hooks, self.ip)
+        if ok:
+            self._frames[fid] = frame
+            self._fid += 1
+        self._called_back()
+        return bool(ok)
+
+    @property
+    def _access(self) -> tuple:
+        acc = self.slotted
+        return acc.idle_at, acc.origin, acc.count, acc.due, acc.head_on, acc.air, acc.bkey, acc.dr
 
     @override
-    def sends(self, node: int, t: int) -> bool:
-        """A member off the road at ``t`` sends none of its background then."""
-        absent = self.absent
-        return not self._anyone_absent or not absent[min(t // self.T_ns, len(absent) - 1), self.pos_of[node]]
+    def advance(self, t: int) -> None:
+        """Bring the channel up to instant ``t`` (:meth:`Channel.advance`), in the engine: it
+        returns to Python only for what Python keeps (see the class)."""
+        if t <= self.now:
+            return
+        held = self._held
+        while True:
+            th = held[0][0] if held else NEVER
+            status = self._run(t, th, *self._state())
+            self.slotted.changed()
+            if status == rk.DONE:
+                break
+            if status == rk.YIELD:
+                self._called_back()
+                self._ended()
+            elif status == rk.HELD:
+                self._release(th)
+            elif status == rk.REFILL:
+                self._refill(int(self.E[rk.E_ARG]))
+            else:
+                self._grow(int(self.E[rk.E_ARG]))
+        self.now = t
+        if self.ended is not None:
+            self._drain_log()
+
+    def _called_back(self) -> None:
+        """A researcher's access rule's calls the engine left to Python, in order."""
+        n = int(self.E[rk.E_NHOOK])
+        if not n:
+            return
+        acc, nodes = self.slotted, self.nodes
+        for what, i, t in self.hooks[:n].tolist():
+            if what == rk.H_HEAD:
+                acc.on_head(i, t, bool(acc.idle_at[i] >= 0))
+            else:
+                acc.sent(self.radios[int(nodes[i])], t)
+        self.E[rk.E_NHOOK] = 0
+        acc.changed()
+
+    def _ended(self) -> None:
+        """The estimators' frames that ended: each told its fates (``lost_at``) and counted."""
+        n = int(self.E[rk.E_NOWN])
+        for s in self.own[:n].tolist():
+            frame = self._frames.pop(int(self.si[s, rk.S_FID]))
+            frame.start, frame.end = int(self.si[s, rk.S_START]), int(self.si[s, rk.S_END])
+            fate = self.fate[s].copy()
+            self.pending -= 1
+            frame.lost_at = Losses(fate, self.pos_of, self.nodes)
+            own = self._owned.get(frame.owner)
+            if own is None:
+                own = self._owned[frame.owner] = array("q")
+            own.extend((frame.end, bool((fate == rk.COLLISION).any()), frame.start - frame.handed))
+            assert frame.done is not None
+            frame.done(frame, True)
+        self.E[rk.E_NOWN] = 0
+
+    def _drain_log(self) -> None:
+        """The engine's log of ended frames into :attr:`ended` (with ``record``)."""
+        n = int(self.E[rk.E_NLOG])
+        if self.ended is not None and n:
+            self.ended.extend((a, b, c, bool(ok), bool(bg)) for a, b, c, ok, bg in self.log[:n].tolist())
+        self.E[rk.E_NLOG] = 0
 
     @override
-    def _start(self, ts: int) -> None:
-        starters = self.access.start(ts)
-        if not starters:
-            raise RuntimeError(f"radio channel: no head is due at {ts} ns")
-        kind, tab_x, tab_y = self.rule
-        self._close(self.ri, self.rf, kind, tab_x, tab_y, self.noise, ts)
-        if len(self._free) < len(starters):
-            self._grow(2 * len(self.si) + len(starters))
-        slots = np.empty(len(starters), dtype=np.int64)
-        for n, radio in enumerate(starters):
-            frame = radio.queue.popleft()
-            radio.queued_bytes -= frame.size
-            frame.start = ts
-            frame.end = ts + self.airtime(frame.size)
-            radio.on_air = frame
-            self.on_air.append(frame)
-            node = radio.node
-            i = self.pos_of[node]
-            handed, k = self._keyed.get(node, (-1, 0))
-            k = k + 1 if handed == frame.handed else 0
-            self._keyed[node] = (frame.handed, k)
-            slot = self._free.pop()
-            self._fill(slot, node, i, frame.handed, k * SEQ, ts)
-            self.si[slot] = (i, ts, frame.end)
-            self._slot_of[slot] = frame
-            slots[n] = slot
-            self.started_frames += 1
-            self._periods.extend((ts, frame.end, 1, frame.done is None, 0))
-        went = self._start_k(self.ri, self.rf, self.p, self.fate, self.sensed, self.si, slots, ts, self.sens,
-                             self.cs, self.capture, self._went)
-        self.slotted.busy(self._went, ts, went)
-        self._next_end = min(f.end for f in self.on_air)
+    def first_end(self) -> int:
+        return int(self.E[rk.E_NEXT_END])
 
-    @override
-    def _end(self, te: int) -> None:
-        ending = sorted((slot for slot, f in self._slot_of.items() if f.end == te), key=lambda s: self.si[s, 0])
-        kind, tab_x, tab_y = self.rule
-        self._close(self.ri, self.rf, kind, tab_x, tab_y, self.noise, te)
-        slots = np.asarray(ending, dtype=np.int64)
-        went = self._end_k(self.ri, self.rf, self.p, self.d, self.u, self.fate, self.sensed, self.si, slots, te,
-                           kind, tab_x, tab_y, self.noise, self.width, self.pairs, self.fates, self._went,
-                           self.ticks, self.T_ns, self._window, self._counted)
-        frames = [self._slot_of.pop(slot) for slot in ending]
-        if not self._slot_of:
-            self.rf[rk.TOTAL] = 0.0             # (nothing on the air: no rounding left over)
-        self.slotted.clear(self._went, te, self.ri[rk.RXERR], went)     # (their errors read and cleared)
-        self.on_air = [f for f in self.on_air if f.end != te]
-        self._next_end = min((f.end for f in self.on_air), default=NEVER)
-        radios, access, nodes = self.radios, self.access, self.nodes
-        for slot, frame in zip(ending, frames):
-            fate = self.fate[slot]
-            self._free.append(slot)
-            radio = radios[frame.node]
-            radio.on_air = None
-            if self.ended is not None:
-                lost = np.flatnonzero((fate != rk.RECEIVED) & (fate != rk.SENDER))
-                self.ended.append((frame.node, frame.start, frame.end, len(lost) < len(nodes) - 1, frame.done is None))
-            if frame.done is not None:
-                self.pending -= 1
-                frame.lost_at = Losses(fate.copy(), self.pos_of, nodes)
-                own = self._owned.get(frame.owner)
-                if own is None:
-                    own = self._owned[frame.owner] = array("q")
-                own.extend((frame.end, bool((fate == rk.COLLISION).any()), frame.start - frame.handed))
-                frame.done(frame, True)
-            if self._sent is not None:
-                self._sent(radio, te)
-            if radio.queue:
-                access.head(radio, te)
+    @property
+    def started_frames(self) -> int:
+        """Frames started so far."""
+        return int(self.E[rk.E_STARTED])
 
     # ------------------------------------------------------------------ statistics
     def measure(self, senders: Any = None, start: int = 0, end: int | None = None) -> None:
@@ -414,10 +514,9 @@ class RadioChannel(Channel):
         frame ``collided`` when some receiver lost it to a collision is not known per period
         here: ``collisions`` counts the pairs lost to a collision)."""
         self.advance(min(end_ns, self.env.now))
-        p = np.frombuffer(self._periods, dtype=np.int64).reshape(-1, 5)
+        p = self.periods[:int(self.E[rk.E_NPER])]
         p = p[p[:, 0] < end_ns]
-        dropped = np.frombuffer(self._dropped, dtype=np.int64)
+        dropped = self.dropped[:int(self.E[rk.E_NDROP])]
         return {"utilisation": 0.0, "frames_on_air": int(len(p)), "collisions": int(self.fates[rk.COLLISION]),
                 "background_sent": int(p[:, 3].sum()), "background_collided": 0,
                 "background_dropped": int((dropped <= end_ns).sum())}
-

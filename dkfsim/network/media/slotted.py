@@ -31,7 +31,7 @@ from dkfsim.components.medium import Edca
 from dkfsim.core.jit import bind
 from dkfsim.core.registry import MEDIA
 from dkfsim.core.streams import key64, keyed_uniform
-from dkfsim.network import slotted_kernels as sk
+from dkfsim.network import radio_kernels as rk
 from dkfsim.network.media.channel import NEVER, Access, Channel, Radio
 
 
@@ -63,6 +63,9 @@ class SlottedAccess(Access):
 
     #: the backoff draws' name in their key ``("channel", c, node, name)``
     draws: ClassVar[str] = "backoff"
+    #: the rule as the radio's compiled engine runs it (:data:`~dkfsim.network.radio_kernels.EDCA`,
+    #: ``CSMA``); ``CUSTOM``, a researcher's: the engine calls :meth:`on_head` and :meth:`sent` back
+    rule: ClassVar[int] = rk.CUSTOM
 
     def __init__(self, params: Any, channel: Channel, seed: int):
         super().__init__(params, channel, seed)
@@ -72,8 +75,11 @@ class SlottedAccess(Access):
         #: a radio's position in the arrays
         self.pos = {radio.node: i for i, radio in enumerate(self.radios)}
         m = len(self.radios)
-        self._backoffs = [Backoff(key64(seed, "channel", channel.index, radio.node, self.draws))
-                          for radio in self.radios]
+        #: each radio's backoff key, and its draws' last instant and count at it (:meth:`draw`)
+        self.bkey = np.array([key64(seed, "channel", channel.index, radio.node, self.draws) for radio in self.radios],
+                             dtype=np.uint64)
+        self.dr = np.zeros((2, m), dtype=np.int64)
+        self.dr[rk.DRAWN_AT] = -1
         #: the instant each radio's medium became idle (-1: it senses it busy); boundary 0 of
         #: its count; its backoff in slots from ``origin`` (-1: none pending); when its head
         #: frame starts if the medium stays idle (NEVER: no head, or busy)
@@ -92,23 +98,33 @@ class SlottedAccess(Access):
         self._no_error = np.zeros(m, dtype=np.int64)
         #: the earliest ``due`` (-1: to be worked out again)
         self._best = -1
-        k = sk.compiled() if channel.backend.compiled else sk
+        k = rk.compiled() if channel.backend.compiled else rk
         state = (self.idle_at, self.origin, self.count, self.due, self.head_on)
         self._busy = bind(k.busy, *state, self._all, 0, 0, 1, NEVER)
         self._clear = bind(k.clear, *state, self._all, 0, 0, 1, 1, 1, self._no_error)
-        self._start = bind(k.start, self.due, self.head_on, self.count, 0, NEVER, self._out)
+        self._start = bind(k.take_due, self.due, self.head_on, self.count, 0, NEVER, self._out)
         self._first_air = bind(k.first_air, self.due, self.air, 0)
+        self._on_head = rk.quiet(bind(k.on_head, self.rule or rk.EDCA, 0, 0, True, self.origin, self.count,
+                                      self.due, self.bkey, self.dr, 1, 1))
+
+    def changed(self) -> None:
+        """The counts changed outside these methods (the radio's engine): :meth:`next_start` works
+        the earliest due instant out again."""
+        self._best = -1
 
     def draw(self, i: int, t: int) -> int:
-        """A backoff uniform in ``0 .. cw`` for radio ``i`` at ``t`` (:meth:`Backoff.draw`)."""
-        return self._backoffs[i].draw(t, self.cw)
-
-    def _join(self, i: int, t: int, b: int) -> None:
-        """Radio ``i``'s head, idle, goes ``b`` boundaries after the first at or after ``t``."""
-        first = int(self.origin[i])
-        join = 0 if t <= first else -(-(t - first) // self.slot)
-        self.count[i] = join + b
-        self.due[i] = first + (join + b) * self.slot
+        """A backoff uniform in ``0 .. cw`` for radio ``i`` at ``t``: the keyed draw at ``(t,
+        attempt)``, ``attempt`` the number of its earlier draws at ``t``
+        (:func:`~dkfsim.network.radio_kernels.draw`, the same bits and state)."""
+        dr = self.dr
+        if dr[rk.DRAWN_AT, i] != t:
+            dr[rk.DRAWN_AT, i] = t
+            k = 0
+        else:
+            k = int(dr[rk.DRAWN, i])
+        dr[rk.DRAWN, i] = k + 1
+        count = int(keyed_uniform(int(self.bkey[i]), t, k) * (self.cw + 1))
+        return self.cw if count > self.cw else count
 
     @override
     def head(self, radio: Radio, t: int) -> None:
@@ -119,13 +135,17 @@ class SlottedAccess(Access):
         self._best = -1
 
     def on_head(self, i: int, t: int, idle: bool) -> None:
-        """Radio ``i``'s head frame arrived at ``t`` (its medium idle or not): set its count."""
-        raise NotImplementedError
+        """Radio ``i``'s head frame arrived at ``t`` (its medium idle or not): set its count and
+        due instant (a built-in rule: :func:`~dkfsim.network.radio_kernels.on_head`; a
+        researcher's overrides this)."""
+        if self.rule == rk.CUSTOM:
+            raise NotImplementedError
+        self._on_head(self.rule, i, t, idle, self.origin, self.count, self.due, self.bkey, self.dr, self.cw, self.slot)
 
     def busy(self, nodes: np.ndarray | None, t: int, n: int = -1) -> None:
         """The radios at positions ``nodes[:n]`` (None: all; ``n`` -1: every one of ``nodes``)
         sense the medium busy from ``t``: each idle one's count keeps the boundaries not passed
-        before ``t`` (:func:`~dkfsim.network.slotted_kernels.busy`)."""
+        before ``t`` (:func:`~dkfsim.network.radio_kernels.busy`)."""
         sel = self._all if nodes is None else nodes
         if self._busy(self.idle_at, self.origin, self.count, self.due, self.head_on, sel,
                       len(sel) if n < 0 else n, t, self.slot, NEVER):
@@ -134,7 +154,7 @@ class SlottedAccess(Access):
     def clear(self, nodes: np.ndarray, t: int, error: np.ndarray | None = None, n: int = -1) -> None:
         """The radios at positions ``nodes[:n]`` (``n`` -1: every one) sense the medium idle from
         ``t`` (``error``, over every radio: those whose last frame received was in error count from
-        ``t + eifs``; read and cleared; :func:`~dkfsim.network.slotted_kernels.clear`)."""
+        ``t + eifs``; read and cleared; :func:`~dkfsim.network.radio_kernels.clear`)."""
         if self._clear(self.idle_at, self.origin, self.count, self.due, self.head_on, nodes,
                        len(nodes) if n < 0 else n, t, self.slot, self.aifs, self.eifs,
                        self._no_error if error is None else error):
@@ -177,23 +197,11 @@ class SlottedAccess(Access):
 @MEDIA.register("edca", params=Edca)
 class EdcaAccess(SlottedAccess):
     """IEEE 802.11p EDCA (see the module): immediate access on an idle medium, a backoff drawn
-    when busy, a post-backoff after every own frame, EIFS after a frame received in error."""
+    when busy, a post-backoff after every own frame, EIFS after a frame received in error
+    (:func:`~dkfsim.network.radio_kernels.on_head`)."""
 
     draws = "edca"
-
-    @override
-    def on_head(self, i: int, t: int, idle: bool) -> None:
-        c = int(self.count[i])
-        if c >= 0 and idle and int(self.origin[i]) + c * self.slot < t:
-            c = -1                          # the post-backoff ran out before the frame came
-            self.count[i] = -1
-        if c >= 0:
-            if idle:
-                self.due[i] = int(self.origin[i]) + c * self.slot
-        elif idle:
-            self.due[i] = max(t, int(self.origin[i]))
-        else:
-            self.count[i] = self.draw(i, t)
+    rule = rk.EDCA
 
     @override
     def sent(self, radio: Radio, te: int) -> None:
@@ -204,16 +212,8 @@ class EdcaAccess(SlottedAccess):
 class RadioCsma(SlottedAccess):
     """``csma`` where each radio has its own view of the medium (a spatial radio): a backoff
     for every head frame, as :class:`~dkfsim.network.media.csma.CsmaAccess` draws it, counted
-    in the radio's own idle slots.  With every radio sensing every frame it is that rule, bit for
-    bit (tests/test_radio.py)."""
+    in the radio's own idle slots (:func:`~dkfsim.network.radio_kernels.on_head`).  With every
+    radio sensing every frame it is that rule, bit for bit (tests/test_radio.py)."""
 
     draws = "backoff"
-
-    @override
-    def on_head(self, i: int, t: int, idle: bool) -> None:
-        b = self.draw(i, t)
-        if idle:
-            self._join(i, t, b)
-        else:
-            self.count[i] = b
-
+    rule = rk.CSMA
