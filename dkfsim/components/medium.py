@@ -130,6 +130,67 @@ class Edca(Csma, kind="edca"):
         return seconds_to_ns(self.eifs)
 
 
+#: Resource reservation intervals LTE-V2X allows (s): 20 and 50 ms, and 100 ms to 1 s in 100 ms steps.
+RRI_ALLOWED = (0.02, 0.05) + tuple(round(0.1 * k, 1) for k in range(1, 11))
+
+
+class Sps(AccessParams, kind="sps"):
+    """C-V2X sidelink (LTE-V2X mode 4): sensing-based semi-persistent scheduling on the spatial
+    radio (docs/radio.md, "C-V2X sidelink").
+
+    Time runs in 1 ms subframes and the band in ``subchannels``; a packet takes the sub-channels
+    its size needs (``subchannel_bytes`` each at the configured MCS) in one subframe.  Each
+    vehicle keeps a reservation every ``rri`` seconds for a counter of transmissions drawn
+    uniformly in 5..15 (``rri`` >= 0.1 s), 10..30 (0.05) or 25..75 (0.02) (3GPP TS 36.321
+    §5.14.1.1); when it runs out the vehicle keeps it with probability ``p_keep``, else selects
+    anew.  A selection (3GPP TS 36.213 §14.1.1.6) looks at the last 1000 subframes: it excludes the
+    candidates whose 100 ms images it transmitted in (it could not sense them) and those reserved
+    by a vehicle whose control message it received above ``rsrp_threshold`` (raised by
+    ``threshold_step`` until ``candidates`` of them remain), then picks at random among that
+    fraction with the lowest average RSSI.  A packet that does not fit its reservation (too big,
+    or its next occurrence later than ``budget`` after the packet) follows ``misfit``:
+    ``reselect`` (a new reservation; 3GPP's MAC) or ``one_shot`` (a selection for that packet
+    alone, the reservation kept; Molina-Masegosa et al., IEEE Access 2020)."""
+
+    subchannels: Annotated[int, Field(strict=True, ge=1, le=100)] = 4
+    subchannel_bytes: Annotated[int, Field(strict=True, ge=1, le=1 << 20)] = 190
+    #: the share of the band's noise (``medium.radio.noise``) one sub-channel's data takes: its
+    #: data resource blocks over the band's (10 of 50 at 10 MHz)
+    noise_share: Annotated[float, Field(strict=True, gt=0, le=1, allow_inf_nan=False)] = 0.2
+    rri: Annotated[float, Field(strict=True, gt=0, le=1, allow_inf_nan=False)] = 0.1
+    p_keep: Annotated[float, Field(strict=True, ge=0, le=1, allow_inf_nan=False)] = 0.0
+    #: dBm: a reservation received above it is excluded from a selection (the analytic model's
+    #: sensing power)
+    rsrp_threshold: Annotated[float, Field(strict=True, ge=-400, le=400, allow_inf_nan=False)] = -90.5
+    threshold_step: Annotated[float, Field(strict=True, gt=0, le=100, allow_inf_nan=False)] = 3.0
+    candidates: Annotated[float, Field(strict=True, gt=0, le=1, allow_inf_nan=False)] = 0.2
+    #: s: the latest a packet goes after its arrival (the selection window's end, T2)
+    budget: Annotated[float, Field(strict=True, ge=0.001, le=1, allow_inf_nan=False)] = 0.1
+    misfit: Literal["reselect", "one_shot"] = "reselect"
+    #: dBm: a sub-channel whose power (RSSI) in a subframe reaches it is busy, for the CBR
+    cbr_threshold: Annotated[float, Field(strict=True, ge=-400, le=400, allow_inf_nan=False)] = -94.0
+
+    @field_validator("rri")
+    @classmethod
+    def _allowed(cls, rri: float) -> float:
+        if not any(abs(rri - a) < 1e-9 for a in RRI_ALLOWED):
+            raise custom_error(f"LTE-V2X reserves every 0.02, 0.05 or 0.1 .. 1.0 s in steps of 0.1; got {rri!r}")
+        return rri
+
+    @property
+    def rri_ms(self) -> int:
+        return int(round(self.rri * 1000))
+
+    @property
+    def budget_ms(self) -> int:
+        return max(1, int(self.budget * 1000 + 1e-9))
+
+    @property
+    def counter_range(self) -> tuple[int, int]:
+        """The reselection counter's range for ``rri`` (3GPP TS 36.321 §5.14.1.1)."""
+        return (5, 15) if self.rri_ms >= 100 else ((10, 30) if self.rri_ms == 50 else (25, 75))
+
+
 #: ``medium.access``: any registered access rule (``csma`` when ``kind`` is absent).
 if TYPE_CHECKING:
     AccessField = AccessParams
@@ -268,6 +329,13 @@ class Medium(StrictModel):
             raise custom_error("a channel needs at least two nodes: give 'all' or a list of two or "
                                f"more node numbers, got {list(value)!r}")
         return value
+
+    @model_validator(mode="after")
+    def _sidelink_on_a_radio(self) -> Medium:
+        if isinstance(self.access, Sps) and self.radio is None:
+            raise custom_error("sps (C-V2X sidelink) runs on the spatial radio: give medium.radio "
+                               "(e.g. radio: {} for its defaults)", "access")
+        return self
 
     def members(self, n: int) -> tuple[int, ...]:
         """The nodes on the channel, in increasing order, then its bystanders ``n .. n + count - 1``."""

@@ -22,14 +22,15 @@ from dkfsim.components.faults import CrashSchedule
 from dkfsim.components.medium import Medium as MediumSpec
 from dkfsim.components.mobility import LinkSchedule
 from dkfsim.core.backend import Backend
+from dkfsim.core.registry import MEDIA
 from dkfsim.network.events import Clock
 from dkfsim.network.links import Link
-from dkfsim.network.media import csma, slotted  # noqa: F401  (registers the access rules)
+from dkfsim.network.media import csma, sidelink, slotted  # noqa: F401  (registers the access rules)
 from dkfsim.network.media.base import Medium
 from dkfsim.network.media.channel import Channel
 from dkfsim.network.media.direct import DIRECT
 from dkfsim.network.media.fifo import Fifo, FifoTable
-from dkfsim.network.media.radio import RadioChannel
+from dkfsim.network.media.radio import RadioChannel, SpatialChannel
 from dkfsim.network.port import Port, Receive, RecordPort
 
 #: The key of a media store's shared channel (link ids are ints).
@@ -147,8 +148,11 @@ class Network:
         channel = store.get(_CHANNEL)
         if channel is None:
             if self.medium.radio is not None:
-                channel = RadioChannel(self.env, self.medium, self._member_order, self.seed, self.positions, self.T_ns,
-                                       backend=self.backend, presence=self.presence)
+                # (an access that is a spatial channel of its own, the sidelink's, or the 802.11p radio's rules)
+                impl = MEDIA.get(self.medium.access.kind).implementation
+                kind = impl if isinstance(impl, type) and issubclass(impl, SpatialChannel) else RadioChannel
+                channel = kind(self.env, self.medium, self._member_order, self.seed, self.positions, self.T_ns,
+                               backend=self.backend, presence=self.presence)
             else:
                 channel = Channel(self.env, self.medium, self._member_order, self.seed, T_ns=self.T_ns,
                                   backend=self.backend)

@@ -25,7 +25,8 @@ from dkfsim.core.jit import LazyKernels
 
 _KERNELS = ("keyed_uniform", "polevl", "p1evl", "ndtri", "fill", "error_rate", "busy_ticks", "close",
             "start", "end", "path_loss", "draw", "on_head", "busy", "clear", "take_due", "first_air", "head",
-            "push", "background", "transmit", "finish", "run")
+            "push", "background", "transmit", "finish", "run", "sps_draw", "sps_select", "sps_assign", "sps_push",
+            "sps_transmit", "sps_finish", "run_sps")
 _lazy = LazyKernels(__name__, _KERNELS, inline=("keyed_uniform", "polevl", "p1evl", "error_rate", "busy_ticks",
                                                 "path_loss"))
 
@@ -72,7 +73,10 @@ G_QUEUE, G_SLOTS, G_PERIODS, G_DROPPED, G_LOG = range(5)
 #: ``periods``, ``dropped``, ``log``, estimators' frames ended and access calls waiting for Python
 #: in this call, an argument of the status, a second one, frames started so far.
 E_NEXT_END, E_NAIR, E_NFREE, E_NPER, E_NDROP, E_NLOG, E_NOWN, E_NHOOK, E_ARG, E_ARG2, E_STARTED = range(11)
-NE = 11
+#: (the sidelink's) estimators' packets whose budget ran out in the waiting room in this call, and
+#: background packets so dropped over the run
+E_NGONE, E_EXPIRED = 11, 12
+NE = 13
 #: Rows of ``rq`` (per radio): its waiting room's first entry, length and bytes, the slot of its
 #: frame on the air (-1: none), its background block's next packet and length (-1: no
 #: background), the hand-over instant of its last frame started and how many started with it
@@ -878,6 +882,451 @@ def run(t: int, th: int, E: np.ndarray, rq: np.ndarray, queue: np.ndarray, bg: n
             st = transmit(ts, E, rq, queue, idle_at, origin, count, due, head_on, rkeys, nodes, px, py, absent, ri,
                           rf, p, d, u, fate, sensed, si, free, onair, sbuf, sl, went, loss, periods, ip, fp, plp,
                           table, tab_x, tab_y)
+            if st != DONE:
+                return st
+        else:
+            return DONE
+
+
+# ------------------------------------------------------------ the sidelink engine (:func:`run_sps`)
+#: One subframe (ns): C-V2X's time unit.
+SUBFRAME = 1_000_000
+#: Subframes a vehicle remembers of what it sensed (the 1000 ms sensing window), and the step of
+#: a candidate's images in it (100 ms).
+WINDOW_SF, IMAGE_SF = 1000, 100
+#: More causes of a lost pair on the sidelink: the receiver transmitted in that subframe, and a
+#: collision with a transmission on a reservation (a one-shot's: ``COLLISION``).
+HALF_DUPLEX, RESERVATION_COLLISION = 6, 7
+NFATES = 8
+#: Rows of ``vs`` (per vehicle): its reservation (held or not, an occurrence's subframe, first
+#: sub-channel, sub-channels, interval in subframes, transmissions left), its head packet's
+#: transmission (subframe, -1: none; first sub-channel, sub-channels, on the reservation or a
+#: one-shot), its waiting room and background block (:data:`Q_HEAD` ... as ``rq``), the draws'
+#: sequence of its frames, its own draws' last instant and count.
+(V_ON, V_SF, V_C, V_L, V_P, V_CNT, T_SF, T_C, T_L, T_SPS, VQ_HEAD, VQ_LEN, VQ_BYTES, VB_POS, VB_LEN, VK_HANDED,
+ VK_SEQ, VD_AT, VD_N) = range(19)
+NVS = 19
+#: Columns of ``sx`` (per slot): first sub-channel, sub-channels, on a reservation, the interval
+#: its control message announces (0: no further reservation).
+X_C, X_L, X_SPS, X_P = range(4)
+#: ``sp`` (int): sub-channels, bytes a sub-channel carries, interval (subframes), counter range,
+#: budget (subframes), one-shot misfits, tick (ns), waiting-room limits, reception rule, path loss.
+(SP_S, SP_BYTES, SP_P, SP_LO, SP_HI, SP_BUDGET, SP_ONESHOT, SP_T, SP_MAXP, SP_MAXB, SP_RX, SP_PL) = range(12)
+NSP = 12
+#: ``sf`` (float): power (dBm), shadowing sigma, the fading grid, sensitivity and noise (mW),
+#: noise share of one sub-channel, keep probability, RSRP threshold and its step (dB), the
+#: fraction of candidates kept, CBR threshold (mW per sub-channel), bin width (m).
+(SF_POWER, SF_SIGMA, SF_ZMAX, SF_ZSTEPS, SF_SENS, SF_NOISE, SF_SHARE, SF_KEEP, SF_RSRP, SF_STEP, SF_FRAC, SF_CBR,
+ SF_WIDTH) = range(13)
+NSF = 13
+
+
+def sps_draw(skey: np.ndarray, vs: np.ndarray, v: int, t: int) -> float:
+    """Vehicle ``v``'s next keyed uniform of its scheduling at ``t`` (counters, keeps, picks)."""
+    if vs[VD_AT, v] != t:
+        vs[VD_AT, v] = t
+        k = 0
+    else:
+        k = vs[VD_N, v]
+    vs[VD_N, v] = k + 1
+    return keyed_uniform(skey[v], t, k)
+
+
+def sps_select(v: int, now: int, a: int, b: int, L: int, vs: np.ndarray, skey: np.ndarray, kn: np.ndarray,
+               kr: np.ndarray, rssi: np.ndarray, txh: np.ndarray, tag: np.ndarray, sp: np.ndarray, sf: np.ndarray,
+               ex: np.ndarray, metric: np.ndarray) -> int:
+    """Vehicle ``v`` at subframe ``now`` picks a resource for ``L`` sub-channels in subframes
+    ``a .. b`` (3GPP TS 36.213 §14.1.1.6): the candidates (subframe, first sub-channel); step 2
+    excludes those whose 100 ms images in the last 1000 subframes it transmitted in, and those
+    another vehicle announced it will use, heard above the RSRP threshold (raised by its step
+    until the fraction ``SF_FRAC`` of them remains; the own exclusions dropped if even that
+    leaves too few); step 3 keeps that fraction with the lowest mean RSSI over the images and
+    picks one by a keyed draw.  Returns ``subframe * S + sub-channel``."""
+    S = sp[SP_S]
+    width = S - L + 1
+    nc = (b - a + 1) * width
+    need = int(math.ceil(sf[SF_FRAC] * nc - 1e-9))
+    if need < 1:
+        need = 1
+    m = kr.shape[1]
+    own = 1
+    th = sf[SF_RSRP]
+    top = -1e300
+    for u in range(m):
+        if u != v and kn[v, u, 0] >= now - WINDOW_SF and kn[v, u, 1] > 0 and kr[v, u] > top:
+            top = kr[v, u]
+    while True:
+        left = 0
+        for j in range(nc):
+            y = a + j // width
+            c = j % width
+            out = False
+            if own:
+                for q in range(1, WINDOW_SF // IMAGE_SF + 1):
+                    z = y - q * IMAGE_SF
+                    if now - WINDOW_SF <= z < now and tag[z % WINDOW_SF] == z and txh[v, z % WINDOW_SF]:
+                        out = True
+                        break
+            ex[j] = out
+        for u in range(m):
+            if u == v or kn[v, u, 0] < now - WINDOW_SF or kn[v, u, 1] <= 0 or kr[v, u] <= th:
+                continue
+            z0, p, c0, l0 = kn[v, u, 0], kn[v, u, 1], kn[v, u, 2], kn[v, u, 3]
+            k = 1 if z0 + p >= a else (a - z0 + p - 1) // p
+            z = z0 + k * p
+            while z <= b:
+                if z >= a:
+                    for c in range(width):
+                        if c < c0 + l0 and c0 < c + L:
+                            ex[(z - a) * width + c] = True
+                z += p
+        for j in range(nc):
+            if not ex[j]:
+                left += 1
+        if left >= need:
+            break
+        if th <= top:
+            th += sf[SF_STEP]
+        elif own:
+            own = 0
+            th = sf[SF_RSRP]
+        else:
+            break
+    for j in range(nc):
+        if ex[j]:
+            metric[j] = math.inf
+            continue
+        y = a + j // width
+        c = j % width
+        total, n = 0.0, 0
+        for q in range(1, WINDOW_SF // IMAGE_SF + 1):
+            z = y - q * IMAGE_SF
+            if now - WINDOW_SF <= z < now:
+                n += 1
+                if tag[z % WINDOW_SF] == z:
+                    for cc in range(c, c + L):
+                        total += rssi[v, z % WINDOW_SF, cc]
+        metric[j] = total / (n * L) if n else 0.0
+    order = np.argsort(metric[:nc], kind="mergesort")
+    keep = need if need < left else left
+    if keep < 1:
+        keep = 1
+    pick = order[int(sps_draw(skey, vs, v, now * SUBFRAME) * keep)]
+    return (a + pick // width) * S + pick % width
+
+
+def sps_assign(v: int, now: int, E: np.ndarray, vs: np.ndarray, queue: np.ndarray, gone: np.ndarray,
+               skey: np.ndarray, kn: np.ndarray, kr: np.ndarray, rssi: np.ndarray, txh: np.ndarray, tag: np.ndarray,
+               sp: np.ndarray, sf: np.ndarray, ex: np.ndarray, metric: np.ndarray) -> None:
+    """Vehicle ``v``'s head packet became its head at subframe ``now``: the subframe and
+    sub-channels it goes in, within its budget from its hand-over -- its reservation's next
+    occurrence when it fits, else by ``misfit`` a new reservation or a one-shot selection.  A
+    head whose budget has run out is dropped (an estimator's listed in ``gone``) and the next
+    one scheduled."""
+    S = sp[SP_S]
+    cap = queue.shape[1]
+    while vs[VQ_LEN, v] > 0:
+        h = vs[VQ_HEAD, v]
+        size, handed, fid = queue[v, h, F_SIZE], queue[v, h, F_HANDED], queue[v, h, F_FID]
+        a, b = now + 1, handed // SUBFRAME + sp[SP_BUDGET]
+        if b >= a:
+            break
+        vs[VQ_HEAD, v] = (h + 1) % cap
+        vs[VQ_LEN, v] -= 1
+        vs[VQ_BYTES, v] -= size
+        if fid >= 0:
+            gone[E[E_NGONE]] = fid
+            E[E_NGONE] += 1
+        else:
+            E[E_EXPIRED] += 1
+    if vs[VQ_LEN, v] == 0:
+        return
+    L = (size + sp[SP_BYTES] - 1) // sp[SP_BYTES]
+    if vs[V_ON, v] and L <= vs[V_L, v]:
+        z0, p = vs[V_SF, v], vs[V_P, v]
+        occ = z0 if z0 >= a else z0 + ((a - z0 + p - 1) // p) * p
+        if occ <= b:
+            vs[T_SF, v], vs[T_C, v], vs[T_L, v], vs[T_SPS, v] = occ, vs[V_C, v], L, 1
+            return
+    pick = sps_select(v, now, a, b, L, vs, skey, kn, kr, rssi, txh, tag, sp, sf, ex, metric)
+    y, c = pick // S, pick % S
+    if vs[V_ON, v] and sp[SP_ONESHOT]:
+        vs[T_SF, v], vs[T_C, v], vs[T_L, v], vs[T_SPS, v] = y, c, L, 0
+        return
+    lo, hi = sp[SP_LO], sp[SP_HI]
+    vs[V_ON, v], vs[V_SF, v], vs[V_C, v], vs[V_L, v], vs[V_P, v] = 1, y, c, L, sp[SP_P]
+    vs[V_CNT, v] = lo + int(sps_draw(skey, vs, v, now * SUBFRAME) * (hi - lo + 1))
+    vs[T_SF, v], vs[T_C, v], vs[T_L, v], vs[T_SPS, v] = y, c, L, 1
+
+
+def sps_push(v: int, size: int, handed: int, fid: int, airtime: int, now: int, E: np.ndarray, vs: np.ndarray,
+             queue: np.ndarray, gone: np.ndarray, skey: np.ndarray, kn: np.ndarray, kr: np.ndarray, rssi: np.ndarray,
+             txh: np.ndarray, tag: np.ndarray, sp: np.ndarray, sf: np.ndarray, ex: np.ndarray,
+             metric: np.ndarray) -> bool:
+    """A packet reaches vehicle ``v``'s waiting room at ``now`` (ns; False: refused -- the room
+    full, or more sub-channels than the band has); alone there, it is scheduled at once."""
+    ql = vs[VQ_LEN, v]
+    if (size + sp[SP_BYTES] - 1) // sp[SP_BYTES] > sp[SP_S]:
+        return False
+    if sp[SP_MAXP] >= 0 and ql >= sp[SP_MAXP]:
+        return False
+    if sp[SP_MAXB] >= 0 and vs[VQ_BYTES, v] + size > sp[SP_MAXB]:
+        return False
+    j = (vs[VQ_HEAD, v] + ql) % queue.shape[1]
+    queue[v, j, F_SIZE], queue[v, j, F_HANDED], queue[v, j, F_FID], queue[v, j, F_AIR] = size, handed, fid, airtime
+    vs[VQ_LEN, v] = ql + 1
+    vs[VQ_BYTES, v] += size
+    if ql == 0 and vs[T_SF, v] < 0:
+        sps_assign(v, now // SUBFRAME, E, vs, queue, gone, skey, kn, kr, rssi, txh, tag, sp, sf, ex, metric)
+    return True
+
+
+def sps_transmit(ts: int, E: np.ndarray, vs: np.ndarray, queue: np.ndarray, gone: np.ndarray, skey: np.ndarray,
+                 rkeys: np.ndarray,
+                 nodes: np.ndarray, px: np.ndarray, py: np.ndarray, absent: np.ndarray, p: np.ndarray,
+                 d: np.ndarray, u: np.ndarray, si: np.ndarray, sx: np.ndarray, free: np.ndarray, onair: np.ndarray,
+                 loss: np.ndarray, kn: np.ndarray, kr: np.ndarray, rssi: np.ndarray, txh: np.ndarray,
+                 tag: np.ndarray, periods: np.ndarray, sp: np.ndarray, sf: np.ndarray, plp: np.ndarray,
+                 table: np.ndarray, ex: np.ndarray, metric: np.ndarray) -> int:
+    """The vehicles scheduled in the subframe starting at ``ts`` transmit their head packets:
+    each a slot with its powers and draws at every member (:func:`fill`), its sub-channels and
+    what its control message announces; a reservation's counter runs down (at 0: kept with
+    ``SF_KEEP``, a new counter, else released); the vehicle's next packet is scheduled."""
+    m = len(nodes)
+    now = ts // SUBFRAME
+    n = 0
+    for v in range(m):
+        if vs[T_SF, v] == now:
+            n += 1
+    if E[E_NFREE] < n:
+        E[E_ARG] = G_SLOTS
+        return GROW
+    if E[E_NPER] + n > periods.shape[0]:
+        E[E_ARG] = G_PERIODS
+        return GROW
+    k = ts // sp[SP_T]
+    if k > px.shape[0] - 1:
+        k = px.shape[0] - 1
+    cap = queue.shape[1]
+    for v in range(m):
+        if vs[T_SF, v] != now:
+            continue
+        h = vs[VQ_HEAD, v]
+        size, handed, fid = queue[v, h, F_SIZE], queue[v, h, F_HANDED], queue[v, h, F_FID]
+        vs[VQ_HEAD, v] = (h + 1) % cap
+        vs[VQ_LEN, v] -= 1
+        vs[VQ_BYTES, v] -= size
+        if vs[VK_HANDED, v] == handed:
+            vs[VK_SEQ, v] += 1
+        else:
+            vs[VK_HANDED, v] = handed
+            vs[VK_SEQ, v] = 0
+        E[E_NFREE] -= 1
+        s = free[E[E_NFREE]]
+        onair[E[E_NAIR]] = s
+        E[E_NAIR] += 1
+        x0, y0 = px[k, v], py[k, v]
+        for q in range(m):
+            dist = math.hypot(px[k, q] - x0, py[k, q] - y0)
+            d[s, q] = dist
+            loss[q] = path_loss(sp[SP_PL], plp, dist)
+        fill(p, u, s, loss, rkeys[v], handed, vs[VK_SEQ, v] * SEQ, nodes, v, sf[SF_POWER], sf[SF_SIGMA], table,
+             sf[SF_ZMAX], sf[SF_ZSTEPS], absent[k])
+        si[s, S_I], si[s, S_START], si[s, S_END], si[s, S_FID], si[s, S_HANDED] = v, ts, ts + SUBFRAME, fid, handed
+        on_res = vs[T_SPS, v]
+        sx[s, X_C], sx[s, X_L], sx[s, X_SPS], sx[s, X_P] = vs[T_C, v], vs[T_L, v], on_res, 0
+        if on_res:
+            vs[V_SF, v] = now
+            vs[V_CNT, v] -= 1
+            if vs[V_CNT, v] <= 0:
+                if sps_draw(skey, vs, v, ts) < sf[SF_KEEP]:
+                    lo, hi = sp[SP_LO], sp[SP_HI]
+                    vs[V_CNT, v] = lo + int(sps_draw(skey, vs, v, ts) * (hi - lo + 1))
+                else:
+                    vs[V_ON, v] = 0
+            if vs[V_ON, v]:
+                sx[s, X_P] = vs[V_P, v]
+        w = E[E_NPER]
+        periods[w, 0], periods[w, 1], periods[w, 2], periods[w, 3], periods[w, 4] = ts, ts + SUBFRAME, 1, fid < 0, 0
+        E[E_NPER] = w + 1
+        E[E_STARTED] += 1
+        vs[T_SF, v] = -1
+    for v in range(m):                      # (the next packets, scheduled from this subframe)
+        if vs[T_SF, v] < 0 and vs[VQ_LEN, v] > 0:
+            sps_assign(v, now, E, vs, queue, gone, skey, kn, kr, rssi, txh, tag, sp, sf, ex, metric)
+    E[E_NEXT_END] = ts + SUBFRAME
+    return DONE
+
+
+def sps_finish(te: int, E: np.ndarray, nodes: np.ndarray, p: np.ndarray, d: np.ndarray,
+               u: np.ndarray, fate: np.ndarray, si: np.ndarray, sx: np.ndarray, free: np.ndarray,
+               onair: np.ndarray, kn: np.ndarray, kr: np.ndarray, rssi: np.ndarray, txh: np.ndarray,
+               tag: np.ndarray, istx: np.ndarray, pairs: np.ndarray, fates: np.ndarray, ticks: np.ndarray,
+               window: np.ndarray, counted: np.ndarray, own: np.ndarray, sp: np.ndarray, sf: np.ndarray,
+               tab_x: np.ndarray, tab_y: np.ndarray) -> int:
+    """The subframe ending at ``te`` is decided: at each member every packet sent in it is
+    lost to ``HALF_DUPLEX`` (the member transmitted), ``SENSING`` (below sensitivity) or, from
+    its SINR over its sub-channels (noise of its share of the band, interference of every other
+    packet overlapping them), received or lost to ``PROPAGATION`` (lost without interference
+    too) or a collision (``RESERVATION_COLLISION`` when an overlapping packet was on a
+    reservation); a member that did not transmit hears the control message of each packet it
+    detects (the sender's reservation, by the packet's power) and senses each sub-channel's
+    power (RSSI, remembered 1000 subframes; busy for the CBR at ``SF_CBR``)."""
+    m = len(nodes)
+    S = sp[SP_S]
+    now = te // SUBFRAME - 1
+    n = E[E_NAIR]
+    ring = now % WINDOW_SF
+    if tag[ring] != now:
+        tag[ring] = now
+        for r in range(m):
+            txh[r, ring] = False
+            for c in range(S):
+                rssi[r, ring, c] = 0.0
+    for r in range(m):
+        istx[r] = 0
+    for j in range(n):
+        v = si[onair[j], S_I]
+        istx[v] = 1
+        txh[v, ring] = True
+    nb = pairs.shape[0]
+    k = (te - SUBFRAME) // sp[SP_T]
+    if k > ticks.shape[0] - 1:
+        k = ticks.shape[0] - 1
+    noise1 = sf[SF_NOISE] * sf[SF_SHARE]
+    for r in range(m):
+        busy = 0
+        for j in range(n):
+            s = onair[j]
+            v = si[s, S_I]
+            pj = p[s, r]
+            if v == r or pj < 0.0:
+                fate[s, r] = SENDER
+                if v == r:
+                    busy += sx[s, X_L]
+                continue
+            if istx[r]:
+                f = HALF_DUPLEX
+            elif pj < sf[SF_SENS]:
+                f = SENSING
+            else:
+                cj, lj = sx[s, X_C], sx[s, X_L]
+                interf, reserved = 0.0, False
+                for q in range(n):
+                    s2 = onair[q]
+                    if q == j or p[s2, r] <= 0.0:
+                        continue
+                    ov = min(cj + lj, sx[s2, X_C] + sx[s2, X_L]) - max(cj, sx[s2, X_C])
+                    if ov > 0:
+                        interf += p[s2, r] * ov / sx[s2, X_L]
+                        if sx[s2, X_SPS]:
+                            reserved = True
+                noise = noise1 * lj
+                per = error_rate(sp[SP_RX], tab_x, tab_y, 10.0 * math.log10(pj / (noise + interf)))
+                x = u[s, r]
+                if x < 1.0 - per:
+                    f = RECEIVED
+                elif interf == 0.0 or x >= 1.0 - error_rate(sp[SP_RX], tab_x, tab_y, 10.0 * math.log10(pj / noise)):
+                    f = PROPAGATION
+                else:
+                    f = RESERVATION_COLLISION if reserved else COLLISION
+                kn[r, v, 0], kn[r, v, 1], kn[r, v, 2], kn[r, v, 3] = now, sx[s, X_P], cj, lj
+                kr[r, v] = pj
+            fate[s, r] = f
+            if window[0] <= si[s, S_START] < window[1] and counted[v]:
+                fates[f] += 1
+                b = int(math.floor(d[s, r] / sf[SF_WIDTH] + 1e-9))
+                if b < nb:
+                    pairs[b, f] += 1
+        if not istx[r]:
+            for j in range(n):
+                s = onair[j]
+                pj = p[s, r]
+                if pj > 0.0:
+                    for c in range(sx[s, X_C], sx[s, X_C] + sx[s, X_L]):
+                        rssi[r, ring, c] += pj / sx[s, X_L]
+            for c in range(S):
+                if rssi[r, ring, c] + noise1 >= sf[SF_CBR]:
+                    busy += 1
+        ticks[k, r] += busy
+    for j in range(n):
+        s = onair[j]
+        if si[s, S_FID] >= 0:
+            own[E[E_NOWN]] = s
+            E[E_NOWN] += 1
+        free[E[E_NFREE]] = s
+        E[E_NFREE] += 1
+    E[E_NAIR] = 0
+    E[E_NEXT_END] = NEVER
+    return DONE
+
+
+def run_sps(t: int, th: int, E: np.ndarray, vs: np.ndarray, queue: np.ndarray, gone: np.ndarray, bg: np.ndarray,
+            skey: np.ndarray,
+            rkeys: np.ndarray, nodes: np.ndarray, px: np.ndarray, py: np.ndarray, absent: np.ndarray,
+            p: np.ndarray, d: np.ndarray, u: np.ndarray, fate: np.ndarray, si: np.ndarray, sx: np.ndarray,
+            free: np.ndarray, onair: np.ndarray, loss: np.ndarray, kn: np.ndarray, kr: np.ndarray,
+            rssi: np.ndarray, txh: np.ndarray, tag: np.ndarray, istx: np.ndarray, pairs: np.ndarray,
+            fates: np.ndarray, ticks: np.ndarray, window: np.ndarray, counted: np.ndarray, periods: np.ndarray,
+            dropped: np.ndarray, own: np.ndarray, sp: np.ndarray, sf: np.ndarray, plp: np.ndarray,
+            table: np.ndarray, tab_x: np.ndarray, tab_y: np.ndarray, ex: np.ndarray, metric: np.ndarray) -> int:
+    """:func:`run` for the sidelink (``medium.access.kind: sps``): bring it up to ``t`` -- at one
+    instant the subframe that ends, then the background vehicle by vehicle, then the held frames
+    (Python's), then the subframe that starts -- or until Python must act (the same statuses)."""
+    m = len(nodes)
+    E[E_NOWN] = 0
+    E[E_NHOOK] = 0
+    E[E_NGONE] = 0
+    while True:
+        if E[E_NGONE] > 0:
+            return YIELD
+        ta, ra = NEVER, -1
+        for r in range(m):
+            bl = vs[VB_LEN, r]
+            if bl < 0:
+                continue
+            if vs[VB_POS, r] >= bl:
+                E[E_ARG] = r
+                return REFILL
+            x = bg[r, vs[VB_POS, r], G_TIME]
+            if x < ta:
+                ta, ra = x, r
+        te = E[E_NEXT_END]
+        ts = NEVER
+        for r in range(m):
+            if vs[T_SF, r] >= 0 and vs[T_SF, r] * SUBFRAME < ts:
+                ts = vs[T_SF, r] * SUBFRAME
+        if te <= t and te <= ta and te <= th and te <= ts:
+            sps_finish(te, E, nodes, p, d, u, fate, si, sx, free, onair, kn, kr, rssi, txh, tag, istx, pairs,
+                       fates, ticks, window, counted, own, sp, sf, tab_x, tab_y)
+            if E[E_NOWN] > 0:
+                return YIELD
+        elif ta <= t and ta <= ts and ta <= th:
+            pos, bl = vs[VB_POS, ra], vs[VB_LEN, ra]
+            n = 0
+            while pos + n < bl and bg[ra, pos + n, G_TIME] <= ta:
+                n += 1
+            kk = ta // sp[SP_T]
+            if kk > absent.shape[0] - 1:
+                kk = absent.shape[0] - 1
+            if not absent[kk, ra]:
+                if vs[VQ_LEN, ra] + n > queue.shape[1]:
+                    E[E_ARG], E[E_ARG2] = G_QUEUE, ra
+                    return GROW
+                if E[E_NDROP] + n > len(dropped):
+                    E[E_ARG] = G_DROPPED
+                    return GROW
+                for j in range(pos, pos + n):
+                    if not sps_push(ra, bg[ra, j, G_SIZE], ta, -1, SUBFRAME, ta, E, vs, queue, gone, skey, kn, kr,
+                                    rssi, txh, tag, sp, sf, ex, metric):
+                        dropped[E[E_NDROP]] = ta
+                        E[E_NDROP] += 1
+            vs[VB_POS, ra] = pos + n
+        elif th <= t and th <= ts:
+            return HELD
+        elif ts < t:
+            st = sps_transmit(ts, E, vs, queue, gone, skey, rkeys, nodes, px, py, absent, p, d, u, si, sx, free, onair,
+                              loss, kn, kr, rssi, txh, tag, periods, sp, sf, plp, table, ex, metric)
             if st != DONE:
                 return st
         else:

@@ -12,5 +12,8 @@ owning its queue and its counters, registered in :data:`~dkfsim.core.registry.ME
   transmitter with its waiting room and background load;
 * :mod:`~dkfsim.network.media.channel` -- the shared radio channel of ``medium:``, one
   collision domain whose access rule (``medium.access.kind``, e.g.
-  :mod:`~dkfsim.network.media.csma`) is one more registered implementation.
+  :mod:`~dkfsim.network.media.csma`) is one more registered implementation;
+* :mod:`~dkfsim.network.media.radio` -- with ``medium.radio``, the spatial radio where each
+  receiver decides (802.11p's ``edca``, ``csma`` per radio), and
+  :mod:`~dkfsim.network.media.sidelink` -- C-V2X's ``sps`` on it.
 """

@@ -29,8 +29,9 @@ from __future__ import annotations
 
 import math
 from array import array
-from collections.abc import Iterator, Mapping
-from typing import Any
+from collections.abc import Callable, Iterator, Mapping
+from types import ModuleType
+from typing import Any, ClassVar
 
 import numpy as np
 from typing_extensions import override
@@ -61,7 +62,7 @@ from dkfsim.network.media.slotted import SlottedAccess
 
 #: The causes of a lost (frame, receiver) pair, named as the analytic 802.11p model names them
 #: (:data:`~dkfsim.network.radio_kernels.SENSING` ...).
-CAUSES = ("sensing", "receiver_busy", "propagation", "collision")
+CAUSES = ("sensing", "receiver_busy", "propagation", "collision")   # (802.11p's: RadioChannel.CAUSES)
 #: Receivers per frame in a draw's sequence number (a frame's draws: ``seq = k * SEQ + node``).
 SEQ = 1 << 24
 
@@ -109,16 +110,17 @@ class Losses(Mapping[int, bool]):
     frame's fates (a copy): a port asks only of its links' receivers, so nothing is built for
     the hundreds of others."""
 
-    __slots__ = ("fate", "pos_of", "nodes")
+    __slots__ = ("fate", "pos_of", "nodes", "collided")
 
-    def __init__(self, fate: np.ndarray, pos_of: dict[int, int], nodes: np.ndarray):
-        self.fate, self.pos_of, self.nodes = fate, pos_of, nodes
+    def __init__(self, fate: np.ndarray, pos_of: dict[int, int], nodes: np.ndarray,
+                 collided: tuple[int, ...] = (rk.COLLISION,)):
+        self.fate, self.pos_of, self.nodes, self.collided = fate, pos_of, nodes, collided
 
     def __getitem__(self, node: int) -> bool:
         i = self.pos_of.get(node)
         if i is None or self.fate[i] in (rk.RECEIVED, rk.SENDER):
             raise KeyError(node)
-        return bool(self.fate[i] == rk.COLLISION)
+        return int(self.fate[i]) in self.collided
 
     def __contains__(self, node: object) -> bool:
         i = self.pos_of.get(node) if isinstance(node, int) else None
@@ -134,35 +136,40 @@ class Losses(Mapping[int, bool]):
         return len(self._lost())
 
 
-class RadioChannel(Channel):
-    """One copy of the spatial radio channel (see the module).
-
-    Its events run in a compiled engine (:func:`~dkfsim.network.radio_kernels.run`) over arrays:
-    the waiting rooms, each radio's background, the access rule's counts, the frames on the air
-    and the receivers.  Python keeps the estimators' frames (numbered into the waiting rooms),
-    the frames held back by generation jitter, and the calls back: an estimator's frame that
-    ended, a researcher's access rule.
+class SpatialChannel(Channel):
+    """What every access on the spatial radio shares (802.11p's :class:`RadioChannel`, the C-V2X
+    sidelink's :class:`~dkfsim.network.media.sidelink.SidelinkChannel`): the members' positions
+    and presence, the frames' keyed powers, the waiting rooms and background as arrays, the
+    estimators' frames by number, the compiled engine's statuses, the pairs counted by distance
+    and cause.  A subclass names its engine (:meth:`_engine`), its per-vehicle rows, its causes
+    and its busy time.
 
     :param positions: every node's position (m) at ticks ``0 .. K``, ``(K + 1, n, 2)``; a frame
         started in ``[t_k, t_{k+1})`` sees the positions of tick ``k``.
     """
 
     overlapping = True                      # (a radio that senses nothing may start over a frame)
+    #: the causes of a lost pair this access reports, by name and fate code
+    CAUSES: ClassVar[tuple[tuple[str, int], ...]] = ()
+    #: the fate codes a port counts as ``collision_lost``
+    COLLIDED: ClassVar[tuple[int, ...]] = (rk.COLLISION,)
+    #: fate codes in ``pairs`` and ``fates``
+    NFATES: ClassVar[int] = 5
+    #: the rows of the per-vehicle array holding the background block's position and length
+    B_ROWS: ClassVar[tuple[int, int]] = (rk.B_POS, rk.B_LEN)
     #: the slots of frames on the air, a row each (:mod:`~dkfsim.network.radio_kernels`): power
-    #: (mW), distance (m), decision draws, each pair's fate, who senses it; sender, start, end,
-    #: frame number and hand-over; the slots on the air, the free ones, a scratch list, the
-    #: estimators' frames that ended, a researcher's rule's calls back
+    #: (mW), distance (m), decision draws, each pair's fate; sender, start, end, frame number and
+    #: hand-over; the slots on the air, the free ones, the estimators' frames that ended
     p: np.ndarray
     d: np.ndarray
     u: np.ndarray
     fate: np.ndarray
-    sensed: np.ndarray
     si: np.ndarray
     onair: np.ndarray
     free: np.ndarray
-    sl: np.ndarray
     own: np.ndarray
-    hooks: np.ndarray
+    #: per vehicle: the engine's rows (waiting room, background block, ... :data:`B_ROWS`)
+    vrows: np.ndarray
 
     def __init__(self, env: Any, spec: MediumSpec, members: tuple[int, ...], seed: int, positions: np.ndarray,
                  T_ns: int, index: int = 0, record: bool = False, backend: Backend | None = None,
@@ -183,36 +190,27 @@ class RadioChannel(Channel):
         #: receiver
         self.absent = np.zeros((len(self.positions), m), dtype=np.bool_) if presence is None else \
             ~np.asarray(presence, dtype=bool)[:, list(members)]
-        self.noise, self.sens, self.cs = _mw(radio.noise), _mw(radio.sensitivity), _mw(radio.carrier_sense)
-        self.capture = 0.0 if radio.capture is None else _mw(radio.capture)
+        self.noise, self.sens = _mw(radio.noise), _mw(radio.sensitivity)
         self.rule = reception_rule(radio.reception)
-        kind, tab_x, tab_y = self.rule
-        pl_kind, self._plp = path_loss_form(radio.path_loss, radio.frequency)
+        self.pl_kind, self._plp = path_loss_form(radio.path_loss, radio.frequency)
+        self.sigma = radio.shadowing.sigma if isinstance(radio.shadowing, Lognormal) else 0.0
         #: per member: the keys of its frames' shadowing, fading and decision draws
         self._rkeys = np.array([[key64(seed, "radio", index, node, what) for what in ("shadow", "fade", "rx")]
                                 for node in members], dtype=np.uint64).reshape(m, 3)
-        self.ri = np.zeros((rk.NRI, m), dtype=np.int64)
-        self.ri[rk.LOCKED] = -1
-        self.rf = np.zeros((rk.NRF, m))
-        self.rf[rk.LOCK_AIR] = 1.0
+        self._tables = (fading_table(radio.fading), self.rule[1], self.rule[2])
         # the engine's state (radio_kernels, "the engine's state")
         self.E = np.zeros(rk.NE, dtype=np.int64)
         self.E[rk.E_NEXT_END] = NEVER
-        self.rq = np.zeros((rk.NRQ, m), dtype=np.int64)
-        self.rq[rk.ON_AIR] = self.rq[rk.B_LEN] = self.rq[rk.K_HANDED] = -1
         self.queue = np.zeros((m, 4, 4), dtype=np.int64)
         self.bg = np.zeros((m, 64, 3), dtype=np.int64)
-        self._went = np.zeros(m, dtype=np.int64)
-        self._sbuf = np.zeros(m, dtype=np.int64)
         self._loss = np.zeros(m)
         self.p = np.zeros((0, m))
-        self._grow_slots(8)
         # statistics
         self.edges = radio.bins.edges()
         self.width = float(self.edges[1])
-        self.pairs = np.zeros((len(self.edges) - 1, 5), dtype=np.int64)
-        self.fates = np.zeros(5, dtype=np.int64)
-        #: each member's busy ns per tick (row ``k``: ``[k T, (k+1) T)``; the last row, beyond)
+        self.pairs = np.zeros((len(self.edges) - 1, self.NFATES), dtype=np.int64)
+        self.fates = np.zeros(self.NFATES, dtype=np.int64)
+        #: each member's busy time per tick (row ``k``: ``[k T, (k+1) T)``; the last row, beyond)
         self.ticks = np.zeros((len(self.positions), m), dtype=np.int64)
         #: whose frames' pairs are counted: started in ``[window[0], window[1])`` (by default the
         #: run, its positions' ticks) by a ``counted`` member (:meth:`measure`)
@@ -223,57 +221,48 @@ class RadioChannel(Channel):
         self.periods = np.zeros((256, 5), dtype=np.int64)
         self.dropped = np.zeros(64, dtype=np.int64)
         self.log = np.zeros((64 if record else 0, 5), dtype=np.int64)
-        acc = self.slotted
-        q = spec.queue
-        self.ip = np.zeros(rk.NIP, dtype=np.int64)
-        self.ip[[rk.I_RULE, rk.I_SLOT, rk.I_CW, rk.I_AIFS, rk.I_EIFS, rk.I_T, rk.I_RECORD, rk.I_PL, rk.I_RX]] = \
-            acc.rule, acc.slot, acc.cw, acc.aifs, acc.eifs, T_ns, int(record), pl_kind, kind
-        self.ip[rk.I_MAXP] = -1 if q is None or q.packets is None else q.packets
-        self.ip[rk.I_MAXB] = -1 if q is None or q.bytes is None else q.bytes
-        self.ip[rk.I_SENT] = int(acc.rule == rk.CUSTOM and type(acc).sent is not Access.sent)
-        self.fp = np.zeros(rk.NFP)
-        self.fp[[rk.F_POWER, rk.F_SIGMA, rk.F_ZMAX, rk.F_ZSTEPS, rk.F_SENS, rk.F_CS, rk.F_NOISE, rk.F_CAPTURE,
-                 rk.F_WIDTH]] = radio.power, radio.shadowing.sigma if isinstance(radio.shadowing, Lognormal) \
-            else 0.0, Z_MAX, Z_STEPS, self.sens, self.cs, self.noise, self.capture, self.width
-        self._tables = (fading_table(radio.fading), tab_x, tab_y)
         #: the estimators' frames in the waiting rooms or on the air, by number
         self._frames: dict[int, Frame] = {}
         self._fid = 0
         self._takes = [2] * m
+        self._setup(spec, seed, record)
+        self._grow_slots(8)
         for i, node in enumerate(members):
             if self.radios[node].background is not None:
                 self._refill(i)
-        k = rk.compiled() if self.backend.compiled else rk
-        self._run = rk.quiet(bind(k.run, 0, 0, *self._state()))
-        self._push = rk.quiet(bind(k.push, 0, 0, 0, 0, 0, 0, self.E, self.rq, self.queue, acc.idle_at, acc.origin,
-                          acc.count, acc.due, acc.head_on, acc.air, acc.bkey, acc.dr, self.hooks, self.ip))
+        self._run, self._push = self._engine(rk.compiled() if self.backend.compiled else rk)
+
+    def _setup(self, spec: MediumSpec, seed: int, record: bool) -> None:
+        """The access's own state (its per-vehicle rows :attr:`vrows` among it)."""
+        raise NotImplementedError
+
+    def _engine(self, k: ModuleType) -> tuple[Callable, Callable]:
+        """The engine's run and push kernels of ``k`` (compiled or not), bound."""
+        raise NotImplementedError
 
     def _state(self) -> tuple:
-        """The engine's arrays, in :func:`~dkfsim.network.radio_kernels.run`'s order."""
-        acc = self.slotted
-        return (self.E, self.rq, self.queue, self.bg, acc.idle_at, acc.origin, acc.count, acc.due, acc.head_on,
-                acc.air, acc.bkey, acc.dr, self._rkeys, self.nodes, self._x, self._y, self.absent, self.ri, self.rf,
-                self.p, self.d, self.u, self.fate, self.sensed, self.si, self.free, self.onair, self._sbuf, self.sl,
-                self._went, self._loss, self.pairs, self.fates, self.ticks, self._window, self._counted,
-                self.periods, self.dropped, self.log, self.own, self.hooks, self.ip, self.fp, self._plp,
-                *self._tables)
+        """The engine's arrays, in its run kernel's order."""
+        raise NotImplementedError
+
+    def _push_args(self) -> tuple:
+        """The arrays the push kernel takes after the frame's own arguments."""
+        raise NotImplementedError
 
     def _grow_slots(self, size: int) -> None:
         """Room for ``size`` frames on the air at once (the slots' rows kept; the new ones free)."""
         m = len(self.nodes)
         old = len(self.p)
+        first = old == 0
 
         def grown(a: np.ndarray | None, shape: tuple, dtype: Any) -> np.ndarray:
             new = np.zeros(shape, dtype=dtype)
             if a is not None and old:
                 new[:old] = a[:old]
             return new
-        first = old == 0
         self.p = grown(self.p, (size, m), np.float64)
         self.d = grown(None if first else self.d, (size, m), np.float64)
         self.u = grown(None if first else self.u, (size, m), np.float64)
         self.fate = grown(None if first else self.fate, (size, m), np.int8)
-        self.sensed = grown(None if first else self.sensed, (size, m), np.bool_)
         self.si = grown(None if first else self.si, (size, rk.NSI), np.int64)
         self.onair = grown(None if first else self.onair, (size,), np.int64)
         nfree = int(self.E[rk.E_NFREE])
@@ -283,9 +272,11 @@ class RadioChannel(Channel):
         free[nfree:nfree + size - old] = np.arange(size - 1, old - 1, -1)
         self.free = free
         self.E[rk.E_NFREE] = nfree + size - old
-        self.sl = np.zeros(size, dtype=np.int64)
         self.own = np.zeros(size, dtype=np.int64)
-        self.hooks = np.zeros((2 * size + 4, 3), dtype=np.int64)
+        self._grew_slots(size, old)
+
+    def _grew_slots(self, size: int, old: int) -> None:
+        """The access's own per-slot arrays grown from ``old`` to ``size`` rows."""
 
     def _grow(self, what: int) -> None:
         """Double the buffer the engine found full (:data:`~dkfsim.network.radio_kernels.GROW`)."""
@@ -293,11 +284,12 @@ class RadioChannel(Channel):
             self._grow_slots(2 * len(self.p) + len(self.nodes))
         elif what == rk.G_QUEUE:
             m, cap = self.queue.shape[:2]
-            order = (self.rq[rk.Q_HEAD][:, None] + np.arange(cap)) % cap    # (each ring unrolled from its head)
+            head = self.vrows[self.Q_ROWS[0]]
+            order = (head[:, None] + np.arange(cap)) % cap    # (each ring unrolled from its head)
             queue = np.zeros((m, 2 * cap, 4), dtype=np.int64)
             queue[:, :cap] = np.take_along_axis(self.queue, order[:, :, None], axis=1)
             self.queue = queue
-            self.rq[rk.Q_HEAD] = 0
+            head[:] = 0
         elif what == rk.G_PERIODS:
             self.periods = np.concatenate([self.periods, np.zeros_like(self.periods)])
         elif what == rk.G_DROPPED:
@@ -305,6 +297,9 @@ class RadioChannel(Channel):
         else:
             self._drain_log()
             self.log = np.zeros((2 * len(self.log) + len(self.p), 5), dtype=np.int64)
+
+    #: the rows of the per-vehicle array holding the waiting room's first entry and length
+    Q_ROWS: ClassVar[tuple[int, int]] = (rk.Q_HEAD, rk.Q_LEN)
 
     def _refill(self, i: int) -> None:
         """Radio ``i``'s next background packets into its block, never splitting an instant: 4
@@ -323,41 +318,23 @@ class RadioChannel(Channel):
         row[:n, rk.G_TIME] = times
         row[:n, rk.G_SIZE] = sizes
         row[:n, rk.G_AIR] = [self.airtime(size) for size in sizes]
-        self.rq[rk.B_POS, i], self.rq[rk.B_LEN, i] = 0, n
-
-    @override
-    def make_access(self, spec: MediumSpec, seed: int) -> Access:
-        """The access rule as each radio runs it on its own view of the medium: a
-        :class:`~dkfsim.network.media.slotted.SlottedAccess` (a one-domain rule names its
-        per-radio form as ``on_radio``)."""
-        impl = MEDIA.get(spec.access.kind).implementation
-        impl = getattr(impl, "on_radio", None) or impl
-        if not issubclass(impl, SlottedAccess):
-            raise ValueError(f"medium.access.kind {spec.access.kind!r} is a rule for one collision domain; "
-                             "with medium.radio give a rule each radio runs on its own view (edca or csma)")
-        self.slotted = impl(spec.access, self, seed)
-        return self.slotted
+        pos, length = self.B_ROWS
+        self.vrows[pos, i], self.vrows[length, i] = 0, n
 
     # ------------------------------------------------------------------ the engine
     @override
     def _arrive(self, radio: Radio, frame: Frame, now: int) -> bool:
         i = self.pos_of[radio.node]
-        if self.rq[rk.Q_LEN, i] >= self.queue.shape[1]:
+        if self.vrows[self.Q_ROWS[1], i] >= self.queue.shape[1]:
             self._grow(rk.G_QUEUE)
         fid = self._fid
         self.E[rk.E_NHOOK] = 0
-        ok = self._push(i, frame.size, frame.handed, fid, self.airtime(frame.size), now, self.E, self.rq, self.queue,
-                        *self._access, self.hooks, self.ip)
+        ok = self._push(i, frame.size, frame.handed, fid, self.airtime(frame.size), now, *self._push_args())
         if ok:
             self._frames[fid] = frame
             self._fid += 1
         self._called_back()
         return bool(ok)
-
-    @property
-    def _access(self) -> tuple:
-        acc = self.slotted
-        return acc.idle_at, acc.origin, acc.count, acc.due, acc.head_on, acc.air, acc.bkey, acc.dr
 
     @override
     def advance(self, t: int) -> None:
@@ -369,7 +346,7 @@ class RadioChannel(Channel):
         while True:
             th = held[0][0] if held else NEVER
             status = self._run(t, th, *self._state())
-            self.slotted.changed()
+            self._changed()
             if status == rk.DONE:
                 break
             if status == rk.YIELD:
@@ -385,33 +362,26 @@ class RadioChannel(Channel):
         if self.ended is not None:
             self._drain_log()
 
+    def _changed(self) -> None:
+        """The engine ran: what Python caches of its state is stale."""
+
     def _called_back(self) -> None:
-        """A researcher's access rule's calls the engine left to Python, in order."""
-        n = int(self.E[rk.E_NHOOK])
-        if not n:
-            return
-        acc, nodes = self.slotted, self.nodes
-        for what, i, t in self.hooks[:n].tolist():
-            if what == rk.H_HEAD:
-                acc.on_head(i, t, bool(acc.idle_at[i] >= 0))
-            else:
-                acc.sent(self.radios[int(nodes[i])], t)
-        self.E[rk.E_NHOOK] = 0
-        acc.changed()
+        """The calls the engine left to Python (a researcher's access rule's), in order."""
 
     def _ended(self) -> None:
         """The estimators' frames that ended: each told its fates (``lost_at``) and counted."""
         n = int(self.E[rk.E_NOWN])
+        collided = list(self.COLLIDED)
         for s in self.own[:n].tolist():
             frame = self._frames.pop(int(self.si[s, rk.S_FID]))
             frame.start, frame.end = int(self.si[s, rk.S_START]), int(self.si[s, rk.S_END])
             fate = self.fate[s].copy()
             self.pending -= 1
-            frame.lost_at = Losses(fate, self.pos_of, self.nodes)
+            frame.lost_at = Losses(fate, self.pos_of, self.nodes, self.COLLIDED)
             own = self._owned.get(frame.owner)
             if own is None:
                 own = self._owned[frame.owner] = array("q")
-            own.extend((frame.end, bool((fate == rk.COLLISION).any()), frame.start - frame.handed))
+            own.extend((frame.end, bool(np.isin(fate, collided).any()), frame.start - frame.handed))
             assert frame.done is not None
             frame.done(frame, True)
         self.E[rk.E_NOWN] = 0
@@ -433,6 +403,7 @@ class RadioChannel(Channel):
         return int(self.E[rk.E_STARTED])
 
     # ------------------------------------------------------------------ statistics
+   # ------------------------------------------------------------------ statistics
     def measure(self, senders: Any = None, start: int = 0, end: int | None = None) -> None:
         """Count from now on only the pairs of frames that ``senders`` (members' node numbers;
         None: every member) start in ``[start, end)`` ns (``end`` None: the run's last tick) --
@@ -443,6 +414,176 @@ class RadioChannel(Channel):
             self._counted[[self.pos_of[int(node)] for node in senders]] = True
         self._window[:] = (start, self._window[1] if end is None else end)
 
+    @override
+    def series(self, owner: Any, T_ns: int, K: int) -> dict[str, np.ndarray]:
+        """Each member's CBR per tick as ``run.npz`` keeps it: ``cbr`` (K, members), row ``k`` the
+        busy fraction of ``[k T, (k+1) T)``, and ``cbr_nodes`` (members,)."""
+        return {"cbr": self.busy_per_tick(T_ns, K) / self.busy_unit(T_ns), "cbr_nodes": self.nodes.copy()}
+
+    @override
+    def report(self, owner: Any, end: int) -> dict[str, Any]:
+        """The one-domain block (``frames``, ``frames_collided``: the owner's frames some receiver
+        lost to a collision, ...; ``utilisation``: the mean CBR) and the radio's own:
+        ``pdr_by_distance`` (``bins_m``: the bins' edges, ``pdr`` per bin, null where no pair
+        fell, ``frames``: the (frame, receiver) pairs per bin, and each cause's count per bin),
+        ``cbr`` per member and ``cbr_mean``, ``losses``: every pair lost, by cause."""
+        out = super().report(owner, end)
+        cbr = self.cbr(end)
+        pairs = self.pairs
+        frames = pairs.sum(axis=1)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            pdr = pairs[:, rk.RECEIVED] / frames
+        block: dict[str, Any] = {"bins_m": [float(x) for x in self.edges], "pdr": [None if f == 0 else float(x)
+                                                                             for x, f in zip(pdr, frames)],
+                                 "frames": frames.tolist()}
+        for name, c in self.CAUSES:
+            block[name] = pairs[:, c].tolist()
+        out.update(utilisation=float(cbr.mean()) if len(cbr) else 0.0, cbr=[float(x) for x in cbr],
+                   cbr_mean=float(cbr.mean()) if len(cbr) else 0.0, pdr_by_distance=block,
+                   losses={name: int(self.fates[c]) for name, c in self.CAUSES},
+                   pairs=int(self.fates.sum()), pairs_received=int(self.fates[rk.RECEIVED]))
+        return out
+
+    @override
+    def stats(self, end_ns: int) -> dict[str, float | int]:
+        """Frames on the air and the background's, as the one-domain channel counts them (a
+        frame ``collided`` when some receiver lost it to a collision is not known per period
+        here: ``collisions`` counts the pairs lost to a collision)."""
+        self.advance(min(end_ns, self.env.now))
+        p = self.periods[:int(self.E[rk.E_NPER])]
+        p = p[p[:, 0] < end_ns]
+        dropped = self.dropped[:int(self.E[rk.E_NDROP])]
+        return {"utilisation": 0.0, "frames_on_air": int(len(p)),
+                "collisions": int(sum(self.fates[c] for c in self.COLLIDED)),
+                "background_sent": int(p[:, 3].sum()), "background_collided": 0,
+                "background_dropped": int((dropped <= end_ns).sum())}
+
+    def busy_unit(self, T_ns: int) -> float:
+        """What a tick's busy time is out of (:meth:`busy_per_tick`'s unit for a whole tick)."""
+        return float(T_ns)
+
+    def busy_per_tick(self, T_ns: int, K: int) -> np.ndarray:
+        """(K, members): each member's busy time in ``[k T, (k+1) T)``, ``k = 0 .. K-1``."""
+        raise NotImplementedError
+
+    def cbr(self, end_ns: int) -> np.ndarray:
+        """Each member's channel busy ratio over ``[0, end_ns]``."""
+        raise NotImplementedError
+
+
+class RadioChannel(SpatialChannel):
+    """One copy of the spatial radio channel under a per-radio CSMA rule (``edca``, ``csma``;
+    see the module).
+
+    Its events run in a compiled engine (:func:`~dkfsim.network.radio_kernels.run`) over arrays:
+    the waiting rooms, each radio's background, the access rule's counts, the frames on the air
+    and the receivers.  Python keeps the estimators' frames (numbered into the waiting rooms),
+    the frames held back by generation jitter, and the calls back: an estimator's frame that
+    ended, a researcher's access rule.
+    """
+
+    CAUSES = (("sensing", rk.SENSING), ("receiver_busy", rk.RECEIVER_BUSY), ("propagation", rk.PROPAGATION),
+              ("collision", rk.COLLISION))
+    #: who senses each frame on the air; a scratch list of slots; a researcher's rule's calls back
+    sensed: np.ndarray
+    sl: np.ndarray
+    hooks: np.ndarray
+
+    @override
+    def _setup(self, spec: MediumSpec, seed: int, record: bool) -> None:
+        radio = spec.radio
+        assert radio is not None
+        m = len(self.nodes)
+        self.cs = _mw(radio.carrier_sense)
+        self.capture = 0.0 if radio.capture is None else _mw(radio.capture)
+        self.ri = np.zeros((rk.NRI, m), dtype=np.int64)
+        self.ri[rk.LOCKED] = -1
+        self.rf = np.zeros((rk.NRF, m))
+        self.rf[rk.LOCK_AIR] = 1.0
+        self.rq = self.vrows = np.zeros((rk.NRQ, m), dtype=np.int64)
+        self.rq[rk.ON_AIR] = self.rq[rk.B_LEN] = self.rq[rk.K_HANDED] = -1
+        self._went = np.zeros(m, dtype=np.int64)
+        self._sbuf = np.zeros(m, dtype=np.int64)
+        acc = self.slotted
+        q = spec.queue
+        self.ip = np.zeros(rk.NIP, dtype=np.int64)
+        self.ip[[rk.I_RULE, rk.I_SLOT, rk.I_CW, rk.I_AIFS, rk.I_EIFS, rk.I_T, rk.I_RECORD, rk.I_PL, rk.I_RX]] = \
+            acc.rule, acc.slot, acc.cw, acc.aifs, acc.eifs, self.T_ns, int(record), self.pl_kind, self.rule[0]
+        self.ip[rk.I_MAXP] = -1 if q is None or q.packets is None else q.packets
+        self.ip[rk.I_MAXB] = -1 if q is None or q.bytes is None else q.bytes
+        self.ip[rk.I_SENT] = int(acc.rule == rk.CUSTOM and type(acc).sent is not Access.sent)
+        self.fp = np.zeros(rk.NFP)
+        self.fp[[rk.F_POWER, rk.F_SIGMA, rk.F_ZMAX, rk.F_ZSTEPS, rk.F_SENS, rk.F_CS, rk.F_NOISE, rk.F_CAPTURE,
+                 rk.F_WIDTH]] = radio.power, self.sigma, Z_MAX, Z_STEPS, self.sens, self.cs, self.noise, \
+            self.capture, self.width
+
+    @override
+    def _grew_slots(self, size: int, old: int) -> None:
+        m = len(self.nodes)
+        sensed = np.zeros((size, m), dtype=np.bool_)
+        if old:
+            sensed[:old] = self.sensed[:old]
+        self.sensed = sensed
+        self.sl = np.zeros(size, dtype=np.int64)
+        self.hooks = np.zeros((2 * size + 4, 3), dtype=np.int64)
+
+    @override
+    def _engine(self, k: ModuleType) -> tuple[Callable, Callable]:
+        return (rk.quiet(bind(k.run, 0, 0, *self._state())),
+                rk.quiet(bind(k.push, 0, 0, 0, 0, 0, 0, *self._push_args())))
+
+    @override
+    def _push_args(self) -> tuple:
+        return (self.E, self.rq, self.queue, *self._access, self.hooks, self.ip)
+
+    @override
+    def _state(self) -> tuple:
+        acc = self.slotted
+        return (self.E, self.rq, self.queue, self.bg, acc.idle_at, acc.origin, acc.count, acc.due, acc.head_on,
+                acc.air, acc.bkey, acc.dr, self._rkeys, self.nodes, self._x, self._y, self.absent, self.ri, self.rf,
+                self.p, self.d, self.u, self.fate, self.sensed, self.si, self.free, self.onair, self._sbuf, self.sl,
+                self._went, self._loss, self.pairs, self.fates, self.ticks, self._window, self._counted,
+                self.periods, self.dropped, self.log, self.own, self.hooks, self.ip, self.fp, self._plp,
+                *self._tables)
+
+    @override
+    def make_access(self, spec: MediumSpec, seed: int) -> Access:
+        """The access rule as each radio runs it on its own view of the medium: a
+        :class:`~dkfsim.network.media.slotted.SlottedAccess` (a one-domain rule names its
+        per-radio form as ``on_radio``)."""
+        impl = MEDIA.get(spec.access.kind).implementation
+        impl = getattr(impl, "on_radio", None) or impl
+        if not issubclass(impl, SlottedAccess):
+            raise ValueError(f"medium.access.kind {spec.access.kind!r} is a rule for one collision domain; "
+                             "with medium.radio give a rule each radio runs on its own view (edca or csma)")
+        self.slotted = impl(spec.access, self, seed)
+        return self.slotted
+
+    @property
+    def _access(self) -> tuple:
+        acc = self.slotted
+        return acc.idle_at, acc.origin, acc.count, acc.due, acc.head_on, acc.air, acc.bkey, acc.dr
+
+    @override
+    def _changed(self) -> None:
+        self.slotted.changed()
+
+    @override
+    def _called_back(self) -> None:
+        n = int(self.E[rk.E_NHOOK])
+        if not n:
+            return
+        acc, nodes = self.slotted, self.nodes
+        for what, i, t in self.hooks[:n].tolist():
+            if what == rk.H_HEAD:
+                acc.on_head(i, t, bool(acc.idle_at[i] >= 0))
+            else:
+                acc.sent(self.radios[int(nodes[i])], t)
+        self.E[rk.E_NHOOK] = 0
+        acc.changed()
+
+    # ------------------------------------------------------------------ busy time
+    @override
     def busy_per_tick(self, T_ns: int, K: int) -> np.ndarray:
         """(K, members): ns each member sensed the medium busy (its own transmissions included) in
         ``[k T, (k+1) T)``, ``k = 0 .. K-1``, periods still open counted up to now (the channel
@@ -459,6 +600,7 @@ class RadioChannel(Channel):
                 ticks[k, r] += min(now, (k + 1) * T_ns) - max(a, k * T_ns)
         return ticks
 
+    @override
     def cbr(self, end_ns: int) -> np.ndarray:
         """Each member's channel busy ratio over ``[0, end_ns]``: the time it sensed the medium
         busy over ``end_ns`` -- exact while the channel has not gone past ``end_ns``, else from the
@@ -477,46 +619,3 @@ class RadioChannel(Channel):
         if end_ns % T:
             total = total + busy[-1] * ((end_ns % T) / T)
         return total / end_ns
-
-    @override
-    def series(self, owner: Any, T_ns: int, K: int) -> dict[str, np.ndarray]:
-        """Each member's CBR per tick as ``run.npz`` keeps it: ``cbr`` (K, members), row ``k`` the
-        busy fraction of ``[k T, (k+1) T)``, and ``cbr_nodes`` (members,)."""
-        return {"cbr": self.busy_per_tick(T_ns, K) / T_ns, "cbr_nodes": self.nodes.copy()}
-
-    @override
-    def report(self, owner: Any, end: int) -> dict[str, Any]:
-        """The one-domain block (``frames``, ``frames_collided``: the owner's frames some receiver
-        lost to a collision, ...; ``utilisation``: the mean CBR) and the radio's own:
-        ``pdr_by_distance`` (``bins_m``: the bins' edges, ``pdr`` per bin, null where no pair
-        fell, ``frames``: the (frame, receiver) pairs per bin, and each cause's count per bin),
-        ``cbr`` per member and ``cbr_mean``, ``losses``: every pair lost, by cause."""
-        out = super().report(owner, end)
-        cbr = self.cbr(end)
-        pairs = self.pairs
-        frames = pairs.sum(axis=1)
-        with np.errstate(invalid="ignore", divide="ignore"):
-            pdr = pairs[:, rk.RECEIVED] / frames
-        block: dict[str, Any] = {"bins_m": [float(x) for x in self.edges], "pdr": [None if f == 0 else float(x)
-                                                                             for x, f in zip(pdr, frames)],
-                                 "frames": frames.tolist()}
-        for c, name in enumerate(CAUSES, start=1):
-            block[name] = pairs[:, c].tolist()
-        out.update(utilisation=float(cbr.mean()) if len(cbr) else 0.0, cbr=[float(x) for x in cbr],
-                   cbr_mean=float(cbr.mean()) if len(cbr) else 0.0, pdr_by_distance=block,
-                   losses={name: int(self.fates[c]) for c, name in enumerate(CAUSES, start=1)},
-                   pairs=int(self.fates.sum()), pairs_received=int(self.fates[rk.RECEIVED]))
-        return out
-
-    @override
-    def stats(self, end_ns: int) -> dict[str, float | int]:
-        """Frames on the air and the background's, as the one-domain channel counts them (a
-        frame ``collided`` when some receiver lost it to a collision is not known per period
-        here: ``collisions`` counts the pairs lost to a collision)."""
-        self.advance(min(end_ns, self.env.now))
-        p = self.periods[:int(self.E[rk.E_NPER])]
-        p = p[p[:, 0] < end_ns]
-        dropped = self.dropped[:int(self.E[rk.E_NDROP])]
-        return {"utilisation": 0.0, "frames_on_air": int(len(p)), "collisions": int(self.fates[rk.COLLISION]),
-                "background_sent": int(p[:, 3].sum()), "background_collided": 0,
-                "background_dropped": int((dropped <= end_ns).sum())}
