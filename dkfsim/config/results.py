@@ -164,6 +164,12 @@ Fraction = Annotated[float, Field(strict=True, ge=0, le=1)]
 RADIO_LIST = 100_000
 
 
+#: The causes of a lost (frame, receiver) pair a radio block may hold, in the order tables and
+#: figures show them: 802.11p's (``receiver_busy``) and the C-V2X sidelink's (``half_duplex``,
+#: ``reservation_collision``) among them (docs/radio.md).
+RADIO_CAUSES = ("sensing", "half_duplex", "receiver_busy", "propagation", "reservation_collision", "collision")
+
+
 class PdrByDistance(Model):
     """A spatial radio's ``pdr_by_distance`` (docs/radio.md): the bins' edges (m), the packet
     delivery ratio per bin (null: no pair fell in it), the (frame, receiver) pairs per bin and
@@ -173,14 +179,16 @@ class PdrByDistance(Model):
     pdr: Annotated[list[Fraction | None], Field(max_length=RADIO_LIST)]
     frames: Annotated[list[Count], Field(max_length=RADIO_LIST)]
     sensing: Annotated[list[Count], Field(max_length=RADIO_LIST)] | None = None
+    half_duplex: Annotated[list[Count], Field(max_length=RADIO_LIST)] | None = None
     receiver_busy: Annotated[list[Count], Field(max_length=RADIO_LIST)] | None = None
     propagation: Annotated[list[Count], Field(max_length=RADIO_LIST)] | None = None
+    reservation_collision: Annotated[list[Count], Field(max_length=RADIO_LIST)] | None = None
     collision: Annotated[list[Count], Field(max_length=RADIO_LIST)] | None = None
 
     @model_validator(mode="after")
     def _shapes(self) -> PdrByDistance:
         bins = len(self.bins_m) - 1
-        for key in ("pdr", "frames", "sensing", "receiver_busy", "propagation", "collision"):
+        for key in ("pdr", "frames", *RADIO_CAUSES):
             value = getattr(self, key)
             if value is not None and len(value) != bins:
                 raise custom_error(f"has {len(value)} entries for {bins} distance bins (bins_m has {bins + 1} edges)",
@@ -191,11 +199,14 @@ class PdrByDistance(Model):
 
 
 class Losses(Model):
-    """A spatial radio's lost (frame, receiver) pairs by cause."""
+    """A spatial radio's lost (frame, receiver) pairs by cause (802.11p's ``receiver_busy``, the
+    sidelink's ``half_duplex`` and ``reservation_collision``: :data:`RADIO_CAUSES`)."""
 
     sensing: Count
-    receiver_busy: Count
+    half_duplex: Count | None = None
+    receiver_busy: Count | None = None
     propagation: Count
+    reservation_collision: Count | None = None
     collision: Count
 
 

@@ -22,6 +22,7 @@ from pathlib import Path
 from typing import Any
 
 from dkfsim.config.results import (
+    RADIO_CAUSES,
     MonteCarloSummary,
     RunSummary,
     components_of,
@@ -179,24 +180,26 @@ def _channel_section(packets: dict, traffic: dict, medium=None) -> list[tuple[st
 
 
 def _radio_table(blocks: list) -> str:
-    """A spatial radio's numbers per estimator's copy (``cbr_mean``, ``pairs``, ``losses``), or
-    nothing for one collision domain."""
+    """A spatial radio's numbers per estimator's copy (``cbr_mean``, ``pairs``, ``losses`` by
+    each cause any copy reports: :data:`~dkfsim.config.results.RADIO_CAUSES`), or nothing for
+    one collision domain."""
+    radio = [(name, ch) for name, ch in blocks if ch and ch.get("losses") is not None]
+    if not radio:
+        return ""
+    causes = [c for c in RADIO_CAUSES if any(ch["losses"].get(c) is not None for _, ch in radio)]
     rows = []
-    for name, ch in blocks:
-        if not ch or ch.get("losses") is None:
-            continue
+    for name, ch in radio:
         pairs, losses = ch.get("pairs") or 0, ch["losses"]
         rows.append((name, ch.get("cbr_mean"), pairs,
                      100.0 * ch.get("pairs_received", 0) / pairs if pairs else None,
-                     losses["sensing"], losses["receiver_busy"], losses["propagation"], losses["collision"]))
-    if not rows:
-        return ""
+                     *(losses.get(c) for c in causes)))
     return table("radio", ("estimator", "CBR (mean over vehicles)", "(frame, receiver) pairs", "received [%]",
-                           "lost: sensing", "lost: receiver busy", "lost: propagation", "lost: collision"), rows,
+                           *(f"lost: {c.replace('_', ' ')}" for c in causes)), rows,
                  "the spatial radio (medium.radio, docs/radio.md): every (frame, receiver) pair of every frame on "
                  "the estimator's copy of the channel, background included, received or lost by cause: below "
-                 "sensitivity, the receiver transmitting or locked on another frame, noise and fading alone, "
-                 "interference; CBR: the share of the run each vehicle sensed the channel busy")
+                 "sensitivity, the receiver transmitting (half duplex) or locked on another frame, noise and "
+                 "fading alone, interference (on a C-V2X reservation, or not); CBR: the share of the run each "
+                 "vehicle sensed the channel busy (802.11p), or of its sub-channels found busy (C-V2X)")
 
 
 def _uptime_section(record: dict | None) -> list[tuple[str, str]]:

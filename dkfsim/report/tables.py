@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import math
 
+from dkfsim.config.results import RADIO_CAUSES
 from dkfsim.core.text import aligned
 
 #: The terms of a port's packet identity ``sent + copies = delivered + lost + queue_dropped +
@@ -117,8 +118,8 @@ def radio_line(ch: dict, dropped: str = "") -> str:
     received and lost by cause."""
     pairs, losses = ch.get("pairs") or 0, ch["losses"]
     received = f"{100.0 * ch.get('pairs_received', 0) / pairs:.3g} %" if pairs else "none"
-    causes = ", ".join(f"{name.replace('_', ' ')} {losses[name]}" for name in
-                       ("sensing", "receiver_busy", "propagation", "collision"))
+    causes = ", ".join(f"{name.replace('_', ' ')} {losses[name]}" for name in RADIO_CAUSES
+                       if losses.get(name) is not None)
     return (f"radio: CBR {ch.get('cbr_mean', 0.0):.3g} (mean over {len(ch.get('cbr') or [])} vehicles), "
             f"{ch['frames']} frames ({ch['frames_dropped']} dropped by full radio queues), mean access delay "
             f"{1e3 * ch['access_delay_mean']:.3g} ms; {ch.get('frames_on_air', 0)} frames on the air (background "

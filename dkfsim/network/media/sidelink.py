@@ -27,6 +27,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from types import ModuleType
+from typing import Any
 
 import numpy as np
 from typing_extensions import override
@@ -47,7 +48,7 @@ class SpsSchedule(Access):
     """The sidelink's access as the one-domain channel's wake-ups read it: when the next
     subframe with a transmission starts; the scheduling itself is the engine's."""
 
-    def __init__(self, params: Sps, channel: Channel, seed: int):
+    def __init__(self, params: Any, channel: Channel, seed: int):
         super().__init__(params, channel, seed)
         self.vs: np.ndarray | None = None
 

@@ -21,8 +21,8 @@ from dkfsim.report.plots.folders import Folder
 from dkfsim.report.plots.style import DEFAULT_FORMATS, check_formats, legend_below, plain, save_figure
 
 #: The causes of a lost pair, in the order drawn, with their colours.
-CAUSES = (("sensing", "#bdbdbd"), ("receiver_busy", "#fdae6b"), ("propagation", "#9ecae1"),
-          ("collision", "#e6550d"))
+CAUSES = (("sensing", "#bdbdbd"), ("half_duplex", "#c7e9c0"), ("receiver_busy", "#fdae6b"),
+          ("propagation", "#9ecae1"), ("reservation_collision", "#a63603"), ("collision", "#e6550d"))
 
 
 def has_radio(folder: Folder) -> bool:
