@@ -67,7 +67,8 @@ CAUSES = ("sensing", "receiver_busy", "propagation", "collision")   # (802.11p's
 SEQ = 1 << 24
 
 
-def _mw(dbm: float) -> float:
+def mw(dbm: float) -> float:
+    """A power in dBm as mW."""
     return float(10.0 ** (dbm / 10.0))
 
 
@@ -190,7 +191,7 @@ class SpatialChannel(Channel):
         #: receiver
         self.absent = np.zeros((len(self.positions), m), dtype=np.bool_) if presence is None else \
             ~np.asarray(presence, dtype=bool)[:, list(members)]
-        self.noise, self.sens = _mw(radio.noise), _mw(radio.sensitivity)
+        self.noise, self.sens = mw(radio.noise), mw(radio.sensitivity)
         self.rule = reception_rule(radio.reception)
         self.pl_kind, self._plp = path_loss_form(radio.path_loss, radio.frequency)
         self.sigma = radio.shadowing.sigma if isinstance(radio.shadowing, Lognormal) else 0.0
@@ -494,8 +495,8 @@ class RadioChannel(SpatialChannel):
         radio = spec.radio
         assert radio is not None
         m = len(self.nodes)
-        self.cs = _mw(radio.carrier_sense)
-        self.capture = 0.0 if radio.capture is None else _mw(radio.capture)
+        self.cs = mw(radio.carrier_sense)
+        self.capture = 0.0 if radio.capture is None else mw(radio.capture)
         self.ri = np.zeros((rk.NRI, m), dtype=np.int64)
         self.ri[rk.LOCKED] = -1
         self.rf = np.zeros((rk.NRF, m))
