@@ -412,6 +412,12 @@ def print_radio_cost(seconds: float, vehicles: list[int], highway_seconds: float
         print(f"  scenarios/highway_its_g5.yaml, {members} vehicles, the DKF group alone, {highway_seconds:g} s "
               f"simulated: {ch['frames_on_air']} frames, CPU {cpu:.1f} s ({cpu / ch['frames_on_air'] * 1e6:.0f} "
               f"us/frame; target: at most 60 s for 60 s)")
+        sps = dkfsim.load_scenario(path, overrides=[f"steps={steps}", "estimators=[]", "medium.access.kind=sps"])
+        dkfsim.run(sps, steps=20, save="summary")           # warm-up
+        _, cpu_sps, res_sps = timed(sps, save="summary")
+        print(f"  the same on C-V2X (--set medium.access.kind=sps, issue 33): "
+              f"{res_sps.counts['channel']['frames_on_air']} frames, CPU {cpu_sps:.1f} s, sps / edca "
+              f"{cpu_sps / cpu:.2f} (target: at most 1.5)")
 
 
 def kernel_workloads(ticks: int, scale_ticks: int, big_nodes: int, big_ticks: int) -> dict:

@@ -78,7 +78,8 @@ def plot_radio(folder: Folder, stem, formats=DEFAULT_FORMATS) -> list:
         bot.set_ylim(0, 1.02)
         bot.set_xlabel("time [s]")
         bot.set_ylabel("channel busy ratio per tick")
-        bot.set_title("CBR: the share of each tick a vehicle senses the channel busy (its own frames included)",
+        bot.set_title("CBR: the share of each tick a vehicle senses the channel busy, its own frames included "
+                      "(C-V2X: the share of its sub-channels found busy)",
                       fontsize=9)
         bot.grid(alpha=0.3)
     legend_below(fig, [top, bot], ncol=4)
