@@ -265,3 +265,48 @@ def test_the_sidelink_on_the_network_delivers_through_its_ports():
     assert set(ch["losses"]) == {"sensing", "half_duplex", "propagation", "reservation_collision", "collision"}
     assert len(got) > 100 and all(src == 0 for src, _, _ in got)
     assert ch["frames"] + ch["frames_dropped"] == 40
+
+
+def _sidelink_run(kernels: str) -> tuple:
+    """Vehicles on a road with shadowing and fading, some off the road, background and an
+    estimator's frames on ``sps`` with one-shot misfits (for
+    :func:`test_the_sidelink_is_the_same_on_both_kernel_paths`)."""
+    from dkfsim.core.backend import Backend
+    n, T = 20, 10 * MS
+    radio = RadioParams(path_loss={"model": "winner_b1"}, shadowing={"model": "lognormal", "sigma": 3.0},
+                        fading={"model": "nakagami", "m": 1.5})
+    med = Medium(rate=6e6, access={"kind": "sps", "misfit": "one_shot", "rri": 0.05, "p_keep": 0.3}, radio=radio,
+                 background=Background(arrivals="periodic", packets_per_second=20, size=300, offset="random"))
+    pos = line([40.0 * i for i in range(n)], 60)
+    presence = np.ones((60, n), dtype=bool)
+    presence[:20, 3] = presence[30:, 8] = False
+    env = simpy.Environment()
+    arcs = [(u, v) for u in range(n) for v in range(n) if u != v]
+    net = Network(env, arcs, lambda u, v: LinkSpec(latency=Constant(value=1e-6)), seed=4, T_ns=T,
+                  medium=med, positions=pos, presence=presence, n=n, backend=Backend(kernels))
+    got: list = []
+    port = net.port("p", lambda link, payload: got.append((env.now, link.src, link.dst, payload)))
+    for k in range(50):
+        for u in (0, 5, 11):
+            at(env, k * T + 1, lambda u=u, k=k: port.send_frame([(net.link(u, v), [u, k], 200 + 40 * (k % 7))
+                                                                 for v in range(n) if v != u], 200 + 40 * (k % 7)))
+    env.run(until=55 * T)
+    return got, port.channel.report(port, 55 * T), port.channel.series(port, T, 55)["cbr"].tolist()
+
+
+def test_the_sidelink_is_the_same_on_both_kernel_paths():
+    """The sidelink's engine compiled and as Python (``DKFSIM_KERNELS=numpy``, in a process of
+    its own): every delivery, every pair's count and every member's busy share are the same."""
+    import json
+    import os
+    import subprocess
+    import sys
+    from pathlib import Path
+    code = ("import json, sys; sys.path.insert(0, 'tests'); from test_sidelink import _sidelink_run; "
+            "print(json.dumps(_sidelink_run('numpy')))")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True,
+                         env={**os.environ, "DKFSIM_KERNELS": "numpy"}, cwd=Path(__file__).parent.parent)
+    got0, r0, c0 = json.loads(json.dumps(_sidelink_run("numba")))
+    got1, r1, c1 = json.loads(out.stdout)
+    assert got0 == got1 and r0 == r1 and c0 == c1
+    assert r0["pairs"] > 5_000 and r0["losses"]["half_duplex"] > 0 and r0["losses"]["reservation_collision"] > 0
