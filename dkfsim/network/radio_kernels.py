@@ -25,7 +25,7 @@ from dkfsim.core.jit import LazyKernels
 
 _KERNELS = ("keyed_uniform", "polevl", "p1evl", "ndtri", "fill", "error_rate", "busy_ticks", "close",
             "start", "end", "path_loss", "draw", "on_head", "busy", "clear", "take_due", "first_air", "head",
-            "push", "background", "transmit", "finish", "run", "sps_draw", "sps_select", "sps_assign", "sps_push",
+            "push", "background", "transmit", "finish", "next_arrival", "run", "sps_draw", "sps_select", "sps_assign", "sps_push",
             "sps_transmit", "sps_finish", "run_sps")
 _lazy = LazyKernels(__name__, _KERNELS, inline=("keyed_uniform", "polevl", "p1evl", "error_rate", "busy_ticks",
                                                 "path_loss"))
@@ -827,6 +827,25 @@ def finish(te: int, E: np.ndarray, rq: np.ndarray, queue: np.ndarray, idle_at: n
     return DONE
 
 
+def next_arrival(rows: np.ndarray, pos_row: int, len_row: int, bg: np.ndarray, E: np.ndarray) -> int:
+    """The radio whose next background packet comes first (the lowest number among those at one
+    instant; -1: none has background; -2: radio ``E[E_ARG]``'s block ran out, Python refills it):
+    ``rows[pos_row]`` and ``rows[len_row]`` are each radio's place in its block and the block's
+    length (-1: no background)."""
+    ta, ra = NEVER, -1
+    for r in range(rows.shape[1]):
+        bl = rows[len_row, r]
+        if bl < 0:
+            continue
+        if rows[pos_row, r] >= bl:
+            E[E_ARG] = r
+            return -2
+        x = bg[r, rows[pos_row, r], G_TIME]
+        if x < ta:
+            ta, ra = x, r
+    return ra
+
+
 def run(t: int, th: int, E: np.ndarray, rq: np.ndarray, queue: np.ndarray, bg: np.ndarray, idle_at: np.ndarray,
         origin: np.ndarray, count: np.ndarray, due: np.ndarray, head_on: np.ndarray, air: np.ndarray,
         bkey: np.ndarray, dr: np.ndarray, rkeys: np.ndarray, nodes: np.ndarray, px: np.ndarray, py: np.ndarray,
@@ -845,17 +864,10 @@ def run(t: int, th: int, E: np.ndarray, rq: np.ndarray, queue: np.ndarray, bg: n
     E[E_NOWN] = 0
     E[E_NHOOK] = 0
     while True:
-        ta, ra = NEVER, -1
-        for r in range(m):
-            bl = rq[B_LEN, r]
-            if bl < 0:
-                continue
-            if rq[B_POS, r] >= bl:
-                E[E_ARG] = r
-                return REFILL
-            x = bg[r, rq[B_POS, r], G_TIME]
-            if x < ta:
-                ta, ra = x, r
+        ra = next_arrival(rq, B_POS, B_LEN, bg, E)
+        if ra == -2:
+            return REFILL
+        ta = bg[ra, rq[B_POS, ra], G_TIME] if ra >= 0 else NEVER
         te = E[E_NEXT_END]
         ts = NEVER
         for r in range(m):
@@ -1280,17 +1292,10 @@ def run_sps(t: int, th: int, E: np.ndarray, vs: np.ndarray, queue: np.ndarray, g
     while True:
         if E[E_NGONE] > 0:
             return YIELD
-        ta, ra = NEVER, -1
-        for r in range(m):
-            bl = vs[VB_LEN, r]
-            if bl < 0:
-                continue
-            if vs[VB_POS, r] >= bl:
-                E[E_ARG] = r
-                return REFILL
-            x = bg[r, vs[VB_POS, r], G_TIME]
-            if x < ta:
-                ta, ra = x, r
+        ra = next_arrival(vs, VB_POS, VB_LEN, bg, E)
+        if ra == -2:
+            return REFILL
+        ta = bg[ra, vs[VB_POS, ra], G_TIME] if ra >= 0 else NEVER
         te = E[E_NEXT_END]
         ts = NEVER
         for r in range(m):
