@@ -23,10 +23,10 @@ import numpy as np
 
 from dkfsim.core.jit import LazyKernels
 
-_KERNELS = ("keyed_uniform", "polevl", "p1evl", "ndtri", "fill", "error_rate", "busy_ticks", "close",
-            "start", "end", "path_loss", "draw", "on_head", "busy", "clear", "take_due", "first_air", "head",
-            "push", "background", "transmit", "finish", "next_arrival", "run", "sps_draw", "sps_select", "sps_assign", "sps_push",
-            "sps_transmit", "sps_finish", "run_sps")
+_KERNELS = ("keyed_uniform", "polevl", "p1evl", "ndtri", "fill", "error_rate", "busy_ticks", "close", "start",
+            "end", "path_loss", "draw", "on_head", "busy", "clear", "take_due", "first_air", "soonest_end", "head",
+            "push", "background", "transmit", "finish", "next_arrival", "run", "sps_draw", "sps_select",
+            "sps_assign", "sps_push", "sps_transmit", "sps_finish", "run_sps")
 _lazy = LazyKernels(__name__, _KERNELS, inline=("keyed_uniform", "polevl", "p1evl", "error_rate", "busy_ticks",
                                                 "path_loss"))
 
@@ -607,6 +607,15 @@ def first_air(due: np.ndarray, air: np.ndarray, ts: int) -> int:
     for r in range(len(due)):
         if due[r] == ts and (best < 0 or air[r] < best):
             best = air[r]
+    return best
+
+
+def soonest_end(due: np.ndarray, air: np.ndarray) -> int:
+    """The first end among the radios' heads if each starts when due (:data:`NEVER`: none due)."""
+    best = NEVER
+    for r in range(len(due)):
+        if due[r] < NEVER and due[r] + air[r] < best:
+            best = due[r] + air[r]
     return best
 
 

@@ -129,8 +129,8 @@ class BackgroundArrivals:
         while True:
             if self._pos >= len(self._tl):
                 self._draw_block()
-            if len(times) >= n and self._tl[self._pos] != times[-1]:
-                return times, sizes
+            if len(times) >= n and (self._tl[self._pos] != times[-1] or times[-1] >= MAX_NS):
+                return times, sizes             # (instants held at MAX_NS: "never", none to group)
             times.append(self._tl[self._pos])
             sizes.append(self._sl[self._pos])
             self._pos += 1

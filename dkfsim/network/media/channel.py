@@ -100,6 +100,13 @@ class Access:
         are no longer heads."""
         raise NotImplementedError
 
+    def soonest_end(self) -> int:
+        """When the first head frame would end if nothing more happens (for an overlapping
+        medium's wake-ups, where a head due later may end first): one collision domain's rule,
+        the next start plus its shortest airtime (:data:`NEVER`: no head)."""
+        ts = self.next_start()
+        return ts + self.next_airtime() if ts < NEVER else NEVER
+
     def idle(self, te: int) -> None:
         """The channel became idle at ``te``."""
 
@@ -387,10 +394,8 @@ class Channel(Medium):
             else:
                 access = self.access
                 t = access.next_start() + access.next_airtime()
-        else:                               # (the first end among those on the air and the next start's)
-            access = self.access
-            ts = access.next_start()
-            t = min(self.first_end(), ts + access.next_airtime() if ts < NEVER else NEVER)
+        else:                               # (the first end among those on the air and the heads')
+            t = min(self.first_end(), self.access.soonest_end())
         if self._held and self._held[0][0] < t:
             t = self._held[0][0]
         if t in self._wakes or t > MAX_NS:

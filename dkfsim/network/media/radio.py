@@ -334,6 +334,7 @@ class SpatialChannel(Channel):
         if ok:
             self._frames[fid] = frame
             self._fid += 1
+        self._changed()                     # (a head may be due now: the wake-up must see it)
         self._called_back()
         return bool(ok)
 

@@ -104,6 +104,7 @@ class SlottedAccess(Access):
         self._clear = bind(k.clear, *state, self._all, 0, 0, 1, 1, 1, self._no_error)
         self._start = bind(k.take_due, self.due, self.head_on, self.count, 0, NEVER, self._out)
         self._first_air = bind(k.first_air, self.due, self.air, 0)
+        self._soonest = bind(k.soonest_end, self.due, self.air)
         self._on_head = rk.quiet(bind(k.on_head, self.rule or rk.EDCA, 0, 0, True, self.origin, self.count,
                                       self.due, self.bkey, self.dr, 1, 1))
 
@@ -179,6 +180,12 @@ class SlottedAccess(Access):
     @override
     def next_airtime(self) -> int:
         return int(self._first_air(self.due, self.air, self.next_start()))
+
+    @override
+    def soonest_end(self) -> int:
+        """The first end among every radio's head if nothing more happens: a head due later may
+        end first (each radio keeps its own view; :func:`~dkfsim.network.radio_kernels.soonest_end`)."""
+        return int(self._soonest(self.due, self.air))
 
     @override
     def start(self, ts: int) -> list[Radio]:
