@@ -24,6 +24,7 @@ from dkfsim.components.medium import Csma, Edca, Medium
 from dkfsim.components.radio import RadioParams
 from dkfsim.components.traffic import Background
 from dkfsim.core.backend import Backend
+from dkfsim.core.streams import key64, keyed_uniform
 from dkfsim.network import radio_kernels as rk
 from dkfsim.network.media.base import Frame
 from dkfsim.network.media.radio import RadioChannel
@@ -273,3 +274,55 @@ def test_the_growing_engine_is_the_same_on_both_kernel_paths(name):
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, check=True,
                          cwd=Path(__file__).parent.parent)
     assert json.loads(out.stdout) == _engine_run("numba", name)
+
+
+# ------------------------------------------------------------------ hand-worked
+def test_jitter_holds_two_frames_to_one_instant_and_a_room_of_one_refuses_the_second():
+    """Generation jitter J = 4 ms: vehicle 0's frames handed over at t0 (tick 0) both reach its
+    radio at t0 + d, d = keyed uniform of (vehicle, tick) times J.  The first becomes its head on
+    an idle medium and starts then; the second finds the room of one full and is refused (told
+    not ok, never on the air).  A third frame, handed over at the instant the first ends, is held
+    by the same d (same tick): its post-backoff ran out by then (d > AIFS + 15 slots), so it starts
+    when it arrives."""
+    seed, J = 3, 4 * MS
+    d = int(keyed_uniform(key64(seed, "channel", 0, 0, "jitter"), 0, 0) * J)
+    assert d > AIFS + 15 * SLOT
+    t0 = 1 * MS
+    first_end = t0 + d + airtime(200)
+    cfg = dict(n=2, xs=[0.0, 5000.0], ticks=4, radio=SPATIAL, queue={"packets": 1}, generation_jitter=J / 1e9,
+               seed=seed, plan=[(t0, 0, 200), (t0, 0, 300), (first_end, 0, 100)], end=20 * MS)
+    out = _run(cfg)
+    assert out["accepted"] == [True, True, True]
+    third = first_end + d
+    assert [x[:6] for x in out["told"]] == [
+        (t0 + d, 0, t0, -1, -1, False),
+        (first_end, 0, t0, t0 + d, first_end, True),
+        (third + airtime(100), 0, first_end, third, third + airtime(100), True)]
+    assert out["report"]["frames_dropped"] == 1 and out["report"]["frames"] == 2
+
+
+def test_a_sender_that_leaves_the_road_while_its_frame_waits_sends_it_to_nobody():
+    """Ticks of 1 ms; every radio has a background packet of 100 bytes every 20 ms from 0.  At 0
+    the three (A, B, C at x = 0, 50, 100) have one each: all go at AIFS and collide.  A sends at
+    0.7 ms; B senses it and its frame, handed over 5 us later, waits for A's end, then AIFS and its
+    keyed backoff b: it starts in tick 1, when B is off the road -- on the air, but nobody's: no
+    pair, nobody senses it.  At 20 ms B's background packet is dropped unseen (off the road); A's
+    and C's go at once, each a pair at the other.  Pairs: 6 at AIFS, 2 of A's frame, 2 at 20 ms."""
+    cfg = dict(n=3, xs=[0.0, 50.0, 100.0], ticks=40, T=1 * MS, radio=SPATIAL, seed=4, absent=[(1, 1, 40)],
+               background=Background(arrivals="periodic", packets_per_second=50, size=100),
+               plan=[(700 * US, 0, 200), (705 * US, 1, 200)], end=30 * MS)
+    out = _run(cfg)
+    b = int(keyed_uniform(key64(4, "channel", 0, 1, "edca"), 705 * US, 0) * 16)
+    end_a = 700 * US + airtime(200)
+    start_b = end_a + AIFS + b * SLOT
+    assert start_b >= 1 * MS
+    assert [x[:6] for x in out["told"]] == [(end_a, 0, 700 * US, 700 * US, end_a, True),
+                                            (start_b + airtime(200), 1, 705 * US, start_b, start_b + airtime(200), True)]
+    assert out["told"][1][6] == []                 # (no pair, no loss)
+    assert sorted(e[:3] for e in out["ended"]) == sorted(
+        [(r, AIFS, AIFS + airtime(100)) for r in range(3)] + [(0, 700 * US, end_a), (1, start_b, start_b + airtime(200))]
+        + [(r, 20 * MS, 20 * MS + airtime(100)) for r in (0, 2)])
+    rep = out["report"]
+    assert rep["frames_on_air"] == 7 and rep["pairs"] == 10 and rep["background_dropped"] == 0
+    busy = 2 * airtime(100) + airtime(200)          # (A: its own three; C: its own two and A's frame)
+    assert rep["cbr"][0] == rep["cbr"][2] == busy / (30 * MS)
