@@ -137,7 +137,7 @@ def _comparable(out: dict) -> dict:
 #: Sixty vehicles 10 m apart that sense nothing but their own frames and those they lock on
 #: (carrier sense far above any power): all transmit over each other, tens of frames on the air
 #: at once (slots); bursts of up to 33 frames at one radio while its ring has wrapped (waiting
-#: rooms); hundreds of frames (busy periods), and the last 40 ms background alone, brought up to
+#: rooms); hundreds of frames (busy periods), and the last 50 ms background alone, brought up to
 #: date at once (a hundred frames in the log).
 CROWD = dict(n=60, xs=[10.0 * i for i in range(60)], ticks=16, radio={**FULL, "carrier_sense": 60.0, "capture": 6.0},
              background=Background(arrivals="poisson", packets_per_second=60, size=250, sizes="exponential"),
@@ -145,7 +145,7 @@ CROWD = dict(n=60, xs=[10.0 * i for i in range(60)], ticks=16, radio={**FULL, "c
              + [(k * T + 2 * MS + j * 40 * US, 7, 90 + j) for k in (1, 4) for j in range(33)]
              + [(k * T + 5 * MS, 7, 100) for k in range(8)],
              queries=[5 * MS, 20 * MS, 20 * MS, 33 * MS + 17, 60 * MS], end=14 * T)
-#: Two radios whose background comes a billion a second (Poisson: a third of the gaps round to
+#: Two radios whose background comes a billion a second (Poisson: two gaps in five round to
 #: 0 ns, so many packets share an instant) with exponential sizes, waiting rooms of 2: background
 #: blocks that must widen, hundreds of thousands dropped, rooms that grow for one instant's packets.
 FLOOD = dict(n=2, xs=[0.0, 30.0], ticks=8, T=50 * US, radio=SPATIAL, queue={"packets": 2},
