@@ -334,19 +334,13 @@ def test_a_sender_that_leaves_the_road_while_its_frame_waits_sends_it_to_nobody(
     assert rep["cbr"][0] == rep["cbr"][2] == busy / (30 * MS)
 
 
-# ------------------------------------------------------------------ known faults (strict xfails)
-#: Why the tests below fail today; each is a strict xfail, so the suite says when it is fixed.
-STALE_DUE = ("RadioChannel._arrive: the engine's push changes the rule's due instants without "
-             "slotted.changed() (only a researcher's rule's calls back reset it), so a frame offered after "
-             "another at one instant and due before it gets no wake-up: its end is seen late")
-SHORT_LATER = ("Channel._wake on an overlapping medium (the radio, before and after the compiled engine) "
-               "wakes at the first due instant plus the shortest airtime due then: a radio due later with a "
-               "shorter frame ends before that wake, and its frame is told late")
-SATURATED = ("BackgroundArrivals.take: a periodic background whose instants reach MAX_NS (all equal "
-             "then) never stops taking 'more at the last one's instant'")
+# ------------------------------------------------------------------ faults the review found (now fixed)
+# RadioChannel._arrive once left the rule's cached first due instant stale after the engine's
+# push; Channel._wake on an overlapping medium once woke at the first due instant plus the
+# shortest airtime due then, missing a radio due later with a shorter frame; and
+# BackgroundArrivals.take once looped forever on a background held at MAX_NS.
 
 
-@pytest.mark.xfail(strict=True, reason=STALE_DUE)
 def test_a_frame_offered_after_one_due_later_at_one_instant_is_told_at_its_end():
     """A (x = 0) sends at 1 ms.  At 1.01 ms, B (x = 50, sensing A's frame) is handed a frame, which
     waits for A's end, and then C (x = 5000, far from both) one of 100 bytes, which starts at once:
@@ -359,7 +353,6 @@ def test_a_frame_offered_after_one_due_later_at_one_instant_is_told_at_its_end()
     assert all(x[0] == x[4] for x in told)
 
 
-@pytest.mark.xfail(strict=True, reason=STALE_DUE)
 def test_deliveries_never_go_back_in_time():
     """The same timeline through a network's port, with an event at 1.25 ms: C's frame (ends at
     1.1833 ms) is delivered before it, and the clock never goes backwards."""
@@ -380,7 +373,6 @@ def test_deliveries_never_go_back_in_time():
     assert [x[0] for x in got] == sorted(x[0] for x in got)
 
 
-@pytest.mark.xfail(strict=True, reason=SHORT_LATER)
 def test_a_shorter_frame_due_later_at_another_radio_is_told_at_its_end():
     """A and B (5 km apart) hear nothing of each other.  B's frame of 100 bytes goes at 0.5 ms and
     ends at 673333 ns (its post-backoff drawn then).  50 us later A is handed 1000 bytes (it starts
@@ -396,7 +388,6 @@ def test_a_shorter_frame_due_later_at_another_radio_is_told_at_its_end():
     assert all(x[0] == x[4] for x in told)
 
 
-@pytest.mark.xfail(strict=True, reason=f"{STALE_DUE}; {SHORT_LATER}")
 @pytest.mark.parametrize("name", ["crowd", "sixty_csma"])
 def test_every_frame_is_told_at_its_end(name):
     """Every estimator's frame that went on the air is told at the instant it ends (so a port
@@ -428,7 +419,6 @@ def _within(seconds: float) -> Iterator[None]:
 
 
 @pytest.mark.skipif(not hasattr(signal, "setitimer"), reason="needs SIGALRM")
-@pytest.mark.xfail(strict=True, reason=SATURATED, raises=TimeoutError)
 def test_a_periodic_background_past_the_end_of_time_does_not_hang_the_radio():
     """A periodic background of one packet in 1e10 s: packet 0 at 0, every later one beyond the last
     instant a run can have (clipped to it).  Each radio sends its packet 0 (two frames on the air)
