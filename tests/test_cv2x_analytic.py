@@ -194,7 +194,7 @@ def measured(sim: dict) -> dict[str, np.ndarray]:
 def bin_weights(beta: float, edges: np.ndarray) -> np.ndarray:
     """(bins, k): how many of the central vehicles' (packet, receiver) pairs in each bin are ``k``
     places apart, bins filled as dkfsim fills them (``floor(d / width + 1e-9)``: a distance that is
-    a multiple of 25 m, every 2nd or 5th vehicle, lands in the bin above its edge)."""
+    a multiple of 25 m, every 5th vehicle at both densities, lands in the bin above its edge)."""
     positions, central = road(beta)
     x = positions[0, :, 0]
     d = np.abs(x[None, :] - x[central, None])
