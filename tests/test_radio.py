@@ -462,3 +462,25 @@ def test_a_researchers_rule_in_python_runs_on_the_radio_as_the_built_in_one(reco
     assert len(told) > 50 and rep["frames_on_air"] > 1000 and rep["background_dropped"] > 0
     if record:
         assert ended is not None and len(ended) == len(set(ended)) >= rep["frames_on_air"] - 20
+
+
+def test_a_vehicle_off_the_road_neither_receives_nor_is_heard():
+    """An estimator's frames through a port: a receiver off the road gets none of them (its links
+    count them lost, not to a collision), and a sender off the road reaches nobody."""
+    n = 4
+    med = Medium(rate=RATE, access=Edca(), preamble=PRE / 1e9, radio=RadioParams(path_loss={"model": "none"}))
+    presence = np.ones((100, n), dtype=bool)
+    presence[:, 3] = False
+    env = simpy.Environment()
+    arcs = [(u, v) for u in range(n) for v in range(n) if u != v]
+    net = Network(env, arcs, lambda u, v: LinkSpec(latency=Constant(value=LAT / 1e9)), seed=1, T_ns=10 * MS,
+                  medium=med, positions=positions([10.0 * i for i in range(n)], 100), presence=presence, n=n)
+    got: list = []
+    port = net.port("p", lambda link, payload: got.append((link.src, link.dst)))
+    at(env, T0, lambda: broadcast(net, port, 0, "x", 100))
+    at(env, T0 + 5 * MS, lambda: broadcast(net, port, 3, "y", 100))
+    env.run(until=20 * MS)
+    assert sorted(got) == [(0, 1), (0, 2)]
+    rows = {tuple(r["link"]): r for r in port.counts()["per_link"]}
+    assert {k: rows[k]["lost"] for k in ((0, 3), (3, 0), (3, 1))} == {(0, 3): 1, (3, 0): 1, (3, 1): 1}
+    assert rows[(0, 3)]["collision_lost"] == rows[(3, 0)]["collision_lost"] == 0

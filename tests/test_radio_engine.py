@@ -312,7 +312,7 @@ def test_a_sender_that_leaves_the_road_while_its_frame_waits_sends_it_to_nobody(
     the three (A, B, C at x = 0, 50, 100) have one each: all go at AIFS and collide.  A sends at
     0.7 ms; B senses it and its frame, handed over 5 us later, waits for A's end, then AIFS and its
     keyed backoff b: it starts in tick 1, when B is off the road -- on the air, but nobody's: no
-    pair, nobody senses it.  At 20 ms B's background packet is dropped unseen (off the road); A's
+    pair, nobody senses it, and its owner learns that every other vehicle lost it.  At 20 ms B's background packet is dropped unseen (off the road); A's
     and C's go at once, each a pair at the other.  Pairs: 6 at AIFS, 2 of A's frame, 2 at 20 ms."""
     cfg = dict(n=3, xs=[0.0, 50.0, 100.0], ticks=40, T=1 * MS, radio=SPATIAL, seed=4, absent=[(1, 1, 40)],
                background=Background(arrivals="periodic", packets_per_second=50, size=100),
@@ -324,7 +324,7 @@ def test_a_sender_that_leaves_the_road_while_its_frame_waits_sends_it_to_nobody(
     assert start_b >= 1 * MS
     assert [x[:6] for x in out["told"]] == [(end_a, 0, 700 * US, 700 * US, end_a, True),
                                             (start_b + airtime(200), 1, 705 * US, start_b, start_b + airtime(200), True)]
-    assert out["told"][1][6] == []                 # (no pair, no loss)
+    assert out["told"][1][6] == [(0, False), (2, False)]    # (no pair counted; lost at every other vehicle)
     assert sorted(e[:3] for e in out["ended"]) == sorted(
         [(r, AIFS, AIFS + airtime(100)) for r in range(3)] + [(0, 700 * US, end_a), (1, start_b, start_b + airtime(200))]
         + [(r, 20 * MS, 20 * MS + airtime(100)) for r in (0, 2)])

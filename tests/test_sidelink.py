@@ -236,14 +236,16 @@ def test_a_vehicle_never_receives_in_a_subframe_it_transmits_in(seed, n, plan):
 
 
 def test_sps_needs_a_radio_and_an_allowed_interval():
-    """``sps`` without ``medium.radio``, or with an interval LTE-V2X does not allow, is refused
-    naming the key."""
+    """``sps`` without ``medium.radio``, with an interval LTE-V2X does not allow, or with a CBR
+    threshold the noise alone reaches, is refused naming the key."""
     with pytest.raises(Exception, match="spatial radio"):
         Medium(rate=6e6, access={"kind": "sps"})
     with pytest.raises(Exception, match="0.02, 0.05"):
         Sps(rri=0.03)
     assert Sps(rri=0.02).counter_range == (25, 75) and Sps(rri=0.05).counter_range == (10, 30)
     assert Sps(rri=0.3).counter_range == (5, 15)
+    with pytest.raises(Exception, match="access.cbr_threshold"):     # (noise alone: always busy)
+        Medium(rate=6e6, access={"kind": "sps", "cbr_threshold": -110.0}, radio={})
 
 
 def test_the_sidelink_on_the_network_delivers_through_its_ports():

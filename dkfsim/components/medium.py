@@ -335,6 +335,12 @@ class Medium(StrictModel):
         if isinstance(self.access, Sps) and self.radio is None:
             raise custom_error("sps (C-V2X sidelink) runs on the spatial radio: give medium.radio "
                                "(e.g. radio: {} for its defaults)", "access")
+        if isinstance(self.access, Sps) and self.radio is not None:
+            floor = self.radio.noise + 10.0 * np.log10(self.access.noise_share)
+            if self.access.cbr_threshold <= floor:
+                raise custom_error(f"{self.access.cbr_threshold} dBm is at or below one sub-channel's noise "
+                                   f"({floor:.1f} dBm: radio.noise plus noise_share), so every sub-channel would "
+                                   "always be busy; give a higher threshold (3GPP: -94)", "access.cbr_threshold")
         return self
 
     def members(self, n: int) -> tuple[int, ...]:

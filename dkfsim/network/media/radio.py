@@ -107,28 +107,32 @@ def path_loss_form(model: Any, frequency: float) -> tuple[int, np.ndarray]:
 
 class Losses(Mapping[int, bool]):
     """A frame's :attr:`~dkfsim.network.media.base.Frame.lost_at` on the radio: receiver node ->
-    whether it lost the frame to a collision, for the members that lost it, read from the
-    frame's fates (a copy): a port asks only of its links' receivers, so nothing is built for
-    the hundreds of others."""
+    whether it lost the frame to a collision, for the members that lost it -- every member but
+    the sender that did not receive it, those off the road included -- read from the frame's
+    fates (a copy): a port asks only of its links' receivers, so nothing is built for the
+    hundreds of others."""
 
-    __slots__ = ("fate", "pos_of", "nodes", "collided")
+    __slots__ = ("fate", "pos_of", "nodes", "collided", "sender")
 
     def __init__(self, fate: np.ndarray, pos_of: dict[int, int], nodes: np.ndarray,
-                 collided: tuple[int, ...] = (rk.COLLISION,)):
-        self.fate, self.pos_of, self.nodes, self.collided = fate, pos_of, nodes, collided
+                 collided: tuple[int, ...] = (rk.COLLISION,), sender: int = -1):
+        self.fate, self.pos_of, self.nodes, self.collided, self.sender = fate, pos_of, nodes, collided, sender
 
     def __getitem__(self, node: int) -> bool:
         i = self.pos_of.get(node)
-        if i is None or self.fate[i] in (rk.RECEIVED, rk.SENDER):
+        if i is None or i == self.sender or self.fate[i] == rk.RECEIVED:
             raise KeyError(node)
         return int(self.fate[i]) in self.collided
 
     def __contains__(self, node: object) -> bool:
         i = self.pos_of.get(node) if isinstance(node, int) else None
-        return i is not None and self.fate[i] not in (rk.RECEIVED, rk.SENDER)
+        return i is not None and i != self.sender and self.fate[i] != rk.RECEIVED
 
     def _lost(self) -> np.ndarray:
-        return np.flatnonzero((self.fate != rk.RECEIVED) & (self.fate != rk.SENDER))
+        lost = self.fate != rk.RECEIVED
+        if self.sender >= 0:
+            lost[self.sender] = False
+        return np.flatnonzero(lost)
 
     def __iter__(self) -> Iterator[int]:
         return iter(self.nodes[self._lost()].tolist())
@@ -379,7 +383,7 @@ class SpatialChannel(Channel):
             frame.start, frame.end = int(self.si[s, rk.S_START]), int(self.si[s, rk.S_END])
             fate = self.fate[s].copy()
             self.pending -= 1
-            frame.lost_at = Losses(fate, self.pos_of, self.nodes, self.COLLIDED)
+            frame.lost_at = Losses(fate, self.pos_of, self.nodes, self.COLLIDED, int(self.si[s, rk.S_I]))
             own = self._owned.get(frame.owner)
             if own is None:
                 own = self._owned[frame.owner] = array("q")
