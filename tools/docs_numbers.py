@@ -700,9 +700,29 @@ RADIO_COLUMNS = (*COLUMNS, "cbr", "pdr_300")
 HIGHWAY_ESTIMATES = ("fused", "fusion_centre", "centralized", *CONSENSUS_FAMILY[:-1])
 
 
-def radio_rows(scenario: str, overrides: tuple[str, ...], r: int) -> list[dict]:
+#: the further columns a study of the sidelink keeps (:func:`radio_rows`): the PDR within 100 m,
+#: and the estimator's own packets (per link: ``sent``, ``delivered``, ``queue_dropped`` -- refused
+#: by a full waiting room, or on the sidelink too big or past its budget --, ``lost_parts``: the
+#: port's ``lost``, in the air)
+#: and frames (``frames`` that went on the air, ``frames_dropped``, ``access_delay`` in seconds)
+TRAFFIC_COLUMNS = ("pdr_100", "sent", "delivered", "queue_dropped", "lost_parts", "frames", "frames_dropped",
+                   "access_delay")
+
+
+def pdr_within(block: dict, causes: Iterable[str], metres: float) -> float:
+    """The PDR of the (frame, receiver) pairs of a ``pdr_by_distance`` block in the bins that end
+    within ``metres`` (NaN without a pair); ``causes``: the radio's causes of loss."""
+    near = [i for i, edge in enumerate(block["bins_m"][1:]) if edge <= metres]
+    frames = sum(block["frames"][i] for i in near)
+    lost = sum(block[c][i] for c in causes for i in near)
+    return (frames - lost) / frames if frames else math.nan
+
+
+def radio_rows(scenario: str, overrides: tuple[str, ...], r: int,
+               columns: tuple[str, ...] = RADIO_COLUMNS) -> list[dict]:
     """Run ``r`` of a radio study (run r's seed, as a Monte Carlo's): its tidy rows with the
-    radio's numbers of each estimator's copy of the channel."""
+    radio's numbers of each estimator's copy of the channel (``columns``: :data:`RADIO_COLUMNS`,
+    and any of :data:`TRAFFIC_COLUMNS`; NaN for an estimator without a copy)."""
     from dkfsim.engine.driver import Run
     sc = dkfsim.load_scenario(ROOT / scenario, overrides=list(overrides))
     tpl = Template(sc)
@@ -713,16 +733,21 @@ def radio_rows(scenario: str, overrides: tuple[str, ...], r: int) -> list[dict]:
         rows = res.rows(burn, res.scored(burn))
     out = []
     for row in rows:
-        ch = ((res.traffic.get(row["estimate"]) or {}).get("channel") or {})
+        traffic = res.traffic.get(row["estimate"]) or {}
+        ch = traffic.get("channel") or {}
         block = ch.get("pdr_by_distance")
-        cbr = pdr = math.nan
+        got = dict.fromkeys(("cbr", "pdr_300", *TRAFFIC_COLUMNS), math.nan)
         if block is not None:
-            near = [i for i, edge in enumerate(block["bins_m"][1:]) if edge <= 300.0]
-            frames = sum(block["frames"][i] for i in near)
-            lost = sum(block[c][i] for c in ("sensing", "receiver_busy", "propagation", "collision") for i in near)
+            causes = list(ch["losses"])                      # (the radio's own: edca's or the sidelink's)
             group = ch["cbr"][:len(run_sc.sensors)]          # (the channel's first members are the nodes)
-            cbr, pdr = float(np.mean(group)), (frames - lost) / frames if frames else math.nan
-        out.append({**{c: row[c] for c in COLUMNS if c != "run"}, "run": r, "cbr": cbr, "pdr_300": pdr})
+            got.update(cbr=float(np.mean(group)), pdr_300=pdr_within(block, causes, 300.0),
+                       pdr_100=pdr_within(block, causes, 100.0))
+        if ch:
+            got.update(sent=traffic["sent"], delivered=traffic["delivered"], queue_dropped=traffic["queue_dropped"],
+                       lost_parts=traffic["lost"], frames=ch["frames"], frames_dropped=ch["frames_dropped"],
+                       access_delay=ch["access_delay_mean"])
+        out.append({**{c: row[c] for c in COLUMNS if c != "run"}, "run": r,
+                    **{c: float(got[c]) for c in columns if c not in COLUMNS}})
     return out
 
 
@@ -739,12 +764,12 @@ class RadioStudy(Study):
 
     def compute(self, jobs: int) -> list[dict]:
         from concurrent.futures import ProcessPoolExecutor
-        args = [(self.scenario, self.overrides, r) for r in range(self.runs)]
+        args = [(self.scenario, self.overrides, r, self.columns) for r in range(self.runs)]
         with ProcessPoolExecutor(max_workers=max(1, jobs)) as pool:
             return [row for rows in pool.map(_radio_job, args) for row in rows]
 
     def spot(self, runs: Iterable[int] = SPOT_RUNS) -> list[dict]:
-        return [row for r in runs for row in radio_rows(self.scenario, self.overrides, r)]
+        return [row for r in runs for row in radio_rows(self.scenario, self.overrides, r, self.columns)]
 
 
 def highway_studies() -> tuple[RadioStudy, ...]:
