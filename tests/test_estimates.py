@@ -29,6 +29,11 @@ from dkfsim.experiments.sweep.run import estimate_tasks
 ROOT = Path(__file__).resolve().parents[1]
 SCENARIOS = sorted(p.name for p in (ROOT / "scenarios").glob("*.yaml") if not p.name.startswith("sweep_"))
 SWEEPS = sorted(p.name for p in (ROOT / "scenarios").glob("sweep_*.yaml"))
+#: Sweeps whose trial (38 ticks on the numpy kernels, where the radio's engine runs uncompiled)
+#: would cost far beyond the slow tier's minutes: the sidelink's 20 and 100 ms files are the 10 ms
+#: file's scenario and grid with a longer tick, so their trials simulate 2 and 10 times as long
+#: (the 10 ms file's four trials take about 4 minutes of CPU; the 100 ms file's, about 40).
+TOO_LONG = {"sweep_sidelink_20ms.yaml", "sweep_sidelink_100ms.yaml"}
 #: What the issue allows between the predicted and the recorded count of each kind.
 FACTOR = 2.0
 
@@ -62,7 +67,9 @@ def test_a_runs_events_are_predicted_within_twice(name):
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("name", SWEEPS)
+@pytest.mark.parametrize("name", [pytest.param(n, marks=pytest.mark.skip(
+    reason="its trial runs the uncompiled radio over 2-10x the 10 ms file's simulated time (TOO_LONG)"))
+    if n in TOO_LONG else n for n in SWEEPS])
 def test_a_sweeps_events_are_predicted_within_twice(name, tmp_path):
     path = ROOT / "scenarios" / name
     spec = yaml.safe_load(path.read_text())
