@@ -81,13 +81,14 @@ def test_the_stored_rows_are_what_the_code_computes(study):
     equal the stored rows; the store holds every run of the study."""
     stored = dn.read_rows(study.path)
     assert sorted({r["run"] for r in stored}) == list(range(study.runs))
-    runs = getattr(study, "spot_runs", dn.SPOT_RUNS)       # (a radio study: one run of its lightest point)
+    runs = getattr(study, "spot_runs", dn.SPOT_RUNS)       # (a radio study: run 0 of one or two points)
     key = lambda r: (r["run"], r["estimate"], r["component"])  # noqa: E731
     old = {key(r): r for r in stored if r["run"] in runs}
     new = {key(r): r for r in study.spot(runs)}
     assert set(old) == set(new)
     for k, row in new.items():
-        for col in ("mse", "anees", "messages_per_tick", "late", *(("cbr", "pdr_300") if "cbr" in study.columns else ())):
+        radio = [c for c in ("cbr", "pdr_300", *dn.TRAFFIC_COLUMNS) if c in study.columns]
+        for col in ("mse", "anees", "messages_per_tick", "late", *radio):
             assert np.isclose(row[col], old[k][col], rtol=1e-9, atol=0, equal_nan=True), (k, col)
 
 

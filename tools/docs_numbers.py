@@ -31,6 +31,10 @@ Two kinds of generator:
   slow tier (``--check`` recomputes it only when named in ``--only``); ``mobility``
   (docs/mobility.md: the shipped mobility scenarios, the range sweep and the range x speed
   sweep, about 60 runs of 300-1080 ticks) likewise.
+* ``sidelink`` (docs/radio.md, "C-V2X sidelink", issue 33): ``scenarios/sweep_sidelink_*ms.yaml``,
+  one study per radio, density and DKF tick (about 13 minutes of CPU in all), whose stored rows
+  keep the DKF's packet and frame counts beside the radio's; it also draws
+  docs/figures/sidelink_highway.png.
 
 Timings are never generated: they depend on the machine (decision 205).
 
@@ -700,9 +704,29 @@ RADIO_COLUMNS = (*COLUMNS, "cbr", "pdr_300")
 HIGHWAY_ESTIMATES = ("fused", "fusion_centre", "centralized", *CONSENSUS_FAMILY[:-1])
 
 
-def radio_rows(scenario: str, overrides: tuple[str, ...], r: int) -> list[dict]:
+#: the further columns a study of the sidelink keeps (:func:`radio_rows`): the PDR within 100 m,
+#: and the estimator's own packets (per link: ``sent``, ``delivered``, ``queue_dropped`` -- refused
+#: by a full waiting room, or on the sidelink too big or past its budget --, ``lost_parts``: the
+#: port's ``lost``, in the air)
+#: and frames (``frames`` that went on the air, ``frames_dropped``, ``access_delay`` in seconds)
+TRAFFIC_COLUMNS = ("pdr_100", "sent", "delivered", "queue_dropped", "lost_parts", "frames", "frames_dropped",
+                   "access_delay")
+
+
+def pdr_within(block: dict, causes: Iterable[str], metres: float) -> float:
+    """The PDR of the (frame, receiver) pairs of a ``pdr_by_distance`` block in the bins that end
+    within ``metres`` (NaN without a pair); ``causes``: the radio's causes of loss."""
+    near = [i for i, edge in enumerate(block["bins_m"][1:]) if edge <= metres]
+    frames = sum(block["frames"][i] for i in near)
+    lost = sum(block[c][i] for c in causes for i in near)
+    return (frames - lost) / frames if frames else math.nan
+
+
+def radio_rows(scenario: str, overrides: tuple[str, ...], r: int,
+               columns: tuple[str, ...] = RADIO_COLUMNS) -> list[dict]:
     """Run ``r`` of a radio study (run r's seed, as a Monte Carlo's): its tidy rows with the
-    radio's numbers of each estimator's copy of the channel."""
+    radio's numbers of each estimator's copy of the channel (``columns``: :data:`RADIO_COLUMNS`,
+    and any of :data:`TRAFFIC_COLUMNS`; NaN for an estimator without a copy)."""
     from dkfsim.engine.driver import Run
     sc = dkfsim.load_scenario(ROOT / scenario, overrides=list(overrides))
     tpl = Template(sc)
@@ -713,16 +737,21 @@ def radio_rows(scenario: str, overrides: tuple[str, ...], r: int) -> list[dict]:
         rows = res.rows(burn, res.scored(burn))
     out = []
     for row in rows:
-        ch = ((res.traffic.get(row["estimate"]) or {}).get("channel") or {})
+        traffic = res.traffic.get(row["estimate"]) or {}
+        ch = traffic.get("channel") or {}
         block = ch.get("pdr_by_distance")
-        cbr = pdr = math.nan
+        got = dict.fromkeys(("cbr", "pdr_300", *TRAFFIC_COLUMNS), math.nan)
         if block is not None:
-            near = [i for i, edge in enumerate(block["bins_m"][1:]) if edge <= 300.0]
-            frames = sum(block["frames"][i] for i in near)
-            lost = sum(block[c][i] for c in ("sensing", "receiver_busy", "propagation", "collision") for i in near)
+            causes = list(ch["losses"])                      # (the radio's own: edca's or the sidelink's)
             group = ch["cbr"][:len(run_sc.sensors)]          # (the channel's first members are the nodes)
-            cbr, pdr = float(np.mean(group)), (frames - lost) / frames if frames else math.nan
-        out.append({**{c: row[c] for c in COLUMNS if c != "run"}, "run": r, "cbr": cbr, "pdr_300": pdr})
+            got.update(cbr=float(np.mean(group)), pdr_300=pdr_within(block, causes, 300.0),
+                       pdr_100=pdr_within(block, causes, 100.0))
+        if ch:
+            got.update(sent=traffic["sent"], delivered=traffic["delivered"], queue_dropped=traffic["queue_dropped"],
+                       lost_parts=traffic["lost"], frames=ch["frames"], frames_dropped=ch["frames_dropped"],
+                       access_delay=ch["access_delay_mean"])
+        out.append({**{c: row[c] for c in COLUMNS if c != "run"}, "run": r,
+                    **{c: float(got[c]) for c in columns if c not in COLUMNS}})
     return out
 
 
@@ -739,12 +768,12 @@ class RadioStudy(Study):
 
     def compute(self, jobs: int) -> list[dict]:
         from concurrent.futures import ProcessPoolExecutor
-        args = [(self.scenario, self.overrides, r) for r in range(self.runs)]
+        args = [(self.scenario, self.overrides, r, self.columns) for r in range(self.runs)]
         with ProcessPoolExecutor(max_workers=max(1, jobs)) as pool:
             return [row for rows in pool.map(_radio_job, args) for row in rows]
 
     def spot(self, runs: Iterable[int] = SPOT_RUNS) -> list[dict]:
-        return [row for r in runs for row in radio_rows(self.scenario, self.overrides, r)]
+        return [row for r in runs for row in radio_rows(self.scenario, self.overrides, r, self.columns)]
 
 
 def highway_studies() -> tuple[RadioStudy, ...]:
@@ -834,6 +863,230 @@ def draw_radio_figure(path: Path) -> Path:
     right.set_title("the radio around the group (each estimator's copy)", fontsize=10)
     right.grid(alpha=0.3)
     legend_below(fig, [left, right], ncol=3)
+    return save_figure(fig, path, ("png",))[0]
+
+
+# --------------------------------------------------------------------------- the C-V2X sidelink
+#: issue 33's study: one sweep file per DKF tick (a grid is a cartesian product, and ``steps``
+#: follows ``model.T`` to keep the simulated time), each over the radio and the density
+SIDELINK_FILES = tuple(f"scenarios/sweep_sidelink_{ms}ms.yaml" for ms in (10, 20, 100))
+SIDELINK_COLUMNS = (*RADIO_COLUMNS, *TRAFFIC_COLUMNS)
+#: the points whose run 0 the slow tier recomputes: the sidelink at the lighter density, at the
+#: shortest and the longest tick (about 5 and 3 s each)
+SIDELINK_SPOT = (("sps", 0.25, 0.01), ("sps", 0.25, 0.1))
+#: the radios in the table's order, and what the table calls them
+SIDELINK_RADIOS = {"edca": "802.11p (`edca`)", "sps": "C-V2X (`sps`)"}
+
+
+def setting(study: Study, key: str) -> str:
+    """The value a study's overrides give ``key`` (the last one that sets it), as written."""
+    return next(o.partition("=")[2] for o in reversed(study.overrides) if o.partition("=")[0] == key)
+
+
+def sidelink_point(study: Study) -> tuple[str, float, float]:
+    """(radio, share of the traffic, tick in seconds) of one sidelink study."""
+    return (setting(study, "medium.access.kind"), float(setting(study, "medium.bystanders.sumo_fcd.fraction")),
+            float(setting(study, "model.T")))
+
+
+def sidelink_studies() -> tuple[RadioStudy, ...]:
+    """One study per point of each ``scenarios/sweep_sidelink_*ms.yaml`` (every combination of
+    its grid, in the sweep's order; its overrides as the sweep writes them: ``set``, then the grid
+    values), named ``sidelink_<tick>_<radio>_<share>``."""
+    import itertools
+    out = []
+    for file in SIDELINK_FILES:
+        spec = yaml.safe_load((ROOT / file).read_text())
+        scenario = str((Path(file).parent / spec["scenario"]).as_posix())
+        keys = list(spec["grid"])
+        for values in itertools.product(*spec["grid"].values()):
+            cells = dict(zip(keys, values))
+            name = (f"{Path(file).stem.removeprefix('sweep_')}_{cells['medium.access.kind']}_"
+                    f"{float(cells['medium.bystanders.sumo_fcd.fraction']):g}")
+            study = RadioStudy(name, scenario, (*spec.get("set", []), *(f"{k}={v}" for k, v in cells.items())),
+                               int(spec["runs"]), SIDELINK_COLUMNS)
+            spot = (0,) if sidelink_point(study) in SIDELINK_SPOT else ()
+            out.append(RadioStudy(study.name, scenario, study.overrides, study.runs, SIDELINK_COLUMNS, spot))
+    return tuple(out)
+
+
+SIDELINK = sidelink_studies()
+
+
+def sidelink_points(rows: dict[str, Rows]) -> list[tuple[str, float, float, Rows]]:
+    """(radio, share, tick, rows) of every sidelink study, in the table's order: radio, share, tick."""
+    pts = [(*sidelink_point(s), rows[s.name]) for s in SIDELINK]
+    order = list(SIDELINK_RADIOS)
+    return sorted(pts, key=lambda p: (order.index(p[0]), p[1], p[2]))
+
+
+def share_of(r: Rows, estimate: str, key: str) -> float:
+    """The share of ``estimate``'s packets (per link, summed over the runs) counted in ``key``."""
+    return r.mean(estimate, key) / r.mean(estimate, "sent")
+
+
+def best_consensus(r: Rows) -> tuple[str, float]:
+    """The consensus filter with the lowest mean position MSE, and that MSE."""
+    name = min((e for e in CONSENSUS_FAMILY[:-1] if e in r.estimates), key=lambda e: r.mean(e, "mse"))
+    return name, r.mean(name, "mse")
+
+
+def render_sidelink(rows: dict[str, Rows]) -> dict[str, str]:
+    """docs/radio.md's C-V2X table: per radio, density and DKF tick, the position MSE of the
+    fused DKF (95 % interval), the fusion centre, the centralized filter and the best of the
+    consensus family; the DKF's packets delivered and refused before the air, its frames' access
+    delay; the PDR within 100 m and the group's CBR on the DKF's copy of the radio."""
+    per_km = highway_per_km()
+    pts = sidelink_points(rows)
+    first = pts[0][3]
+    steps = {p[2]: int(setting(s, "steps")) for s, p in zip(SIDELINK, map(sidelink_point, SIDELINK))}
+    seconds = {round(T * k, 9) for T, k in steps.items()}
+    (duration,) = seconds
+    medium = next(s for s in SIDELINK if sidelink_point(s)[0] == "sps").load().medium
+    head = ["radio", "share of the traffic (vehicles per km)", "tick", "MSE fused", "MSE fusion_centre",
+            "MSE centralized", "best consensus: MSE (filter)", "DKF packets delivered", "DKF packets refused",
+            "DKF access delay", "PDR ≤ 100 m", "group's CBR"]
+    lines = ["```", *(f".venv/bin/dkfsim sweep {f} --jobs 2 --db out/{Path(f).stem.removeprefix('sweep_')}.sqlite"
+                      for f in SIDELINK_FILES), "```", "",
+             f"{first.runs} runs of {duration:g} s per point ({', '.join(f'{k} ticks of {T * 1000:g} ms' for T, k in steps.items())}); "
+             "position MSE after the burn-in (10 % of the ticks; mean over the runs, the DKF's with its 95 % "
+             "interval); the best consensus filter is the one of "
+             f"{', '.join(f'`{e}`' for e in CONSENSUS_FAMILY[:-1])} with the lowest mean. The DKF's packets "
+             "(one per link and message; the fusion centre's relayed packets share its radios and are not "
+             "counted here) delivered, and refused before the air (a full waiting room of "
+             f"{medium.queue.packets} packets; on the sidelink also a packet past its {1000 * medium.access.budget:g} ms "
+             "budget); the mean access delay of its frames (hand-over "
+             "to the start of transmission); on the DKF's copy of the radio, the PDR of every (frame, "
+             "receiver) pair within 100 m, background included, and the mean CBR of the twelve vehicles "
+             "of the group (802.11p: the share of time they sense the medium busy; the sidelink: the share "
+             f"of sub-channels whose power reaches {minus(medium.access.cbr_threshold, 'g')} dBm):", "",
+             "| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+    for radio, share, T, r in pts:
+        name, best = best_consensus(r)
+        cells = [SIDELINK_RADIOS[radio], f"{share:g} ({share * per_km:.0f})", f"{T * 1000:g} ms",
+                 interval(r.col("fused", "mse")), g4(r.mean("fusion_centre", "mse")), g4(r.mean("centralized", "mse")),
+                 f"{g4(best)} ({name})", f"{share_of(r, 'fused', 'delivered'):.0%}",
+                 f"{share_of(r, 'fused', 'queue_dropped'):.0%}", f"{1000 * r.mean('fused', 'access_delay'):.1f} ms",
+                 f"{r.mean('fused', 'pdr_100'):.3f}", f"{r.mean('fused', 'cbr'):.3f}"]
+        lines.append("| " + " | ".join(cells) + " |")
+    return {"sidelink-table": "\n".join(lines), "sidelink-reading": para(sidelink_reading(pts))}
+
+
+NUMBER_WORDS = {2: "two", 3: "three", 4: "four"}
+
+
+def listed(items: list[str]) -> str:
+    """``a``, ``a and b``, ``a, b and c``."""
+    return items[0] if len(items) == 1 else ", ".join(items[:-1]) + " and " + items[-1]
+
+
+def sidelink_reading(pts: list[tuple[str, float, float, Rows]]) -> str:
+    """The answer to issue 33 from the stored rows: per tick, what the sidelink refuses of the
+    DKF's packets and how long its frames wait, against 802.11p, and what that does to the fused
+    DKF and to the consensus family (each comparison worded from the numbers it quotes)."""
+    ticks = sorted({p[2] for p in pts})
+    at = lambda radio, T: [r for rad, _, t, r in pts if rad == radio and t == T]  # noqa: E731
+    pct = lambda v: f"{100 * v:.0f}"  # noqa: E731
+    ms = lambda T: f"{1000 * T:g} ms"  # noqa: E731
+    radios = list(SIDELINK_RADIOS)
+    per_tick = lambda f: {(radio, T): [f(r) for r in at(radio, T)] for radio in radios for T in ticks}  # noqa: E731
+    every = lambda f: {radio: [f(r) for T in ticks for r in at(radio, T)] for radio in radios}  # noqa: E731
+    refused = per_tick(lambda r: share_of(r, "fused", "queue_dropped"))
+    n = len(SIDELINK[0].load().sensors)
+    seconds = {T: T * int(setting(next(s for s in SIDELINK if sidelink_point(s)[2] == T), "steps")) for T in ticks}
+    on_air = {radio: [r.mean("fused", "frames") / (n * seconds[T]) for T in ticks for r in at(radio, T)]
+              for radio in radios}
+    handed = {radio: [(r.mean("fused", "frames") + r.mean("fused", "frames_dropped")) / (n * seconds[T])
+                      for T in ticks for r in at(radio, T)] for radio in radios}
+    delay = every(lambda r: 1000 * r.mean("fused", "access_delay"))
+    pdr = every(lambda r: r.mean("fused", "pdr_100"))
+    ratio = per_tick(lambda r: r.mean("fused", "mse") / r.mean("centralized", "mse"))
+    best = per_tick(lambda r: best_consensus(r)[1])
+    late = {T: [r.mean("fused", "late") for r in at("sps", T)] for T in ticks}
+    fits = [T for T in ticks if max(refused[("sps", T)]) <= max(refused[("edca", T)])]
+    flat = all(max(refused[("sps", T)]) - min(refused[("sps", T)]) < 0.05 for T in ticks)
+    sps = next(s for s in SIDELINK if sidelink_point(s)[0] == "sps").load()
+    d_t = sps.links.d_t
+    waits = per_tick(lambda r: r.mean("fused", "access_delay"))
+    late_ticks = [T for T in ticks if min(late[T]) > 0 and min(waits[("sps", T)]) > d_t * T]
+    worse = [T for T in ticks if min(best[("sps", T)]) > 2 * max(best[("edca", T)])]
+    same = [T for T in ticks if T not in worse]
+    sps_edca = lambda d, f, T: f"{span(d[('sps', T)], f)} against {span(d[('edca', T)], f)}"  # noqa: E731
+    two = lambda v: f"{v:.2f}"  # noqa: E731
+    verdict = (f"at none of the {NUMBER_WORDS.get(len(ticks), len(ticks))} ticks does it carry the DKF's traffic as 802.11p does"
+               if not fits else f"it carries the DKF's traffic as 802.11p does at {listed([ms(T) for T in fits])}")
+    text = (
+        f"On the sidelink with its defaults (a reservation every {1000 * sps.medium.access.rri:g} ms, a "
+        f"{1000 * sps.medium.access.budget:g} ms budget), {verdict}: it refuses "
+        + listed([f"{span(refused[('sps', T)], pct)} %" + (" of the DKF's packets" if i == 0 else "") + f" at {ms(T)}"
+                  for i, T in enumerate(ticks)])
+        + " (802.11p: " + listed([f"{span(refused[('edca', T)], pct)} %" for T in ticks]) + ")"
+        + (", whatever the density" if flat else "")
+        + f", and its frames wait {span(delay['sps'], lambda v: f'{v:.0f}')} ms for their subframe "
+        f"({span(delay['edca'], lambda v: f'{v:.1f}')} ms on 802.11p). Each of the twelve vehicles puts "
+        f"{span(on_air['sps'], lambda v: f'{v:.0f}')} of the DKF's frames per second on the air "
+        f"(802.11p: {span(on_air['edca'], lambda v: f'{v:.0f}')}) while its DKF hands over "
+        f"{span(handed['sps'], lambda v: f'{v:.0f}')} (802.11p: {span(handed['edca'], lambda v: f'{v:.0f}')}): "
+        "a frame at every tick and another whenever a packet brings it something new, into a waiting room "
+        f"of {sps.medium.queue.packets} packets that its beacons and the fusion centre's relays share. "
+        + (f"What goes on the air (background included) is received more often: PDR within 100 m "
+           f"{span(pdr['sps'], two)} against "
+           f"{span(pdr['edca'], two)}. " if min(pdr["sps"]) > max(pdr["edca"]) else
+           f"PDR within 100 m: {span(pdr['sps'], two)} against {span(pdr['edca'], two)}. ")
+        + "What it costs: the fused DKF's position MSE is "
+        + listed([f"{span(ratio[('sps', T)], two)}" + (" times the centralized filter's" if i == 0 else "")
+                  + f" at {ms(T)}" for i, T in enumerate(ticks)])
+        + " (802.11p: " + listed([span(ratio[("edca", T)], two) for T in ticks]) + ")"
+        + (f"; at {listed([ms(T) for T in late_ticks])} the wait exceeds the d_t = {d_t} ticks per hop its buffer is "
+           "sized for, and " + listed([span(late[T], lambda v: f"{v:.0f}") for T in late_ticks])
+           + " rows per run arrive late" if late_ticks else "")
+        + ". The consensus family, whose messages must arrive within their tick, ")
+    parts = []
+    if worse:
+        parts.append(f"has more than twice 802.11p's error at {listed([ms(T) for T in worse])} (its best filter "
+                     + listed([sps_edca(best, g4, T) for T in worse]) + ")")
+    if same:
+        parts.append(f"is within a factor of two of it at {listed([ms(T) for T in same])} ("
+                     + listed([sps_edca(best, g4, T) for T in same]) + ")")
+    return (text + " and ".join(parts) + ". The two CBRs are not one measure (802.11p: the time sensed busy; "
+            f"the sidelink: the sub-channels at {minus(sps.medium.access.cbr_threshold, 'g')} dBm or above).")
+
+
+def draw_sidelink_figure(path: Path) -> Path:
+    """docs/figures/sidelink_highway.png from the sidelink study's stored rows (what docs/radio.md's
+    table quotes): the fused DKF's position MSE over the centralized filter's, and the share of the
+    DKF's packets delivered, against the tick, one line per radio and density.  Written by
+    ``--only sidelink`` (never by the tests)."""
+    from dkfsim.core.extras import pyplot
+    from dkfsim.report.plots.style import legend_below, save_figure
+    plt = pyplot()
+    per_km = highway_per_km()
+    pts = sidelink_points({s.name: Rows(read_rows(s.path)) for s in SIDELINK})
+    colors = {"edca": "#3182bd", "sps": "#e6550d"}
+    shares = sorted({p[1] for p in pts})
+    styles = dict(zip(shares, ("--", "-", ":", "-.")))
+    fig, (left, right) = plt.subplots(1, 2, figsize=(11, 4.6))
+    for radio in SIDELINK_RADIOS:
+        for share in shares:
+            line = [(T * 1000, r) for rad, s, T, r in pts if rad == radio and s == share]
+            x = [t for t, _ in line]
+            label = f"{SIDELINK_RADIOS[radio].replace('`', '')}, {share * per_km:.0f} vehicles per km"
+            style = dict(color=colors[radio], ls=styles[share], marker="o", ms=4, label=label)
+            left.plot(x, [r.mean("fused", "mse") / r.mean("centralized", "mse") for _, r in line], **style)
+            right.plot(x, [share_of(r, "fused", "delivered") for _, r in line], **style)
+    for ax in (left, right):
+        ax.set_xscale("log")
+        ax.set_xticks([p[2] * 1000 for p in pts[:3]])
+        ax.set_xticklabels([f"{p[2] * 1000:g}" for p in pts[:3]])
+        ax.minorticks_off()
+        ax.set_xlabel("DKF tick (ms)")
+        ax.grid(alpha=0.3)
+    left.set_ylabel("fused position MSE / centralized")
+    left.set_title("the fused DKF against the centralized filter", fontsize=10)
+    right.set_ylim(0, 1)
+    right.set_ylabel("share of the DKF's packets delivered")
+    right.set_title("the DKF's packets (per link) that reach their neighbour", fontsize=10)
+    legend_below(fig, [left], ncol=2)
     return save_figure(fig, path, ("png",))[0]
 
 
@@ -932,6 +1185,7 @@ GENERATORS = (
     Generator("channel", ("channel-table", "channel-reading"), render_channel, CHANNEL),
     Generator("buffer", ("buffer-table", "buffer-reading"), render_buffer, BUFFER),
     Generator("radio", ("radio-highway", "radio-highway-reading"), render_radio, HIGHWAY),
+    Generator("sidelink", ("sidelink-table", "sidelink-reading"), render_sidelink, SIDELINK),
     Generator("radio_validation", ("radio-analytic-006", "radio-analytic-012", "radio-ns3-sync",
                                    *NS3_HIGHWAYS.values()), render_radio_validation),
 )
@@ -986,6 +1240,8 @@ def main(argv=None) -> int:
         print(f"rewrote {page.relative_to(ROOT)}")
     if any(g.name == "radio" for g in gens):
         print(f"drew {draw_radio_figure(ROOT / 'docs' / 'figures' / 'radio_highway').relative_to(ROOT)}")
+    if any(g.name == "sidelink" for g in gens):
+        print(f"drew {draw_sidelink_figure(ROOT / 'docs' / 'figures' / 'sidelink_highway').relative_to(ROOT)}")
     return 0
 
 
