@@ -10,9 +10,9 @@ and each receiver decides for itself (:mod:`dkfsim.network.media.radio`): a fram
 ``sensitivity`` is not detected, one above ``carrier_sense`` makes the receiver sense the channel
 busy, and a frame it locks on is received by the ``reception`` rule from its SINR over the frame
 (interference summed over every overlapping frame).  Each part below is a small declarative
-model, chosen by its ``model`` key; :func:`path_loss_db`, :func:`shadowing_db`,
-:func:`fading_db` evaluate them, vectorised over receivers (the reception rule is the radio's
-kernel's, :func:`dkfsim.network.radio_kernels.error_rate`).
+model, chosen by its ``model`` key; :func:`path_loss_db` and :func:`fading_db` evaluate them,
+vectorised over receivers: the references the radio's compiled forms are tested against (the
+reception rule is the radio's kernel's, :func:`dkfsim.network.radio_kernels.error_rate`).
 
 Units: powers in dBm, gains and losses in dB, distances in metres, frequencies in Hz.
 """
@@ -244,17 +244,10 @@ def _winner_b1(d: np.ndarray, f: float, he: float) -> np.ndarray:
 
 
 def normal_quantiles(u: np.ndarray) -> np.ndarray:
-    """``Phi^-1(u)``: the standard normal quantiles of uniform draws (what shadowing and fading
-    draw from; one call for both, :mod:`~dkfsim.network.media.radio`)."""
+    """``Phi^-1(u)``: the standard normal quantiles of uniform draws (what fading is drawn from;
+    the radio's kernels compute the same bits, :func:`~dkfsim.network.radio_kernels.ndtri`)."""
     from scipy.special import ndtri  # (lazy: validating a scenario needs no scipy)
     return ndtri(u)
-
-
-def shadowing_db(model: object, u: np.ndarray, z: np.ndarray | None = None) -> np.ndarray:
-    """The shadowing loss (dB) from uniform draws ``u`` in (0, 1) (or their normal quantiles ``z``)."""
-    if isinstance(model, Lognormal):
-        return model.sigma * (normal_quantiles(u) if z is None else z)
-    return np.zeros(len(u))
 
 
 #: The grid of :func:`nakagami_table`: the standard normal quantile ``z = Phi^-1(u)`` from ``-Z_MAX``

@@ -308,17 +308,10 @@ class Channel(Medium):
         radio = self.radios[node]
         bg = radio.background
         assert bg is not None
-        sizes = bg.until(ta)
-        if self.sends(node, ta):
-            for size in sizes:
-                if not self._arrive(radio, Frame(node, size, ta), ta):
-                    self._dropped.append(ta)
+        for size in bg.until(ta):
+            if not self._arrive(radio, Frame(node, size, ta), ta):
+                self._dropped.append(ta)
         heappush(self._arrivals, (bg.next_time(), node))
-
-    def sends(self, node: int, t: int) -> bool:  # noqa: ARG002  (a medium with vehicles off the road says no)
-        """Whether ``node``'s radio is on the air at ``t`` (its background packets then are
-        offered; otherwise taken and dropped unseen): always on one collision domain."""
-        return True
 
     def _start(self, ts: int) -> None:
         on_air = self.on_air
