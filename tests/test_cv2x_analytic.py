@@ -167,7 +167,7 @@ def simulate(beta: float, first_seed: int = 0) -> dict:
         channel.measure(senders, start, end)              # the central vehicles' packets in the window
         for t in range(start, end, SNAP_NS):
             channel.advance(t)
-            vs = channel.vs
+            vs = channel.vrows
             on = vs[rk.V_ON] > 0
             resource = np.where(on, (vs[rk.V_SF] % channel.sps.rri_ms) * S + vs[rk.V_C], -1)
             pair = on[senders, None] & on[None, :] & (lag > 0)

@@ -60,12 +60,6 @@ from dkfsim.network.media.base import Frame
 from dkfsim.network.media.channel import NEVER, Access, Channel, Radio
 from dkfsim.network.media.slotted import SlottedAccess
 
-#: The causes of a lost (frame, receiver) pair, named as the analytic 802.11p model names them
-#: (:data:`~dkfsim.network.radio_kernels.SENSING` ...).
-CAUSES = ("sensing", "receiver_busy", "propagation", "collision")   # (802.11p's: RadioChannel.CAUSES)
-#: Receivers per frame in a draw's sequence number (a frame's draws: ``seq = k * SEQ + node``).
-SEQ = 1 << 24
-
 
 def mw(dbm: float) -> float:
     """A power in dBm as mW."""
@@ -146,7 +140,7 @@ class SpatialChannel(Channel):
     sidelink's :class:`~dkfsim.network.media.sidelink.SidelinkChannel`): the members' positions
     and presence, the frames' keyed powers, the waiting rooms and background as arrays, the
     estimators' frames by number, the compiled engine's statuses, the pairs counted by distance
-    and cause.  A subclass names its engine (:meth:`_engine`), its per-vehicle rows, its causes
+    and cause.  A subclass names its engine (:attr:`KERNELS`), its per-vehicle rows, its causes
     and its busy time.
 
     :param positions: every node's position (m) at ticks ``0 .. K``, ``(K + 1, n, 2)``; a frame
@@ -162,6 +156,9 @@ class SpatialChannel(Channel):
     NFATES: ClassVar[int] = 5
     #: the rows of the per-vehicle array holding the background block's position and length
     B_ROWS: ClassVar[tuple[int, int]] = (rk.B_POS, rk.B_LEN)
+    #: the engine's run and push kernels (:mod:`~dkfsim.network.radio_kernels`), taking
+    #: :meth:`_state` and :meth:`_push_args`
+    KERNELS: ClassVar[tuple[str, str]] = ("run", "push")
     #: the slots of frames on the air, a row each (:mod:`~dkfsim.network.radio_kernels`): power
     #: (mW), distance (m), decision draws, each pair's fate; sender, start, end, frame number and
     #: hand-over; the slots on the air, the free ones, the estimators' frames that ended
@@ -242,8 +239,10 @@ class SpatialChannel(Channel):
         raise NotImplementedError
 
     def _engine(self, k: ModuleType) -> tuple[Callable, Callable]:
-        """The engine's run and push kernels of ``k`` (compiled or not), bound."""
-        raise NotImplementedError
+        """The engine's run and push kernels of ``k`` (compiled or not; :attr:`KERNELS`), bound."""
+        run, push = (getattr(k, name) for name in self.KERNELS)
+        return (rk.quiet(bind(run, 0, 0, *self._state())),
+                rk.quiet(bind(push, 0, 0, 0, 0, 0, 0, *self._push_args())))
 
     def _state(self) -> tuple:
         """The engine's arrays, in its run kernel's order."""
@@ -488,6 +487,7 @@ class RadioChannel(SpatialChannel):
     ended, a researcher's access rule.
     """
 
+    #: the causes of a lost pair, named as the analytic 802.11p model names them
     CAUSES = (("sensing", rk.SENSING), ("receiver_busy", rk.RECEIVER_BUSY), ("propagation", rk.PROPAGATION),
               ("collision", rk.COLLISION))
     #: who senses each frame on the air; a scratch list of slots; a researcher's rule's calls back
@@ -506,8 +506,8 @@ class RadioChannel(SpatialChannel):
         self.ri[rk.LOCKED] = -1
         self.rf = np.zeros((rk.NRF, m))
         self.rf[rk.LOCK_AIR] = 1.0
-        self.rq = self.vrows = np.zeros((rk.NRQ, m), dtype=np.int64)
-        self.rq[rk.ON_AIR] = self.rq[rk.B_LEN] = self.rq[rk.K_HANDED] = -1
+        self.vrows = np.zeros((rk.NRQ, m), dtype=np.int64)
+        self.vrows[[rk.ON_AIR, rk.B_LEN, rk.K_HANDED]] = -1
         self._went = np.zeros(m, dtype=np.int64)
         self._sbuf = np.zeros(m, dtype=np.int64)
         acc = self.slotted
@@ -534,18 +534,13 @@ class RadioChannel(SpatialChannel):
         self.hooks = np.zeros((2 * size + 4, 3), dtype=np.int64)
 
     @override
-    def _engine(self, k: ModuleType) -> tuple[Callable, Callable]:
-        return (rk.quiet(bind(k.run, 0, 0, *self._state())),
-                rk.quiet(bind(k.push, 0, 0, 0, 0, 0, 0, *self._push_args())))
-
-    @override
     def _push_args(self) -> tuple:
-        return (self.E, self.rq, self.queue, *self._access, self.hooks, self.ip)
+        return (self.E, self.vrows, self.queue, *self._access, self.hooks, self.ip)
 
     @override
     def _state(self) -> tuple:
         acc = self.slotted
-        return (self.E, self.rq, self.queue, self.bg, acc.idle_at, acc.origin, acc.count, acc.due, acc.head_on,
+        return (self.E, self.vrows, self.queue, self.bg, acc.idle_at, acc.origin, acc.count, acc.due, acc.head_on,
                 acc.air, acc.bkey, acc.dr, self._rkeys, self.nodes, self._x, self._y, self.absent, self.ri, self.rf,
                 self.p, self.d, self.u, self.fate, self.sensed, self.si, self.free, self.onair, self._sbuf, self.sl,
                 self._went, self._loss, self.pairs, self.fates, self.ticks, self._window, self._counted,
@@ -625,3 +620,7 @@ class RadioChannel(SpatialChannel):
         if end_ns % T:
             total = total + busy[-1] * ((end_ns % T) / T)
         return total / end_ns
+
+
+#: 802.11p's causes of a lost (frame, receiver) pair by name (:attr:`RadioChannel.CAUSES`).
+CAUSES = tuple(name for name, _ in RadioChannel.CAUSES)

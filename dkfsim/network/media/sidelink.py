@@ -25,8 +25,6 @@ The events run in the compiled engine :func:`~dkfsim.network.radio_kernels.run_s
 
 from __future__ import annotations
 
-from collections.abc import Callable
-from types import ModuleType
 from typing import Any
 
 import numpy as np
@@ -35,7 +33,6 @@ from typing_extensions import override
 from dkfsim.components.medium import Medium as MediumSpec
 from dkfsim.components.medium import Sps
 from dkfsim.components.radio import Z_MAX, Z_STEPS
-from dkfsim.core.jit import bind
 from dkfsim.core.registry import MEDIA
 from dkfsim.core.streams import key64
 from dkfsim.network import radio_kernels as rk
@@ -82,6 +79,7 @@ class SidelinkChannel(SpatialChannel):
     NFATES = rk.NFATES
     B_ROWS = (rk.VB_POS, rk.VB_LEN)
     Q_ROWS = (rk.VQ_HEAD, rk.VQ_LEN)
+    KERNELS = ("run_sps", "sps_push")
     #: per slot: first sub-channel, sub-channels, on a reservation, the interval it announces
     sx: np.ndarray
 
@@ -97,9 +95,9 @@ class SidelinkChannel(SpatialChannel):
         assert isinstance(a, Sps) and radio is not None
         m = len(self.nodes)
         self.sps = a
-        self.vs = self.vrows = np.zeros((rk.NVS, m), dtype=np.int64)
-        self.vs[[rk.T_SF, rk.VB_LEN, rk.VK_HANDED, rk.VD_AT]] = -1
-        self.schedule.vs = self.vs
+        self.vrows = np.zeros((rk.NVS, m), dtype=np.int64)
+        self.vrows[[rk.T_SF, rk.VB_LEN, rk.VK_HANDED, rk.VD_AT]] = -1
+        self.schedule.vs = self.vrows
         #: per vehicle: its scheduling draws' key
         self.skey = np.array([key64(seed, "sidelink", self.index, int(node), "sps") for node in self.nodes],
                              dtype=np.uint64)
@@ -141,18 +139,13 @@ class SidelinkChannel(SpatialChannel):
         self.sx = sx
 
     @override
-    def _engine(self, k: ModuleType) -> tuple[Callable, Callable]:
-        return (rk.quiet(bind(k.run_sps, 0, 0, *self._state())),
-                rk.quiet(bind(k.sps_push, 0, 0, 0, 0, 0, 0, *self._push_args())))
-
-    @override
     def _push_args(self) -> tuple:
-        return (self.E, self.vs, self.queue, self._gone, self.skey, self.kn, self.kr, self.rssi, self.txh, self.tag,
+        return (self.E, self.vrows, self.queue, self._gone, self.skey, self.kn, self.kr, self.rssi, self.txh, self.tag,
                 self.sp, self.sf, self._ex, self._metric)
 
     @override
     def _state(self) -> tuple:
-        return (self.E, self.vs, self.queue, self._gone, self.bg, self.skey, self._rkeys, self.nodes, self._x, self._y,
+        return (self.E, self.vrows, self.queue, self._gone, self.bg, self.skey, self._rkeys, self.nodes, self._x, self._y,
                 self.absent, self.p, self.d, self.u, self.fate, self.si, self.sx, self.free, self.onair, self._loss,
                 self.kn, self.kr, self.rssi, self.txh, self.tag, self._istx, self.pairs, self.fates, self.ticks,
                 self._window, self._counted, self.periods, self.dropped, self.own, self.sp, self.sf, self._plp,

@@ -105,6 +105,7 @@ class SlottedAccess(Access):
         self._start = bind(k.take_due, self.due, self.head_on, self.count, 0, NEVER, self._out)
         self._first_air = bind(k.first_air, self.due, self.air, 0)
         self._soonest = bind(k.soonest_end, self.due, self.air)
+        self._draw = rk.quiet(bind(k.draw, self.bkey, self.dr, 0, 0, 1))
         self._on_head = rk.quiet(bind(k.on_head, self.rule or rk.EDCA, 0, 0, True, self.origin, self.count,
                                       self.due, self.bkey, self.dr, 1, 1))
 
@@ -116,16 +117,8 @@ class SlottedAccess(Access):
     def draw(self, i: int, t: int) -> int:
         """A backoff uniform in ``0 .. cw`` for radio ``i`` at ``t``: the keyed draw at ``(t,
         attempt)``, ``attempt`` the number of its earlier draws at ``t``
-        (:func:`~dkfsim.network.radio_kernels.draw`, the same bits and state)."""
-        dr = self.dr
-        if dr[rk.DRAWN_AT, i] != t:
-            dr[rk.DRAWN_AT, i] = t
-            k = 0
-        else:
-            k = int(dr[rk.DRAWN, i])
-        dr[rk.DRAWN, i] = k + 1
-        count = int(keyed_uniform(int(self.bkey[i]), t, k) * (self.cw + 1))
-        return self.cw if count > self.cw else count
+        (:func:`~dkfsim.network.radio_kernels.draw`, the engine's own)."""
+        return int(self._draw(self.bkey, self.dr, i, t, self.cw))
 
     @override
     def head(self, radio: Radio, t: int) -> None:
