@@ -82,12 +82,13 @@ PAPER = Paper()
 
 
 # ----------------------------------------------------------------------- propagation
-def path_loss_db(d, p: Paper = PAPER) -> np.ndarray:
-    """WINNER+ B1 line of sight (IST-WINNER II D1.1.2 table 4-4; the paper's propagation
-    model): with effective heights ``h' = h - h_env`` and breakpoint ``d_BP = 4 h'_t h'_r f / c``,
-    ``22.7 log10 d + 27 + 20 log10 f_GHz`` below it, ``40 log10 d + 7.56 - 17.3 log10 h'_t
-    - 17.3 log10 h'_r + 2.7 log10 f_GHz`` beyond; never below free space (``20 log10 d + 46.4
-    + 20 log10(f_GHz / 5)``) when ``p.free_space_floor``; ``d`` at least ``p.min_distance``."""
+def winner_b1_db(d, p) -> np.ndarray:
+    """WINNER+ B1 line of sight (IST-WINNER II D1.1.2 table 4-4; the propagation model of this
+    paper and of tests/analyticcv2x.py's): with effective heights ``h' = h - h_env`` and breakpoint
+    ``d_BP = 4 h'_t h'_r f / c``, ``22.7 log10 d + 27 + 20 log10 f_GHz`` below it, ``40 log10 d +
+    7.56 - 17.3 log10 h'_t - 17.3 log10 h'_r + 2.7 log10 f_GHz`` beyond; never below free space
+    (``20 log10 d + 46.4 + 20 log10(f_GHz / 5)``) when ``p.free_space_floor``; ``d`` at least
+    ``p.min_distance`` (``p``: a paper's parameters with those fields)."""
     d = np.maximum(np.abs(np.asarray(d, dtype=np.float64)), p.min_distance)
     f_ghz = p.frequency / 1e9
     ht, hr = p.h_tx - p.h_env, p.h_rx - p.h_env
@@ -98,6 +99,13 @@ def path_loss_db(d, p: Paper = PAPER) -> np.ndarray:
     if p.free_space_floor:
         pl = np.maximum(pl, 20.0 * np.log10(d) + 46.4 + 20.0 * math.log10(f_ghz / 5.0))
     return pl
+
+
+
+
+def path_loss_db(d, p: Paper = PAPER) -> np.ndarray:
+    """The paper's path loss (dB) at ``d`` m: :func:`winner_b1_db`."""
+    return winner_b1_db(d, p)
 
 
 def mean_power_dbm(d, power: float, p: Paper = PAPER) -> np.ndarray:
@@ -139,32 +147,33 @@ def fer(sinr_db, data_rate: float, p: Paper = PAPER) -> np.ndarray:
 STEP_DB = 0.05
 
 
-def _grid(low: float, power: float, p: Paper) -> np.ndarray:
+def power_grid(low: float, power: float, p) -> np.ndarray:
     """Cell edges (dBm) from ``low`` to 8 sigma above the strongest mean power (at
-    ``p.min_distance``), :data:`STEP_DB` apart."""
-    top = power - float(path_loss_db(p.min_distance, p)) + 8.0 * p.sigma
+    ``p.min_distance``), :data:`STEP_DB` apart (``p``: a paper's parameters; shared with
+    tests/analyticcv2x.py)."""
+    top = power - float(winner_b1_db(p.min_distance, p)) + 8.0 * p.sigma
     return low + np.arange(int(math.ceil((top - low) / STEP_DB)) + 1) * STEP_DB
 
 
-def _received_masses(mean_dbm, power: float, p: Paper) -> tuple[np.ndarray, np.ndarray]:
+def received_masses(mean_dbm, power: float, p) -> tuple[np.ndarray, np.ndarray]:
     """Per mean power, the probability of each grid cell of the received power *given that it
-    is detected* (the paper's SNR and SINR are those of detected packets: eqs (24), (30)), the
-    grid starting at the sensing threshold: (cell centres, ``(len(mean), cells)``), each row
+    is detected*, at or above ``p.sensing`` (the SNR and SINR of both papers are those of
+    detected packets: here eqs (24), (30)): (cell centres, ``(len(mean), cells)``), each row
     summing to 1 (0 where detection is impossible)."""
-    edges = _grid(p.sensing, power, p)
+    edges = power_grid(p.sensing, power, p)
     cdf = special.ndtr((edges[None, :] - np.asarray(mean_dbm, dtype=np.float64)[:, None]) / p.sigma)
     mass = np.diff(cdf, axis=1)
     total = mass.sum(axis=1, keepdims=True)
     return 0.5 * (edges[1:] + edges[:-1]), np.divide(mass, total, out=np.zeros_like(mass), where=total > 0)
 
 
-def _interference_masses(mean_dbm, power: float, p: Paper) -> tuple[np.ndarray, np.ndarray]:
+def interference_masses(mean_dbm, power: float, noise: float, p) -> tuple[np.ndarray, np.ndarray]:
     """Per mean interference power, the probability of each grid cell of ``10 log10(N + I)``,
-    ``I`` log-normal and not truncated (an interferer below the threshold still interferes):
-    ``P(10 log10(N + I) <= y) = Phi((10 log10(10^(y/10) - N) - mean) / sigma)`` for ``y`` above
-    the noise ``N``: (cell centres, ``(len(mean), cells)``)."""
-    edges = _grid(p.noise, power, p)
-    excess = 10.0 ** (edges / 10.0) - 10.0 ** (p.noise / 10.0)
+    ``N`` the ``noise`` (dBm), ``I`` log-normal and not truncated (an interferer below the
+    threshold still interferes): ``P(10 log10(N + I) <= y) = Phi((10 log10(10^(y/10) - N) -
+    mean) / sigma)`` for ``y`` above the noise: (cell centres, ``(len(mean), cells)``)."""
+    edges = power_grid(noise, power, p)
+    excess = 10.0 ** (edges / 10.0) - 10.0 ** (noise / 10.0)
     with np.errstate(divide="ignore"):
         level = np.where(excess > 0, 10.0 * np.log10(np.maximum(excess, 1e-300)), -np.inf)
     cdf = special.ndtr((level[None, :] - np.asarray(mean_dbm, dtype=np.float64)[:, None]) / p.sigma)
@@ -176,7 +185,7 @@ def propagation_error(d, power: float, data_rate: float, p: Paper = PAPER) -> np
     """Eq. (24), the propagation error before the ordering of eq. (5): the average frame error
     rate of a detected packet without interference, ``E[FER(P_t - PL(d) - X - N) | detected]``,
     the SNR's distribution that of the shadowed power truncated at the sensing threshold."""
-    s, masses = _received_masses(mean_power_dbm(np.atleast_1d(d), power, p), power, p)
+    s, masses = received_masses(mean_power_dbm(np.atleast_1d(d), power, p), power, p)
     return masses @ fer(s - p.noise, data_rate, p)
 
 
@@ -185,8 +194,8 @@ def interference_error(d, d_int, power: float, data_rate: float, p: Paper = PAPE
     away while one vehicle ``d_int`` m from the receiver transmits over all of it, the SINR
     ``(P_t - PL(d) - X) - 10 log10(N + 10^((P_t - PL(d_int) - X_i) / 10))``, ``X`` and ``X_i``
     independent: ``(len(d), len(d_int))``."""
-    s, sig = _received_masses(mean_power_dbm(np.atleast_1d(d), power, p), power, p)
-    y, inter = _interference_masses(mean_power_dbm(np.atleast_1d(d_int), power, p), power, p)
+    s, sig = received_masses(mean_power_dbm(np.atleast_1d(d), power, p), power, p)
+    y, inter = interference_masses(mean_power_dbm(np.atleast_1d(d_int), power, p), power, p.noise, p)
     return sig @ fer(s[:, None] - y[None, :], data_rate, p) @ inter.T
 
 

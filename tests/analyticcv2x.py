@@ -112,6 +112,8 @@ import math
 from dataclasses import dataclass, field
 
 import numpy as np
+from analytic80211p import STEP_DB as STEP_DB  # (the grids' step, shared: re-exported)
+from analytic80211p import interference_masses, received_masses, winner_b1_db
 from scipy import special
 
 #: The speed of light as the paper's propagation model takes it (m/s).
@@ -182,21 +184,10 @@ PAPER = Paper()
 
 # ----------------------------------------------------------------------- propagation
 def path_loss_db(d, p: Paper = PAPER) -> np.ndarray:
-    """WINNER+ B1 line of sight: effective heights ``h' = h - h_env`` (1.5 m), breakpoint
-    ``d_BP = 4 h'_t h'_r f / c`` (177.3 m), ``22.7 log10 d + 27 + 20 log10 f_GHz`` below it, ``40
-    log10 d + 7.56 - 17.3 log10 h'_t - 17.3 log10 h'_r + 2.7 log10 f_GHz`` beyond; never below
-    free space (``20 log10 d + 46.4 + 20 log10(f_GHz / 5)``) when ``p.free_space_floor``; ``d`` at
-    least ``p.min_distance``."""
-    d = np.maximum(np.abs(np.asarray(d, dtype=np.float64)), p.min_distance)
-    f_ghz = p.frequency / 1e9
-    ht, hr = p.h_tx - p.h_env, p.h_rx - p.h_env
-    d_bp = 4.0 * ht * hr * p.frequency / C
-    near = 22.7 * np.log10(d) + 27.0 + 20.0 * math.log10(f_ghz)
-    far = 40.0 * np.log10(d) + 7.56 - 17.3 * math.log10(ht) - 17.3 * math.log10(hr) + 2.7 * math.log10(f_ghz)
-    pl = np.where(d < d_bp, near, far)
-    if p.free_space_floor:
-        pl = np.maximum(pl, 20.0 * np.log10(d) + 46.4 + 20.0 * math.log10(f_ghz / 5.0))
-    return pl
+    """The paper's path loss (dB) at ``d`` m: WINNER+ B1 line of sight, effective heights 1.5 m
+    (breakpoint 177.3 m), floored at free space (:func:`analytic80211p.winner_b1_db`, the same
+    model as the 802.11p paper's)."""
+    return winner_b1_db(d, p)
 
 
 def mean_power_dbm(d, power: float, p: Paper = PAPER) -> np.ndarray:
@@ -243,47 +234,11 @@ def bler(sinr_db, subchannels: int) -> np.ndarray:
     return np.interp(sinr_db, table[:, 0], table[:, 1])
 
 
-#: The step (dB) of the grids of the expectations over shadowing.
-STEP_DB = 0.05
-
-
-def _grid(low: float, power: float, p: Paper) -> np.ndarray:
-    """Cell edges (dBm) from ``low`` to 8 sigma above the strongest mean power (at
-    ``p.min_distance``), :data:`STEP_DB` apart."""
-    top = power - float(path_loss_db(p.min_distance, p)) + 8.0 * p.sigma
-    return low + np.arange(int(math.ceil((top - low) / STEP_DB)) + 1) * STEP_DB
-
-
-def _received_masses(mean_dbm, power: float, p: Paper) -> tuple[np.ndarray, np.ndarray]:
-    """Per mean power, the probability of each grid cell of the received power *given that it
-    is at or above the sensing threshold* (the SNR of eq. (13) and the SINR of eq. (17) are
-    those of packets above it): (cell centres, ``(len(mean), cells)``), each row summing to 1."""
-    edges = _grid(p.sensing, power, p)
-    cdf = special.ndtr((edges[None, :] - np.asarray(mean_dbm, dtype=np.float64)[:, None]) / p.sigma)
-    mass = np.diff(cdf, axis=1)
-    total = mass.sum(axis=1, keepdims=True)
-    return 0.5 * (edges[1:] + edges[:-1]), np.divide(mass, total, out=np.zeros_like(mass), where=total > 0)
-
-
-def _interference_masses(mean_dbm, power: float, noise: float, p: Paper) -> tuple[np.ndarray, np.ndarray]:
-    """Per mean interference power, the probability of each grid cell of ``10 log10(N + I)``,
-    ``I`` log-normal and not truncated (an interferer below the threshold still interferes):
-    ``P(10 log10(N + I) <= y) = Phi((10 log10(10^(y/10) - N) - mean) / sigma)`` for ``y`` above
-    the noise ``N``: (cell centres, ``(len(mean), cells)``)."""
-    edges = _grid(noise, power, p)
-    excess = 10.0 ** (edges / 10.0) - 10.0 ** (noise / 10.0)
-    with np.errstate(divide="ignore"):
-        level = np.where(excess > 0, 10.0 * np.log10(np.maximum(excess, 1e-300)), -np.inf)
-    cdf = special.ndtr((level[None, :] - np.asarray(mean_dbm, dtype=np.float64)[:, None]) / p.sigma)
-    cdf[:, -1] = 1.0
-    return 0.5 * (edges[1:] + edges[:-1]), np.diff(cdf, axis=1)
-
-
 def propagation_error(d, power: float, subchannels: int, p: Paper = PAPER) -> np.ndarray:
     """Eq. (13), ``delta_PRO`` before the ordering of eq. (6.3): the average BLER of a packet
     received above the sensing threshold without interference, ``E[BLER(P_t - PL(d) - X - N) |
     above P_sen]``."""
-    s, masses = _received_masses(mean_power_dbm(np.atleast_1d(d), power, p), power, p)
+    s, masses = received_masses(mean_power_dbm(np.atleast_1d(d), power, p), power, p)
     return masses @ bler(s - noise_dbm(subchannels, p), subchannels)
 
 
@@ -293,8 +248,8 @@ def interference_error(d, d_int, power: float, subchannels: int, p: Paper = PAPE
     resource, the SINR ``(P_t - PL(d) - X) - 10 log10(N + 10^((P_t - PL(d_int) - X_i) / 10))``,
     ``X`` and ``X_i`` independent: ``(len(d), len(d_int))``."""
     noise = noise_dbm(subchannels, p)
-    s, sig = _received_masses(mean_power_dbm(np.atleast_1d(d), power, p), power, p)
-    y, inter = _interference_masses(mean_power_dbm(np.atleast_1d(d_int), power, p), power, noise, p)
+    s, sig = received_masses(mean_power_dbm(np.atleast_1d(d), power, p), power, p)
+    y, inter = interference_masses(mean_power_dbm(np.atleast_1d(d_int), power, p), power, noise, p)
     return sig @ bler(s[:, None] - y[None, :], subchannels) @ inter.T
 
 

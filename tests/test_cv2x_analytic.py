@@ -65,6 +65,7 @@ import analyticcv2x as cv2x
 import numpy as np
 import pytest
 import simpy
+from test_radio_analytic import table_rows
 
 from dkfsim.components.faults import LinkSpec
 from dkfsim.components.latency import Constant
@@ -237,15 +238,6 @@ def failures(sim: dict, ref: dict, sim_cbr: float, ref_cbr: float) -> list[str]:
         if worst > tol:
             out.append(f"{name}: worst bin {worst:.4f} (<= {tol})")
     return out
-
-
-def table_rows(edges, sim: dict, ref: dict) -> str:
-    """dkfsim | model per bin and quantity."""
-    rows = ["bin (m)   " + "  ".join(f"{k:>17s}" for k in ref)]
-    for j in range(len(edges) - 1):
-        rows.append(f"{edges[j]:3.0f}-{edges[j + 1]:3.0f}  " +
-                    "  ".join(f"{sim[k][j]:8.4f}|{ref[k][j]:<8.4f}" for k in ref))
-    return "\n".join(rows)
 
 
 @pytest.mark.slow
