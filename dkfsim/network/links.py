@@ -83,7 +83,7 @@ class Link:
     """
 
     __slots__ = ("id", "src", "dst", "spec", "loss", "duplicate", "plain", "T_ns", "prefix", "seed", "near",
-                 "_main", "_copy", "_loss_key", "_dup_key", "_outages", "_faultless", "_up", "_changes",
+                 "_main", "_copy", "_loss_key", "_dup_key", "_outages", "_faultless", "_up", "changes",
                  "_near_loss", "_near_extra")
 
     def __init__(self, link_id: int, src: int, dst: int, spec: Any, seed: int, T_ns: int,
@@ -101,7 +101,9 @@ class Link:
         self.near = False
         #: per tick ``0 .. K`` (:meth:`set_schedule`): up or not; None: always up
         self._up: np.ndarray | None = None
-        self._changes = False
+        #: whether the link is down at some tick ``1 .. K`` (the ticks a run sends at); an
+        #: attribute, not a property: the port reads it for every packet
+        self.changes = False
         self._near_loss: list[float] | None = None
         self._near_extra: list[int] | None = None
         prefix = self.prefix
@@ -122,7 +124,7 @@ class Link:
         """The link comes and goes: ``up[k]`` is True while it is up at tick ``k``
         (docs/design.md §3); a packet handed to it while it is down is lost (``range_lost``)."""
         self._up = np.ascontiguousarray(up, dtype=bool)
-        self._changes = not bool(self._up[1:].all())
+        self.changes = not bool(self._up[1:].all())
 
     def set_distance(self, loss: list[float] | None, extra: list[int] | None) -> None:
         """The link's loss and extra latency follow its pair's distance, per tick ``0 .. K``
@@ -155,11 +157,6 @@ class Link:
         up = self._up
         return up is None or bool(up[self.tick_of(t_ns, len(up))])
 
-    @property
-    def changes(self) -> bool:
-        """Whether the link is down at some tick ``1 .. K`` (the ticks a run sends at)."""
-        return self._changes
-
     def up_per_tick(self) -> np.ndarray | None:
         """Whether the link is up at each tick ``0 .. K`` (read only), None when it is always up."""
         if self._up is None:
@@ -171,7 +168,7 @@ class Link:
     def came_up(self) -> list[int]:
         """The ticks ``k >= 1`` at which the link comes up (down at tick ``k - 1``)."""
         up = self._up
-        if up is None or not self._changes:
+        if up is None or not self.changes:
             return []
         return (np.flatnonzero(up[1:] & ~up[:-1]) + 1).tolist()
 

@@ -217,8 +217,13 @@ class Port:
                         continue
                     for lat in count_fate(link, now, seq, count):    # (a lost one occupied it)
                         self._enqueue(now, leaves - now + lat, link, payload)
-                else:
-                    shared = self._offer(medium, link, payload, seq, size, now, shared)
+                elif medium.broadcast:              # (gathered: one frame per flush and medium)
+                    if shared is None:
+                        shared = {medium: [(link, payload, seq)]}
+                    else:
+                        shared.setdefault(medium, []).append((link, payload, seq))
+                elif not medium.offer(Frame(link.src, size, now, ((link, payload, seq),), self._left, self)):
+                    count["queue_dropped"][lid] += 1
             if shared:
                 self._offer_shared(shared, int(frame_bytes[f]), now)
 

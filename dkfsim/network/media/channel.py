@@ -76,6 +76,11 @@ class Access:
     :param channel: the channel it decides for; ``seed`` keys its draws.
     """
 
+    #: :meth:`next_start` as last worked out while the channel is idle, or None: not known (the
+    #: channel then asks :meth:`next_start`); a rule that caches it clears it whenever the heads
+    #: or the idle period change, so the channel's hot loop reads it without a call
+    start_at: int | None = None
+
     def __init__(self, params: Any, channel: Channel, seed: int):
         self.params = params
         self.channel = channel
@@ -290,7 +295,12 @@ class Channel(Medium):
             te = self._next_end
             ta = arrivals[0][0] if arrivals else NEVER
             th = held[0][0] if held else NEVER
-            ts = NEVER if self.on_air and not overlapping else access.next_start()
+            if self.on_air and not overlapping:
+                ts = NEVER
+            else:
+                ts = access.start_at
+                if ts is None:
+                    ts = access.next_start()
             if te <= t and te <= ta and te <= th and te <= ts:
                 self._end(te)
             elif ta <= t and ta <= ts and ta <= th:
@@ -340,20 +350,22 @@ class Channel(Medium):
         self._periods.extend((ts, end, n, background, n > 1))
 
     def _end(self, te: int) -> None:
-        on_air = self.on_air
-        if len(on_air) == 1:
-            done, on_air = on_air, []
-        else:
-            done = [f for f in on_air if f.end == te]
-            on_air = [f for f in on_air if f.end != te]
-        self.on_air = on_air
-        if on_air:
-            self._next_end = min(f.end for f in on_air)
-        else:                               # idle from now: the new heads count from here
+        done = self.on_air
+        access = self.access
+        if len(done) == 1:                  # idle from now: the new heads count from here
+            self.on_air = []
             self._next_end = NEVER
-            self.access.idle(te)
+            access.idle(te)
+        else:
+            on_air = self.on_air = [f for f in done if f.end != te]
+            done = [f for f in done if f.end == te]
+            if on_air:
+                self._next_end = min(f.end for f in on_air)
+            else:
+                self._next_end = NEVER
+                access.idle(te)
         ok = not self.collided
-        radios, ended, access = self.radios, self.ended, self.access
+        radios, ended, sent = self.radios, self.ended, self._sent
         for frame in done:
             radio = radios[frame.node]
             radio.on_air = None
@@ -364,10 +376,10 @@ class Channel(Medium):
                 own = self._owned.get(frame.owner)
                 if own is None:
                     own = self._owned[frame.owner] = array("q")
-                own.extend((frame.end, not ok, frame.start - frame.handed))
+                own.extend((te, not ok, frame.start - frame.handed))
                 frame.done(frame, ok)
-            if self._sent is not None:
-                self._sent(radio, te)
+            if sent is not None:
+                sent(radio, te)
             if radio.queue:
                 access.head(radio, te)
 
@@ -382,11 +394,7 @@ class Channel(Medium):
         if not self.pending:
             return
         if not self.overlapping:
-            if self.on_air:
-                t = self._next_end
-            else:
-                access = self.access
-                t = access.next_start() + access.next_airtime()
+            t = self._next_end if self.on_air else self.access.soonest_end()
         else:                               # (the first end among those on the air and the heads')
             t = min(self.first_end(), self.access.soonest_end())
         if self._held and self._held[0][0] < t:

@@ -45,7 +45,7 @@ class CsmaAccess(Access):
         #: boundary at which its transmission started)
         self.passed = 0
         self.t_idle = 0
-        self._next_start: int | None = None
+        self.start_at = None
         #: the shortest airtime of the heads due at :meth:`next_start`
         self._next_air = 1
 
@@ -57,18 +57,18 @@ class CsmaAccess(Access):
         channel = self.channel
         join = 0 if channel.on_air or t <= first else -(-(t - first) // self.slot)
         heappush(self._heads, (self.passed + join + count, radio.node, channel.airtime(radio.queue[0].size)))
-        self._next_start = None
+        self.start_at = None
 
     def next_start(self) -> int:
         if self.channel.on_air:
             return NEVER
-        if self._next_start is None:
+        if self.start_at is None:
             heads = self._heads
             if not heads:
-                self._next_start = NEVER
+                self.start_at = NEVER
             else:
                 best = heads[0][0]
-                self._next_start = self.t_idle + self.aifs + (best - self.passed) * self.slot
+                self.start_at = self.t_idle + self.aifs + (best - self.passed) * self.slot
                 # the heads tied with the first are a subtree at the top of the heap: none when
                 # neither child of the root is
                 n = len(heads)
@@ -76,12 +76,19 @@ class CsmaAccess(Access):
                     self._next_air = min(air for b, _, air in heads if b == best)
                 else:
                     self._next_air = heads[0][2]
-        return self._next_start
+        return self.start_at
 
     @override
     def next_airtime(self) -> int:
         self.next_start()
         return self._next_air
+
+    @override
+    def soonest_end(self) -> int:
+        ts = self.start_at                  # (valid while set: every change of the heads clears it)
+        if ts is None:
+            ts = self.next_start()
+        return ts + self._next_air if ts < NEVER else NEVER
 
     @override
     def start(self, ts: int) -> list[Radio]:
@@ -92,11 +99,11 @@ class CsmaAccess(Access):
             out.append(radios[heappop(heads)[1]])
         # the others are frozen: the boundaries before this one are spent, the rest count on
         self.passed = best
-        self._next_start = None
+        self.start_at = None
         return out
 
     @override
     def idle(self, te: int) -> None:
         self.t_idle = te
-        self._next_start = None
+        self.start_at = None
 
