@@ -298,9 +298,8 @@ class Channel(Medium):
             if self.on_air and not overlapping:
                 ts = NEVER
             else:
-                ts = access.start_at
-                if ts is None:
-                    ts = access.next_start()
+                cached = access.start_at
+                ts = cached if cached is not None else access.next_start()
             if te <= t and te <= ta and te <= th and te <= ts:
                 self._end(te)
             elif ta <= t and ta <= ts and ta <= th:
