@@ -280,6 +280,31 @@ def test_dkf_late_on_a_slow_link_equals_the_arrival_log():
     check_against_window_reference(r)
 
 
+def test_receive_and_flush_in_one_call_equal_the_two_calls(monkeypatch):
+    """On rate-limited links no packet arrives at the instant it is sent, so the tree hands a
+    delivery and the flushes it makes due to one kernel call (``receive_flush``): every array
+    and count equals the run that asks the port before each flush (the two calls), and the
+    one-call path was taken."""
+    from dkfsim.network.port import RecordPort
+    from dkfsim.protocols import tree_kernels
+
+    sc = _rated(2e5, steps=60, seed=4, latency={"model": "uniform", "low": 0.0, "high": 0.02}, buffer_length=5)
+    sc["links"]["default"]["background"] = {"packets_per_second": 20.0, "size": 200}
+    calls = []
+    real = tree_kernels.receive_flush
+    monkeypatch.setattr(tree_kernels, "receive_flush", lambda *a: calls.append(1) or real(*a))
+    monkeypatch.setenv("DKFSIM_KERNELS", "numpy")          # (the Python functions: counted)
+    one = run_scenario(sc)
+    taken = len(calls)
+    assert taken > 100
+    monkeypatch.setattr(RecordPort, "never_now", lambda self, links, q, nbytes: False)
+    two = run_scenario(sc)
+    assert len(calls) == taken                          # (the two calls this time)
+    assert one.counts == two.counts and one.counts["delivered"] > 0
+    for key in one.arrays:
+        assert np.array_equal(one.arrays[key], two.arrays[key], equal_nan=True), key
+
+
 # ------------------------------------------------------------------ bad input
 @pytest.mark.parametrize("links, key, words", [
     ({"default": {"rate": 0}}, "links.default.rate", ">= 1.0"),

@@ -696,6 +696,15 @@ class RecordPort(Port):
                     table[e] = 0
         return table
 
+    def never_now(self, links: list[Link], q: int, nbytes: int) -> bool:
+        """Whether :meth:`lookahead` answers "not at this instant" (``0``) for every packet on
+        ``links`` at every instant: then a sender need not ask before it flushes."""
+        plan = self._plans.get(id(links))
+        if plan is None or plan[0] is not links:
+            plan = self._plan(links, q, nbytes)
+        fixed = plan[4]
+        return fixed is not None and not fixed.any()
+
     def _plan(self, links: list[Link], q: int, nbytes: int) -> tuple:
         """What :meth:`lookahead` works out once for a list of links: their ids, the links it
         answers for in Python (with their media) -- but those whose packets cannot arrive at

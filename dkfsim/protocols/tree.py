@@ -116,6 +116,13 @@ class TreeExchange(Exchange):
         self._measure = bind(k.measure, X, O, 0, i, i)
         self._receive = bind(k.receive, X, O, np.zeros((1, 4), np.int64), port.records().view(np.uint64), i)
         self._flush = bind(k.flush, X, O, np.zeros((1, LOOKAHEAD), np.int8), i)
+        self._receive_flush = bind(k.receive_flush, X, O, np.zeros((1, 4), np.int64), port.records().view(np.uint64),
+                                   i, np.zeros((1, LOOKAHEAD), np.int8), i)
+        #: no packet of the exchange ever arrives at the instant it is sent (e.g. every link
+        #: rate-limited): a delivery and the flushes it makes due run in one kernel call, with
+        #: this lookahead (worked out on the first delivery: the port's media are all known then)
+        self._never: np.ndarray | None = None
+        self._quiet: bool | None = None
 
     def _out(self, parts: int, items: int) -> tk.Out:
         """Output buffers for up to ``parts`` parts (and frames) and ``items`` items or gains."""
@@ -178,21 +185,33 @@ class TreeExchange(Exchange):
         ``records[batch[k, 2]:batch[k, 3]]``."""
         if len(batch) * self.holdings.S > self.O.gain.shape[1]:     # (a packet has at most S rows)
             self._room(0, int((batch[:, 3] - batch[:, 2]).sum()))
+        if self._quiet is None:
+            self._quiet = self.port.never_now(self.links, LOOKAHEAD, self._smallest)
+            self._never = np.zeros((self.n_links, LOOKAHEAD), dtype=np.int8)
+        if self._quiet and not self._flush_pending and self.env.peek() > self.env.now:
+            # (what _gains(at_once=True) and _flush_all would do next, without asking the port)
+            self._flush_pending = True
+            used = np.zeros(self.n_links, dtype=np.int64)
+            status = self._receive_flush(self.X, self.O, batch, records.view(np.uint64), self._local, self._never, used)
+            self._flush_all(None, status)
+            return
         self._receive(self.X, self.O, batch, records.view(np.uint64), self._local)
         self._gains(at_once=True)
 
-    def _flush_all(self, _event: Event | None) -> None:
+    def _flush_all(self, _event: Event | None, status: int | None = None) -> None:
         """Flush the due nodes, first due first: in one kernel call while the port can say which
         packets reach their receiver at this instant (those are delivered before the next node
         flushes, as separate events of higher priority would be); a flush whose packets it
-        cannot answer for goes through the port and is delivered before the rest go on."""
+        cannot answer for goes through the port and is delivered before the rest go on.
+        ``status``: a flush call's already made (:meth:`receive_records`)."""
         X, port = self.X, self.port
         ahead = None
         while True:
-            if ahead is None:
-                ahead = port.lookahead(self.links, LOOKAHEAD, self._smallest)
-            used = np.zeros(self.n_links, dtype=np.int64)
-            status = self._flush(X, self.O, ahead, used)
+            if status is None:
+                if ahead is None:
+                    ahead = port.lookahead(self.links, LOOKAHEAD, self._smallest)
+                used = np.zeros(self.n_links, dtype=np.int64)
+                status = self._flush(X, self.O, ahead, used)
             if status < 0:
                 raise RuntimeError("tree exchange: the output buffers cannot hold one node's flush")
             self._gains()
@@ -206,6 +225,7 @@ class TreeExchange(Exchange):
                 self._room(2 * len(self.O.parts), 2 * self.O.gain.shape[1])
                 if sent:
                     ahead = None
+            status = None
         self._flush_pending = False
 
     # -- glue ------------------------------------------------------------------------

@@ -31,7 +31,7 @@ import numpy as np
 from dkfsim.core.jit import LazyKernels
 
 _KERNELS = ("_popcount", "_gain", "_schedule", "_count_late", "_receive_packet", "_close", "measure", "receive",
-            "_flush_node", "flush", "schedule")
+            "_flush_node", "flush", "receive_flush", "schedule")
 #: Steps inlined into the kernels that call them per packet, item or word.
 _INLINE = ("_popcount", "_gain", "_schedule", "_count_late", "_receive_packet", "_close", "_flush_node")
 _lazy = LazyKernels(__name__, _KERNELS, inline=_INLINE)
@@ -378,3 +378,11 @@ def flush(X: Tree, O: Out, ahead: np.ndarray, used: np.ndarray) -> int:
     X.CT[QHEAD] = 0
     X.CT[QLEN] = 0
     return DONE
+
+
+def receive_flush(X: Tree, O: Out, batch: np.ndarray, recs: np.ndarray, local: np.ndarray, ahead: np.ndarray,
+                  used: np.ndarray) -> int:
+    """:func:`receive`, then :func:`flush`: the packets delivered now, and the flushes they made
+    due at this instant, in one call (what the two calls do one after the other)."""
+    receive(X, O, batch, recs, local)
+    return flush(X, O, ahead, used)
