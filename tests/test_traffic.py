@@ -280,16 +280,19 @@ def test_dkf_late_on_a_slow_link_equals_the_arrival_log():
     check_against_window_reference(r)
 
 
-def test_receive_and_flush_in_one_call_equal_the_two_calls(monkeypatch):
+@pytest.mark.parametrize("crash", [False, True])
+def test_receive_and_flush_in_one_call_equal_the_two_calls(monkeypatch, crash):
     """On rate-limited links no packet arrives at the instant it is sent, so the tree hands a
     delivery and the flushes it makes due to one kernel call (``receive_flush``): every array
     and count equals the run that asks the port before each flush (the two calls), and the
-    one-call path was taken."""
+    one-call path was taken; with a node down for a while too (its packets dropped on arrival)."""
     from dkfsim.network.port import RecordPort
     from dkfsim.protocols import tree_kernels
 
     sc = _rated(2e5, steps=60, seed=4, latency={"model": "uniform", "low": 0.0, "high": 0.02}, buffer_length=5)
     sc["links"]["default"]["background"] = {"packets_per_second": 20.0, "size": 200}
+    if crash:
+        sc["faults"] = {"crashes": [{"node": 1, "start": 0.2, "end": 0.4}]}
     calls = []
     real = tree_kernels.receive_flush
     monkeypatch.setattr(tree_kernels, "receive_flush", lambda *a: calls.append(1) or real(*a))
@@ -301,6 +304,7 @@ def test_receive_and_flush_in_one_call_equal_the_two_calls(monkeypatch):
     two = run_scenario(sc)
     assert len(calls) == taken                          # (the two calls this time)
     assert one.counts == two.counts and one.counts["delivered"] > 0
+    assert (one.counts["crash_dropped"] > 0) == crash
     for key in one.arrays:
         assert np.array_equal(one.arrays[key], two.arrays[key], equal_nan=True), key
 
