@@ -209,6 +209,47 @@ print(json.dumps(stats))
     assert all(hits > 0 and misses == 0 for hits, misses in stats.values()), stats
 
 
+@pytest.mark.slow
+def test_a_run_compiles_each_kernel_for_arguments_of_one_kind():
+    """A kernel is compiled once per distinct argument types (tens of seconds of a first run):
+    a constant handed from one kernel to another is typed as its literal value, a Fortran-ordered
+    or read-only array as a type of its own, and each made a second compile of the callee and its
+    callees.  After runs of paper case 1, of the highway on 802.11p and on the sidelink (its
+    bystanders' presence made a Fortran-ordered array), and of the one-domain channel, no kernel
+    was compiled for a literal, a non-C-ordered array or a read-only one."""
+    from numba.core import types
+
+    from dkfsim.estimators import kernels
+    from dkfsim.model import holdings_kernels as hk
+    from dkfsim.network import port_kernels as pk
+    from dkfsim.network import radio_kernels as rk
+    from dkfsim.protocols import tree_kernels as tk
+    root = Path(__file__).resolve().parents[1] / "scenarios"
+    for name, overrides in (("paper_case1.yaml", ["steps=20"]), ("channel_its_g5.yaml", ["steps=5"]),
+                            ("highway_its_g5.yaml", ["steps=3"]),
+                            ("highway_its_g5.yaml", ["steps=3", "medium.access.kind=sps"])):
+        dkfsim.run(dkfsim.load_scenario(root / name, overrides=overrides))
+
+    def odd(t) -> bool:
+        if isinstance(t, types.Literal):
+            return True
+        if isinstance(t, types.Array):
+            return t.layout != "C" or not t.mutable
+        if isinstance(t, types.BaseTuple):
+            return any(odd(e) for e in t.types)
+        return False
+
+    seen = 0
+    for mod in (kernels, hk, pk, rk, tk):
+        compiled = mod.compiled()
+        for kname in vars(compiled):
+            d = getattr(compiled, kname)
+            for sig in getattr(d, "signatures", ()) if hasattr(d, "py_func") else ():
+                seen += 1
+                assert not any(odd(a) for a in sig), f"{mod.__name__}.{kname} compiled for {sig}"
+    assert seen > 20
+
+
 def test_no_kernel_module_calls_another_files_kernels():
     """numba's disk cache keys a kernel by its own file only: a kernel calling a step of another
     file would keep stale code after an edit there.  So every kernel module (one that compiles

@@ -13,9 +13,10 @@ import numpy as np
 
 
 def mask_words(masks, n_words: int) -> np.ndarray:
-    """``masks`` (ints) as a ``(len(masks), n_words)`` array of little-endian uint64 words."""
+    """``masks`` (ints) as a ``(len(masks), n_words)`` array of little-endian uint64 words
+    (writable: a kernel given it compiles for the same type as for its other callers)."""
     nb = 8 * n_words
-    raw = b"".join(m.to_bytes(nb, "little") for m in masks)
+    raw = bytearray(b"".join(m.to_bytes(nb, "little") for m in masks))
     return np.frombuffer(raw, dtype=np.uint64).reshape(len(masks), n_words)
 
 

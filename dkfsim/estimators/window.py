@@ -88,8 +88,9 @@ def batched_filter(Phi, Q, x0, P0, Omega, Theta, backend: Backend | None = None)
     P = np.broadcast_to(np.asarray(P0, float), (b, nx, nx))
     per_row = Omega.ndim == 4
     if (backend or Backend.from_environment()).compiled:     # one compiled call instead of K numpy steps
-        model = kernels.Model(np.asarray(Phi, float), np.asarray(Q, float), np.ascontiguousarray(x),
-                              np.ascontiguousarray(P))
+        # (copies: a broadcast of one filter is a read-only view, another compiled signature)
+        model = kernels.Model(np.asarray(Phi, float), np.asarray(Q, float), np.array(x, order="C"),
+                              np.array(P, order="C"))
         kernels.compiled().filter_rows(model, np.ascontiguousarray(Omega if per_row else Omega[None], float),
                                        per_row, np.ascontiguousarray(Theta, float), xs, Ps)
         return xs, Ps

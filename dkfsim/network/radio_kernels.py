@@ -612,7 +612,7 @@ def first_air(due: np.ndarray, air: np.ndarray, ts: int) -> int:
 
 def soonest_end(due: np.ndarray, air: np.ndarray) -> int:
     """The first end among the radios' heads if each starts when due (:data:`NEVER`: none due)."""
-    best = NEVER
+    best = np.int64(NEVER)
     for r in range(len(due)):
         if due[r] < NEVER and due[r] + air[r] < best:
             best = due[r] + air[r]
@@ -678,7 +678,7 @@ def background(r: int, ta: int, E: np.ndarray, rq: np.ndarray, queue: np.ndarray
             E[E_ARG] = G_DROPPED
             return GROW
         for j in range(pos, pos + n):
-            if not push(r, bg[r, j, G_SIZE], ta, -1, bg[r, j, G_AIR], ta, E, rq, queue, idle_at, origin, count,
+            if not push(r, bg[r, j, G_SIZE], ta, np.int64(-1), bg[r, j, G_AIR], ta, E, rq, queue, idle_at, origin, count,
                         due, head_on, air, bkey, dr, hooks, ip):
                 dropped[E[E_NDROP]] = ta
                 E[E_NDROP] += 1
@@ -709,7 +709,7 @@ def transmit(ts: int, E: np.ndarray, rq: np.ndarray, queue: np.ndarray, idle_at:
     if E[E_NPER] + n > periods.shape[0]:
         E[E_ARG] = G_PERIODS
         return GROW
-    n = take_due(due, head_on, count, ts, NEVER, sbuf)
+    n = take_due(due, head_on, count, ts, np.int64(NEVER), sbuf)
     close(ri, rf, ip[I_RX], tab_x, tab_y, fp[F_NOISE], ts)
     k = ts // ip[I_T]
     if k > px.shape[0] - 1:
@@ -747,8 +747,8 @@ def transmit(ts: int, E: np.ndarray, rq: np.ndarray, queue: np.ndarray, idle_at:
         periods[w, 0], periods[w, 1], periods[w, 2], periods[w, 3], periods[w, 4] = ts, end_, 1, fid < 0, 0
         E[E_NPER] = w + 1
     nw = start(ri, rf, p, fate, sensed, si, sl[:n], ts, fp[F_SENS], fp[F_CS], fp[F_CAPTURE], went)
-    busy(idle_at, origin, count, due, head_on, went, nw, ts, ip[I_SLOT], NEVER)
-    first = NEVER
+    busy(idle_at, origin, count, due, head_on, went, nw, ts, ip[I_SLOT], np.int64(NEVER))
+    first = np.int64(NEVER)
     for j in range(E[E_NAIR]):
         e = si[onair[j], S_END]
         if e < first:
@@ -800,7 +800,7 @@ def finish(te: int, E: np.ndarray, rq: np.ndarray, queue: np.ndarray, idle_at: n
         for r in range(rf.shape[1]):
             rf[TOTAL, r] = 0.0              # (nothing on the air: no rounding left over)
     clear(idle_at, origin, count, due, head_on, went, nw, te, ip[I_SLOT], ip[I_AIFS], ip[I_EIFS], ri[RXERR])
-    first = NEVER
+    first = np.int64(NEVER)
     for j in range(left):
         e = si[onair[j], S_END]
         if e < first:
@@ -841,7 +841,7 @@ def next_arrival(rows: np.ndarray, pos_row: int, len_row: int, bg: np.ndarray, E
     instant; -1: none has background; -2: radio ``E[E_ARG]``'s block ran out, Python refills it):
     ``rows[pos_row]`` and ``rows[len_row]`` are each radio's place in its block and the block's
     length (-1: no background)."""
-    ta, ra = NEVER, -1
+    ta, ra = np.int64(NEVER), -1
     for r in range(rows.shape[1]):
         bl = rows[len_row, r]
         if bl < 0:
@@ -873,12 +873,12 @@ def run(t: int, th: int, E: np.ndarray, rq: np.ndarray, queue: np.ndarray, bg: n
     E[E_NOWN] = 0
     E[E_NHOOK] = 0
     while True:
-        ra = next_arrival(rq, B_POS, B_LEN, bg, E)
+        ra = next_arrival(rq, np.int64(B_POS), np.int64(B_LEN), bg, E)
         if ra == -2:
             return REFILL
-        ta = bg[ra, rq[B_POS, ra], G_TIME] if ra >= 0 else NEVER
+        ta = bg[ra, rq[B_POS, ra], G_TIME] if ra >= 0 else np.int64(NEVER)
         te = E[E_NEXT_END]
-        ts = NEVER
+        ts = np.int64(NEVER)
         for r in range(m):
             if due[r] < ts:
                 ts = due[r]
@@ -1301,12 +1301,12 @@ def run_sps(t: int, th: int, E: np.ndarray, vs: np.ndarray, queue: np.ndarray, g
     while True:
         if E[E_NGONE] > 0:
             return YIELD
-        ra = next_arrival(vs, VB_POS, VB_LEN, bg, E)
+        ra = next_arrival(vs, np.int64(VB_POS), np.int64(VB_LEN), bg, E)
         if ra == -2:
             return REFILL
-        ta = bg[ra, vs[VB_POS, ra], G_TIME] if ra >= 0 else NEVER
+        ta = bg[ra, vs[VB_POS, ra], G_TIME] if ra >= 0 else np.int64(NEVER)
         te = E[E_NEXT_END]
-        ts = NEVER
+        ts = np.int64(NEVER)
         for r in range(m):
             if vs[T_SF, r] >= 0 and vs[T_SF, r] * SUBFRAME < ts:
                 ts = vs[T_SF, r] * SUBFRAME
@@ -1331,8 +1331,8 @@ def run_sps(t: int, th: int, E: np.ndarray, vs: np.ndarray, queue: np.ndarray, g
                     E[E_ARG] = G_DROPPED
                     return GROW
                 for j in range(pos, pos + n):
-                    if not sps_push(ra, bg[ra, j, G_SIZE], ta, -1, SUBFRAME, ta, E, vs, queue, gone, skey, kn, kr,
-                                    rssi, txh, tag, sp, sf, ex, metric):
+                    if not sps_push(ra, bg[ra, j, G_SIZE], ta, np.int64(-1), np.int64(SUBFRAME), ta, E, vs, queue,
+                                    gone, skey, kn, kr, rssi, txh, tag, sp, sf, ex, metric):
                         dropped[E[E_NDROP]] = ta
                         E[E_NDROP] += 1
             vs[VB_POS, ra] = pos + n

@@ -189,9 +189,9 @@ class SpatialChannel(Channel):
         #: their x and y, each contiguous per tick
         self._x, self._y = np.ascontiguousarray(self.positions[:, :, 0]), np.ascontiguousarray(self.positions[:, :, 1])
         #: whether each member is off the road at each tick; one that is sends nothing and is no
-        #: receiver
+        #: receiver; C-ordered, as every array the engine takes (one compiled signature)
         self.absent = np.zeros((len(self.positions), m), dtype=np.bool_) if presence is None else \
-            ~np.asarray(presence, dtype=bool)[:, list(members)]
+            np.ascontiguousarray(~np.asarray(presence, dtype=bool)[:, list(members)])
         self.noise, self.sens = mw(radio.noise), mw(radio.sensitivity)
         self.rule = reception_rule(radio.reception)
         self.pl_kind, self._plp = path_loss_form(radio.path_loss, radio.frequency)
