@@ -17,7 +17,7 @@ from __future__ import annotations
 import math
 from collections.abc import Callable
 from types import FunctionType, ModuleType
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 
@@ -60,6 +60,11 @@ P_MIN_D, P_FREQ, P_C, P_A, P_B, P_C2 = range(6)
 CUSTOM, CSMA, EDCA = range(3)
 #: "Never": after every instant of a run (``dkfsim.network.media.channel.NEVER``).
 NEVER = (1 << 62) + 1
+#: :data:`NEVER` and -1 as numpy int64 (typed ``int`` for mypy), for one kernel to hand to another:
+#: numba types a Python int constant as its literal value and compiles the callee once more for it
+#: (and its callees); a numpy scalar is an ``int64`` like every other instant.
+NEVER64 = cast(int, np.int64(NEVER))
+NONE64 = cast(int, np.int64(-1))
 
 # ------------------------------------------------------------ the engine's state (:func:`run`)
 #: What :func:`run` returns: done (brought up to ``t``); estimators' frames ended or access
@@ -82,6 +87,7 @@ NE = 13
 #: background), the hand-over instant of its last frame started and how many started with it
 #: (the draws' sequence).
 Q_HEAD, Q_LEN, Q_BYTES, ON_AIR, B_POS, B_LEN, K_HANDED, K_SEQ = range(8)
+B_POS64, B_LEN64 = cast(int, np.int64(B_POS)), cast(int, np.int64(B_LEN))    # (as :data:`NEVER64`)
 NRQ = 8
 #: Rows of an access rule's ``dr`` (per radio): its backoff draws' last instant and count at it.
 DRAWN_AT, DRAWN = range(2)
@@ -612,7 +618,7 @@ def first_air(due: np.ndarray, air: np.ndarray, ts: int) -> int:
 
 def soonest_end(due: np.ndarray, air: np.ndarray) -> int:
     """The first end among the radios' heads if each starts when due (:data:`NEVER`: none due)."""
-    best = np.int64(NEVER)
+    best = NEVER64
     for r in range(len(due)):
         if due[r] < NEVER and due[r] + air[r] < best:
             best = due[r] + air[r]
@@ -678,7 +684,7 @@ def background(r: int, ta: int, E: np.ndarray, rq: np.ndarray, queue: np.ndarray
             E[E_ARG] = G_DROPPED
             return GROW
         for j in range(pos, pos + n):
-            if not push(r, bg[r, j, G_SIZE], ta, np.int64(-1), bg[r, j, G_AIR], ta, E, rq, queue, idle_at, origin, count,
+            if not push(r, bg[r, j, G_SIZE], ta, NONE64, bg[r, j, G_AIR], ta, E, rq, queue, idle_at, origin, count,
                         due, head_on, air, bkey, dr, hooks, ip):
                 dropped[E[E_NDROP]] = ta
                 E[E_NDROP] += 1
@@ -709,7 +715,7 @@ def transmit(ts: int, E: np.ndarray, rq: np.ndarray, queue: np.ndarray, idle_at:
     if E[E_NPER] + n > periods.shape[0]:
         E[E_ARG] = G_PERIODS
         return GROW
-    n = take_due(due, head_on, count, ts, np.int64(NEVER), sbuf)
+    n = take_due(due, head_on, count, ts, NEVER64, sbuf)
     close(ri, rf, ip[I_RX], tab_x, tab_y, fp[F_NOISE], ts)
     k = ts // ip[I_T]
     if k > px.shape[0] - 1:
@@ -747,8 +753,8 @@ def transmit(ts: int, E: np.ndarray, rq: np.ndarray, queue: np.ndarray, idle_at:
         periods[w, 0], periods[w, 1], periods[w, 2], periods[w, 3], periods[w, 4] = ts, end_, 1, fid < 0, 0
         E[E_NPER] = w + 1
     nw = start(ri, rf, p, fate, sensed, si, sl[:n], ts, fp[F_SENS], fp[F_CS], fp[F_CAPTURE], went)
-    busy(idle_at, origin, count, due, head_on, went, nw, ts, ip[I_SLOT], np.int64(NEVER))
-    first = np.int64(NEVER)
+    busy(idle_at, origin, count, due, head_on, went, nw, ts, ip[I_SLOT], NEVER64)
+    first = NEVER64
     for j in range(E[E_NAIR]):
         e = si[onair[j], S_END]
         if e < first:
@@ -800,7 +806,7 @@ def finish(te: int, E: np.ndarray, rq: np.ndarray, queue: np.ndarray, idle_at: n
         for r in range(rf.shape[1]):
             rf[TOTAL, r] = 0.0              # (nothing on the air: no rounding left over)
     clear(idle_at, origin, count, due, head_on, went, nw, te, ip[I_SLOT], ip[I_AIFS], ip[I_EIFS], ri[RXERR])
-    first = np.int64(NEVER)
+    first = NEVER64
     for j in range(left):
         e = si[onair[j], S_END]
         if e < first:
@@ -841,7 +847,7 @@ def next_arrival(rows: np.ndarray, pos_row: int, len_row: int, bg: np.ndarray, E
     instant; -1: none has background; -2: radio ``E[E_ARG]``'s block ran out, Python refills it):
     ``rows[pos_row]`` and ``rows[len_row]`` are each radio's place in its block and the block's
     length (-1: no background)."""
-    ta, ra = np.int64(NEVER), -1
+    ta, ra = NEVER64, -1
     for r in range(rows.shape[1]):
         bl = rows[len_row, r]
         if bl < 0:
@@ -873,12 +879,12 @@ def run(t: int, th: int, E: np.ndarray, rq: np.ndarray, queue: np.ndarray, bg: n
     E[E_NOWN] = 0
     E[E_NHOOK] = 0
     while True:
-        ra = next_arrival(rq, np.int64(B_POS), np.int64(B_LEN), bg, E)
+        ra = next_arrival(rq, B_POS64, B_LEN64, bg, E)
         if ra == -2:
             return REFILL
-        ta = bg[ra, rq[B_POS, ra], G_TIME] if ra >= 0 else np.int64(NEVER)
+        ta = bg[ra, rq[B_POS, ra], G_TIME] if ra >= 0 else NEVER64
         te = E[E_NEXT_END]
-        ts = np.int64(NEVER)
+        ts = NEVER64
         for r in range(m):
             if due[r] < ts:
                 ts = due[r]
@@ -912,6 +918,7 @@ def run(t: int, th: int, E: np.ndarray, rq: np.ndarray, queue: np.ndarray, bg: n
 # ------------------------------------------------------------ the sidelink engine (:func:`run_sps`)
 #: One subframe (ns): C-V2X's time unit.
 SUBFRAME = 1_000_000
+SUBFRAME64 = cast(int, np.int64(SUBFRAME))                # (as :data:`NEVER64`)
 #: Subframes a vehicle remembers of what it sensed (the 1000 ms sensing window), and the step of
 #: a candidate's images in it (100 ms).
 WINDOW_SF, IMAGE_SF = 1000, 100
@@ -927,6 +934,7 @@ NFATES = 8
 (V_ON, V_SF, V_C, V_L, V_P, V_CNT, T_SF, T_C, T_L, T_SPS, VQ_HEAD, VQ_LEN, VQ_BYTES, VB_POS, VB_LEN, VK_HANDED,
  VK_SEQ, VD_AT, VD_N) = range(19)
 NVS = 19
+VB_POS64, VB_LEN64 = cast(int, np.int64(VB_POS)), cast(int, np.int64(VB_LEN))    # (as :data:`NEVER64`)
 #: Columns of ``sx`` (per slot): first sub-channel, sub-channels, on a reservation, the interval
 #: its control message announces (0: no further reservation).
 X_C, X_L, X_SPS, X_P = range(4)
@@ -1301,12 +1309,12 @@ def run_sps(t: int, th: int, E: np.ndarray, vs: np.ndarray, queue: np.ndarray, g
     while True:
         if E[E_NGONE] > 0:
             return YIELD
-        ra = next_arrival(vs, np.int64(VB_POS), np.int64(VB_LEN), bg, E)
+        ra = next_arrival(vs, VB_POS64, VB_LEN64, bg, E)
         if ra == -2:
             return REFILL
-        ta = bg[ra, vs[VB_POS, ra], G_TIME] if ra >= 0 else np.int64(NEVER)
+        ta = bg[ra, vs[VB_POS, ra], G_TIME] if ra >= 0 else NEVER64
         te = E[E_NEXT_END]
-        ts = np.int64(NEVER)
+        ts = NEVER64
         for r in range(m):
             if vs[T_SF, r] >= 0 and vs[T_SF, r] * SUBFRAME < ts:
                 ts = vs[T_SF, r] * SUBFRAME
@@ -1331,7 +1339,7 @@ def run_sps(t: int, th: int, E: np.ndarray, vs: np.ndarray, queue: np.ndarray, g
                     E[E_ARG] = G_DROPPED
                     return GROW
                 for j in range(pos, pos + n):
-                    if not sps_push(ra, bg[ra, j, G_SIZE], ta, np.int64(-1), np.int64(SUBFRAME), ta, E, vs, queue,
+                    if not sps_push(ra, bg[ra, j, G_SIZE], ta, NONE64, SUBFRAME64, ta, E, vs, queue,
                                     gone, skey, kn, kr, rssi, txh, tag, sp, sf, ex, metric):
                         dropped[E[E_NDROP]] = ta
                         E[E_NDROP] += 1
