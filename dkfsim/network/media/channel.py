@@ -78,7 +78,8 @@ class Access:
 
     #: :meth:`next_start` as last worked out while the channel is idle, or None: not known (the
     #: channel then asks :meth:`next_start`); a rule that caches it clears it whenever the heads
-    #: or the idle period change, so the channel's hot loop reads it without a call
+    #: or the idle period change, so the channel's hot loop reads it without a call (a subclass
+    #: of such a rule that overrides :meth:`next_start` keeps it None or up to date)
     start_at: int | None = None
 
     def __init__(self, params: Any, channel: Channel, seed: int):
@@ -105,12 +106,18 @@ class Access:
         are no longer heads."""
         raise NotImplementedError
 
-    def soonest_end(self) -> int:
-        """When the first head frame would end if nothing more happens (for an overlapping
-        medium's wake-ups, where a head due later may end first): one collision domain's rule,
-        the next start plus its shortest airtime (:data:`NEVER`: no head)."""
+    def next_end(self) -> int:
+        """When the first frame to start ends if nothing more happens, on one collision domain
+        (the channel's wake-up while idle): the next start plus its shortest airtime
+        (:data:`NEVER`: no head)."""
         ts = self.next_start()
         return ts + self.next_airtime() if ts < NEVER else NEVER
+
+    def soonest_end(self) -> int:
+        """When the first head frame would end if nothing more happens (for an overlapping
+        medium's wake-ups, where a head due later may end first): by default one collision
+        domain's rule, :meth:`next_end`."""
+        return self.next_end()
 
     def idle(self, te: int) -> None:
         """The channel became idle at ``te``."""
@@ -393,7 +400,7 @@ class Channel(Medium):
         if not self.pending:
             return
         if not self.overlapping:
-            t = self._next_end if self.on_air else self.access.soonest_end()
+            t = self._next_end if self.on_air else self.access.next_end()
         else:                               # (the first end among those on the air and the heads')
             t = min(self.first_end(), self.access.soonest_end())
         if self._held and self._held[0][0] < t:

@@ -84,7 +84,7 @@ class CsmaAccess(Access):
         return self._next_air
 
     @override
-    def soonest_end(self) -> int:
+    def next_end(self) -> int:
         ts = self.start_at                  # (valid while set: every change of the heads clears it)
         if ts is None:
             ts = self.next_start()
