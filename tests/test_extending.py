@@ -273,6 +273,22 @@ def test_a_broken_plugin_is_reported_once_and_dkfsim_works_on(tmp_path):
     assert listed.stderr.count("plugin 'neighbour_mean' (nm_plugin.broken) failed to load: the plugin is broken") == 1
 
 
+def test_a_one_domain_rule_on_a_spatial_radio_is_refused_at_validation():
+    """``persistent`` decides for one collision domain: on a spatial radio (``medium.radio``) the
+    scenario is refused when validated, naming ``medium.access.kind`` (it used to validate, then
+    raise a ValueError with a traceback when the run built the radio); edca and csma, which each
+    radio runs on its own view, are taken."""
+    from dkfsim.core.errors import ScenarioError
+    from dkfsim.core.registry import load_plugin
+    load_plugin(str(EXAMPLES / "persistent_access.py"))
+    highway = ROOT / "scenarios" / "highway_its_g5.yaml"
+    with pytest.raises(ScenarioError, match="one collision domain") as info:
+        dkfsim.load_scenario(highway, overrides=["medium.access={kind: persistent}"])
+    assert info.value.path == "medium.access.kind"
+    for kind in ("edca", "csma"):
+        assert dkfsim.load_scenario(highway, overrides=[f"medium.access.kind={kind}"]).medium.access.kind == kind
+
+
 def test_the_example_access_rule_sends_at_once_and_collides(tmp_path):
     """docs/examples/persistent_access.py, a researcher's MAC in one file: it is listed as a
     medium, ``medium.access.kind: persistent`` names it, and its rule holds on a hand-worked

@@ -78,7 +78,7 @@ from dkfsim.core.params import (
     custom_error,
     registered,
 )
-from dkfsim.core.registry import ESTIMATORS, GENERATORS, PROTOCOLS, SENSOR_KINDS
+from dkfsim.core.registry import ESTIMATORS, GENERATORS, MEDIA, PROTOCOLS, SENSOR_KINDS
 
 #: Largest ring of fusion cross-covariances a scenario may ask for (bytes).
 FUSION_MEMORY_LIMIT = 2 << 30
@@ -465,6 +465,13 @@ class Scenario(StrictModel):
             raise custom_error("a spatial radio decides each frame at each receiver from the pair's distance, "
                                "so it needs the vehicles' positions: give mobility: (waypoints, a track, SUMO FCD, "
                                "a road), or remove medium.radio for one collision domain", "medium.radio")
+        if self.medium.radio is not None and self.medium.access.kind != "sps":
+            rule = MEDIA.get(self.medium.access.kind).implementation
+            if not getattr(getattr(rule, "on_radio", None) or rule, "spatial", False):
+                raise custom_error(f"{self.medium.access.kind!r} is a rule for one collision "
+                                   "domain; on a spatial radio (medium.radio) each radio runs the rule on its own "
+                                   "view of the medium: give edca or csma, or remove medium.radio",
+                                   "medium.access.kind")
         if self.medium.bystanders is not None and self.medium.radio is None:
             raise custom_error("bystanders are vehicles placed on the road beside the nodes: they need a spatial "
                                "radio (medium.radio); for one collision domain give the nodes background instead",

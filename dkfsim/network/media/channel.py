@@ -81,6 +81,9 @@ class Access:
     #: or the idle period change, so the channel's hot loop reads it without a call (a subclass
     #: of such a rule that overrides :meth:`next_start` keeps it None or up to date)
     start_at: int | None = None
+    #: whether the rule runs on each radio's own view of the medium, so a spatial radio
+    #: (``medium.radio``) can take it (a one-domain rule may name such a form as ``on_radio``)
+    spatial: ClassVar[bool] = False
 
     def __init__(self, params: Any, channel: Channel, seed: int):
         self.params = params

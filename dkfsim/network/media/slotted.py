@@ -61,6 +61,7 @@ class Backoff:
 class SlottedAccess(Access):
     """The per-radio slotted engine (see the module); a subclass says when a backoff is drawn."""
 
+    spatial = True
     #: the backoff draws' name in their key ``("channel", c, node, name)``
     draws: ClassVar[str] = "backoff"
     #: the rule as the radio's compiled engine runs it (:data:`~dkfsim.network.radio_kernels.EDCA`,
