@@ -869,13 +869,17 @@ def draw_radio_figure(path: Path) -> Path:
 # --------------------------------------------------------------------------- the C-V2X sidelink
 #: issue 33's study: one sweep file per DKF tick (a grid is a cartesian product, and ``steps``
 #: follows ``model.T`` to keep the simulated time), each over the radio and the density
-SIDELINK_FILES = tuple(f"scenarios/sweep_sidelink_{ms}ms.yaml" for ms in (10, 20, 100))
+SIDELINK_FILES = (*(f"scenarios/sweep_sidelink_{ms}ms.yaml" for ms in (10, 20, 100)),
+                  "scenarios/sweep_sidelink_20ms_tuned.yaml")
+#: the keys that make a sidelink study the tuned one (its own file: ``sps_tuned`` in the table)
+SIDELINK_TUNED = ("medium.access.rri", "medium.access.misfit", "medium.access.budget")
 SIDELINK_COLUMNS = (*RADIO_COLUMNS, *TRAFFIC_COLUMNS)
 #: the points whose run 0 the slow tier recomputes: the sidelink at the lighter density, at the
 #: shortest and the longest tick (about 5 and 3 s each)
 SIDELINK_SPOT = (("sps", 0.25, 0.01), ("sps", 0.25, 0.1))
 #: the radios in the table's order, and what the table calls them
-SIDELINK_RADIOS = {"edca": "802.11p (`edca`)", "sps": "C-V2X (`sps`)"}
+SIDELINK_RADIOS = {"edca": "802.11p (`edca`)", "sps": "C-V2X (`sps`)",
+                   "sps_tuned": "C-V2X tuned (`sps`, `rri` 20 ms, `misfit: one_shot`, `budget` 20 ms)"}
 
 
 def setting(study: Study, key: str) -> str:
@@ -884,9 +888,11 @@ def setting(study: Study, key: str) -> str:
 
 
 def sidelink_point(study: Study) -> tuple[str, float, float]:
-    """(radio, share of the traffic, tick in seconds) of one sidelink study."""
-    return (setting(study, "medium.access.kind"), float(setting(study, "medium.bystanders.sumo_fcd.fraction")),
-            float(setting(study, "model.T")))
+    """(radio, share of the traffic, tick in seconds) of one sidelink study (the radio ``sps_tuned``
+    when it sets any of :data:`SIDELINK_TUNED`)."""
+    tuned = any(o.partition("=")[0] in SIDELINK_TUNED for o in study.overrides)
+    return (setting(study, "medium.access.kind") + ("_tuned" if tuned else ""),
+            float(setting(study, "medium.bystanders.sumo_fcd.fraction")), float(setting(study, "model.T")))
 
 
 def sidelink_studies() -> tuple[RadioStudy, ...]:
@@ -901,10 +907,11 @@ def sidelink_studies() -> tuple[RadioStudy, ...]:
         keys = list(spec["grid"])
         for values in itertools.product(*spec["grid"].values()):
             cells = dict(zip(keys, values))
-            name = (f"{Path(file).stem.removeprefix('sweep_')}_{cells['medium.access.kind']}_"
-                    f"{float(cells['medium.bystanders.sumo_fcd.fraction']):g}")
-            study = RadioStudy(name, scenario, (*spec.get("set", []), *(f"{k}={v}" for k, v in cells.items())),
+            study = RadioStudy("", scenario, (*spec.get("set", []), *(f"{k}={v}" for k, v in cells.items())),
                                int(spec["runs"]), SIDELINK_COLUMNS)
+            radio, share, tick = sidelink_point(study)
+            study = RadioStudy(f"sidelink_{1000 * tick:g}ms_{radio}_{share:g}", scenario, study.overrides,
+                               study.runs, SIDELINK_COLUMNS)
             spot = (0,) if sidelink_point(study) in SIDELINK_SPOT else ()
             out.append(RadioStudy(study.name, scenario, study.overrides, study.runs, SIDELINK_COLUMNS, spot))
     return tuple(out)
@@ -943,6 +950,7 @@ def render_sidelink(rows: dict[str, Rows]) -> dict[str, str]:
     seconds = {round(T * k, 9) for T, k in steps.items()}
     (duration,) = seconds
     medium = next(s for s in SIDELINK if sidelink_point(s)[0] == "sps").load().medium
+    tuned = next(s for s in SIDELINK if sidelink_point(s)[0] == "sps_tuned").load().medium
     head = ["radio", "share of the traffic (vehicles per km)", "tick", "MSE fused", "MSE fusion_centre",
             "MSE centralized", "best consensus: MSE (filter)", "DKF packets delivered", "DKF packets refused",
             "DKF access delay", "PDR ≤ 100 m", "group's CBR"]
@@ -955,7 +963,7 @@ def render_sidelink(rows: dict[str, Rows]) -> dict[str, str]:
              "(one per link and message; the fusion centre's relayed packets share its radios and are not "
              "counted here) delivered, and refused before the air (a full waiting room of "
              f"{medium.queue.packets} packets; on the sidelink also a packet past its {1000 * medium.access.budget:g} ms "
-             "budget); the mean access delay of its frames (hand-over "
+             f"budget, {1000 * tuned.access.budget:g} ms tuned); the mean access delay of its frames (hand-over "
              "to the start of transmission); on the DKF's copy of the radio, the PDR of every (frame, "
              "receiver) pair within 100 m, background included, and the mean CBR of the twelve vehicles "
              "of the group (802.11p: the share of time they sense the medium busy; the sidelink: the share "
@@ -969,7 +977,8 @@ def render_sidelink(rows: dict[str, Rows]) -> dict[str, str]:
                  f"{share_of(r, 'fused', 'queue_dropped'):.0%}", f"{1000 * r.mean('fused', 'access_delay'):.1f} ms",
                  f"{r.mean('fused', 'pdr_100'):.3f}", f"{r.mean('fused', 'cbr'):.3f}"]
         lines.append("| " + " | ".join(cells) + " |")
-    return {"sidelink-table": "\n".join(lines), "sidelink-reading": para(sidelink_reading(pts))}
+    return {"sidelink-table": "\n".join(lines),
+            "sidelink-reading": para(sidelink_reading(pts) + " " + sidelink_tuned_reading(pts))}
 
 
 NUMBER_WORDS = {2: "two", 3: "three", 4: "four"}
@@ -988,7 +997,8 @@ def sidelink_reading(pts: list[tuple[str, float, float, Rows]]) -> str:
     at = lambda radio, T: [r for rad, _, t, r in pts if rad == radio and t == T]  # noqa: E731
     pct = lambda v: f"{100 * v:.0f}"  # noqa: E731
     ms = lambda T: f"{1000 * T:g} ms"  # noqa: E731
-    radios = list(SIDELINK_RADIOS)
+    radios = ["edca", "sps"]
+    pts = [p for p in pts if p[0] in radios]
     per_tick = lambda f: {(radio, T): [f(r) for r in at(radio, T)] for radio in radios for T in ticks}  # noqa: E731
     every = lambda f: {radio: [f(r) for T in ticks for r in at(radio, T)] for radio in radios}  # noqa: E731
     refused = per_tick(lambda r: share_of(r, "fused", "queue_dropped"))
@@ -1052,6 +1062,34 @@ def sidelink_reading(pts: list[tuple[str, float, float, Rows]]) -> str:
             f"the sidelink: the sub-channels at {minus(sps.medium.access.cbr_threshold, 'g')} dBm or above).")
 
 
+def sidelink_tuned_reading(pts: list[tuple[str, float, float, Rows]]) -> str:
+    """What the sidelink tuned to the tick does at that tick, against its defaults and 802.11p
+    (the table's ``sps_tuned`` rows), worded from the numbers it quotes."""
+    (T,) = {t for radio, _, t, _ in pts if radio == "sps_tuned"}
+    at = lambda radio: [r for rad, _, t, r in pts if rad == radio and t == T]  # noqa: E731
+    pct = lambda v: f"{100 * v:.0f}"  # noqa: E731
+    two = lambda v: f"{v:.2f}"  # noqa: E731
+    tuned = next(s for s in SIDELINK if sidelink_point(s)[0] == "sps_tuned").load().medium.access
+    col = lambda radio, f: span([f(r) for r in at(radio)], pct if f is not mse else two)  # noqa: E731
+
+    def refused(r: Rows) -> float:
+        return share_of(r, "fused", "queue_dropped")
+
+    def delivered(r: Rows) -> float:
+        return share_of(r, "fused", "delivered")
+
+    def mse(r: Rows) -> float:
+        return r.mean("fused", "mse") / r.mean("centralized", "mse")
+    wait = span([1000 * r.mean("fused", "access_delay") for r in at("sps_tuned")], lambda v: f"{v:.0f}")
+    return (f"Tuned to the {1000 * T:g} ms tick (a reservation every {1000 * tuned.rri:g} ms, a one-shot resource "
+            f"for a packet that does not fit it, a {1000 * tuned.budget:g} ms budget), the sidelink refuses "
+            f"{col('sps_tuned', refused)} % of the DKF's packets ({col('sps', refused)} % with its defaults, "
+            f"802.11p {col('edca', refused)} %) and delivers "
+            f"{col('sps_tuned', delivered)} % ({col('sps', delivered)} %, 802.11p {col('edca', delivered)} %), its "
+            f"frames waiting {wait} ms; the fused DKF's MSE is {col('sps_tuned', mse)} times the centralized "
+            f"filter's ({col('sps', mse)} with the defaults, 802.11p {col('edca', mse)}).")
+
+
 def draw_sidelink_figure(path: Path) -> Path:
     """docs/figures/sidelink_highway.png from the sidelink study's stored rows (what docs/radio.md's
     table quotes): the fused DKF's position MSE over the centralized filter's, and the share of the
@@ -1062,7 +1100,7 @@ def draw_sidelink_figure(path: Path) -> Path:
     plt = pyplot()
     per_km = highway_per_km()
     pts = sidelink_points({s.name: Rows(read_rows(s.path)) for s in SIDELINK})
-    colors = {"edca": "#3182bd", "sps": "#e6550d"}
+    colors = {"edca": "#3182bd", "sps": "#e6550d", "sps_tuned": "#31a354"}
     shares = sorted({p[1] for p in pts})
     styles = dict(zip(shares, ("--", "-", ":", "-.")))
     fig, (left, right) = plt.subplots(1, 2, figsize=(11, 4.6))
