@@ -31,8 +31,9 @@ Two kinds of generator:
   slow tier (``--check`` recomputes it only when named in ``--only``); ``mobility``
   (docs/mobility.md: the shipped mobility scenarios, the range sweep and the range x speed
   sweep, about 60 runs of 300-1080 ticks) likewise.
-* ``sidelink`` (docs/radio.md, "C-V2X sidelink", issue 33): ``scenarios/sweep_sidelink_*ms.yaml``,
-  one study per radio, density and DKF tick (about 13 minutes of CPU in all), whose stored rows
+* ``sidelink`` (docs/radio.md, "C-V2X sidelink", issue 33): ``scenarios/sweep_sidelink_*ms.yaml``
+  and the sidelink tuned to the 20 ms tick (``sweep_sidelink_20ms_tuned.yaml``), one study per
+  radio, density and DKF tick (about 15 minutes of CPU in all), whose stored rows
   keep the DKF's packet and frame counts beside the radio's; it also draws
   docs/figures/sidelink_highway.png.
 
