@@ -475,6 +475,16 @@ class SpatialChannel(Channel):
         """Each member's channel busy ratio over ``[0, end_ns]``."""
         raise NotImplementedError
 
+    def busy_until(self, end_ns: int) -> np.ndarray:
+        """Each member's busy amount over ``[0, end_ns]`` (``end_ns > 0``) from the per-tick rows
+        (:meth:`busy_per_tick`): whole ticks, and a last partial tick its share of its tick."""
+        T = self.T_ns
+        busy = self.busy_per_tick(T, -(-end_ns // T))
+        total = busy[: end_ns // T].sum(axis=0)
+        if end_ns % T:
+            total = total + busy[-1] * ((end_ns % T) / T)
+        return total
+
 
 class RadioChannel(SpatialChannel):
     """One copy of the spatial radio channel under a per-radio CSMA rule (``edca``, ``csma``;
@@ -613,13 +623,7 @@ class RadioChannel(SpatialChannel):
         if self.now <= end_ns:
             ri = self.ri
             return (ri[rk.BUSY_NS] + np.where(ri[rk.SENSE_N] > 0, now - ri[rk.BUSY_FROM], 0)) / end_ns
-        T = self.T_ns
-        K = -(-end_ns // T)
-        busy = self.busy_per_tick(T, K)
-        total = busy[: end_ns // T].sum(axis=0)
-        if end_ns % T:
-            total = total + busy[-1] * ((end_ns % T) / T)
-        return total / end_ns
+        return self.busy_until(end_ns) / end_ns
 
 
 #: 802.11p's causes of a lost (frame, receiver) pair by name (:attr:`RadioChannel.CAUSES`).

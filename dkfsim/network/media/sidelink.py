@@ -211,10 +211,4 @@ class SidelinkChannel(SpatialChannel):
         over all of them (whole ticks; a last partial tick counts its share of its tick)."""
         if end_ns <= 0:
             return np.zeros(len(self.nodes))
-        T = self.T_ns
-        K = -(-end_ns // T)
-        busy = self.busy_per_tick(T, K)
-        total = busy[: end_ns // T].sum(axis=0)
-        if end_ns % T:
-            total = total + busy[-1] * ((end_ns % T) / T)
-        return total / (end_ns / rk.SUBFRAME * self.sps.subchannels)
+        return self.busy_until(end_ns) / (end_ns / rk.SUBFRAME * self.sps.subchannels)
