@@ -25,10 +25,10 @@ from dkfsim.core.jit import LazyKernels
 
 _KERNELS = ("keyed_uniform", "polevl", "p1evl", "ndtri", "fill", "error_rate", "busy_ticks", "close", "start",
             "end", "path_loss", "draw", "on_head", "busy", "clear", "take_due", "first_air", "soonest_end", "head",
-            "push", "background", "transmit", "finish", "next_arrival", "run", "sps_draw", "sps_select",
+            "push", "due_background", "background", "transmit", "finish", "next_arrival", "run", "sps_draw", "sps_select",
             "sps_assign", "sps_push", "sps_transmit", "sps_finish", "run_sps")
 _lazy = LazyKernels(__name__, _KERNELS, inline=("keyed_uniform", "polevl", "p1evl", "error_rate", "busy_ticks",
-                                                "path_loss"))
+                                                "path_loss", "due_background"))
 
 #: Rows of ``ri``: the slot each member is locked on (-1: none), the start of its current SINR
 #: chunk, how many frames on the air it senses (its own included), since when it senses the
@@ -661,6 +661,31 @@ def push(r: int, size: int, handed: int, fid: int, airtime: int, now: int, E: np
     return True
 
 
+def due_background(r: int, ta: int, pos: int, bl: int, qlen: int, tick: int, bg: np.ndarray, absent: np.ndarray,
+                   queue: np.ndarray, dropped: np.ndarray, E: np.ndarray) -> tuple[int, bool, bool]:
+    """Radio ``r``'s background packets due at ``ta`` in its block from ``pos`` (``bl``: the
+    block's end): how many, whether the radio is on the road then (``tick``: the tick length) to
+    take them, and whether a buffer has no room for them (its :data:`GROW` reason set in ``E``;
+    ``qlen``: the packets in its waiting room).  One step of both engines, :func:`background` and
+    :func:`run_sps`."""
+    n = 0
+    while pos + n < bl and bg[r, pos + n, G_TIME] <= ta:
+        n += 1
+    k = ta // tick
+    if k > absent.shape[0] - 1:
+        k = absent.shape[0] - 1
+    sends = not absent[k, r]
+    grow = False
+    if sends:
+        if qlen + n > queue.shape[1]:
+            E[E_ARG], E[E_ARG2] = G_QUEUE, r
+            grow = True
+        elif E[E_NDROP] + n > len(dropped):
+            E[E_ARG] = G_DROPPED
+            grow = True
+    return n, sends, grow
+
+
 def background(r: int, ta: int, E: np.ndarray, rq: np.ndarray, queue: np.ndarray, bg: np.ndarray,
                absent: np.ndarray, dropped: np.ndarray, idle_at: np.ndarray, origin: np.ndarray,
                count: np.ndarray, due: np.ndarray, head_on: np.ndarray, air: np.ndarray, bkey: np.ndarray,
@@ -668,21 +693,11 @@ def background(r: int, ta: int, E: np.ndarray, rq: np.ndarray, queue: np.ndarray
     """Radio ``r``'s background packets at ``ta`` reach its waiting room (a radio off the road
     takes and drops them unseen; a full room drops them, logged in ``dropped``); :data:`GROW`
     before anything changes when a buffer has no room."""
-    pos, bl = rq[B_POS, r], rq[B_LEN, r]
-    n = 0
-    while pos + n < bl and bg[r, pos + n, G_TIME] <= ta:
-        n += 1
-    k = ta // ip[I_T]
-    if k > absent.shape[0] - 1:
-        k = absent.shape[0] - 1
-    sends = not absent[k, r]
+    pos = rq[B_POS, r]
+    n, sends, grow = due_background(r, ta, pos, rq[B_LEN, r], rq[Q_LEN, r], ip[I_T], bg, absent, queue, dropped, E)
+    if grow:
+        return GROW
     if sends:
-        if rq[Q_LEN, r] + n > queue.shape[1]:
-            E[E_ARG], E[E_ARG2] = G_QUEUE, r
-            return GROW
-        if E[E_NDROP] + n > len(dropped):
-            E[E_ARG] = G_DROPPED
-            return GROW
         for j in range(pos, pos + n):
             if not push(r, bg[r, j, G_SIZE], ta, NONE64, bg[r, j, G_AIR], ta, E, rq, queue, idle_at, origin, count,
                         due, head_on, air, bkey, dr, hooks, ip):
@@ -1324,20 +1339,12 @@ def run_sps(t: int, th: int, E: np.ndarray, vs: np.ndarray, queue: np.ndarray, g
             if E[E_NOWN] > 0:
                 return YIELD
         elif ta <= t and ta <= ts and ta <= th:
-            pos, bl = vs[VB_POS, ra], vs[VB_LEN, ra]
-            n = 0
-            while pos + n < bl and bg[ra, pos + n, G_TIME] <= ta:
-                n += 1
-            kk = ta // sp[SP_T]
-            if kk > absent.shape[0] - 1:
-                kk = absent.shape[0] - 1
-            if not absent[kk, ra]:
-                if vs[VQ_LEN, ra] + n > queue.shape[1]:
-                    E[E_ARG], E[E_ARG2] = G_QUEUE, ra
-                    return GROW
-                if E[E_NDROP] + n > len(dropped):
-                    E[E_ARG] = G_DROPPED
-                    return GROW
+            pos = vs[VB_POS, ra]
+            n, sends, grow = due_background(ra, ta, pos, vs[VB_LEN, ra], vs[VQ_LEN, ra], sp[SP_T], bg, absent, queue,
+                                            dropped, E)
+            if grow:
+                return GROW
+            if sends:
                 for j in range(pos, pos + n):
                     if not sps_push(ra, bg[ra, j, G_SIZE], ta, NONE64, SUBFRAME64, ta, E, vs, queue,
                                     gone, skey, kn, kr, rssi, txh, tag, sp, sf, ex, metric):
