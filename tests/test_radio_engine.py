@@ -13,14 +13,13 @@ compiled one; and timelines worked by hand.
 
 from __future__ import annotations
 
-import contextlib
 import signal
-from collections.abc import Iterator
 from typing import Any
 
 import numpy as np
 import pytest
 import simpy
+from hostile.hostile_kit import answers_within
 from test_medium import at
 
 from dkfsim.components.faults import LinkSpec
@@ -404,20 +403,6 @@ def test_every_frame_is_told_at_its_end(name):
     assert [x for x in told if x[0] != x[4]] == []
 
 
-@contextlib.contextmanager
-def _within(seconds: float) -> Iterator[None]:
-    """Raise TimeoutError in the block after ``seconds`` (a loop that never ends fails, not hangs)."""
-    def expired(*_: Any) -> None:
-        raise TimeoutError(f"still running after {seconds} s")
-    old = signal.signal(signal.SIGALRM, expired)
-    signal.setitimer(signal.ITIMER_REAL, seconds)
-    try:
-        yield
-    finally:
-        signal.setitimer(signal.ITIMER_REAL, 0)
-        signal.signal(signal.SIGALRM, old)
-
-
 @pytest.mark.skipif(not hasattr(signal, "setitimer"), reason="needs SIGALRM")
 def test_a_periodic_background_past_the_end_of_time_does_not_hang_the_radio():
     """A periodic background of one packet in 1e10 s: packet 0 at 0, every later one beyond the last
@@ -428,7 +413,7 @@ def test_a_periodic_background_past_the_end_of_time_does_not_hang_the_radio():
     RadioChannel(simpy.Environment(), spec.model_copy(update={"background": None}), (0, 1), 1, line([0.0, 10.0], 10),
                  T)                                 # (the kernels compiled or loaded before the clock runs)
     env = simpy.Environment()
-    with _within(0.5):
+    with answers_within(0.5):           # (a loop that never ends fails, not hangs)
         ch = RadioChannel(env, spec, (0, 1), 1, line([0.0, 10.0], 10), T)
         env.run(until=50 * MS)
         assert ch.report(None, 50 * MS)["frames_on_air"] == 2
