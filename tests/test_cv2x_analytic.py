@@ -65,7 +65,7 @@ import analyticcv2x as cv2x
 import numpy as np
 import pytest
 import simpy
-from test_radio_analytic import table_rows
+from test_radio_analytic import check_winner_b1_beyond_floor, table_rows
 
 from dkfsim.components.faults import LinkSpec
 from dkfsim.components.latency import Constant
@@ -327,13 +327,7 @@ def test_dkfsims_winner_b1_is_the_models_beyond_the_free_space_floor():
     """With the model's heights (no environment height) dkfsim's WINNER+ B1 is the model's loss
     wherever the model's floor at free space does not bind (from 102 m on), and at most 4.2 dB
     below it nearer."""
-    from dkfsim.components.radio import path_loss_db
-    d = np.linspace(3.0, 1500.0, 3000)
-    ours = path_loss_db(radio_params().path_loss, d, P.frequency)
-    theirs = cv2x.path_loss_db(d)
-    far = d >= 102.0
-    np.testing.assert_allclose(ours[far], theirs[far], atol=0.02)
-    assert np.all(theirs[~far] - ours[~far] >= -0.02) and np.max(theirs - ours) < 4.2
+    check_winner_b1_beyond_floor(radio_params(), cv2x.path_loss_db, P.frequency, 102.0)
 
 
 def test_dkfsims_per_table_reads_the_bler_table_as_the_model_does():

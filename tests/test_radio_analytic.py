@@ -228,16 +228,23 @@ def test_dkfsims_per_table_reads_the_papers_error_table_as_the_paper_does():
     np.testing.assert_allclose(got, sepulcre.fer(sinr, DATA_RATE), atol=1e-15)
 
 
+def check_winner_b1_beyond_floor(params: RadioParams, theirs, frequency: float, floor_m: float) -> None:
+    """dkfsim's WINNER+ B1 (``params``' path loss) is a model's loss ``theirs(d)`` within 0.02 dB
+    from ``floor_m`` on (where the model's floor at free space does not bind), and never more than
+    0.02 dB above it and at most 4.2 dB below it nearer."""
+    from dkfsim.components.radio import path_loss_db
+    d = np.linspace(3.0, 1500.0, 3000)
+    ours = path_loss_db(params.path_loss, d, frequency)
+    model = theirs(d)
+    far = d >= floor_m
+    np.testing.assert_allclose(ours[far], model[far], atol=0.02)
+    assert np.all(model[~far] - ours[~far] >= -0.02) and np.max(model - ours) < 4.2
+
+
 def test_dkfsims_winner_b1_is_the_papers_beyond_the_free_space_floor():
     """With the paper's heights dkfsim's WINNER+ B1 is the paper's loss wherever the paper's floor
     at free space does not bind (from 81 m on), and at most 4.2 dB below it nearer."""
-    from dkfsim.components.radio import path_loss_db
-    d = np.linspace(3.0, 1500.0, 3000)
-    ours = path_loss_db(radio_params().path_loss, d, P.frequency)
-    paper = sepulcre.path_loss_db(d)
-    far = d >= 81.5
-    np.testing.assert_allclose(ours[far], paper[far], atol=0.02)
-    assert np.all(paper[~far] - ours[~far] >= -0.02) and np.max(paper - ours) < 4.2
+    check_winner_b1_beyond_floor(radio_params(), sepulcre.path_loss_db, P.frequency, 81.5)
 
 
 #: The authors' implementation (github.com/msepulcre/IEEE802.11p-model, model80211p.m run in
