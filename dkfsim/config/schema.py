@@ -465,7 +465,7 @@ class Scenario(StrictModel):
             raise custom_error("a spatial radio decides each frame at each receiver from the pair's distance, "
                                "so it needs the vehicles' positions: give mobility: (waypoints, a track, SUMO FCD, "
                                "a road), or remove medium.radio for one collision domain", "medium.radio")
-        if self.medium.radio is not None and self.medium.access.kind != "sps":
+        if self.medium.radio is not None:
             rule = MEDIA.get(self.medium.access.kind).implementation
             if not getattr(getattr(rule, "on_radio", None) or rule, "spatial", False):
                 raise custom_error(f"{self.medium.access.kind!r} is a rule for one collision "

@@ -148,6 +148,9 @@ class SpatialChannel(Channel):
     """
 
     overlapping = True                      # (a radio that senses nothing may start over a frame)
+    #: an access that is a spatial channel of its own (the sidelink's) runs on the radio
+    #: (:attr:`~dkfsim.network.media.channel.Access.spatial`)
+    spatial: ClassVar[bool] = True
     #: the causes of a lost pair this access reports, by name and fate code
     CAUSES: ClassVar[tuple[tuple[str, int], ...]] = ()
     #: the fate codes a port counts as ``collision_lost``
