@@ -466,17 +466,21 @@ class SpatialChannel(Channel):
                 "background_sent": int(p[:, 3].sum()), "background_collided": 0,
                 "background_dropped": int((dropped <= end_ns).sum())}
 
-    def busy_unit(self, T_ns: int) -> float:
-        """What a tick's busy time is out of (:meth:`busy_per_tick`'s unit for a whole tick)."""
-        return float(T_ns)
+    def busy_unit(self, span_ns: int) -> float:
+        """What a member's busy amount over ``span_ns`` is out of (:meth:`busy_per_tick`'s unit;
+        a whole tick's for ``T_ns``): the time itself."""
+        return float(span_ns)
 
     def busy_per_tick(self, T_ns: int, K: int) -> np.ndarray:
         """(K, members): each member's busy time in ``[k T, (k+1) T)``, ``k = 0 .. K-1``."""
         raise NotImplementedError
 
     def cbr(self, end_ns: int) -> np.ndarray:
-        """Each member's channel busy ratio over ``[0, end_ns]``."""
-        raise NotImplementedError
+        """Each member's channel busy ratio over ``[0, end_ns]``: its busy amount (:meth:`busy_until`)
+        over the whole (:meth:`busy_unit`)."""
+        if end_ns <= 0:
+            return np.zeros(len(self.nodes))
+        return self.busy_until(end_ns) / self.busy_unit(end_ns)
 
     def busy_until(self, end_ns: int) -> np.ndarray:
         """Each member's busy amount over ``[0, end_ns]`` (``end_ns > 0``) from the per-tick rows
@@ -626,7 +630,7 @@ class RadioChannel(SpatialChannel):
         if self.now <= end_ns:
             ri = self.ri
             return (ri[rk.BUSY_NS] + np.where(ri[rk.SENSE_N] > 0, now - ri[rk.BUSY_FROM], 0)) / end_ns
-        return self.busy_until(end_ns) / end_ns
+        return super().cbr(end_ns)
 
 
 #: 802.11p's causes of a lost (frame, receiver) pair by name (:attr:`RadioChannel.CAUSES`).

@@ -191,9 +191,9 @@ class SidelinkChannel(SpatialChannel):
 
     # ------------------------------------------------------------------ busy time
     @override
-    def busy_unit(self, T_ns: int) -> float:
-        """A tick's sub-channel-subframes."""
-        return T_ns / rk.SUBFRAME * self.sps.subchannels
+    def busy_unit(self, span_ns: int) -> float:
+        """The sub-channel-subframes of ``span_ns``."""
+        return span_ns / rk.SUBFRAME * self.sps.subchannels
 
     @override
     def busy_per_tick(self, T_ns: int, K: int) -> np.ndarray:
@@ -204,11 +204,3 @@ class SidelinkChannel(SpatialChannel):
         rows = min(K, len(self.ticks) - 1)
         ticks[:rows] = self.ticks[:rows]
         return ticks
-
-    @override
-    def cbr(self, end_ns: int) -> np.ndarray:
-        """Each member's channel busy ratio over ``[0, end_ns]``: its busy sub-channel-subframes
-        over all of them (whole ticks; a last partial tick counts its share of its tick)."""
-        if end_ns <= 0:
-            return np.zeros(len(self.nodes))
-        return self.busy_until(end_ns) / (end_ns / rk.SUBFRAME * self.sps.subchannels)
