@@ -118,11 +118,12 @@ class TreeExchange(Exchange):
         self._flush = bind(k.flush, X, O, np.zeros((1, LOOKAHEAD), np.int8), i)
         self._receive_flush = bind(k.receive_flush, X, O, np.zeros((1, 4), np.int64), port.records().view(np.uint64),
                                    i, np.zeros((1, LOOKAHEAD), np.int8), i)
-        #: no packet of the exchange ever arrives at the instant it is sent (e.g. every link
-        #: rate-limited): a delivery and the flushes it makes due run in one kernel call, with
-        #: this lookahead (worked out on the first delivery: the port's media are all known then)
-        self._never: np.ndarray | None = None
+        #: whether no packet of the exchange ever arrives at the instant it is sent (e.g. every
+        #: link rate-limited; worked out on the first delivery, the port's media all known then):
+        #: a delivery and the flushes it makes due then run in one kernel call, with the
+        #: lookahead ``_never`` ("not now" for every packet)
         self._quiet: bool | None = None
+        self._never = np.zeros((E, LOOKAHEAD), dtype=np.int8)
 
     def _out(self, parts: int, items: int) -> tk.Out:
         """Output buffers for up to ``parts`` parts (and frames) and ``items`` items or gains."""
@@ -187,7 +188,6 @@ class TreeExchange(Exchange):
             self._room(0, int((batch[:, 3] - batch[:, 2]).sum()))
         if self._quiet is None:
             self._quiet = self.port.never_now(self.links, LOOKAHEAD, self._smallest)
-            self._never = np.zeros((self.n_links, LOOKAHEAD), dtype=np.int8)
         if self._quiet and not self._flush_pending and self.env.peek() > self.env.now:
             # (what _gains(at_once=True) and _flush_all would do next, without asking the port)
             self._flush_pending = True
