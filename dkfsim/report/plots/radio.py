@@ -15,14 +15,17 @@ from __future__ import annotations
 
 import numpy as np
 
+from dkfsim.config.results import RADIO_CAUSES
 from dkfsim.core.errors import DkfsimError
 from dkfsim.core.extras import pyplot
 from dkfsim.report.plots.folders import Folder
 from dkfsim.report.plots.style import DEFAULT_FORMATS, check_formats, legend_below, plain, save_figure
 
-#: The causes of a lost pair, in the order drawn, with their colours.
-CAUSES = (("sensing", "#bdbdbd"), ("half_duplex", "#c7e9c0"), ("receiver_busy", "#fdae6b"),
-          ("propagation", "#9ecae1"), ("reservation_collision", "#a63603"), ("collision", "#e6550d"))
+#: Each cause's colour.
+COLOURS = {"sensing": "#bdbdbd", "half_duplex": "#c7e9c0", "receiver_busy": "#fdae6b", "propagation": "#9ecae1",
+           "reservation_collision": "#a63603", "collision": "#e6550d"}
+#: The causes of a lost pair, in the order drawn (:data:`~dkfsim.config.results.RADIO_CAUSES`), with their colours.
+CAUSES = tuple((cause, COLOURS[cause]) for cause in RADIO_CAUSES)
 
 
 def has_radio(folder: Folder) -> bool:
