@@ -24,11 +24,13 @@ import numpy as np
 from dkfsim.core.jit import LazyKernels
 
 _KERNELS = ("keyed_uniform", "polevl", "p1evl", "ndtri", "fill", "error_rate", "busy_ticks", "close", "start",
-            "end", "path_loss", "draw", "on_head", "busy", "clear", "take_due", "first_air", "soonest_end", "head",
-            "push", "due_background", "background", "transmit", "finish", "next_arrival", "run", "sps_draw", "sps_select",
-            "sps_assign", "sps_push", "sps_transmit", "sps_finish", "run_sps")
+            "count_pair", "end", "path_loss", "distances", "first_on_air", "draw", "on_head", "busy", "clear",
+            "take_due", "first_air", "soonest_end", "head", "push", "due_background", "background", "transmit",
+            "finish", "next_arrival", "run", "sps_draw", "sps_select", "sps_assign", "sps_push", "sps_transmit",
+            "sps_finish", "run_sps")
 _lazy = LazyKernels(__name__, _KERNELS, inline=("keyed_uniform", "polevl", "p1evl", "error_rate", "busy_ticks",
-                                                "path_loss", "due_background"))
+                                                "path_loss", "due_background", "count_pair", "distances",
+                                                "first_on_air"))
 
 #: Rows of ``ri``: the slot each member is locked on (-1: none), the start of its current SINR
 #: chunk, how many frames on the air it senses (its own included), since when it senses the
@@ -423,6 +425,15 @@ def busy_ticks(ticks: np.ndarray, r: int, a: int, b: int, T_ns: int) -> None:
         k += 1
 
 
+def count_pair(pairs: np.ndarray, fates: np.ndarray, f: int, dist: float, width: float) -> None:
+    """Count a (frame, receiver) pair of fate ``f`` at ``dist`` m: in ``fates``, and in its distance
+    bin of ``width`` m (a distance of whole bins in the upper; beyond the last bin, not binned)."""
+    fates[f] += 1
+    b = int(math.floor(dist / width + 1e-9))
+    if b < pairs.shape[0]:
+        pairs[b, f] += 1
+
+
 def end(ri: np.ndarray, rf: np.ndarray, p: np.ndarray, d: np.ndarray, u: np.ndarray, fate: np.ndarray,
         sensed: np.ndarray, si: np.ndarray, slots: np.ndarray, te: int, kind: int, tab_x: np.ndarray,
         tab_y: np.ndarray, noise: float, width: float, pairs: np.ndarray, fates: np.ndarray,
@@ -435,18 +446,17 @@ def end(ri: np.ndarray, rf: np.ndarray, p: np.ndarray, d: np.ndarray, u: np.ndar
     members that sense the medium idle from ``te``, written to ``went`` (their number returned),
     their busy periods added to ``ticks`` (:func:`busy_ticks`)."""
     m = ri.shape[1]
-    nb = pairs.shape[0]
     n = 0
     for s in slots:
+        counts = window[0] <= si[s, S_START] < window[1] and counted[si[s, S_I]]
         for r in range(m):
             if ri[LOCKED, r] == s:
-                lp = rf[LOCK_P, r]
-                psr_noise = 1.0 - error_rate(kind, tab_x, tab_y, 10.0 * math.log10(lp / noise))
                 x = u[s, r]
                 if x < math.exp(rf[LOGPSR, r]):
                     fate[s, r] = RECEIVED
                     ri[RXERR, r] = 0
-                else:
+                else:                       # (lost without the interference too?)
+                    psr_noise = 1.0 - error_rate(kind, tab_x, tab_y, 10.0 * math.log10(rf[LOCK_P, r] / noise))
                     fate[s, r] = PROPAGATION if (ri[INTERF, r] == 0 or x >= psr_noise) else COLLISION
                     ri[RXERR, r] = 1
                 ri[LOCKED, r] = -1
@@ -461,11 +471,8 @@ def end(ri: np.ndarray, rf: np.ndarray, p: np.ndarray, d: np.ndarray, u: np.ndar
                     went[n] = r
                     n += 1
             f = fate[s, r]
-            if f >= 0 and window[0] <= si[s, S_START] < window[1] and counted[si[s, S_I]]:
-                fates[f] += 1
-                b = int(math.floor(d[s, r] / width + 1e-9))    # (a distance of whole bins: the upper)
-                if b < nb:
-                    pairs[b, f] += 1
+            if f >= 0 and counts:
+                count_pair(pairs, fates, f, d[s, r], width)
         ri[TX, si[s, S_I]] = 0
     return n
 
@@ -503,6 +510,27 @@ def path_loss(kind: int, plp: np.ndarray, d: float) -> float:
     if d < 4.0 * he * he * f / c:
         return 22.7 * math.log10(d) + (27.0 + 20.0 * math.log10(f_ghz))
     return 40.0 * math.log10(d) + (7.56 - 34.6 * math.log10(he) + 2.7 * math.log10(f_ghz))
+
+
+def distances(d: np.ndarray, loss: np.ndarray, s: int, r: int, k: int, px: np.ndarray, py: np.ndarray, kind: int,
+              plp: np.ndarray) -> None:
+    """Slot ``s``'s frame, sent by member ``r`` at tick ``k``: its distance to every member
+    (``d[s]``) and the path loss over it (``loss``, what :func:`fill` takes)."""
+    x0, y0 = px[k, r], py[k, r]
+    for q in range(px.shape[1]):
+        dist = math.hypot(px[k, q] - x0, py[k, q] - y0)
+        d[s, q] = dist
+        loss[q] = path_loss(kind, plp, dist)
+
+
+def first_on_air(si: np.ndarray, onair: np.ndarray, n: int) -> int:
+    """When the first of the ``n`` frames on the air (slots ``onair[:n]``) ends (:data:`NEVER`: none)."""
+    first = NEVER64
+    for j in range(n):
+        e = si[onair[j], S_END]
+        if e < first:
+            first = e
+    return first
 
 
 def draw(bkey: np.ndarray, dr: np.ndarray, i: int, t: int, cw: int) -> int:
@@ -753,11 +781,7 @@ def transmit(ts: int, E: np.ndarray, rq: np.ndarray, queue: np.ndarray, idle_at:
         rq[ON_AIR, r] = s
         onair[E[E_NAIR]] = s
         E[E_NAIR] += 1
-        x0, y0 = px[k, r], py[k, r]
-        for q in range(m):
-            dist = math.hypot(px[k, q] - x0, py[k, q] - y0)
-            d[s, q] = dist
-            loss[q] = path_loss(ip[I_PL], plp, dist)
+        distances(d, loss, s, r, k, px, py, ip[I_PL], plp)
         fill(p, u, s, loss, rkeys[r], handed, rq[K_SEQ, r] * SEQ, nodes, r, fp[F_POWER], fp[F_SIGMA], table,
              fp[F_ZMAX], fp[F_ZSTEPS], absent[k])
         end_ = ts + airtime
@@ -769,12 +793,7 @@ def transmit(ts: int, E: np.ndarray, rq: np.ndarray, queue: np.ndarray, idle_at:
         E[E_NPER] = w + 1
     nw = start(ri, rf, p, fate, sensed, si, sl[:n], ts, fp[F_SENS], fp[F_CS], fp[F_CAPTURE], went)
     busy(idle_at, origin, count, due, head_on, went, nw, ts, ip[I_SLOT], NEVER64)
-    first = NEVER64
-    for j in range(E[E_NAIR]):
-        e = si[onair[j], S_END]
-        if e < first:
-            first = e
-    E[E_NEXT_END] = first
+    E[E_NEXT_END] = first_on_air(si, onair, E[E_NAIR])
     return DONE
 
 
@@ -821,12 +840,7 @@ def finish(te: int, E: np.ndarray, rq: np.ndarray, queue: np.ndarray, idle_at: n
         for r in range(rf.shape[1]):
             rf[TOTAL, r] = 0.0              # (nothing on the air: no rounding left over)
     clear(idle_at, origin, count, due, head_on, went, nw, te, ip[I_SLOT], ip[I_AIFS], ip[I_EIFS], ri[RXERR])
-    first = NEVER64
-    for j in range(left):
-        e = si[onair[j], S_END]
-        if e < first:
-            first = e
-    E[E_NEXT_END] = first
+    E[E_NEXT_END] = first_on_air(si, onair, left)
     m = len(nodes)
     cap = queue.shape[1]
     for j in range(n):
@@ -1169,11 +1183,7 @@ def sps_transmit(ts: int, E: np.ndarray, vs: np.ndarray, queue: np.ndarray, gone
         s = free[E[E_NFREE]]
         onair[E[E_NAIR]] = s
         E[E_NAIR] += 1
-        x0, y0 = px[k, v], py[k, v]
-        for q in range(m):
-            dist = math.hypot(px[k, q] - x0, py[k, q] - y0)
-            d[s, q] = dist
-            loss[q] = path_loss(sp[SP_PL], plp, dist)
+        distances(d, loss, s, v, k, px, py, sp[SP_PL], plp)
         fill(p, u, s, loss, rkeys[v], handed, vs[VK_SEQ, v] * SEQ, nodes, v, sf[SF_POWER], sf[SF_SIGMA], table,
              sf[SF_ZMAX], sf[SF_ZSTEPS], absent[k])
         si[s, S_I], si[s, S_START], si[s, S_END], si[s, S_FID], si[s, S_HANDED] = v, ts, ts + SUBFRAME, fid, handed
@@ -1233,7 +1243,6 @@ def sps_finish(te: int, E: np.ndarray, nodes: np.ndarray, p: np.ndarray, d: np.n
         v = si[onair[j], S_I]
         istx[v] = 1
         txh[v, ring] = True
-    nb = pairs.shape[0]
     k = (te - SUBFRAME) // sp[SP_T]
     if k > ticks.shape[0] - 1:
         k = ticks.shape[0] - 1
@@ -1278,10 +1287,7 @@ def sps_finish(te: int, E: np.ndarray, nodes: np.ndarray, p: np.ndarray, d: np.n
                 kr[r, v] = pj
             fate[s, r] = f
             if window[0] <= si[s, S_START] < window[1] and counted[v]:
-                fates[f] += 1
-                b = int(math.floor(d[s, r] / sf[SF_WIDTH] + 1e-9))
-                if b < nb:
-                    pairs[b, f] += 1
+                count_pair(pairs, fates, f, d[s, r], sf[SF_WIDTH])
         if not istx[r]:
             for j in range(n):
                 s = onair[j]
