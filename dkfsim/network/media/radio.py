@@ -472,8 +472,14 @@ class SpatialChannel(Channel):
         return float(span_ns)
 
     def busy_per_tick(self, T_ns: int, K: int) -> np.ndarray:
-        """(K, members): each member's busy time in ``[k T, (k+1) T)``, ``k = 0 .. K-1``."""
-        raise NotImplementedError
+        """(K, members): each member's busy amount (:meth:`busy_unit`) in ``[k T, (k+1) T)``, ``k =
+        0 .. K-1``, as the engine's rows hold it (the channel brought up to ``K T`` or now; the
+        rows' last holds what lies beyond)."""
+        self.advance(min(K * T_ns, self.env.now))
+        ticks = np.zeros((K, len(self.nodes)))
+        rows = min(K, len(self.ticks) - 1)
+        ticks[:rows] = self.ticks[:rows]
+        return ticks
 
     def cbr(self, end_ns: int) -> np.ndarray:
         """Each member's channel busy ratio over ``[0, end_ns]``: its busy amount (:meth:`busy_until`)
@@ -606,11 +612,8 @@ class RadioChannel(SpatialChannel):
         """(K, members): ns each member sensed the medium busy (its own transmissions included) in
         ``[k T, (k+1) T)``, ``k = 0 .. K-1``, periods still open counted up to now (the channel
         brought up to ``K T`` or now)."""
+        ticks = super().busy_per_tick(T_ns, K)
         now = min(K * T_ns, self.env.now)
-        self.advance(now)
-        ticks = np.zeros((K, len(self.nodes)))
-        rows = min(K, len(self.ticks) - 1)       # (the kernel's last row holds what lies beyond)
-        ticks[:rows] = self.ticks[:rows]
         ri = self.ri
         for r in np.flatnonzero(ri[rk.SENSE_N] > 0).tolist():
             a = int(ri[rk.BUSY_FROM, r])

@@ -194,13 +194,3 @@ class SidelinkChannel(SpatialChannel):
     def busy_unit(self, span_ns: int) -> float:
         """The sub-channel-subframes of ``span_ns``."""
         return span_ns / rk.SUBFRAME * self.sps.subchannels
-
-    @override
-    def busy_per_tick(self, T_ns: int, K: int) -> np.ndarray:
-        """(K, members): the sub-channel-subframes each member found busy (its own included) in
-        ``[k T, (k+1) T)``, the channel brought up to ``K T`` or now."""
-        self.advance(min(K * T_ns, self.env.now))
-        ticks = np.zeros((K, len(self.nodes)))
-        rows = min(K, len(self.ticks) - 1)
-        ticks[:rows] = self.ticks[:rows]
-        return ticks
