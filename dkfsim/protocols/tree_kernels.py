@@ -130,7 +130,11 @@ def _close(X: Tree) -> None:
             if X.CT[LOGON] != 0:
                 h = row % X.frow.shape[0]
                 X.frow[h] = row
-                X.fheld[h] = X.held[slot]
+                # element by element: a whole-array assignment compiles numba's shape-mismatch
+                # message (about 6 s of the first run's compile)
+                for i in range(X.held.shape[1]):
+                    for w in range(X.held.shape[2]):
+                        X.fheld[h, i, w] = X.held[slot, i, w]
         X.CT[LO] = row + 1
 
 
