@@ -73,7 +73,7 @@ def test_a_hand_worked_reservation_timeline():
     periods = c_b + 3
     spec = Medium(rate=6e6, access=Sps(subchannels=1, budget=0.002), radio=RadioParams())
     env = simpy.Environment()
-    ch = SidelinkChannel(env, spec, (0, 1, 2), seed, line([0.0, 50.0, 100.0], periods + 2), 100 * MS)
+    ch = SidelinkChannel(env, spec, (0, 1, 2), seed, line([0.0, 50.0, 100.0], periods + 2), 100 * MS, record=True)
     told: dict[int, list] = {0: [], 2: []}
 
     def done(frame, ok):
@@ -85,6 +85,7 @@ def test_a_hand_worked_reservation_timeline():
     env.run(until=periods * 100 * MS)
     collide = {"A": {1: True, 2: False}, "B": {1: True, 0: False}}
     n_collide = 0
+    logged = []                              # (record): every packet, received by someone or by no one
     for k in range(periods):
         a_start, a_lost = told[0][k]
         b_start, b_lost = told[2][k]
@@ -99,6 +100,9 @@ def test_a_hand_worked_reservation_timeline():
             assert (a_start, b_start) == ((100 * k + 2) * MS, (100 * k + 2) * MS)
             assert (a_lost, b_lost) == (collide["A"], collide["B"])
             n_collide += 1
+        heard = c_a <= k < c_b
+        logged += [(0, a_start, a_start + MS, heard, False), (2, b_start, b_start + MS, heard, False)]
+    assert sorted(ch.ended or []) == sorted(logged)
     losses = ch.report("me", periods * 100 * MS)["losses"]
     assert losses == {"sensing": 0, "half_duplex": 2 * n_collide, "propagation": 0,
                       "reservation_collision": 2 * n_collide, "collision": 0}
@@ -216,7 +220,8 @@ def test_a_vehicle_never_receives_in_a_subframe_it_transmits_in(seed, n, plan):
     counted ``half_duplex``."""
     spec = Medium(rate=6e6, access=Sps(subchannels=2, budget=0.02), radio=RadioParams())
     env = simpy.Environment()
-    ch = SidelinkChannel(env, spec, tuple(range(n)), seed, line([15.0 * i for i in range(n)], 5), 100 * MS)
+    ch = SidelinkChannel(env, spec, tuple(range(n)), seed, line([15.0 * i for i in range(n)], 5), 100 * MS,
+                         record=True)
     sent: list = []
     for u, t in plan:
         if u < n:
@@ -233,6 +238,27 @@ def test_a_vehicle_never_receives_in_a_subframe_it_transmits_in(seed, n, plan):
                 assert r in (f.lost_at or {}) and not (f.lost_at or {})[r]      # lost, and not to a collision
                 hd += 1
     assert ch.report("me", 400 * MS)["losses"]["half_duplex"] == hd
+    # ``record`` logs each packet sent once, heard when some member received it
+    assert sorted(ch.ended or []) == sorted((f.node, f.start, f.end, len(f.lost_at or {}) < n - 1, False) for f in sent)
+
+
+def test_record_logs_every_packet_the_sidelink_sent_its_log_growing():
+    """With ``record`` and background on 12 vehicles (hundreds of packets: the log, 64 rows at
+    first, grows while the engine runs), every packet that went on the air is logged once: as
+    many rows as packets started (``frames_on_air``), the background's as the background sent,
+    each one subframe long, its sender a member."""
+    spec = Medium(rate=6e6, access=Sps(subchannels=2), radio=RadioParams(),
+                  background=Background(arrivals="periodic", packets_per_second=50, size=200, offset="random"))
+    env = simpy.Environment()
+    n = 12
+    ch = SidelinkChannel(env, spec, tuple(range(n)), 3, line([30.0 * i for i in range(n)], 12), 100 * MS, record=True)
+    env.run(until=1000 * MS)
+    stats = ch.stats(1000 * MS)
+    ended = ch.ended or []
+    assert len(ended) == stats["frames_on_air"] > 300
+    assert sum(bg for *_, bg in ended) == stats["background_sent"] == len(ended)
+    assert all(e - s == MS and 0 <= node < n for node, s, e, _, _ in ended)
+    assert len({(node, s) for node, s, *_ in ended}) == len(ended)
 
 
 def test_sps_needs_a_radio_and_an_allowed_interval():

@@ -968,9 +968,10 @@ VB_POS64, VB_LEN64 = cast(int, np.int64(VB_POS)), cast(int, np.int64(VB_LEN))   
 #: its control message announces (0: no further reservation).
 X_C, X_L, X_SPS, X_P = range(4)
 #: ``sp`` (int): sub-channels, bytes a sub-channel carries, interval (subframes), counter range,
-#: budget (subframes), one-shot misfits, tick (ns), waiting-room limits, reception rule, path loss.
-(SP_S, SP_BYTES, SP_P, SP_LO, SP_HI, SP_BUDGET, SP_ONESHOT, SP_T, SP_MAXP, SP_MAXB, SP_RX, SP_PL) = range(12)
-NSP = 12
+#: budget (subframes), one-shot misfits, tick (ns), waiting-room limits, reception rule, path loss,
+#: whether the ended packets are logged (``record``).
+(SP_S, SP_BYTES, SP_P, SP_LO, SP_HI, SP_BUDGET, SP_ONESHOT, SP_T, SP_MAXP, SP_MAXB, SP_RX, SP_PL, SP_RECORD) = range(13)
+NSP = 13
 #: ``sf`` (float): power (dBm), shadowing sigma, the fading grid, sensitivity and noise (mW),
 #: noise share of one sub-channel, keep probability, RSRP threshold and its step (dB), the
 #: fraction of candidates kept, CBR threshold (mW per sub-channel), bin width (m).
@@ -1216,8 +1217,8 @@ def sps_finish(te: int, E: np.ndarray, nodes: np.ndarray, p: np.ndarray, d: np.n
                u: np.ndarray, fate: np.ndarray, si: np.ndarray, sx: np.ndarray, free: np.ndarray,
                onair: np.ndarray, kn: np.ndarray, kr: np.ndarray, rssi: np.ndarray, txh: np.ndarray,
                tag: np.ndarray, istx: np.ndarray, pairs: np.ndarray, fates: np.ndarray, ticks: np.ndarray,
-               window: np.ndarray, counted: np.ndarray, own: np.ndarray, sp: np.ndarray, sf: np.ndarray,
-               tab_x: np.ndarray, tab_y: np.ndarray) -> int:
+               window: np.ndarray, counted: np.ndarray, log: np.ndarray, own: np.ndarray, sp: np.ndarray,
+               sf: np.ndarray, tab_x: np.ndarray, tab_y: np.ndarray) -> int:
     """The subframe ending at ``te`` is decided: at each member every packet sent in it is
     lost to ``HALF_DUPLEX`` (the member transmitted), ``SENSING`` (below sensitivity) or, from
     its SINR over its sub-channels (noise of its share of the band, interference of every other
@@ -1225,11 +1226,16 @@ def sps_finish(te: int, E: np.ndarray, nodes: np.ndarray, p: np.ndarray, d: np.n
     too) or a collision (``RESERVATION_COLLISION`` when an overlapping packet was on a
     reservation); a member that did not transmit hears the control message of each packet it
     detects (the sender's reservation, by the packet's power) and senses each sub-channel's
-    power (RSSI, remembered 1000 subframes; busy for the CBR at ``SF_CBR``)."""
+    power (RSSI, remembered 1000 subframes; busy for the CBR at ``SF_CBR``).  With ``record``
+    each packet is logged as :func:`finish` logs a frame; :data:`GROW` before anything changes
+    when the log has no room."""
     m = len(nodes)
     S = sp[SP_S]
     now = te // SUBFRAME - 1
     n = E[E_NAIR]
+    if sp[SP_RECORD] != 0 and E[E_NLOG] + n > log.shape[0]:
+        E[E_ARG] = G_LOG
+        return GROW
     ring = now % WINDOW_SF
     if tag[ring] != now:
         tag[ring] = now
@@ -1301,6 +1307,15 @@ def sps_finish(te: int, E: np.ndarray, nodes: np.ndarray, p: np.ndarray, d: np.n
         ticks[k, r] += busy
     for j in range(n):
         s = onair[j]
+        if sp[SP_RECORD] != 0:
+            lost = 0
+            for q in range(m):
+                if fate[s, q] != RECEIVED and fate[s, q] != SENDER:
+                    lost += 1
+            w = E[E_NLOG]
+            log[w, 0], log[w, 1], log[w, 2], log[w, 3], log[w, 4] = nodes[si[s, S_I]], si[s, S_START], te, \
+                lost < m - 1, si[s, S_FID] < 0
+            E[E_NLOG] = w + 1
         if si[s, S_FID] >= 0:
             own[E[E_NOWN]] = s
             E[E_NOWN] += 1
@@ -1318,7 +1333,7 @@ def run_sps(t: int, th: int, E: np.ndarray, vs: np.ndarray, queue: np.ndarray, g
             free: np.ndarray, onair: np.ndarray, loss: np.ndarray, kn: np.ndarray, kr: np.ndarray,
             rssi: np.ndarray, txh: np.ndarray, tag: np.ndarray, istx: np.ndarray, pairs: np.ndarray,
             fates: np.ndarray, ticks: np.ndarray, window: np.ndarray, counted: np.ndarray, periods: np.ndarray,
-            dropped: np.ndarray, own: np.ndarray, sp: np.ndarray, sf: np.ndarray, plp: np.ndarray,
+            dropped: np.ndarray, log: np.ndarray, own: np.ndarray, sp: np.ndarray, sf: np.ndarray, plp: np.ndarray,
             table: np.ndarray, tab_x: np.ndarray, tab_y: np.ndarray, ex: np.ndarray, metric: np.ndarray) -> int:
     """:func:`run` for the sidelink (``medium.access.kind: sps``): bring it up to ``t`` -- at one
     instant the subframe that ends, then the background vehicle by vehicle, then the held frames
@@ -1340,8 +1355,9 @@ def run_sps(t: int, th: int, E: np.ndarray, vs: np.ndarray, queue: np.ndarray, g
             if vs[T_SF, r] >= 0 and vs[T_SF, r] * SUBFRAME < ts:
                 ts = vs[T_SF, r] * SUBFRAME
         if te <= t and te <= ta and te <= th and te <= ts:
-            sps_finish(te, E, nodes, p, d, u, fate, si, sx, free, onair, kn, kr, rssi, txh, tag, istx, pairs,
-                       fates, ticks, window, counted, own, sp, sf, tab_x, tab_y)
+            if sps_finish(te, E, nodes, p, d, u, fate, si, sx, free, onair, kn, kr, rssi, txh, tag, istx, pairs,
+                          fates, ticks, window, counted, log, own, sp, sf, tab_x, tab_y) == GROW:
+                return GROW
             if E[E_NOWN] > 0:
                 return YIELD
         elif ta <= t and ta <= ts and ta <= th:

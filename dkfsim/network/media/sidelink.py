@@ -125,6 +125,7 @@ class SidelinkChannel(SpatialChannel):
             int(a.misfit == "one_shot"), self.T_ns, self.rule[0], self.pl_kind
         self.sp[rk.SP_MAXP] = -1 if q is None or q.packets is None else q.packets
         self.sp[rk.SP_MAXB] = -1 if q is None or q.bytes is None else q.bytes
+        self.sp[rk.SP_RECORD] = int(record)
         self.sf = np.zeros(rk.NSF)
         self.sf[[rk.SF_POWER, rk.SF_SIGMA, rk.SF_ZMAX, rk.SF_ZSTEPS, rk.SF_SENS, rk.SF_NOISE, rk.SF_SHARE, rk.SF_KEEP,
                  rk.SF_RSRP, rk.SF_STEP, rk.SF_FRAC, rk.SF_CBR, rk.SF_WIDTH]] = \
@@ -148,7 +149,7 @@ class SidelinkChannel(SpatialChannel):
         return (self.E, self.vrows, self.queue, self._gone, self.bg, self.skey, self._rkeys, self.nodes, self._x, self._y,
                 self.absent, self.p, self.d, self.u, self.fate, self.si, self.sx, self.free, self.onair, self._loss,
                 self.kn, self.kr, self.rssi, self.txh, self.tag, self._istx, self.pairs, self.fates, self.ticks,
-                self._window, self._counted, self.periods, self.dropped, self.own, self.sp, self.sf, self._plp,
+                self._window, self._counted, self.periods, self.dropped, self.log, self.own, self.sp, self.sf, self._plp,
                 *self._tables, self._ex, self._metric)
 
     @override
