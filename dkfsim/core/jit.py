@@ -91,7 +91,7 @@ def _tolerate_cache_write_errors(caching) -> None:
 #: CPU seconds numba takes to compile each kernel module's kernels (measured on this project's
 #: 2-core machine; the first run on a machine pays them once, later ones load the disk cache).
 COMPILE_SECONDS = {"dkfsim.estimators.kernels": 15, "dkfsim.model.holdings_kernels": 3,
-                   "dkfsim.protocols.tree_kernels": 9, "dkfsim.network.port_kernels": 6,
+                   "dkfsim.protocols.tree_kernels": 8, "dkfsim.network.port_kernels": 6,
                    "dkfsim.network.radio_kernels": 8}
 
 
