@@ -19,6 +19,7 @@ fresh process (:meth:`Child.within` refuses a forked child a bound tighter than 
 from __future__ import annotations
 
 import contextlib
+import fcntl
 import os
 import resource
 import shutil
@@ -301,9 +302,25 @@ def small_scenario() -> dkfsim.Scenario:
 @pytest.fixture(scope="session")
 def legit(tmp_path_factory) -> dict[str, Path]:
     """A run folder, a Monte Carlo folder and a sweep database (with its files), all small and
-    untouched: tests copy them (:func:`copy_of`) before tampering.  Made once per test process
-    (about 20 s): every hostile module reads the same ones."""
-    d = tmp_path_factory.mktemp("legit")
+    untouched: tests copy them (:func:`copy_of`) before tampering.  Made once per test session
+    (about 20 s): the first test process to need them makes them under a lock, in the
+    directory every process of the session shares (pytest-xdist's workers' common parent), and
+    every hostile module of every process reads the same ones."""
+    base = tmp_path_factory.getbasetemp()
+    shared = base.parent if os.environ.get("PYTEST_XDIST_WORKER") else base
+    d = shared / "legit"
+    with open(shared / "legit.lock", "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)             # (released when the file closes)
+        if not (d / "made").exists():
+            shutil.rmtree(d, ignore_errors=True)     # (a process that failed half-way)
+            d.mkdir()
+            _make_legit(d)
+            (d / "made").write_text("")
+    return {"run": d / "run", "mc": d / "mc", "sweep": d / "sweep" / "s.sqlite"}
+
+
+def _make_legit(d: Path) -> None:
+    """The folders of :func:`legit`, made in ``d``."""
     sc = small_scenario()
     dkfsim.run(sc).save(d / "run")
     dkfsim.montecarlo(sc, runs=2).save(d / "mc")
@@ -320,7 +337,6 @@ def legit(tmp_path_factory) -> dict[str, Path]:
         write_report(d / kind)
         plot_folder(load_folder(d / kind), d / kind / "figures", ("png",))
     write_report(sweep_dir / "s.sqlite")
-    return {"run": d / "run", "mc": d / "mc", "sweep": sweep_dir / "s.sqlite"}
 
 
 def copy_of(src: Path, dst_dir: Path, name: str | None = None) -> Path:
