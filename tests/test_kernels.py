@@ -71,6 +71,7 @@ def _compare(d, monkeypatch):
     assert np.array_equal(a.arrays["arrival"], b.arrays["arrival"])
     for key in ("sent", "delivered", "lost", "late", "duplicates", "stale"):
         assert a.counts.get(key) == b.counts.get(key), key
+    assert a.info["events"] == b.info["events"]          # (what a trial measures: on either path)
     return a, b
 
 
@@ -86,6 +87,43 @@ def test_paths_agree_with_crashes_and_loss(monkeypatch):
     d["faults"] = {"crashes": [{"node": 2, "start": 0.08, "end": 0.21}, {"node": 5, "start": 0.3, "end": 0.36}]}
     a, _ = _compare(d, monkeypatch)
     assert a.arrays["crashed"].any()          # the crashes happened
+
+
+@pytest.mark.parametrize("overrides", [
+    ["links.default.latency={model: exponential, mean: 0.02}", "links.d_t=4"],
+    ["links.default.rate=1.0e6", "links.default.queue={packets: 20}",
+     "links.default.background={arrivals: poisson, packets_per_second: 50, size: 250}"],
+], ids=["exponential", "rate-limited"])
+def test_a_trial_measures_the_same_events_on_either_path(overrides, monkeypatch):
+    """A resource estimate's trial runs compiled when the kernels are on disk, else on the numpy
+    kernels (nothing to compile): the events it measures are the same either way."""
+    sc = dkfsim.load_scenario(Path(__file__).resolve().parents[1] / "scenarios" / "paper_case1.yaml",
+                              overrides=["steps=80", *overrides])
+    a, b = (_run(sc, kernels, monkeypatch, save="summary") for kernels in ("numba", "numpy"))
+    assert a.info["events"] == b.info["events"] and a.info["events"]["packets"] > 1000
+
+
+def test_a_trial_runs_compiled_only_when_the_kernels_are_on_disk(tmp_path):
+    """:func:`~dkfsim.engine.driver.trial_backend`: compiled with numba's cache holding every
+    kernel a trial runs; the numpy kernels when one module of them is not there (it would compile
+    for seconds: a refusal answers before that); the environment's choice on a spatial radio."""
+    from conftest import numba_cache_but
+    case1 = Path(__file__).resolve().parents[1] / "scenarios" / "paper_case1.yaml"
+    highway = case1.parent / "highway_its_g5.yaml"
+    code = ("import sys, dkfsim; from dkfsim.engine.driver import trial_backend; "
+            "print(*(trial_backend(dkfsim.load_scenario(p)).kernels for p in sys.argv[1:]))")
+
+    def backends(cache: Path | None) -> list[str]:
+        env = {k: v for k, v in os.environ.items() if k not in ("NUMBA_CACHE_DIR", "DKFSIM_KERNELS")}
+        if cache is not None:
+            env["NUMBA_CACHE_DIR"] = str(cache)
+        out = subprocess.run([sys.executable, "-c", code, str(case1), str(highway)], capture_output=True,
+                             text=True, env=env, timeout=120)
+        assert out.returncode == 0, out.stderr[-2000:]
+        return out.stdout.split()
+    assert backends(numba_cache_but(tmp_path / "a", "nothing")) == ["numba", "numba"]
+    assert backends(numba_cache_but(tmp_path / "b", "tree_kernels")) == ["numpy", "numba"]
+    assert backends(tmp_path / "empty") == ["numpy", "numba"]
 
 
 def test_short_buffer_case_has_late_information(monkeypatch):

@@ -193,6 +193,21 @@ class LazyKernels:
         return sys.modules[self.module]
 
 
+def kernels_cached(modules: tuple[str, ...]) -> bool:
+    """Whether numba's disk cache holds the kernels of every kernel module of ``modules``
+    (their :class:`LazyKernels`; each imported now): the first calls of a process load them
+    in well under a second instead of compiling them (:func:`cache_is_cold`).  Imports numba."""
+    numba = import_numba()
+    for name in modules:
+        importlib.import_module(name)
+        lazy = next((k for k in _Compiling.lazy if k.module == name), None)
+        mod = sys.modules[name]
+        funcs = [getattr(mod, f) for f in lazy.names if f not in lazy.inline] if lazy is not None else []
+        if not funcs or cache_is_cold([f if hasattr(f, "py_func") else numba.njit(cache=True)(f) for f in funcs]):
+            return False
+    return True
+
+
 def entry_point(kernel, *args):
     """``kernel`` (a numba dispatcher) called once with ``args``, then the compiled function of
     exactly those argument types: calling it skips numba's per-call type dispatch (about half

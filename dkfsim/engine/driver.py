@@ -31,6 +31,7 @@ from dkfsim.config.load import load_scenario
 from dkfsim.config.plan import RunPlan
 from dkfsim.config.schema import Scenario
 from dkfsim.core.backend import Backend
+from dkfsim.core.jit import kernels_cached
 from dkfsim.core.progress import progress_callback
 from dkfsim.core.registry import ESTIMATORS
 from dkfsim.core.resources import Cost, check
@@ -192,17 +193,26 @@ class Run:
 
 
 # =========================================================================== estimates
-#: The backend of a trial: the numpy kernels (none to compile or load; a run's events are the
-#: same on every path) -- but for a spatial radio (:func:`trial_backend`).
+#: The backend of a trial when the compiled kernels are not on disk yet: the numpy kernels (none
+#: to compile; a run's events are the same on every path).
 TRIAL_BACKEND = Backend("numpy")
+#: The kernel modules a trial off the spatial radio runs: when numba's disk cache holds them, a
+#: trial runs compiled (loading them takes well under a second; a maxdelay refusal that tried
+#: eight candidates took 23 s of CPU on the numpy kernels, 5 s compiled).
+TRIAL_KERNELS = ("dkfsim.estimators.kernels", "dkfsim.model.holdings_kernels", "dkfsim.network.port_kernels",
+                 "dkfsim.protocols.tree_kernels")
 
 
 def trial_backend(sc: Any) -> Backend:
-    """A trial's backend: :data:`TRIAL_BACKEND`, or the environment's for a scenario on a
-    spatial radio, whose event engine as Python costs far more than compiling it (a trial of
-    the highway: about 120 s against 1 s)."""
+    """A trial's backend: the environment's when its kernels are compiled already (numba's disk
+    cache holds :data:`TRIAL_KERNELS`) or the scenario is on a spatial radio, whose event engine
+    as Python costs far more than compiling it (a trial of the highway: about 120 s against
+    1 s); else :data:`TRIAL_BACKEND`, which compiles nothing."""
+    env = Backend.from_environment()
     medium = getattr(sc, "medium", None)
-    return Backend.from_environment() if medium is not None and medium.radio is not None else TRIAL_BACKEND
+    if medium is not None and medium.radio is not None:
+        return env
+    return env if env.compiled and kernels_cached(TRIAL_KERNELS) else TRIAL_BACKEND
 
 
 def trial(plan: RunPlan, save: str = "summary") -> RunResult:
