@@ -24,7 +24,7 @@ from test_medium import at
 
 from dkfsim.components.faults import LinkSpec
 from dkfsim.components.latency import Constant
-from dkfsim.components.medium import Csma, Edca, Medium
+from dkfsim.components.medium import Csma, Edca, Medium, Sps
 from dkfsim.components.radio import RadioParams
 from dkfsim.components.traffic import Background
 from dkfsim.core.backend import Backend
@@ -32,6 +32,7 @@ from dkfsim.core.streams import key64, keyed_uniform
 from dkfsim.network import radio_kernels as rk
 from dkfsim.network.media.base import Frame
 from dkfsim.network.media.radio import RadioChannel
+from dkfsim.network.media.sidelink import SidelinkChannel
 from dkfsim.network.network import Network
 
 US, MS = 1_000, 1_000_000
@@ -417,3 +418,23 @@ def test_a_periodic_background_past_the_end_of_time_does_not_hang_the_radio():
         ch = RadioChannel(env, spec, (0, 1), 1, line([0.0, 10.0], 10), T)
         env.run(until=50 * MS)
         assert ch.report(None, 50 * MS)["frames_on_air"] == 2
+
+
+@pytest.mark.parametrize("access", ["edca", "sps"])
+def test_a_vehicle_beyond_every_distance_bin_is_counted_not_binned(access):
+    """A vehicle 1e21 m away (a distance in bins beyond int64: its bin number once came out
+    negative, and the compiled engine wrote outside the pairs table, then aborted freeing
+    memory): its pairs count in ``pairs``, in no distance bin."""
+    if access == "edca":
+        r = _run(dict(n=3, ticks=5, radio=SPATIAL, xs=[0.0, 50.0, 1e21], end=40 * MS,
+                      plan=[(1 * MS, 0, 200), (2 * MS, 2, 200)]))["report"]
+    else:
+        env = simpy.Environment()
+        ch = SidelinkChannel(env, Medium(rate=RATE, access=Sps(), radio=RadioParams(**SPATIAL)), (0, 1, 2), 1,
+                             line([0.0, 50.0, 1e21], 5), T)
+        for t, u in ((1 * MS, 0), (2 * MS, 2)):
+            at(env, t, lambda u=u: ch.offer(Frame(u, 200, env.now, None, lambda f, ok: None, "me")))
+        env.run(until=40 * MS)
+        r = ch.report("me", 40 * MS)
+    binned = r["pdr_by_distance"]
+    assert r["pairs"] == 4 and sum(binned["frames"]) == 1 and binned["frames"][2] == 1     # (0 -> 1 at 50 m)

@@ -429,9 +429,9 @@ def count_pair(pairs: np.ndarray, fates: np.ndarray, f: int, dist: float, width:
     """Count a (frame, receiver) pair of fate ``f`` at ``dist`` m: in ``fates``, and in its distance
     bin of ``width`` m (a distance of whole bins in the upper; beyond the last bin, not binned)."""
     fates[f] += 1
-    b = int(math.floor(dist / width + 1e-9))
-    if b < pairs.shape[0]:
-        pairs[b, f] += 1
+    x = dist / width + 1e-9
+    if x < pairs.shape[0]:                  # (beyond the bins, or not a number: not binned; a
+        pairs[int(math.floor(x)), f] += 1   # distance past int64 once wrote outside the array)
 
 
 def end(ri: np.ndarray, rf: np.ndarray, p: np.ndarray, d: np.ndarray, u: np.ndarray, fate: np.ndarray,
