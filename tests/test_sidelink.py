@@ -10,6 +10,7 @@ binomial, and the half-duplex rule on random traffic.
 from __future__ import annotations
 
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -18,6 +19,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from test_medium import at
 
+import dkfsim
 from dkfsim.components.faults import LinkSpec
 from dkfsim.components.latency import Constant
 from dkfsim.components.medium import Medium, Sps
@@ -30,6 +32,7 @@ from dkfsim.network.media.sidelink import SidelinkChannel
 from dkfsim.network.network import Network
 
 MS = 1_000_000
+ROOT = Path(__file__).resolve().parents[1]
 
 
 def line(xs, ticks: int) -> np.ndarray:
@@ -140,6 +143,39 @@ def test_a_frame_larger_than_the_band_or_past_its_budget_is_dropped():
 
 
 # ------------------------------------------------------------------ the selection's properties
+@pytest.mark.parametrize("kernels", ["numba", "numpy"])
+def test_the_threshold_rises_in_steps_of_threshold_step_db(kernels):
+    """Vehicle 0 selects one of two candidates (subframes +1 and +2 of one sub-channel), each
+    reserved by a vehicle it heard: at -85 dBm (+1) and at -70 dBm (+2), both above -90.5 dBm, so
+    nothing is left; the threshold rises 3 dB at a time (-87.5, -84.5 dBm) until the first is
+    allowed, and the second stays excluded although its subframe is the quieter one.  (Raising a
+    threshold in mW by 3 "mW" at once allowed both, and the quieter one was picked.)"""
+    m, now = 3, 5000
+    a, b = now + 1, now + 2
+    vs = np.zeros((rk.NVS, m), dtype=np.int64)
+    vs[rk.VD_AT] = -1
+    skey = np.arange(1, m + 1, dtype=np.uint64)
+    kn = np.zeros((m, m, 4), dtype=np.int64)
+    kn[:, :, 0] = -(1 << 40)
+    kn[0, 1] = (a - 100, 100, 0, 1)                     # heard 100 ms ago, every 100 ms: +1 ...
+    kn[0, 2] = (b - 100, 100, 0, 1)                     # ... and +2
+    kr = np.zeros((m, m))
+    kr[0, 1], kr[0, 2] = 10.0 ** (-85 / 10), 10.0 ** (-70 / 10)
+    tag = np.roll(np.arange(now - rk.WINDOW_SF, now, dtype=np.int64), now % rk.WINDOW_SF)
+    rssi = np.zeros((m, rk.WINDOW_SF, 1))
+    for z in range(now - rk.WINDOW_SF, now):
+        rssi[0, z % rk.WINDOW_SF, 0] = 1e-9 if (z - a) % 100 == 0 else 1e-12   # +1's images are louder
+    txh = np.zeros((m, rk.WINDOW_SF), dtype=np.bool_)
+    sp = np.zeros(rk.NSP, dtype=np.int64)
+    sp[rk.SP_S] = 1
+    sf = np.zeros(rk.NSF)
+    sf[rk.SF_RSRP], sf[rk.SF_STEP], sf[rk.SF_FRAC] = 10.0 ** (-90.5 / 10), 10.0 ** (3.0 / 10), 0.2
+    ex, metric = np.zeros(2, dtype=np.bool_), np.zeros(2)
+    k = rk.compiled() if kernels == "numba" else rk
+    pick = k.sps_select(0, now, a, b, 1, vs, skey, kn, kr, rssi, txh, tag, sp, sf, ex, metric)
+    assert ex.tolist() == [False, True] and pick == a * 1 + 0
+
+
 @settings(max_examples=60, deadline=None)
 @given(seed=st.integers(0, 2**32), m=st.integers(2, 20), S=st.integers(1, 6), data=st.data())
 def test_every_pick_lies_in_what_is_left_and_that_is_at_least_a_fifth(seed, m, S, data):
@@ -167,7 +203,7 @@ def test_every_pick_lies_in_what_is_left_and_that_is_at_least_a_fifth(seed, m, S
     sp = np.zeros(rk.NSP, dtype=np.int64)
     sp[rk.SP_S] = S
     sf = np.zeros(rk.NSF)
-    sf[rk.SF_RSRP], sf[rk.SF_STEP], sf[rk.SF_FRAC] = 10.0 ** (-90.5 / 10), 3.0, 0.2
+    sf[rk.SF_RSRP], sf[rk.SF_STEP], sf[rk.SF_FRAC] = 10.0 ** (-90.5 / 10), 10.0 ** (3.0 / 10), 0.2
     nc = span * (S - L + 1)
     ex, metric = np.zeros(nc, dtype=np.bool_), np.zeros(nc)
     v = int(rng.integers(m))
@@ -272,6 +308,11 @@ def test_sps_needs_a_radio_and_an_allowed_interval():
     assert Sps(rri=0.3).counter_range == (5, 15)
     with pytest.raises(Exception, match="one sub-channel.s noise"):     # (noise alone: always busy)
         Medium(rate=6e6, access={"kind": "sps", "cbr_threshold": -110.0}, radio={})
+    # a step too small to move the threshold (1e-300 dB: a selection looped for ever) is refused
+    with pytest.raises(Exception, match="threshold_step"):
+        dkfsim.load_scenario(ROOT / "scenarios" / "highway_its_g5.yaml",
+                             overrides=["medium.access={kind: sps, threshold_step: 1.0e-300}"])
+    assert Sps(threshold_step=0.1).threshold_step == 0.1
 
 
 def test_the_sidelink_on_the_network_delivers_through_its_ports():

@@ -162,7 +162,9 @@ class Sps(AccessParams, kind="sps"):
     #: dBm: a reservation received above it is excluded from a selection (the analytic model's
     #: sensing power)
     rsrp_threshold: Annotated[float, Field(strict=True, ge=-400, le=400, allow_inf_nan=False)] = -90.5
-    threshold_step: Annotated[float, Field(strict=True, gt=0, le=100, allow_inf_nan=False)] = 3.0
+    #: dB (at least 0.1: each raise must change the threshold, and a selection takes at most a few
+    #: thousand of them)
+    threshold_step: Annotated[float, Field(strict=True, ge=0.1, le=100, allow_inf_nan=False)] = 3.0
     candidates: Annotated[float, Field(strict=True, gt=0, le=1, allow_inf_nan=False)] = 0.2
     #: s: the latest a packet goes after its arrival (the selection window's end, T2)
     budget: Annotated[float, Field(strict=True, ge=0.001, le=1, allow_inf_nan=False)] = 0.1

@@ -973,7 +973,7 @@ X_C, X_L, X_SPS, X_P = range(4)
 (SP_S, SP_BYTES, SP_P, SP_LO, SP_HI, SP_BUDGET, SP_ONESHOT, SP_T, SP_MAXP, SP_MAXB, SP_RX, SP_PL, SP_RECORD) = range(13)
 NSP = 13
 #: ``sf`` (float): power (dBm), shadowing sigma, the fading grid, sensitivity and noise (mW),
-#: noise share of one sub-channel, keep probability, RSRP threshold and its step (dB), the
+#: noise share of one sub-channel, keep probability, RSRP threshold (mW) and its step (a factor), the
 #: fraction of candidates kept, CBR threshold (mW per sub-channel), bin width (m).
 (SF_POWER, SF_SIGMA, SF_ZMAX, SF_ZSTEPS, SF_SENS, SF_NOISE, SF_SHARE, SF_KEEP, SF_RSRP, SF_STEP, SF_FRAC, SF_CBR,
  SF_WIDTH) = range(13)
@@ -1045,7 +1045,7 @@ def sps_select(v: int, now: int, a: int, b: int, L: int, vs: np.ndarray, skey: n
         if left >= need:
             break
         if th <= top:
-            th += sf[SF_STEP]
+            th *= sf[SF_STEP]                # (the step in dB, as a factor on the mW threshold)
         elif own:
             own = 0
             th = sf[SF_RSRP]
