@@ -438,3 +438,25 @@ def test_a_vehicle_beyond_every_distance_bin_is_counted_not_binned(access):
         r = ch.report("me", 40 * MS)
     binned = r["pdr_by_distance"]
     assert r["pairs"] == 4 and sum(binned["frames"]) == 1 and binned["frames"][2] == 1     # (0 -> 1 at 50 m)
+
+
+@pytest.mark.parametrize("kind, offset", [("periodic", "random"), ("periodic", 0.0), ("poisson", 0.0)])
+def test_a_background_of_one_packet_in_1e300_seconds_never_sends_after_its_first(kind, offset):
+    """``packets_per_second: 1e-300``: an offset over one period of 1e300 s raised OverflowError
+    (infinity to int), and packet 0 of a periodic process lay at 0 * inf, not a number, read by the
+    engine as an instant below zero (an IndexError, or a crash when compiled).  Every instant is a
+    number in ``[0, MAX_NS]``; a random offset puts the first one at "never", a fixed one at it."""
+    from dkfsim.core.params import MAX_NS
+    from dkfsim.network.media.background import BackgroundArrivals
+    spec = Background(arrivals=kind, packets_per_second=1e-300, size=100, **({} if kind == "poisson" else
+                                                                              {"offset": offset}))
+    times, _ = BackgroundArrivals(spec, ("radio", 0, 0), 1, first_block=8).next_block()
+    assert ((times >= 0) & (times <= MAX_NS)).all() and (np.diff(times) >= 0).all()
+    if kind == "poisson":                   # (each gap held at 2^49 ns, 6.5 days)
+        assert times[0] >= 2**49
+    else:
+        assert times[0] == (MAX_NS if offset == "random" else 0) and (times[1:] == MAX_NS).all()
+    ch = RadioChannel(simpy.Environment(), Medium(rate=RATE, access=Edca(), preamble=PRE / 1e9, radio=RadioParams(),
+                                                  background=spec), (0, 1), 1, line([0.0, 10.0], 10), T)
+    ch.env.run(until=50 * MS)
+    assert ch.report(None, 50 * MS)["frames_on_air"] == (2 if offset == 0.0 and kind == "periodic" else 0)

@@ -57,7 +57,9 @@ class BackgroundArrivals:
         #: a periodic process's first instant: ``offset``, or with ``random`` a keyed uniform over
         #: one period (the gaps' key at (0, -1): no Poisson gap uses it)
         if spec.offset == "random":
-            self.offset_ns = int(keyed_uniform(self.gap_key, 0, -1) * NS_PER_S / spec.packets_per_second)
+            # (held at MAX_NS, "never", as the instants are: a rate of 1e-300 per second made it
+            # infinite, and int() of it raised)
+            self.offset_ns = int(min(keyed_uniform(self.gap_key, 0, -1) * NS_PER_S / spec.packets_per_second, MAX_NS))
         else:
             self.offset_ns = seconds_to_ns(spec.offset)
         self._times = np.empty(0, dtype=np.int64)
@@ -74,7 +76,9 @@ class BackgroundArrivals:
         self._block = min(2 * n, BLOCK)
         idx = np.arange(lo, lo + n, dtype=np.int64)
         zeros = np.zeros(n, dtype=np.int64)
-        period = NS_PER_S / spec.packets_per_second
+        # (at most MAX_NS: a rate of 1e-300 per second made it infinite, packet 0 of a periodic
+        # process at 0 * inf, not a number, and the engine read an instant below zero)
+        period = min(NS_PER_S / spec.packets_per_second, float(MAX_NS))
         if spec.arrivals == "poisson":
             gaps = np.floor(-_log(keyed_uniforms(self.gap_key, idx, zeros)) * period + 0.5)
             # a gap is at most 2^49 ns (6.5 days), so a block's sum cannot overflow
