@@ -118,6 +118,21 @@ def test_latency_per_metre_enters_the_delay_bound():
     assert plan.latency_bound == 3 and plan.buffer_length() == 4
 
 
+@pytest.mark.parametrize("d_t", [None, 2])
+def test_a_latency_per_metre_beyond_the_clock_is_refused_naming_it(d_t):
+    """1e9 s per metre at 150 m: beyond the int64 nanosecond clock.  With ``links.d_t`` given, the
+    bound was not worked out from it, and the run raised OverflowError or read outside an array."""
+    import dkfsim
+    sc = scenario(2, edges=[(0, 1)], protocol="flood", steps=10, latency=steps_latency(1))
+    if d_t is not None:
+        sc["links"]["d_t"] = d_t
+    sc["mobility"] = {"vehicles": {"default": {"kind": "constant_velocity"}},
+                      "range": {"model": "disk", "radius": 150.0}, "links": {"latency_per_m": 1e9}}
+    with pytest.raises(ScenarioError) as e:
+        dkfsim.load_scenario(sc)
+    assert "latency" in str(e.value) and e.value.path in ("mobility.links.latency_per_m", "links.d_t", "links")
+
+
 @pytest.mark.parametrize("links, what", [({"loss": [[5.0, 0.1], [5.0, 0.2]]}, "strictly increase"),
                                          ({"loss": [[5.0, 1.5]]}, "mobility.links.loss"),
                                          ({"rate": []}, "at least one"),

@@ -230,7 +230,7 @@ class RunPlan:
         sc = self.scenario
         T_ns = int(sc.T_ns)
         # a packet leaves only while its pair is in range: at most latency_per_m x radius more
-        extra = self._distance_latency_ns()
+        extra = self.distance_latency_ns()
         bound = -(-extra // T_ns)
         for u, v in (self.exchange_arcs if sc.links.overrides else [(-1, -1)]):
             spec = sc.link_spec(u, v)
@@ -244,7 +244,7 @@ class RunPlan:
             bound = max(bound, b)
         return bound
 
-    def _distance_latency_ns(self) -> int:
+    def distance_latency_ns(self) -> int:
         """The most ``mobility.links.latency_per_m`` adds to a packet (ns): at the range's radius."""
         mob = self.scenario.mobility
         if mob is None or mob.links is None or not mob.links.latency_per_m > 0:

@@ -536,11 +536,16 @@ class Scenario(StrictModel):
             raise custom_error(f"{self.steps} steps of T = {self.model.T:g} s reach "
                                f"{(self.steps + 1) * self.model.T:.4g} s of simulated time, beyond {limit}; "
                                f"{fix}", "steps")
+        extra = plan.distance_latency_ns()          # (mobility.links.latency_per_m at the range's radius)
         for key, spec in places:
             sup = spec.sup_ns(T_ns)
             if sup is not None and sup > MAX_NS:
                 raise custom_error(f"the largest latency it can produce, {sup / 1e9:.4g} s (after "
                                    f"schedule factors and jitter), is beyond {limit}", key)
+            if sup is not None and extra and sup + extra > MAX_NS:
+                raise custom_error(f"with {key}'s largest latency, {sup / 1e9:.4g} s, a pair at the range's "
+                                   f"radius waits {(sup + extra) / 1e9:.4g} s, beyond {limit}",
+                                   "mobility.links.latency_per_m")
         d_t = plan.d_t
         if d_t is not None and d_t * T_ns > MAX_NS:
             raise custom_error(f"a delay bound of {d_t} steps of {self.model.T:g} s is beyond {limit}",
