@@ -129,6 +129,8 @@ def test_a_tampered_radio_block_is_one_message_naming_the_key(run, tmp_path, whe
     ({"access": {"kind": "edca", "eifs": -1}}, "medium.access.eifs", "must be >= 0"),
     ({"bystanders": {"count": 3, "vehicles": {"5": {"kind": "road", "spacing": 10.0}}}},
      "medium.bystanders.vehicles.5", "out of range"),
+    ({"bystanders": {"sumo_fcd": {"file": "missing.fcd.xml"}}}, "medium.bystanders.sumo_fcd.file:",
+     "file not found"),
 ])
 def test_bad_radio_keys_are_one_message_naming_the_key(tmp_path, edit, key, words):
     path = radio_scenario(tmp_path, **edit)

@@ -22,6 +22,7 @@ from typing import TYPE_CHECKING, Annotated, Any, Literal
 
 import numpy as np
 from pydantic import Field, PrivateAttr, ValidationInfo, field_validator, model_validator
+from pydantic_core import PydanticCustomError
 
 from dkfsim.components.fcd import read_fcd
 from dkfsim.components.latency import located
@@ -251,7 +252,10 @@ class Bystanders(StrictModel):
             return self
         if self.count is not None or self.vehicles is not None:
             raise custom_error("give either sumo_fcd or count and vehicles, not both", "sumo_fcd")
-        path, _ = located(fcd.file, None, info)
+        try:
+            path, _ = located(fcd.file, None, info)
+        except PydanticCustomError as err:     # (located names the key "file": here it is sumo_fcd's)
+            raise custom_error(str((err.context or {}).get("reason", err)), "sumo_fcd.file") from None
         try:
             ids = fcd.kept(list(read_fcd(path).vehicles))
         except DkfsimError as err:
