@@ -275,6 +275,9 @@ HOSTILE_FCD = {
     "broken.xml": (_HEAD + '<fcd-export>\n' + _OK_STEP + '\n<timestep time="1">', "not well-formed XML"),
     "root.xml": (_HEAD + '<routes>' + _OK_STEP + '</routes>\n', "not <fcd-export>"),
     "empty.xml": (_HEAD + '<fcd-export/>\n', "has no <timestep>"),
+    "fast.xml": (_HEAD + '<fcd-export>\n' + _OK_STEP + '\n<timestep time="1e-300"><vehicle id="veh0" x="1e9" '
+                 'y="2"/></timestep></fcd-export>\n',
+                 "vehicle 'veh0' moves from time 0.0 to 1e-300 at a speed beyond any number"),
     "other.xml": (_HEAD + '<fcd-export>' + _OK_STEP.replace("veh0", "veh_0") + '</fcd-export>\n',
                   "no vehicle 'veh0' in other.xml (did you mean 'veh_0'?)"),
 }
