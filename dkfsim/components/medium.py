@@ -31,6 +31,7 @@ from dkfsim.components.radio import RadioParams
 from dkfsim.components.traffic import Background, Queue, Rate
 from dkfsim.components.trajectories import SumoFcd, Trajectory, TrajectoryParams
 from dkfsim.core.errors import DkfsimError
+from dkfsim.core.files import clip
 from dkfsim.core.params import (
     MAX_SECONDS,
     Name,
@@ -302,6 +303,11 @@ class Bystanders(StrictModel):
         return out, present
 
 
+def _plain(value: Any) -> Any:
+    """A numpy scalar as the Python number it holds (a message prints ``1``, not ``np.int64(1)``)."""
+    return value.item() if isinstance(value, np.generic) else value
+
+
 class Medium(StrictModel):
     """The scenario's shared channel: who is on it, its rate, its access rule, each radio's
     waiting room and each vehicle's background frames."""
@@ -326,12 +332,20 @@ class Medium(StrictModel):
     @classmethod
     def _nodes_shape(cls, value: Any) -> Any:
         """One plain message for a ``nodes`` that is neither ``all`` nor a list of two or more
-        nodes (the union type's own message lists both alternatives' internals)."""
-        if isinstance(value, str) and value != "all":
-            raise custom_error(f"give 'all' or a list of at least two node numbers, got {value!r}")
-        if isinstance(value, (list, tuple)) and len(value) < 2:
+        node numbers (the union type's own message lists both alternatives' internals, and says
+        "at least 2 items" of a list of two with a bad entry)."""
+        if isinstance(value, str) and value == "all":
+            return value
+        if not isinstance(value, (list, tuple)):
+            raise custom_error("give 'all' or a list of at least two distinct node numbers, got "
+                               f"{clip(_plain(value))}")
+        if len(value) < 2:
             raise custom_error("a channel needs at least two nodes: give 'all' or a list of two or "
-                               f"more node numbers, got {list(value)!r}")
+                               f"more node numbers, got {clip([_plain(v) for v in value])}")
+        for i, node in enumerate(value):
+            if isinstance(node, bool) or not isinstance(node, int) or node < 0:
+                raise custom_error(f"a node number is an integer >= 0, got {clip(_plain(node))} (nodes is "
+                                   "'all' or a list of at least two distinct node numbers)", str(i))
         return value
 
     @model_validator(mode="after")
