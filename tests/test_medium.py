@@ -378,6 +378,11 @@ def test_a_run_on_the_channel_counts_and_reports_it():
     ({"rate": 1e6, "queue": {"packets": 0}}, "medium.queue.packets", "at least one"),
     ({"rate": 1e6, "nodes": [0]}, "medium.nodes", "at least two nodes"),
     ({"rate": 1e6, "nodes": "some"}, "medium.nodes", "give 'all' or a list"),
+    ({"rate": 1e6, "nodes": [0, -1]}, "medium.nodes.1: ", "integer >= 0, got -1"),
+    ({"rate": 1e6, "nodes": [0, 1.0]}, "medium.nodes.1: ", "integer >= 0, got 1.0"),
+    ({"rate": 1e6, "nodes": [0, True]}, "medium.nodes.1: ", "integer >= 0, got True"),
+    ({"rate": 1e6, "nodes": None}, "medium.nodes: ", "give 'all' or a list of at least two distinct"),
+    ({"rate": 1e6, "nodes": {0: 1}}, "medium.nodes: ", "give 'all' or a list of at least two distinct"),
     ({"rate": 1e6, "preamble": 2.0}, "medium.preamble", "<= 1"),
 ])
 def test_bad_medium_keys_are_clear_errors(medium, key, words):
@@ -388,6 +393,7 @@ def test_bad_medium_keys_are_clear_errors(medium, key, words):
     text = str(err.value)
     assert key in text and words in text, text
     assert "literal[" not in text and "tuple[" not in text, text      # no validation internals
+    assert text.count(key) == 1 and "at least 2 items" not in text, text    # one problem, said once
 
 
 def test_a_link_rate_on_the_channel_is_refused_with_exit_2(tmp_path):

@@ -129,6 +129,8 @@ def test_a_tampered_radio_block_is_one_message_naming_the_key(run, tmp_path, whe
     ({"access": {"kind": "edca", "eifs": -1}}, "medium.access.eifs", "must be >= 0"),
     ({"bystanders": {"count": 3, "vehicles": {"5": {"kind": "road", "spacing": 10.0}}}},
      "medium.bystanders.vehicles.5", "out of range"),
+    ({"bystanders": {"sumo_fcd": {"file": "missing.fcd.xml"}}}, "medium.bystanders.sumo_fcd.file:",
+     "file not found"),
 ])
 def test_bad_radio_keys_are_one_message_naming_the_key(tmp_path, edit, key, words):
     path = radio_scenario(tmp_path, **edit)
@@ -158,3 +160,24 @@ def test_edca_switches_a_shipped_scenario_from_the_command_line(tmp_path):
         res[kind] = json.loads((tmp_path / kind / "summary.json").read_text())["packets"]["channel"]
     share = {k: c["frames_collided"] / c["frames"] for k, c in res.items()}
     assert share["edca"] > share["csma"] + 0.2
+
+
+def test_an_override_by_number_changes_the_vehicle_the_file_writes_as_an_integer_key(tmp_path):
+    """YAML reads ``0:`` as the integer 0: ``--set mobility.vehicles.0.speed=...`` changes that
+    vehicle (it added a key '0' beside it, refused as vehicle 0 given twice), and so for a
+    bystander."""
+    from dkfsim.config.load import load_scenario
+    path = radio_scenario(tmp_path)
+    s = yaml.safe_load(path.read_text())
+    road = {"kind": "road", "spacing": 40.0, "lanes": 2, "speed": 25.0}
+    s["mobility"]["vehicles"][0] = dict(road)
+    s["medium"]["bystanders"]["vehicles"][1] = dict(road, speed=-25.0)
+    path.write_text(yaml.safe_dump(s))
+    assert "\n    0:" in path.read_text()          # (an integer key in the file)
+    sc = load_scenario(str(path), ["mobility.vehicles.0.speed=30", "medium.bystanders.vehicles.1.speed=-31"])
+    def vx(traj):
+        return traj.velocity[0]
+    assert vx(sc.mobility.trajectory(0)) == 30.0 and vx(sc.mobility.trajectory(1)) == 25.0
+    assert vx(sc.medium.bystanders.trajectory(1)) == -31.0 and vx(sc.medium.bystanders.trajectory(0)) == -25.0
+    code, out, err = cli("validate", str(path), "--set", "mobility.vehicles.0.speed=30")
+    assert code == 0, err

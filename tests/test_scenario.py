@@ -537,6 +537,19 @@ def test_invalid_override_value_names_override(tmp_path):
     assert msg.startswith(f"{path}: links.default.loss: ") and "override" in msg
 
 
+@pytest.mark.parametrize("overrides, cited", [
+    (["links.default={loss: 0.5}", "links.default.loss=2"], "links.default.loss=2"),
+    (["links.default.loss=0.5", "links.default={loss: 2}"], "links.default={loss: 2}"),
+    (["links.default.loss=3", "links.default={loss: 0.5}", "links.default.loss=2"], "links.default.loss=2"),
+    (["links.default={loss: 3}", "links.default.loss=0.5", "links.default={loss: 2}"], "links.default={loss: 2}"),
+])
+def test_the_note_cites_the_override_that_set_the_value(overrides, cited):
+    """The last override applied at the key or above it set it: not the first that touched
+    a mapping above it (medium.access={kind: sps} was cited for medium.access.subchannels=101)."""
+    msg = load_error(base(), overrides)
+    assert "links.default.loss: " in msg and msg.count("override") == 1 and f"(set by override '{cited}')" in msg, msg
+
+
 # =========================================================================== link specs
 def test_link_spec_takes_the_links_one_override():
     """A link has one override (issue 30 §7: a second one of the same link, or of its reverse on

@@ -54,6 +54,8 @@ def test_single_waypoint_stands_still():
     ({"kind": "waypoints", "points": [[0, 0, 0], [0, 1, 1]]}, "strictly increasing: point 2"),
     ({"kind": "waypoints", "points": [[0, 0, 0], [5, 1, 1], [4, 2, 2]]}, "point 3 (t = 4.0)"),
     ({"kind": "waypoints", "points": [[0, 0], [1, 1]]}, "[t, x, y]"),
+    ({"kind": "waypoints", "points": [[0, 0, 0], [1e-300, 1e9, 1e9]]},
+     "the vehicle moves from point 1 (t = 0.0) to point 2 (t = 1e-300) at a speed beyond any number"),
     ({"kind": "waypoints", "points": [[0, 0, "a"]]}, "numbers"),
     ({"kind": "waypoints", "points": [[0, 0, float("nan")]]}, "finite"),
     ({"kind": "waypoints"}, "points"),
@@ -211,6 +213,27 @@ def test_track_bad_file(tmp_path):
     assert "bad.txt line 3: column 1 is not a number" in str(err.value) and "oops" not in str(err.value)
 
 
+@pytest.mark.parametrize("rows, words", [
+    ("0 0 0\n1e-300 1e9 1e9\n2 0 0\n", "moves from time 0.0 s to 1e-300 s (from its first row) at a speed beyond"),
+    ("0 -1e308 0\n1 1e308 0\n", "moves from time 0.0 s to 1.0 s (from its first row) at a speed beyond"),
+    ("0 -0.7e308 -0.7e308\n1 0.7e308 0.7e308\n", "at a speed beyond any number"),
+    ("0 0 0\n1 1e308 0\n2 0 0\n3 1e308 0\n", "path is longer than any number of metres"),
+    ("-1e308 0 0\n1e308 1 0\n", "times span more seconds than any number"),
+])
+def test_track_too_fast_or_too_long_for_a_float_is_refused_without_a_warning(tmp_path, rows, words):
+    """A step whose speed, path or time span overflows a float is refused naming the file, as a
+    SUMO FCD file is (it warned 'overflow encountered in divide' and ran; positions could be nan)."""
+    import warnings
+    path = _write(tmp_path, "fast.txt", "t x y\n" + rows)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        with pytest.raises(ValidationError) as err:
+            parse_trajectory({"kind": "track", "file": str(path), "time_column": "t", "time_unit": "s",
+                              "x_column": "x", "y_column": "y"})
+    (problem,) = err.value.errors()
+    assert problem["ctx"]["key"] == "file" and problem["msg"].startswith("fast.txt: ") and words in problem["msg"]
+
+
 def test_track_without_the_sinr_column_says_so(tmp_path):
     from dkfsim.core.errors import DkfsimError
     path = _write(tmp_path, "nosinr.txt", "t x y\n0 0 0\n1 1 0\n")
@@ -275,6 +298,9 @@ HOSTILE_FCD = {
     "broken.xml": (_HEAD + '<fcd-export>\n' + _OK_STEP + '\n<timestep time="1">', "not well-formed XML"),
     "root.xml": (_HEAD + '<routes>' + _OK_STEP + '</routes>\n', "not <fcd-export>"),
     "empty.xml": (_HEAD + '<fcd-export/>\n', "has no <timestep>"),
+    "fast.xml": (_HEAD + '<fcd-export>\n' + _OK_STEP + '\n<timestep time="1e-300"><vehicle id="veh0" x="1e9" '
+                 'y="2"/></timestep></fcd-export>\n',
+                 "vehicle 'veh0' moves from time 0.0 to 1e-300 at a speed beyond any number"),
     "other.xml": (_HEAD + '<fcd-export>' + _OK_STEP.replace("veh0", "veh_0") + '</fcd-export>\n',
                   "no vehicle 'veh0' in other.xml (did you mean 'veh_0'?)"),
 }

@@ -171,7 +171,7 @@ def _parse(path: Path) -> FcdData:
         if not np.isfinite(speed).all():
             k = int(np.nonzero(~np.isfinite(speed).all(axis=1))[0][0])
             raise DkfsimError(f"SUMO FCD file {path.name}: vehicle {_quoted(vid)} moves from time "
-                              f"{t[k]!r} to {t[k + 1]!r} at a speed beyond any number (the times are "
+                              f"{float(t[k])!r} to {float(t[k + 1])!r} at a speed beyond any number (the times are "
                               "too close for the distance)")
         vehicles[vid] = (t, xy)
     return FcdData(str(path), vehicles)

@@ -22,6 +22,7 @@ from typing import TYPE_CHECKING, Annotated, Any, Literal
 
 import numpy as np
 from pydantic import Field, PrivateAttr, ValidationInfo, field_validator, model_validator
+from pydantic_core import PydanticCustomError
 
 from dkfsim.components.fcd import read_fcd
 from dkfsim.components.latency import located
@@ -30,6 +31,7 @@ from dkfsim.components.radio import RadioParams
 from dkfsim.components.traffic import Background, Queue, Rate
 from dkfsim.components.trajectories import SumoFcd, Trajectory, TrajectoryParams
 from dkfsim.core.errors import DkfsimError
+from dkfsim.core.files import clip
 from dkfsim.core.params import (
     MAX_SECONDS,
     Name,
@@ -253,7 +255,10 @@ class Bystanders(StrictModel):
             return self
         if self.count is not None or self.vehicles is not None:
             raise custom_error("give either sumo_fcd or count and vehicles, not both", "sumo_fcd")
-        path, _ = located(fcd.file, None, info)
+        try:
+            path, _ = located(fcd.file, None, info)
+        except PydanticCustomError as err:     # (located names the key "file": here it is sumo_fcd's)
+            raise custom_error(str((err.context or {}).get("reason", err)), "sumo_fcd.file") from None
         try:
             ids = fcd.kept(list(read_fcd(path).vehicles))
         except DkfsimError as err:
@@ -300,6 +305,11 @@ class Bystanders(StrictModel):
         return out, present
 
 
+def _plain(value: Any) -> Any:
+    """A numpy scalar as the Python number it holds (a message prints ``1``, not ``np.int64(1)``)."""
+    return value.item() if isinstance(value, np.generic) else value
+
+
 class Medium(StrictModel):
     """The scenario's shared channel: who is on it, its rate, its access rule, each radio's
     waiting room and each vehicle's background frames."""
@@ -324,12 +334,20 @@ class Medium(StrictModel):
     @classmethod
     def _nodes_shape(cls, value: Any) -> Any:
         """One plain message for a ``nodes`` that is neither ``all`` nor a list of two or more
-        nodes (the union type's own message lists both alternatives' internals)."""
-        if isinstance(value, str) and value != "all":
-            raise custom_error(f"give 'all' or a list of at least two node numbers, got {value!r}")
-        if isinstance(value, (list, tuple)) and len(value) < 2:
+        node numbers (the union type's own message lists both alternatives' internals, and says
+        "at least 2 items" of a list of two with a bad entry)."""
+        if isinstance(value, str) and value == "all":
+            return value
+        if not isinstance(value, (list, tuple)):
+            raise custom_error("give 'all' or a list of at least two distinct node numbers, got "
+                               f"{clip(_plain(value))}")
+        if len(value) < 2:
             raise custom_error("a channel needs at least two nodes: give 'all' or a list of two or "
-                               f"more node numbers, got {list(value)!r}")
+                               f"more node numbers, got {clip([_plain(v) for v in value])}")
+        for i, node in enumerate(value):
+            if isinstance(node, bool) or not isinstance(node, int) or node < 0:
+                raise custom_error(f"a node number is an integer >= 0, got {clip(_plain(node))} (nodes is "
+                                   "'all' or a list of at least two distinct node numbers)", str(i))
         return value
 
     @model_validator(mode="after")

@@ -130,9 +130,18 @@ class Polyline:
         self.t = np.asarray(t, dtype=float)
         self.xy = np.asarray(xy, dtype=float).reshape(len(self.t), 2)
         if len(self.t) > 1:
-            self.slopes = np.diff(self.xy, axis=0) / np.diff(self.t)[:, None]
+            with np.errstate(all="ignore"):     # (a step too fast for a float: unbounded(), refused by the kinds)
+                self.slopes = np.diff(self.xy, axis=0) / np.diff(self.t)[:, None]
         else:
             self.slopes = np.zeros((0, 2))
+
+    def unbounded(self) -> int | None:
+        """The first segment ``k`` (sample ``k`` to ``k + 1``) whose speed is beyond any float (its
+        times too close for its distance), or whose times are not finite; None when there is none."""
+        with np.errstate(all="ignore"):
+            speed = np.hypot(self.slopes[:, 0], self.slopes[:, 1])
+            bad = ~np.isfinite(speed) | ~np.isfinite(self.t[1:]) | ~np.isfinite(self.t[:-1])
+        return int(np.nonzero(bad)[0][0]) if bad.any() else None
 
     def __eq__(self, other: object) -> bool:
         # Models holding a polyline compare equal when their samples are (pydantic compares
@@ -228,7 +237,13 @@ class Waypoints(SampledTrajectory):
             raise custom_error(f"times must be strictly increasing: point {k + 2} (t = "
                                f"{float(pts[k + 1, 0])!r}) follows point {k + 1} (t = "
                                f"{float(pts[k, 0])!r})", "points")
-        self._line = Polyline(pts[:, 0], pts[:, 1:])
+        line = Polyline(pts[:, 0], pts[:, 1:])
+        k = line.unbounded()
+        if k is not None:
+            raise custom_error(f"the vehicle moves from point {k + 1} (t = {float(pts[k, 0])!r}) to point "
+                               f"{k + 2} (t = {float(pts[k + 1, 0])!r}) at a speed beyond any number (the "
+                               "times are too close for the distance)", "points")
+        self._line = line
         return self
 
 
@@ -248,12 +263,17 @@ class ArcPath:
 
     def __init__(self, line: Polyline):
         self.line = line
-        step = np.hypot(*np.diff(line.xy, axis=0).T)
-        self.s_t = np.concatenate([[0.0], np.cumsum(step)])     # distance travelled at each sample
+        with np.errstate(all="ignore"):      # (a path beyond any float: not finite(), refused by the track)
+            step = np.hypot(*np.diff(line.xy, axis=0).T)
+            self.s_t = np.concatenate([[0.0], np.cumsum(step)])     # distance travelled at each sample
         keep = np.concatenate([[True], step > 0])
         self.s, self.xy = self.s_t[keep], line.xy[keep]
         seg = np.diff(self.xy, axis=0)
         self.tangents = seg / np.hypot(*seg.T)[:, None] if len(seg) else np.zeros((0, 2))
+
+    def finite(self) -> bool:
+        """Whether the distance travelled along the whole path is a finite number."""
+        return bool(np.isfinite(self.s_t[-1]))
 
     def __eq__(self, other: object) -> bool:
         return isinstance(other, ArcPath) and self.line == other.line
@@ -305,8 +325,18 @@ class RecordedTrack(TrajectoryParams):
             track = read_track(path, self.time_column, self.x_column, self.y_column, self.time_unit)
         except TrackError as err:
             raise custom_error(str(err), key if err.key == "file" else err.key) from None
+        line = Polyline(track.t, np.column_stack([track.x, track.y]))
+        k = line.unbounded()
+        if k is not None:
+            raise custom_error(f"{path.name}: the track moves from time {float(line.t[k])!r} s to "
+                               f"{float(line.t[k + 1])!r} s (from its first row) at a speed beyond any "
+                               "number (the times are too close for the distance)", key)
+        arc = ArcPath(line)
+        if not arc.finite():
+            raise custom_error(f"{path.name}: the track's path is longer than any number of metres "
+                               "(its coordinates are too far apart)", key)
         self._path = str(path)
-        self._arc = ArcPath(Polyline(track.t, np.column_stack([track.x, track.y])))
+        self._arc = arc
         return self
 
     def arc(self) -> ArcPath:

@@ -78,7 +78,11 @@ def read_track(path: str | os.PathLike, time_column: str, x_column: str, y_colum
     order = np.argsort(rows[:, 0], kind="stable")
     rows = rows[order]
     # Subtract the first stamp before scaling: epoch milliseconds stay exact.
-    t = (rows[:, 0] - rows[0, 0]) * TIME_UNITS[time_unit]
+    with np.errstate(all="ignore"):
+        t = (rows[:, 0] - rows[0, 0]) * TIME_UNITS[time_unit]
+    if not np.isfinite(t).all():
+        raise TrackError(f"{path.name}: its times span more seconds than any number (from "
+                         f"{rows[0, 0]:.15g} to {rows[-1, 0]:.15g} {time_unit})")
     same = np.nonzero(np.diff(t) == 0)[0]
     if len(same):
         bad = same[np.any(rows[same + 1, 1:] != rows[same, 1:], axis=1)]

@@ -110,6 +110,7 @@ def load_scenario(source: str | os.PathLike | Mapping | Scenario,
     override_keys: dict[str, str] = {}
     for text in overrides:
         key = apply_override(data, text, label)
+        override_keys.pop(key, None)    # (kept in the order applied: the last to cover a key set it)
         override_keys[key] = text
     if "name" not in data and path is not None:
         data["name"] = Path(path).stem[:NAME_LIMIT]

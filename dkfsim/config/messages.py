@@ -105,7 +105,9 @@ def _reason(err: Mapping[str, Any], path: list[str]) -> tuple[str, list[str]]:
 def convert(exc: ValidationError, data: Any, source: str,
              override_keys: Mapping[str, str], max_items: int | None = None) -> ScenarioError:
     """One message for every problem ``exc`` lists (the first ``max_items`` of them, and how
-    many more, when given: a tampered table can have a problem per row)."""
+    many more, when given: a tampered table can have a problem per row).  ``override_keys`` maps
+    each ``--set`` key to its text, in the order they were applied (a key set twice where it was
+    set last)."""
     items = []
     errors = exc.errors()
     more = len(errors) - max_items if max_items is not None and len(errors) > max_items else 0
@@ -118,10 +120,12 @@ def convert(exc: ValidationError, data: Any, source: str,
         path = _loc_to_path(loc, data)
         reason, path = _reason(err, path)
         dotted = ".".join(path)
-        for key, text in override_keys.items():
-            if dotted == key or dotted.startswith(key + "."):
-                reason += f" (set by override {clip(text)})"
-                break
+        # The value was set by the last override applied at the key or above it (a later
+        # 'medium.access={...}' replaces an earlier 'medium.access.cw=...'; a later
+        # 'medium.access.cw=...' changes only cw of an earlier 'medium.access={...}').
+        setters = [text for key, text in override_keys.items() if dotted == key or dotted.startswith(key + ".")]
+        if setters:
+            reason += f" (set by override {clip(setters[-1])})"
         else:
             for key, text in override_keys.items():
                 if dotted and key.startswith(dotted + "."):

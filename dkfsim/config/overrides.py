@@ -1,7 +1,8 @@
 """``--set dotted.key=value``: overrides applied to a scenario's raw mapping.
 
 The value is parsed as YAML (``--set sensors.0.R=[[2.0]]``); list indices
-work; a missing mapping on the way is created.  Every problem is a
+work; a missing mapping on the way is created.  A number names a mapping's integer key
+(YAML reads ``0:`` as one) as well as its string key ``'0'``.  Every problem is a
 :class:`~dkfsim.core.errors.ScenarioError` naming the override.
 """
 
@@ -17,6 +18,18 @@ from dkfsim.core.errors import ScenarioError
 from dkfsim.core.files import clip
 
 _INDEX = re.compile(r"^-?\d+$")
+
+
+def _key_of(node: dict, part: str) -> Any:
+    """The key of ``node`` that the override's ``part`` names: ``part`` itself, or the integer
+    key a YAML ``0:`` reads as (``mobility.vehicles.0.vehicle`` changes the vehicle the file
+    writes as ``0:``, rather than adding a key ``'0'`` beside it)."""
+    if part not in node and _INDEX.match(part):
+        number = int(part)
+        for k in node:
+            if isinstance(k, int) and not isinstance(k, bool) and k == number:
+                return k
+    return part
 
 
 def apply_override(data: dict, text: str, source: str) -> str:
@@ -55,6 +68,7 @@ def apply_override(data: dict, text: str, source: str) -> str:
                     node[idx] = {}
                 node = node[idx]
         elif isinstance(node, dict):
+            part = _key_of(node, part)
             if last:
                 node[part] = value
             else:
