@@ -216,6 +216,45 @@ def test_background_is_the_same_for_every_transmitter_and_blocks_join():
     assert len(a.log()) > 3 * 4096 and np.array_equal(a.log(), b.log())
 
 
+def test_a_huge_waiting_room_holds_only_the_packets_that_wait():
+    """queue {packets: 2**40} (the largest the schema takes): the ring of waiting packets starts
+    short and doubles as packets wait, and the transmitter takes what one with no bound takes.
+    (The ring used to be allocated at the room's size when the link was added: 32 TiB.)"""
+    bg = Background(packets_per_second=2000.0, size=1000)        # 2 Mbit/s offered on 1 Mbit/s
+    huge, free = _transmitter(1e6, bg, queue=Queue(packets=2**40)), _transmitter(1e6, bg)
+    assert huge.table.F.ring.nbytes <= 4096
+    huge.advance(10**9)
+    free.advance(10**9)
+    assert np.array_equal(huge.log(), free.log()) and huge.free_at == free.free_at
+    waiting = huge.waiting(10**9)
+    assert waiting > 100 and huge.background_dropped == 0
+    assert huge.table.F.ring.shape[1] < 4 * waiting             # doubled as needed, no more
+
+
+def test_a_huge_queue_on_every_link_runs_in_little_memory():
+    """A whole run with links.default.queue {packets: 2**40} on links loaded beyond their rate
+    (dozens of packets waiting): the same as without a bound (no packet is dropped either
+    way), its rings allocated as packets wait."""
+    import tracemalloc
+
+    base = _rated(1e5, steps=60, seed=4, latency={"model": "constant", "value": 0.001})
+    base["links"]["default"]["background"] = {"packets_per_second": 45.0, "size": 250}
+    huge = {**base, "links": {**base["links"], "default": {**base["links"]["default"],
+                                                            "queue": {"packets": 2**40}}}}
+    a = run_scenario(base)
+    tracemalloc.start()
+    try:
+        b = run_scenario(huge)
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    assert peak < 200 * 2**20, peak
+    assert a.counts == b.counts and a.counts["sent"] > 0
+    assert max(row["queue_length_mean"] for row in a.counts["per_link"]) > 16      # rings did grow
+    for key in a.arrays:
+        assert np.array_equal(a.arrays[key], b.arrays[key], equal_nan=True), key
+
+
 # ------------------------------------------------------------------ runs
 def _rated(rate, **kw):
     sc = scenario(6, edges=tree_edges(6, 51), **kw)

@@ -7,8 +7,8 @@ import sys
 from dkfsim.cli.common import add_scenario_args, say
 from dkfsim.config.load import load_scenario
 from dkfsim.config.plan import RunPlan
-from dkfsim.core.resources import human_bytes, human_seconds
-from dkfsim.engine.estimate import buffer_warning, estimate_run
+from dkfsim.core.resources import check_memory, human_bytes, human_seconds
+from dkfsim.engine.estimate import VALIDATE_HINT, buffer_warning, estimate_run
 
 
 def configure(p) -> None:
@@ -23,6 +23,7 @@ def cmd_validate(args) -> int:
     sc = load_scenario(args.scenario, overrides=list(args.overrides))
     plan = RunPlan.of(sc)
     est = estimate_run(plan)
+    check_memory(est, hint=VALIDATE_HINT)   # (what dkfsim run refuses before it starts; a long run is only said)
     if est.seconds > 60:               # a large graph: do not spend minutes on its exact diameter
         shape = f"{plan.n_exchange_links} directed links, buffer length L ~ {plan.L_estimate}"
     elif plan.graph_changes:          # mobility: links come and go (docs/mobility.md)

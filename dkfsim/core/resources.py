@@ -209,13 +209,18 @@ class Cost:
         return ", ".join(f"{name} {human_bytes(size)}" for name, size in items if size > 0)
 
 
-def check(est: Cost, *, yes: bool = False, hint: str = "", yes_flag: str = "--yes") -> None:
-    """Refuse ``est`` if it cannot fit; ask for ``yes`` if it takes long (see the module docstring)."""
+def check_memory(est: Cost, *, hint: str = "") -> None:
+    """Refuse ``est`` if it cannot fit in memory (what :func:`check` refuses first)."""
     room = available_memory() * MEMORY_FRACTION
     if est.bytes > room:
         raise ResourceError(
             f"{est.what} needs about {human_bytes(est.bytes)} of memory ({est.biggest()}), more than "
             f"the {human_bytes(room)} this machine can give it" + (f"; {hint}" if hint else ""))
+
+
+def check(est: Cost, *, yes: bool = False, hint: str = "", yes_flag: str = "--yes") -> None:
+    """Refuse ``est`` if it cannot fit; ask for ``yes`` if it takes long (see the module docstring)."""
+    check_memory(est, hint=hint)
     if est.wall_seconds > TIME_LIMIT_S and not yes:
         par = f" on {est.workers} workers" if est.workers > 1 else ""
         basis = f"{est.events_text()}; " if est.events else "a rough estimate, within a factor of a few; "

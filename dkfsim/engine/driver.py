@@ -34,7 +34,7 @@ from dkfsim.core.backend import Backend
 from dkfsim.core.jit import kernels_cached
 from dkfsim.core.progress import progress_callback
 from dkfsim.core.registry import ESTIMATORS
-from dkfsim.core.resources import Cost, check
+from dkfsim.core.resources import Cost, check, check_memory
 from dkfsim.core.threads import single_thread
 from dkfsim.engine.estimate import RUN_HINT, TRIAL_ABOVE_S, estimate_run, scaled_events, trial_is_short, trial_ticks
 from dkfsim.engine.results import RunResult
@@ -255,7 +255,11 @@ def measured_estimate(plan: RunPlan, runs: float = 1, workers: int = 1, force: b
 
 
 def check_run_measured(plan: RunPlan, *, yes: bool = False) -> Cost:
-    """:func:`~dkfsim.core.resources.check` one run on :func:`measured_estimate`; the estimate."""
+    """:func:`~dkfsim.core.resources.check` one run on :func:`measured_estimate`; the estimate.
+    Memory is refused on the analytic guess, before any trial: it is exact, a trial measures
+    time only, and a run that cannot fit may not fit its trial either (a sidelink's state per
+    pair of vehicles does not shrink with the ticks)."""
+    check_memory(estimate_run(plan), hint=RUN_HINT)
     est = measured_estimate(plan)
     check(est, yes=yes, hint=RUN_HINT)
     return est

@@ -18,18 +18,74 @@ those into seconds (:func:`~dkfsim.core.resources.event_seconds`).
 from __future__ import annotations
 
 from dkfsim.components.estimators import AntiDelayParams
+from dkfsim.components.medium import Sps
 from dkfsim.components.traffic import background_packets
 from dkfsim.config.plan import RunPlan
 from dkfsim.config.schema import named
 from dkfsim.core.registry import ESTIMATORS
 from dkfsim.core.resources import B_FLOAT, C_PACKET, EVENT_KINDS, Cost, check, event_seconds
 from dkfsim.estimators.anti_delay import AntiDelayDKF
+from dkfsim.network.radio_kernels import WINDOW_SF
 
 #: Above this many seconds of the analytic guess, a command measures its events on a trial.
 TRIAL_ABOVE_S = 30.0
 #: The refusal's hint of ``dkfsim run`` (every option it names applies to the command).
-RUN_HINT = ("fewer steps (--steps) or nodes, a shorter buffer_length, fusion: none, less background "
-            "load, or --save estimates (no n x n x K arrival log)")
+RUN_HINT = ("fewer steps (--steps), nodes or medium.bystanders, a shorter buffer_length, fusion: none, less "
+            "background load, or --save estimates (no n x n x K arrival log)")
+#: The refusal's hint of ``dkfsim validate`` (which takes only the scenario's keys).
+VALIDATE_HINT = ("fewer steps, nodes or medium.bystanders, a shorter buffer_length, fusion: none, or less "
+                 "background load (dkfsim run --save estimates keeps no n x n x K arrival log)")
+
+
+#: Bytes a spatial radio (``medium.radio``) keeps per tick and vehicle on it: the plan's places of
+#: every vehicle, nodes and bystanders (:attr:`RunPlan.radio_places <dkfsim.config.plan.RunPlan.radio_places>`:
+#: x and y, float64, and whether it is on the road);
+RADIO_PLACES_BYTES = 2 * B_FLOAT + 1
+#: each copy of the channel (:class:`~dkfsim.network.media.radio.SpatialChannel`): its own positions
+#: of its members, their x and y apart, whether each is off the road and its busy ns;
+RADIO_COPY_BYTES = 2 * B_FLOAT + 2 * B_FLOAT + 1 + 8
+#: and the channel busy ratio per tick and member of ``run.npz`` (``cbr``) with the busy rows it
+#: is computed from.
+RADIO_SERIES_BYTES = 2 * B_FLOAT
+
+
+def channel_copies(scenario) -> int:
+    """How many copies of the shared channel (``medium:``) a run makes: the DKF's and one per listed
+    estimator that has a network (:attr:`~dkfsim.estimators.base.Estimator.network_model`), as
+    :func:`~dkfsim.components.traffic.background_packets` counts them; one with
+    ``links.shared_queues``."""
+    if scenario.links.shared_queues:
+        return 1
+    return 1 + sum(bool(getattr(ESTIMATORS.get(p.kind).implementation, "network_model", True))
+                   for p in scenario.estimators)
+
+
+def radio_memory(plan: RunPlan) -> dict[str, float]:
+    """The memory of a spatial radio, by item: every vehicle's position at every tick
+    (:data:`RADIO_PLACES_BYTES`, :data:`RADIO_COPY_BYTES` in each copy of the channel,
+    :data:`RADIO_SERIES_BYTES`) -- ``medium.bystanders`` of 10 000 over 100 000 ticks are tens of
+    GiB -- and the sidelink's (``access: sps``) state per pair of vehicles and its sensing window
+    per vehicle (:mod:`~dkfsim.network.media.sidelink`).  Empty without ``medium.radio``."""
+    sc = plan.scenario
+    medium = sc.medium
+    if medium is None or medium.radio is None or sc.mobility is None:
+        return {}
+    ticks = int(sc.steps) + 1
+    members = len(medium.members(sc.n))
+    bystanders = medium.bystanders.n if medium.bystanders is not None else 0
+    copies = channel_copies(sc)
+    what = f"positions of {members} vehicles on the radio" + (f" ({bystanders} medium.bystanders)" if bystanders else "")
+    times = f" in {copies} copies of the channel" if copies > 1 else ""
+    out: dict[str, float] = {
+        f"{what} at {ticks} ticks{times}":
+            float(ticks) * ((sc.n + bystanders) * RADIO_PLACES_BYTES
+                            + members * (copies * RADIO_COPY_BYTES + RADIO_SERIES_BYTES))}
+    if isinstance(medium.access, Sps):
+        pairs = float(members) * members * (4 * 8 + B_FLOAT)        # what each heard of each, its power
+        window = float(members) * WINDOW_SF * (medium.access.subchannels * B_FLOAT + 1)
+        out[f"the sidelink's state per pair of its {members} vehicles{times}"] = \
+            copies * (pairs + window)
+    return out
 
 
 def trial_ticks(plan: RunPlan) -> int:
@@ -67,6 +123,7 @@ def estimate_run(run, save: str = "auto", events: dict | None = None, how: str =
     total.memory["truth and measurements"] = K * (nx + m_total) * B_FLOAT
     total.memory["information contributions"] = K * n * nx * B_FLOAT * (1 + (nx if varying else 0))
     total.memory["graph and bookkeeping"] = (n + arcs) * 200 + min(L, K) * (n + 3 * arcs) * 40
+    total.memory.update(radio_memory(plan))
     total.seconds = plan.search_seconds + background_packets(scenario, plan.arcs) * C_PACKET
     parts = [AntiDelayDKF.cost(AntiDelayParams(), plan)]
     for p in scenario.estimators:

@@ -71,25 +71,24 @@ class FifoTable:
     def add(self, rates: list[float], T_ns: int, queue: Queue | None, background: BackgroundArrivals | None) -> int:
         """A new transmitter, its column: ``rates`` (bit/s) at ticks ``0, 1, ...`` of ``T_ns``
         ns (the last for every later tick; one rate: throughout).  The table's arrays hold
-        twice the columns they need when they grow, so adding many links costs linear time."""
+        twice the columns they need when they grow, so adding many links costs linear time.
+        The rings of waiting packets start short whatever the waiting room (``queue.packets``
+        may be 2**40): a full ring asks for a longer one (:data:`~dkfsim.network.port_kernels.NEED_RING`,
+        doubled by :meth:`provide`), so their memory follows the packets that do wait."""
         m = len(self._backgrounds)
         maxp = queue.packets if queue is not None and queue.packets is not None else -1
         F = self.F
-        C = max(F.ring.shape[1], maxp if maxp > 0 else 0)
+        C = F.ring.shape[1]
         R = max(F.rate.shape[1], len(rates))
         cap = F.st.shape[1]
-        if m == cap or C > F.ring.shape[1] or R > F.rate.shape[1]:
+        if m == cap or R > F.rate.shape[1]:
             new = max(cap, 2 * (m + 1)) if m == cap else cap
             st = np.zeros((pk.NST, new), np.int64)
             st[:, :cap] = F.st
             rate = np.zeros((new, R), np.float64)
             rate[:cap, :F.rate.shape[1]] = F.rate
             ring = np.zeros((new, C, 2), np.int64)
-            if C == F.ring.shape[1]:            # the rings keep their places (and heads)
-                ring[:cap] = F.ring
-            else:                                # longer rings: each from its head at position 0
-                ring[:cap] = self._unrolled(F.ring, F.st, C)
-                st[pk.HEAD, :cap] = 0
+            ring[:cap] = F.ring                  # the rings keep their places (and heads)
             bg = np.zeros((new, 2, BLOCK), np.int64)
             bg[:cap] = F.bg
             F = self.F = pk.Fifos(st, rate, ring, bg, F.log, F.top)
