@@ -144,11 +144,7 @@ def say_compiling(numba) -> None:
     _Compiling.said = True
     seconds = 0
     for lazy in _Compiling.lazy:
-        mod = sys.modules.get(lazy.module)
-        funcs = [getattr(mod, name, None) for name in lazy.names if name not in lazy.inline] \
-            if mod is not None else []
-        probes = [f if hasattr(f, "py_func") else numba.njit(cache=True)(f) for f in funcs if callable(f)]
-        if cache_is_cold(probes):
+        if lazy.cold(numba):
             seconds += COMPILE_SECONDS.get(lazy.module, 5)
     try:
         print(f"dkfsim: compiling dkfsim's kernels once (about {max(seconds, 1)} s of CPU; later runs "
@@ -192,6 +188,14 @@ class LazyKernels:
                     self._done = True
         return sys.modules[self.module]
 
+    def cold(self, numba) -> bool:
+        """Whether numba's disk cache holds none of this module's kernels (:func:`cache_is_cold`;
+        False when the module is not imported): probes of them, made without compiling."""
+        mod = sys.modules.get(self.module)
+        funcs = [getattr(mod, name, None) for name in self.names if name not in self.inline] \
+            if mod is not None else []
+        return cache_is_cold([f if hasattr(f, "py_func") else numba.njit(cache=True)(f) for f in funcs if callable(f)])
+
 
 def kernels_cached(modules: tuple[str, ...]) -> bool:
     """Whether numba's disk cache holds the kernels of every kernel module of ``modules``
@@ -201,9 +205,7 @@ def kernels_cached(modules: tuple[str, ...]) -> bool:
     for name in modules:
         importlib.import_module(name)
         lazy = next((k for k in _Compiling.lazy if k.module == name), None)
-        mod = sys.modules[name]
-        funcs = [getattr(mod, f) for f in lazy.names if f not in lazy.inline] if lazy is not None else []
-        if not funcs or cache_is_cold([f if hasattr(f, "py_func") else numba.njit(cache=True)(f) for f in funcs]):
+        if lazy is None or lazy.cold(numba):
             return False
     return True
 
