@@ -24,12 +24,12 @@ import numpy as np
 from dkfsim.core.jit import LazyKernels
 
 _KERNELS = ("keyed_uniform", "polevl", "p1evl", "ndtri", "fill", "error_rate", "busy_ticks", "close", "start",
-            "count_pair", "end", "path_loss", "distances", "first_on_air", "draw", "on_head", "busy", "clear",
+            "count_pair", "log_ended", "end", "path_loss", "distances", "first_on_air", "draw", "on_head", "busy", "clear",
             "take_due", "first_air", "soonest_end", "head", "push", "due_background", "background", "transmit",
             "finish", "next_arrival", "run", "sps_draw", "sps_select", "sps_assign", "sps_push", "sps_transmit",
             "sps_finish", "run_sps")
 _lazy = LazyKernels(__name__, _KERNELS, inline=("keyed_uniform", "polevl", "p1evl", "error_rate", "busy_ticks",
-                                                "path_loss", "due_background", "count_pair", "distances",
+                                                "path_loss", "due_background", "count_pair", "log_ended", "distances",
                                                 "first_on_air"))
 
 #: Rows of ``ri``: the slot each member is locked on (-1: none), the start of its current SINR
@@ -432,6 +432,20 @@ def count_pair(pairs: np.ndarray, fates: np.ndarray, f: int, dist: float, width:
     x = dist / width + 1e-9
     if x < pairs.shape[0]:                  # (beyond the bins, or not a number: not binned; a
         pairs[int(math.floor(x)), f] += 1   # distance past int64 once wrote outside the array)
+
+
+def log_ended(log: np.ndarray, E: np.ndarray, fate: np.ndarray, si: np.ndarray, s: int, node: int, te: int) -> None:
+    """Log slot ``s``'s frame, sent by ``node``, ended at ``te`` (``record``): sender, start, end,
+    whether a member received it, whether it is background.  One step of both engines'
+    :func:`finish` and :func:`sps_finish`."""
+    m = fate.shape[1]
+    lost = 0
+    for q in range(m):
+        if fate[s, q] != RECEIVED and fate[s, q] != SENDER:
+            lost += 1
+    w = E[E_NLOG]
+    log[w, 0], log[w, 1], log[w, 2], log[w, 3], log[w, 4] = node, si[s, S_START], te, lost < m - 1, si[s, S_FID] < 0
+    E[E_NLOG] = w + 1
 
 
 def end(ri: np.ndarray, rf: np.ndarray, p: np.ndarray, d: np.ndarray, u: np.ndarray, fate: np.ndarray,
@@ -841,21 +855,13 @@ def finish(te: int, E: np.ndarray, rq: np.ndarray, queue: np.ndarray, idle_at: n
             rf[TOTAL, r] = 0.0              # (nothing on the air: no rounding left over)
     clear(idle_at, origin, count, due, head_on, went, nw, te, ip[I_SLOT], ip[I_AIFS], ip[I_EIFS], ri[RXERR])
     E[E_NEXT_END] = first_on_air(si, onair, left)
-    m = len(nodes)
     cap = queue.shape[1]
     for j in range(n):
         s = sl[j]
         r = si[s, S_I]
         rq[ON_AIR, r] = -1
         if record:
-            lost = 0
-            for q in range(m):
-                if fate[s, q] != RECEIVED and fate[s, q] != SENDER:
-                    lost += 1
-            w = E[E_NLOG]
-            log[w, 0], log[w, 1], log[w, 2], log[w, 3], log[w, 4] = nodes[r], si[s, S_START], te, lost < m - 1, \
-                si[s, S_FID] < 0
-            E[E_NLOG] = w + 1
+            log_ended(log, E, fate, si, s, nodes[r], te)
         if si[s, S_FID] >= 0:
             own[E[E_NOWN]] = s
             E[E_NOWN] += 1
@@ -1308,14 +1314,7 @@ def sps_finish(te: int, E: np.ndarray, nodes: np.ndarray, p: np.ndarray, d: np.n
     for j in range(n):
         s = onair[j]
         if sp[SP_RECORD] != 0:
-            lost = 0
-            for q in range(m):
-                if fate[s, q] != RECEIVED and fate[s, q] != SENDER:
-                    lost += 1
-            w = E[E_NLOG]
-            log[w, 0], log[w, 1], log[w, 2], log[w, 3], log[w, 4] = nodes[si[s, S_I]], si[s, S_START], te, \
-                lost < m - 1, si[s, S_FID] < 0
-            E[E_NLOG] = w + 1
+            log_ended(log, E, fate, si, s, nodes[si[s, S_I]], te)
         if si[s, S_FID] >= 0:
             own[E[E_NOWN]] = s
             E[E_NOWN] += 1
