@@ -18,9 +18,10 @@ from dkfsim.core.errors import ScenarioError
 def test_matrix_fusion_too_large_is_a_clear_error(monkeypatch):
     monkeypatch.setattr(schema, "FUSION_MEMORY_LIMIT", 1_000)   # (L+1)(n nx)^2 8 = 4096 B here
     # checked when the scenario is validated
-    with pytest.raises(ScenarioError, match="fusion: matrix keeps the cross-covariances") as err:
+    with pytest.raises(ScenarioError, match="fusion: matrix fusion keeps the cross-covariances") as err:
         dkfsim.load_scenario(scenario(8, steps=5))
     assert "fusion: none" in str(err.value) and "fusion" == err.value.path
+    assert "fusion: fusion" not in str(err.value)       # (the key once, then what it keeps)
     # fusion: none runs.
     assert dkfsim.run(dkfsim.load_scenario(scenario(8, steps=5, fusion="none")))["x_local"].shape == (5, 8, 2)
 
@@ -106,7 +107,7 @@ def test_an_anti_delay_instance_with_a_huge_fusion_ring_is_refused_at_validation
     instance with its own long buffer at its own key: a run never meets the error at its start."""
     monkeypatch.setattr(schema, "FUSION_MEMORY_LIMIT", 100 * 36 * 36 * 8)   # 100 rows of 12 x 3 states
     case1 = Path(__file__).resolve().parents[1] / "scenarios" / "paper_case1.yaml"
-    with pytest.raises(ScenarioError, match=r"estimators\.1: fusion: matrix .* 151 window rows") as err:
+    with pytest.raises(ScenarioError, match=r"estimators\.1: matrix fusion .* 151 window rows") as err:
         dkfsim.load_scenario(case1, overrides=[
             "steps=300", "estimators=[{kind: centralized}, {kind: anti_delay_dkf, name: long, buffer_length: 150}]"])
     assert "paper_case1.yaml" in str(err.value)

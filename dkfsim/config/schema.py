@@ -313,7 +313,7 @@ class Scenario(StrictModel):
                 least = "" if exact else "at least "
                 S = min(L, self.steps) + 1
                 raise custom_error(
-                    f"fusion: {dkf.fusion} keeps the cross-covariances of all {self.n} nodes for the "
+                    f"{dkf.fusion} fusion keeps the cross-covariances of all {self.n} nodes for the "
                     f"{least}{S} window rows, {least}{need / 2**30:.1f} GiB of memory; use fusion: "
                     f"none for a network this large (or a shorter buffer_length)", dkf.key or "fusion")
 
