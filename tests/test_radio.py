@@ -9,6 +9,7 @@ capture in both orders).
 from __future__ import annotations
 
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -18,11 +19,13 @@ from hypothesis import strategies as st
 from scipy import special
 from test_medium import at
 
+import dkfsim
 from dkfsim.components.faults import LinkSpec
 from dkfsim.components.latency import Constant
 from dkfsim.components.medium import Csma, Edca, Medium
 from dkfsim.components.radio import C_LIGHT, RadioParams
 from dkfsim.components.traffic import Background
+from dkfsim.core.errors import ScenarioError
 from dkfsim.network.network import Network
 
 US, MS = 1_000, 1_000_000
@@ -209,6 +212,41 @@ def test_the_weak_frame_alone_is_received():
     at(env, T0, lambda: port.send(net.link(2, 0), "W", 200))
     env.run()
     assert got == [(T0 + airtime(200) + LAT, 2, 0, "W")]
+
+
+#: R at 0, W 165 m on one side (-91.4 dBm at R: received alone, SNR 3.6 dB >= 2); I 250 m on the
+#: other (-96.8 dBm at R: below the sensitivity, yet enough to push W's SINR to 1.4 dB).
+FLOOR_XS = [0.0, -165.0, 250.0]
+
+
+@pytest.mark.parametrize("floor, heard", [(None, set()), (-92.0, {"W"}), (-97.0, set())])
+def test_a_frame_below_the_interference_floor_does_not_interfere(floor, heard):
+    """W and I, hidden from each other (415 m), send 20 us apart; R locks on W's frame.  I's
+    frame is below R's sensitivity either way (``sensing`` there); it interferes with W's unless
+    it is below ``interference_floor`` (-92 dBm: ns-3's YansWifiChannel; -97 dBm is under I's
+    -96.8, so it still interferes)."""
+    assert -91.5 < 23 - loss_db(165) < -91.3 and -97 < 23 - loss_db(250) < -96.7 < -92
+    noise, p_w, p_i = (10 ** (x / 10) for x in (-95.0, 23 - loss_db(165), 23 - loss_db(250)))
+    assert 10 * math.log10(p_w / (noise + p_i)) < 2.0 < 10 * math.log10(p_w / noise)
+    radio = RadioParams(**{**SPATIAL, "reception": {"model": "threshold", "sinr": 2.0}}, interference_floor=floor)
+    env, net, port, got = network(Medium(rate=RATE, access=Edca(), preamble=PRE / 1e9, radio=radio), FLOOR_XS)
+    at(env, T0, lambda: port.send(net.link(1, 0), "W", 200))
+    at(env, T0 + 20 * US, lambda: port.send(net.link(2, 0), "I", 200))
+    env.run()
+    assert {x for *_, x in got} == heard
+    losses = port.counts()["channel"]["losses"]
+    assert losses["sensing"] == 3                   # I's at R, W's at I, I's at W
+    assert losses["collision"] == (0 if heard else 1)
+
+
+def test_an_interference_floor_above_the_sensitivity_is_refused_naming_it():
+    """A floor above the sensitivity would leave a locked frame out of its receiver's own sum."""
+    highway = Path(__file__).resolve().parents[1] / "scenarios" / "highway_its_g5.yaml"
+    with pytest.raises(ScenarioError, match=r"-90.0 dBm is above the sensitivity \(-92.0 dBm\)") as info:
+        dkfsim.load_scenario(highway, overrides=["medium.radio.sensitivity=-92", "medium.radio.interference_floor=-90"])
+    assert info.value.path == "medium.radio.interference_floor"
+    ok = dkfsim.load_scenario(highway, overrides=["medium.radio.sensitivity=-92", "medium.radio.interference_floor=-92"])
+    assert ok.medium.radio.interference_floor == -92.0
 
 
 def test_a_receiver_busy_receiving_defers_and_one_sending_loses_what_arrives():

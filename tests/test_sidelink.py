@@ -297,6 +297,29 @@ def test_record_logs_every_packet_the_sidelink_sent_its_log_growing():
     assert len({(node, s) for node, s, *_ in ended}) == len(ended)
 
 
+def test_an_interference_floor_changes_what_a_decision_counts_not_what_is_sent():
+    """Twelve vehicles 30 m apart with background: the farther ones are below the sensitivity
+    (-92 dBm beyond about 175 m).  With ``interference_floor`` at the sensitivity their packets
+    add nothing to a decision's interference: the same packets go on the air in the same
+    subframes (scheduling senses power, not decisions), the same pairs are not detected or lost
+    to half duplex, and fewer are lost to collisions."""
+    def run(floor):
+        spec = Medium(rate=6e6, access=Sps(subchannels=2), radio=RadioParams(interference_floor=floor),
+                      background=Background(arrivals="periodic", packets_per_second=50, size=200, offset="random"))
+        env = simpy.Environment()
+        ch = SidelinkChannel(env, spec, tuple(range(12)), 3, line([30.0 * i for i in range(12)], 12), 100 * MS,
+                             record=True)
+        env.run(until=1000 * MS)
+        ch.stats(1000 * MS)                                 # (brought up to the end)
+        return [(node, start) for node, start, *_ in ch.ended or []], ch.report("x", 1000 * MS)["losses"]
+    sent, every = run(None)
+    sent_floor, below = run(-92.0)
+    assert sent_floor == sent and len(sent) > 300
+    assert below["sensing"] == every["sensing"] > 0 and below["half_duplex"] == every["half_duplex"]
+    collided = ("collision", "reservation_collision")
+    assert sum(below[k] for k in collided) < sum(every[k] for k in collided)
+
+
 def test_sps_needs_a_radio_and_an_allowed_interval():
     """``sps`` without ``medium.radio``, with an interval LTE-V2X does not allow, or with a CBR
     threshold the noise alone reaches, is refused naming the key."""

@@ -9,10 +9,11 @@ other.  With it, every frame reaches every other member with a received power
 and each receiver decides for itself (:mod:`dkfsim.network.media.radio`): a frame below
 ``sensitivity`` is not detected, one above ``carrier_sense`` makes the receiver sense the channel
 busy, and a frame it locks on is received by the ``reception`` rule from its SINR over the frame
-(interference summed over every overlapping frame).  Each part below is a small declarative
-model, chosen by its ``model`` key; :func:`path_loss_db` and :func:`fading_db` evaluate them,
-vectorised over receivers: the references the radio's compiled forms are tested against (the
-reception rule is the radio's kernel's, :func:`dkfsim.network.radio_kernels.error_rate`).
+(interference summed over every overlapping frame, or those at or above ``interference_floor``).
+Each part below is a small declarative model, chosen by its ``model`` key; :func:`path_loss_db`
+and :func:`fading_db` evaluate them, vectorised over receivers: the references the radio's
+compiled forms are tested against (the reception rule is the radio's kernel's,
+:func:`dkfsim.network.radio_kernels.error_rate`).
 
 Units: powers in dBm, gains and losses in dB, distances in metres, frequencies in Hz.
 """
@@ -191,6 +192,10 @@ class RadioParams(StrictModel):
     sensitivity: Decibel = -92.0
     #: at or above it a frame makes the receiver sense the channel busy (dBm)
     carrier_sense: Decibel = -85.0
+    #: a frame received below it adds nothing to the interference (dBm; at most ``sensitivity``);
+    #: None: every frame does.  ``sensitivity`` is ns-3's YansWifiChannel, which drops frames
+    #: below the sensitivity before the PHY
+    interference_floor: Decibel | None = None
     path_loss: PathLoss = Field(default_factory=LogDistance)
     shadowing: Shadowing = Field(default_factory=NoShadowing)
     fading: Fading = Field(default_factory=NoFading)
@@ -199,6 +204,14 @@ class RadioParams(StrictModel):
     #: earlier is then lost); None: it stays on the first frame it locked on (ns-3's default)
     capture: Annotated[float, Field(strict=True, ge=0, le=400, allow_inf_nan=False)] | None = None
     bins: DistanceBins = Field(default_factory=DistanceBins)
+
+    @model_validator(mode="after")
+    def _floor_below_detection(self) -> RadioParams:
+        if self.interference_floor is not None and self.interference_floor > self.sensitivity:
+            raise custom_error(f"{self.interference_floor} dBm is above the sensitivity ({self.sensitivity} dBm): a "
+                               "frame a receiver locks on would not count in its own sum of power on the air; give "
+                               "at most the sensitivity", "interference_floor")
+        return self
 
 
 # ----------------------------------------------------------------------- evaluation

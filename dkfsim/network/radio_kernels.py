@@ -23,14 +23,14 @@ import numpy as np
 
 from dkfsim.core.jit import LazyKernels
 
-_KERNELS = ("keyed_uniform", "polevl", "p1evl", "ndtri", "fill", "error_rate", "busy_ticks", "close", "start",
-            "count_pair", "log_ended", "end", "path_loss", "distances", "first_on_air", "draw", "on_head", "busy", "clear",
-            "take_due", "first_air", "soonest_end", "head", "push", "due_background", "background", "transmit",
-            "finish", "next_arrival", "run", "sps_draw", "sps_select", "sps_assign", "sps_push", "sps_transmit",
-            "sps_finish", "run_sps")
-_lazy = LazyKernels(__name__, _KERNELS, inline=("keyed_uniform", "polevl", "p1evl", "error_rate", "busy_ticks",
-                                                "path_loss", "due_background", "count_pair", "log_ended", "distances",
-                                                "first_on_air"))
+_KERNELS = ("keyed_uniform", "polevl", "p1evl", "ndtri", "fill", "error_rate", "interferes", "busy_ticks", "close",
+            "start", "count_pair", "log_ended", "end", "path_loss", "distances", "first_on_air", "draw", "on_head",
+            "busy", "clear", "take_due", "first_air", "soonest_end", "head", "push", "due_background", "background",
+            "transmit", "finish", "next_arrival", "run", "sps_draw", "sps_select", "sps_assign", "sps_push",
+            "sps_transmit", "sps_finish", "run_sps")
+_lazy = LazyKernels(__name__, _KERNELS, inline=("keyed_uniform", "polevl", "p1evl", "error_rate", "interferes",
+                                                "busy_ticks", "path_loss", "due_background", "count_pair", "log_ended",
+                                                "distances", "first_on_air"))
 
 #: Rows of ``ri``: the slot each member is locked on (-1: none), the start of its current SINR
 #: chunk, how many frames on the air it senses (its own included), since when it senses the
@@ -102,9 +102,10 @@ G_TIME, G_SIZE, G_AIR = range(3)
 I_RULE, I_SLOT, I_CW, I_AIFS, I_EIFS, I_T, I_MAXP, I_MAXB, I_RECORD, I_PL, I_RX, I_SENT = range(12)
 NIP = 12
 #: ``fp``: transmit power (dBm), shadowing sigma (dB), the fading table's grid, sensitivity,
-#: carrier sense and noise (mW), the capture ratio (0: none), the distance bins' width (m).
-F_POWER, F_SIGMA, F_ZMAX, F_ZSTEPS, F_SENS, F_CS, F_NOISE, F_CAPTURE, F_WIDTH = range(9)
-NFP = 9
+#: carrier sense and noise (mW), the capture ratio (0: none), the distance bins' width (m), the
+#: interference floor (mW; 0: none).
+F_POWER, F_SIGMA, F_ZMAX, F_ZSTEPS, F_SENS, F_CS, F_NOISE, F_CAPTURE, F_WIDTH, F_FLOOR = range(10)
+NFP = 10
 #: A hook for a researcher's rule (``hooks[j]``): (what, radio, instant).
 H_HEAD, H_SENT = range(2)
 #: Receivers per frame in a draw's sequence number (a frame's draws: ``seq = k * SEQ + node``).
@@ -330,6 +331,12 @@ def error_rate(kind: int, tab_x: np.ndarray, tab_y: np.ndarray, sinr_db: float) 
     return tab_y[j] + (tab_y[j + 1] - tab_y[j]) * ((sinr_db - x0) / (x1 - x0))
 
 
+def interferes(p: float, floor: float) -> bool:
+    """Whether a frame reaching a member with power ``p`` (mW) counts in its power on the air:
+    a member on the road (``p > 0``; not its sender) at or above the interference ``floor``."""
+    return p > 0.0 and p >= floor
+
+
 def close(ri: np.ndarray, rf: np.ndarray, kind: int, tab_x: np.ndarray, tab_y: np.ndarray, noise: float,
           t: int) -> None:
     """Every locked member's SINR chunk up to ``t`` (its interference is about to change):
@@ -351,13 +358,14 @@ def close(ri: np.ndarray, rf: np.ndarray, kind: int, tab_x: np.ndarray, tab_y: n
 
 
 def start(ri: np.ndarray, rf: np.ndarray, p: np.ndarray, fate: np.ndarray, sensed: np.ndarray, si: np.ndarray,
-          slots: np.ndarray, ts: int, sens: float, cs: float, capture: float, went: np.ndarray) -> int:
+          slots: np.ndarray, ts: int, sens: float, cs: float, capture: float, floor: float, went: np.ndarray) -> int:
     """The frames of ``slots`` (in their senders' order) start at ``ts``: a sender loses what it
     was receiving; a free member locks on the strongest of them at or above ``sens`` (with
     ``capture > 0`` a locked one switches to it when it is ``capture`` times stronger); every
-    pair's fate so far; a member senses a frame at or above ``cs``, its own, and the one it locks
-    on (its PHY is receiving: 802.11's CCA is busy); the members that begin to sense the medium
-    busy, written to ``went`` (their number returned)."""
+    pair's fate so far; a frame reaching a member at or above ``floor`` adds to its power on the
+    air (:func:`interferes`); a member senses a frame at or above ``cs``, its own, and the one it
+    locks on (its PHY is receiving: 802.11's CCA is busy); the members that begin to sense the
+    medium busy, written to ``went`` (their number returned)."""
     m = ri.shape[1]
     for s in slots:                         # half duplex
         i = si[s, S_I]
@@ -393,7 +401,7 @@ def start(ri: np.ndarray, rf: np.ndarray, p: np.ndarray, fate: np.ndarray, sense
                 ri[INTERF, r] = 0
         before = ri[SENSE_N, r]
         for s in slots:
-            if p[s, r] > 0.0:
+            if interferes(p[s, r], floor):
                 rf[TOTAL, r] += p[s, r]
                 ri[NAIR, r] += 1
             on = p[s, r] >= cs or si[s, S_I] == r or ri[LOCKED, r] == s     # (a PHY receiving is busy)
@@ -450,7 +458,7 @@ def log_ended(log: np.ndarray, E: np.ndarray, fate: np.ndarray, si: np.ndarray, 
 
 def end(ri: np.ndarray, rf: np.ndarray, p: np.ndarray, d: np.ndarray, u: np.ndarray, fate: np.ndarray,
         sensed: np.ndarray, si: np.ndarray, slots: np.ndarray, te: int, kind: int, tab_x: np.ndarray,
-        tab_y: np.ndarray, noise: float, width: float, pairs: np.ndarray, fates: np.ndarray,
+        tab_y: np.ndarray, noise: float, floor: float, width: float, pairs: np.ndarray, fates: np.ndarray,
         went: np.ndarray, ticks: np.ndarray, T_ns: int, window: np.ndarray, counted: np.ndarray) -> int:
     """The frames of ``slots`` end at ``te``: each member locked on one decides (received iff its
     draw is below the success probability over the chunks; lost, ``propagation`` when it had no
@@ -474,7 +482,7 @@ def end(ri: np.ndarray, rf: np.ndarray, p: np.ndarray, d: np.ndarray, u: np.ndar
                     fate[s, r] = PROPAGATION if (ri[INTERF, r] == 0 or x >= psr_noise) else COLLISION
                     ri[RXERR, r] = 1
                 ri[LOCKED, r] = -1
-            if p[s, r] > 0.0:
+            if interferes(p[s, r], floor):
                 rf[TOTAL, r] -= p[s, r]
                 ri[NAIR, r] -= 1
             if sensed[s, r]:
@@ -805,7 +813,7 @@ def transmit(ts: int, E: np.ndarray, rq: np.ndarray, queue: np.ndarray, idle_at:
         w = E[E_NPER]
         periods[w, 0], periods[w, 1], periods[w, 2], periods[w, 3], periods[w, 4] = ts, end_, 1, fid < 0, 0
         E[E_NPER] = w + 1
-    nw = start(ri, rf, p, fate, sensed, si, sl[:n], ts, fp[F_SENS], fp[F_CS], fp[F_CAPTURE], went)
+    nw = start(ri, rf, p, fate, sensed, si, sl[:n], ts, fp[F_SENS], fp[F_CS], fp[F_CAPTURE], fp[F_FLOOR], went)
     busy(idle_at, origin, count, due, head_on, went, nw, ts, ip[I_SLOT], NEVER64)
     E[E_NEXT_END] = first_on_air(si, onair, E[E_NAIR])
     return DONE
@@ -838,8 +846,8 @@ def finish(te: int, E: np.ndarray, rq: np.ndarray, queue: np.ndarray, idle_at: n
         E[E_ARG] = G_LOG
         return GROW
     close(ri, rf, ip[I_RX], tab_x, tab_y, fp[F_NOISE], te)
-    nw = end(ri, rf, p, d, u, fate, sensed, si, sl[:n], te, ip[I_RX], tab_x, tab_y, fp[F_NOISE], fp[F_WIDTH], pairs,
-             fates, went, ticks, ip[I_T], window, counted)
+    nw = end(ri, rf, p, d, u, fate, sensed, si, sl[:n], te, ip[I_RX], tab_x, tab_y, fp[F_NOISE], fp[F_FLOOR],
+             fp[F_WIDTH], pairs, fates, went, ticks, ip[I_T], window, counted)
     left = 0
     for j in range(E[E_NAIR]):
         s = onair[j]
@@ -980,10 +988,11 @@ X_C, X_L, X_SPS, X_P = range(4)
 NSP = 13
 #: ``sf`` (float): power (dBm), shadowing sigma, the fading grid, sensitivity and noise (mW),
 #: noise share of one sub-channel, keep probability, RSRP threshold (mW) and its step (a factor), the
-#: fraction of candidates kept, CBR threshold (mW per sub-channel), bin width (m).
+#: fraction of candidates kept, CBR threshold (mW per sub-channel), bin width (m), the
+#: interference floor (mW; 0: none).
 (SF_POWER, SF_SIGMA, SF_ZMAX, SF_ZSTEPS, SF_SENS, SF_NOISE, SF_SHARE, SF_KEEP, SF_RSRP, SF_STEP, SF_FRAC, SF_CBR,
- SF_WIDTH) = range(13)
-NSF = 13
+ SF_WIDTH, SF_FLOOR) = range(14)
+NSF = 14
 
 
 def sps_draw(skey: np.ndarray, vs: np.ndarray, v: int, t: int) -> float:
@@ -1228,7 +1237,7 @@ def sps_finish(te: int, E: np.ndarray, nodes: np.ndarray, p: np.ndarray, d: np.n
     """The subframe ending at ``te`` is decided: at each member every packet sent in it is
     lost to ``HALF_DUPLEX`` (the member transmitted), ``SENSING`` (below sensitivity) or, from
     its SINR over its sub-channels (noise of its share of the band, interference of every other
-    packet overlapping them), received or lost to ``PROPAGATION`` (lost without interference
+    packet overlapping them at or above ``SF_FLOOR``), received or lost to ``PROPAGATION`` (lost without interference
     too) or a collision (``RESERVATION_COLLISION`` when an overlapping packet was on a
     reservation); a member that did not transmit hears the control message of each packet it
     detects (the sender's reservation, by the packet's power) and senses each sub-channel's
@@ -1279,7 +1288,7 @@ def sps_finish(te: int, E: np.ndarray, nodes: np.ndarray, p: np.ndarray, d: np.n
                 interf, reserved = 0.0, False
                 for q in range(n):
                     s2 = onair[q]
-                    if q == j or p[s2, r] <= 0.0:
+                    if q == j or not interferes(p[s2, r], sf[SF_FLOOR]):
                         continue
                     ov = min(cj + lj, sx[s2, X_C] + sx[s2, X_L]) - max(cj, sx[s2, X_C])
                     if ov > 0:

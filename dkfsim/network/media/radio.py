@@ -196,6 +196,7 @@ class SpatialChannel(Channel):
         self.absent = np.zeros((len(self.positions), m), dtype=np.bool_) if presence is None else \
             np.ascontiguousarray(~np.asarray(presence, dtype=bool)[:, list(members)])
         self.noise, self.sens = mw(radio.noise), mw(radio.sensitivity)
+        self.floor = 0.0 if radio.interference_floor is None else mw(radio.interference_floor)
         self.rule = reception_rule(radio.reception)
         self.pl_kind, self._plp = path_loss_form(radio.path_loss, radio.frequency)
         self.sigma = radio.shadowing.sigma if isinstance(radio.shadowing, Lognormal) else 0.0
@@ -543,8 +544,8 @@ class RadioChannel(SpatialChannel):
         self.ip[rk.I_SENT] = int(acc.rule == rk.CUSTOM and type(acc).sent is not Access.sent)
         self.fp = np.zeros(rk.NFP)
         self.fp[[rk.F_POWER, rk.F_SIGMA, rk.F_ZMAX, rk.F_ZSTEPS, rk.F_SENS, rk.F_CS, rk.F_NOISE, rk.F_CAPTURE,
-                 rk.F_WIDTH]] = radio.power, self.sigma, Z_MAX, Z_STEPS, self.sens, self.cs, self.noise, \
-            self.capture, self.width
+                 rk.F_WIDTH, rk.F_FLOOR]] = radio.power, self.sigma, Z_MAX, Z_STEPS, self.sens, self.cs, self.noise, \
+            self.capture, self.width, self.floor
 
     @override
     def _grew_slots(self, size: int, old: int) -> None:

@@ -128,9 +128,10 @@ class SidelinkChannel(SpatialChannel):
         self.sp[rk.SP_RECORD] = int(record)
         self.sf = np.zeros(rk.NSF)
         self.sf[[rk.SF_POWER, rk.SF_SIGMA, rk.SF_ZMAX, rk.SF_ZSTEPS, rk.SF_SENS, rk.SF_NOISE, rk.SF_SHARE, rk.SF_KEEP,
-                 rk.SF_RSRP, rk.SF_STEP, rk.SF_FRAC, rk.SF_CBR, rk.SF_WIDTH]] = \
+                 rk.SF_RSRP, rk.SF_STEP, rk.SF_FRAC, rk.SF_CBR, rk.SF_WIDTH, rk.SF_FLOOR]] = \
             radio.power, self.sigma, Z_MAX, Z_STEPS, self.sens, self.noise, a.noise_share, a.p_keep, \
-            mw(a.rsrp_threshold), 10.0 ** (a.threshold_step / 10.0), a.candidates, mw(a.cbr_threshold), self.width
+            mw(a.rsrp_threshold), 10.0 ** (a.threshold_step / 10.0), a.candidates, mw(a.cbr_threshold), self.width, \
+            self.floor
 
     @override
     def _grew_slots(self, size: int, old: int) -> None:
