@@ -94,23 +94,20 @@ class TrafficKeys(StrictModel):
 TRAFFIC_KEYS: tuple[str, ...] = tuple(TrafficKeys.model_fields)
 
 
-def background_packets(scenario: Any, arcs: Any) -> float:
+def background_packets(scenario: Any, arcs: Any, copies: int) -> float:
     """Background packets a run of ``scenario`` on the directed links ``arcs`` sends, each an event
     of the network: the channel's frames (``medium.background``, per member) and each link's
-    (``links.*.background``, per arc that has it), in the DKF's network and in each estimator's
-    copy of it (one network for the links when ``links.shared_queues``; the channel is copied per
-    estimator).  What the run's time estimate counts, so that a background of a billion packets
-    per second is a run of years, refused before it starts."""
+    (``links.*.background``, per arc that has it), in each of the run's ``copies`` of the network
+    (the engine's :func:`~dkfsim.engine.estimate.channel_copies`).  What the run's time estimate
+    counts, so that a background of a billion packets per second is a run of years, refused
+    before it starts."""
     seconds = int(scenario.steps) * float(scenario.model.T)
-    copies = 1 + len(scenario.estimators)
     medium, links = scenario.medium, scenario.links
-    total = 0.0
+    per_second = 0.0
     if medium is not None and medium.background is not None:
-        total += medium.background.packets_per_second * len(medium.members(scenario.n)) * seconds * copies
+        per_second += medium.background.packets_per_second * len(medium.members(scenario.n))
     if links.default.background is not None or any(ov.background is not None for ov in links.overrides):
-        per_second = 0.0
         for u, v in arcs:
             background = scenario.link_spec(u, v).background
             per_second += background.packets_per_second if background is not None else 0.0
-        total += per_second * seconds * (1 if links.shared_queues else copies)
-    return total
+    return per_second * seconds * copies

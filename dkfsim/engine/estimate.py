@@ -50,10 +50,9 @@ RADIO_SERIES_BYTES = 2 * B_FLOAT
 
 
 def channel_copies(scenario) -> int:
-    """How many copies of the shared channel (``medium:``) a run makes: the DKF's and one per listed
-    estimator that has a network (:attr:`~dkfsim.estimators.base.Estimator.network_model`), as
-    :func:`~dkfsim.components.traffic.background_packets` counts them; one with
-    ``links.shared_queues``."""
+    """How many copies of each medium (the shared channel, a rate-limited link) a run makes: the
+    DKF's and one per listed estimator that has a network
+    (:attr:`~dkfsim.estimators.base.Estimator.network_model`); one with ``links.shared_queues``."""
     if scenario.links.shared_queues:
         return 1
     return 1 + sum(bool(getattr(ESTIMATORS.get(p.kind).implementation, "network_model", True))
@@ -124,7 +123,7 @@ def estimate_run(run, save: str = "auto", events: dict | None = None, how: str =
     total.memory["information contributions"] = K * n * nx * B_FLOAT * (1 + (nx if varying else 0))
     total.memory["graph and bookkeeping"] = (n + arcs) * 200 + min(L, K) * (n + 3 * arcs) * 40
     total.memory.update(radio_memory(plan))
-    total.seconds = plan.search_seconds + background_packets(scenario, plan.arcs) * C_PACKET
+    total.seconds = plan.search_seconds + background_packets(scenario, plan.arcs, channel_copies(scenario)) * C_PACKET
     parts = [AntiDelayDKF.cost(AntiDelayParams(), plan)]
     for p in scenario.estimators:
         parts.append(ESTIMATORS.get(p.kind).implementation.cost(p, plan))
