@@ -166,15 +166,24 @@ def _parse(path: Path) -> FcdData:
     vehicles = {}
     for vid, (ts, xs, ys) in collector.samples.items():
         t, xy = np.frombuffer(ts), np.column_stack([np.frombuffer(xs), np.frombuffer(ys)])
-        with np.errstate(all="ignore"):          # (checked here: no warning reaches the user)
-            speed = np.diff(xy, axis=0) / np.diff(t)[:, None]
-        if not np.isfinite(speed).all():
-            k = int(np.nonzero(~np.isfinite(speed).all(axis=1))[0][0])
+        k = unbounded_segment(t, xy)
+        if k is not None:
             raise DkfsimError(f"SUMO FCD file {path.name}: vehicle {_quoted(vid)} moves from time "
                               f"{float(t[k])!r} to {float(t[k + 1])!r} at a speed beyond any number (the times are "
                               "too close for the distance)")
         vehicles[vid] = (t, xy)
     return FcdData(str(path), vehicles)
+
+
+def unbounded_segment(t: np.ndarray, xy: np.ndarray) -> int | None:
+    """The first segment ``k`` (sample ``k`` to ``k + 1`` of positions ``xy`` at times ``t``) whose
+    speed is beyond any float (its times too close for its distance), or whose times are not
+    finite; None when there is none.  (Also what refuses a track or waypoints:
+    :meth:`~dkfsim.components.trajectories.Polyline.unbounded`.)"""
+    with np.errstate(all="ignore"):              # (checked here: no warning reaches the user)
+        speed = np.hypot(*(np.diff(xy, axis=0) / np.diff(t)[:, None]).T)
+        bad = ~np.isfinite(speed) | ~np.isfinite(t[1:]) | ~np.isfinite(t[:-1])
+    return int(np.nonzero(bad)[0][0]) if bad.any() else None
 
 
 def _check_elements(chunk: bytes, run: int, name: str) -> int:

@@ -36,7 +36,7 @@ import numpy as np
 from pydantic import AfterValidator, Field, PrivateAttr, TypeAdapter, ValidationInfo, model_validator
 from typing_extensions import override
 
-from dkfsim.components.fcd import read_fcd
+from dkfsim.components.fcd import read_fcd, unbounded_segment
 from dkfsim.components.latency import located
 from dkfsim.components.truth import TIME_UNITS, TrackError, read_track
 from dkfsim.core.datafiles import DataFileError, read_table
@@ -136,12 +136,9 @@ class Polyline:
             self.slopes = np.zeros((0, 2))
 
     def unbounded(self) -> int | None:
-        """The first segment ``k`` (sample ``k`` to ``k + 1``) whose speed is beyond any float (its
-        times too close for its distance), or whose times are not finite; None when there is none."""
-        with np.errstate(all="ignore"):
-            speed = np.hypot(self.slopes[:, 0], self.slopes[:, 1])
-            bad = ~np.isfinite(speed) | ~np.isfinite(self.t[1:]) | ~np.isfinite(self.t[:-1])
-        return int(np.nonzero(bad)[0][0]) if bad.any() else None
+        """The first segment whose speed is beyond any float, or None
+        (:func:`~dkfsim.components.fcd.unbounded_segment`)."""
+        return unbounded_segment(self.t, self.xy)
 
     def __eq__(self, other: object) -> bool:
         # Models holding a polyline compare equal when their samples are (pydantic compares
