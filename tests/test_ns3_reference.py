@@ -160,12 +160,7 @@ def compare(ref: dict, ours: dict) -> list[str]:
 
 
 #: configurations where dkfsim, configured as ns-3 is, does not agree, and why (docs/radio.md)
-KNOWN = {
-    "highway_d0.06": "the edge bin, 125-150 m: PDR 0.789, ns-3 0.749 (every other bin within 0.004; without "
-                     "interference these pairs' PDR is 0.805, so ns-3 loses 0.056 to other frames there and "
-                     "dkfsim 0.016; the bin before loses the same in both, as do all bins at 0.12 vehicles/m; "
-                     "highway_d0.06_interfere differs the same way, by 0.025): cause not found",
-}
+KNOWN: dict[str, str] = {}
 
 
 def params(names: list[str], known: dict[str, str] | None = None) -> list:
@@ -184,8 +179,8 @@ def params(names: list[str], known: dict[str, str] | None = None) -> list:
 def test_dkfsim_radio_configured_as_ns3_agrees_with_it(name):
     """dkfsim's radio with ns-3's parameters (carrier_sense -85 dBm: ns-3's CcaSensitivity; both
     treat a PHY receiving a frame as busy).  Synchronised senders, at one instant or jittered over
-    5 ms, and the highways where weak frames interfere in both agree; the plain highways do not,
-    for the reason in KNOWN (there half of ns-3's runs are enough to show it)."""
+    5 ms, and the highways, with weak frames interfering in both or dropped before the PHY in
+    both (``interference_floor`` at the sensitivity, ns-3's YansWifiChannel), agree."""
     ref = load(name)
     ours = run_all(ref)
     assert compare(ref, ours) == []

@@ -334,7 +334,9 @@ def fates(ns, cppyy, pos: np.ndarray, t_end_ns: int, weak_reach_phy: bool = Fals
     pair = np.ones((F, n), dtype=bool)
     pair[np.arange(F), sender] = False
     nb = int(round(BIN_MAX / BIN_WIDTH))
-    b = (dist // BIN_WIDTH).astype(np.int64)
+    # (dkfsim's count_pair: a distance of whole bins, 150 m computed as 149.99999999999997, counts in
+    # the upper bin; plain floor division once moved such pairs a bin down and made a gap)
+    b = np.floor(dist / BIN_WIDTH + 1e-9).astype(np.int64)
     inb = pair & (b < nb)
     counts = np.zeros((nb, 4), dtype=np.int64)
     np.add.at(counts, (b[inb], fate[inb]), 1)
