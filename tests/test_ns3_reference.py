@@ -52,12 +52,15 @@ def load(name: str) -> dict:
 def radio_of(ref: dict) -> RadioParams:
     """ns-3's frames below the sensitivity either never reach the PHY (``weak_frames: ignore``,
     YansWifiChannel's default: dkfsim's ``interference_floor`` at the sensitivity) or reach it
-    and interfere (``interfere``: dkfsim's default)."""
+    and interfere (``interfere``: dkfsim's default); ns-3's ``NakagamiPropagationLossModel`` of one
+    ``m`` at every distance is dkfsim's ``nakagami`` fading."""
     r = ref["radio"]
     bins = ref["config"]["bins"]
     floor = r["sensitivity"] if r["weak_frames"] == "ignore" else None
+    m = ref["config"]["nakagami_m"]
+    fading = {"model": "nakagami", "m": m} if m is not None else {"model": "none"}
     return RadioParams(power=r["power"], frequency=r["frequency"], noise=r["noise"], sensitivity=r["sensitivity"],
-                       carrier_sense=r["carrier_sense"], interference_floor=floor,
+                       carrier_sense=r["carrier_sense"], interference_floor=floor, fading=fading,
                        path_loss={"model": "log_distance", "exponent": r["exponent"], "reference_distance": 1.0},
                        reception={"model": "per_table", "table": [tuple(p) for p in ref["per_table"]]},
                        bins={"width": bins["width"], "max": bins["max"]})

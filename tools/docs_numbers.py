@@ -1188,7 +1188,8 @@ def ns3_highway_block(r: dict, ours: dict, min_pairs: int) -> str:
 #: the ns-3 references docs/radio.md quotes
 NS3_SYNC = ("sync_n4", "sync_n12", "sync_n24", "sync_jitter_n4", "sync_jitter_n12", "sync_jitter_n24")
 NS3_HIGHWAYS = {"highway_d0.06_interfere": "radio-ns3-highway-006", "highway_d0.12_interfere": "radio-ns3-highway-012",
-                "highway_n300_interfere": "radio-ns3-highway-n300"}
+                "highway_n300_interfere": "radio-ns3-highway-n300",
+                "highway_d0.12_nakagami": "radio-ns3-highway-012-nakagami"}
 
 
 def render_radio_validation() -> dict[str, str]:
