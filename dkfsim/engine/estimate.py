@@ -51,12 +51,13 @@ RADIO_SERIES_BYTES = 2 * B_FLOAT
 
 def channel_copies(scenario) -> int:
     """How many copies of each medium (the shared channel, a rate-limited link) a run makes: the
-    DKF's and one per listed estimator that has a network
-    (:attr:`~dkfsim.estimators.base.Estimator.network_model`); one with ``links.shared_queues``."""
+    DKF's and one per listed estimator that has a network and media of its own
+    (:attr:`~dkfsim.estimators.base.Estimator.network_model`,
+    :attr:`~dkfsim.estimators.base.Estimator.own_media`); one with ``links.shared_queues``."""
     if scenario.links.shared_queues:
         return 1
-    return 1 + sum(bool(getattr(ESTIMATORS.get(p.kind).implementation, "network_model", True))
-                   for p in scenario.estimators)
+    return 1 + sum(bool(getattr(impl, "network_model", True) and getattr(impl, "own_media", True))
+                   for impl in (ESTIMATORS.get(p.kind).implementation for p in scenario.estimators))
 
 
 def radio_memory(plan: RunPlan) -> dict[str, float]:

@@ -201,6 +201,9 @@ class Estimator:
     #: False for an idealised estimator with no network model (the centralized filter): its
     #: traffic is "not applicable" (None, ``null`` in summary.json), not zero.
     network_model: ClassVar[bool] = True
+    #: False for one whose port is opened ``share_with`` the DKF's (its packets in the DKF's queues
+    #: and channel): it adds no copy of the media, which resource estimates count.
+    own_media: ClassVar[bool] = True
     #: What it sends and the nominal size of each packet kind (``dkfsim list estimators``,
     #: docs/estimators.md "Packet sizes"); a link's ``rate`` transmits these bytes.
     packets: ClassVar[str] = ""

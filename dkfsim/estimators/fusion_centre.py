@@ -79,6 +79,8 @@ class FusionCentre(Estimator, params=FusionCentreParams):
     packets = ("one per node but `at` and tick, relayed hop by hop to `at`: 16-byte header + 8 (row) "
                "+ 8 nx (the estimate) + W ceil(n/8) (held-origin masks of the last W = L + margin rows) "
                "+ 8 nx(nx+1)/2 per measurement-dependent omega carried the first time")
+    #: Its port is opened ``share_with`` the DKF's (:meth:`start`): no copy of the media of its own.
+    own_media = False
 
     params: FusionCentreParams
     port: Port
