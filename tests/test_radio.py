@@ -181,16 +181,19 @@ def test_a_sender_within_carrier_sense_defers_with_a_backoff():
 CAPTURE_XS = [0.0, 10.0, -165.0]
 
 
-@pytest.mark.parametrize("capture, first, heard", [
-    (None, "S", {"S"}),        # the stronger first: it survives the weaker one (SINR 36.5 dB)
-    (None, "W", set()),        # the weaker first: R stays on it and it fails; the stronger is lost (busy)
-    (10.0, "W", {"S"}),        # capture 10 dB: R switches to the stronger (36.5 dB >= 10), which survives
-    (40.0, "W", set()),        # capture 40 dB: 36.5 dB is not enough to switch
+@pytest.mark.parametrize("capture, window, first, heard", [
+    (None, None, "S", {"S"}),      # the stronger first: it survives the weaker one (SINR 36.5 dB)
+    (None, None, "W", set()),      # the weaker first: R stays on it and it fails; the stronger is lost (busy)
+    (10.0, None, "W", {"S"}),      # capture 10 dB: R switches to the stronger (36.5 dB >= 10), which survives
+    (40.0, None, "W", set()),      # capture 40 dB: 36.5 dB is not enough to switch
+    (10.0, 20e-6, "W", {"S"}),     # the stronger starts 20 us after the weaker: within a 20 us window
+    (10.0, 19e-6, "W", set()),     # ... and beyond a 19 us one: R stays on the weaker
 ])
-def test_capture_in_both_orders(capture, first, heard):
+def test_capture_in_both_orders(capture, window, first, heard):
     """S and W send to R 20 us apart; hidden from each other, their frames overlap at R."""
     assert -92.3 < 23 - loss_db(175) < -92 < 23 - loss_db(165) < -91.3
-    radio = RadioParams(**{**SPATIAL, "reception": {"model": "threshold", "sinr": 2.0}}, capture=capture)
+    radio = RadioParams(**{**SPATIAL, "reception": {"model": "threshold", "sinr": 2.0}}, capture=capture,
+                        capture_window=window)
     med = Medium(rate=RATE, access=Edca(), preamble=PRE / 1e9, radio=radio)
     env, net, port, got = network(med, CAPTURE_XS)
     node = {"S": 1, "W": 2}
@@ -247,6 +250,15 @@ def test_an_interference_floor_above_the_sensitivity_is_refused_naming_it():
     assert info.value.path == "medium.radio.interference_floor"
     ok = dkfsim.load_scenario(highway, overrides=["medium.radio.sensitivity=-92", "medium.radio.interference_floor=-92"])
     assert ok.medium.radio.interference_floor == -92.0
+
+
+def test_a_capture_window_without_capture_is_refused_naming_it():
+    highway = Path(__file__).resolve().parents[1] / "scenarios" / "highway_its_g5.yaml"
+    with pytest.raises(ScenarioError, match="a capture window needs capture") as info:
+        dkfsim.load_scenario(highway, overrides=["medium.radio.capture_window=2e-5"])
+    assert info.value.path == "medium.radio.capture_window"
+    ok = dkfsim.load_scenario(highway, overrides=["medium.radio.capture=5", "medium.radio.capture_window=2e-5"])
+    assert ok.medium.radio.capture_window == 2e-5
 
 
 def test_a_receiver_busy_receiving_defers_and_one_sending_loses_what_arrives():

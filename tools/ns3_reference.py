@@ -66,6 +66,9 @@ CONFIGS: dict[str, dict] = {
     # fading dropped before the PHY (YansWifiChannel)
     **{f"highway_d{d}_nakagami": dict(kind="highway", density=d, length=2000.0, seconds=0.5, runs=20, nakagami=1.5)
        for d in (0.06, 0.12)},
+    # with frame capture: a receiver switches to a frame 5 dB stronger arriving within 16 us of
+    # the preamble it locked on (ns-3's SimpleFrameCaptureModel)
+    "highway_d0.12_capture": dict(kind="highway", density=0.12, length=2000.0, seconds=0.5, runs=20, capture=5.0),
 }
 SYNC = dict(psdu=200, rounds=100, period=0.1, first=0.001, square=5.0)
 HIGHWAY = dict(psdu=300, rate=10.0, tail=0.01)
@@ -209,7 +212,8 @@ def highway_plan(cfg: dict, rng: np.random.Generator) -> tuple[np.ndarray, list[
 
 
 # ----------------------------------------------------------------------- ns-3
-def build(ns, cppyy, pos: np.ndarray, error_model: str, nakagami_m: float | None, seed: int, weak: str = "ignore"):
+def build(ns, cppyy, pos: np.ndarray, error_model: str, nakagami_m: float | None, seed: int, weak: str = "ignore",
+          capture: float | None = None):
     """The ns-3 nodes, devices and PHY attributes.  ``weak``: ``ignore``, ns-3's YansWifiChannel
     drops a frame below RxSensitivity before the PHY (it is no interference either);
     ``interfere``, every frame reaches the PHY (RxSensitivity -200 dBm, so it interferes) and
@@ -245,6 +249,8 @@ def build(ns, cppyy, pos: np.ndarray, error_model: str, nakagami_m: float | None
         attrs["RxSensitivity"] = -200.0
         phy.SetPreambleDetectionModel("ns3::ThresholdPreambleDetectionModel", "MinimumRssi",
                                       ns.DoubleValue(RADIO["sensitivity"]), "Threshold", ns.DoubleValue(-100.0))
+    if capture is not None:                 # (CaptureWindow: its default, 16 us after the first preamble)
+        phy.SetFrameCaptureModel("ns3::SimpleFrameCaptureModel", "Margin", ns.DoubleValue(capture))
     for k, v in attrs.items():
         phy.Set(k, ns.DoubleValue(v))
     phy.Set("ChannelSettings", ns.StringValue("{0, 10, BAND_5GHZ, 0}"))
@@ -384,7 +390,7 @@ def run_once(cfg: dict, args, ns, cppyy, seed: int) -> tuple[np.ndarray, dict, i
         psdu = HIGHWAY["psdu"]
         t_end_ns = int(round((cfg["seconds"] + HIGHWAY["tail"]) * 1e9))
     weak = cfg.get("weak", "ignore")
-    _, devs, attrs = build(ns, cppyy, pos, args.error_model, nakagami_of(cfg, args), seed, weak)
+    _, devs, attrs = build(ns, cppyy, pos, args.error_model, nakagami_of(cfg, args), seed, weak, cfg.get("capture"))
     g = cppyy.gbl.dkfref
     airtime_ns = int(g.TxDuration(devs.Get(0), psdu))
     payload = psdu - OVERHEAD
@@ -449,7 +455,11 @@ def run(name: str, cfg: dict, args, ns, cppyy) -> dict:
                   "weak_frames": cfg.get("weak", "ignore"),
                   "preamble_detection": "none" if cfg.get("weak", "ignore") == "ignore" else
                   f"ThresholdPreambleDetectionModel MinimumRssi {RADIO['sensitivity']} dBm, Threshold -100 dB",
-                  "frame_capture": "none"},
+                  "frame_capture": "none" if cfg.get("capture") is None else
+                  f"SimpleFrameCaptureModel Margin {cfg['capture']} dB, CaptureWindow 16 us",
+                  # (the window counts from the preamble's detection, 4 us into the frame)
+                  "capture_margin_db": cfg.get("capture"),
+                  "capture_window_s": None if cfg.get("capture") is None else 20e-6},
         "airtime": {"psdu_bytes": psdu, "ns3_tx_duration_s": airtime_ns / 1e9, "preamble_s": preamble_ns / 1e9,
                     "data_field_bits": data_bits,
                     "dkfsim_size_bytes": (airtime_ns - preamble_ns) * 6e6 / 8 / 1e9,

@@ -203,14 +203,21 @@ class RadioParams(StrictModel):
     #: a receiver locked on a frame switches to a later one at least this many dB stronger (the
     #: earlier is then lost); None: it stays on the first frame it locked on (ns-3's default)
     capture: Annotated[float, Field(strict=True, ge=0, le=400, allow_inf_nan=False)] | None = None
+    #: with ``capture``: it switches only to a frame starting at most this many seconds after the
+    #: one it locked on (ns-3's SimpleFrameCaptureModel: 20e-6, its 4 us preamble detection and
+    #: 16 us CaptureWindow); None: at any time during that frame
+    capture_window: Annotated[float, Field(strict=True, ge=0, le=1.0, allow_inf_nan=False)] | None = None
     bins: DistanceBins = Field(default_factory=DistanceBins)
 
     @model_validator(mode="after")
-    def _floor_below_detection(self) -> RadioParams:
+    def _consistent(self) -> RadioParams:
         if self.interference_floor is not None and self.interference_floor > self.sensitivity:
             raise custom_error(f"{self.interference_floor} dBm is above the sensitivity ({self.sensitivity} dBm): a "
                                "frame a receiver locks on would not count in its own sum of power on the air; give "
                                "at most the sensitivity", "interference_floor")
+        if self.capture_window is not None and self.capture is None:
+            raise custom_error("a capture window needs capture (the margin in dB a later frame must exceed)",
+                               "capture_window")
         return self
 
 

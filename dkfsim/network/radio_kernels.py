@@ -103,9 +103,9 @@ I_RULE, I_SLOT, I_CW, I_AIFS, I_EIFS, I_T, I_MAXP, I_MAXB, I_RECORD, I_PL, I_RX,
 NIP = 12
 #: ``fp``: transmit power (dBm), shadowing sigma (dB), the fading table's grid, sensitivity,
 #: carrier sense and noise (mW), the capture ratio (0: none), the distance bins' width (m), the
-#: interference floor (mW; 0: none).
-F_POWER, F_SIGMA, F_ZMAX, F_ZSTEPS, F_SENS, F_CS, F_NOISE, F_CAPTURE, F_WIDTH, F_FLOOR = range(10)
-NFP = 10
+#: interference floor (mW; 0: none), the capture window (ns; infinity: the whole frame).
+F_POWER, F_SIGMA, F_ZMAX, F_ZSTEPS, F_SENS, F_CS, F_NOISE, F_CAPTURE, F_WIDTH, F_FLOOR, F_CWIN = range(11)
+NFP = 11
 #: A hook for a researcher's rule (``hooks[j]``): (what, radio, instant).
 H_HEAD, H_SENT = range(2)
 #: Receivers per frame in a draw's sequence number (a frame's draws: ``seq = k * SEQ + node``).
@@ -358,10 +358,12 @@ def close(ri: np.ndarray, rf: np.ndarray, kind: int, tab_x: np.ndarray, tab_y: n
 
 
 def start(ri: np.ndarray, rf: np.ndarray, p: np.ndarray, fate: np.ndarray, sensed: np.ndarray, si: np.ndarray,
-          slots: np.ndarray, ts: int, sens: float, cs: float, capture: float, floor: float, went: np.ndarray) -> int:
+          slots: np.ndarray, ts: int, sens: float, cs: float, capture: float, cwin: float, floor: float,
+          went: np.ndarray) -> int:
     """The frames of ``slots`` (in their senders' order) start at ``ts``: a sender loses what it
     was receiving; a free member locks on the strongest of them at or above ``sens`` (with
-    ``capture > 0`` a locked one switches to it when it is ``capture`` times stronger); every
+    ``capture > 0`` a locked one switches to it when it is ``capture`` times stronger and starts
+    at most ``cwin`` ns after the frame it is locked on); every
     pair's fate so far; a frame reaching a member at or above ``floor`` adds to its power on the
     air (:func:`interferes`); a member senses a frame at or above ``cs``, its own, and the one it
     locks on (its PHY is receiving: 802.11's CCA is busy); the members that begin to sense the
@@ -388,7 +390,8 @@ def start(ri: np.ndarray, rf: np.ndarray, p: np.ndarray, fate: np.ndarray, sense
                 fate[s, r] = RECEIVER_BUSY
         if ri[TX, r] == 0 and bp >= sens:
             lock = ri[LOCKED, r] < 0
-            if not lock and capture > 0.0 and bp >= rf[LOCK_P, r] * capture:
+            if (not lock and capture > 0.0 and bp >= rf[LOCK_P, r] * capture
+                    and ts - si[ri[LOCKED, r], S_START] <= cwin):
                 fate[ri[LOCKED, r], r] = COLLISION
                 lock = True
             if lock:
@@ -813,7 +816,8 @@ def transmit(ts: int, E: np.ndarray, rq: np.ndarray, queue: np.ndarray, idle_at:
         w = E[E_NPER]
         periods[w, 0], periods[w, 1], periods[w, 2], periods[w, 3], periods[w, 4] = ts, end_, 1, fid < 0, 0
         E[E_NPER] = w + 1
-    nw = start(ri, rf, p, fate, sensed, si, sl[:n], ts, fp[F_SENS], fp[F_CS], fp[F_CAPTURE], fp[F_FLOOR], went)
+    nw = start(ri, rf, p, fate, sensed, si, sl[:n], ts, fp[F_SENS], fp[F_CS], fp[F_CAPTURE], fp[F_CWIN], fp[F_FLOOR],
+               went)
     busy(idle_at, origin, count, due, head_on, went, nw, ts, ip[I_SLOT], NEVER64)
     E[E_NEXT_END] = first_on_air(si, onair, E[E_NAIR])
     return DONE

@@ -14,7 +14,8 @@ shadowing and fading per frame and receiver), and at ``r``:
   lost (``receiver_busy``); of frames starting at one instant a free receiver locks on the
   strongest; a receiver that starts transmitting loses the frame it was locked on
   (``receiver_busy``); with ``capture: X`` a locked receiver switches to a later frame at least
-  ``X`` dB stronger (the first is then lost: ``collision``);
+  ``X`` dB stronger (within ``capture_window`` of the first's start, if given; the first is then
+  lost: ``collision``);
 - a locked frame is received by the ``reception`` rule from its SINR over the frame, chunk by
   chunk as the interference (every other frame on the air at ``r``) changes, with a keyed
   uniform per frame and receiver; lost, it is ``propagation`` when it would have been lost
@@ -526,6 +527,7 @@ class RadioChannel(SpatialChannel):
         m = len(self.nodes)
         self.cs = mw(radio.carrier_sense)
         self.capture = 0.0 if radio.capture is None else mw(radio.capture)
+        cwin = math.inf if radio.capture_window is None else round(radio.capture_window * 1e9)
         self.ri = np.zeros((rk.NRI, m), dtype=np.int64)
         self.ri[rk.LOCKED] = -1
         self.rf = np.zeros((rk.NRF, m))
@@ -544,8 +546,8 @@ class RadioChannel(SpatialChannel):
         self.ip[rk.I_SENT] = int(acc.rule == rk.CUSTOM and type(acc).sent is not Access.sent)
         self.fp = np.zeros(rk.NFP)
         self.fp[[rk.F_POWER, rk.F_SIGMA, rk.F_ZMAX, rk.F_ZSTEPS, rk.F_SENS, rk.F_CS, rk.F_NOISE, rk.F_CAPTURE,
-                 rk.F_WIDTH, rk.F_FLOOR]] = radio.power, self.sigma, Z_MAX, Z_STEPS, self.sens, self.cs, self.noise, \
-            self.capture, self.width, self.floor
+                 rk.F_WIDTH, rk.F_FLOOR, rk.F_CWIN]] = radio.power, self.sigma, Z_MAX, Z_STEPS, self.sens, self.cs, \
+            self.noise, self.capture, self.width, self.floor, cwin
 
     @override
     def _grew_slots(self, size: int, old: int) -> None:
