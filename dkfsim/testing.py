@@ -280,12 +280,22 @@ def _check_cost(spec: dict, impl: type[Estimator], base: dict) -> None:
     # pays them inside a measurement (in make test the check failed now and then by about 150 kB)
     run(load_scenario({**copy.deepcopy(base), "estimators": [spec], "steps": 2}))
     run(load_scenario({**copy.deepcopy(base), "estimators": [], "steps": 2}))
-    measured = []
-    for steps in (STEPS, STEPS_LARGE):
-        measured.append(_peak(base, [spec], steps) - _peak_without_it(steps))
-    planned = [_planned(impl, base, spec, steps) for steps in (STEPS, STEPS_LARGE)]
-    grew, plans = measured[1] - measured[0], planned[1] - planned[0]
-    _assert(plans * (1 + GROWTH_SLACK) + GROWTH_SLACK_BYTES >= grew, kind,
+    sizes = (STEPS, STEPS_LARGE)
+    planned = [_planned(impl, base, spec, steps) for steps in sizes]
+    plans = planned[1] - planned[0]
+    bound = plans * (1 + GROWTH_SLACK) + GROWTH_SLACK_BYTES
+    with_it = [_peak(base, [spec], steps) for steps in sizes]
+    without = [_peak_without_it(steps) for steps in sizes]
+    measured = [w - o for w, o in zip(with_it, without)]
+    if measured[1] - measured[0] > bound:
+        # A traced peak errs upward only (an allocation of another thread, a cache filled on
+        # first use, the process's earlier state under the remembered runs without it): over
+        # the bound, each of the four is measured once more, now, and the smaller kept.
+        with_it = [min(a, _peak(base, [spec], steps)) for a, steps in zip(with_it, sizes)]
+        without = [min(a, _peak(base, [], steps)) for a, steps in zip(without, sizes)]
+        measured = [w - o for w, o in zip(with_it, without)]
+    grew = measured[1] - measured[0]
+    _assert(bound >= grew, kind,
             f"cost >= measured allocation: from {STEPS} to {STEPS_LARGE} ticks a run with it allocates "
             f"{grew / 1e3:.0f} kB more at its peak, but its cost() plans {plans / 1e3:.0f} kB more "
             f"({planned[1] / 1e3:.0f} kB in all at {STEPS_LARGE} ticks, {measured[1] / 1e3:.0f} kB measured)")
