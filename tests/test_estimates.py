@@ -167,3 +167,25 @@ def test_the_estimates_copies_of_the_media_are_those_the_run_makes(monkeypatch, 
     dkfsim.run(sc)
     copies = made[Channel] if sc.medium is not None else made[Fifo] / len(RunPlan.of(sc).arcs)
     assert copies == channel_copies(sc) >= 1
+
+
+def test_a_spatial_radio_costs_time_at_every_vehicle_each_frame_visits():
+    """Every frame on a spatial radio visits every vehicle on the air: with the background of
+    each, the radio's time grows with the square of the vehicles (10 frames per second each),
+    plus one estimators' frame per node and tick; none without a radio."""
+    from dkfsim.core.resources import C_RADIO_MEMBER
+    from dkfsim.engine.estimate import channel_copies, estimate_run, radio_seconds
+    highway = ROOT / "scenarios" / "highway_its_g5.yaml"
+
+    def plan(*overrides):
+        return RunPlan.of(dkfsim.load_scenario(highway, overrides=["steps=100", *overrides]))
+    one = plan("medium.bystanders=null", "estimators=[{kind: centralized}]")
+    sc = one.scenario
+    assert sc.medium.background.packets_per_second == 10 and len(sc.medium.members(sc.n)) == sc.n == 12
+    frames = 12 * 100 + 10 * 12 * 100 * sc.model.T
+    assert channel_copies(sc) == 1 and radio_seconds(one) == pytest.approx(frames * 12 * C_RADIO_MEMBER)
+    two = plan("medium.bystanders=null", "estimators=[{kind: centralized}, {kind: kcf}]")
+    assert radio_seconds(two) == pytest.approx(2 * radio_seconds(one))
+    assert estimate_run(two).seconds - estimate_run(one).seconds > radio_seconds(one)
+    channel = RunPlan.of(dkfsim.load_scenario(ROOT / "scenarios" / "channel_its_g5.yaml"))
+    assert radio_seconds(channel) == 0.0

@@ -23,7 +23,7 @@ from dkfsim.components.traffic import background_packets
 from dkfsim.config.plan import RunPlan
 from dkfsim.config.schema import named
 from dkfsim.core.registry import ESTIMATORS
-from dkfsim.core.resources import B_FLOAT, C_PACKET, EVENT_KINDS, Cost, check, event_seconds
+from dkfsim.core.resources import B_FLOAT, C_PACKET, C_RADIO_MEMBER, EVENT_KINDS, Cost, check, event_seconds
 from dkfsim.estimators.anti_delay import AntiDelayDKF
 from dkfsim.network.radio_kernels import WINDOW_SF
 
@@ -88,6 +88,25 @@ def radio_memory(plan: RunPlan) -> dict[str, float]:
     return out
 
 
+def radio_seconds(plan: RunPlan) -> float:
+    """CPU seconds a spatial radio spends at its members: every frame on the air visits every
+    vehicle on it (:data:`~dkfsim.core.resources.C_RADIO_MEMBER` each), so the time grows with
+    the square of the vehicles -- ``medium.bystanders`` of thousands are hours.  Frames: the
+    background's, and one per node and tick for the estimators' (a flush per tick), in each copy
+    of the channel.  Zero without ``medium.radio``; added to the analytic guess and to a trial's
+    events alike (they count frames, not the vehicles each one visits)."""
+    sc = plan.scenario
+    medium = sc.medium
+    if medium is None or medium.radio is None or sc.mobility is None:
+        return 0.0
+    members = len(medium.members(sc.n))
+    steps = int(sc.steps)
+    frames = float(sc.n) * steps
+    if medium.background is not None:
+        frames += medium.background.packets_per_second * members * steps * float(sc.model.T)
+    return channel_copies(sc) * frames * members * C_RADIO_MEMBER
+
+
 def trial_ticks(plan: RunPlan) -> int:
     """The ticks of a trial: twice the buffer and 20 more (the window's re-runs reach their
     steady depth after ``L`` ticks), at most the run's."""
@@ -124,7 +143,8 @@ def estimate_run(run, save: str = "auto", events: dict | None = None, how: str =
     total.memory["information contributions"] = K * n * nx * B_FLOAT * (1 + (nx if varying else 0))
     total.memory["graph and bookkeeping"] = (n + arcs) * 200 + min(L, K) * (n + 3 * arcs) * 40
     total.memory.update(radio_memory(plan))
-    total.seconds = plan.search_seconds + background_packets(scenario, plan.arcs, channel_copies(scenario)) * C_PACKET
+    total.seconds = plan.search_seconds + background_packets(scenario, plan.arcs, channel_copies(scenario)) * C_PACKET \
+        + radio_seconds(plan)
     parts = [AntiDelayDKF.cost(AntiDelayParams(), plan)]
     for p in scenario.estimators:
         parts.append(ESTIMATORS.get(p.kind).implementation.cost(p, plan))
@@ -135,7 +155,7 @@ def estimate_run(run, save: str = "auto", events: dict | None = None, how: str =
     if events is not None:
         total.events = {k: float(events[k]) for k in EVENT_KINDS}
         total.how = how
-        total.seconds = plan.search_seconds + event_seconds(total.events, n * nx)
+        total.seconds = plan.search_seconds + event_seconds(total.events, n * nx) + radio_seconds(plan)
     return total
 
 
