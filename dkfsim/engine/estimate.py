@@ -91,10 +91,11 @@ def radio_memory(plan: RunPlan) -> dict[str, float]:
 def radio_seconds(plan: RunPlan) -> float:
     """CPU seconds a spatial radio spends at its members: every frame on the air visits every
     vehicle on it (:data:`~dkfsim.core.resources.C_RADIO_MEMBER` each), so the time grows with
-    the square of the vehicles -- ``medium.bystanders`` of thousands are hours.  Frames: the
-    background's, and one per node and tick for the estimators' (a flush per tick), in each copy
-    of the channel.  Zero without ``medium.radio``; added to the analytic guess and to a trial's
-    events alike (they count frames, not the vehicles each one visits)."""
+    the square of the vehicles (3,000 ``medium.bystanders`` beaconing for 3 s of simulated time:
+    about 35 s of CPU).  Frames: the background's, and one per node and tick for the estimators'
+    (a flush per tick), in each copy of the channel.  Zero without ``medium.radio``; added to the
+    analytic guess and to a trial's events alike (they count frames, not the vehicles each one
+    visits)."""
     sc = plan.scenario
     medium = sc.medium
     if medium is None or medium.radio is None or sc.mobility is None:
