@@ -240,12 +240,15 @@ def trial_estimate(plan: RunPlan, res: RunResult) -> Cost:
                         how=f"measured on a trial of {P} ticks")
 
 
-def measured_estimate(plan: RunPlan, runs: float = 1, workers: int = 1, force: bool = False) -> Cost:
-    """The estimate of one run of ``plan``: its analytic guess, or, when ``runs`` such runs on
-    ``workers`` would take more than :data:`~dkfsim.engine.estimate.TRIAL_ABOVE_S` by the guess
-    (or ``force``), its events measured on a trial (:func:`trial_events`) -- unless the trial
-    itself would be long (:func:`~dkfsim.engine.estimate.trial_is_short`)."""
-    guess = estimate_run(plan)
+def measured_estimate(plan: RunPlan, runs: float = 1, workers: int = 1, force: bool = False,
+                      guess: Cost | None = None) -> Cost:
+    """The estimate of one run of ``plan``: its analytic ``guess`` (:func:`estimate_run`, made
+    here when not given), or, when ``runs`` such runs on ``workers`` would take more than
+    :data:`~dkfsim.engine.estimate.TRIAL_ABOVE_S` by the guess (or ``force``), its events measured
+    on a trial (:func:`trial_events`) -- unless the trial itself would be long
+    (:func:`~dkfsim.engine.estimate.trial_is_short`)."""
+    if guess is None:
+        guess = estimate_run(plan)
     if not force and guess.seconds * runs / max(1, workers) <= TRIAL_ABOVE_S:
         return guess
     if not trial_is_short(plan, guess):      # (the trial itself would be long: the guess decides)
@@ -259,8 +262,9 @@ def check_run_measured(plan: RunPlan, *, yes: bool = False) -> Cost:
     Memory is refused on the analytic guess, before any trial: it is exact, a trial measures
     time only, and a run that cannot fit may not fit its trial either (a sidelink's state per
     pair of vehicles does not shrink with the ticks)."""
-    check_memory(estimate_run(plan), hint=RUN_HINT)
-    est = measured_estimate(plan)
+    guess = estimate_run(plan)
+    check_memory(guess, hint=RUN_HINT)
+    est = measured_estimate(plan, guess=guess)
     check(est, yes=yes, hint=RUN_HINT)
     return est
 

@@ -60,6 +60,14 @@ def channel_copies(scenario) -> int:
                    for impl in (ESTIMATORS.get(p.kind).implementation for p in scenario.estimators))
 
 
+def radio_members(scenario) -> int:
+    """The vehicles on a spatial radio (``medium.radio``: nodes and bystanders); 0 without one."""
+    medium = scenario.medium
+    if medium is None or medium.radio is None or scenario.mobility is None:
+        return 0
+    return len(medium.members(scenario.n))
+
+
 def radio_memory(plan: RunPlan) -> dict[str, float]:
     """The memory of a spatial radio, by item: every vehicle's position at every tick
     (:data:`RADIO_PLACES_BYTES`, :data:`RADIO_COPY_BYTES` in each copy of the channel,
@@ -68,10 +76,10 @@ def radio_memory(plan: RunPlan) -> dict[str, float]:
     per vehicle (:mod:`~dkfsim.network.media.sidelink`).  Empty without ``medium.radio``."""
     sc = plan.scenario
     medium = sc.medium
-    if medium is None or medium.radio is None or sc.mobility is None:
+    members = radio_members(sc)
+    if not members:
         return {}
     ticks = int(sc.steps) + 1
-    members = len(medium.members(sc.n))
     bystanders = medium.bystanders.n if medium.bystanders is not None else 0
     copies = channel_copies(sc)
     what = f"positions of {members} vehicles on the radio" + (f" ({bystanders} medium.bystanders)" if bystanders else "")
@@ -98,9 +106,9 @@ def radio_seconds(plan: RunPlan) -> float:
     visits)."""
     sc = plan.scenario
     medium = sc.medium
-    if medium is None or medium.radio is None or sc.mobility is None:
+    members = radio_members(sc)
+    if not members:
         return 0.0
-    members = len(medium.members(sc.n))
     steps = int(sc.steps)
     frames = float(sc.n) * steps
     if medium.background is not None:
