@@ -5,6 +5,9 @@ nothing (its tasks run again; a task that always kills its worker is reported)."
 from __future__ import annotations
 
 import os
+import struct
+import time
+from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
 import numpy as np
@@ -93,6 +96,30 @@ def test_a_task_that_always_kills_its_worker_is_reported_after_bounded_retries()
     with LocalExecutor(2) as ex, pytest.raises(DkfsimError, match=r"died 3 times while running task 7"):
         list(ex.imap_unordered(_always_die, [(7, (7,))]))
     assert executors.MAX_RETRIES == 2
+
+
+def test_a_pool_whose_worker_died_sending_a_result_stops_without_a_thread_left_waiting():
+    """A worker stopped in the middle of sending its result (``kill PID`` under load) left half a
+    message in the result pipe; the pool's manager thread then waited for the rest for ever, and
+    the interpreter, which joins that thread at exit, with it: an interrupted ``dkfsim montecarlo``
+    hung. Here the half message is written by hand (the pool's own pipe: standard-library
+    internals), then :func:`kill_pool` must leave no manager thread behind, in seconds."""
+    pool = ProcessPoolExecutor(2)
+    assert pool.submit(pow, 2, 3).result() == 8              # the workers and the manager run
+    manager = pool._executor_manager_thread
+    writer = pool._result_queue._writer
+    os.write(writer.fileno(), struct.pack("!i", 1000) + b"x" * 10)   # 10 of 1000 bytes
+    time.sleep(0.3)                                          # the manager is reading the rest
+    try:
+        t0 = time.monotonic()
+        executors.kill_pool(pool)
+        elapsed = time.monotonic() - t0
+        assert not manager.is_alive()
+        assert elapsed < 4.0, elapsed
+    finally:                                                 # never leave this test's process hung
+        if not writer.closed:
+            writer.close()
+        manager.join(5)
 
 
 def test_in_order_gives_task_order_and_the_first_error_in_that_order():
