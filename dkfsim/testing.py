@@ -41,13 +41,14 @@ __all__ = ["check_estimator", "check_scenario"]
 
 #: Ticks of the checks' runs; the allocation check runs both sizes to see what grows.
 STEPS = 100
-STEPS_LARGE = 300
+STEPS_LARGE = 500
 #: What the allocation check forgives beyond the cost model's growth from STEPS to
 #: STEPS_LARGE: 5 % and 32 KiB, above the noise of tracemalloc's peak between runs (after a
 #: full collection, each run without the estimator measured right after the run with it: on the
-#: built-ins, within about 15 kB either way).  An array the cost model misses is found when it
-#: grows by more than that: on this scenario a covariance per node and tick (K n nx nx floats,
-#: 86 kB over the 200 ticks) is; a vector per tick (K nx floats) is not.
+#: built-ins, within about 15 kB either way, whatever the ticks; 400 ticks apart, not 200, keep
+#: the built-ins 30 kB or more inside and a hoarder 85 kB or more outside).  An array the cost
+#: model misses is found when it grows by more than that: on this scenario a covariance per node
+#: and tick (K n nx nx floats, 172 kB over the 400 ticks) is; a vector per tick (K nx floats) is not.
 GROWTH_SLACK = 0.05
 GROWTH_SLACK_BYTES = 32 * 1024
 
