@@ -254,6 +254,19 @@ def test_an_installed_estimator_plugin_runs_in_a_fresh_process(tmp_path):
     np.testing.assert_array_equal(installed, as_file["x_neighbour_mean"])
 
 
+def test_dkfsim_list_shows_a_plugin_file_it_is_given(tmp_path):
+    """``dkfsim list --plugin FILE`` loads the file as a scenario's ``plugins:`` entry does and
+    lists what it registers (without it a plugin file could never be listed); a missing one is a
+    one-line error, exit 2."""
+    listed = dkfsim_command("list", "estimators", "--plugin", str(EXAMPLES / "neighbour_mean.py"), site=tmp_path)
+    assert listed.returncode == 0, listed.stderr
+    assert "neighbour_mean" in listed.stdout and "neighbours' latest estimates" in listed.stdout
+    assert "neighbour_mean" not in dkfsim_command("list", "estimators", site=tmp_path).stdout
+    missing = dkfsim_command("list", "--plugin", str(tmp_path / "nope.py"), site=tmp_path)
+    assert missing.returncode == 2 and missing.stdout == ""
+    assert missing.stderr.strip() == f"dkfsim list: error: plugin file not found: {tmp_path / 'nope.py'}"
+
+
 @pytest.mark.slow
 def test_the_estimators_entry_point_group_is_the_same_mechanism(tmp_path):
     site = tmp_path / "site"

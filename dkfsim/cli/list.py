@@ -6,7 +6,7 @@ from pydantic_core import PydanticUndefined
 
 from dkfsim.cli.common import say
 from dkfsim.core.datafiles import datasets
-from dkfsim.core.registry import REGISTRIES
+from dkfsim.core.registry import REGISTRIES, load_plugin
 
 #: Keys a parameter model has for the registry itself, not as a parameter.
 _NOT_PARAMS = {"model", "kind"}
@@ -14,12 +14,17 @@ _NOT_PARAMS = {"model", "kind"}
 
 def configure(p) -> None:
     """``dkfsim list``'s arguments (its parser made by :func:`dkfsim.cli.main.build_parser`)."""
-    p.description = ("List what a scenario can name: estimators, latency models, protocols, graph "
-                     "generators, sensor kinds, metrics, trajectory kinds and the shipped datasets, each "
-                     "with a one-line description and its parameters (defaults in brackets). Plugins "
-                     "are included once loaded.")
+    p.description = ("List what a scenario can name: estimators, latency models, protocols, media, "
+                     "graph generators, sensor kinds, metrics, trajectory kinds and the shipped datasets, "
+                     "each with a one-line description and its parameters (defaults in brackets). "
+                     "Installed plugins are included; a plugin file (a scenario's plugins: entry) with "
+                     "--plugin.")
     p.add_argument("what", nargs="?", choices=list(REGISTRIES) + ["datasets"],
                    help="one family (default: all)")
+    p.add_argument("--plugin", action="append", default=[], metavar="FILE_OR_MODULE",
+                   help="load this plugin first, as a scenario's plugins: entry does (a .py file, "
+                        "relative to the working directory, or a module name); repeatable. It runs "
+                        "the file's code.")
     p.set_defaults(func=cmd_list)
 
 
@@ -66,6 +71,8 @@ def describe(family: str) -> list[str]:
 
 
 def cmd_list(args) -> int:
+    for spec in args.plugin:
+        load_plugin(spec)
     families = [args.what] if args.what else list(REGISTRIES) + ["datasets"]
     for i, family in enumerate(families):
         if i:

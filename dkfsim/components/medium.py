@@ -114,7 +114,10 @@ class Csma(AccessParams, kind="csma"):
 
 
 class Edca(Csma, kind="edca"):
-    """IEEE 802.11p's access rule (802.11-2016 EDCA): a frame that finds the medium idle and no
+    """IEEE 802.11p's access rule (802.11-2016 EDCA): AIFS on an idle medium, backoff when busy,
+    EIFS after an error.
+
+    A frame that finds the medium idle and no
     backoff pending goes once the medium has been idle for AIFS (ns-3's ad-hoc MAC waits DIFS
     after the frame even on a long-idle medium, its QoS MAC the next slot boundary); one that
     finds it busy draws a backoff; a post-backoff after every own frame; EIFS after a frame in

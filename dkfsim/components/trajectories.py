@@ -188,8 +188,10 @@ class SampledTrajectory(TrajectoryParams):
 
 @TRAJECTORIES.register("road")
 class Road(TrajectoryParams):
-    """Vehicles equally spaced on a straight road (the analytic radio models' highway): vehicle
-    ``i`` on lane ``i % lanes`` (lanes ``lane_width`` m apart), ``(i // lanes) * spacing`` m along
+    """Vehicles equally spaced on a straight road, lane by lane, at one speed (the analytic radio
+    models' highway).
+
+    Vehicle ``i`` on lane ``i % lanes`` (lanes ``lane_width`` m apart), ``(i // lanes) * spacing`` m along
     the road from ``start``, all driving at ``speed`` m/s along x.  Given as ``default``, it
     places every vehicle by its number."""
 

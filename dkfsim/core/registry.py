@@ -24,6 +24,7 @@ from __future__ import annotations
 import hashlib
 import importlib
 import importlib.util
+import re
 import sys
 import threading
 from dataclasses import dataclass
@@ -48,8 +49,12 @@ class Entry:
 
 
 def _first_line(obj: Any) -> str:
+    """The first sentence of ``obj``'s docstring, on one line (a sentence may wrap: cutting at the
+    line's end left ``dkfsim list`` saying "a frame that finds the medium idle and no")."""
     doc = (getattr(obj, "__doc__", None) or "").strip()
-    return doc.splitlines()[0].strip().rstrip(".").replace("``", "") if doc else ""
+    paragraph = " ".join(line.strip() for line in doc.split("\n\n")[0].splitlines())
+    end = re.search(r"(?<!e\.g)(?<!i\.e)\.(\s|$)", paragraph)
+    return (paragraph[:end.start()] if end else paragraph).replace("``", "")
 
 
 class Registry:
