@@ -197,6 +197,25 @@ def test_worst_case_dominates_random_delays_trace_P():
         pytest.approx(run_metric(rw_scenario(const_latency(2.0)), "trace_P"), rel=1e-12)
 
 
+def test_the_worst_case_and_the_bound_follow_the_estimate_searched():
+    """``--metric mse --estimate local`` has the worst case of ``--metric local_mse``: the DKF
+    nodes' own covariance, ``P_local`` (it used ``P_fused``: on paper case 1 "d_t >= 32" where the
+    nodes' own estimates exceed at 1). For another estimator than the DKF, whose covariance neither
+    follows, no worst case or paper's bound is computed, and the table says why."""
+    data = rw_scenario(steps_latency(1))
+    kw = dict(relative=1.2, max_delay=3, batch=2, max_runs=2)
+    local, twin, fused = (search(data, metric="mse", estimate="local", **kw), search(data, metric="local_mse", **kw),
+                          search(data, metric="fused_mse", **kw))
+    assert (local.wc_tol, local.limit) == (twin.wc_tol, twin.limit)
+    assert [c.values for c in local.wc.candidates.values()] == [c.values for c in twin.wc.candidates.values()]
+    assert local.limit != fused.limit
+    other = search({**data, "estimators": [{"kind": "local_only"}]}, metric="mse", estimate="local_only", **kw)
+    assert other.wc is None and other.runs_total == other.runs_empirical
+    assert "local_only" in other.paper["error"]
+    assert "(2) worst case:  not computed (it follows the anti-delay DKF's covariance, not local_only's)" \
+        in other.table()
+
+
 # =========================================================================== the delay axis
 def test_axis_scales_every_time_parameter_and_links_d_t():
     data = rw_scenario({"model": "uniform", "low": 0.5, "high": 1.5})

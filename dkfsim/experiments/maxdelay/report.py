@@ -15,7 +15,7 @@ from dkfsim.config.dynamics import CA_UNITS
 from dkfsim.config.load import scenario_hash
 from dkfsim.core.folders import staged, write_json
 from dkfsim.engine.results import versions
-from dkfsim.experiments.maxdelay.search import METRICS, SearchResult, interval, json_number
+from dkfsim.experiments.maxdelay.search import METRICS, SearchResult, interval, json_number, of_the_dkf
 
 
 def pow10_text(x) -> str:
@@ -206,6 +206,9 @@ class MaxDelayResult:
         w = d["worst_case"]
         if ax.mode == "rate":
             lines.append("  (2) lower bound: " + _bound_text(self.rate_bound))
+        elif w is None and not of_the_dkf(self.md.st):
+            lines.append(f"  (2) worst case:  not computed (it follows the anti-delay DKF's covariance, "
+                         f"not {self.md.st.estimate}'s)")
         elif w is None:
             lines.append("  (2) worst case:  not computed (unbounded latency without links.d_t)")
         else:

@@ -39,6 +39,7 @@ from dkfsim.experiments.maxdelay.search import (
     empirical_search,
     gallop_bisect,
     metric_value,
+    of_the_dkf,
     tracked_estimate,
     worst_case_scan,
 )
@@ -214,7 +215,7 @@ class MaxDelay:
             answers = sorted({min(2 ** m - 1, J) for m in range(0, int(math.log2(J + 1)) + 2)} | {J})
         det = st.metric in COVARIANCE_METRICS and latencies_deterministic(self.axis.base)
         det0 = self.candidate_scenario(0)[1]            # (zero delay: often deterministic)
-        worst = self.axis.worst_overrides(0) is not None and st.axis == "delay"
+        worst = self.axis.worst_overrides(0) is not None and st.axis == "delay" and of_the_dkf(st)
         out = []
         for jstar in answers:
             runs: dict[int, float] = {}
@@ -378,7 +379,8 @@ class MaxDelay:
     # ------------------------------------------------------------------ worst case
     def worst_value(self, ov: list, runner: Runner) -> float:
         """The covariance metric of ONE run with overrides ``ov`` (no seed: nothing random)."""
-        return runner.map([(self.axis.base, ov, None, self.st.metric, self.comp, self.burn, True)])[0]
+        return runner.map([(self.axis.base, ov, None, self.st.metric, self.comp, self.burn, True,
+                             self.st.estimate)])[0]
 
     def evaluate_worst(self, j: int, runner: Runner, tol: float, value: float | None = None):
         if j in self.wc:
@@ -408,7 +410,8 @@ class MaxDelay:
             runs_empirical = runner.runs
             # 2. deterministic worst case
             self.progress(label="worst case")
-            wc_data0 = self.axis.worst_overrides(0)
+            # (another estimator than the DKF's: no worst case, and the report says why)
+            wc_data0 = self.axis.worst_overrides(0) if of_the_dkf(st) else None
             wc = None
             wc_tol = None
             limit = None
@@ -423,7 +426,7 @@ class MaxDelay:
             elif isinstance(self.axis, RateAxis):
                 self.notes.append("worst case not computed: it is a latency notion; on the rate axis "
                                   "the lower bound from the packet sizes stands beside the empirical answer")
-            else:
+            elif of_the_dkf(st):
                 self.notes.append("worst case not computed: a latency (or jitter) model is unbounded "
                                   "and links.d_t is not set, so there is no largest latency")
             runs_total = runner.runs
@@ -437,6 +440,8 @@ class MaxDelay:
             self.progress(label="lower bound from the packet sizes")
             paper = {"error": "the paper's bound is on the delay, not the rate"}
             bound = rate_lower_bound(self.axis, tracked_estimate(st))
+        elif not of_the_dkf(st):
+            paper = {"error": f"the paper's bound is on the anti-delay DKF, not on {st.estimate}"}
         else:
             paper = self._paper_bound(wc_tol if wc_tol is not None else st.tolerance)
         wall = time.perf_counter() - t0
