@@ -466,3 +466,20 @@ def test_throughput_reports_runs_per_minute():
     out = bench.throughput(steps=20, jobs=1, runs=2)
     assert out["runs"] == 2 and out["steps"] == 20
     assert out["runs_per_minute"] > 0 and out["wall_s"] > 0
+
+
+def test_the_last_line_gives_the_whole_time_when_start_up_was_long(tmp_path, capsys, monkeypatch):
+    """The progress lines count from the command's start, the "computed in" from the first task:
+    with a long start-up (the sidelink sweep's trials and first compile: 34 s) the two disagreed
+    with no word on why. The last line now gives both, above a threshold (here 5 s, then -1)."""
+    from dkfsim.cli import sweep as cli_sweep
+    from dkfsim.cli.main import main
+    path = write_sweep(tmp_path, runs=1, steps=10)
+    assert main(["sweep", str(path), "--jobs", "1"]) == 0
+    out = capsys.readouterr().out
+    assert "computed in" in out and "in all" not in out
+    monkeypatch.setattr(cli_sweep, "STARTUP_SAID_ABOVE_S", -1.0)
+    path = write_sweep(tmp_path, name="t", runs=1, steps=10)
+    assert main(["sweep", str(path), "--jobs", "1"]) == 0
+    assert "in all, with the time estimate and start-up" in capsys.readouterr().out
+
