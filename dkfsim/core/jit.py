@@ -104,15 +104,28 @@ class _Compiling:
     lazy: list = []
 
 
-def cache_is_cold(dispatchers) -> bool:
-    """True when numba's disk cache holds no index for any of ``dispatchers`` (njit with
-    ``cache=True``): a module never compiled on this machine, whose first calls compile.  (One
-    kernel a short run never called has no index either: that alone is not a cold cache.  numba
-    keeps the index path on the dispatcher's cache; a numba without it says nothing: False.)"""
+def _index_paths(dispatchers) -> list[str]:
+    """Where numba's disk cache keeps the index of each of ``dispatchers`` (njit with
+    ``cache=True``); none from a numba that does not say."""
     found = [getattr(getattr(getattr(d, "_cache", None), "_cache_file", None), "_index_path", None)
              for d in dispatchers]
-    paths: list[str] = [p for p in found if isinstance(p, str)]
+    return [p for p in found if isinstance(p, str)]
+
+
+def cache_is_cold(dispatchers) -> bool:
+    """True when numba's disk cache holds no index for any of ``dispatchers``: a module never
+    compiled on this machine, whose first calls compile.  (One kernel a short run never called
+    has no index either: that alone is not a cold cache.  A numba that does not say where its
+    index is says nothing: False.)"""
+    paths = _index_paths(dispatchers)
     return bool(paths) and not any(os.path.exists(p) for p in paths)
+
+
+def uncached_share(dispatchers) -> float:
+    """The share of ``dispatchers`` numba's disk cache holds no index for: what a process calling
+    every one would still compile (0 from a numba that does not say)."""
+    paths = _index_paths(dispatchers)
+    return sum(not os.path.exists(p) for p in paths) / len(paths) if paths else 0.0
 
 
 def _listen_for_compiles(numba) -> None:
@@ -142,12 +155,12 @@ def say_compiling(numba) -> None:
     if _Compiling.said:
         return
     _Compiling.said = True
-    seconds = 0
-    for lazy in _Compiling.lazy:
-        if lazy.cold(numba):
-            seconds += COMPILE_SECONDS.get(lazy.module, 5)
+    # (each module's share of kernels not compiled yet: a short run compiles only those it calls,
+    # and a run of other estimators after it compiles the rest, which counting cold modules only
+    # left out: "about 8 s" before 36 s of compiling)
+    seconds = sum(COMPILE_SECONDS.get(lazy.module, 5) * lazy.uncached(numba) for lazy in _Compiling.lazy)
     try:
-        print(f"dkfsim: compiling dkfsim's kernels once (about {max(seconds, 1)} s of CPU; later runs "
+        print(f"dkfsim: compiling dkfsim's kernels once (about {max(round(seconds), 1)} s of CPU; later runs "
               "load them from numba's disk cache)", file=sys.stderr, flush=True)
     except (OSError, ValueError):
         pass
@@ -188,13 +201,23 @@ class LazyKernels:
                     self._done = True
         return sys.modules[self.module]
 
-    def cold(self, numba) -> bool:
-        """Whether numba's disk cache holds none of this module's kernels (:func:`cache_is_cold`;
-        False when the module is not imported): probes of them, made without compiling."""
+    def _probes(self, numba) -> list:
+        """This module's kernels as dispatchers (probes made without compiling; none when the
+        module is not imported)."""
         mod = sys.modules.get(self.module)
         funcs = [getattr(mod, name, None) for name in self.names if name not in self.inline] \
             if mod is not None else []
-        return cache_is_cold([f if hasattr(f, "py_func") else numba.njit(cache=True)(f) for f in funcs if callable(f)])
+        return [f if hasattr(f, "py_func") else numba.njit(cache=True)(f) for f in funcs if callable(f)]
+
+    def cold(self, numba) -> bool:
+        """Whether numba's disk cache holds none of this module's kernels (:func:`cache_is_cold`;
+        False when the module is not imported)."""
+        return cache_is_cold(self._probes(numba))
+
+    def uncached(self, numba) -> float:
+        """The share of this module's kernels numba's disk cache does not hold
+        (:func:`uncached_share`; 0 when the module is not imported)."""
+        return uncached_share(self._probes(numba))
 
 
 def kernels_cached(modules: tuple[str, ...]) -> bool:
