@@ -6,6 +6,7 @@ utilisation it predicts; clear errors for bad arguments."""
 from __future__ import annotations
 
 import json
+import re
 
 import pytest
 import yaml
@@ -120,6 +121,10 @@ def test_cli_prints_and_stores_the_answer_beside_the_bound(tmp_path):
                    "--max-rate", "1e4", "--min-rate", "100", "--rate-step", "4")
     assert p.returncode == 0, p.stderr
     assert "(1) empirical:   rate" in p.stdout and "(2) lower bound: rate >=" in p.stdout
+    # the reference is the unlimited rate (it read "zero delay"), and no worst case ran on this axis
+    assert "paired with the same runs at unlimited rate" in p.stdout and "zero delay" not in p.stdout + p.stderr
+    assert "paired excess over R x the same run at unlimited rate" in p.stderr
+    assert re.search(r"^  \d+ runs in [\d.]+ s$", p.stdout, re.M), p.stdout
     d = json.loads((out / "maxdelay.json").read_text())
     assert d["rate_lower_bound"]["link"] and d["empirical"]["candidates"][0]["delay"] == NO_LIMIT
     assert (out / "maxdelay.png").stat().st_size > 0

@@ -84,6 +84,17 @@ def expect(tmp_path, data, key, *reasons):
 
 
 # =========================================================================== valid input
+def test_the_keys_example_of_the_docs_validates(tmp_path):
+    """docs/scenarios.md's "The keys" block, pasted as a file, is a scenario (it named edges of
+    three nodes with one sensor: "node 1 is out of range")."""
+    import re
+    text = (Path(__file__).resolve().parents[1] / "docs" / "scenarios.md").read_text()
+    block = re.findall(r"```yaml\n(.*?)```", text, flags=re.S)[0]
+    (tmp_path / "keys.yaml").write_text(block)
+    sc = load_scenario(tmp_path / "keys.yaml")
+    assert sc.n == 3 and sc.mobility is not None and sc.links.overrides
+
+
 def test_base_loads_with_defaults():
     sc = load_scenario(base())
     assert sc.n == 4 and sc.nx == 3

@@ -87,6 +87,7 @@ class _Progress:
     def __init__(self, args):
         self.quiet = args.quiet
         self.paired = args.relative is not None
+        self.reference = "unlimited rate" if args.axis == "rate" else "zero delay"
         self.bar = progress_bar(args, None, "maxdelay")
 
     def __call__(self, runs: int = 0, label: str | None = None, done: Candidate | None = None):
@@ -98,20 +99,21 @@ class _Progress:
             if runs:
                 self.bar.update(runs)
             if done is not None:
-                self.bar.write(printable(_done_line(label, done, self.paired)), file=sys.stderr)
+                self.bar.write(printable(_done_line(label, done, self.paired, self.reference)), file=sys.stderr)
         elif done is not None:
-            say(_done_line(label, done, self.paired), file=sys.stderr, flush=True)
+            say(_done_line(label, done, self.paired, self.reference), file=sys.stderr, flush=True)
 
     def close(self):
         if self.bar is not None:
             self.bar.close()
 
 
-def _done_line(label, c: Candidate, paired: bool = False) -> str:
+def _done_line(label, c: Candidate, paired: bool = False, reference: str = "zero delay") -> str:
     """A decided candidate.  With a relative tolerance the decision is on the paired excess, run
-    by run over the same run at zero delay, not on the mean against ``R x`` the zero-delay mean:
-    a mean a little above that can still be *within* (the line says so)."""
-    excess = "paired excess over R x the same run at zero delay" if paired else "excess over tolerance"
+    by run over the same run at the ``reference`` (zero delay; on the rate axis, unlimited rate),
+    not on the mean against ``R x`` the reference's mean: a mean a little above that can still be
+    *within* (the line says so)."""
+    excess = f"paired excess over R x the same run at {reference}" if paired else "excess over tolerance"
     return (f"maxdelay: {label}: {c.runs} run{'s' * (c.runs != 1)}, mean {c.mean:.4g} "
             f"[{c.ci[0]:.4g}, {c.ci[1]:.4g}], {excess} {c.excess_mean:+.3g} "
             f"[{c.excess_ci[0]:+.3g}, {c.excess_ci[1]:+.3g}] -> {c.decision}"

@@ -190,7 +190,8 @@ class MaxDelayResult:
             how = "deterministic" if r["deterministic"] else f"{r['runs']} runs"
             lines.append(f"  {reference_name(ax)} value {r['mean']:.4g} [{r['ci'][0]:.4g}, {r['ci'][1]:.4g}] "
                          f"({how}) -> tolerance {r['tolerance']:.4g} (each candidate decided on its runs "
-                         "paired with the same runs at zero delay: a mean a little above this can be within)")
+                         f"paired with the same runs at {reference_name(ax).replace('-', ' ')}: a mean a little "
+                         "above this can be within)")
         e = d["empirical"]
         lines.append(f"  (1) empirical:   {_answer_text(e, unit, cap_option(ax), ax.mode)}  "
                      f"({self.runs_empirical} Monte Carlo runs)")
@@ -238,8 +239,9 @@ class MaxDelayResult:
                 lines.append(f"        {p['note']}")
         for n in d["notes"]:
             lines.append(f"  note: {n}")
-        lines.append(f"  {self.runs_total} runs in {self.wall:.1f} s: {self.runs_empirical} Monte Carlo "
-                     f"(1), {self.runs_total - self.runs_empirical} deterministic for the worst case (2)")
+        worst = self.runs_total - self.runs_empirical       # (none on the rate axis, or for another estimator)
+        lines.append(f"  {self.runs_total} runs in {self.wall:.1f} s" + (
+            f": {self.runs_empirical} Monte Carlo (1), {worst} deterministic for the worst case (2)" if worst else ""))
         return "\n".join(lines)
 
 
