@@ -9,6 +9,7 @@ from dkfsim.cli.work import executor_from_args, load_from_args, progress_bar
 from dkfsim.core.files import printable
 from dkfsim.core.folders import check_target
 from dkfsim.experiments.maxdelay import METRICS, Candidate, MaxDelay, Settings
+from dkfsim.experiments.maxdelay.report import REFERENCE
 from dkfsim.report.maxdelay import save_maxdelay
 
 
@@ -87,7 +88,7 @@ class _Progress:
     def __init__(self, args):
         self.quiet = args.quiet
         self.paired = args.relative is not None
-        self.reference = "unlimited rate" if args.axis == "rate" else "zero delay"
+        self.reference = REFERENCE[args.axis]
         self.bar = progress_bar(args, None, "maxdelay")
 
     def __call__(self, runs: int = 0, label: str | None = None, done: Candidate | None = None):

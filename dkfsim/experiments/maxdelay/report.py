@@ -46,9 +46,18 @@ def axis_unit(ax) -> str:
     return {"d_t": "d_t", "rate": "rate"}.get(ax.mode, "s")
 
 
+#: Candidate 0 of each axis (``--axis``): the reference of a relative tolerance.
+REFERENCE = {"delay": "zero delay", "rate": "unlimited rate"}
+
+
+def reference_words(ax) -> str:
+    """Candidate 0 of ``ax`` ("paired with the same runs at zero delay")."""
+    return REFERENCE["rate" if ax.mode == "rate" else "delay"]
+
+
 def reference_name(ax) -> str:
-    """Candidate 0 (the reference of a relative tolerance)."""
-    return "unlimited-rate" if ax.mode == "rate" else "zero-delay"
+    """Candidate 0 of ``ax`` as an adjective ("zero-delay value")."""
+    return reference_words(ax).replace(" ", "-")
 
 
 def metric_label(metric: str, comp_name, sc) -> str:
@@ -190,7 +199,7 @@ class MaxDelayResult:
             how = "deterministic" if r["deterministic"] else f"{r['runs']} runs"
             lines.append(f"  {reference_name(ax)} value {r['mean']:.4g} [{r['ci'][0]:.4g}, {r['ci'][1]:.4g}] "
                          f"({how}) -> tolerance {r['tolerance']:.4g} (each candidate decided on its runs "
-                         f"paired with the same runs at {reference_name(ax).replace('-', ' ')}: a mean a little "
+                         f"paired with the same runs at {reference_words(ax)}: a mean a little "
                          "above this can be within)")
         e = d["empirical"]
         lines.append(f"  (1) empirical:   {_answer_text(e, unit, cap_option(ax), ax.mode)}  "
