@@ -220,9 +220,12 @@ def check_memory(est: Cost, *, hint: str = "") -> None:
             f"the {human_bytes(room)} this machine can give it" + (f"; {hint}" if hint else ""))
 
 
-def check(est: Cost, *, yes: bool = False, hint: str = "", yes_flag: str = "--yes") -> None:
-    """Refuse ``est`` if it cannot fit; ask for ``yes`` if it takes long (see the module docstring)."""
-    check_memory(est, hint=hint)
+def check(est: Cost, *, yes: bool = False, hint: str = "", yes_flag: str = "--yes",
+          memory_hint: str | None = None) -> None:
+    """Refuse ``est`` if it cannot fit; ask for ``yes`` if it takes long (see the module docstring).
+    ``hint`` says what shortens it, ``memory_hint`` (default: ``hint``) what shrinks it: for many
+    runs not the same (fewer runs or more workers take less time, not less memory)."""
+    check_memory(est, hint=hint if memory_hint is None else memory_hint)
     if est.wall_seconds > TIME_LIMIT_S and not yes:
         par = f" on {est.workers} workers" if est.workers > 1 else ""
         basis = f"{est.events_text()}; " if est.events else "a rough estimate, within a factor of a few; "
@@ -232,6 +235,14 @@ def check(est: Cost, *, yes: bool = False, hint: str = "", yes_flag: str = "--ye
 
 
 # =========================================================================== many runs
+def many_runs_memory_hint(workers: int, smaller: str, flags: bool = True) -> str:
+    """What shrinks the memory of many runs on ``workers`` processes: fewer workers (each holds
+    one run at a time; ``--jobs``, or ``jobs`` when not ``flags``), or ``smaller`` runs."""
+    if workers <= 1:
+        return smaller
+    return f"fewer {'--jobs' if flags else 'jobs'} (each of the {workers} workers holds one run), or {smaller}"
+
+
 def repeat(est: Cost, what: str, count: float, workers: int, extra_bytes: float = 0.0,
            extra_seconds: float = 0.0) -> Cost:
     """``count`` runs like ``est`` on ``workers`` processes (each holding one run at a time)."""

@@ -32,6 +32,14 @@ TRIAL_ABOVE_S = 30.0
 #: The refusal's hint of ``dkfsim run`` (every option it names applies to the command).
 RUN_HINT = ("fewer steps (--steps), nodes or medium.bystanders, a shorter buffer_length, fusion: none, less "
             "background load, or --save estimates (no n x n x K arrival log)")
+
+
+def smaller_run_hint(steps: str = "--steps") -> str:
+    """What makes each run of many smaller (a memory refusal's hint: ``steps`` names how the
+    command sets the ticks)."""
+    return f"a smaller run (fewer {steps}, nodes or medium.bystanders, a shorter buffer_length, fusion: none)"
+
+
 #: The refusal's hint of ``dkfsim validate`` (which takes only the scenario's keys).
 VALIDATE_HINT = ("fewer steps, nodes or medium.bystanders, a shorter buffer_length, fusion: none, or less "
                  "background load (dkfsim run --save estimates keeps no n x n x K arrival log)")

@@ -61,10 +61,11 @@ from dkfsim.config.schema import Scenario, named
 from dkfsim.core.errors import DkfsimError
 from dkfsim.core.folders import staged, write_json
 from dkfsim.core.progress import progress_callback
-from dkfsim.core.resources import Cost, check, repeat
+from dkfsim.core.resources import Cost, check, many_runs_memory_hint, repeat
 from dkfsim.core.text import aligned
 from dkfsim.core.threads import single_thread
 from dkfsim.engine.driver import Run, measured_estimate
+from dkfsim.engine.estimate import smaller_run_hint
 from dkfsim.engine.results import versions, write_rows
 from dkfsim.experiments import executors
 from dkfsim.model.system import build_system
@@ -413,7 +414,9 @@ def check_montecarlo(sc, runs: int, jobs: int, *, yes: bool = False, hint: str =
     """Refuse a Monte Carlo that cannot fit, ask for ``yes`` above 10 minutes; ``hint`` and
     ``yes_flag`` say what the caller can change (its flags or its keywords)."""
     est = estimate_montecarlo(sc, runs, jobs)
-    check(est, yes=yes, yes_flag=yes_flag, hint=hint)
+    flags = yes_flag.startswith("--")
+    check(est, yes=yes, yes_flag=yes_flag, hint=hint, memory_hint=many_runs_memory_hint(
+        est.workers, smaller_run_hint("--steps" if flags else "steps"), flags))
     return est
 
 

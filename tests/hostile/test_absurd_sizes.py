@@ -85,6 +85,24 @@ def radio(tmp_path):
     return path
 
 
+def test_many_runs_that_cannot_fit_say_what_shrinks_them(radio, tmp_path):
+    """A Monte Carlo, a sweep or maxdelay whose runs cannot fit is refused with what shrinks its
+    memory -- fewer workers, each holding one run, or a smaller run -- not with what shortens its
+    time: "fewer --runs" and "more --jobs" would leave it as large or make it larger."""
+    sweep = tmp_path / "s.yaml"
+    sweep.write_text(f"scenario: {radio}\nruns: 2\nset: {MANY[1::2]!r}\noutput: {tmp_path / 's.sqlite'}\n")
+    for command in (("montecarlo", radio, "--runs", 4, "--out", tmp_path / "mc", *MANY),
+                    ("maxdelay", radio, "--relative", 1.5, "--out", tmp_path / "md", *MANY),
+                    ("sweep", sweep)):
+        err = dkfsim_cli(*command, "--jobs", 2, preexec=at_most(16)).clean_error(
+            "needs about 138 GiB of memory", "fewer --jobs (each of the 2 workers holds one run)",
+            "medium.bystanders")
+        assert "fewer --runs" not in err and "more --jobs" not in err, err
+    with pytest.raises(ResourceError, match=r"fewer jobs \(each of the 2 workers") as info:
+        dkfsim.montecarlo(radio, runs=4, jobs=2, overrides=MANY[1::2])
+    assert "--" not in str(info.value).split("give it")[1]
+
+
 def test_bystanders_over_many_ticks_are_refused_by_validate_and_run(radio, tmp_path):
     """10 000 bystanders over 100 000 ticks: their positions alone are about 69 GiB (17 bytes a
     vehicle and tick in the plan, 41 in the channel, 16 in its busy ratio series), refused by

@@ -17,10 +17,10 @@ from dkfsim.analysis.metrics import default_burn_in
 from dkfsim.config.plan import RunPlan
 from dkfsim.config.schema import named
 from dkfsim.core.errors import DkfsimError
-from dkfsim.core.resources import EVENT_KINDS, Cost, check
+from dkfsim.core.resources import EVENT_KINDS, Cost, check, many_runs_memory_hint
 from dkfsim.core.threads import single_thread
 from dkfsim.engine.driver import trial, trial_estimate
-from dkfsim.engine.estimate import TRIAL_ABOVE_S, estimate_run, trial_is_short
+from dkfsim.engine.estimate import TRIAL_ABOVE_S, estimate_run, smaller_run_hint, trial_is_short
 from dkfsim.experiments import executors
 from dkfsim.experiments.maxdelay.axis import DelayAxis, latencies_deterministic, make_axis
 from dkfsim.experiments.maxdelay.rate import RateAxis, make_rate_axis, parse_link, rate_lower_bound
@@ -167,7 +167,10 @@ class MaxDelay:
         self.wc: dict[int, Candidate] = {}
         self._order = 0
         self._scen_cache: dict[int, tuple] = {}
-        check(self.estimate(), yes=yes, yes_flag=yes_flag, hint=self.hint(flags=yes_flag.startswith("--")))
+        flags = yes_flag.startswith("--")
+        check(self.estimate(), yes=yes, yes_flag=yes_flag, hint=self.hint(flags=flags),
+              memory_hint=many_runs_memory_hint(self.workers, smaller_run_hint("--steps" if flags else "steps"),
+                                                flags))
 
     def hint(self, flags: bool = True) -> str:
         """What a refusal suggests: only the settings that shorten this search (its axis: the

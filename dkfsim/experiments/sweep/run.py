@@ -24,10 +24,10 @@ from dkfsim.config.load import load_scenario
 from dkfsim.config.plan import RunPlan
 from dkfsim.core.errors import DkfsimError
 from dkfsim.core.files import printable
-from dkfsim.core.resources import EVENT_KINDS, Cost, check
+from dkfsim.core.resources import EVENT_KINDS, Cost, check, many_runs_memory_hint
 from dkfsim.core.threads import single_thread
 from dkfsim.engine.driver import measured_estimate
-from dkfsim.engine.estimate import TRIAL_ABOVE_S, estimate_run
+from dkfsim.engine.estimate import TRIAL_ABOVE_S, estimate_run, smaller_run_hint
 from dkfsim.experiments import executors
 from dkfsim.experiments.montecarlo import derive_seed, run_scored
 from dkfsim.experiments.sweep.definition import ParameterSet, Sweep, load_sweep
@@ -152,7 +152,9 @@ def run_sweep(sweep: Sweep | str | os.PathLike, *, seed: int | None = None, step
         workers = executor.workers if isinstance(executor, executors.Executor) else \
             (jobs or executors.available_cpus())
     # Estimated before the database is created or changed: a refusal leaves no trace.
-    check(estimate_tasks(sweep, tasks_done(path, sweep), workers), yes=yes, hint=hint, yes_flag=yes_flag)
+    est = estimate_tasks(sweep, tasks_done(path, sweep), workers)
+    check(est, yes=yes, hint=hint, yes_flag=yes_flag, memory_hint=many_runs_memory_hint(
+        est.workers, smaller_run_hint("steps in the sweep file"), yes_flag.startswith("--")))
     with SweepDB(path, sweep) as store:
         done, missing = store.done(), missing_estimates(store, sweep)
         # Runs not done yet (every estimate), then estimators added to runs done before.
