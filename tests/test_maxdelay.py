@@ -209,6 +209,7 @@ def test_the_worst_case_and_the_bound_follow_the_estimate_searched():
     assert (local.wc_tol, local.limit) == (twin.wc_tol, twin.limit)
     assert [c.values for c in local.wc.candidates.values()] == [c.values for c in twin.wc.candidates.values()]
     assert local.limit != fused.limit
+    assert local.to_dict()["worst_case"]["metric"].endswith("of the node estimates, mean over nodes")
     other = search({**data, "estimators": [{"kind": "local_only"}]}, metric="mse", estimate="local_only", **kw)
     assert other.wc is None and other.runs_total == other.runs_empirical
     assert "local_only" in other.paper["error"]

@@ -235,12 +235,15 @@ def check(est: Cost, *, yes: bool = False, hint: str = "", yes_flag: str = "--ye
 
 
 # =========================================================================== many runs
-def many_runs_memory_hint(workers: int, smaller: str, flags: bool = True) -> str:
-    """What shrinks the memory of many runs on ``workers`` processes: fewer workers (each holds
-    one run at a time; ``--jobs``, or ``jobs`` when not ``flags``), or ``smaller`` runs."""
-    if workers <= 1:
-        return smaller
-    return f"fewer {'--jobs' if flags else 'jobs'} (each of the {workers} workers holds one run), or {smaller}"
+def many_runs_memory_hint(workers: int, smaller: str, first: str = "") -> str:
+    """What shrinks the memory of many runs on ``workers`` processes: ``first`` (what the command
+    keeps of every run or candidate), fewer workers (each holds one run at a time; named without
+    a flag: they come from ``--jobs``, ``--dask-local``, a scheduler or a given executor), or
+    ``smaller`` runs.  Never "more workers", which shortens the time and adds memory."""
+    parts = [first] if first else []
+    if workers > 1:
+        parts.append(f"fewer workers (each of the {workers} holds one run)")
+    return ", ".join(parts + [f"or {smaller}"]) if parts else smaller
 
 
 def repeat(est: Cost, what: str, count: float, workers: int, extra_bytes: float = 0.0,

@@ -416,7 +416,8 @@ def check_montecarlo(sc, runs: int, jobs: int, *, yes: bool = False, hint: str =
     est = estimate_montecarlo(sc, runs, jobs)
     flags = yes_flag.startswith("--")
     check(est, yes=yes, yes_flag=yes_flag, hint=hint, memory_hint=many_runs_memory_hint(
-        est.workers, smaller_run_hint("--steps" if flags else "steps"), flags))
+        est.workers, smaller_run_hint("--steps" if flags else "steps"),
+        first="fewer --runs (their rows are kept)" if flags else "fewer runs (their rows are kept)"))
     return est
 
 

@@ -95,10 +95,16 @@ def test_many_runs_that_cannot_fit_say_what_shrinks_them(radio, tmp_path):
                     ("maxdelay", radio, "--relative", 1.5, "--out", tmp_path / "md", *MANY),
                     ("sweep", sweep)):
         err = dkfsim_cli(*command, "--jobs", 2, preexec=at_most(16)).clean_error(
-            "needs about 138 GiB of memory", "fewer --jobs (each of the 2 workers holds one run)",
+            "needs about 138 GiB of memory", "fewer workers (each of the 2 holds one run)",
             "medium.bystanders")
-        assert "fewer --runs" not in err and "more --jobs" not in err, err
-    with pytest.raises(ResourceError, match=r"fewer jobs \(each of the 2 workers") as info:
+        assert "more --jobs" not in err, err
+    # what the search keeps of each candidate shrinks with its axis; a Monte Carlo's rows with its runs
+    dkfsim_cli("maxdelay", radio, "--relative", 1.5, "--scale-step", 1e-9, "--out", tmp_path / "md2",
+               preexec=at_most(16)).clean_error("candidates", "a larger --scale-step, a smaller --max-scale")
+    err = dkfsim_cli("montecarlo", radio, "--runs", 10**8, "--jobs", 1, "--out", tmp_path / "mc2",
+                     preexec=at_most(16)).clean_error("results kept", "fewer --runs (their rows are kept)")
+    assert "fewer workers" not in err, err                    # (one worker: nothing to take away)
+    with pytest.raises(ResourceError, match=r"fewer runs \(their rows are kept\), fewer workers") as info:
         dkfsim.montecarlo(radio, runs=4, jobs=2, overrides=MANY[1::2])
     assert "--" not in str(info.value).split("give it")[1]
 

@@ -15,7 +15,14 @@ from dkfsim.config.dynamics import CA_UNITS
 from dkfsim.config.load import scenario_hash
 from dkfsim.core.folders import staged, write_json
 from dkfsim.engine.results import versions
-from dkfsim.experiments.maxdelay.search import METRICS, SearchResult, interval, json_number, of_the_dkf
+from dkfsim.experiments.maxdelay.search import (
+    METRICS,
+    SearchResult,
+    interval,
+    json_number,
+    of_the_dkf,
+    tracked_estimate,
+)
 
 
 def pow10_text(x) -> str:
@@ -142,7 +149,7 @@ class MaxDelayResult:
                 "metric": "covariance counterpart: " + ("trace(P)" if st.metric == "trace_P" or
                                                          md.comp is None else
                                                          f"P[{md.comp_name}]") +
-                          (" of the node estimates, mean over nodes" if st.metric == "local_mse" else
+                          (" of the node estimates, mean over nodes" if tracked_estimate(st) == "local" else
                            " of the fused estimate"),
                 "tolerance": self.wc_tol,
                 "no_exchange_limit": self.limit,

@@ -170,7 +170,7 @@ class MaxDelay:
         flags = yes_flag.startswith("--")
         check(self.estimate(), yes=yes, yes_flag=yes_flag, hint=self.hint(flags=flags),
               memory_hint=many_runs_memory_hint(self.workers, smaller_run_hint("--steps" if flags else "steps"),
-                                                flags))
+                                                first=self.axis_hint(flags)))
 
     def hint(self, flags: bool = True) -> str:
         """What a refusal suggests: only the settings that shorten this search (its axis: the
@@ -178,15 +178,20 @@ class MaxDelay:
         for a scaled one, the rate's own), as flags or as keywords."""
         def name(flag: str) -> str:
             return flag if flags else flag[2:].replace("-", "_")
-        if self.st.axis == "rate":
-            axis = [f"a larger {name('--rate-step')}", f"a narrower {name('--max-rate')}/{name('--min-rate')}"]
-        elif getattr(self.axis, "mode", None) == "d_t":
-            axis = [f"a smaller {name('--max-delay')}"]
-        else:
-            axis = [f"a larger {name('--scale-step')}", f"a smaller {name('--max-scale')}"]
         more = [f"more {name('--jobs')}"] if self.workers < executors.available_cpus() else []
-        return ", ".join(axis + [f"a smaller {name('--batch')} or {name('--max-runs')}",
-                                 f"fewer {name('--steps')}"] + more)
+        return ", ".join([self.axis_hint(flags), f"a smaller {name('--batch')} or {name('--max-runs')}",
+                          f"fewer {name('--steps')}"] + more)
+
+    def axis_hint(self, flags: bool = True) -> str:
+        """The settings that shorten this search's axis (fewer candidates: less time, and less
+        memory for what the search keeps of each)."""
+        def name(flag: str) -> str:
+            return flag if flags else flag[2:].replace("-", "_")
+        if self.st.axis == "rate":
+            return f"a larger {name('--rate-step')}, a narrower {name('--max-rate')}/{name('--min-rate')}"
+        if getattr(self.axis, "mode", None) == "d_t":
+            return f"a smaller {name('--max-delay')}"
+        return f"a larger {name('--scale-step')}, a smaller {name('--max-scale')}"
 
     def visits(self, jstar: int) -> list[int]:
         """The candidates the empirical search visits, in order, when every candidate up to

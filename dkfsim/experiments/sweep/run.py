@@ -154,7 +154,7 @@ def run_sweep(sweep: Sweep | str | os.PathLike, *, seed: int | None = None, step
     # Estimated before the database is created or changed: a refusal leaves no trace.
     est = estimate_tasks(sweep, tasks_done(path, sweep), workers)
     check(est, yes=yes, hint=hint, yes_flag=yes_flag, memory_hint=many_runs_memory_hint(
-        est.workers, smaller_run_hint("steps in the sweep file"), yes_flag.startswith("--")))
+        est.workers, smaller_run_hint("steps in the sweep file")))
     with SweepDB(path, sweep) as store:
         done, missing = store.done(), missing_estimates(store, sweep)
         # Runs not done yet (every estimate), then estimators added to runs done before.
