@@ -29,20 +29,20 @@ from dkfsim.network.radio_kernels import WINDOW_SF
 
 #: Above this many seconds of the analytic guess, a command measures its events on a trial.
 TRIAL_ABOVE_S = 30.0
+#: The scenario keys that make one run smaller, besides its steps (every refusal's hint names them).
+SMALLER_RUN = "nodes or medium.bystanders, a shorter buffer_length, fusion: none"
 #: The refusal's hint of ``dkfsim run`` (every option it names applies to the command).
-RUN_HINT = ("fewer steps (--steps), nodes or medium.bystanders, a shorter buffer_length, fusion: none, less "
-            "background load, or --save estimates (no n x n x K arrival log)")
+RUN_HINT = (f"fewer steps (--steps), {SMALLER_RUN}, less background load, or --save estimates "
+            "(no n x n x K arrival log)")
+#: The refusal's hint of ``dkfsim validate`` (which takes only the scenario's keys).
+VALIDATE_HINT = (f"fewer steps, {SMALLER_RUN}, or less background load (dkfsim run --save estimates keeps "
+                 "no n x n x K arrival log)")
 
 
 def smaller_run_hint(steps: str = "--steps") -> str:
     """What makes each run of many smaller (a memory refusal's hint: ``steps`` names how the
     command sets the ticks)."""
-    return f"a smaller run (fewer {steps}, nodes or medium.bystanders, a shorter buffer_length, fusion: none)"
-
-
-#: The refusal's hint of ``dkfsim validate`` (which takes only the scenario's keys).
-VALIDATE_HINT = ("fewer steps, nodes or medium.bystanders, a shorter buffer_length, fusion: none, or less "
-                 "background load (dkfsim run --save estimates keeps no n x n x K arrival log)")
+    return f"a smaller run (fewer {steps}, {SMALLER_RUN})"
 
 
 #: Bytes a spatial radio (``medium.radio``) keeps per tick and vehicle on it: the plan's places of

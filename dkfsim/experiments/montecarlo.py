@@ -414,10 +414,9 @@ def check_montecarlo(sc, runs: int, jobs: int, *, yes: bool = False, hint: str =
     """Refuse a Monte Carlo that cannot fit, ask for ``yes`` above 10 minutes; ``hint`` and
     ``yes_flag`` say what the caller can change (its flags or its keywords)."""
     est = estimate_montecarlo(sc, runs, jobs)
-    flags = yes_flag.startswith("--")
+    dashes = "--" if yes_flag.startswith("--") else ""          # (flags, or the API's keywords)
     check(est, yes=yes, yes_flag=yes_flag, hint=hint, memory_hint=many_runs_memory_hint(
-        est.workers, smaller_run_hint("--steps" if flags else "steps"),
-        first="fewer --runs (their rows are kept)" if flags else "fewer runs (their rows are kept)"))
+        est.workers, smaller_run_hint(f"{dashes}steps"), first=f"fewer {dashes}runs (their rows are kept)"))
     return est
 
 

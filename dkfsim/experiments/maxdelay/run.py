@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import math
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 from dkfsim.analysis.bounds import paper_bound_for_scenario
@@ -123,6 +123,12 @@ def resolve_component(scenario, metric: str, text) -> tuple[int | None, str]:
                       f"an index 0..{len(names) - 1}, or all")
 
 
+def _option_name(flags: bool) -> Callable[[str], str]:
+    """How a hint names an option: as the command line's flag (``--max-delay``), or as the Python
+    API's keyword (``max_delay``) when not ``flags``."""
+    return lambda flag: flag if flags else flag[2:].replace("-", "_")
+
+
 class MaxDelay:
     """Runs the three answers for one scenario (see the module docstring)."""
 
@@ -169,15 +175,14 @@ class MaxDelay:
         self._scen_cache: dict[int, tuple] = {}
         flags = yes_flag.startswith("--")
         check(self.estimate(), yes=yes, yes_flag=yes_flag, hint=self.hint(flags=flags),
-              memory_hint=many_runs_memory_hint(self.workers, smaller_run_hint("--steps" if flags else "steps"),
+              memory_hint=many_runs_memory_hint(self.workers, smaller_run_hint(_option_name(flags)("--steps")),
                                                 first=self.axis_hint(flags)))
 
     def hint(self, flags: bool = True) -> str:
         """What a refusal suggests: only the settings that shorten this search (its axis: the
         delay's ``--max-delay`` for a ``uniform_steps`` model, ``--scale-step`` and ``--max-scale``
         for a scaled one, the rate's own), as flags or as keywords."""
-        def name(flag: str) -> str:
-            return flag if flags else flag[2:].replace("-", "_")
+        name = _option_name(flags)
         more = [f"more {name('--jobs')}"] if self.workers < executors.available_cpus() else []
         return ", ".join([self.axis_hint(flags), f"a smaller {name('--batch')} or {name('--max-runs')}",
                           f"fewer {name('--steps')}"] + more)
@@ -185,8 +190,7 @@ class MaxDelay:
     def axis_hint(self, flags: bool = True) -> str:
         """The settings that shorten this search's axis (fewer candidates: less time, and less
         memory for what the search keeps of each)."""
-        def name(flag: str) -> str:
-            return flag if flags else flag[2:].replace("-", "_")
+        name = _option_name(flags)
         if self.st.axis == "rate":
             return f"a larger {name('--rate-step')}, a narrower {name('--max-rate')}/{name('--min-rate')}"
         if getattr(self.axis, "mode", None) == "d_t":
